@@ -1,0 +1,352 @@
+"""Kernel generation: Mako templates specialised by parameters, built and cached.
+
+A `KernelTemplate` names a template file under ``rbgen/templates/`` and declares
+its parameters (each with the values it allows and why it exists). Calling
+``template.spec(**values)`` validates them and returns a `KernelSpec`: a pure,
+hashable description whose rendered source is always the same text.
+
+`build` turns a spec into a `cl.Program` once per (source, device, options):
+programs are cached in memory and their binaries on disk (``RBGEN_CACHE_DIR``,
+default ``~/.cache/rbgen``), so a second process starts without compiling. A
+build error raises `KernelBuildError` with the spec, the compiler log and the
+offending generated lines, numbered.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+import re
+import threading
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping
+
+import pyopencl as cl
+from mako.lookup import TemplateLookup
+
+from . import layouts
+from .device import Runtime
+from .errors import KernelBuildError, TemplateParameterError
+
+TEMPLATE_DIR = Path(__file__).parent / "templates"
+ENV_CACHE_DIR = "RBGEN_CACHE_DIR"
+
+
+def cache_dir() -> Path:
+    """Root of rbgen's on-disk caches (programs, tuning)."""
+    root = os.environ.get(ENV_CACHE_DIR)
+    if root:
+        return Path(root)
+    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "rbgen"
+
+
+# --------------------------------------------------------------------------
+# Templates and specs
+
+@dataclasses.dataclass(frozen=True)
+class Param:
+    """One specialisation parameter of a template.
+
+    ``allowed`` is a tuple of permitted values, or a predicate with
+    ``allowed_text`` describing it (e.g. "a power of two <= 1024").
+    """
+
+    name: str
+    allowed: tuple | Callable[[Any], bool]
+    doc: str
+    allowed_text: str = ""
+
+    def check(self, value: Any, where: str) -> None:
+        if callable(self.allowed):
+            ok = self.allowed(value)
+            text = self.allowed_text or "the allowed set"
+        else:
+            ok = value in self.allowed and type(value) in {type(a) for a in self.allowed}
+            text = f"one of {list(self.allowed)}"
+        if not ok:
+            raise TemplateParameterError(
+                f"{where}: parameter {self.name}={value!r} is not allowed; expected {text}")
+
+
+def power_of_two(lo: int = 1, hi: int = 1 << 16) -> Callable[[Any], bool]:
+    return lambda v: isinstance(v, int) and lo <= v <= hi and (v & (v - 1)) == 0
+
+
+class KernelTemplate:
+    """A template file plus the parameters that specialise it."""
+
+    def __init__(self, path: str, params: Iterable[Param], doc: str = "",
+                 roles: Mapping[str, str] | None = None):
+        self.path = path
+        self.params = {p.name: p for p in params}
+        self.doc = doc
+        #: argument roles that cannot be read off the signature ("inout"...)
+        self.roles = dict(roles or {})
+        if not (TEMPLATE_DIR / path).is_file():
+            raise TemplateParameterError(f"template {path!r} not found under {TEMPLATE_DIR}")
+
+    def spec(self, **values: Any) -> "KernelSpec":
+        where = f"template {self.path}"
+        unknown = sorted(set(values) - set(self.params))
+        if unknown:
+            raise TemplateParameterError(
+                f"{where}: unknown parameter(s) {unknown}; declared: {sorted(self.params)}")
+        missing = sorted(set(self.params) - set(values))
+        if missing:
+            raise TemplateParameterError(f"{where}: missing parameter(s) {missing}")
+        for name, value in values.items():
+            self.params[name].check(value, where)
+        return KernelSpec(self.path, tuple(sorted(values.items())), self)
+
+    def source_hash(self) -> str:
+        """Hash of this template and the shared templates it may include."""
+        return template_source_hash(self.path)
+
+    def __repr__(self) -> str:
+        return f"KernelTemplate({self.path!r}, params={sorted(self.params)})"
+
+
+@dataclasses.dataclass(frozen=True)
+class KernelSpec:
+    """A template path and its validated parameters: pure, hashable."""
+
+    path: str
+    params: tuple[tuple[str, Any], ...]
+    template: KernelTemplate | None = dataclasses.field(default=None, compare=False, repr=False)
+
+    @property
+    def values(self) -> dict[str, Any]:
+        return dict(self.params)
+
+    @property
+    def source(self) -> str:
+        return render(self.path, self.params)
+
+    @property
+    def source_hash(self) -> str:
+        return hashlib.sha256(self.source.encode()).hexdigest()
+
+    def __str__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self.params)
+        return f"{self.path}({args})"
+
+
+@lru_cache(maxsize=1)
+def _lookup() -> TemplateLookup:
+    return TemplateLookup(directories=[str(TEMPLATE_DIR)], strict_undefined=True,
+                          input_encoding="utf-8")
+
+
+def _render_globals() -> dict[str, Any]:
+    """Names every template may use besides its own parameters."""
+    return {
+        "cl_structs": layouts.cl_structs,
+        "cl_constants": layouts.cl_constants,
+    }
+
+
+@lru_cache(maxsize=512)
+def render(path: str, params: tuple[tuple[str, Any], ...]) -> str:
+    """Render a template with parameters; pure and cached."""
+    template = _lookup().get_template(path)
+    text = template.render(**_render_globals(), **dict(params))
+    return _tidy(text)
+
+
+def _tidy(text: str) -> str:
+    """Collapse the blank-line runs that template control flow leaves behind."""
+    text = re.sub(r"[ \t]+\n", "\n", text)
+    text = re.sub(r"\n{3,}", "\n\n", text)
+    return text.strip() + "\n"
+
+
+def template_source_hash(path: str) -> str:
+    h = hashlib.sha256()
+    h.update((TEMPLATE_DIR / path).read_bytes())
+    for common in sorted((TEMPLATE_DIR / "common").glob("*.mako")):
+        h.update(common.read_bytes())
+    h.update(layouts.c_header().encode())
+    return h.hexdigest()[:16]
+
+
+# --------------------------------------------------------------------------
+# Building and caching programs
+
+class ProgramCache:
+    """Built programs by (source hash, device fingerprint, options).
+
+    Memory first, then binaries on disk. A corrupt or stale binary is ignored
+    and rebuilt from source. ``stats`` counts hits for tests and reports.
+    """
+
+    def __init__(self, directory: Path | None = None):
+        self._directory = directory
+        self._memory: dict[tuple, cl.Program] = {}
+        self._lock = threading.Lock()
+        self.stats = {"memory_hits": 0, "disk_hits": 0, "builds": 0}
+
+    @property
+    def directory(self) -> Path:
+        return self._directory or (cache_dir() / "programs")
+
+    def key(self, runtime: Runtime, source: str, options: tuple[str, ...]) -> str:
+        text = "\0".join([source, runtime.traits.fingerprint, *options])
+        return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+    def build(self, runtime: Runtime, source: str, options: tuple[str, ...] = (),
+              spec: KernelSpec | None = None) -> cl.Program:
+        key = self.key(runtime, source, options)
+        mem_key = (key, id(runtime.context))
+        with self._lock:
+            program = self._memory.get(mem_key)
+            if program is not None:
+                self.stats["memory_hits"] += 1
+                return program
+        program = self._from_disk(runtime, key, options)
+        if program is not None:
+            self.stats["disk_hits"] += 1
+        else:
+            program = self._from_source(runtime, source, options, spec)
+            self.stats["builds"] += 1
+            self._to_disk(program, key)
+        with self._lock:
+            self._memory[mem_key] = program
+        return program
+
+    def _from_disk(self, runtime: Runtime, key: str, options) -> cl.Program | None:
+        path = self.directory / f"{key}.bin"
+        if not path.is_file():
+            return None
+        try:
+            binary = path.read_bytes()
+            program = cl.Program(runtime.context, [runtime.device], [binary])
+            program.build(options=list(options))
+            return program
+        except (cl.Error, OSError):
+            return None
+
+    def _to_disk(self, program: cl.Program, key: str) -> None:
+        try:
+            binary = program.get_info(cl.program_info.BINARIES)[0]
+            if not binary:
+                return
+            self.directory.mkdir(parents=True, exist_ok=True)
+            tmp = self.directory / f"{key}.{os.getpid()}.tmp"
+            tmp.write_bytes(binary)
+            os.replace(tmp, self.directory / f"{key}.bin")
+        except (cl.Error, OSError):
+            pass  # a cache that cannot be written only costs a rebuild
+
+    @staticmethod
+    def _from_source(runtime, source, options, spec) -> cl.Program:
+        program = cl.Program(runtime.context, source)
+        try:
+            program.build(options=list(options), cache_dir=False)
+        except cl.RuntimeError as err:
+            log = _build_log(program, runtime) or str(err)
+            raise KernelBuildError(_format_build_error(source, log, spec, options)) from None
+        return program
+
+
+def _build_log(program: cl.Program, runtime: Runtime) -> str:
+    try:
+        return program.get_build_info(runtime.device, cl.program_build_info.LOG)
+    except cl.Error:
+        return ""
+
+
+def _format_build_error(source: str, log: str, spec, options) -> str:
+    lines = source.splitlines()
+    bad = sorted({int(m.group(1)) for line in log.splitlines() if "error" in line
+                  for m in [re.search(r":(\d+):\d+:", line)] if m})
+    shown = []
+    for n in bad[:8]:
+        lo, hi = max(1, n - 2), min(len(lines), n + 2)
+        for i in range(lo, hi + 1):
+            mark = ">>" if i == n else "  "
+            shown.append(f"{mark}{i:5d} | {lines[i - 1]}")
+        shown.append("   ...")
+    what = str(spec) if spec is not None else "(raw source)"
+    return (f"OpenCL build failed for {what} with options {list(options)}\n"
+            f"--- compiler log ---\n{log.strip()}\n"
+            f"--- offending generated source ---\n" + ("\n".join(shown) or "(no line numbers in log)"))
+
+
+PROGRAMS = ProgramCache()
+
+
+class Compiled:
+    """A built spec with its kernels, created once (kernel objects are reused)."""
+
+    def __init__(self, runtime: Runtime, spec: KernelSpec, options: tuple[str, ...] = ()):
+        self.runtime = runtime
+        self.spec = spec
+        self.program = PROGRAMS.build(runtime, spec.source, options, spec)
+        self._kernels: dict[str, cl.Kernel] = {}
+
+    def kernel(self, name: str) -> cl.Kernel:
+        k = self._kernels.get(name)
+        if k is None:
+            names = kernel_names(self.spec.source)
+            if name not in names:
+                raise TemplateParameterError(f"{self.spec} has no kernel {name!r}; kernels: {names}")
+            k = self._kernels[name] = getattr(self.program, name)
+        return k
+
+    def __getattr__(self, name: str) -> cl.Kernel:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return self.kernel(name)
+
+
+_COMPILED: dict[tuple, Compiled] = {}
+
+
+def compile_spec(runtime: Runtime, spec: KernelSpec, options: Iterable[str] = ()) -> Compiled:
+    """Build (or fetch) ``spec`` for ``runtime``; the result is shared."""
+    options = tuple(options)
+    key = (id(runtime), spec, options)
+    c = _COMPILED.get(key)
+    if c is None or c.runtime is not runtime:
+        c = _COMPILED[key] = Compiled(runtime, spec, options)
+    return c
+
+
+# --------------------------------------------------------------------------
+# Kernel signatures (for the export manifest)
+
+_KERNEL_RE = re.compile(r"__kernel\s+(?:__attribute__\s*\(\(.*?\)\)\s*)*void\s+(\w+)\s*\(([^)]*)\)",
+                        re.S)
+
+
+def kernel_names(source: str) -> list[str]:
+    return [m.group(1) for m in _KERNEL_RE.finditer(source)]
+
+
+def kernel_signatures(source: str, roles: Mapping[str, str] | None = None) -> dict[str, list[dict]]:
+    """Arguments of every kernel: name, C type and role.
+
+    Roles: ``input`` (``__global const``), ``output`` (``__global`` not const,
+    unless the template declares ``inout``), ``local`` (``__local``) and
+    ``scalar`` (by value).
+    """
+    roles = roles or {}
+    out = {}
+    for m in _KERNEL_RE.finditer(source):
+        args = []
+        for raw in m.group(2).split(","):
+            raw = " ".join(raw.split())
+            if not raw:
+                continue
+            name = re.findall(r"\w+", raw)[-1]
+            ctype = raw[: raw.rfind(name)].strip()
+            if "__local" in ctype or "local " in ctype:
+                role = "local"
+            elif "__global" in ctype or "global " in ctype:
+                role = "input" if "const" in ctype.split("*")[0] else "output"
+            else:
+                role = "scalar"
+            args.append({"name": name, "type": ctype, "role": roles.get(name, role)})
+        out[m.group(1)] = args
+    return out

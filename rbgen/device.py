@@ -1,0 +1,230 @@
+"""OpenCL devices: discovery, description and choice.
+
+Everything above this layer asks a `DeviceTraits` (never pyopencl directly)
+what the device is like, so that templates are specialised from one place:
+wavefront width, local memory, work-group limits and a stable fingerprint
+that keys the program and tuning caches.
+
+Choosing a device: an explicit argument, else the ``RBGEN_DEVICE``
+environment variable, else the first GPU, else the PoCL CPU device. A choice is
+an index ``"P:D"`` (platform, device) or a case-insensitive substring of
+``"<platform name> <device name>"``; one that matches nothing raises
+`DeviceNotFoundError` listing what is available.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+from functools import cached_property
+
+import pyopencl as cl
+
+from .errors import DeviceNotFoundError
+
+ENV_DEVICE = "RBGEN_DEVICE"
+
+#: Wavefront (lock-step SIMD group) widths by vendor. We never rely on
+#: lock-step execution for correctness; the width sizes tiles and sub-scans.
+NVIDIA_WAVEFRONT = 32
+AMD_WAVEFRONT = 64
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceTraits:
+    """What templates and heuristics need to know about one OpenCL device."""
+
+    platform_name: str
+    device_name: str
+    vendor: str
+    is_gpu: bool
+    compute_units: int
+    wavefront: int
+    local_mem_size: int
+    max_work_group_size: int
+    driver_version: str
+    opencl_version: str
+
+    @property
+    def is_cpu(self) -> bool:
+        return not self.is_gpu
+
+    @property
+    def kind(self) -> str:
+        """``"gpu"`` or ``"cpu"``: selects the algorithm shape of primitives."""
+        return "gpu" if self.is_gpu else "cpu"
+
+    @property
+    def fingerprint(self) -> str:
+        """Stable identity of device + driver; keys the program and tuning caches.
+
+        Readable prefix plus a short hash of every field, so two drivers of the
+        same device never share cached binaries or tuning results.
+        """
+        text = "|".join(str(getattr(self, f.name)) for f in dataclasses.fields(self))
+        digest = hashlib.sha256(text.encode()).hexdigest()[:12]
+        slug = "".join(c if c.isalnum() else "-" for c in self.device_name.lower())
+        slug = "-".join(part for part in slug.split("-") if part)[:40]
+        return f"{slug}-{digest}"
+
+    @classmethod
+    def of(cls, device: cl.Device) -> "DeviceTraits":
+        is_gpu = bool(device.type & cl.device_type.GPU)
+        vendor = device.vendor.strip()
+        return cls(
+            platform_name=device.platform.name.strip(),
+            device_name=device.name.strip(),
+            vendor=vendor,
+            is_gpu=is_gpu,
+            compute_units=int(device.max_compute_units),
+            wavefront=_wavefront_width(device, vendor, is_gpu),
+            local_mem_size=int(device.local_mem_size),
+            max_work_group_size=int(device.max_work_group_size),
+            driver_version=device.driver_version.strip(),
+            opencl_version=device.version.strip(),
+        )
+
+    def describe(self) -> str:
+        return (f"{self.device_name} [{self.platform_name}] {self.kind.upper()}, "
+                f"{self.compute_units} CUs, wavefront {self.wavefront}, "
+                f"local mem {self.local_mem_size // 1024} KiB, "
+                f"max work-group {self.max_work_group_size}, driver {self.driver_version}")
+
+
+def _wavefront_width(device: cl.Device, vendor: str, is_gpu: bool) -> int:
+    """32 on NVIDIA, 64 on AMD GPUs, the warp query where a driver offers it, else 1."""
+    low = vendor.lower()
+    if is_gpu and "nvidia" in low:
+        return NVIDIA_WAVEFRONT
+    if is_gpu and ("amd" in low or "advanced micro" in low):
+        return AMD_WAVEFRONT
+    if is_gpu:
+        for attr in ("warp_size_nv", "wavefront_width_amd"):
+            try:
+                return int(getattr(device, attr))
+            except Exception:  # noqa: BLE001 - extension query not offered
+                pass
+    return 1
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceEntry:
+    """One device as listed by `list_devices`: its ``P:D`` index and handle."""
+
+    index: str
+    device: cl.Device
+
+    @property
+    def label(self) -> str:
+        return f"{self.device.platform.name.strip()} {self.device.name.strip()}"
+
+
+def list_devices() -> list[DeviceEntry]:
+    """Every OpenCL device of every platform, indexed ``"P:D"``."""
+    entries = []
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error:
+        return []
+    for p, platform in enumerate(platforms):
+        try:
+            devices = platform.get_devices()
+        except cl.Error:
+            continue
+        for d, device in enumerate(devices):
+            entries.append(DeviceEntry(f"{p}:{d}", device))
+    return entries
+
+
+def default_device() -> cl.Device:
+    """The first GPU if any, else the first CPU device (the bundled PoCL)."""
+    entries = list_devices()
+    if not entries:
+        raise DeviceNotFoundError(
+            "no OpenCL device found; install pocl-binary-distribution for a CPU device")
+    for entry in entries:
+        if entry.device.type & cl.device_type.GPU:
+            return entry.device
+    for entry in entries:
+        if "pocl" in entry.label.lower() or "portable" in entry.label.lower():
+            return entry.device
+    return entries[0].device
+
+
+def select_device(choice: str | cl.Device | None = None) -> cl.Device:
+    """Resolve a device choice (argument, then ``RBGEN_DEVICE``, then default)."""
+    if isinstance(choice, cl.Device):
+        return choice
+    if choice is None:
+        choice = os.environ.get(ENV_DEVICE) or None
+    if choice is None:
+        return default_device()
+    return match_devices(choice)[0]
+
+
+def match_devices(choice: str) -> list[cl.Device]:
+    """Every device matching ``choice`` (``P:D`` index or name substring)."""
+    entries = list_devices()
+    text = str(choice).strip()
+    hits = [e.device for e in entries if e.index == text]
+    if not hits:
+        hits = [e.device for e in entries if text.lower() in e.label.lower()]
+    if not hits:
+        listing = "\n".join(f"  {e.index}  {e.label}" for e in entries) or "  (none)"
+        raise DeviceNotFoundError(
+            f"device {choice!r} matches no OpenCL device; available:\n{listing}")
+    return hits
+
+
+class Runtime:
+    """A device with its context and in-order command queue.
+
+    Every rbgen object that owns kernels or buffers is built for one Runtime.
+    ``profiling=True`` gives event timestamps (the tuner and benchmarks need
+    them; they cost launch latency on some drivers, so the default is off).
+    """
+
+    def __init__(self, device: str | cl.Device | None = None, *, profiling: bool = False):
+        self.device = select_device(device)
+        self.traits = DeviceTraits.of(self.device)
+        self.context = cl.Context([self.device])
+        props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
+        self.queue = cl.CommandQueue(self.context, self.device, properties=props)
+        self.profiling = profiling
+        #: launches and blocking reads issued through `launch` and `read`;
+        #: benchmarks report them per step (each costs ~15 us on NVIDIA).
+        self.counters = {"launches": 0, "blocking_reads": 0}
+
+    def launch(self, kernel: cl.Kernel, global_size: int, local_size: int | None,
+               wait_for=None) -> cl.Event:
+        """Enqueue a 1-D kernel whose arguments are already set, and count it."""
+        self.counters["launches"] += 1
+        return cl.enqueue_nd_range_kernel(self.queue, kernel, (int(global_size),),
+                                          None if local_size is None else (int(local_size),),
+                                          wait_for=wait_for)
+
+    def read(self, device_array, host_array=None):
+        """Blocking read of a device buffer or pyopencl array, counted."""
+        self.counters["blocking_reads"] += 1
+        if hasattr(device_array, "get"):
+            return device_array.get(queue=self.queue, ary=host_array)
+        cl.enqueue_copy(self.queue, host_array, device_array, is_blocking=True)
+        return host_array
+
+    @cached_property
+    def profiling_queue(self) -> cl.CommandQueue:
+        """A second queue with profiling on (for timing with events)."""
+        if self.profiling:
+            return self.queue
+        return cl.CommandQueue(self.context, self.device,
+                               properties=cl.command_queue_properties.PROFILING_ENABLE)
+
+    def __repr__(self) -> str:
+        return f"Runtime({self.traits.describe()})"
+
+
+def coerce_runtime(runtime: "Runtime | str | cl.Device | None") -> Runtime:
+    """Accept a Runtime, a device choice, or None (default device)."""
+    if isinstance(runtime, Runtime):
+        return runtime
+    return Runtime(runtime)

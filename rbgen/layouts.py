@@ -1,0 +1,257 @@
+"""Every struct and constant that crosses the host/device boundary, declared once.
+
+A `Layout` is a list of typed fields. From it we derive, never by hand:
+
+* the numpy structured dtype (explicit offsets, float4 members 16-byte
+  aligned, item size rounded up to the struct's alignment, as OpenCL C does);
+* the OpenCL C ``typedef struct`` that templates include;
+* the C header for host programs that use exported kernels, with static
+  asserts on every size and offset.
+
+Constants (shape type codes, flags) live here too, rendered as ``#define``.
+Add a struct by calling `declare`; look one up with `layout`. An unknown struct
+or field name raises `RbgenError` naming it.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Iterable
+
+import numpy as np
+
+from .errors import RbgenError
+
+#: Scalar and vector member kinds: numpy base type, lane count, OpenCL name, C name.
+_KINDS = {
+    "float": (np.float32, 1, "float", "float"),
+    "int": (np.int32, 1, "int", "int32_t"),
+    "uint": (np.uint32, 1, "uint", "uint32_t"),
+    "float2": (np.float32, 2, "float2", "rb_float2"),
+    "int2": (np.int32, 2, "int2", "rb_int2"),
+    "uint2": (np.uint32, 2, "uint2", "rb_uint2"),
+    "float4": (np.float32, 4, "float4", "rb_float4"),
+    "int4": (np.int32, 4, "int4", "rb_int4"),
+    "uint4": (np.uint32, 4, "uint4", "rb_uint4"),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Field:
+    name: str
+    kind: str
+    count: int = 1  # > 1: a fixed-size array member
+    doc: str = ""
+
+    @property
+    def lanes(self) -> int:
+        return _KINDS[self.kind][1]
+
+    @property
+    def align(self) -> int:
+        # OpenCL aligns vectors to their size; 3-vectors are not used on purpose.
+        return 4 * self.lanes
+
+    @property
+    def size(self) -> int:
+        return 4 * self.lanes * self.count
+
+
+class Layout:
+    """One host/device struct. Build with `declare`, not directly."""
+
+    def __init__(self, name: str, fields: Iterable[Field], doc: str):
+        self.name = name
+        self.doc = doc
+        self.fields = tuple(fields)
+        names = [f.name for f in self.fields]
+        if len(set(names)) != len(names):
+            raise RbgenError(f"layout {name}: duplicate field names in {names}")
+        for f in self.fields:
+            if f.kind not in _KINDS:
+                raise RbgenError(f"layout {name}: field {f.name!r} has unknown kind {f.kind!r}; "
+                                 f"known kinds: {sorted(_KINDS)}")
+        offsets, offset = {}, 0
+        for f in self.fields:
+            offset = -(-offset // f.align) * f.align
+            offsets[f.name] = offset
+            offset += f.size
+        self.align = max(f.align for f in self.fields)
+        self.itemsize = -(-offset // self.align) * self.align
+        self._offsets = offsets
+        formats = []
+        for f in self.fields:
+            base, lanes, _, _ = _KINDS[f.kind]
+            shape = tuple(s for s in (f.count if f.count > 1 else 0, lanes if lanes > 1 else 0) if s)
+            formats.append((base, shape) if shape else base)
+        self.dtype = np.dtype({"names": names, "formats": formats,
+                               "offsets": [offsets[n] for n in names], "itemsize": self.itemsize})
+
+    def field(self, name: str) -> Field:
+        for f in self.fields:
+            if f.name == name:
+                return f
+        raise RbgenError(f"layout {self.name} has no field {name!r}; "
+                         f"fields: {[f.name for f in self.fields]}")
+
+    def offset(self, name: str) -> int:
+        self.field(name)
+        return self._offsets[name]
+
+    def zeros(self, n: int) -> np.ndarray:
+        return np.zeros(int(n), dtype=self.dtype)
+
+    def cl_source(self) -> str:
+        lines = [f"/* {self.doc} */", "typedef struct {"]
+        for f in self.fields:
+            arr = f"[{f.count}]" if f.count > 1 else ""
+            note = f"  /* {f.doc} */" if f.doc else ""
+            lines.append(f"    {_KINDS[f.kind][2]} {f.name}{arr};{note}")
+        lines.append(f"}} {self.name};")
+        return "\n".join(lines)
+
+    def c_source(self) -> str:
+        lines = [f"/* {self.doc} */", "typedef struct {"]
+        for f in self.fields:
+            arr = f"[{f.count}]" if f.count > 1 else ""
+            note = f"  /* {f.doc} */" if f.doc else ""
+            lines.append(f"    {_KINDS[f.kind][3]} {f.name}{arr};{note}")
+        lines.append(f"}} {self.name};")
+        lines.append(f'RB_STATIC_ASSERT(sizeof({self.name}) == {self.itemsize}, '
+                     f'"sizeof({self.name})");')
+        for f in self.fields:
+            lines.append(f'RB_STATIC_ASSERT(offsetof({self.name}, {f.name}) == '
+                         f'{self._offsets[f.name]}, "{self.name}.{f.name}");')
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        return f"Layout({self.name}, {self.itemsize} bytes)"
+
+
+_LAYOUTS: dict[str, Layout] = {}
+_CONSTANTS: dict[str, tuple[int, str]] = {}
+
+
+def declare(name: str, fields: Iterable[tuple], doc: str) -> Layout:
+    """Declare a struct: ``fields`` are ``(name, kind[, count][, doc])`` tuples."""
+    parsed = []
+    for spec in fields:
+        fname, kind, *rest = spec
+        count = rest[0] if rest and isinstance(rest[0], int) else 1
+        fdoc = rest[-1] if rest and isinstance(rest[-1], str) else ""
+        parsed.append(Field(fname, kind, count, fdoc))
+    if name in _LAYOUTS:
+        raise RbgenError(f"layout {name} declared twice")
+    layout = Layout(name, parsed, doc)
+    _LAYOUTS[name] = layout
+    return layout
+
+
+def constant(name: str, value: int, doc: str = "") -> int:
+    """Declare an integer constant shared by host and device (``#define name value``)."""
+    if name in _CONSTANTS and _CONSTANTS[name][0] != value:
+        raise RbgenError(f"constant {name} redeclared with another value")
+    _CONSTANTS[name] = (int(value), doc)
+    return int(value)
+
+
+def layout(name: str) -> Layout:
+    try:
+        return _LAYOUTS[name]
+    except KeyError:
+        raise RbgenError(f"no layout named {name!r}; declared: {sorted(_LAYOUTS)}") from None
+
+
+def all_layouts() -> list[Layout]:
+    return list(_LAYOUTS.values())
+
+
+def constants() -> dict[str, int]:
+    return {k: v for k, (v, _) in _CONSTANTS.items()}
+
+
+def cl_constants() -> str:
+    return "\n".join(f"#define {k} {v}{f'  /* {d} */' if d else ''}"
+                     for k, (v, d) in _CONSTANTS.items())
+
+
+def cl_structs(*names: str) -> str:
+    """OpenCL C definitions of the named structs (all of them when none named)."""
+    chosen = [layout(n) for n in names] if names else all_layouts()
+    return "\n\n".join(l.cl_source() for l in chosen)
+
+
+def c_header() -> str:
+    """A self-contained C/C++ header with every constant and struct, size-checked."""
+    body = "\n\n".join(l.c_source() for l in all_layouts())
+    return f"""/* Generated by rbgen from rbgen/layouts.py: do not edit. */
+#ifndef RBGEN_LAYOUTS_H
+#define RBGEN_LAYOUTS_H
+#include <stddef.h>
+#include <stdint.h>
+#if defined(__cplusplus)
+#  define RB_ALIGN(n) alignas(n)
+#  define RB_STATIC_ASSERT(c, m) static_assert(c, m)
+#else
+#  define RB_ALIGN(n) _Alignas(n)
+#  define RB_STATIC_ASSERT(c, m) _Static_assert(c, m)
+#endif
+/* Vector types with OpenCL's size and alignment (compatible with cl_float4 etc.). */
+typedef struct {{ RB_ALIGN(8) float s[2]; }} rb_float2;
+typedef struct {{ RB_ALIGN(8) int32_t s[2]; }} rb_int2;
+typedef struct {{ RB_ALIGN(8) uint32_t s[2]; }} rb_uint2;
+typedef struct {{ RB_ALIGN(16) float s[4]; }} rb_float4;
+typedef struct {{ RB_ALIGN(16) int32_t s[4]; }} rb_int4;
+typedef struct {{ RB_ALIGN(16) uint32_t s[4]; }} rb_uint4;
+
+{cl_constants()}
+
+{body}
+
+#endif /* RBGEN_LAYOUTS_H */
+"""
+
+
+# --------------------------------------------------------------------------
+# Shape type codes (one per collision shape kind).
+SHAPE_SPHERE = constant("RB_SHAPE_SPHERE", 0, "extents.x = radius")
+SHAPE_BOX = constant("RB_SHAPE_BOX", 1, "extents.xyz = half extents")
+SHAPE_HULL = constant("RB_SHAPE_HULL", 2, "vertices in the hull vertex array")
+SHAPE_PLANE = constant("RB_SHAPE_PLANE", 3, "extents.xyz = normal, extents.w = offset; static only")
+SHAPE_CAPSULE = constant("RB_SHAPE_CAPSULE", 4, "extents.x = radius, extents.y = half height (y axis)")
+SHAPE_COMPOUND = constant("RB_SHAPE_COMPOUND", 5, "children in the compound child array")
+SHAPE_MESH = constant("RB_SHAPE_MESH", 6, "static triangle mesh with a BVH")
+
+# --------------------------------------------------------------------------
+# Core structs.
+BODY = declare("Body", [
+    ("position", "float4", "centre of mass, world frame; w unused"),
+    ("orientation", "float4", "unit quaternion x, y, z, w (body to world)"),
+    ("linear_velocity", "float4", "m/s; w unused"),
+    ("angular_velocity", "float4", "rad/s, world frame; w unused"),
+    ("inv_mass", "float", "0 for static bodies"),
+    ("shape", "uint", "index into the Shape array"),
+    ("friction", "float", "material friction coefficient"),
+    ("restitution", "float", "material restitution coefficient"),
+], "A rigid body's state, one per body (dynamic or static).")
+
+SHAPE = declare("Shape", [
+    ("extents", "float4", "per type: radius, half extents, plane normal+offset"),
+    ("type", "uint", "RB_SHAPE_*"),
+    ("vertex_offset", "uint", "hull: first vertex in the hull vertex array"),
+    ("vertex_count", "uint", "hull: number of vertices"),
+    ("face_offset", "uint", "hull: first face"),
+    ("face_count", "uint", "hull: number of faces"),
+    ("edge_offset", "uint", "hull: first unique edge direction"),
+    ("edge_count", "uint", "hull: number of unique edge directions"),
+    ("child_offset", "uint", "compound/mesh: first child or BVH node"),
+], "A collision shape in its local (principal) frame.")
+
+AABB = declare("Aabb", [
+    ("lower", "float4", "minimum corner; w unused"),
+    ("upper", "float4", "maximum corner; w unused"),
+], "An axis-aligned bounding box in the world frame.")
+
+PAIR = declare("Pair", [
+    ("a", "uint", "lower body index"),
+    ("b", "uint", "higher body index"),
+], "A broadphase pair of overlapping bodies, a < b.")

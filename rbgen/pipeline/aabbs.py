@@ -1,0 +1,48 @@
+"""World AABB stage: one box per body from its shape and transform."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ..device import DeviceTraits, Runtime
+
+SHAPE_TYPE_NAMES = ("box", "capsule", "hull", "plane", "sphere")
+
+TEMPLATE = KernelTemplate(
+    "pipeline/world_aabbs.cl.mako",
+    [
+        Param("work_group_size", power_of_two(1, 1024),
+              "bodies per work group; memory-bound, so any size that fills a CU works",
+              "a power of two from 1 to 1024"),
+        Param("shape_types",
+              lambda v: isinstance(v, tuple) and len(v) > 0 and set(v) <= set(SHAPE_TYPE_NAMES)
+              and tuple(sorted(set(v))) == v,
+              "emit a branch only for the shape types present, keeping the kernel small",
+              f"a sorted, non-empty tuple of distinct names from {SHAPE_TYPE_NAMES}"),
+    ],
+    doc="World-space AABB of every body.",
+)
+
+
+def default_work_group_size(traits: DeviceTraits) -> int:
+    """128 on GPUs; 64 on CPUs (PoCL vectorises across work-items)."""
+    return min(128 if traits.is_gpu else 64, traits.max_work_group_size)
+
+
+class WorldAabbs:
+    """Launches `compute_world_aabbs` for the shape types of one world."""
+
+    def __init__(self, runtime: Runtime, shape_types, *, work_group_size: int | None = None):
+        self.runtime = runtime
+        self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
+        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
+                                  shape_types=tuple(sorted(set(shape_types))))
+        self.kernel = compile_spec(runtime, self.spec).kernel("compute_world_aabbs")
+
+    def __call__(self, bodies, shapes, hull_vertices, aabbs, body_count: int, margin: float = 0.0):
+        if body_count == 0:
+            return None
+        data = [a.data if hasattr(a, "data") else a for a in (bodies, shapes, hull_vertices, aabbs)]
+        self.kernel.set_args(*data, np.uint32(body_count), np.float32(margin))
+        wg = self.work_group_size
+        return self.runtime.launch(self.kernel, -(-body_count // wg) * wg, wg)

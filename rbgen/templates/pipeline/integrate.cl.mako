@@ -1,0 +1,68 @@
+/* Integrate rigid bodies over one time step (semi-implicit Euler).
+ *
+ * One work-item per body; a work group is responsible for ${work_group_size}
+ * consecutive bodies. Static bodies (inv_mass == 0) are left untouched.
+ *   v  += g dt                     (gravity, dynamic bodies only)
+% if damping:
+ *   v  *= (1 - linear_damping)^dt,  w *= (1 - angular_damping)^dt
+% endif
+ *   x  += v dt
+ *   q   = dq(w dt) q, renormalised, where dq is the axis-angle quaternion of
+ *         the rotation w dt; sin(a/2)/a uses its Taylor series for small a so
+ *         that slow spins keep full precision. The rotation per step is
+ *         clamped to max_angular_step radians (the stored w is not changed).
+ */
+${cl_constants()}
+
+${cl_structs("Body")}
+
+<%include file="/common/quaternion.cl.mako"/>
+
+/* Below this angular speed * dt, sin(a/2)/a is replaced by its series. */
+#define SMALL_ROTATION 0.001f
+
+inline float4 rotate_by_angular_velocity(float4 q, float3 w, float dt, float max_angular_step)
+{
+    float speed = length(w);
+    if (speed * dt > max_angular_step)
+        speed = max_angular_step / dt, w = normalize(w) * speed;
+    float half_angle = 0.5f * speed * dt;
+    float3 axis;
+    if (speed * dt < SMALL_ROTATION)
+        /* sin(s dt / 2) / s = dt/2 - dt^3 s^2 / 48 + O(s^4) */
+        axis = w * (0.5f * dt - dt * dt * dt * (1.0f / 48.0f) * speed * speed);
+    else
+        axis = w * (sin(half_angle) / speed);
+    float4 dq = (float4)(axis, cos(half_angle));
+    return normalize(quat_mul(dq, q));
+}
+
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void integrate_bodies(__global Body* bodies,
+                      const uint body_count,
+                      const float dt,
+                      const float4 gravity,
+% if damping:
+                      const float linear_damping,
+                      const float angular_damping,
+% endif
+                      const float max_angular_step)
+{
+    uint i = get_global_id(0);
+    if (i >= body_count)
+        return;
+    __global Body* body = &bodies[i];
+    if (body->inv_mass == 0.0f)
+        return;
+
+    float3 v = body->linear_velocity.xyz + gravity.xyz * dt;
+    float3 w = body->angular_velocity.xyz;
+% if damping:
+    v *= pow(1.0f - linear_damping, dt);
+    w *= pow(1.0f - angular_damping, dt);
+% endif
+    body->linear_velocity.xyz = v;
+    body->angular_velocity.xyz = w;
+    body->position.xyz += v * dt;
+    body->orientation = rotate_by_angular_velocity(body->orientation, w, dt, max_angular_step);
+}
