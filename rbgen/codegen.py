@@ -73,18 +73,34 @@ def power_of_two(lo: int = 1, hi: int = 1 << 16) -> Callable[[Any], bool]:
     return lambda v: isinstance(v, int) and lo <= v <= hi and (v & (v - 1)) == 0
 
 
+#: every KernelTemplate by path (filled as modules are imported; export uses it)
+TEMPLATES: dict[str, "KernelTemplate"] = {}
+
+
 class KernelTemplate:
     """A template file plus the parameters that specialise it."""
 
     def __init__(self, path: str, params: Iterable[Param], doc: str = "",
-                 roles: Mapping[str, str] | None = None):
+                 roles: Mapping[str, str] | None = None,
+                 defaults: Callable[[Any], dict] | None = None):
         self.path = path
         self.params = {p.name: p for p in params}
         self.doc = doc
         #: argument roles that cannot be read off the signature ("inout"...)
         self.roles = dict(roles or {})
+        #: heuristic parameters for a device: ``defaults(traits) -> {name: value}``
+        #: (what an untuned device gets, and what `rbgen export` renders by default)
+        self._defaults = defaults
         if not (TEMPLATE_DIR / path).is_file():
             raise TemplateParameterError(f"template {path!r} not found under {TEMPLATE_DIR}")
+        TEMPLATES[path] = self
+
+    def default_spec(self, traits, **overrides: Any) -> "KernelSpec":
+        """The heuristic specialisation for a device, with optional overrides."""
+        if self._defaults is None:
+            raise TemplateParameterError(f"template {self.path} declares no defaults; "
+                                         f"give every parameter: {sorted(self.params)}")
+        return self.spec(**{**self._defaults(traits), **overrides})
 
     def spec(self, **values: Any) -> "KernelSpec":
         where = f"template {self.path}"

@@ -21,6 +21,8 @@ TEMPLATE = KernelTemplate(
               f"a sorted, non-empty tuple of distinct names from {SHAPE_TYPE_NAMES}"),
     ],
     doc="World-space AABB of every body.",
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "shape_types": ("box", "hull", "plane", "sphere")},
 )
 
 

@@ -19,6 +19,7 @@ TEMPLATE = KernelTemplate(
     ],
     doc="Semi-implicit Euler step of body velocities and transforms.",
     roles={"bodies": "inout"},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "damping": False},
 )
 
 #: Bullet's default clamp: at most a quarter turn per step keeps the
