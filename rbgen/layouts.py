@@ -255,3 +255,24 @@ PAIR = declare("Pair", [
     ("a", "uint", "lower body index"),
     ("b", "uint", "higher body index"),
 ], "A broadphase pair of overlapping bodies, a < b.")
+
+# --------------------------------------------------------------------------
+# Narrowphase output (consumed by the solver). Conventions, tested:
+#  * normal points from body_a to body_b (world frame), unit length;
+#  * points[k].xyz is the contact point on body_b's surface (world frame) and
+#    points[k].w the signed separation along the normal (negative when the
+#    bodies penetrate), for k < point_count <= 4;
+#  * features[k] identifies the feature pair that produced point k, stable
+#    across steps while the contact persists (warm-starting key).
+MAX_MANIFOLD_POINTS = constant("RB_MAX_MANIFOLD_POINTS", 4, "contact points per manifold")
+
+CONTACT_MANIFOLD = declare("ContactManifold", [
+    ("points", "float4", 4, "xyz: point on B (world); w: signed separation (< 0: penetration)"),
+    ("normal", "float4", "unit normal from A to B (world); w unused"),
+    ("features", "uint", 4, "feature id per point, stable across steps"),
+    ("body_a", "uint", "first body (index into Body)"),
+    ("body_b", "uint", "second body"),
+    ("point_count", "uint", "valid points, 1..4"),
+    ("friction", "float", "combined friction coefficient"),
+    ("restitution", "float", "combined restitution coefficient"),
+], "Up to four contact points between two bodies sharing one normal.")

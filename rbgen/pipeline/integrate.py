@@ -16,10 +16,14 @@ TEMPLATE = KernelTemplate(
               "a power of two from 1 to 1024"),
         Param("damping", (True, False),
               "emit the damping terms only when a world uses damping"),
+        Param("gravity", (True, False),
+              "True: integrate_bodies adds g dt itself (standalone use); False: a separate "
+              "apply_gravity kernel runs before the solver so contacts cancel gravity in the same step"),
     ],
     doc="Semi-implicit Euler step of body velocities and transforms.",
     roles={"bodies": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "damping": False},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "damping": False,
+                              "gravity": True},
 )
 
 #: Bullet's default clamp: at most a quarter turn per step keeps the
@@ -35,12 +39,29 @@ def default_work_group_size(traits: DeviceTraits) -> int:
 class Integrator:
     """Launches `integrate_bodies` over a device array of `Body` records."""
 
-    def __init__(self, runtime: Runtime, *, damping: bool = False, work_group_size: int | None = None):
+    def __init__(self, runtime: Runtime, *, damping: bool = False, gravity: bool = True,
+                 work_group_size: int | None = None):
         self.runtime = runtime
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, damping=bool(damping))
-        self.damping = bool(damping)
-        self.kernel = compile_spec(runtime, self.spec).kernel("integrate_bodies")
+        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, damping=bool(damping),
+                                  gravity=bool(gravity))
+        self.damping, self.gravity = bool(damping), bool(gravity)
+        program = compile_spec(runtime, self.spec)
+        self.kernel = program.kernel("integrate_bodies")
+        self.gravity_kernel = None if gravity else program.kernel("apply_gravity")
+
+    def apply_gravity(self, bodies, body_count: int, dt: float, gravity=(0.0, -9.81, 0.0)):
+        """v += g dt on dynamic bodies (only for an Integrator built with gravity=False)."""
+        if self.gravity_kernel is None:
+            raise RbgenError("this Integrator applies gravity inside integrate_bodies "
+                             "(built with gravity=True)")
+        if body_count == 0:
+            return None
+        self.gravity_kernel.set_args(bodies.data if hasattr(bodies, "data") else bodies,
+                                     np.uint32(body_count), np.float32(dt),
+                                     np.array([*gravity, 0.0], dtype=np.float32))
+        wg = self.work_group_size
+        return self.runtime.launch(self.gravity_kernel, -(-body_count // wg) * wg, wg)
 
     def __call__(self, bodies, body_count: int, dt: float, gravity=(0.0, -9.81, 0.0),
                  linear_damping: float = 0.0, angular_damping: float = 0.0,
@@ -55,9 +76,10 @@ class Integrator:
                 raise RbgenError(f"{name} must be in [0, 1), got {value!r}")
         if body_count == 0:
             return None
-        g = np.array([*gravity, 0.0], dtype=np.float32)
         args = [bodies.data if hasattr(bodies, "data") else bodies,
-                np.uint32(body_count), np.float32(dt), g]
+                np.uint32(body_count), np.float32(dt)]
+        if self.gravity:
+            args.append(np.array([*gravity, 0.0], dtype=np.float32))
         if self.damping:
             args += [np.float32(linear_damping), np.float32(angular_damping)]
         args.append(np.float32(max_angular_step))

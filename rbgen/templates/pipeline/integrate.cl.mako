@@ -2,7 +2,11 @@
  *
  * One work-item per body; a work group is responsible for ${work_group_size}
  * consecutive bodies. Static bodies (inv_mass == 0) are left untouched.
+% if gravity:
  *   v  += g dt                     (gravity, dynamic bodies only)
+% else:
+ *   (gravity is applied before the solver by apply_gravity, not here)
+% endif
 % if damping:
  *   v  *= (1 - linear_damping)^dt,  w *= (1 - angular_damping)^dt
 % endif
@@ -41,7 +45,9 @@ __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void integrate_bodies(__global Body* bodies,
                       const uint body_count,
                       const float dt,
+% if gravity:
                       const float4 gravity,
+% endif
 % if damping:
                       const float linear_damping,
                       const float angular_damping,
@@ -55,7 +61,11 @@ void integrate_bodies(__global Body* bodies,
     if (body->inv_mass == 0.0f)
         return;
 
+% if gravity:
     float3 v = body->linear_velocity.xyz + gravity.xyz * dt;
+% else:
+    float3 v = body->linear_velocity.xyz;
+% endif
     float3 w = body->angular_velocity.xyz;
 % if damping:
     v *= pow(1.0f - linear_damping, dt);
@@ -66,3 +76,17 @@ void integrate_bodies(__global Body* bodies,
     body->position.xyz += v * dt;
     body->orientation = rotate_by_angular_velocity(body->orientation, w, dt, max_angular_step);
 }
+% if not gravity:
+
+/* v += g dt for every dynamic body: run before the contact solver so that
+ * resting contacts see (and cancel) this step's gravity. A work group is
+ * responsible for ${work_group_size} consecutive bodies. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void apply_gravity(__global Body* bodies, const uint body_count, const float dt, const float4 gravity)
+{
+    uint i = get_global_id(0);
+    if (i >= body_count || bodies[i].inv_mass == 0.0f)
+        return;
+    bodies[i].linear_velocity.xyz += gravity.xyz * dt;
+}
+% endif
