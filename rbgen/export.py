@@ -1,0 +1,141 @@
+"""Export generated kernels for programs that do not run Python.
+
+`export_kernels` writes, into one directory:
+
+* one ``.cl`` file per specialisation: self-contained OpenCL C (structs and
+  constants included), exactly the source rbgen builds;
+* ``rbgen_layouts.h``: the C/C++ header of every host/device struct, with
+  static asserts on sizes and offsets;
+* ``manifest.json``: for every file its template, specialisation parameters,
+  build options, source hash, and per kernel the argument names, C types and
+  roles (input / output / inout / scalar / local) and the recommended local size;
+  plus the fingerprint of the device the specialisations were chosen for.
+
+A C++ host reads the manifest, builds the ``.cl`` with ``clBuildProgram`` and
+sets arguments in the listed order using the structs of the header.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib
+import json
+import pkgutil
+import re
+from pathlib import Path
+from typing import Iterable
+
+from . import __version__, layouts
+from .codegen import TEMPLATES, KernelSpec, KernelTemplate, kernel_signatures
+from .device import DeviceTraits
+from .errors import RbgenError
+
+MANIFEST_VERSION = 1
+HEADER_NAME = "rbgen_layouts.h"
+
+
+def load_all_templates() -> dict[str, KernelTemplate]:
+    """Import every rbgen module that declares templates; return the registry."""
+    import rbgen
+
+    for info in pkgutil.walk_packages(rbgen.__path__, "rbgen."):
+        if info.name.endswith(("__main__", ".cli")):
+            continue
+        importlib.import_module(info.name)
+    return dict(TEMPLATES)
+
+
+def _json_value(value):
+    if isinstance(value, tuple):
+        return [_json_value(v) for v in value]
+    return value
+
+
+def _file_name(spec: KernelSpec, taken: set[str]) -> str:
+    stem = spec.path.removesuffix(".cl.mako").replace("/", "_")
+    name = f"{stem}.cl"
+    if name in taken:
+        digest = hashlib.sha256(repr(spec.params).encode()).hexdigest()[:8]
+        name = f"{stem}_{digest}.cl"
+    taken.add(name)
+    return name
+
+
+def _local_sizes(source: str) -> dict[str, int]:
+    pattern = re.compile(r"reqd_work_group_size\(\s*(\d+)[^)]*\)\s*\)\)\s*void\s+(\w+)")
+    return {m.group(2): int(m.group(1)) for m in pattern.finditer(source)}
+
+
+def export_kernels(specs: Iterable[KernelSpec], out_dir: str | Path,
+                   traits: DeviceTraits | None = None,
+                   build_options: Iterable[str] = ()) -> dict:
+    """Write the specs' sources, the layouts header and the manifest; return the manifest."""
+    specs = list(specs)
+    if not specs:
+        raise RbgenError("export: no kernel specs given")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / HEADER_NAME).write_text(layouts.c_header())
+    taken: set[str] = set()
+    entries = []
+    for spec in specs:
+        if not isinstance(spec, KernelSpec):
+            raise RbgenError(f"export: expected KernelSpec, got {type(spec).__name__}")
+        source = spec.source
+        fname = _file_name(spec, taken)
+        (out / fname).write_text(source)
+        roles = spec.template.roles if spec.template is not None else {}
+        local = _local_sizes(source)
+        entries.append({
+            "file": fname,
+            "template": spec.path,
+            "params": {k: _json_value(v) for k, v in spec.params},
+            "build_options": list(build_options),
+            "source_sha256": hashlib.sha256(source.encode()).hexdigest(),
+            "kernels": [
+                {"name": name, "args": args, "local_size": local.get(name)}
+                for name, args in kernel_signatures(source, roles).items()
+            ],
+        })
+    manifest = {
+        "manifest_version": MANIFEST_VERSION,
+        "rbgen_version": __version__,
+        "header": HEADER_NAME,
+        "device": None if traits is None else {
+            "fingerprint": traits.fingerprint,
+            "name": traits.device_name,
+            "platform": traits.platform_name,
+            "driver_version": traits.driver_version,
+            "wavefront": traits.wavefront,
+        },
+        "structs": {l.name: {"size": l.itemsize,
+                             "fields": {f.name: l.offset(f.name) for f in l.fields}}
+                    for l in layouts.all_layouts()},
+        "files": entries,
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    return manifest
+
+
+def default_specs(traits: DeviceTraits, names: Iterable[str] | None = None) -> list[KernelSpec]:
+    """The heuristic specialisation of each named template (all when none named).
+
+    A name matches a template path exactly or as a substring ("integrate").
+    """
+    registry = load_all_templates()
+    if names:
+        chosen = []
+        for name in names:
+            hits = [t for p, t in sorted(registry.items()) if p == name or name in p]
+            if not hits:
+                raise RbgenError(f"export: no template matches {name!r}; templates: {sorted(registry)}")
+            chosen += [t for t in hits if t not in chosen]
+    else:
+        chosen = [t for _, t in sorted(registry.items())]
+    specs = []
+    for template in chosen:
+        try:
+            specs.append(template.default_spec(traits))
+        except RbgenError:
+            if names:
+                raise
+    return specs

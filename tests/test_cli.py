@@ -1,0 +1,31 @@
+"""The rbgen command."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from rbgen.cli import main
+
+
+def test_info_names_every_device(capsys):
+    from rbgen.device import list_devices
+
+    assert main(["info"]) == 0
+    out = capsys.readouterr().out
+    for entry in list_devices():
+        assert entry.device.name.strip() in out
+    assert out.count("*") >= 1
+
+
+def test_info_unknown_device_exit_code():
+    result = subprocess.run([sys.executable, "-m", "rbgen", "export", "--out", "/tmp/x",
+                             "--device", "no-such-gpu"], capture_output=True, text=True)
+    assert result.returncode == 2
+    assert "no-such-gpu" in result.stderr and "available" in result.stderr
+
+
+def test_integrate_demo_checks_pass(capsys):
+    from rbgen.cli import integrate_demo
+
+    assert integrate_demo(5000, 5) == 0
+    assert "5,000 boxes" in capsys.readouterr().out

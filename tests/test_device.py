@@ -1,0 +1,71 @@
+"""Device discovery and choice."""
+from __future__ import annotations
+
+import pyopencl as cl
+import pytest
+
+from rbgen import device
+from rbgen.device import DeviceTraits, Runtime
+from rbgen.errors import DeviceNotFoundError, RbgenError
+
+
+def test_traits_describe_every_device():
+    entries = device.list_devices()
+    assert entries, "at least the PoCL CPU device"
+    for entry in entries:
+        t = DeviceTraits.of(entry.device)
+        assert t.compute_units >= 1 and t.max_work_group_size >= 1 and t.local_mem_size > 0
+        if t.is_gpu and "nvidia" in t.vendor.lower():
+            assert t.wavefront == 32
+        if t.is_cpu:
+            assert t.wavefront == 1
+        assert t.fingerprint == DeviceTraits.of(entry.device).fingerprint  # stable
+        assert t.driver_version in repr(t)
+
+
+def test_fingerprint_changes_with_driver():
+    t = DeviceTraits.of(device.list_devices()[0].device)
+    import dataclasses
+    other = dataclasses.replace(t, driver_version=t.driver_version + "-next")
+    assert other.fingerprint != t.fingerprint
+
+
+def test_select_by_index_and_substring(monkeypatch):
+    entries = device.list_devices()
+    first = entries[0]
+    assert device.select_device(first.index) == first.device
+    name_part = first.device.name.strip()[:6].upper()
+    assert first.device in device.match_devices(name_part)
+    monkeypatch.setenv(device.ENV_DEVICE, first.index)
+    assert device.select_device(None) == first.device
+
+
+def test_default_prefers_gpu_else_pocl(monkeypatch):
+    monkeypatch.delenv(device.ENV_DEVICE, raising=False)
+    chosen = device.select_device(None)
+    has_gpu = any(e.device.type & cl.device_type.GPU for e in device.list_devices())
+    assert bool(chosen.type & cl.device_type.GPU) == has_gpu
+    if not has_gpu:
+        assert "portable" in chosen.platform.name.lower() or "pocl" in chosen.platform.name.lower()
+
+
+def test_unknown_device_lists_available(monkeypatch):
+    with pytest.raises(DeviceNotFoundError) as info:
+        device.select_device("no-such-accelerator")
+    text = str(info.value)
+    assert "no-such-accelerator" in text
+    assert device.list_devices()[0].index in text
+    assert isinstance(info.value, RbgenError) and isinstance(info.value, ValueError)
+    monkeypatch.setenv(device.ENV_DEVICE, "9:9")
+    with pytest.raises(DeviceNotFoundError, match="9:9"):
+        Runtime()
+
+
+def test_runtime_counts_launches_and_reads(runtime):
+    import numpy as np
+    import pyopencl.array as cla
+
+    before = dict(runtime.counters)
+    arr = cla.zeros(runtime.queue, 4, np.float32)
+    runtime.read(arr)
+    assert runtime.counters["blocking_reads"] == before["blocking_reads"] + 1
