@@ -276,3 +276,32 @@ CONTACT_MANIFOLD = declare("ContactManifold", [
     ("friction", "float", "combined friction coefficient"),
     ("restitution", "float", "combined restitution coefficient"),
 ], "Up to four contact points between two bodies sharing one normal.")
+
+# --------------------------------------------------------------------------
+# Narrowphase and hull cooking (owner: narrowphase; rbgen/hull.py,
+# rbgen/pipeline/narrowphase/). A cooked hull is Shape.vertex_* vertices,
+# Shape.face_* HullFace polygons whose vertex indices (relative to
+# vertex_offset) live in the hull face-index uint array, and Shape.edge_*
+# unique edge directions (float4, w unused). Boxes are cooked the same way.
+HULL_FACE = declare("HullFace", [
+    ("plane", "float4", "outward unit normal xyz, offset w: n.x = w on the face (shape frame)"),
+    ("index_offset", "uint", "first entry of this polygon in the face-index array"),
+    ("index_count", "uint", "polygon vertices, counter-clockwise seen from outside"),
+], "One planar polygon of a cooked convex hull.")
+
+PAIR_SWAPPED = constant("RB_PAIR_SWAPPED", 0x80000000,
+                        "queue entry bit: the pair's bodies are in the kernel's shape order b, a")
+NO_FEATURE = constant("RB_NO_FEATURE", 0xFFFFFFFF, "separating-axis cache: no axis cached")
+
+SAT_CACHE_ENTRY = declare("SatCacheEntry", [
+    ("a", "uint", "body a of the pair this entry belongs to (key)"),
+    ("b", "uint", "body b (key)"),
+    ("feature", "uint", "best axis found last step (face/edge code) or RB_NO_FEATURE"),
+], "Previous step's best separating axis, one entry per pair-list index, keyed by (a, b).")
+
+SAT_RESULT = declare("SatResult", [
+    ("axis", "float4", "unit axis from the kernel's first shape to its second (world); "
+                       "w: separation along it (< 0: penetration)"),
+    ("pair", "uint", "pair index, | RB_PAIR_SWAPPED when the kernel's first shape is body b"),
+    ("feature", "uint", "face of A (< faces A), face of B (next faces B), else an edge pair"),
+], "A convex-convex pair that passed the separating-axis test, queued for clipping.")

@@ -1,14 +1,22 @@
 """Collision shapes and their packing into device arrays.
 
-Shapes are immutable host objects in their local frame. `ShapeTable` packs the
-shapes a world uses into the `Shape` layout plus the shared hull vertex array,
-deduplicating identical shapes so that 100k boxes of one size share one entry.
+Shapes are immutable host objects in their local frame, which is also their
+principal frame of inertia (hulls are re-centred and rotated when cooked; see
+`rbgen.hull` and `rbgen.mass`). `ShapeTable` packs the shapes a world uses into
+the `Shape` layout plus the shared hull arrays (vertices, faces, face indices,
+edge directions), deduplicating identical shapes so that 100k boxes of one
+size share one entry. Boxes carry their hull topology too, so every
+convex-convex kernel can treat them as hulls.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from . import hull as hull_cooking
 from . import layouts
+from . import mass as mass_props
 from .errors import RbgenError
 
 
@@ -36,6 +44,27 @@ class Shape:
         """Vertices whose convex hull is the shape (boxes, hulls); tests use it."""
         raise RbgenError(f"{self.type_name} has no vertex representation")
 
+    def cooked(self) -> "hull_cooking.CookedHull | None":
+        """Polygon topology for the convex-convex kernels (boxes and hulls), else None."""
+        return None
+
+    def mass_properties(self, density: float | None = None, mass: float | None = None
+                        ) -> mass_props.MassProperties:
+        """Mass, centre of mass, principal inertia diagonal and principal rotation.
+
+        Give exactly one of ``density`` and ``mass``. The local frame of every
+        shape is principal, so ``com`` and ``rotation`` say where that frame
+        sits in the frame the shape was described in (identity except for hulls).
+        """
+        raise RbgenError(f"{self.type_name} has no mass (static only)")
+
+    def _solid(self, volume, unit_inertia, density, mass, com=(0.0, 0.0, 0.0),
+               rotation=mass_props.IDENTITY_QUATERNION) -> mass_props.MassProperties:
+        m = mass_props.resolve_mass(volume, density, mass, self.type_name)
+        return mass_props.MassProperties(m, tuple(float(c) for c in com),
+                                         tuple(float(m * i) for i in unit_inertia),
+                                         tuple(float(c) for c in rotation))
+
 
 class Sphere(Shape):
     type_code = layouts.SHAPE_SPHERE
@@ -53,6 +82,10 @@ class Sphere(Shape):
     def key(self):
         return ("sphere", self.radius)
 
+    def mass_properties(self, density=None, mass=None):
+        volume = 4.0 / 3.0 * np.pi * self.radius ** 3
+        return self._solid(volume, mass_props.sphere_unit_inertia(self.radius), density, mass)
+
 
 class Box(Shape):
     type_code = layouts.SHAPE_BOX
@@ -63,6 +96,7 @@ class Box(Shape):
         if np.any(he <= 0):
             raise RbgenError(f"Box half_extents must all be positive, got {tuple(he)}")
         self.half_extents = he
+        self._cooked = hull_cooking.box_hull(he)
 
     def pack(self, record, hull_vertices):
         record["extents"] = (*self.half_extents, 0)
@@ -71,8 +105,14 @@ class Box(Shape):
         return ("box", *self.half_extents)
 
     def local_vertices(self):
-        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-        return signs * self.half_extents
+        return self._cooked.vertices
+
+    def cooked(self):
+        return self._cooked
+
+    def mass_properties(self, density=None, mass=None):
+        volume = 8.0 * float(np.prod(self.half_extents))
+        return self._solid(volume, mass_props.box_unit_inertia(self.half_extents), density, mass)
 
 
 class Capsule(Shape):
@@ -91,35 +131,54 @@ class Capsule(Shape):
     def key(self):
         return ("capsule", self.radius, self.half_height)
 
+    def mass_properties(self, density=None, mass=None):
+        volume = mass_props.capsule_volume(self.radius, self.half_height)
+        return self._solid(volume, mass_props.capsule_unit_inertia(self.radius, self.half_height),
+                           density, mass)
+
 
 class ConvexHull(Shape):
-    """Convex hull of a point cloud (vertices only here; cooking adds faces)."""
+    """Convex hull of a point cloud, cooked into polygons in its principal frame.
+
+    ``vertices`` are the hull's vertices re-centred on the centre of mass and
+    rotated into the principal frame; `mass_properties` gives the centre of
+    mass and rotation that place this frame in the frame of ``points``.
+    ``name`` appears in error messages (degenerate input, limits exceeded).
+    """
 
     type_code = layouts.SHAPE_HULL
     type_name = "convex hull"
 
-    def __init__(self, points):
-        pts = np.asarray(points, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 4 or not np.all(np.isfinite(pts)):
-            raise RbgenError("ConvexHull needs at least 4 finite 3-D points, got array of shape "
-                             f"{pts.shape}")
-        from scipy.spatial import ConvexHull as _QHull, QhullError
-        try:
-            qhull = _QHull(pts)
-        except QhullError as err:
-            raise RbgenError(f"ConvexHull points are degenerate (coplanar or collinear): {err}") from None
-        self.vertices = pts[qhull.vertices]
+    def __init__(self, points, name: str = "ConvexHull"):
+        self.name = str(name)
+        self._cooked = hull_cooking.cook(points, self.name)
+        self.vertices = self._cooked.vertices
+
+    @classmethod
+    def from_trimesh(cls, mesh, name: str | None = None) -> "ConvexHull":
+        """The convex hull of a ``trimesh.Trimesh``'s vertices."""
+        vertices = getattr(mesh, "vertices", None)
+        if vertices is None:
+            raise RbgenError(f"ConvexHull.from_trimesh expects a trimesh.Trimesh, "
+                             f"got {type(mesh).__name__}")
+        label = name or f"ConvexHull.from_trimesh({getattr(mesh, 'metadata', {}).get('name', 'mesh')})"
+        return cls(np.asarray(vertices, np.float64), name=label)
 
     def pack(self, record, hull_vertices):
-        record["vertex_offset"] = sum(len(v) for v in hull_vertices)
-        record["vertex_count"] = len(self.vertices)
-        hull_vertices.append(self.vertices)
+        pass  # topology and vertices are packed by ShapeTable from cooked()
 
     def key(self):
         return ("hull", self.vertices.tobytes())
 
     def local_vertices(self):
         return self.vertices
+
+    def cooked(self):
+        return self._cooked
+
+    def mass_properties(self, density=None, mass=None):
+        c = self._cooked
+        return self._solid(c.volume, c.unit_inertia, density, mass, c.com, c.rotation)
 
 
 class Plane(Shape):
@@ -165,14 +224,75 @@ class ShapeTable:
         names = {Sphere: "sphere", Box: "box", Capsule: "capsule", ConvexHull: "hull", Plane: "plane"}
         return tuple(sorted({names[type(s)] for s in self.shapes}))
 
+    def max_face_vertices(self) -> int:
+        """Most vertices on one face of any box or hull (sizes the clipping buffers)."""
+        return max((max(len(f) for f in s.cooked().faces) for s in self.shapes
+                    if s.cooked() is not None), default=0)
+
     def pack(self) -> tuple[np.ndarray, np.ndarray]:
         """(Shape records, hull vertices as float4; at least one of each for OpenCL)."""
+        packed = self.pack_all()
+        return packed.shapes, packed.vertices
+
+    def pack_all(self) -> "PackedShapes":
+        """Every device array of the shapes: records and cooked hull topology."""
         records = layouts.SHAPE.zeros(max(1, len(self.shapes)))
-        hull_vertices: list[np.ndarray] = []
+        vertices, faces, indices, edges = [], [], [], []
+        counts = dict(v=0, f=0, i=0, e=0)
         for i, shape in enumerate(self.shapes):
-            records[i]["type"] = shape.type_code
-            shape.pack(records[i], hull_vertices)
-        verts = np.zeros((max(1, sum(len(v) for v in hull_vertices)), 4), np.float32)
-        if hull_vertices:
-            verts[: sum(len(v) for v in hull_vertices), :3] = np.concatenate(hull_vertices)
-        return records, verts
+            rec = records[i]
+            rec["type"] = shape.type_code
+            shape.pack(rec, [])
+            cooked = shape.cooked()
+            if cooked is None:
+                continue
+            rec["vertex_offset"], rec["vertex_count"] = counts["v"], len(cooked.vertices)
+            rec["face_offset"], rec["face_count"] = counts["f"], len(cooked.faces)
+            rec["edge_offset"], rec["edge_count"] = counts["e"], len(cooked.edge_directions)
+            face_records = layouts.HULL_FACE.zeros(len(cooked.faces))
+            for k, polygon in enumerate(cooked.faces):
+                face_records[k]["plane"] = cooked.planes[k]
+                face_records[k]["index_offset"] = counts["i"]
+                face_records[k]["index_count"] = len(polygon)
+                indices.append(np.asarray(polygon, np.uint32))
+                counts["i"] += len(polygon)
+            vertices.append(cooked.vertices)
+            faces.append(face_records)
+            edges.append(cooked.edge_directions)
+            counts["v"] += len(cooked.vertices)
+            counts["f"] += len(cooked.faces)
+            counts["e"] += len(cooked.edge_directions)
+        return PackedShapes(
+            shapes=records,
+            vertices=_float4(vertices),
+            faces=np.concatenate(faces) if faces else layouts.HULL_FACE.zeros(1),
+            face_indices=np.concatenate(indices) if indices else np.zeros(1, np.uint32),
+            edges=_float4(edges),
+        )
+
+
+def _float4(chunks) -> np.ndarray:
+    total = sum(len(c) for c in chunks)
+    out = np.zeros((max(1, total), 4), np.float32)
+    if total:
+        out[:total, :3] = np.concatenate(chunks)
+    return out
+
+
+@dataclasses.dataclass
+class PackedShapes:
+    """Host arrays of a `ShapeTable` (each has at least one element for OpenCL)."""
+
+    shapes: np.ndarray        # Shape records
+    vertices: np.ndarray      # (V, 4) float32 hull/box vertices, w unused
+    faces: np.ndarray         # HullFace records
+    face_indices: np.ndarray  # uint32 polygon vertex indices (relative to vertex_offset)
+    edges: np.ndarray         # (E, 4) float32 unique edge directions, w unused
+
+    def to_device(self, queue) -> "PackedShapes":
+        """The same arrays as pyopencl arrays on ``queue``'s device."""
+        import pyopencl.array as cla
+
+        return PackedShapes(*(cla.to_device(queue, np.ascontiguousarray(a))
+                              for a in (self.shapes, self.vertices, self.faces,
+                                        self.face_indices, self.edges)))
