@@ -29,3 +29,19 @@ def test_integrate_demo_checks_pass(capsys):
 
     assert integrate_demo(5000, 5) == 0
     assert "5,000 boxes" in capsys.readouterr().out
+
+
+def test_console_script_info_names_the_default_device():
+    """After `pip install .` the `rbgen` script is on PATH (CI installs into a fresh venv)."""
+    import shutil
+
+    import pytest
+
+    from rbgen.device import default_device
+
+    script = shutil.which("rbgen")
+    if script is None:
+        pytest.skip("rbgen is not installed as a console script in this environment")
+    result = subprocess.run([script, "info"], capture_output=True, text=True, check=True)
+    default_line = next(l for l in result.stdout.splitlines() if l.startswith("*"))
+    assert default_device().name.strip() in default_line
