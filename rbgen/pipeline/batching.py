@@ -1,0 +1,176 @@
+"""Constraint batching: no two constraints of a batch share a dynamic body.
+
+PGS solves constraints one after another; on a GPU, the constraints of one
+batch are solved at the same time, which is only correct if none of them
+touch the same dynamic body (static bodies never move, so they are ignored).
+
+Two levels, after Harada's two-level solver:
+
+1. **Groups** (one solver work group each). The components of the contact
+   graph over dynamic bodies are found on the device (lock-free union-find);
+   a component goes whole to the group its root hashes to. So no dynamic
+   body is ever touched by two groups and the solver needs no synchronisation
+   between work groups: one launch per iteration. (Harada splits by spatial
+   cells and launches one kernel per cell colour; components are the
+   strictest split that needs only one launch, and they are spatially
+   coherent. A single pile becomes one group, solved by one work group.)
+2. **Batches** inside a group, coloured by one work group with barriers
+   (maximal independent sets grown by rounds of lowest-priority-wins). The
+   last batch slot takes any remainder and is solved by a single lane.
+
+`batch_host` is the sequential greedy reference; the device result is
+checked against the same invariants in tests. Counts stay on the device.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cl_array
+
+from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ..device import DeviceTraits, Runtime
+from ..errors import RbgenError
+
+TEMPLATE = KernelTemplate(
+    "pipeline/batching.cl.mako",
+    [
+        Param("work_group_size", power_of_two(1, 1024),
+              "lanes of the batching work group (and of the per-item kernels); more lanes "
+              "colour a large group faster", "a power of two from 1 to 1024"),
+        Param("max_batches", power_of_two(2, 4096),
+              "batch slots per group; the last slot holds the remainder, solved serially, "
+              "so this bounds local memory, not correctness", "a power of two from 2 to 4096"),
+    ],
+    doc="Level-1 groups by union-find over dynamic bodies; level-2 batches per work group.",
+    roles={"constraints": "inout", "parent": "inout", "body_stamp": "inout",
+           "group_counts": "inout"},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "max_batches": 128},
+)
+
+
+def default_work_group_size(traits: DeviceTraits) -> int:
+    """128 on GPUs (enough lanes per batch of a pile); 16 on CPUs (few cores, cheap barriers)."""
+    return min(128 if traits.is_gpu else 16, traits.max_work_group_size)
+
+
+def default_group_count(traits: DeviceTraits) -> int:
+    """Two groups per compute unit, so that small islands balance across the device."""
+    return max(1, min(1024, 2 * traits.compute_units))
+
+
+def batch_host(body_a, body_b, dynamic) -> np.ndarray:
+    """Reference: sequential first-fit colouring; returns the batch of every constraint.
+
+    ``dynamic`` is a boolean per body; constraints between two static bodies go
+    to batch 0.
+    """
+    body_a, body_b = np.asarray(body_a), np.asarray(body_b)
+    dynamic = np.asarray(dynamic, bool)
+    used: dict[int, set[int]] = {}
+    batches = np.zeros(len(body_a), np.int64)
+    for i, (a, b) in enumerate(zip(body_a, body_b)):
+        bodies = [x for x in (int(a), int(b)) if dynamic[x]]
+        taken = set().union(*(used.get(x, set()) for x in bodies)) if bodies else set()
+        k = 0
+        while k in taken:
+            k += 1
+        batches[i] = k
+        for x in bodies:
+            used.setdefault(x, set()).add(k)
+    return batches
+
+
+class ConstraintBatcher:
+    """Owns the batching kernels and scratch; call it once per step.
+
+    After a call, the device arrays ``order`` (constraint indices sorted by
+    group then batch), ``group_batches`` (per group, ``max_batches + 1``
+    absolute offsets into ``order``) and ``group_batch_count`` describe the
+    batches; the solver reads them directly.
+    """
+
+    def __init__(self, runtime: Runtime, *, group_count: int | None = None,
+                 max_batches: int = 128, work_group_size: int | None = None):
+        self.runtime = runtime
+        self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
+        self.group_count = int(group_count or default_group_count(runtime.traits))
+        if self.group_count < 1:
+            raise RbgenError(f"group_count must be >= 1, got {group_count!r}")
+        self.max_batches = int(max_batches)
+        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
+                                  max_batches=self.max_batches)
+        program = compile_spec(runtime, self.spec)
+        self._kernels = {name: program.kernel(name) for name in (
+            "reset_batching", "link_bodies", "assign_groups", "scan_groups", "scatter_groups",
+            "batch_groups")}
+        self.body_capacity = self.constraint_capacity = 0
+        queue, g = runtime.queue, self.group_count
+        self.group_counts = cl_array.zeros(queue, g, np.uint32)
+        self.group_offsets = cl_array.zeros(queue, g + 1, np.uint32)
+        self.group_batches = cl_array.zeros(queue, g * (self.max_batches + 1), np.uint32)
+        self.group_batch_count = cl_array.zeros(queue, g, np.uint32)
+
+    def ensure_capacity(self, body_capacity: int, constraint_capacity: int) -> None:
+        """Grow the per-body and per-constraint scratch (never shrinks)."""
+        queue = self.runtime.queue
+        if body_capacity > self.body_capacity:
+            self.body_capacity = int(body_capacity)
+            n = max(1, self.body_capacity)
+            self.parent, self.body_stamp, self.body_taken = (
+                cl_array.empty(queue, n, np.uint32) for _ in range(3))
+        if constraint_capacity > self.constraint_capacity:
+            self.constraint_capacity = int(constraint_capacity)
+            n = max(1, self.constraint_capacity)
+            (self.constraint_slot, self.constraint_batch, self.constraint_blocked,
+             self.group_list, self.order) = (cl_array.empty(queue, n, np.uint32) for _ in range(5))
+
+    def __call__(self, constraints, constraint_count, bodies, body_count: int,
+                 constraint_capacity: int) -> None:
+        """Batch the first ``constraint_count[0]`` constraints (a device uint32 array(1)).
+
+        ``constraint_capacity`` bounds the count and sizes the launches.
+        """
+        self.ensure_capacity(body_count, constraint_capacity)
+        k, wg, launch = self._kernels, self.work_group_size, self.runtime.launch
+        g = self.group_count
+        over = lambda n: max(wg, -(-n // wg) * wg)  # noqa: E731 - launch size over n items
+        data = _data
+        k["reset_batching"].set_args(self.parent.data, self.body_stamp.data, self.body_taken.data,
+                                     self.group_counts.data, np.uint32(body_count), np.uint32(g))
+        launch(k["reset_batching"], over(max(body_count, g)), wg)
+        if constraint_capacity > 0:
+            k["link_bodies"].set_args(data(constraints), data(constraint_count), data(bodies),
+                                      self.parent.data)
+            launch(k["link_bodies"], over(constraint_capacity), wg)
+            k["assign_groups"].set_args(data(constraints), data(constraint_count), data(bodies),
+                                        self.parent.data, self.group_counts.data,
+                                        self.constraint_slot.data, np.uint32(g))
+            launch(k["assign_groups"], over(constraint_capacity), wg)
+        k["scan_groups"].set_args(self.group_counts.data, self.group_offsets.data, np.uint32(g))
+        launch(k["scan_groups"], 1, 1)
+        if constraint_capacity > 0:
+            k["scatter_groups"].set_args(data(constraints), data(constraint_count),
+                                         self.constraint_slot.data, self.group_offsets.data,
+                                         self.group_list.data, self.constraint_batch.data,
+                                         self.constraint_blocked.data)
+            launch(k["scatter_groups"], over(constraint_capacity), wg)
+        k["batch_groups"].set_args(data(constraints), data(bodies), self.group_offsets.data,
+                                   self.group_list.data, self.body_stamp.data,
+                                   self.body_taken.data, self.constraint_batch.data,
+                                   self.constraint_blocked.data, self.order.data,
+                                   self.group_batches.data, self.group_batch_count.data)
+        launch(k["batch_groups"], g * wg, wg)
+
+    def read_batches(self):
+        """Host copy of the result (tests, statistics): (order, per-group batch offsets, counts).
+
+        Blocking reads; never called by `World.step`.
+        """
+        read = self.runtime.read
+        offsets = read(self.group_batches).reshape(self.group_count, self.max_batches + 1)
+        return read(self.order), offsets, read(self.group_batch_count)
+
+
+def _data(array):
+    return array.data if hasattr(array, "data") else array

@@ -1,0 +1,68 @@
+"""Per-body preparation before the solver: implicit gyroscopic term and world inverse inertia.
+
+The solver needs every body's world inverse inertia tensor; it changes with the
+orientation, so a small kernel recomputes it each step from the principal
+diagonal kept in `BodyInertia`. The same pass applies the implicit gyroscopic
+term (Bullet 2.x): without it an asymmetric box spinning freely keeps its
+angular *velocity* instead of its angular *momentum*, which is wrong.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import layouts
+from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ..device import DeviceTraits, Runtime
+
+TEMPLATE = KernelTemplate(
+    "pipeline/gyroscopic.cl.mako",
+    [
+        Param("work_group_size", power_of_two(1, 1024),
+              "bodies per work group; memory-bound, so any size that fills a CU works",
+              "a power of two from 1 to 1024"),
+        Param("gyroscopic", (True, False),
+              "emit the implicit gyroscopic update only when the world enables it"),
+    ],
+    doc="World inverse inertia and the implicit gyroscopic term, one work-item per body.",
+    roles={"bodies": "inout", "inertia": "inout"},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "gyroscopic": True},
+)
+
+
+def default_work_group_size(traits: DeviceTraits) -> int:
+    """128 on GPUs; 64 on CPUs (PoCL vectorises across work-items)."""
+    return min(128 if traits.is_gpu else 64, traits.max_work_group_size)
+
+
+def inertia_records(inv_inertia_diag: np.ndarray) -> np.ndarray:
+    """`BodyInertia` records from (N, 3) principal inverse inertia (0 rows for static bodies).
+
+    The world tensor is filled by `BodyPreparation` on the device each step.
+    """
+    diag = np.asarray(inv_inertia_diag, dtype=np.float32).reshape(-1, 3)
+    records = layouts.BODY_INERTIA.zeros(len(diag))
+    records["inv_inertia_local"][:, :3] = diag
+    return records
+
+
+class BodyPreparation:
+    """Launches `prepare_bodies` over `Body` and `BodyInertia` device arrays."""
+
+    def __init__(self, runtime: Runtime, *, gyroscopic: bool = True,
+                 work_group_size: int | None = None):
+        self.runtime = runtime
+        self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
+        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, gyroscopic=bool(gyroscopic))
+        self.kernel = compile_spec(runtime, self.spec).kernel("prepare_bodies")
+
+    def __call__(self, bodies, inertia, body_count: int, dt: float):
+        if body_count == 0:
+            return None
+        self.kernel.set_args(_data(bodies), _data(inertia), np.uint32(body_count), np.float32(dt))
+        wg = self.work_group_size
+        return self.runtime.launch(self.kernel, -(-body_count // wg) * wg, wg)
+
+
+def _data(array):
+    return array.data if hasattr(array, "data") else array

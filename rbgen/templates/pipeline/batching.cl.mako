@@ -1,0 +1,299 @@
+/* Two-level constraint batching (after Harada's two-level solver).
+ *
+ * Level 1 splits the constraints into G groups (one solver work
+ * group each) such that no dynamic body is touched by two groups: the contact
+ * graph's connected components over dynamic bodies are found with a lock-free
+ * union-find (static bodies join nothing), and each component goes whole to
+ * the group its root hashes to. Spatially coherent piles therefore stay in one
+ * group, and the solver needs no synchronisation between work groups: one
+ * launch per iteration.
+ *
+ * Level 2 colours each group's constraints into batches inside one work group
+ * (batch_groups): a batch is a maximal set of constraints that share no dynamic
+ * body, grown by rounds of "local minimum priority wins" (Luby) with barriers
+ * between the rounds. Batch ${max_batches - 1} (the last) takes whatever is
+ * left and is flagged to be solved by a single lane, so nothing is ever
+ * dropped.
+ *
+ * Counts stay on the device: kernels read the constraint count from
+ * constraint_count[0] and exit past it.
+ */
+${cl_constants()}
+
+${cl_structs("ContactConstraint", "Body")}
+
+#define MAX_BATCHES ${max_batches}
+
+/* A bijective mix of 32-bit integers (lowbias32): distinct constraints get
+ * distinct, well spread priorities and groups. */
+inline uint mix32(uint x)
+{
+    x ^= x >> 16;
+    x *= 0x7feb352du;
+    x ^= x >> 15;
+    x *= 0x846ca68bu;
+    x ^= x >> 16;
+    return x;
+}
+
+inline bool is_dynamic(__global const Body* bodies, uint body)
+{
+    return bodies[body].inv_mass > 0.0f;
+}
+
+/* Root of x's component; parents only ever point to smaller indices, and the
+ * path-halving stores are benign races (ECL-CC). */
+inline uint find_root(volatile __global uint* parent, uint x)
+{
+    uint current = parent[x];
+    if (current != x) {
+        uint previous = x, next;
+        while (current > (next = parent[current])) {
+            parent[previous] = next;
+            previous = current;
+            current = next;
+        }
+    }
+    return current;
+}
+
+/* One work-item per body (and per group counter): every body its own
+ * component, batching marks cleared. A work group is responsible for
+ * ${work_group_size} consecutive bodies. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void reset_batching(__global uint* parent,
+                    __global uint* body_stamp,
+                    __global uint* body_taken,
+                    __global uint* group_counts,
+                    const uint body_count,
+                    const uint group_count)
+{
+    uint i = get_global_id(0);
+    if (i < group_count)
+        group_counts[i] = 0;
+    if (i >= body_count)
+        return;
+    parent[i] = i;
+    body_stamp[i] = RB_SOLVER_NONE;
+    body_taken[i] = RB_SOLVER_NONE;
+}
+
+/* One work-item per constraint: join the components of its two dynamic
+ * bodies, hooking the larger root under the smaller with compare-and-swap.
+ * A work group is responsible for ${work_group_size} consecutive constraints. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void link_bodies(__global const ContactConstraint* constraints,
+                 __global const uint* constraint_count,
+                 __global const Body* bodies,
+                 volatile __global uint* parent)
+{
+    uint i = get_global_id(0);
+    if (i >= constraint_count[0])
+        return;
+    uint a = constraints[i].body_a, b = constraints[i].body_b;
+    if (!is_dynamic(bodies, a) || !is_dynamic(bodies, b))
+        return;
+    uint root_a = find_root(parent, a), root_b = find_root(parent, b);
+    while (root_a != root_b) {
+        uint high = max(root_a, root_b), low = min(root_a, root_b);
+        uint seen = atomic_cmpxchg(&parent[high], high, low);
+        if (seen == high)
+            break;
+        /* someone hooked `high` first: retry from its new parent */
+        if (high == root_a)
+            root_a = seen, root_b = low;
+        else
+            root_b = seen, root_a = low;
+    }
+}
+
+/* One work-item per constraint: its group is the hash of its component's
+ * root; it takes a slot in that group's list. A work group is responsible for
+ * ${work_group_size} consecutive constraints. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void assign_groups(__global ContactConstraint* constraints,
+                   __global const uint* constraint_count,
+                   __global const Body* bodies,
+                   volatile __global uint* parent,
+                   volatile __global uint* group_counts,
+                   __global uint* constraint_slot,
+                   const uint group_count)
+{
+    uint i = get_global_id(0);
+    if (i >= constraint_count[0])
+        return;
+    uint a = constraints[i].body_a, b = constraints[i].body_b;
+    uint owner = is_dynamic(bodies, a) ? a : b;
+    uint group = mix32(find_root(parent, owner)) % group_count;
+    constraints[i].group = group;
+    constraint_slot[i] = atomic_inc(&group_counts[group]);
+}
+
+/* A single work-item turns the group counts into offsets (exclusive scan);
+ * group_count is a few hundred at most. */
+__kernel void scan_groups(__global const uint* group_counts,
+                          __global uint* group_offsets,
+                          const uint group_count)
+{
+    uint total = 0;
+    for (uint g = 0; g < group_count; ++g) {
+        group_offsets[g] = total;
+        total += group_counts[g];
+    }
+    group_offsets[group_count] = total;
+}
+
+/* One work-item per constraint: write its index into its group's list and
+ * clear its level-2 state. A work group is responsible for
+ * ${work_group_size} consecutive constraints. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void scatter_groups(__global const ContactConstraint* constraints,
+                    __global const uint* constraint_count,
+                    __global const uint* constraint_slot,
+                    __global const uint* group_offsets,
+                    __global uint* group_list,
+                    __global uint* constraint_batch,
+                    __global uint* constraint_blocked)
+{
+    uint i = get_global_id(0);
+    if (i >= constraint_count[0])
+        return;
+    group_list[group_offsets[constraints[i].group] + constraint_slot[i]] = i;
+    constraint_batch[i] = RB_SOLVER_NONE;
+    constraint_blocked[i] = RB_SOLVER_NONE;
+}
+
+/* Dynamic bodies of a constraint; a static one is reported as RB_SOLVER_NONE. */
+inline uint2 dynamic_bodies(__global const ContactConstraint* constraints,
+                            __global const Body* bodies, uint c)
+{
+    uint a = constraints[c].body_a, b = constraints[c].body_b;
+    return (uint2)(is_dynamic(bodies, a) ? a : RB_SOLVER_NONE,
+                   is_dynamic(bodies, b) ? b : RB_SOLVER_NONE);
+}
+
+/* One work group per level-1 group: colour the group's constraints into
+ * batches of constraints with no dynamic body in common, then write the list
+ * sorted by batch to `order` and the batch offsets to `group_batches`.
+ * Lanes exchange data only through memory, separated by barriers. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void batch_groups(__global const ContactConstraint* constraints,
+                  __global const Body* bodies,
+                  __global const uint* group_offsets,
+                  __global const uint* group_list,
+                  volatile __global uint* body_stamp,
+                  __global uint* body_taken,
+                  __global uint* constraint_batch,
+                  __global uint* constraint_blocked,
+                  __global uint* order,
+                  __global uint* group_batches,
+                  __global uint* group_batch_count)
+{
+    __local uint candidates_left, unassigned_left;
+    __local uint batch_offsets[MAX_BATCHES + 1];
+    const uint lane = get_local_id(0), group = get_group_id(0);
+    const uint begin = group_offsets[group], end = group_offsets[group + 1];
+
+    uint batch_count = 0;
+    bool done = begin == end;
+    while (!done) {
+        uint batch = batch_count++;
+        if (batch == MAX_BATCHES - 1) {
+            /* Last batch: everything left, solved by one lane in order. */
+            for (uint i = begin + lane; i < end; i += ${work_group_size}) {
+                uint c = group_list[i];
+                if (constraint_batch[c] == RB_SOLVER_NONE)
+                    constraint_batch[c] = batch;
+            }
+            barrier(CLK_GLOBAL_MEM_FENCE);
+            break;
+        }
+        uint candidates, unassigned;
+        do {
+            if (lane == 0)
+                candidates_left = 0, unassigned_left = 0;
+            /* 1: every candidate bids its priority on its dynamic bodies */
+            for (uint i = begin + lane; i < end; i += ${work_group_size}) {
+                uint c = group_list[i];
+                if (constraint_batch[c] != RB_SOLVER_NONE || constraint_blocked[c] == batch)
+                    continue;
+                uint2 body = dynamic_bodies(constraints, bodies, c);
+                uint priority = mix32(c);
+                if (body.x != RB_SOLVER_NONE)
+                    atomic_min(&body_stamp[body.x], priority);
+                if (body.y != RB_SOLVER_NONE)
+                    atomic_min(&body_stamp[body.y], priority);
+            }
+            barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
+            /* 2: a candidate that won all its bodies joins the batch */
+            for (uint i = begin + lane; i < end; i += ${work_group_size}) {
+                uint c = group_list[i];
+                if (constraint_batch[c] != RB_SOLVER_NONE || constraint_blocked[c] == batch)
+                    continue;
+                uint2 body = dynamic_bodies(constraints, bodies, c);
+                uint priority = mix32(c);
+                bool won = (body.x == RB_SOLVER_NONE || body_stamp[body.x] == priority)
+                        && (body.y == RB_SOLVER_NONE || body_stamp[body.y] == priority);
+                if (won) {
+                    constraint_batch[c] = batch;
+                    if (body.x != RB_SOLVER_NONE)
+                        body_taken[body.x] = batch;
+                    if (body.y != RB_SOLVER_NONE)
+                        body_taken[body.y] = batch;
+                }
+            }
+            barrier(CLK_GLOBAL_MEM_FENCE);
+            /* 3: clear the bids; a loser next to a taken body waits for the next batch */
+            for (uint i = begin + lane; i < end; i += ${work_group_size}) {
+                uint c = group_list[i];
+                uint assigned = constraint_batch[c];
+                if (assigned != RB_SOLVER_NONE && assigned != batch)
+                    continue;
+                uint2 body = dynamic_bodies(constraints, bodies, c);
+                if (body.x != RB_SOLVER_NONE)
+                    body_stamp[body.x] = RB_SOLVER_NONE;
+                if (body.y != RB_SOLVER_NONE)
+                    body_stamp[body.y] = RB_SOLVER_NONE;
+                if (assigned == batch)
+                    continue;
+                atomic_inc(&unassigned_left);
+                if (constraint_blocked[c] == batch)
+                    continue;
+                if ((body.x != RB_SOLVER_NONE && body_taken[body.x] == batch)
+                    || (body.y != RB_SOLVER_NONE && body_taken[body.y] == batch))
+                    constraint_blocked[c] = batch;
+                else
+                    atomic_inc(&candidates_left);
+            }
+            barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
+            candidates = candidates_left;
+            unassigned = unassigned_left;
+            barrier(CLK_LOCAL_MEM_FENCE);
+        } while (candidates != 0);
+        done = unassigned == 0;
+    }
+
+    /* Sort the group's list by batch: count, scan (one lane), scatter. */
+    for (uint k = lane; k <= MAX_BATCHES; k += ${work_group_size})
+        batch_offsets[k] = 0;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (uint i = begin + lane; i < end; i += ${work_group_size})
+        atomic_inc(&batch_offsets[constraint_batch[group_list[i]]]);
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (lane == 0) {
+        __global uint* offsets = group_batches + group * (MAX_BATCHES + 1);
+        uint total = 0;
+        for (uint k = 0; k <= batch_count; ++k) {
+            uint size = batch_offsets[k];
+            batch_offsets[k] = total;
+            offsets[k] = begin + total;
+            total += size;
+        }
+        group_batch_count[group] = batch_count;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (uint i = begin + lane; i < end; i += ${work_group_size}) {
+        uint c = group_list[i];
+        order[begin + atomic_inc(&batch_offsets[constraint_batch[c]])] = c;
+    }
+}

@@ -1,0 +1,76 @@
+/* Per-body preparation before the contact solver.
+ *
+ * One work-item per body; a work group is responsible for ${work_group_size}
+ * consecutive bodies. For every dynamic body:
+% if gyroscopic:
+ *   - the implicit gyroscopic term (as in Bullet 2.x): one Newton step of
+ *     I (w' - w) + dt w' x (I w') = 0 in the body frame, which keeps a free
+ *     spinning body's angular momentum without the energy gain of the
+ *     explicit term;
+% endif
+ *   - the world inverse inertia tensor R diag(I^-1) R^T, which the solver
+ *     reads for every contact row.
+ * Static bodies get a zero tensor.
+ */
+${cl_constants()}
+
+${cl_structs("Body", "BodyInertia")}
+
+<%include file="/common/quaternion.cl.mako"/>
+
+% if gyroscopic:
+/* Solve J x = f for a 3x3 matrix given by rows (Cramer's rule); J is the
+ * Jacobian of the gyroscopic residual, diagonally dominant for dt small. */
+inline float3 solve3(float3 j0, float3 j1, float3 j2, float3 f)
+{
+    float3 c0 = cross(j1, j2), c1 = cross(j2, j0), c2 = cross(j0, j1);
+    float det = dot(j0, c0);
+    if (fabs(det) < 1e-30f)
+        return (float3)(0.0f);
+    /* inverse = [c0 c1 c2] / det (columns are the cofactor rows) */
+    return (c0 * f.x + c1 * f.y + c2 * f.z) / det;
+}
+
+/* One Newton step of the implicit gyroscopic update; w_body in the body frame,
+ * inertia the principal moments. */
+inline float3 implicit_gyroscopic(float3 w_body, float3 inertia, float dt)
+{
+    float3 momentum = inertia * w_body;
+    float3 residual = dt * cross(w_body, momentum);
+    /* J = I + dt (skew(w) I - skew(I w)), written row by row */
+    float3 w = w_body, m = momentum, d = inertia;
+    float3 j0 = (float3)(d.x, dt * (-w.z * d.y + m.z), dt * (w.y * d.z - m.y));
+    float3 j1 = (float3)(dt * (w.z * d.x - m.z), d.y, dt * (-w.x * d.z + m.x));
+    float3 j2 = (float3)(dt * (-w.y * d.x + m.y), dt * (w.x * d.y - m.x), d.z);
+    return w_body - solve3(j0, j1, j2, residual);
+}
+% endif
+
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void prepare_bodies(__global Body* bodies,
+                    __global BodyInertia* inertia,
+                    const uint body_count,
+                    const float dt)
+{
+    uint i = get_global_id(0);
+    if (i >= body_count)
+        return;
+    float4 q = bodies[i].orientation;
+    float3 inv_local = inertia[i].inv_inertia_local.xyz;
+% if gyroscopic:
+    if (bodies[i].inv_mass > 0.0f && all(inv_local > 0.0f)) {
+        float3 w_body = quat_rotate(quat_conjugate(q), bodies[i].angular_velocity.xyz);
+        w_body = implicit_gyroscopic(w_body, 1.0f / inv_local, dt);
+        bodies[i].angular_velocity.xyz = quat_rotate(q, w_body);
+    }
+% endif
+    float3 r0, r1, r2;
+    quat_to_rows(q, &r0, &r1, &r2);
+    /* (R D R^T)_jk = sum_m R_jm D_m R_km */
+    inertia[i].inv_inertia_world[0] = (float4)(dot(r0 * inv_local, r0), dot(r0 * inv_local, r1),
+                                                dot(r0 * inv_local, r2), 0.0f);
+    inertia[i].inv_inertia_world[1] = (float4)(dot(r1 * inv_local, r0), dot(r1 * inv_local, r1),
+                                                dot(r1 * inv_local, r2), 0.0f);
+    inertia[i].inv_inertia_world[2] = (float4)(dot(r2 * inv_local, r0), dot(r2 * inv_local, r1),
+                                                dot(r2 * inv_local, r2), 0.0f);
+}
