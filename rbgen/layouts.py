@@ -278,6 +278,44 @@ CONTACT_MANIFOLD = declare("ContactManifold", [
 ], "Up to four contact points between two bodies sharing one normal.")
 
 # --------------------------------------------------------------------------
+# Contact solver (owner: constraint solver / World; rbgen/pipeline/constraints.py,
+# batching.py, solver.py, gyroscopic.py).
+BODY_INERTIA = declare("BodyInertia", [
+    ("inv_inertia_local", "float4", "principal inverse inertia diagonal (body frame); 0 for static"),
+    ("inv_inertia_world", "float4", 3, "rows of R diag(inv_inertia_local) R^T, updated every step"),
+], "Inverse inertia of one body, local principal diagonal and world tensor.")
+
+SPLIT_VELOCITY = declare("SplitVelocity", [
+    ("linear", "float4", "push velocity of the split-impulse position pass; w unused"),
+    ("angular", "float4", "push angular velocity (world frame); w unused"),
+], "Pseudo-velocity that moves a body out of penetration without adding momentum.")
+
+#: Marks an empty slot of the warm-starting hash table and an unassigned batch.
+SOLVER_NONE = constant("RB_SOLVER_NONE", 0xFFFFFFFF, "empty table slot / unassigned batch")
+
+CONTACT_CONSTRAINT = declare("ContactConstraint", [
+    ("normal", "float4", "unit normal from A to B (world); w: friction coefficient"),
+    ("tangent1", "float4", "first friction direction, unit, orthogonal to normal"),
+    ("tangent2", "float4", "second friction direction, normal x tangent1"),
+    ("r_a", "float4", 4, "contact point k relative to A's centre of mass (world)"),
+    ("r_b", "float4", 4, "contact point k relative to B's centre of mass (world)"),
+    ("normal_mass", "float4", "per point: 1 / (J M^-1 J^T) of the normal row"),
+    ("tangent1_mass", "float4", "per point: effective mass of the tangent1 row"),
+    ("tangent2_mass", "float4", "per point: effective mass of the tangent2 row"),
+    ("velocity_target", "float4", "per point: normal velocity the solver drives to (bounce, bias)"),
+    ("position_target", "float4", "per point: split-impulse push velocity target"),
+    ("normal_impulse", "float4", "per point: accumulated normal impulse (warm started)"),
+    ("tangent1_impulse", "float4", "per point: accumulated tangent1 impulse (warm started)"),
+    ("tangent2_impulse", "float4", "per point: accumulated tangent2 impulse (warm started)"),
+    ("push_impulse", "float4", "per point: accumulated split (position) impulse"),
+    ("features", "uint4", "feature id per point (warm-starting key)"),
+    ("body_a", "uint", "first body"),
+    ("body_b", "uint", "second body"),
+    ("point_count", "uint", "valid points, 0..4 (0: inactive)"),
+    ("group", "uint", "level-1 batching group (work group of the solver)"),
+], "One contact manifold prepared for the solver: up to four normal and eight friction rows.")
+
+# --------------------------------------------------------------------------
 # Narrowphase and hull cooking (owner: narrowphase; rbgen/hull.py,
 # rbgen/pipeline/narrowphase/). A cooked hull is Shape.vertex_* vertices,
 # Shape.face_* HullFace polygons whose vertex indices (relative to
