@@ -343,3 +343,15 @@ SAT_RESULT = declare("SatResult", [
     ("pair", "uint", "pair index, | RB_PAIR_SWAPPED when the kernel's first shape is body b"),
     ("feature", "uint", "face of A (< faces A), face of B (next faces B), else an edge pair"),
 ], "A convex-convex pair that passed the separating-axis test, queued for clipping.")
+
+# --------------------------------------------------------------------------
+# Broadphase (owner: broadphase; rbgen/pipeline/broadphase/).
+#: `BroadphaseStatus.bad_body` when every AABB is valid.
+BP_NO_BODY = constant("RB_BP_NO_BODY", 0xFFFFFFFF, "no invalid AABB found")
+
+BROADPHASE_STATUS = declare("BroadphaseStatus", [
+    ("pair_count", "uint", "pairs stored in the pair buffer: min(pairs_found, capacity)"),
+    ("pairs_found", "uint", "pairs the query found; more than the capacity means overflow"),
+    ("bad_body", "uint", "lowest body with a NaN or inverted AABB, RB_BP_NO_BODY if none"),
+    ("crossings", "uint", "incremental SAP: endpoint crossings scanned this step"),
+], "Results of one broadphase query that the host checks without stalling the queue.")

@@ -1,0 +1,49 @@
+"""Broadphase: the pairs of bodies whose world AABBs overlap.
+
+Every algorithm reads the world AABBs (`Aabb` layout) and optional uint32
+static flags (1 = static), and fills the same pair buffer (see `pairs`): `Pair`
+records (a, b) with a < b, sorted by (a, b), never two static bodies, with the
+count on the device and an overflow protocol that never drops a pair.
+
+Touching rule: boxes are closed. Two AABBs overlap when, on every axis,
+``lower_a <= upper_b`` and ``lower_b <= upper_a``; boxes that share only a
+face, an edge or a corner are a pair (a box resting on another touches it
+exactly, and the narrowphase must see that contact).
+
+Algorithms, chosen per world by name with `make_broadphase`:
+
+``"grid"``  uniform grid (grid.py): similar sizes, any density;
+``"sap"``   one-axis sweep and prune (sap.py): no cell size to choose;
+``"sap3"``  incremental three-axis sweep and prune (sap3.py): coherent motion,
+            pairs updated from the changes of the sorted axes.
+"""
+from __future__ import annotations
+
+from ...errors import RbgenError
+from .base import Broadphase
+from .grid import GridBroadphase
+from .sap import SapBroadphase
+
+BROADPHASES = {
+    "grid": GridBroadphase,
+    "sap": SapBroadphase,
+}
+
+
+def make_broadphase(runtime, name: str = "grid", **options) -> Broadphase:
+    """A broadphase by name ("grid", "sap", "sap3"); options go to its constructor."""
+    if name == "sap3" and name not in BROADPHASES:
+        from .sap3 import IncrementalSapBroadphase
+        BROADPHASES[name] = IncrementalSapBroadphase
+    try:
+        cls = BROADPHASES[name]
+    except (KeyError, TypeError):
+        raise RbgenError(f"unknown broadphase {name!r}; choose one of "
+                         f"{sorted({*BROADPHASES, 'sap3'})}") from None
+    try:
+        return cls(runtime, **options)
+    except TypeError as err:
+        raise RbgenError(f"broadphase {name!r}: bad option ({err})") from None
+
+
+__all__ = ["Broadphase", "GridBroadphase", "SapBroadphase", "make_broadphase", "BROADPHASES"]

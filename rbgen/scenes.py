@@ -1,0 +1,119 @@
+"""Standard benchmark scenes as plain numpy data.
+
+Examples, tests, benchmarks and the World all build the same scenes from here,
+so a number measured in one place means the same scene everywhere.
+
+BoxBox is Bullet3's GpuConvexScene: an ``nx * ny * nz`` lattice of unit-mass
+cubes (half extent 1) on a static ground whose top face is the plane y = 0.
+Layer j sits at y = 1 + 2j, so stacked cubes touch face to face, and every
+second layer is shifted by 1 along x and z, so each cube rests on four cubes
+of the layer below (the x and z pitch is 2.2, leaving gaps of 0.2 inside a
+layer).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from . import layouts
+from .errors import RbgenError
+
+#: (nx, ny, nz) of the BoxBox sizes quoted by Bullet3 and our benchmarks.
+STANDARD_BOXBOX_DIMS = {
+    1_000: (10, 10, 10),
+    8_000: (20, 20, 20),
+    27_000: (30, 30, 30),
+    111_375: (45, 55, 45),
+}
+
+#: Half thickness of the ground slab (its top face is y = 0).
+GROUND_HALF_THICKNESS = 1.0
+#: Horizontal margin of the ground slab beyond the lattice, on every side.
+GROUND_MARGIN = 50.0
+
+
+@dataclasses.dataclass(frozen=True)
+class BoxScene:
+    """Boxes of one size on a static ground slab, as numpy arrays.
+
+    ``positions`` are box centres (N, 3) float32, all boxes share
+    ``half_extents`` (3,) and ``mass``; orientations are the identity. The
+    ground is a static box (``ground_position``, ``ground_half_extents``)
+    whose top face is the plane ``ground_normal . x = ground_offset``.
+    """
+
+    positions: np.ndarray
+    half_extents: np.ndarray
+    mass: float
+    ground_position: np.ndarray
+    ground_half_extents: np.ndarray
+    ground_normal: np.ndarray
+    ground_offset: float
+    dims: tuple[int, int, int]
+
+    @property
+    def count(self) -> int:
+        """Number of dynamic boxes (the ground not included)."""
+        return len(self.positions)
+
+
+def boxbox_scene(nx: int, ny: int, nz: int) -> BoxScene:
+    """The BoxBox lattice: box (i, j, k) at x = ((j+1) mod 2) + 2.2 i,
+    y = 1 + 2 j, z = ((j+1) mod 2) + 2.2 k, half extent 1, mass 1."""
+    for name, value in (("nx", nx), ("ny", ny), ("nz", nz)):
+        if not isinstance(value, (int, np.integer)) or value < 0:
+            raise RbgenError(f"boxbox_scene: {name} must be a non-negative integer, got {value!r}")
+    i, j, k = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij")
+    shift = (j + 1) % 2
+    positions = np.stack([shift + 2.2 * i, 1.0 + 2.0 * j, shift + 2.2 * k], axis=-1)
+    positions = positions.reshape(-1, 3).astype(np.float32)
+    # Ground slab: covers the lattice's x and z range [-1, 2.2 (n - 1) + 2] plus a
+    # margin on every side; its top face is y = 0.
+    reach = np.array([2.2 * max(nx - 1, 0) + 2.0, 0.0, 2.2 * max(nz - 1, 0) + 2.0])
+    centre = np.array([(reach[0] - 1.0) / 2, -GROUND_HALF_THICKNESS, (reach[2] - 1.0) / 2])
+    half = np.array([(reach[0] + 1.0) / 2 + GROUND_MARGIN, GROUND_HALF_THICKNESS,
+                     (reach[2] + 1.0) / 2 + GROUND_MARGIN])
+    return BoxScene(
+        positions=positions,
+        half_extents=np.ones(3, np.float32),
+        mass=1.0,
+        ground_position=centre.astype(np.float32),
+        ground_half_extents=half.astype(np.float32),
+        ground_normal=np.array([0.0, 1.0, 0.0], np.float32),
+        ground_offset=0.0,
+        dims=(int(nx), int(ny), int(nz)),
+    )
+
+
+def standard_boxbox_dims(count: int) -> tuple[int, int, int]:
+    """(nx, ny, nz) for a standard BoxBox size: 1000, 8000, 27000 or 111375."""
+    try:
+        return STANDARD_BOXBOX_DIMS[int(count)]
+    except (KeyError, ValueError, TypeError):
+        raise RbgenError(f"no standard BoxBox size {count!r}; "
+                         f"known sizes: {sorted(STANDARD_BOXBOX_DIMS)}") from None
+
+
+def standard_boxbox_scene(count: int) -> BoxScene:
+    """The BoxBox scene with one of the standard box counts."""
+    return boxbox_scene(*standard_boxbox_dims(count))
+
+
+def scene_aabbs(scene: BoxScene, ground: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """World AABBs of a scene as an `Aabb` array, and a uint32 static flag per body.
+
+    With ``ground`` the ground slab is body 0 (static) and box n is body n + 1,
+    the order in which Bullet3's scene creates them.
+    """
+    lower = scene.positions - scene.half_extents
+    upper = scene.positions + scene.half_extents
+    static = np.zeros(len(lower), np.uint32)
+    if ground:
+        lower = np.concatenate([[scene.ground_position - scene.ground_half_extents], lower])
+        upper = np.concatenate([[scene.ground_position + scene.ground_half_extents], upper])
+        static = np.concatenate([[1], static]).astype(np.uint32)
+    aabbs = layouts.AABB.zeros(len(lower))
+    aabbs["lower"][:, :3] = lower
+    aabbs["upper"][:, :3] = upper
+    return aabbs, static

@@ -1,0 +1,45 @@
+/* Broadphase helpers shared by every algorithm (included, not compiled alone).
+ *
+ * Touching rule: boxes are closed, so two AABBs that share only a face, an
+ * edge or a corner overlap (resting boxes touch exactly). A pair joins two
+ * different bodies, not both static, and is stored as (a, b) with a < b.
+ */
+
+/* Bodies larger than cell / SMALL_SLACK are "large": kept out of the grid or
+ * the sweep and tested against everything separately. The slack keeps the
+ * grid's one-cell reach exact despite float rounding of lower / cell. */
+#define SMALL_SLACK 1.01f
+/* log2 sizes are clamped to this range so that points and infinite slabs do
+ * not dominate the mean. */
+#define LOG_SIZE_LIMIT 40.0f
+
+inline bool boxes_overlap(float3 lower_a, float3 upper_a, float3 lower_b, float3 upper_b)
+{
+    return all(lower_a <= upper_b) && all(lower_b <= upper_a);
+}
+
+/* Largest side of a box; NaN or infinity for degenerate boxes. */
+inline float box_size(float3 lower, float3 upper)
+{
+    float3 side = upper - lower;
+    return fmax(side.x, fmax(side.y, side.z));
+}
+
+/* The scale used to tell small from large bodies: factor times the geometric
+ * mean of the body sizes (the mean of their clamped log2 sizes). */
+inline float size_scale(float log_size_sum, uint body_count, float factor)
+{
+    return factor * exp2(log_size_sum / (float)max(body_count, 1u));
+}
+
+/* NaN and infinite sizes compare false: such bodies are large. */
+inline bool is_small(float size, float scale)
+{
+    return size * SMALL_SLACK <= scale;
+}
+
+/* A pair is kept unless both of its bodies are static. */
+inline bool pair_allowed(__global const uint* static_flags, uint a, uint b)
+{
+    return static_flags[a] == 0 || static_flags[b] == 0;
+}
