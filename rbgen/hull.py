@@ -15,7 +15,7 @@ Cooking happens once on the host, so the device never builds topology:
 Limits (checked, with an error naming the shape): at most
 `MAX_FACE_VERTICES` vertices on one face (the clipping stage keeps one face
 in private memory), at most `MAX_HULL_VERTICES` vertices and
-`MAX_HULL_FACES` faces (feature ids keep 12 bits per face). Cost note: the
+`MAX_HULL_FACES` faces (feature ids keep 11 bits per face). Cost note: the
 hull-hull separating-axis test is O(F_A V_B + F_B V_A + E_A E_B (V_A + V_B));
 hulls used against other hulls should stay small (tens of vertices); against
 spheres and planes any hull within the limits is cheap.
@@ -31,7 +31,7 @@ from .mass import SolidIntegrals, mesh_integrals, principal_frame, quaternion_fr
 
 MAX_FACE_VERTICES = 32
 MAX_HULL_VERTICES = 4096
-MAX_HULL_FACES = 4096
+MAX_HULL_FACES = 2048
 #: qhull facets whose unit normals differ by less than this (and whose
 #: offsets differ by less than this times the hull size) form one polygon.
 COPLANAR_TOLERANCE = 1e-6

@@ -265,10 +265,20 @@ class ShapeTable:
         return PackedShapes(
             shapes=records,
             vertices=_float4(vertices),
-            faces=np.concatenate(faces) if faces else layouts.HULL_FACE.zeros(1),
+            faces=_records(layouts.HULL_FACE, faces),
             face_indices=np.concatenate(indices) if indices else np.zeros(1, np.uint32),
             edges=_float4(edges),
         )
+
+
+def _records(layout, chunks) -> np.ndarray:
+    """Concatenate record arrays into the layout's dtype (np.concatenate drops padding)."""
+    out = layout.zeros(max(1, sum(len(c) for c in chunks)))
+    start = 0
+    for c in chunks:
+        out[start:start + len(c)] = c
+        start += len(c)
+    return out
 
 
 def _float4(chunks) -> np.ndarray:

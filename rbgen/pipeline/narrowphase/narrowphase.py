@@ -1,0 +1,266 @@
+"""The narrowphase stage: contact manifolds for the broadphase pairs.
+
+A step enqueues a fixed sequence of launches with no blocking read:
+
+1. ``classify_pairs`` routes every pair to the queue of its shape-type pair
+   ("kind", see `templates.ALL_KINDS`) and clears its contact flag;
+2. one kernel per primitive kind (sphere-sphere, sphere-plane, sphere-convex,
+   convex-plane) writes the pair's manifold slot;
+3. convex pairs (box-box, box-hull, hull-hull) go through three small kernels
+   instead of one large one (which would spill registers and diverge on
+   GPUs): ``find_separating_axis`` (one launch per convex kind) appends the
+   touching pairs to a clipping queue; ``clip_incident_face`` and
+   ``reduce_contacts`` run over that queue;
+4. an exclusive scan of the per-pair flags places each manifold, and
+   ``scatter_manifolds`` writes them in pair order (deterministic).
+
+Counts stay on the device: the pair count, the queue lengths, the manifold
+count. Non-blocking contract for a step: the manifold buffer has a capacity;
+when more manifolds exist, ``overflow[0]`` receives the number needed and
+``manifold_count[0]`` the true count (consumers use min(count, capacity)).
+The host reads ``overflow`` without stalling (e.g. a non-blocking copy
+checked at the start of the next step), then grows the buffer and redoes the
+step; nothing is dropped silently. `find_contacts` does this synchronously.
+
+Separating-axis cache: one `SatCacheEntry` per pair-list index, keyed by the
+pair's bodies (a, b). When the broadphase's sorted pair list keeps a pair at
+the same index (the common case at rest), last step's best axis is tried
+first and usually ends the test for separated pairs; a mismatched key only
+costs the full test. The cache survives between calls and is cleared when
+the pair capacity grows.
+
+Margin: points with separation up to ``+margin`` are reported (resting
+contacts persist between steps).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from ... import layouts
+from ...codegen import compile_spec
+from ...device import Runtime
+from ...errors import RbgenError
+from ...primitives.scan import Scan
+from ...shapes import PackedShapes, ShapeTable
+from .templates import ALL_KINDS, CLIP, CONVEX_KINDS, DISPATCH, PRIMITIVE_KINDS, PRIMITIVE_PAIRS, SAT
+from .templates import default_work_group_size
+
+SUPPORTED_TYPES = ("box", "hull", "plane", "sphere")
+
+
+def kinds_for(shape_types) -> tuple[str, ...]:
+    """The kinds (kernel shape-type pairs) needed by a world with these shape types."""
+    types = set(shape_types)
+    unsupported = sorted(types - set(SUPPORTED_TYPES))
+    if unsupported:
+        raise RbgenError(f"narrowphase: shape type(s) {unsupported} are not supported "
+                         f"(supported: {list(SUPPORTED_TYPES)})")
+    convex = types & {"box", "hull"}
+    wanted = set()
+    if "sphere" in types:
+        wanted.add("sphere_sphere")
+        if "plane" in types:
+            wanted.add("sphere_plane")
+        if convex:
+            wanted.add("sphere_convex")
+    if convex and "plane" in types:
+        wanted.add("convex_plane")
+    if "box" in types:
+        wanted.add("box_box")
+        if "hull" in types:
+            wanted.add("box_hull")
+    if "hull" in types:
+        wanted.add("hull_hull")
+    return tuple(k for k in ALL_KINDS if k in wanted)
+
+
+def _data(a):
+    return a.data if hasattr(a, "data") else a
+
+
+def _round_up(n: int, m: int) -> int:
+    return max(m, -(-int(n) // m) * m)
+
+
+class Narrowphase:
+    """Contact manifolds for pairs of bodies with the shape types of one world.
+
+    ``shapes`` is the world's `ShapeTable` (or a tuple of shape type names,
+    then give ``max_face_vertices``). A shape pair without a kernel raises here,
+    at construction, never during a step. ``box_path``: "box" projects boxes
+    in closed form in the separating-axis test, "hull" treats them as hulls
+    (the benchmark compares both).
+    """
+
+    def __init__(self, runtime: Runtime, shapes, *, max_face_vertices: int | None = None,
+                 box_path: str = "box", work_group_size: int | None = None):
+        if isinstance(shapes, ShapeTable):
+            types = shapes.type_names()
+            max_face_vertices = max_face_vertices or shapes.max_face_vertices()
+        else:
+            types = tuple(shapes)
+        if box_path not in ("box", "hull"):
+            raise RbgenError(f"box_path must be 'box' or 'hull', got {box_path!r}")
+        self.runtime = runtime
+        self.kinds = kinds_for(types)
+        if not self.kinds:
+            raise RbgenError(f"narrowphase: no shape pair to test among shape types {list(types)}")
+        self.kind_index = {k: i for i, k in enumerate(self.kinds)}
+        self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
+        wg = self.work_group_size
+        self.max_face_vertices = max(3, int(max_face_vertices or 4))
+        dispatch = compile_spec(runtime, DISPATCH.spec(work_group_size=wg, kinds=self.kinds))
+        self.k_classify = dispatch.kernel("classify_pairs")
+        self.k_scatter = dispatch.kernel("scatter_manifolds")
+        primitive = tuple(k for k in self.kinds if k in PRIMITIVE_KINDS)
+        self.primitive_kernels = {}
+        if primitive:
+            prog = compile_spec(runtime, PRIMITIVE_PAIRS.spec(work_group_size=wg, kinds=primitive))
+            self.primitive_kernels = {k: prog.kernel(k) for k in primitive}
+        self.sat_kernels = {}
+        for kind in (k for k in self.kinds if k in CONVEX_KINDS):
+            first, second = kind.split("_")
+            if box_path == "hull":
+                first, second = "hull", "hull"
+            prog = compile_spec(runtime, SAT.spec(work_group_size=wg, first=first, second=second))
+            self.sat_kernels[kind] = prog.kernel("find_separating_axis")
+        self.k_clip = self.k_reduce = None
+        if self.sat_kernels:
+            clip = compile_spec(runtime, CLIP.spec(work_group_size=wg,
+                                                   max_face_vertices=self.max_face_vertices))
+            self.k_clip = clip.kernel("clip_incident_face")
+            self.k_reduce = clip.kernel("reduce_contacts")
+        self.scan = Scan(runtime, np.uint32, inclusive=False)
+        self.capacity = 0
+        self.timings = None  # {stage: seconds} of the last call when profiling
+
+    # ------------------------------------------------------------------ buffers
+    def _ensure(self, pair_capacity: int) -> None:
+        if pair_capacity <= self.capacity:
+            return
+        q = self.runtime.queue
+        cap = int(pair_capacity)
+        clip_cap = cap * 2 * self.max_face_vertices if self.sat_kernels else 1
+        self.contact_flags = cla.zeros(q, cap, np.uint32)
+        self.slot_offsets = cla.zeros(q, cap, np.uint32)
+        self.slots = cla.zeros(q, cap, layouts.CONTACT_MANIFOLD.dtype)
+        self.queues = cla.zeros(q, cap * len(self.kinds), np.uint32)
+        self.queue_counts = cla.zeros(q, len(self.kinds), np.uint32)
+        self.sat_count = cla.zeros(q, 1, np.uint32)
+        self.sat_cache = cla.zeros(q, cap, layouts.SAT_CACHE_ENTRY.dtype)
+        self.sat_results = cla.zeros(q, cap if self.sat_kernels else 1, layouts.SAT_RESULT.dtype)
+        self.clip_points = cla.zeros(q, (clip_cap, 4), np.float32)
+        self.clip_features = cla.zeros(q, clip_cap, np.uint32)
+        self.clip_counts = cla.zeros(q, cap if self.sat_kernels else 1, np.uint32)
+        self.capacity = cap
+
+    # ------------------------------------------------------------------ step
+    def enqueue(self, bodies, shapes: PackedShapes, pairs, pair_count, manifolds, manifold_count,
+                overflow, margin: float = 0.0) -> list:
+        """Enqueue the whole stage; returns the events (no blocking read).
+
+        ``bodies``, ``pairs`` (Pair records), ``pair_count`` (uint32 array(1)),
+        ``manifolds`` (ContactManifold records, its size is the capacity),
+        ``manifold_count`` (uint32 array(1), written) and ``overflow`` (uint32
+        array(1), set to the needed capacity when it is exceeded; the caller
+        clears it) are pyopencl arrays; ``shapes`` are `PackedShapes` on the
+        device.
+        """
+        if not (np.isfinite(margin) and margin >= 0):
+            raise RbgenError(f"margin must be a non-negative finite number, got {margin!r}")
+        rt, wg = self.runtime, self.work_group_size
+        pair_capacity = int(pairs.size)
+        self._ensure(max(1, pair_capacity))
+        cap = np.uint32(self.capacity)
+        size = _round_up(max(1, pair_capacity), wg)
+        events = {}
+        for counter in (self.queue_counts, self.sat_count):
+            cl.enqueue_fill_buffer(rt.queue, counter.data, np.uint32(0), 0, counter.nbytes)
+        common = (_data(pairs), _data(bodies), _data(shapes.shapes))
+        self.k_classify.set_args(_data(pairs), _data(pair_count), _data(bodies), _data(shapes.shapes),
+                                 self.contact_flags.data, self.queues.data, self.queue_counts.data, cap)
+        events["classify"] = rt.launch(self.k_classify, size, wg)
+        queue_args = (self.queues.data, self.queue_counts.data, cap)
+        out_args = (self.slots.data, self.contact_flags.data, np.float32(margin))
+        for kind, kernel in self.primitive_kernels.items():
+            args = [*common, *queue_args, np.uint32(self.kind_index[kind]), *out_args]
+            if kind == "sphere_convex":
+                args += [_data(shapes.vertices), _data(shapes.faces), _data(shapes.face_indices)]
+            elif kind == "convex_plane":
+                args += [_data(shapes.vertices)]
+            kernel.set_args(*args)
+            events[kind] = rt.launch(kernel, size, wg)
+        if self.sat_kernels:
+            result_count = self.sat_count
+            for kind, kernel in self.sat_kernels.items():
+                kernel.set_args(*common, _data(shapes.vertices), _data(shapes.faces),
+                                _data(shapes.edges), *queue_args, np.uint32(self.kind_index[kind]),
+                                self.sat_cache.data, self.sat_results.data, result_count.data,
+                                np.float32(margin))
+                events["sat_" + kind] = rt.launch(kernel, size, wg)
+            self.k_clip.set_args(*common, _data(shapes.vertices), _data(shapes.faces),
+                                 _data(shapes.face_indices), _data(shapes.edges),
+                                 self.sat_results.data, result_count.data, self.clip_points.data,
+                                 self.clip_features.data, self.clip_counts.data, np.float32(margin))
+            events["clip"] = rt.launch(self.k_clip, size, wg)
+            self.k_reduce.set_args(_data(pairs), self.sat_results.data, result_count.data,
+                                   self.clip_points.data, self.clip_features.data,
+                                   self.clip_counts.data, self.slots.data, self.contact_flags.data)
+            events["reduce"] = rt.launch(self.k_reduce, size, wg)
+        events["scan"] = self.scan(self.contact_flags[:pair_capacity] if pair_capacity else
+                                   self.contact_flags[:1], self.slot_offsets, n=pair_count,
+                                   total=manifold_count)
+        self.k_scatter.set_args(self.slots.data, self.contact_flags.data, self.slot_offsets.data,
+                                _data(pair_count), _data(manifold_count), _data(bodies),
+                                _data(manifolds), np.uint32(manifolds.size), _data(overflow))
+        events["scatter"] = rt.launch(self.k_scatter, size, wg)
+        return events
+
+    # ------------------------------------------------------------------ convenience
+    def find_contacts(self, bodies, shapes: PackedShapes, pairs, pair_count, margin: float = 0.0,
+                      capacity: int | None = None) -> np.ndarray:
+        """All manifolds as host `ContactManifold` records, growing the output as needed.
+
+        Blocking (reads the count); for tests, tools and benchmarks. Arguments
+        as in `enqueue`; ``pair_count`` may also be a host int.
+        """
+        q = self.runtime.queue
+        if not isinstance(pair_count, cla.Array):
+            pair_count = cla.to_device(q, np.array([int(pair_count)], np.uint32))
+        capacity = max(1, int(capacity if capacity is not None else max(1, pairs.size // 2)))
+        count = cla.zeros(q, 1, np.uint32)
+        overflow = cla.zeros(q, 1, np.uint32)
+        while True:
+            manifolds = cla.empty(q, capacity, layouts.CONTACT_MANIFOLD.dtype)
+            overflow.fill(0)
+            self.enqueue(bodies, shapes, pairs, pair_count, manifolds, count, overflow, margin)
+            needed = int(self.runtime.read(overflow)[0])
+            if needed == 0:
+                n = int(self.runtime.read(count)[0])
+                return self.runtime.read(manifolds)[:n]
+            capacity = needed
+
+
+def find_contacts(runtime: Runtime, table: ShapeTable, bodies: np.ndarray, pairs,
+                  margin: float = 0.0, **options) -> np.ndarray:
+    """One-shot host convenience: `Body` records, a `ShapeTable` and pairs (an (n, 2)
+    array of body indices with a < b, or Pair records) to `ContactManifold` records."""
+    q = runtime.queue
+    pairs = np.asarray(pairs)
+    if pairs.dtype != layouts.PAIR.dtype:
+        idx = np.asarray(pairs, np.int64).reshape(-1, 2)
+        if len(idx) and (np.any(idx[:, 0] >= idx[:, 1]) or np.any(idx < 0)
+                         or np.any(idx >= len(bodies))):
+            raise RbgenError("find_contacts: pairs must be body indices (a, b) with a < b")
+        records = layouts.PAIR.zeros(len(idx))
+        records["a"], records["b"] = idx[:, 0], idx[:, 1]
+        pairs = records
+    n = len(pairs)
+    padded = layouts.PAIR.zeros(max(1, n))
+    padded[:n] = pairs
+    narrowphase = Narrowphase(runtime, table, **options)
+    packed = table.pack_all().to_device(q)
+    return narrowphase.find_contacts(cla.to_device(q, np.ascontiguousarray(bodies)), packed,
+                                     cla.to_device(q, padded), n, margin)

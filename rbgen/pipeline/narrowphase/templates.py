@@ -1,0 +1,73 @@
+"""The narrowphase's kernel templates and their parameters (one per template file).
+
+Kept together because they share the kind names and the work-group default;
+each `KernelTemplate` sits beside its file in
+``rbgen/templates/pipeline/narrowphase/``.
+"""
+from __future__ import annotations
+
+from ...codegen import KernelTemplate, Param, power_of_two
+from ...device import DeviceTraits
+
+#: Shape-type pairs with a kernel; each names the kernel's (first, second) shape
+#: order. "convex" is a box or a hull (both carry cooked polygons).
+PRIMITIVE_KINDS = ("sphere_sphere", "sphere_plane", "sphere_convex", "convex_plane")
+CONVEX_KINDS = ("box_box", "box_hull", "hull_hull")
+ALL_KINDS = PRIMITIVE_KINDS + CONVEX_KINDS
+
+
+def default_work_group_size(traits: DeviceTraits) -> int:
+    """64 on GPUs (pair kernels use many registers: small groups keep occupancy); 16 on CPUs."""
+    return min(64 if traits.is_gpu else 16, traits.max_work_group_size)
+
+
+def _kinds_param(allowed):
+    return Param("kinds", lambda v: isinstance(v, tuple) and len(v) > 0 and set(v) <= set(allowed)
+                 and tuple(sorted(set(v), key=allowed.index)) == v,
+                 "emit code only for the shape-type pairs the world has",
+                 f"a non-empty tuple of distinct names from {allowed}, in that order")
+
+
+_WORK_GROUP = Param("work_group_size", power_of_two(1, 1024),
+                    "queue entries per work group", "a power of two from 1 to 1024")
+
+DISPATCH = KernelTemplate(
+    "pipeline/narrowphase/dispatch.cl.mako",
+    [_WORK_GROUP, _kinds_param(ALL_KINDS)],
+    doc="Route broadphase pairs to per-kind queues; gather flagged manifold slots.",
+    roles={"queue_counts": "inout"},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "kinds": ("convex_plane", "box_box")},
+)
+
+PRIMITIVE_PAIRS = KernelTemplate(
+    "pipeline/narrowphase/primitive_pairs.cl.mako",
+    [_WORK_GROUP, _kinds_param(PRIMITIVE_KINDS)],
+    doc="Sphere-sphere, sphere-plane, sphere-convex and convex-plane contacts.",
+    roles={"slots": "inout", "contact_flags": "inout"},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "kinds": PRIMITIVE_KINDS},
+)
+
+SAT = KernelTemplate(
+    "pipeline/narrowphase/sat.cl.mako",
+    [_WORK_GROUP,
+     Param("first", ("box", "hull"), "box: closed-form projection; hull: loop over the vertices"),
+     Param("second", ("box", "hull"), "as first, for the second shape of the kind")],
+    doc="Separating-axis test of convex pairs with a per-pair best-axis cache.",
+    roles={"cache": "inout", "result_count": "inout"},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "first": "box", "second": "box"},
+)
+
+CLIP = KernelTemplate(
+    "pipeline/narrowphase/clip.cl.mako",
+    [_WORK_GROUP,
+     Param("max_face_vertices", lambda v: isinstance(v, int) and 3 <= v <= 32,
+           "sizes the private clipping buffers (2x): the world's largest face",
+           "an int from 3 to 32 (rbgen.hull.MAX_FACE_VERTICES)")],
+    doc="Clip incident faces against reference faces; reduce to at most 4 points.",
+    roles={"slots": "inout", "contact_flags": "inout"},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "max_face_vertices": 4},
+)

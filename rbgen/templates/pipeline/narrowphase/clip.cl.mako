@@ -1,0 +1,288 @@
+<% max_clip = 2 * max_face_vertices %>\
+/* Contact points of convex pairs that passed the separating-axis test.
+ *
+ * clip_incident_face: one work-item per separating-axis result; a work group
+ * is responsible for ${work_group_size} consecutive results. For a face axis
+ * the face is the reference face, the incident face is the other shape's face
+ * most antiparallel to it; the incident polygon is clipped against the
+ * reference face's side planes (Sutherland-Hodgman) and the points at most
+ * `margin` above the reference plane are kept (up to ${max_clip} per pair:
+ * faces have at most ${max_face_vertices} vertices). For an edge-edge axis,
+ * the closest points of the two supporting edges give one point.
+ *
+ * reduce_contacts: one work-item per separating-axis result; a work group is
+ * responsible for ${work_group_size} of them. Keeps at most four of the
+ * clipped points (the deepest; the farthest from it in the contact plane; the
+ * extremes on both sides of the line through those two) and stores the
+ * manifold in the pair's slot.
+ *
+ * Feature ids: face contacts are reference face | incident face << 11 |
+ * point << 22 | (reference on the second shape) << 29, where point is the
+ * incident vertex (< 32) or 32 + 2 * the reference edge that clipped it
+ * (+ 1 where the incident boundary enters that edge's side plane); edge
+ * contacts are 1 << 31 | first edge << 15 | second edge.
+ */
+${cl_constants()}
+
+${cl_structs("Body", "Shape", "Pair", "HullFace", "SatResult", "ContactManifold")}
+
+<%include file="/common/quaternion.cl.mako"/>
+<%include file="/pipeline/narrowphase/common.cl.mako"/>
+<%include file="/pipeline/narrowphase/store_manifold.cl.mako"/>
+
+#define MAX_CLIP_POINTS ${max_clip}
+#define CLIPPED_BY_EDGE 32u
+#define REFERENCE_ON_SECOND (1u << 29)
+#define EDGE_CONTACT (1u << 31)
+/* Polygon edges this close to a direction (cosine) count as parallel to it. */
+#define PARALLEL_COS 0.9999f
+
+/* World position of vertex k of a polygon. */
+inline float3 polygon_vertex(const Placement* p, Shape s, HullFace face, uint k,
+                             __global const float4* hull_vertices, __global const uint* face_indices)
+{
+    return point_to_world(p, hull_vertices[s.vertex_offset + face_indices[face.index_offset + k]].xyz);
+}
+
+/* Clip a polygon (points + ids) by the half-space dot(side, x) <= side_d; returns
+ * the new size. New points get clip_id (leaving the half-space) or clip_id + 1
+ * (entering it). */
+inline uint clip_polygon(float3* points, uint* ids, uint n, float3 side, float side_d, uint clip_id)
+{
+    float3 out_points[MAX_CLIP_POINTS];
+    uint out_ids[MAX_CLIP_POINTS];
+    uint m = 0;
+    float3 prev = points[n - 1];
+    float prev_d = dot(side, prev) - side_d;
+    for (uint k = 0; k < n; ++k) {
+        float3 cur = points[k];
+        float cur_d = dot(side, cur) - side_d;
+        if ((prev_d <= 0.0f) != (cur_d <= 0.0f) && m < MAX_CLIP_POINTS) {
+            out_points[m] = prev + (cur - prev) * (prev_d / (prev_d - cur_d));
+            out_ids[m++] = clip_id + (cur_d <= 0.0f ? 1u : 0u);
+        }
+        if (cur_d <= 0.0f && m < MAX_CLIP_POINTS) {
+            out_points[m] = cur;
+            out_ids[m++] = ids[k];
+        }
+        prev = cur, prev_d = cur_d;
+    }
+    for (uint k = 0; k < m; ++k)
+        points[k] = out_points[k], ids[k] = out_ids[k];
+    return m;
+}
+
+/* Face contact: clip the incident face of `incident` against reference face f of
+ * `reference`; write points on the second shape with their separation. */
+inline uint clip_faces(const Placement* reference, Shape ref_shape, uint f,
+                       const Placement* incident, Shape inc_shape, bool reference_is_second,
+                       __global const float4* hull_vertices, __global const HullFace* hull_faces,
+                       __global const uint* face_indices, float margin,
+                       __global float4* out_points, __global uint* out_features)
+{
+    HullFace ref_face = hull_faces[ref_shape.face_offset + f];
+    float4 ref_plane = plane_to_world(reference, ref_face.plane);
+
+    /* the incident face: most antiparallel to the reference normal */
+    float3 ref_normal_in_incident = rotate_to_local(incident, ref_plane.xyz);
+    uint inc = 0;
+    float lowest = INFINITY;
+    for (uint g = 0; g < inc_shape.face_count; ++g) {
+        float d = dot(hull_faces[inc_shape.face_offset + g].plane.xyz, ref_normal_in_incident);
+        if (d < lowest)
+            lowest = d, inc = g;
+    }
+    HullFace inc_face = hull_faces[inc_shape.face_offset + inc];
+
+    float3 polygon[MAX_CLIP_POINTS];
+    uint ids[MAX_CLIP_POINTS];
+    uint n = inc_face.index_count;
+    for (uint k = 0; k < n; ++k) {
+        polygon[k] = polygon_vertex(incident, inc_shape, inc_face, k, hull_vertices, face_indices);
+        ids[k] = k;
+    }
+
+    /* side planes of the reference polygon: cross(edge, normal) points outwards */
+    float3 prev = polygon_vertex(reference, ref_shape, ref_face, ref_face.index_count - 1,
+                                 hull_vertices, face_indices);
+    for (uint j = 0; j < ref_face.index_count && n > 0; ++j) {
+        float3 cur = polygon_vertex(reference, ref_shape, ref_face, j, hull_vertices, face_indices);
+        float3 side = cross(cur - prev, ref_plane.xyz);
+        n = clip_polygon(polygon, ids, n, side, dot(side, prev), CLIPPED_BY_EDGE + 2u * j);
+        prev = cur;
+    }
+
+    /* keep what lies at most `margin` above the reference face */
+    uint face_code = (f & 0x7FFu) | ((inc & 0x7FFu) << 11) | (reference_is_second ? REFERENCE_ON_SECOND : 0u);
+    uint count = 0;
+    for (uint k = 0; k < n; ++k) {
+        float s = dot(ref_plane.xyz, polygon[k]) - ref_plane.w;
+        if (s > margin)
+            continue;
+        /* an incident point on the first shape moves onto the second's reference plane */
+        float3 on_second = reference_is_second ? polygon[k] - ref_plane.xyz * s : polygon[k];
+        out_points[count] = (float4)(on_second, s);
+        out_features[count++] = face_code | (ids[k] << 22);
+    }
+    return count;
+}
+
+/* The polygon edge of a shape parallel to `direction` (local) that reaches
+ * farthest along `towards` (world); its end points in the world. */
+inline void supporting_edge(const Placement* p, Shape s, float3 direction, float3 towards,
+                            __global const float4* hull_vertices, __global const HullFace* hull_faces,
+                            __global const uint* face_indices, float3* e0, float3* e1)
+{
+    float3 local_towards = rotate_to_local(p, towards);
+    float best = -INFINITY;
+    float3 best0 = (float3)(0.0f), best1 = (float3)(0.0f);
+    for (uint f = 0; f < s.face_count; ++f) {
+        HullFace face = hull_faces[s.face_offset + f];
+        float3 prev = hull_vertices[s.vertex_offset + face_indices[face.index_offset + face.index_count - 1]].xyz;
+        for (uint k = 0; k < face.index_count; ++k) {
+            float3 cur = hull_vertices[s.vertex_offset + face_indices[face.index_offset + k]].xyz;
+            float3 edge = cur - prev;
+            float reach = dot(local_towards, cur + prev);
+            if (fabs(dot(edge, direction)) > PARALLEL_COS * length(edge) && reach > best)
+                best = reach, best0 = prev, best1 = cur;
+            prev = cur;
+        }
+    }
+    *e0 = point_to_world(p, best0);
+    *e1 = point_to_world(p, best1);
+}
+
+/* Closest point on segment q0 q1 to segment p0 p1 (both non-degenerate). */
+inline float3 closest_on_second_segment(float3 p0, float3 p1, float3 q0, float3 q1)
+{
+    float3 d1 = p1 - p0, d2 = q1 - q0, r = p0 - q0;
+    float a = dot(d1, d1), e = dot(d2, d2), f = dot(d2, r);
+    float b = dot(d1, d2), c = dot(d1, r);
+    float denom = a * e - b * b;
+    float s = denom > 1e-12f * a * e ? clamp((b * f - c * e) / denom, 0.0f, 1.0f) : 0.0f;
+    float t = (b * s + f) / e;
+    if (t < 0.0f)
+        t = 0.0f, s = clamp(-c / a, 0.0f, 1.0f);
+    else if (t > 1.0f)
+        t = 1.0f, s = clamp((b - c) / a, 0.0f, 1.0f);
+    return q0 + d2 * t;
+}
+
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void clip_incident_face(__global const Pair* pairs,
+                        __global const Body* bodies,
+                        __global const Shape* shapes,
+                        __global const float4* hull_vertices,
+                        __global const HullFace* hull_faces,
+                        __global const uint* face_indices,
+                        __global const float4* hull_edges,
+                        __global const SatResult* results,
+                        __global const uint* result_count,
+                        __global float4* clip_points,
+                        __global uint* clip_features,
+                        __global uint* clip_counts,
+                        const float margin)
+{
+    uint slot = get_global_id(0);
+    if (slot >= result_count[0])
+        return;
+    SatResult r = results[slot];
+    QueuedPair q = decode_queue_entry(r.pair, pairs);
+    Body a = bodies[q.first], b = bodies[q.second];
+    Shape sa = shapes[a.shape], sb = shapes[b.shape];
+    Placement pa = placement_of(a), pb = placement_of(b);
+    __global float4* out_points = clip_points + slot * MAX_CLIP_POINTS;
+    __global uint* out_features = clip_features + slot * MAX_CLIP_POINTS;
+
+    uint count;
+    if (r.feature < sa.face_count) {
+        count = clip_faces(&pa, sa, r.feature, &pb, sb, false, hull_vertices, hull_faces,
+                           face_indices, margin, out_points, out_features);
+    } else if (r.feature < sa.face_count + sb.face_count) {
+        count = clip_faces(&pb, sb, r.feature - sa.face_count, &pa, sa, true, hull_vertices,
+                           hull_faces, face_indices, margin, out_points, out_features);
+    } else {
+        uint e = r.feature - sa.face_count - sb.face_count;
+        uint i = e / sb.edge_count, j = e % sb.edge_count;
+        float3 a0, a1, b0, b1;
+        supporting_edge(&pa, sa, hull_edges[sa.edge_offset + i].xyz, r.axis.xyz, hull_vertices,
+                        hull_faces, face_indices, &a0, &a1);
+        supporting_edge(&pb, sb, hull_edges[sb.edge_offset + j].xyz, -r.axis.xyz, hull_vertices,
+                        hull_faces, face_indices, &b0, &b1);
+        out_points[0] = (float4)(closest_on_second_segment(a0, a1, b0, b1), r.axis.w);
+        out_features[0] = EDGE_CONTACT | ((i & 0x7FFFu) << 15) | (j & 0x7FFFu);
+        count = 1;
+    }
+    clip_counts[slot] = count;
+}
+
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void reduce_contacts(__global const Pair* pairs,
+                     __global const SatResult* results,
+                     __global const uint* result_count,
+                     __global const float4* clip_points,
+                     __global const uint* clip_features,
+                     __global const uint* clip_counts,
+                     __global ContactManifold* slots,
+                     __global uint* contact_flags)
+{
+    uint slot = get_global_id(0);
+    if (slot >= result_count[0])
+        return;
+    uint n = clip_counts[slot];
+    if (n == 0)
+        return;
+    SatResult r = results[slot];
+    float3 normal = r.axis.xyz;
+    __global const float4* candidates = clip_points + slot * MAX_CLIP_POINTS;
+    __global const uint* candidate_features = clip_features + slot * MAX_CLIP_POINTS;
+
+    uint chosen[4];
+    uint count = 0;
+    if (n <= 4) {
+        for (uint k = 0; k < n; ++k)
+            chosen[count++] = k;
+    } else {
+        /* the deepest point */
+        chosen[0] = 0;
+        for (uint k = 1; k < n; ++k)
+            if (candidates[k].w < candidates[chosen[0]].w)
+                chosen[0] = k;
+        float3 p0 = candidates[chosen[0]].xyz;
+        /* the farthest from it in the contact plane */
+        float far2 = 0.0f;
+        chosen[1] = chosen[0];
+        for (uint k = 0; k < n; ++k) {
+            float3 d = candidates[k].xyz - p0;
+            d -= normal * dot(normal, d);
+            if (dot(d, d) > far2)
+                far2 = dot(d, d), chosen[1] = k;
+        }
+        count = far2 > 0.0f ? 2 : 1;
+        /* the extremes on both sides of the line through those two */
+        float3 across = cross(normal, candidates[chosen[1]].xyz - p0);
+        float high = 0.0f, low = 0.0f;
+        uint high_k = 0, low_k = 0;
+        for (uint k = 0; k < n; ++k) {
+            float side = dot(across, candidates[k].xyz - p0);
+            if (side > high)
+                high = side, high_k = k;
+            if (side < low)
+                low = side, low_k = k;
+        }
+        float tolerance = 1e-6f * dot(across, across);
+        if (count == 2 && high > tolerance)
+            chosen[count++] = high_k;
+        if (count >= 2 && low < -tolerance)
+            chosen[count++] = low_k;
+    }
+
+    float4 points[4];
+    uint features[4];
+    for (uint k = 0; k < count; ++k) {
+        points[k] = candidates[chosen[k]];
+        features[k] = candidate_features[chosen[k]];
+    }
+    store_manifold(slots, contact_flags, decode_queue_entry(r.pair, pairs), normal, points,
+                   features, count);
+}

@@ -1,0 +1,232 @@
+/* Narrowphase kernels for pairs with a sphere or a plane: ${", ".join(kinds)}.
+ *
+ * One work-item per queued pair; a work group is responsible for
+ * ${work_group_size} consecutive entries of the kind's queue. Each kernel
+ * writes the pair's manifold slot when the separation is at most `margin`
+ * (contacts within the margin persist, so resting contacts survive a step).
+ */
+${cl_constants()}
+
+${cl_structs("Body", "Shape", "Pair", "HullFace", "ContactManifold")}
+
+<%include file="/common/quaternion.cl.mako"/>
+<%include file="/pipeline/narrowphase/common.cl.mako"/>
+<%include file="/pipeline/narrowphase/store_manifold.cl.mako"/>
+
+/* Any unit vector: the normal used when two centres coincide. */
+#define FALLBACK_NORMAL ((float3)(0.0f, 1.0f, 0.0f))
+
+<%def name="queued_pair()">\
+    uint slot = get_global_id(0);
+    if (slot >= queue_counts[kind])
+        return;
+    QueuedPair q = decode_queue_entry(queues[kind * pair_capacity + slot], pairs);
+</%def>\
+<%def name="queue_args()">\
+__global const Pair* pairs,
+                   __global const Body* bodies,
+                   __global const Shape* shapes,
+                   __global const uint* queues,
+                   __global const uint* queue_counts,
+                   const uint pair_capacity,
+                   const uint kind,
+                   __global ContactManifold* slots,
+                   __global uint* contact_flags,
+                   const float margin\
+</%def>
+% if "sphere_sphere" in kinds:
+
+/* Sphere (first) against sphere (second): one point, normal along the centres. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void sphere_sphere(${queue_args()})
+{
+${queued_pair()}
+    Body a = bodies[q.first], b = bodies[q.second];
+    float ra = shapes[a.shape].extents.x, rb = shapes[b.shape].extents.x;
+    float3 d = b.position.xyz - a.position.xyz;
+    float distance = length(d);
+    float separation = distance - ra - rb;
+    if (separation > margin)
+        return;
+    float3 normal = distance > 1e-6f * (ra + rb) ? d / distance : FALLBACK_NORMAL;
+    float4 point = (float4)(b.position.xyz - normal * rb, separation);
+    uint feature = 0u;
+    store_manifold(slots, contact_flags, q, normal, &point, &feature, 1u);
+}
+% endif
+% if "sphere_plane" in kinds:
+
+/* Sphere (first) against plane (second): one point on the plane below the centre. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void sphere_plane(${queue_args()})
+{
+${queued_pair()}
+    Body a = bodies[q.first], b = bodies[q.second];
+    float radius = shapes[a.shape].extents.x;
+    Placement plane_body = placement_of(b);
+    float4 plane = plane_to_world(&plane_body, shapes[b.shape].extents);
+    float height = dot(plane.xyz, a.position.xyz) - plane.w;
+    float separation = height - radius;
+    if (separation > margin)
+        return;
+    float4 point = (float4)(a.position.xyz - plane.xyz * height, separation);
+    uint feature = 0u;
+    store_manifold(slots, contact_flags, q, -plane.xyz, &point, &feature, 1u);
+}
+% endif
+% if "sphere_convex" in kinds:
+
+/* Closest point to c on the convex polygon `face` (local frame), c above its plane. */
+inline float3 closest_point_on_face(float3 c, HullFace face, __global const float4* vertices,
+                                    __global const uint* face_indices)
+{
+    float3 n = face.plane.xyz;
+    float3 projected = c - n * (dot(n, c) - face.plane.w);
+    float3 best = projected;
+    float best_distance2 = INFINITY;
+    bool inside = true;
+    float3 prev = vertices[face_indices[face.index_offset + face.index_count - 1]].xyz;
+    for (uint k = 0; k < face.index_count; ++k) {
+        float3 cur = vertices[face_indices[face.index_offset + k]].xyz;
+        float3 edge = cur - prev;
+        if (dot(cross(edge, n), projected - prev) > 0.0f) {
+            /* outside this edge: the closest point may lie on it */
+            inside = false;
+            float t = clamp(dot(c - prev, edge) / dot(edge, edge), 0.0f, 1.0f);
+            float3 on_edge = prev + edge * t;
+            float d2 = dot(c - on_edge, c - on_edge);
+            if (d2 < best_distance2)
+                best_distance2 = d2, best = on_edge;
+        }
+        prev = cur;
+    }
+    return inside ? projected : best;
+}
+
+/* Sphere (first) against a box or hull (second): the closest feature.
+ * Centre outside: the closest point over the faces that face the centre.
+ * Centre inside: the face of least penetration. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void sphere_convex(${queue_args()},
+                   __global const float4* hull_vertices,
+                   __global const HullFace* hull_faces,
+                   __global const uint* face_indices)
+{
+${queued_pair()}
+    Body a = bodies[q.first], b = bodies[q.second];
+    float radius = shapes[a.shape].extents.x;
+    Shape hull = shapes[b.shape];
+    Placement hull_body = placement_of(b);
+    __global const float4* vertices = hull_vertices + hull.vertex_offset;
+    __global const HullFace* faces = hull_faces + hull.face_offset;
+    float3 c = point_to_local(&hull_body, a.position.xyz);
+
+    uint deepest_face = 0;
+    float deepest = -INFINITY;
+    for (uint f = 0; f < hull.face_count; ++f) {
+        float s = dot(faces[f].plane.xyz, c) - faces[f].plane.w;
+        if (s > deepest)
+            deepest = s, deepest_face = f;
+    }
+    float3 surface = c, normal;
+    float separation;
+    uint feature = deepest_face;
+    if (deepest <= 0.0f) {
+        /* centre inside: push out through the nearest face */
+        normal = -faces[deepest_face].plane.xyz;
+        surface = c + normal * deepest;
+        separation = deepest - radius;
+    } else {
+        if (deepest - radius > margin)
+            return;  /* a face plane already separates by more than the margin */
+        float best_distance2 = INFINITY;
+        for (uint f = 0; f < hull.face_count; ++f) {
+            if (dot(faces[f].plane.xyz, c) - faces[f].plane.w <= 0.0f)
+                continue;
+            float3 p = closest_point_on_face(c, faces[f], vertices, face_indices);
+            float d2 = dot(p - c, p - c);
+            if (d2 < best_distance2)
+                best_distance2 = d2, surface = p, feature = f;
+        }
+        float distance = sqrt(best_distance2);
+        normal = (surface - c) / distance;
+        separation = distance - radius;
+    }
+    if (separation > margin)
+        return;
+    float4 point = (float4)(point_to_world(&hull_body, surface), separation);
+    store_manifold(slots, contact_flags, q, rotate_to_world(&hull_body, normal), &point, &feature, 1u);
+}
+% endif
+% if "convex_plane" in kinds:
+
+/* Box or hull (first) against plane (second): the vertices within the margin
+ * of the plane, reduced to at most four (the deepest, the farthest from it,
+ * then the extremes on both sides of the line through those two). The
+ * vertices are streamed four times instead of stored, so any hull size works. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void convex_plane(${queue_args()},
+                  __global const float4* hull_vertices)
+{
+${queued_pair()}
+    Body a = bodies[q.first], b = bodies[q.second];
+    Shape hull = shapes[a.shape];
+    Placement hull_body = placement_of(a), plane_body = placement_of(b);
+    float4 plane = plane_to_world(&plane_body, shapes[b.shape].extents);
+    __global const float4* vertices = hull_vertices + hull.vertex_offset;
+
+    /* pass 1: deepest vertex */
+    uint chosen[4];
+    float best = INFINITY;
+    for (uint v = 0; v < hull.vertex_count; ++v) {
+        float s = dot(plane.xyz, point_to_world(&hull_body, vertices[v].xyz)) - plane.w;
+        if (s < best)
+            best = s, chosen[0] = v;
+    }
+    if (best > margin)
+        return;
+    uint count = 1;
+    float3 p0 = point_to_world(&hull_body, vertices[chosen[0]].xyz);
+
+    /* pass 2: the touching vertex farthest from the deepest, in the contact plane */
+    float far2 = 0.0f;
+    for (uint v = 0; v < hull.vertex_count; ++v) {
+        float3 p = point_to_world(&hull_body, vertices[v].xyz);
+        float3 d = p - p0;
+        d -= plane.xyz * dot(plane.xyz, d);
+        if (dot(plane.xyz, p) - plane.w <= margin && dot(d, d) > far2)
+            far2 = dot(d, d), chosen[1] = v;
+    }
+    if (far2 > 0.0f) {
+        count = 2;
+        /* pass 3: extremes on both sides of the line p0 p1 */
+        float3 p1 = point_to_world(&hull_body, vertices[chosen[1]].xyz);
+        float3 across = cross(plane.xyz, p1 - p0);
+        float high = 0.0f, low = 0.0f;
+        uint high_vertex = 0, low_vertex = 0;
+        for (uint v = 0; v < hull.vertex_count; ++v) {
+            float3 p = point_to_world(&hull_body, vertices[v].xyz);
+            if (dot(plane.xyz, p) - plane.w > margin)
+                continue;
+            float side = dot(across, p - p0);
+            if (side > high)
+                high = side, high_vertex = v;
+            if (side < low)
+                low = side, low_vertex = v;
+        }
+        float tolerance = 1e-6f * dot(across, across);
+        if (high > tolerance)
+            chosen[count++] = high_vertex;
+        if (low < -tolerance)
+            chosen[count++] = low_vertex;
+    }
+
+    float4 points[4];
+    for (uint k = 0; k < count; ++k) {
+        float3 p = point_to_world(&hull_body, vertices[chosen[k]].xyz);
+        float s = dot(plane.xyz, p) - plane.w;
+        points[k] = (float4)(p - plane.xyz * s, s);
+    }
+    store_manifold(slots, contact_flags, q, -plane.xyz, points, chosen, count);
+}
+% endif

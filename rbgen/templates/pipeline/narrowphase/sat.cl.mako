@@ -1,0 +1,242 @@
+/* Separating-axis test between convex shapes: ${first} (first) against ${second} (second).
+ *
+ * One work-item per queued pair; a work group is responsible for
+ * ${work_group_size} consecutive entries of the kind's queue. Candidate axes
+ * are the first shape's outward face normals, the second's (negated), and the
+ * cross products of their unique edge directions (oriented whichever way
+ * separates more). The axis of greatest separation is the contact normal
+ * (least penetration). The test stops at the first axis that separates the
+ * shapes by more than `margin`, and starts with the axis that was best for
+ * this pair last step (the per-pair cache, keyed by the pair's bodies), which
+ * is usually still separating. Pairs within the margin are appended, with
+ * their axis and feature, to the clipping queue (group-aggregated atomics).
+ */
+${cl_constants()}
+
+${cl_structs("Body", "Shape", "Pair", "HullFace", "SatCacheEntry", "SatResult")}
+
+<%include file="/common/quaternion.cl.mako"/>
+<%include file="/pipeline/narrowphase/common.cl.mako"/>
+
+/* A face of the second shape wins over one of the first, and an edge pair over
+ * the faces, only when better by these distances: a stable choice between
+ * near-equal axes keeps the reference face (and the points) from flickering. */
+#define FACE_TOLERANCE 1e-4f
+#define EDGE_TOLERANCE 1e-4f
+/* Edge directions closer to parallel than this (sine of the angle, squared) give no axis. */
+#define PARALLEL_SIN2 1e-8f
+
+/* The two shapes of a pair, placed in the world. */
+typedef struct {
+    Placement a, b;
+    Shape shape_a, shape_b;
+} ConvexPair;
+
+% if "box" in (first, second):
+/* Extent of a box along a world axis: centre +- |axis in box frame| . half extents. */
+inline float2 box_interval(const Placement* p, Shape s, float3 axis)
+{
+    float reach = dot(fabs(rotate_to_local(p, axis)), s.extents.xyz);
+    float centre = dot(axis, p->position);
+    return (float2)(centre - reach, centre + reach);
+}
+
+% endif
+% if "hull" in (first, second):
+/* Extent of a hull's vertices along a world axis. */
+inline float2 hull_interval(const Placement* p, Shape s, __global const float4* hull_vertices, float3 axis)
+{
+    float3 local_axis = rotate_to_local(p, axis);
+    float lo = INFINITY, hi = -INFINITY;
+    for (uint v = 0; v < s.vertex_count; ++v) {
+        float d = dot(local_axis, hull_vertices[s.vertex_offset + v].xyz);
+        lo = fmin(lo, d);
+        hi = fmax(hi, d);
+    }
+    float centre = dot(axis, p->position);
+    return (float2)(lo + centre, hi + centre);
+}
+
+% endif
+<%def name="interval_call(kind, placement, shape)">\
+% if kind == "box":
+box_interval(${placement}, ${shape}, axis)\
+% else:
+hull_interval(${placement}, ${shape}, hull_vertices, axis)\
+% endif
+</%def>\
+inline float2 interval_first(const ConvexPair* g, __global const float4* hull_vertices, float3 axis)
+{
+    return ${interval_call(first, "&g->a", "g->shape_a")};
+}
+
+inline float2 interval_second(const ConvexPair* g, __global const float4* hull_vertices, float3 axis)
+{
+    return ${interval_call(second, "&g->b", "g->shape_b")};
+}
+
+/* Along face f of the first shape: xyz the axis (first to second), w the separation. */
+inline float4 first_face_separation(const ConvexPair* g, uint f, __global const HullFace* hull_faces,
+                                    __global const float4* hull_vertices)
+{
+    float4 plane = plane_to_world(&g->a, hull_faces[g->shape_a.face_offset + f].plane);
+    return (float4)(plane.xyz, interval_second(g, hull_vertices, plane.xyz).x - plane.w);
+}
+
+/* Along face f of the second shape (the axis is minus its outward normal). */
+inline float4 second_face_separation(const ConvexPair* g, uint f, __global const HullFace* hull_faces,
+                                     __global const float4* hull_vertices)
+{
+    float4 plane = plane_to_world(&g->b, hull_faces[g->shape_b.face_offset + f].plane);
+    return (float4)(-plane.xyz, interval_first(g, hull_vertices, plane.xyz).x - plane.w);
+}
+
+/* Along edge direction i of the first shape crossed with j of the second;
+ * w = -INFINITY for parallel edges (no axis). */
+inline float4 edge_separation(const ConvexPair* g, uint i, uint j, __global const float4* hull_edges,
+                              __global const float4* hull_vertices)
+{
+    float3 ea = rotate_to_world(&g->a, hull_edges[g->shape_a.edge_offset + i].xyz);
+    float3 eb = rotate_to_world(&g->b, hull_edges[g->shape_b.edge_offset + j].xyz);
+    float3 axis = cross(ea, eb);
+    float sin2 = dot(axis, axis);
+    if (sin2 < PARALLEL_SIN2)
+        return (float4)(axis, -INFINITY);
+    axis *= rsqrt(sin2);
+    float2 ia = interval_first(g, hull_vertices, axis);
+    float2 ib = interval_second(g, hull_vertices, axis);
+    float forward = ib.x - ia.y, backward = ia.x - ib.y;
+    return forward >= backward ? (float4)(axis, forward) : (float4)(-axis, backward);
+}
+
+/* Separation along a feature code: face of the first shape, face of the second, or edge pair. */
+inline float4 feature_separation(const ConvexPair* g, uint feature, __global const HullFace* hull_faces,
+                                 __global const float4* hull_edges, __global const float4* hull_vertices)
+{
+    uint fa = g->shape_a.face_count, fb = g->shape_b.face_count;
+    if (feature < fa)
+        return first_face_separation(g, feature, hull_faces, hull_vertices);
+    if (feature < fa + fb)
+        return second_face_separation(g, feature - fa, hull_faces, hull_vertices);
+    uint e = feature - fa - fb;
+    return edge_separation(g, e / g->shape_b.edge_count, e % g->shape_b.edge_count, hull_edges, hull_vertices);
+}
+
+inline void remember_axis(__global SatCacheEntry* entry, Pair pair, uint feature)
+{
+    entry->a = pair.a;
+    entry->b = pair.b;
+    entry->feature = feature;
+}
+
+/* True when the shapes are within `margin`: then *best is the axis of least
+ * penetration (w: separation) and *best_feature its code. */
+inline bool separating_axis_test(const ConvexPair* g, Pair pair, __global SatCacheEntry* entry,
+                                 __global const HullFace* hull_faces, __global const float4* hull_edges,
+                                 __global const float4* hull_vertices, float margin,
+                                 float4* best, uint* best_feature)
+{
+    SatCacheEntry cached = *entry;
+    if (cached.a == pair.a && cached.b == pair.b && cached.feature != (uint)RB_NO_FEATURE) {
+        float4 s = feature_separation(g, cached.feature, hull_faces, hull_edges, hull_vertices);
+        if (s.w > margin)
+            return false;  /* last step's axis still separates: the entry stays */
+    }
+    uint fa = g->shape_a.face_count, fb = g->shape_b.face_count;
+    uint ea = g->shape_a.edge_count, eb = g->shape_b.edge_count;
+
+    float4 face_a = (float4)(0.0f, 0.0f, 0.0f, -INFINITY);
+    uint face_a_feature = 0;
+    for (uint f = 0; f < fa; ++f) {
+        float4 s = first_face_separation(g, f, hull_faces, hull_vertices);
+        if (s.w > margin) {
+            remember_axis(entry, pair, f);
+            return false;
+        }
+        if (s.w > face_a.w)
+            face_a = s, face_a_feature = f;
+    }
+    float4 face_b = (float4)(0.0f, 0.0f, 0.0f, -INFINITY);
+    uint face_b_feature = fa;
+    for (uint f = 0; f < fb; ++f) {
+        float4 s = second_face_separation(g, f, hull_faces, hull_vertices);
+        if (s.w > margin) {
+            remember_axis(entry, pair, fa + f);
+            return false;
+        }
+        if (s.w > face_b.w)
+            face_b = s, face_b_feature = fa + f;
+    }
+    float4 edge = (float4)(0.0f, 0.0f, 0.0f, -INFINITY);
+    uint edge_feature = fa + fb;
+    for (uint i = 0; i < ea; ++i) {
+        for (uint j = 0; j < eb; ++j) {
+            float4 s = edge_separation(g, i, j, hull_edges, hull_vertices);
+            if (s.w > margin) {
+                remember_axis(entry, pair, fa + fb + i * eb + j);
+                return false;
+            }
+            if (s.w > edge.w)
+                edge = s, edge_feature = fa + fb + i * eb + j;
+        }
+    }
+
+    *best = face_a, *best_feature = face_a_feature;
+    if (face_b.w > face_a.w + FACE_TOLERANCE)
+        *best = face_b, *best_feature = face_b_feature;
+    if (edge.w > fmax(face_a.w, face_b.w) + EDGE_TOLERANCE)
+        *best = edge, *best_feature = edge_feature;
+    remember_axis(entry, pair, *best_feature);
+    return true;
+}
+
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void find_separating_axis(__global const Pair* pairs,
+                          __global const Body* bodies,
+                          __global const Shape* shapes,
+                          __global const float4* hull_vertices,
+                          __global const HullFace* hull_faces,
+                          __global const float4* hull_edges,
+                          __global const uint* queues,
+                          __global const uint* queue_counts,
+                          const uint pair_capacity,
+                          const uint kind,
+                          __global SatCacheEntry* cache,
+                          __global SatResult* results,
+                          __global uint* result_count,
+                          const float margin)
+{
+    __local uint group_count, group_base;
+    uint slot = get_global_id(0);
+    if (get_local_id(0) == 0)
+        group_count = 0;
+    barrier(CLK_LOCAL_MEM_FENCE);
+
+    bool touching = false;
+    float4 axis = (float4)(0.0f);
+    uint feature = 0, entry = 0;
+    if (slot < queue_counts[kind]) {
+        entry = queues[kind * pair_capacity + slot];
+        QueuedPair q = decode_queue_entry(entry, pairs);
+        Body a = bodies[q.first], b = bodies[q.second];
+        ConvexPair g;
+        g.a = placement_of(a);
+        g.b = placement_of(b);
+        g.shape_a = shapes[a.shape];
+        g.shape_b = shapes[b.shape];
+        touching = separating_axis_test(&g, pairs[q.index], &cache[q.index], hull_faces, hull_edges,
+                                        hull_vertices, margin, &axis, &feature);
+    }
+    uint ticket = touching ? atomic_inc(&group_count) : 0u;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (get_local_id(0) == 0 && group_count > 0)
+        group_base = atomic_add(result_count, group_count);
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (touching) {
+        SatResult r;
+        r.axis = axis;
+        r.pair = entry;
+        r.feature = feature;
+        results[group_base + ticket] = r;
+    }
+}
