@@ -1,0 +1,161 @@
+"""Prefix sums (inclusive or exclusive) of uint32, int32 or float32 arrays.
+
+Reduce-then-scan in three launches, in either shape (see `_base`): a GPU
+shape over tiles of ``work_group_size * items_per_thread`` elements and a CPU
+shape over a few long chunks. The optional total (sum of the first n
+elements) is written to a device array so that a following step can use it
+without a round trip. Integer sums wrap modulo 2^32 like C.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from ..codegen import Param, power_of_two
+from ..device import DeviceTraits
+from ..errors import RbgenError
+from ._base import (PrimitiveTemplate, Primitive, ceil_div, check_array, clamp_wavefront,
+                    cl_type, default_work_items, resolve_count)
+
+DTYPES = ("uint", "int", "float")
+
+_DTYPE = Param("dtype", DTYPES, "element type; sums wrap (integers) or round (float) like C")
+_INCLUSIVE = Param("inclusive", (True, False), "whether element i counts itself")
+
+TILED = PrimitiveTemplate(
+    "primitives/scan_tiled.cl.mako",
+    [
+        _DTYPE, _INCLUSIVE,
+        Param("work_group_size", power_of_two(32, 1024),
+              "work-items per tile; larger tiles mean fewer tile sums but more barriers",
+              "a power of two from 32 to 1024, at least the wavefront"),
+        Param("items_per_thread", (1, 2, 4, 8, 16),
+              "elements each work-item scans serially: amortises the work-group scan"),
+        Param("wavefront", (32, 64),
+              "segment width of the two-level work-group scan (32 NVIDIA, 64 AMD)"),
+    ],
+    doc="Prefix sum, GPU shape: reduce tiles, scan tile sums, scan tiles.",
+    defaults=lambda traits: {"dtype": "uint", "inclusive": False,
+                             **Scan.default_params(traits, shape="gpu", strip=True)},
+)
+
+CHUNKED = PrimitiveTemplate(
+    "primitives/scan_chunked.cl.mako",
+    [
+        _DTYPE, _INCLUSIVE,
+        Param("work_items", lambda v: isinstance(v, int) and 1 <= v <= 4096,
+              "chunks (one work-item each): a small multiple of the compute units",
+              "an int from 1 to 4096"),
+    ],
+    doc="Prefix sum, CPU shape: one long chunk per work-item, private running sums.",
+    defaults=lambda traits: {"dtype": "uint", "inclusive": False,
+                             **Scan.default_params(traits, shape="cpu", strip=True)},
+)
+
+
+class Scan(Primitive):
+    """``Scan(runtime, dtype, inclusive)(src, dst, n=None, total=None)``.
+
+    ``src`` and ``dst`` are pyopencl arrays of ``dtype`` (may be the same);
+    ``n`` is None (all of src), a host int or a device uint32 count; ``total``
+    an optional device array that receives the sum of the n elements.
+    """
+
+    family = "scan"
+    TEMPLATES = {"gpu": TILED, "cpu": CHUNKED}
+
+    def __init__(self, runtime, dtype=np.uint32, inclusive: bool = False, *, params=None):
+        self.dtype = np.dtype(dtype) if dtype is not None else None
+        self.type_name = cl_type(dtype, "Scan dtype")
+        self.inclusive = bool(inclusive)
+        super().__init__(runtime, params)
+        self._sums = None
+
+    @property
+    def variant(self) -> str:
+        return self.type_name
+
+    def template_values(self):
+        return {"dtype": self.type_name, "inclusive": self.inclusive}
+
+    @classmethod
+    def default_params(cls, traits: DeviceTraits, shape: str | None = None, strip=False):
+        shape = shape or traits.kind
+        if shape == "gpu":
+            params = {"shape": "gpu", "work_group_size": min(256, traits.max_work_group_size),
+                      "items_per_thread": 8, "wavefront": clamp_wavefront(traits)}
+            if params["work_group_size"] < params["wavefront"]:
+                params["work_group_size"] = params["wavefront"]
+        else:
+            params = {"shape": "cpu", "work_items": default_work_items(traits)}
+        if strip:
+            params.pop("shape")
+        return params
+
+    def _scratch(self, count: int):
+        if self._sums is None or self._sums.size < count:
+            self._sums = cl.Buffer(self.runtime.context, cl.mem_flags.READ_WRITE,
+                                   4 * max(count, 1))
+        return self._sums
+
+    def __call__(self, src, dst, n=None, total=None):
+        buf_src = check_array(self.runtime, src, "src", self.dtype)
+        buf_dst = check_array(self.runtime, dst, "dst", self.dtype)
+        if dst.size < src.size:
+            raise RbgenError(f"dst holds {dst.size} elements, shorter than src ({src.size})")
+        buf_total = None if total is None else check_array(self.runtime, total, "total",
+                                                           self.dtype, min_size=1)
+        capacity, device_count = resolve_count(self.runtime, n, src.size)
+        return self.enqueue(buf_src, buf_dst, capacity, device_count, buf_total)
+
+    def enqueue(self, src, dst, capacity: int, device_count, total):
+        """Launch on raw buffers (arguments already checked); used by other primitives."""
+        params, program = self.program(capacity)
+        rt, cap = self.runtime, np.uint32(capacity)
+        if params["shape"] == "gpu":
+            wg = params["work_group_size"]
+            tiles = max(1, ceil_div(capacity, wg * params["items_per_thread"]))
+            sums = self._scratch(tiles)
+            k_reduce, k_sums, k_scan = (program.kernel(k) for k in
+                                        ("reduce_tiles", "scan_tile_sums", "scan_tiles"))
+            k_reduce.set_args(src, cap, device_count, sums)
+            k_sums.set_args(sums, cap, device_count, total)
+            k_scan.set_args(src, dst, cap, device_count, sums)
+            rt.launch(k_reduce, tiles * wg, wg)
+            rt.launch(k_sums, wg, wg)
+            return rt.launch(k_scan, tiles * wg, wg)
+        chunks = params["work_items"]
+        sums = self._scratch(chunks)
+        k_reduce, k_sums, k_scan = (program.kernel(k) for k in
+                                    ("reduce_chunks", "scan_chunk_sums", "scan_chunks"))
+        k_reduce.set_args(src, cap, device_count, sums)
+        k_sums.set_args(sums, total)
+        k_scan.set_args(src, dst, cap, device_count, sums)
+        rt.launch(k_reduce, chunks, 1)
+        rt.launch(k_sums, 1, 1)
+        return rt.launch(k_scan, chunks, 1)
+
+
+def search_space(traits: DeviceTraits) -> list[dict]:
+    """Candidate parameters the tuner tries on a device (heuristic default first)."""
+    return _search_space(Scan, traits)
+
+
+def _search_space(cls, traits: DeviceTraits) -> list[dict]:
+    space = [cls.default_params(traits)]
+    cu = max(1, traits.compute_units)
+    if traits.is_gpu:
+        wf = clamp_wavefront(traits)
+        for wg in (128, 256, 512):
+            for ipt in (4, 8, 16):
+                if wf <= wg <= traits.max_work_group_size:
+                    space.append({"shape": "gpu", "work_group_size": wg,
+                                  "items_per_thread": ipt, "wavefront": wf})
+    else:
+        for k in (1, 2, 4, 8, 16):
+            space.append({"shape": "cpu", "work_items": k * cu})
+    unique = []
+    for p in space:
+        if p not in unique:
+            unique.append(p)
+    return unique

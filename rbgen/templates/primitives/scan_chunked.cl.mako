@@ -1,0 +1,65 @@
+<%namespace name="common" file="/primitives/common.cl.mako"/>\
+/* ${"Inclusive" if inclusive else "Exclusive"} prefix sum of ${dtype} values, CPU shape.
+ *
+ * CHUNKS work-items (work groups of one) each own one long contiguous chunk
+ * and walk it sequentially with private running sums; no local memory and no
+ * barriers. Three launches:
+ *   reduce_chunks     chunk_sums[c] = sum of chunk c;
+ *   scan_chunk_sums   one work-item turns chunk_sums into exclusive offsets
+ *                     (and writes the grand total when asked);
+ *   scan_chunks       every work-item scans its chunk from its offset.
+ * src and dst may be the same buffer.
+ */
+#define CHUNKS ${work_items}
+typedef ${dtype} T;
+${common.element_count()}
+${common.chunk_range()}
+
+/* A work group (one work-item) is responsible for summing one chunk. */
+__kernel __attribute__((reqd_work_group_size(1, 1, 1)))
+void reduce_chunks(__global const T* src, const uint capacity,
+                   __global const uint* device_count, __global T* chunk_sums)
+{
+    uint begin, end;
+    chunk_range(element_count(capacity, device_count), get_global_id(0), &begin, &end);
+    T sum = 0;
+    for (uint i = begin; i < end; ++i)
+        sum += src[i];
+    chunk_sums[get_global_id(0)] = sum;
+}
+
+/* One work-item is responsible for all CHUNKS chunk sums: exclusive prefix
+ * sums in place, and the total if asked. */
+__kernel __attribute__((reqd_work_group_size(1, 1, 1)))
+void scan_chunk_sums(__global T* chunk_sums, __global T* total)
+{
+    T running = 0;
+    for (uint c = 0; c < CHUNKS; ++c) {
+        T sum = chunk_sums[c];
+        chunk_sums[c] = running;
+        running += sum;
+    }
+    if (total)
+        total[0] = running;
+}
+
+/* A work group (one work-item) is responsible for scanning one chunk from
+ * the chunk's offset. */
+__kernel __attribute__((reqd_work_group_size(1, 1, 1)))
+void scan_chunks(__global const T* src, __global T* dst, const uint capacity,
+                 __global const uint* device_count, __global const T* chunk_offsets)
+{
+    uint begin, end;
+    chunk_range(element_count(capacity, device_count), get_global_id(0), &begin, &end);
+    T running = chunk_offsets[get_global_id(0)];
+    for (uint i = begin; i < end; ++i) {
+        T x = src[i];
+% if inclusive:
+        running += x;
+        dst[i] = running;
+% else:
+        dst[i] = running;
+        running += x;
+% endif
+    }
+}
