@@ -1,0 +1,74 @@
+"""Input generators shared by the broadphase tests.
+
+`make_aabbs(rng, n, kind)` returns (Aabb array, uint32 static flags) for one of
+the distributions in `KINDS`; every test compares against the brute-force
+reference, so the generators only need to be varied, not precise.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rbgen import layouts
+
+KINDS = ("uniform", "clustered", "mixed", "identical", "huge_static", "lattice")
+
+
+def pack(lower, upper) -> np.ndarray:
+    aabbs = layouts.AABB.zeros(len(lower))
+    aabbs["lower"][:, :3] = lower
+    aabbs["upper"][:, :3] = upper
+    return aabbs
+
+
+def make_aabbs(rng: np.random.Generator, n: int, kind: str):
+    """(aabbs, static) with n bodies; about one in eight static."""
+    static = (rng.random(n) < 0.125).astype(np.uint32)
+    side = max(1.0, n ** (1 / 3))
+    if kind == "uniform":
+        lower = rng.uniform(0, 2.5 * side, (n, 3))
+        size = rng.uniform(0.5, 2.0, (n, 3))
+    elif kind == "clustered":
+        centres = rng.uniform(0, 8 * side, (max(1, n // 50), 3))
+        lower = centres[rng.integers(0, len(centres), n)] + rng.normal(0, 1.0, (n, 3))
+        size = rng.uniform(0.2, 1.5, (n, 3))
+    elif kind == "mixed":
+        lower = rng.uniform(0, 4 * side, (n, 3))
+        size = rng.uniform(0.1, 1.0, (n, 3)) * rng.choice([1.0, 1.0, 1.0, 5.0, 40.0], (n, 1))
+    elif kind == "identical":
+        lower = np.tile(rng.uniform(-5, 5, (1, 3)), (n, 1))
+        size = np.tile(rng.uniform(0.5, 2.0, (1, 3)), (n, 1))
+    elif kind == "huge_static":
+        lower = rng.uniform(0, 4 * side, (n, 3))
+        size = rng.uniform(0.5, 2.0, (n, 3))
+    elif kind == "lattice":
+        # unit cubes on an integer lattice: neighbours share faces, edges, corners exactly
+        dim = max(2, int(np.ceil((2 * n) ** (1 / 3))))
+        cells = rng.choice(dim ** 3, n, replace=False)
+        lower = np.stack(np.unravel_index(cells, (dim, dim, dim)), axis=1).astype(float)
+        size = np.ones((n, 3))
+    else:
+        raise ValueError(kind)
+    lower = lower.astype(np.float32)
+    upper = (lower + size.astype(np.float32)).astype(np.float32)
+    if kind == "huge_static":
+        # slabs as planes make them: unbounded sideways, top face inside the scene
+        for body in rng.choice(n, min(n, 3), replace=False):
+            lower[body] = (-1e30, -1e30, -1e30)
+            upper[body] = (1e30, rng.uniform(0, 4 * side), 1e30)
+            static[body] = 1
+    return pack(lower, upper), static
+
+
+#: (name, options) of every broadphase configuration the tests cover.
+ALGORITHMS = [("grid", {}), ("sap", {"shape": "cpu"}), ("sap", {"shape": "gpu"}),
+              ("sap", {"shape": "gpu", "work_group_size": 4}), ("sap3", {})]
+ALGORITHM_IDS = ["grid", "sap-cpu", "sap-gpu", "sap-gpu-wg4", "sap3"]
+
+
+@pytest.fixture(params=ALGORITHMS, ids=ALGORITHM_IDS)
+def broadphase(request, runtime):
+    """A fresh broadphase of each configuration on each device."""
+    from rbgen.pipeline.broadphase import make_broadphase
+    name, options = request.param
+    return make_broadphase(runtime, name, **options)
