@@ -3,7 +3,8 @@
 The solver needs every body's world inverse inertia tensor; it changes with the
 orientation, so a small kernel recomputes it each step from the principal
 diagonal kept in `BodyInertia`. The same pass applies the implicit gyroscopic
-term (Bullet 2.x): without it an asymmetric box spinning freely keeps its
+term (Bullet 2.x's implicit scheme, with the implicit midpoint rule in place
+of implicit Euler, which loses momentum): without it an asymmetric box spinning freely keeps its
 angular *velocity* instead of its angular *momentum*, which is wrong.
 """
 from __future__ import annotations

@@ -1,0 +1,133 @@
+"""Contact constraints from narrowphase manifolds, with warm starting.
+
+One `ContactConstraint` per `ContactManifold`: every point gets a normal row
+and two friction rows (a fixed tangent frame chosen from the normal), the
+manifold's combined friction and restitution, a restitution threshold
+velocity, and penetration recovery, either Baumgarte (a bias on the normal
+velocity target: simple, adds energy) or split impulse (a separate push
+velocity solved after the velocity iterations and thrown away after moving
+the bodies: no bounce from recovery).
+
+Warm starting: each step's constraints are recorded in a hash table keyed by
+body pair; the next step looks its pair up there and copies, point by point,
+the impulses of the old point with the same feature id. The two constraint
+buffers and tables alternate, so nothing is copied back to the host.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl.array as cl_array
+
+from .. import layouts
+from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ..device import DeviceTraits, Runtime
+from ..errors import RbgenError
+
+PENETRATION_MODES = ("baumgarte", "split")
+
+TEMPLATE = KernelTemplate(
+    "pipeline/constraints.cl.mako",
+    [
+        Param("work_group_size", power_of_two(1, 1024),
+              "manifolds per work group; memory-bound, any size that fills a CU works",
+              "a power of two from 1 to 1024"),
+        Param("penetration", PENETRATION_MODES,
+              "Baumgarte biases the velocity rows; split impulse solves separate push rows"),
+        Param("warm_start", (True, False),
+              "emit the previous-step lookup only when warm starting is on"),
+    ],
+    doc="Contact constraints (normal + two friction rows per point) from contact manifolds.",
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "penetration": "split", "warm_start": True},
+)
+
+
+def default_work_group_size(traits: DeviceTraits) -> int:
+    """64 on GPUs (large per-item state); 16 on CPUs."""
+    return min(64 if traits.is_gpu else 16, traits.max_work_group_size)
+
+
+class _Buffers:
+    """One generation of constraints and its pair table."""
+
+    def __init__(self, queue, capacity: int):
+        self.capacity = int(capacity)
+        self.constraints = cl_array.zeros(queue, max(1, self.capacity), layouts.CONTACT_CONSTRAINT.dtype)
+        table_size = 1 << max(4, int(2 * max(1, self.capacity) - 1).bit_length())
+        self.table = cl_array.to_device(queue, np.full(table_size, layouts.SOLVER_NONE, np.uint32))
+        self.mask = table_size - 1
+
+
+class ContactConstraints:
+    """Builds this step's constraints from manifolds; keeps last step's for warm starting.
+
+    ``settings`` (attributes, changeable between steps): ``restitution_threshold``
+    (m/s; slower impacts do not bounce), ``penetration_slop`` (m of penetration
+    left alone), ``penetration_recovery`` (fraction of the penetration removed
+    per step), ``warm_start_factor`` (scale of the carried impulses).
+    """
+
+    def __init__(self, runtime: Runtime, *, penetration: str = "split", warm_start: bool = True,
+                 work_group_size: int | None = None):
+        if penetration not in PENETRATION_MODES:
+            raise RbgenError(f"penetration must be one of {PENETRATION_MODES}, got {penetration!r}")
+        self.runtime = runtime
+        self.penetration, self.warm_start = penetration, bool(warm_start)
+        self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
+        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, penetration=penetration,
+                                  warm_start=self.warm_start)
+        program = compile_spec(runtime, self.spec)
+        self.setup_kernel = program.kernel("setup_contact_constraints")
+        self.clear_kernel = program.kernel("clear_pair_table")
+        self.restitution_threshold = 0.5
+        self.penetration_slop = 0.005
+        self.penetration_recovery = 0.2
+        self.warm_start_factor = 1.0
+        self._generations: list[_Buffers | None] = [None, None]
+        self._current = 1
+
+    @property
+    def constraints(self):
+        """Device array of this step's constraints (valid after a call)."""
+        return self._generations[self._current].constraints
+
+    @property
+    def capacity(self) -> int:
+        gen = self._generations[self._current]
+        return 0 if gen is None else gen.capacity
+
+    def reset(self) -> None:
+        """Forget the previous step (e.g. after teleporting bodies)."""
+        for gen in self._generations:
+            if gen is not None:
+                gen.table.fill(np.uint32(layouts.SOLVER_NONE), queue=self.runtime.queue)
+
+    def __call__(self, manifolds, manifold_count, bodies, inertia, capacity: int, dt: float):
+        """Set up ``manifold_count[0]`` (device uint32 array(1)) constraints, at most ``capacity``."""
+        queue, wg, launch = self.runtime.queue, self.work_group_size, self.runtime.launch
+        previous = self._generations[self._current]
+        self._current = 1 - self._current
+        gen = self._generations[self._current]
+        if gen is None or gen.capacity < capacity:
+            gen = self._generations[self._current] = _Buffers(queue, capacity)
+        if previous is None:
+            previous = _Buffers(queue, 0)
+            self._generations[1 - self._current] = previous
+        table_size = gen.mask + 1
+        self.clear_kernel.set_args(gen.table.data, np.uint32(table_size))
+        launch(self.clear_kernel, -(-table_size // wg) * wg, wg)
+        if capacity == 0:
+            return None
+        args = [_data(manifolds), _data(manifold_count), _data(bodies), _data(inertia),
+                gen.constraints.data, gen.table.data, np.uint32(gen.mask)]
+        if self.warm_start:
+            args += [previous.constraints.data, previous.table.data, np.uint32(previous.mask),
+                     np.float32(self.warm_start_factor)]
+        args += [np.float32(dt), np.float32(self.restitution_threshold),
+                 np.float32(self.penetration_slop), np.float32(self.penetration_recovery)]
+        self.setup_kernel.set_args(*args)
+        return launch(self.setup_kernel, -(-capacity // wg) * wg, wg)
+
+
+def _data(array):
+    return array.data if hasattr(array, "data") else array

@@ -1,0 +1,116 @@
+"""Projected Gauss-Seidel contact solver: one launch per iteration.
+
+Each work group owns one level-1 group of `ConstraintBatcher` (no dynamic
+body shared with any other group) and walks its batches with a barrier
+between them, so an iteration needs no synchronisation between work groups
+and no host round trip: ``iterations`` launches of `solve_contacts`, plus,
+with split impulse, ``position_iterations`` launches of `solve_penetration`
+and one `apply_split_velocities` after integration.
+
+Relaxation (successive over-relaxation factor, 1 = plain Gauss-Seidel) and
+the iteration counts are World settings, passed per call.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl.array as cl_array
+
+from .. import layouts
+from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ..device import DeviceTraits, Runtime
+from ..errors import RbgenError
+
+TEMPLATE = KernelTemplate(
+    "pipeline/solver.cl.mako",
+    [
+        Param("work_group_size", power_of_two(1, 1024),
+              "lanes solving one batch at a time; a batch of a dense pile holds a few "
+              "hundred constraints", "a power of two from 1 to 1024"),
+        Param("max_batches", power_of_two(2, 4096),
+              "must equal the batcher's max_batches (the layout of group_batches)",
+              "a power of two from 2 to 4096"),
+        Param("split_impulse", (True, False),
+              "emit the position pass and the push-velocity kernels"),
+    ],
+    doc="PGS velocity iterations (and split-impulse position iterations) over batched contacts.",
+    roles={"constraints": "inout", "bodies": "inout", "split": "inout"},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "max_batches": 128, "split_impulse": True},
+)
+
+
+def default_work_group_size(traits: DeviceTraits) -> int:
+    """64 on GPUs (two warps / one wavefront per batch step); 8 on CPUs."""
+    return min(64 if traits.is_gpu else 8, traits.max_work_group_size)
+
+
+class ContactSolver:
+    """Launches the PGS iterations over a `ConstraintBatcher`'s batches."""
+
+    def __init__(self, runtime: Runtime, *, split_impulse: bool = True, max_batches: int = 128,
+                 work_group_size: int | None = None):
+        self.runtime = runtime
+        self.split_impulse = bool(split_impulse)
+        self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
+        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, max_batches=int(max_batches),
+                                  split_impulse=self.split_impulse)
+        program = compile_spec(runtime, self.spec)
+        self.velocity_kernel = program.kernel("solve_contacts")
+        if self.split_impulse:
+            self.position_kernel = program.kernel("solve_penetration")
+            self.apply_kernel = program.kernel("apply_split_velocities")
+        self.max_batches = int(max_batches)
+        self._split = None
+
+    def split_velocities(self, body_capacity: int):
+        """The zeroed push-velocity array (grown to ``body_capacity``)."""
+        if self._split is None or len(self._split) < body_capacity:
+            self._split = cl_array.zeros(self.runtime.queue, max(1, int(body_capacity)),
+                                         layouts.SPLIT_VELOCITY.dtype)
+        return self._split
+
+    def _check(self, batcher):
+        if batcher.max_batches != self.max_batches:
+            raise RbgenError(f"batcher max_batches={batcher.max_batches} differs from the "
+                             f"solver's {self.max_batches}")
+
+    def solve_velocities(self, constraints, batcher, bodies, inertia, *, iterations: int,
+                         relaxation: float = 1.0, warm_start: bool = True) -> None:
+        """``iterations`` PGS sweeps; the first applies the warm-start impulses."""
+        self._check(batcher)
+        if iterations < 0 or not 0.0 < relaxation < 2.0:
+            raise RbgenError(f"need iterations >= 0 and 0 < relaxation < 2, got "
+                             f"iterations={iterations!r}, relaxation={relaxation!r}")
+        k, wg = self.velocity_kernel, self.work_group_size
+        for it in range(int(iterations)):
+            k.set_args(_data(constraints), batcher.order.data, batcher.group_batches.data,
+                       batcher.group_batch_count.data, _data(bodies), _data(inertia),
+                       np.float32(relaxation), np.uint32(warm_start and it == 0))
+            self.runtime.launch(k, batcher.group_count * wg, wg)
+
+    def solve_positions(self, constraints, batcher, bodies, inertia, body_capacity: int, *,
+                        iterations: int, relaxation: float = 1.0) -> None:
+        """Split-impulse sweeps on push velocities (needs split_impulse=True)."""
+        if not self.split_impulse:
+            raise RbgenError("this ContactSolver was built with split_impulse=False")
+        self._check(batcher)
+        split = self.split_velocities(body_capacity)
+        k, wg = self.position_kernel, self.work_group_size
+        for _ in range(int(iterations)):
+            k.set_args(_data(constraints), batcher.order.data, batcher.group_batches.data,
+                       batcher.group_batch_count.data, split.data, _data(bodies), _data(inertia),
+                       np.float32(relaxation))
+            self.runtime.launch(k, batcher.group_count * wg, wg)
+
+    def apply_split(self, bodies, body_count: int, dt: float) -> None:
+        """Move bodies by their push velocities (after integration) and clear them."""
+        if body_count == 0:
+            return
+        split = self.split_velocities(body_count)
+        wg = self.work_group_size
+        self.apply_kernel.set_args(_data(bodies), split.data, np.uint32(body_count), np.float32(dt))
+        self.runtime.launch(self.apply_kernel, -(-body_count // wg) * wg, wg)
+
+
+def _data(array):
+    return array.data if hasattr(array, "data") else array

@@ -1,0 +1,205 @@
+/* Contact manifolds -> contact constraints (one per manifold, up to four
+ * points, each with a normal row and two friction rows).
+ *
+ * For every point: lever arms, effective masses of the three rows, the normal
+ * velocity target (restitution above a threshold velocity, speculative
+ * approach for points still apart,
+% if penetration == "baumgarte":
+ * Baumgarte push-out of penetration beyond the slop),
+% else:
+ * and a separate split-impulse target that pushes out of penetration
+ * beyond the slop without adding momentum),
+% endif
+% if warm_start:
+ * and the previous step's accumulated impulses, found through a hash table
+ * keyed by body pair and matched per point by feature id (friction impulses
+ * are carried as a world vector and re-projected onto the new tangents).
+% else:
+ * with zero starting impulses.
+% endif
+ */
+${cl_constants()}
+
+${cl_structs("Body", "BodyInertia", "ContactManifold", "ContactConstraint")}
+
+/* Slot of a body pair in the warm-starting table (linear probing from here). */
+inline uint pair_slot(uint a, uint b, uint mask)
+{
+    uint h = a * 0x9e3779b1u ^ (b + 0x7f4a7c15u) * 0x85ebca77u;
+    h ^= h >> 15;
+    h *= 0x2c1b3c6du;
+    h ^= h >> 13;
+    return h & mask;
+}
+
+/* An orthonormal pair of tangents to unit n, chosen from n alone so that a
+ * persistent contact keeps the same friction frame from step to step. */
+inline void tangent_basis(float3 n, float3* t1, float3* t2)
+{
+    if (fabs(n.x) > 0.57735f)
+        *t1 = normalize((float3)(n.y, -n.x, 0.0f));
+    else
+        *t1 = normalize((float3)(0.0f, n.z, -n.y));
+    *t2 = cross(n, *t1);
+}
+
+inline float3 mul_rows(const float3 row[3], float3 v)
+{
+    return (float3)(dot(row[0], v), dot(row[1], v), dot(row[2], v));
+}
+
+/* 1 / (J M^-1 J^T) for a row with direction d at lever arms ra, rb. */
+inline float row_mass(float3 d, float3 ra, float3 rb, float inv_mass_a, float inv_mass_b,
+                      const float3 inv_inertia_a[3], const float3 inv_inertia_b[3])
+{
+    float3 ca = cross(ra, d), cb = cross(rb, d);
+    float k = inv_mass_a + inv_mass_b + dot(ca, mul_rows(inv_inertia_a, ca))
+            + dot(cb, mul_rows(inv_inertia_b, cb));
+    return k > 0.0f ? 1.0f / k : 0.0f;
+}
+
+/* One work-item per warm-starting table slot: mark it empty. A work group is
+ * responsible for ${work_group_size} consecutive slots. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void clear_pair_table(__global uint* table, const uint table_size)
+{
+    uint i = get_global_id(0);
+    if (i < table_size)
+        table[i] = RB_SOLVER_NONE;
+}
+% if warm_start:
+
+/* Copy the impulses of the previous step's constraint with the same body
+ * pair and, per point, the same feature id. */
+inline void warm_start_from(__global const ContactConstraint* previous,
+                            __global const uint* previous_table, const uint previous_mask,
+                            ContactConstraint* c)
+{
+    uint slot = pair_slot(c->body_a, c->body_b, previous_mask);
+    for (uint probe = 0; probe <= previous_mask; ++probe, slot = (slot + 1) & previous_mask) {
+        uint j = previous_table[slot];
+        if (j == RB_SOLVER_NONE)
+            return;
+        __global const ContactConstraint* old = &previous[j];
+        if (old->body_a != c->body_a || old->body_b != c->body_b)
+            continue;
+        uint4 old_features = old->features;
+        for (uint k = 0; k < c->point_count; ++k) {
+            uint feature = ((uint*)&c->features)[k];
+            for (uint m = 0; m < old->point_count; ++m) {
+                if (((uint*)&old_features)[m] != feature)
+                    continue;
+                float3 friction = old->tangent1.xyz * ((__global const float*)&old->tangent1_impulse)[m]
+                                + old->tangent2.xyz * ((__global const float*)&old->tangent2_impulse)[m];
+                ((float*)&c->normal_impulse)[k] = ((__global const float*)&old->normal_impulse)[m];
+                ((float*)&c->tangent1_impulse)[k] = dot(friction, c->tangent1.xyz);
+                ((float*)&c->tangent2_impulse)[k] = dot(friction, c->tangent2.xyz);
+                break;
+            }
+        }
+    }
+}
+% endif
+
+/* Record constraint i under its body pair for the next step's warm start. */
+inline void insert_pair(__global uint* table, const uint mask, uint a, uint b, uint i)
+{
+    uint slot = pair_slot(a, b, mask);
+    while (atomic_cmpxchg(&table[slot], RB_SOLVER_NONE, i) != RB_SOLVER_NONE)
+        slot = (slot + 1) & mask;
+}
+
+/* One work-item per manifold: build its constraint. A work group is
+ * responsible for ${work_group_size} consecutive manifolds. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void setup_contact_constraints(__global const ContactManifold* manifolds,
+                               __global const uint* manifold_count,
+                               __global const Body* bodies,
+                               __global const BodyInertia* inertia,
+                               __global ContactConstraint* constraints,
+                               __global uint* table,
+                               const uint table_mask,
+% if warm_start:
+                               __global const ContactConstraint* previous,
+                               __global const uint* previous_table,
+                               const uint previous_mask,
+                               const float warm_start_factor,
+% endif
+                               const float dt,
+                               const float restitution_threshold,
+                               const float penetration_slop,
+                               const float penetration_recovery)
+{
+    uint i = get_global_id(0);
+    if (i >= manifold_count[0])
+        return;
+    __global const ContactManifold* m = &manifolds[i];
+    uint a = m->body_a, b = m->body_b;
+    float inv_mass_a = bodies[a].inv_mass, inv_mass_b = bodies[b].inv_mass;
+    float3 xa = bodies[a].position.xyz, xb = bodies[b].position.xyz;
+    float3 va = bodies[a].linear_velocity.xyz, vb = bodies[b].linear_velocity.xyz;
+    float3 wa = bodies[a].angular_velocity.xyz, wb = bodies[b].angular_velocity.xyz;
+    float3 inv_inertia_a[3], inv_inertia_b[3];
+    for (int r = 0; r < 3; ++r) {
+        inv_inertia_a[r] = inertia[a].inv_inertia_world[r].xyz;
+        inv_inertia_b[r] = inertia[b].inv_inertia_world[r].xyz;
+    }
+
+    ContactConstraint c;
+    float3 n = m->normal.xyz, t1, t2;
+    tangent_basis(n, &t1, &t2);
+    c.normal = (float4)(n, m->friction);
+    c.tangent1 = (float4)(t1, 0.0f);
+    c.tangent2 = (float4)(t2, 0.0f);
+    c.body_a = a;
+    c.body_b = b;
+    c.point_count = min(m->point_count, (uint)RB_MAX_MANIFOLD_POINTS);
+    c.group = 0;
+    c.features = (uint4)(m->features[0], m->features[1], m->features[2], m->features[3]);
+    c.normal_impulse = c.tangent1_impulse = c.tangent2_impulse = c.push_impulse = (float4)(0.0f);
+    float normal_mass[4] = {0}, tangent1_mass[4] = {0}, tangent2_mass[4] = {0};
+    float velocity_target[4] = {0}, position_target[4] = {0};
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) {
+        c.r_a[k] = c.r_b[k] = (float4)(0.0f);
+        if (k >= c.point_count)
+            continue;
+        float3 p = m->points[k].xyz;
+        float separation = m->points[k].w;
+        float3 ra = p - xa, rb = p - xb;
+        c.r_a[k] = (float4)(ra, 0.0f);
+        c.r_b[k] = (float4)(rb, 0.0f);
+        normal_mass[k] = row_mass(n, ra, rb, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b);
+        tangent1_mass[k] = row_mass(t1, ra, rb, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b);
+        tangent2_mass[k] = row_mass(t2, ra, rb, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b);
+
+        /* normal velocity of B relative to A (> 0: separating) */
+        float approach = dot(vb + cross(wb, rb) - va - cross(wa, ra), n);
+        float bounce = approach < -restitution_threshold ? -m->restitution * approach : 0.0f;
+        float target;
+        if (separation > 0.0f)
+            /* still apart: close the gap this step, or bounce if it would be crossed */
+            target = (bounce > 0.0f && approach * dt < -separation) ? bounce : -separation / dt;
+        else
+            target = bounce;
+        float push = penetration_recovery / dt * fmax(-separation - penetration_slop, 0.0f);
+% if penetration == "baumgarte":
+        velocity_target[k] = fmax(target, push);
+% else:
+        velocity_target[k] = target;
+        position_target[k] = push;
+% endif
+    }
+    c.normal_mass = vload4(0, normal_mass);
+    c.tangent1_mass = vload4(0, tangent1_mass);
+    c.tangent2_mass = vload4(0, tangent2_mass);
+    c.velocity_target = vload4(0, velocity_target);
+    c.position_target = vload4(0, position_target);
+% if warm_start:
+    warm_start_from(previous, previous_table, previous_mask, &c);
+    c.normal_impulse *= warm_start_factor;
+    c.tangent1_impulse *= warm_start_factor;
+    c.tangent2_impulse *= warm_start_factor;
+% endif
+    constraints[i] = c;
+    insert_pair(table, table_mask, a, b, i);
+}

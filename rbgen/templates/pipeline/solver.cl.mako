@@ -1,0 +1,239 @@
+/* Projected Gauss-Seidel over batched contact constraints.
+ *
+ * One launch per iteration: a work group is responsible for one level-1 group
+ * (no dynamic body is shared between groups) and walks its batches in order,
+ * with a barrier between batches; the lanes of a batch solve constraints that
+ * share no dynamic body, so they may write body velocities without atomics.
+ * The last batch slot (${max_batches - 1}) holds any remainder and is solved by lane 0 alone.
+ *
+ * Rows per contact point: normal (impulse >= 0, drives the normal velocity to
+ * its target; all points' normal rows first) and a friction pair clamped to the disc |f| <= mu * normal
+ * impulse. Impulses are accumulated, so warm starting applies last step's
+ * totals once before the first iteration.
+% if split_impulse:
+ * The split-impulse position pass solves the same normal rows on separate
+ * push velocities, which apply_split_velocities turns into a displacement
+ * after integration and then forgets.
+% endif
+ */
+${cl_constants()}
+
+% if split_impulse:
+${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity")}
+% else:
+${cl_structs("Body", "BodyInertia", "ContactConstraint")}
+% endif
+
+#define MAX_BATCHES ${max_batches}
+#define SERIAL_BATCH (MAX_BATCHES - 1)
+
+inline float3 mul_rows(const float3 row[3], float3 v)
+{
+    return (float3)(dot(row[0], v), dot(row[1], v), dot(row[2], v));
+}
+
+inline void load_inertia(__global const BodyInertia* inertia, uint body, float3 rows[3])
+{
+    for (int r = 0; r < 3; ++r)
+        rows[r] = inertia[body].inv_inertia_world[r].xyz;
+}
+
+/* Impulse p at lever arms ra (on A, as -p) and rb (on B, as +p). */
+inline void apply_impulse(float3 p, float3 ra, float3 rb,
+                          float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
+                          float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb)
+{
+    *va -= p * inv_mass_a;
+    *wa -= mul_rows(inv_inertia_a, cross(ra, p));
+    *vb += p * inv_mass_b;
+    *wb += mul_rows(inv_inertia_b, cross(rb, p));
+}
+
+inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, float3 vb, float3 wb)
+{
+    return vb + cross(wb, rb) - va - cross(wa, ra);
+}
+
+/* Solve all rows of one constraint and write back its impulses and the
+ * velocities of its dynamic bodies. */
+void solve_contact(__global ContactConstraint* c, __global Body* bodies,
+                   __global const BodyInertia* inertia, const float relaxation,
+                   const uint apply_warm_start)
+{
+    uint a = c->body_a, b = c->body_b, count = c->point_count;
+    float inv_mass_a = bodies[a].inv_mass, inv_mass_b = bodies[b].inv_mass;
+    float3 va = bodies[a].linear_velocity.xyz, wa = bodies[a].angular_velocity.xyz;
+    float3 vb = bodies[b].linear_velocity.xyz, wb = bodies[b].angular_velocity.xyz;
+    float3 inv_inertia_a[3], inv_inertia_b[3];
+    load_inertia(inertia, a, inv_inertia_a);
+    load_inertia(inertia, b, inv_inertia_b);
+    float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
+    float friction = c->normal.w;
+    float normal_impulse[4], tangent1_impulse[4], tangent2_impulse[4];
+    float normal_mass[4], tangent1_mass[4], tangent2_mass[4], target[4];
+    vstore4(c->normal_impulse, 0, normal_impulse);
+    vstore4(c->tangent1_impulse, 0, tangent1_impulse);
+    vstore4(c->tangent2_impulse, 0, tangent2_impulse);
+    vstore4(c->normal_mass, 0, normal_mass);
+    vstore4(c->tangent1_mass, 0, tangent1_mass);
+    vstore4(c->tangent2_mass, 0, tangent2_mass);
+    vstore4(c->velocity_target, 0, target);
+
+    if (apply_warm_start) {
+        for (uint k = 0; k < count; ++k) {
+            float3 p = n * normal_impulse[k] + t1 * tangent1_impulse[k] + t2 * tangent2_impulse[k];
+            apply_impulse(p, c->r_a[k].xyz, c->r_b[k].xyz, inv_mass_a, inv_inertia_a, &va, &wa,
+                          inv_mass_b, inv_inertia_b, &vb, &wb);
+        }
+    }
+    for (uint k = 0; k < count; ++k) {
+        float3 ra = c->r_a[k].xyz, rb = c->r_b[k].xyz;
+        /* normal row: impulse >= 0 */
+        float vn = dot(relative_velocity(ra, rb, va, wa, vb, wb), n);
+        float total = fmax(normal_impulse[k] + relaxation * normal_mass[k] * (target[k] - vn), 0.0f);
+        float delta = total - normal_impulse[k];
+        normal_impulse[k] = total;
+        apply_impulse(n * delta, ra, rb, inv_mass_a, inv_inertia_a, &va, &wa,
+                      inv_mass_b, inv_inertia_b, &vb, &wb);
+    }
+    for (uint k = 0; k < count; ++k) {
+        /* friction pair: |(f1, f2)| <= mu * normal impulse */
+        float3 ra = c->r_a[k].xyz, rb = c->r_b[k].xyz;
+        float3 dv = relative_velocity(ra, rb, va, wa, vb, wb);
+        float f1 = tangent1_impulse[k] - relaxation * tangent1_mass[k] * dot(dv, t1);
+        float f2 = tangent2_impulse[k] - relaxation * tangent2_mass[k] * dot(dv, t2);
+        float limit = friction * normal_impulse[k];
+        float length_sq = f1 * f1 + f2 * f2;
+        if (length_sq > limit * limit) {
+            float scale = limit * rsqrt(length_sq);
+            f1 *= scale;
+            f2 *= scale;
+        }
+        float3 p = t1 * (f1 - tangent1_impulse[k]) + t2 * (f2 - tangent2_impulse[k]);
+        tangent1_impulse[k] = f1;
+        tangent2_impulse[k] = f2;
+        apply_impulse(p, ra, rb, inv_mass_a, inv_inertia_a, &va, &wa,
+                      inv_mass_b, inv_inertia_b, &vb, &wb);
+    }
+    c->normal_impulse = vload4(0, normal_impulse);
+    c->tangent1_impulse = vload4(0, tangent1_impulse);
+    c->tangent2_impulse = vload4(0, tangent2_impulse);
+    if (inv_mass_a > 0.0f) {
+        bodies[a].linear_velocity.xyz = va;
+        bodies[a].angular_velocity.xyz = wa;
+    }
+    if (inv_mass_b > 0.0f) {
+        bodies[b].linear_velocity.xyz = vb;
+        bodies[b].angular_velocity.xyz = wb;
+    }
+}
+
+/* One velocity iteration. A work group is responsible for one level-1
+ * group: its batches in order, a barrier after each. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void solve_contacts(__global ContactConstraint* constraints,
+                    __global const uint* order,
+                    __global const uint* group_batches,
+                    __global const uint* group_batch_count,
+                    __global Body* bodies,
+                    __global const BodyInertia* inertia,
+                    const float relaxation,
+                    const uint apply_warm_start)
+{
+    const uint lane = get_local_id(0), group = get_group_id(0);
+    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
+    const uint batch_count = group_batch_count[group];
+    for (uint batch = 0; batch < batch_count; ++batch) {
+        uint begin = offsets[batch], end = offsets[batch + 1];
+        uint stride = ${work_group_size};
+        if (batch == SERIAL_BATCH)
+            stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
+        for (uint i = begin + lane; i < end; i += stride)
+            solve_contact(&constraints[order[i]], bodies, inertia, relaxation, apply_warm_start);
+        barrier(CLK_GLOBAL_MEM_FENCE);
+    }
+}
+% if split_impulse:
+
+/* Normal rows on the push velocities of one constraint (split impulse). */
+void solve_push(__global ContactConstraint* c, __global SplitVelocity* split,
+                __global const Body* bodies, __global const BodyInertia* inertia,
+                const float relaxation)
+{
+    uint a = c->body_a, b = c->body_b, count = c->point_count;
+    float inv_mass_a = bodies[a].inv_mass, inv_mass_b = bodies[b].inv_mass;
+    float3 va = split[a].linear.xyz, wa = split[a].angular.xyz;
+    float3 vb = split[b].linear.xyz, wb = split[b].angular.xyz;
+    float3 inv_inertia_a[3], inv_inertia_b[3];
+    load_inertia(inertia, a, inv_inertia_a);
+    load_inertia(inertia, b, inv_inertia_b);
+    float3 n = c->normal.xyz;
+    float push_impulse[4], normal_mass[4], target[4];
+    vstore4(c->push_impulse, 0, push_impulse);
+    vstore4(c->normal_mass, 0, normal_mass);
+    vstore4(c->position_target, 0, target);
+    for (uint k = 0; k < count; ++k) {
+        float3 ra = c->r_a[k].xyz, rb = c->r_b[k].xyz;
+        float vn = dot(relative_velocity(ra, rb, va, wa, vb, wb), n);
+        float total = fmax(push_impulse[k] + relaxation * normal_mass[k] * (target[k] - vn), 0.0f);
+        float delta = total - push_impulse[k];
+        push_impulse[k] = total;
+        apply_impulse(n * delta, ra, rb, inv_mass_a, inv_inertia_a, &va, &wa,
+                      inv_mass_b, inv_inertia_b, &vb, &wb);
+    }
+    c->push_impulse = vload4(0, push_impulse);
+    if (inv_mass_a > 0.0f) {
+        split[a].linear.xyz = va;
+        split[a].angular.xyz = wa;
+    }
+    if (inv_mass_b > 0.0f) {
+        split[b].linear.xyz = vb;
+        split[b].angular.xyz = wb;
+    }
+}
+
+/* One position (split-impulse) iteration. A work group is responsible for
+ * one level-1 group: its batches in order, a barrier after each. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void solve_penetration(__global ContactConstraint* constraints,
+                       __global const uint* order,
+                       __global const uint* group_batches,
+                       __global const uint* group_batch_count,
+                       __global SplitVelocity* split,
+                       __global const Body* bodies,
+                       __global const BodyInertia* inertia,
+                       const float relaxation)
+{
+    const uint lane = get_local_id(0), group = get_group_id(0);
+    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
+    const uint batch_count = group_batch_count[group];
+    for (uint batch = 0; batch < batch_count; ++batch) {
+        uint begin = offsets[batch], end = offsets[batch + 1];
+        uint stride = ${work_group_size};
+        if (batch == SERIAL_BATCH)
+            stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
+        for (uint i = begin + lane; i < end; i += stride)
+            solve_push(&constraints[order[i]], split, bodies, inertia, relaxation);
+        barrier(CLK_GLOBAL_MEM_FENCE);
+    }
+}
+
+/* One work-item per body: move it by its push velocity over dt, then clear
+ * the push. A work group is responsible for ${work_group_size} consecutive bodies. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void apply_split_velocities(__global Body* bodies, __global SplitVelocity* split,
+                            const uint body_count, const float dt)
+{
+    uint i = get_global_id(0);
+    if (i >= body_count || bodies[i].inv_mass == 0.0f)
+        return;
+    float3 v = split[i].linear.xyz, w = split[i].angular.xyz;
+    bodies[i].position.xyz += v * dt;
+    float4 q = bodies[i].orientation;
+    float3 h = 0.5f * dt * w;  /* q += (h, 0) q: first order, renormalised */
+    float4 dq = (float4)(q.w * h + cross(h, q.xyz), -dot(h, q.xyz));
+    bodies[i].orientation = normalize(q + dq);
+    split[i].linear = (float4)(0.0f);
+    split[i].angular = (float4)(0.0f);
+}
+% endif

@@ -1,0 +1,166 @@
+"""Contact constraint setup: effective masses, velocity targets, warm starting.
+
+Closed forms: for a point contact on a body with inverse mass m and inverse
+world inertia I at lever arm r, the normal row's effective mass is
+1 / (m + (r x n) . I (r x n)); an approaching body (normal speed v above the
+threshold) gets the target -e v; a penetration d gets the Baumgarte push
+beta / dt * (d - slop). Warm starting copies the impulses of the previous
+step's point with the same body pair and feature id.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl.array as cl_array
+import pytest
+
+from rbgen import layouts
+from rbgen.pipeline.batching import ConstraintBatcher
+from rbgen.pipeline.constraints import ContactConstraints
+from rbgen.pipeline.gyroscopic import BodyPreparation, inertia_records
+from rbgen.pipeline.solver import ContactSolver
+
+
+def make_bodies(positions, inv_mass, velocities=None, angular=None):
+    n = len(positions)
+    bodies = layouts.BODY.zeros(n)
+    bodies["position"][:, :3] = positions
+    bodies["orientation"][:, 3] = 1.0
+    bodies["inv_mass"] = inv_mass
+    if velocities is not None:
+        bodies["linear_velocity"][:, :3] = velocities
+    if angular is not None:
+        bodies["angular_velocity"][:, :3] = angular
+    return bodies
+
+
+def make_manifold(a, b, normal, points, separations, features=None, friction=0.5, restitution=0.0):
+    m = layouts.CONTACT_MANIFOLD.zeros(1)[0]
+    m["body_a"], m["body_b"] = a, b
+    m["normal"][:3] = normal
+    k = len(points)
+    m["points"][:k, :3] = points
+    m["points"][:k, 3] = separations
+    m["features"][:k] = np.arange(k) if features is None else features
+    m["point_count"] = k
+    m["friction"], m["restitution"] = friction, restitution
+    return m
+
+
+class ContactRig:
+    """Bodies + manifolds on the device, through setup, batching and the solver (no integration)."""
+
+    def __init__(self, runtime, bodies, inv_inertia, *, penetration="split", warm_start=True,
+                 group_count=3, solver_work_group_size=None):
+        self.runtime = runtime
+        queue = runtime.queue
+        self.body_count = len(bodies)
+        self.bodies = cl_array.to_device(queue, bodies)
+        self.inertia = cl_array.to_device(queue, inertia_records(inv_inertia))
+        self.prepare = BodyPreparation(runtime, gyroscopic=False)
+        self.setup = ContactConstraints(runtime, penetration=penetration, warm_start=warm_start)
+        self.batcher = ConstraintBatcher(runtime, group_count=group_count)
+        self.solver = ContactSolver(runtime, split_impulse=penetration == "split",
+                                    work_group_size=solver_work_group_size)
+        self.warm_start = warm_start
+
+    def constraints(self, manifolds, dt=1 / 60, capacity_slack=3):
+        queue = self.runtime.queue
+        n = len(manifolds)
+        capacity = n + capacity_slack
+        padded = layouts.CONTACT_MANIFOLD.zeros(capacity)
+        padded[:n] = manifolds
+        self.manifolds = cl_array.to_device(queue, padded)
+        self.count = cl_array.to_device(queue, np.array([n], np.uint32))
+        self.capacity = capacity
+        self.prepare(self.bodies, self.inertia, self.body_count, dt)
+        self.setup(self.manifolds, self.count, self.bodies, self.inertia, capacity, dt)
+        return self.setup.constraints.get()[:n]
+
+    def solve(self, manifolds, dt=1 / 60, iterations=20, position_iterations=0, relaxation=1.0):
+        self.constraints(manifolds, dt)
+        cons = self.setup.constraints
+        self.batcher(cons, self.count, self.bodies, self.body_count, self.capacity)
+        self.solver.solve_velocities(cons, self.batcher, self.bodies, self.inertia,
+                                     iterations=iterations, relaxation=relaxation,
+                                     warm_start=self.warm_start)
+        if position_iterations:
+            self.solver.solve_positions(cons, self.batcher, self.bodies, self.inertia,
+                                        self.body_count, iterations=position_iterations)
+            self.solver.apply_split(self.bodies, self.body_count, dt)
+        return self.bodies.get(), cons.get()[: len(manifolds)]
+
+
+def test_effective_masses_and_targets(runtime, rng):
+    """Normal/tangent masses match 1/(m + (r x d).I(r x d)); bounce and Baumgarte targets."""
+    inv_inertia = np.array([[0, 0, 0], rng.uniform(0.5, 2.0, 3)])
+    speed, e, dt = 3.0, 0.4, 1 / 60
+    bodies = make_bodies([[0, 0, 0], [0, 1, 0]], [0.0, 0.5], velocities=[[0, 0, 0], [0, -speed, 0]])
+    points = np.array([[0.3, 0.0, 0.2], [-0.4, 0.0, 0.1], [0.1, 0.0, -0.3]])
+    depth = np.array([-0.05, 0.0, 0.02])
+    rig = ContactRig(runtime, bodies, inv_inertia, penetration="baumgarte", warm_start=False)
+    m = make_manifold(0, 1, [0, 1, 0], points, depth, restitution=e)
+    c = rig.constraints(np.array([m]), dt)[0]
+    n = np.array([0, 1.0, 0])
+    slop, beta = rig.setup.penetration_slop, rig.setup.penetration_recovery
+    for k in range(3):
+        r = points[k] - [0, 1, 0]
+        for direction, field in ((n, "normal_mass"), (c["tangent1"][:3], "tangent1_mass"),
+                                 (c["tangent2"][:3], "tangent2_mass")):
+            rc = np.cross(r, direction)
+            expected = 1 / (0.5 + rc @ (inv_inertia[1] * rc))
+            assert c[field][k] == pytest.approx(expected, rel=1e-4)
+        bounce = e * speed
+        if depth[k] > 0:  # apart but crossed within the step: bounce
+            expected = bounce
+        else:
+            expected = max(bounce, beta / dt * max(-depth[k] - slop, 0.0))
+        assert c["velocity_target"][k] == pytest.approx(expected, rel=1e-4)
+    t1, t2 = c["tangent1"][:3], c["tangent2"][:3]
+    assert abs(t1 @ n) < 1e-6 and abs(t2 @ n) < 1e-6 and abs(t1 @ t2) < 1e-6
+    assert np.linalg.norm(t1) == pytest.approx(1, abs=1e-6)
+
+
+def test_slow_speculative_contact_only_closes_the_gap(runtime):
+    """A point 0.1 m apart approaching at 1 m/s (no crossing in 1/60 s) may approach at gap/dt."""
+    bodies = make_bodies([[0, 0, 0], [0, 1, 0]], [0.0, 1.0], velocities=[[0, 0, 0], [0, -1, 0]])
+    rig = ContactRig(runtime, bodies, np.array([[0, 0, 0], [1, 1, 1.0]]), warm_start=False)
+    c = rig.constraints(np.array([make_manifold(0, 1, [0, 1, 0], [[0, 0, 0]], [0.1],
+                                                restitution=1.0)]))[0]
+    assert c["velocity_target"][0] == pytest.approx(-0.1 * 60, rel=1e-5)
+
+
+@pytest.mark.parametrize("warm_start", [True, False])
+def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start):
+    """Impulses carry over only for the same body pair and feature id (per point)."""
+    n_pairs = 37
+    positions = np.zeros((n_pairs + 1, 3))
+    positions[1:, 0] = np.arange(n_pairs) * 3.0
+    positions[1:, 1] = 0.5
+    bodies = make_bodies(positions, np.r_[0.0, np.ones(n_pairs)],
+                         velocities=np.r_[[[0, 0, 0]], np.tile([0, -2.0, 0], (n_pairs, 1))])
+    inv_inertia = np.r_[[[0, 0, 0]], np.ones((n_pairs, 3))]
+    rig = ContactRig(runtime, bodies, inv_inertia, warm_start=warm_start)
+    features = [rng.permutation(50)[:4] for _ in range(n_pairs)]
+    manifolds = np.array([make_manifold(0, i + 1, [0, 1, 0], positions[i + 1] - [[.3, .5, .3], [-.3, .5, .3],
+                                                                       [.3, .5, -.3], [-.3, .5, -.3]],
+                                        [-0.01] * 4, features=features[i]) for i in range(n_pairs)])
+    order = rng.permutation(n_pairs)
+    _, first = rig.solve(manifolds[order], iterations=5)
+    first_by_body = {int(c["body_b"]): c for c in first}
+    # Next step: same pairs in another order, two features changed on every manifold.
+    changed = manifolds.copy()
+    for i in range(n_pairs):
+        changed[i]["features"][:2] = [100 + i, 200 + i]
+    second = rig.constraints(changed[rng.permutation(n_pairs)])
+    for c in second:
+        old = first_by_body[int(c["body_b"])]
+        for k in range(4):
+            feature = c["features"][k]
+            if not warm_start or feature >= 100:
+                expected = (0.0, 0.0, 0.0)
+            else:
+                j = list(old["features"]).index(feature)
+                expected = (old["normal_impulse"][j], old["tangent1_impulse"][j],
+                            old["tangent2_impulse"][j])
+            got = (c["normal_impulse"][k], c["tangent1_impulse"][k], c["tangent2_impulse"][k])
+            np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-7)
