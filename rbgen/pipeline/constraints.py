@@ -83,6 +83,8 @@ class ContactConstraints:
         self.penetration_slop = 0.005
         self.penetration_recovery = 0.2
         self.warm_start_factor = 1.0
+        #: device uint32 array(1): constraints built by the last call (<= capacity)
+        self.count = cl_array.zeros(runtime.queue, 1, np.uint32)
         self._generations: list[_Buffers | None] = [None, None]
         self._current = 1
 
@@ -103,7 +105,8 @@ class ContactConstraints:
                 gen.table.fill(np.uint32(layouts.SOLVER_NONE), queue=self.runtime.queue)
 
     def __call__(self, manifolds, manifold_count, bodies, inertia, capacity: int, dt: float):
-        """Set up ``manifold_count[0]`` (device uint32 array(1)) constraints, at most ``capacity``."""
+        """Set up min(``manifold_count[0]``, ``capacity``) constraints (count: a device
+        uint32 array(1)); that number is written to ``self.count`` on the device."""
         queue, wg, launch = self.runtime.queue, self.work_group_size, self.runtime.launch
         previous = self._generations[self._current]
         self._current = 1 - self._current
@@ -117,9 +120,11 @@ class ContactConstraints:
         self.clear_kernel.set_args(gen.table.data, np.uint32(table_size))
         launch(self.clear_kernel, -(-table_size // wg) * wg, wg)
         if capacity == 0:
+            self.count.fill(np.uint32(0), queue=queue)
             return None
         args = [_data(manifolds), _data(manifold_count), _data(bodies), _data(inertia),
-                gen.constraints.data, gen.table.data, np.uint32(gen.mask)]
+                np.uint32(capacity), gen.constraints.data, self.count.data, gen.table.data,
+                np.uint32(gen.mask)]
         if self.warm_start:
             args += [previous.constraints.data, previous.table.data, np.uint32(previous.mask),
                      np.float32(self.warm_start_factor)]

@@ -79,7 +79,7 @@ class ContactRig:
     def solve(self, manifolds, dt=1 / 60, iterations=20, position_iterations=0, relaxation=1.0):
         self.constraints(manifolds, dt)
         cons = self.setup.constraints
-        self.batcher(cons, self.count, self.bodies, self.body_count, self.capacity)
+        self.batcher(cons, self.setup.count, self.bodies, self.body_count, self.capacity)
         self.solver.solve_velocities(cons, self.batcher, self.bodies, self.inertia,
                                      iterations=iterations, relaxation=relaxation,
                                      warm_start=self.warm_start)
@@ -164,3 +164,17 @@ def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start):
                             old["tangent2_impulse"][j])
             got = (c["normal_impulse"][k], c["tangent1_impulse"][k], c["tangent2_impulse"][k])
             np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-7)
+
+
+def test_overflowing_manifold_count_is_clamped_to_capacity(runtime):
+    """The narrowphase reports its true count (9) past our capacity (5): 5 constraints are built."""
+    bodies = make_bodies(np.c_[np.arange(6.0), np.zeros(6), np.zeros(6)], np.r_[0.0, np.ones(5)])
+    rig = ContactRig(runtime, bodies, np.r_[[[0, 0, 0]], np.ones((5, 3))], warm_start=False)
+    manifolds = np.array([make_manifold(0, i, [0, 1, 0], [[i, -0.5, 0]], [0.0]) for i in range(1, 6)])
+    queue = runtime.queue
+    d_manifolds = cl_array.to_device(queue, manifolds)
+    count = cl_array.to_device(queue, np.array([9], np.uint32))
+    rig.prepare(rig.bodies, rig.inertia, 6, 1 / 60)
+    rig.setup(d_manifolds, count, rig.bodies, rig.inertia, 5, 1 / 60)
+    assert int(rig.setup.count.get()[0]) == 5
+    assert sorted(rig.setup.constraints.get()["body_b"][:5]) == [1, 2, 3, 4, 5]

@@ -109,14 +109,17 @@ inline void insert_pair(__global uint* table, const uint mask, uint a, uint b, u
         slot = (slot + 1) & mask;
 }
 
-/* One work-item per manifold: build its constraint. A work group is
- * responsible for ${work_group_size} consecutive manifolds. */
+/* One work-item per manifold: build its constraint; work-item 0 also writes
+ * the constraint count. A work group is responsible for ${work_group_size}
+ * consecutive manifolds. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void setup_contact_constraints(__global const ContactManifold* manifolds,
                                __global const uint* manifold_count,
                                __global const Body* bodies,
                                __global const BodyInertia* inertia,
+                               const uint capacity,
                                __global ContactConstraint* constraints,
+                               __global uint* constraint_count,
                                __global uint* table,
                                const uint table_mask,
 % if warm_start:
@@ -130,8 +133,12 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
                                const float penetration_slop,
                                const float penetration_recovery)
 {
-    uint i = get_global_id(0);
-    if (i >= manifold_count[0])
+    /* the narrowphase reports its true count, which may exceed our capacity
+     * (the World then grows the buffers and redoes the step) */
+    uint i = get_global_id(0), count = min(manifold_count[0], capacity);
+    if (i == 0)
+        constraint_count[0] = count;
+    if (i >= count)
         return;
     __global const ContactManifold* m = &manifolds[i];
     uint a = m->body_a, b = m->body_b;
