@@ -170,7 +170,9 @@ def test_overflowing_manifold_count_is_clamped_to_capacity(runtime):
     """The narrowphase reports its true count (9) past our capacity (5): 5 constraints are built."""
     bodies = make_bodies(np.c_[np.arange(6.0), np.zeros(6), np.zeros(6)], np.r_[0.0, np.ones(5)])
     rig = ContactRig(runtime, bodies, np.r_[[[0, 0, 0]], np.ones((5, 3))], warm_start=False)
-    manifolds = np.array([make_manifold(0, i, [0, 1, 0], [[i, -0.5, 0]], [0.0]) for i in range(1, 6)])
+    manifolds = layouts.CONTACT_MANIFOLD.zeros(5)  # (np.array of records drops the padding)
+    for i in range(1, 6):
+        manifolds[i - 1] = make_manifold(0, i, [0, 1, 0], [[i, -0.5, 0]], [0.0])
     queue = runtime.queue
     d_manifolds = cl_array.to_device(queue, manifolds)
     count = cl_array.to_device(queue, np.array([9], np.uint32))
