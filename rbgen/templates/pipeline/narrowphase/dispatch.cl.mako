@@ -64,9 +64,9 @@ void classify_pairs(__global const Pair* pairs,
     __local uint group_counts[KIND_COUNT];
     __local uint group_bases[KIND_COUNT];
     uint i = get_global_id(0);
-    uint lid = get_local_id(0);
-    for (uint k = lid; k < KIND_COUNT; k += get_local_size(0))
-        group_counts[k] = 0;
+    if (get_local_id(0) == 0)
+        for (uint k = 0; k < KIND_COUNT; ++k)
+            group_counts[k] = 0;
     barrier(CLK_LOCAL_MEM_FENCE);
 
     uint kind = NO_KIND, ticket = 0;
@@ -81,8 +81,9 @@ void classify_pairs(__global const Pair* pairs,
             ticket = atomic_inc(&group_counts[kind]);
     }
     barrier(CLK_LOCAL_MEM_FENCE);
-    for (uint k = lid; k < KIND_COUNT; k += get_local_size(0))
-        group_bases[k] = group_counts[k] ? atomic_add(&queue_counts[k], group_counts[k]) : 0u;
+    if (get_local_id(0) == 0)
+        for (uint k = 0; k < KIND_COUNT; ++k)
+            group_bases[k] = group_counts[k] ? atomic_add(&queue_counts[k], group_counts[k]) : 0u;
     barrier(CLK_LOCAL_MEM_FENCE);
     if (kind != NO_KIND)
         queues[kind * pair_capacity + group_bases[kind] + ticket] = i | (swapped ? (uint)RB_PAIR_SWAPPED : 0u);

@@ -1,0 +1,275 @@
+"""Narrowphase contacts against closed-form answers, on every device.
+
+Conventions checked throughout (rbgen/layouts.py, ContactManifold): the
+normal points from body_a to body_b, points lie on body_b with the signed
+separation in w (negative: penetration).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from rbgen import layouts
+from rbgen.errors import RbgenError
+from rbgen.pipeline.narrowphase import Narrowphase, find_contacts, kinds_for
+from rbgen.shapes import Box, Capsule, ConvexHull, Plane, ShapeTable, Sphere
+
+from .reference import axis_angle, make_bodies, quat_matrix
+
+ATOL = 2e-5  # float32 positions of size ~1
+
+
+def contacts(runtime, table, bodies, pairs, margin=0.0):
+    m = find_contacts(runtime, table, bodies, pairs, margin=margin)
+    return {(int(r["body_a"]), int(r["body_b"])): r for r in m}
+
+
+def points(manifold):
+    return manifold["points"][: manifold["point_count"]].astype(np.float64)
+
+
+def same_point_sets(got, expected, atol=ATOL):
+    got, expected = np.asarray(got, np.float64), np.asarray(expected, np.float64)
+    if got.shape != expected.shape:
+        return False
+    d = np.linalg.norm(got[:, None, :] - expected[None, :, :], axis=-1)
+    return bool(np.all(d.min(axis=1) < atol) and np.all(d.min(axis=0) < atol))
+
+
+def test_box_face_on_plane(runtime, rng):
+    """Box sunk by d, yawed: 4 points at its bottom corners, separation -d, normal +y."""
+    table = ShapeTable()
+    ground, box = table.add(Plane((0, 1, 0), 0.0)), table.add(Box((0.5, 0.75, 1.0)))
+    d, yaw = 0.0123, rng.uniform(0, 2 * np.pi)
+    q = axis_angle((0, 1, 0), yaw)
+    bodies = make_bodies([ground, box], [(0, 0, 0), (0.3, 0.75 - d, -0.2)], [(0, 0, 0, 1), q])
+    m = contacts(runtime, table, bodies, [(0, 1)])[(0, 1)]
+    assert m["point_count"] == 4
+    np.testing.assert_allclose(m["normal"][:3], (0, 1, 0), atol=1e-6)
+    corners = table.shapes[box].local_vertices() @ quat_matrix(q).T + (0.3, 0.75 - d, -0.2)
+    bottom = corners[corners[:, 1] < 0]
+    assert same_point_sets(points(m)[:, :3], bottom)
+    np.testing.assert_allclose(points(m)[:, 3], -d, atol=ATOL)
+
+
+def test_box_face_on_box(runtime, rng):
+    """A yawed unit box sunk by d into a wide box: its 4 bottom corners, separation -d."""
+    table = ShapeTable()
+    wide, cube = table.add(Box((3.0, 1.0, 3.0))), table.add(Box((0.5, 0.5, 0.5)))
+    d, yaw = 0.02, rng.uniform(0, 2 * np.pi)
+    q = axis_angle((0, 1, 0), yaw)
+    centre = np.array([0.4, 1.5 - d, -0.3])
+    bodies = make_bodies([wide, cube], [(0, 0, 0), centre], [(0, 0, 0, 1), q])
+    m = contacts(runtime, table, bodies, [(0, 1)])[(0, 1)]
+    assert m["point_count"] == 4
+    np.testing.assert_allclose(m["normal"][:3], (0, 1, 0), atol=1e-6)
+    corners = table.shapes[cube].local_vertices() @ quat_matrix(q).T + centre
+    assert same_point_sets(points(m)[:, :3], corners[corners[:, 1] < centre[1]])
+    np.testing.assert_allclose(points(m)[:, 3], -d, atol=ATOL)
+    assert len(set(m["features"][:4].tolist())) == 4, "feature ids must tell the points apart"
+
+
+def test_rotated_box_corner_on_plane(runtime):
+    """A cube standing on a corner (diagonal vertical) sunk by d: one point, depth d."""
+    table = ShapeTable()
+    ground, cube = table.add(Plane((0, 1, 0), 0.0)), table.add(Box((1.0, 1.0, 1.0)))
+    diagonal = np.array([1.0, 1.0, 1.0]) / np.sqrt(3)
+    axis = np.cross(diagonal, (0, -1, 0))
+    q = axis_angle(axis, np.arccos(np.dot(diagonal, (0, -1, 0))))
+    d = 0.01
+    centre = np.array([0.2, np.sqrt(3) - d, 0.1])
+    bodies = make_bodies([ground, cube], [(0, 0, 0), centre], [(0, 0, 0, 1), q])
+    m = contacts(runtime, table, bodies, [(0, 1)])[(0, 1)]
+    assert m["point_count"] == 1
+    np.testing.assert_allclose(points(m)[0], (0.2, -d, 0.1, -d), atol=1e-5)
+
+
+def test_boxes_crossing_edge_to_edge(runtime):
+    """Edge along z (top of A, turned 45 deg about z) on edge along x (bottom of B,
+    turned 45 deg about x): one point on B's edge, normal z x x = +y, depth d."""
+    table = ShapeTable()
+    cube = table.add(Box((1.0, 1.0, 1.0)))
+    d = 0.015
+    top = np.sqrt(2)
+    qa, qb = axis_angle((0, 0, 1), np.pi / 4), axis_angle((1, 0, 0), np.pi / 4)
+    bodies = make_bodies([cube, cube], [(0, 0, 0), (0, 2 * top - d, 0)], [qa, qb])
+    m = contacts(runtime, table, bodies, [(0, 1)])[(0, 1)]
+    assert m["point_count"] == 1
+    np.testing.assert_allclose(m["normal"][:3], (0, 1, 0), atol=1e-5)
+    np.testing.assert_allclose(points(m)[0], (0, top - d, 0, -d), atol=1e-5)
+
+
+def test_swapping_bodies_flips_the_normal(runtime, rng):
+    """Same geometry with A and B exchanged: normal negated, points moved onto the new B
+    (p' = p - s n), separations unchanged."""
+    table = ShapeTable()
+    cube, ball = table.add(Box((0.6, 0.5, 0.4))), table.add(Sphere(0.5))
+    q = axis_angle(rng.normal(size=3), 0.3)
+    positions = [(0, 0, 0), (0.2, 0.95, 0.1), (0.1, 0.2, 0.8)]
+    shapes = [cube, cube, ball]
+    for order in ([0, 1, 2], [2, 1, 0]):
+        bodies = make_bodies([shapes[i] for i in order], [positions[i] for i in order],
+                             [q if i == 1 else (0, 0, 0, 1) for i in order])
+        found = contacts(runtime, table, bodies, [(0, 1), (1, 2), (0, 2)])
+        if order == [0, 1, 2]:
+            first = found
+            continue
+        remap = {0: 2, 1: 1, 2: 0}
+        for (a, b), m in first.items():
+            other = found[tuple(sorted((remap[a], remap[b])))]
+            assert other["point_count"] == m["point_count"]
+            n = m["normal"][:3].astype(np.float64)
+            np.testing.assert_allclose(other["normal"][:3], -n, atol=1e-5)
+            moved = points(m)[:, :3] - n * points(m)[:, 3:]
+            assert same_point_sets(points(other)[:, :3], moved, atol=1e-4)
+            np.testing.assert_allclose(np.sort(points(other)[:, 3]), np.sort(points(m)[:, 3]),
+                                       atol=1e-5)
+
+
+def test_sphere_cases(runtime, rng):
+    """Sphere-sphere, sphere-plane, sphere-box (face, edge, corner regions, centre inside):
+    separation = distance to the closest surface point - radius, normal along it."""
+    table = ShapeTable()
+    ball, ground = table.add(Sphere(0.5)), table.add(Plane(rng.normal(size=3), 0.3))
+    cube = table.add(Box((1.0, 0.8, 0.6)))
+    plane = table.shapes[ground]
+    q = axis_angle(rng.normal(size=3), rng.uniform(0, np.pi))
+    r = quat_matrix(q)
+    h = table.shapes[cube].half_extents
+    local_centres = [(0, 0.8 + 0.45, 0), (1.2, 0.95, 0.1), (1.3, 1.0, 0.75), (0.2, 0.35, -0.1)]
+    box_at = np.array([5.0, 5.0, 5.0])
+    # sphere-sphere: 0-1; sphere-plane: 2-3; sphere-box: box 4, spheres 5..8
+    positions = [(0, 0, 0), (0.3, 0.85, -0.2), tuple(plane.normal * (0.3 + 0.47)), (0, 0, 0), box_at]
+    positions += [tuple(box_at + r @ c) for c in local_centres]
+    shapes = [ball, ball, ball, ground, cube] + [ball] * 4
+    orient = [(0, 0, 0, 1)] * 4 + [q] + [(0, 0, 0, 1)] * 4
+    bodies = make_bodies(shapes, positions, orient)
+    pairs = [(0, 1), (2, 3), (4, 5), (4, 6), (4, 7), (4, 8)]
+    found = contacts(runtime, table, bodies, pairs)
+    assert set(found) == set(pairs)
+
+    def check(pair, normal, separation, point):
+        m = found[pair]
+        assert m["point_count"] == 1
+        np.testing.assert_allclose(m["normal"][:3], normal, atol=1e-5)
+        np.testing.assert_allclose(points(m)[0], (*point, separation), atol=2e-5)
+
+    d = np.array(positions[1]) - positions[0]
+    n = d / np.linalg.norm(d)
+    check((0, 1), n, np.linalg.norm(d) - 1.0, positions[1] - 0.5 * n)
+    # sphere (body 2) against plane (body 3): normal from sphere into the plane
+    check((2, 3), -plane.normal, 0.47 - 0.5, np.zeros(3) + plane.normal * 0.3)
+    for k, c in enumerate(local_centres):
+        c = np.array(c)
+        closest = np.clip(c, -h, h)
+        if np.all(np.abs(c) <= h):  # inside: out through the nearest face
+            axis = int(np.argmin(h - np.abs(c)))
+            closest = c.copy()
+            closest[axis] = np.sign(c[axis]) * h[axis]
+            separation = -np.linalg.norm(closest - c) - 0.5
+            normal_local = (closest - c) / np.linalg.norm(closest - c)
+        else:
+            separation = np.linalg.norm(c - closest) - 0.5
+            normal_local = (c - closest) / np.linalg.norm(c - closest)
+        # pair (box, sphere): normal from the box to the sphere, point on the sphere
+        normal = r @ normal_local
+        sphere_centre = box_at + r @ c
+        check((4, 5 + k), normal, separation, sphere_centre - 0.5 * normal)
+
+
+def test_separated_shapes_and_margin(runtime):
+    """A gap g gives no contact with margin < g and one with separation +g with margin > g."""
+    table = ShapeTable()
+    cube, ball, ground = table.add(Box((1, 1, 1))), table.add(Sphere(0.5)), table.add(Plane())
+    g = 0.05
+    bodies = make_bodies([ground, cube, cube, ball, ball],
+                         [(0, 0, 0), (0, 1 + g, 0), (0, 3 + 2 * g, 0), (0, 4 + 2 * g + 0.5 + g, 0),
+                          (5, 0.5 + g, 0)])
+    pairs = [(0, 1), (1, 2), (2, 3), (0, 4)]
+    assert contacts(runtime, table, bodies, pairs, margin=0.5 * g) == {}
+    found = contacts(runtime, table, bodies, pairs, margin=2 * g)
+    assert set(found) == set(pairs)
+    for m in found.values():
+        np.testing.assert_allclose(points(m)[:, 3], g, atol=2e-5)
+
+
+@pytest.mark.parametrize("count", [0, 1, 33, 1000])
+def test_many_boxes_on_plane(runtime, rng, count):
+    """count yawed boxes at random depths in [-0.1, 0.1): those within the margin 0.02 give
+    4 points each at separation y - h; manifolds are in pair order."""
+    table = ShapeTable()
+    ground, box = table.add(Plane()), table.add(Box((0.5, 0.25, 0.5)))
+    depth = rng.uniform(-0.1, 0.1, count)
+    yaw = rng.uniform(0, 2 * np.pi, count)
+    q = np.array([axis_angle((0, 1, 0), a) for a in yaw]).reshape(-1, 4)
+    xz = rng.uniform(-50, 50, (count, 2))
+    pos = np.column_stack([xz[:, 0], 0.25 + depth, xz[:, 1]])
+    bodies = make_bodies([ground] + [box] * count, np.vstack([[0, 0, 0], pos]),
+                         np.vstack([[0, 0, 0, 1], q]))
+    m = find_contacts(runtime, table, bodies, [(0, i + 1) for i in range(count)], margin=0.02)
+    expected = np.nonzero(depth <= 0.02)[0] + 1
+    np.testing.assert_array_equal(m["body_b"], expected)
+    assert np.all(m["point_count"] == 4)
+    np.testing.assert_allclose(m["points"][:, :, 3], np.repeat(depth[expected - 1], 4).reshape(-1, 4),
+                               atol=2e-5)
+    np.testing.assert_allclose(m["friction"], 0.5, rtol=1e-6)
+
+
+def test_overflow_grows_and_keeps_everything(runtime):
+    """A manifold capacity of 1 for 7 contacts: the step flags 7, find_contacts grows and redoes."""
+    table = ShapeTable()
+    ground, ball = table.add(Plane()), table.add(Sphere(1.0))
+    bodies = make_bodies([ground] + [ball] * 7, [(0, 0, 0)] + [(3 * i, 0.9, 0) for i in range(7)])
+    narrowphase = Narrowphase(runtime, table)
+    import pyopencl.array as cla
+    q = runtime.queue
+    pairs = layouts.PAIR.zeros(7)
+    pairs["b"] = np.arange(1, 8)
+    packed = table.pack_all().to_device(q)
+    d_bodies, d_pairs = cla.to_device(q, bodies), cla.to_device(q, pairs)
+    manifolds = cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype)
+    count, overflow = cla.zeros(q, 1, np.uint32), cla.zeros(q, 1, np.uint32)
+    narrowphase.enqueue(d_bodies, packed, d_pairs, cla.to_device(q, np.array([7], np.uint32)),
+                        manifolds, count, overflow, 0.0)
+    assert overflow.get()[0] == 7 and count.get()[0] == 7
+    m = narrowphase.find_contacts(d_bodies, packed, d_pairs, 7, capacity=1)
+    np.testing.assert_array_equal(m["body_b"], np.arange(1, 8))
+
+
+def test_icosphere_hull_behaves_like_a_sphere(runtime, rng):
+    """trimesh icosphere(subdivisions=3) (1280 triangles, the closest subdivision to ~900):
+    against a plane and a sphere its depth and normal match a unit sphere within the
+    hull's resolution (faces lie at most 1 - cos(edge angle) inside the sphere)."""
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    hull = ConvexHull.from_trimesh(mesh, name="icosphere")
+    resolution = 1.0 - np.min(np.abs(hull.cooked().planes[:, 3]))
+    assert 0 < resolution < 0.01
+    table = ShapeTable()
+    ground, rock, ball = table.add(Plane()), table.add(hull), table.add(Sphere(0.5))
+    q = axis_angle(rng.normal(size=3), rng.uniform(0, np.pi))
+    direction = rng.normal(size=3)
+    direction /= np.linalg.norm(direction)
+    d = 0.05
+    # plane under a hull sunk by d; a sphere of radius 0.5 sunk by d into a hull along `direction`
+    bodies = make_bodies([ground, rock, rock, ball],
+                         [(0, 0, 0), (0, 1 - d, 0), (0, 0, 0), (1.5 - d) * direction],
+                         [(0, 0, 0, 1), q, q, (0, 0, 0, 1)])
+    found = contacts(runtime, table, bodies, [(0, 1), (2, 3)])
+    plane_contact, sphere_contact = found[(0, 1)], found[(2, 3)]
+    assert plane_contact["point_count"] >= 1
+    assert -d - 1e-5 <= points(plane_contact)[:, 3].min() <= -d + resolution + 1e-5
+    m = sphere_contact
+    assert m["point_count"] == 1
+    angle = np.arccos(np.clip(np.dot(m["normal"][:3], direction), -1, 1))
+    assert angle < 2 * np.sqrt(2 * resolution)
+    assert -d - 1e-5 <= points(m)[0, 3] <= -d + resolution + 1e-5
+
+
+def test_unsupported_shapes_fail_at_construction(runtime):
+    assert kinds_for(("box", "plane")) == ("convex_plane", "box_box")
+    table = ShapeTable()
+    table.add(Capsule(0.5, 1.0))
+    table.add(Box((1, 1, 1)))
+    with pytest.raises(RbgenError, match="capsule"):
+        Narrowphase(runtime, table)
