@@ -104,6 +104,11 @@ class ContactConstraints:
             if gen is not None:
                 gen.table.fill(np.uint32(layouts.SOLVER_NONE), queue=self.runtime.queue)
 
+    def undo(self) -> None:
+        """Forget the last call (its step is being redone): the generation before it is
+        again the one the next call warm-starts from."""
+        self._current = 1 - self._current
+
     def __call__(self, manifolds, manifold_count, bodies, inertia, capacity: int, dt: float):
         """Set up min(``manifold_count[0]``, ``capacity``) constraints (count: a device
         uint32 array(1)); that number is written to ``self.count`` on the device."""

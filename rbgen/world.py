@@ -1,0 +1,394 @@
+"""The user's object: bodies, shapes, settings, and `step()`.
+
+A World owns one `Runtime` and every device buffer of the pipeline. A step is
+a fixed sequence of enqueues with no blocking read:
+
+    prepare bodies (world inverse inertia, gyroscopic term) -> gravity ->
+    world AABBs -> broadphase pairs -> narrowphase manifolds ->
+    contact constraints -> batching -> ``iterations`` PGS launches ->
+    (split impulse: ``position_iterations`` launches) -> integrate ->
+    (split impulse: apply push velocities)
+
+Counts (pairs, manifolds, constraints, batches) stay on the device. Capacity
+overflow: the broadphase and the narrowphase report the size they needed in
+small status buffers that are copied to the host without blocking; the next
+`step()` (or any read of the state) waits for that copy only, and if a buffer
+was too small it grows it, restores the bodies saved at the start of the step
+and redoes the step, so no pair or contact is ever dropped.
+
+Bodies: every body, static or dynamic, has an index (returned by `add_static`,
+`add_body`, `add_bodies`) into the state arrays (`positions`, ...). A body's
+frame is its shape's principal frame (centre of mass): for spheres, boxes and
+capsules the shape's own frame, for hulls the cooked (re-centred) frame.
+
+Input checks (errors name the body index and the field): NaN/inf positions,
+velocities, orientations; non-positive or non-finite mass of a dynamic body;
+friction < 0; restitution outside [0, 1]; a plane as a dynamic body; dt <= 0.
+Orientations are normalised; one whose norm is off by more than 1e-3 is
+normalised with a warning, a zero one is rejected.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from . import layouts
+from .device import Runtime, coerce_runtime
+from .errors import RbgenError
+from .pipeline.aabbs import WorldAabbs
+from .pipeline.batching import ConstraintBatcher
+from .pipeline.constraints import ContactConstraints
+from .pipeline.gyroscopic import BodyPreparation, inertia_records
+from .pipeline.integrate import Integrator
+from .pipeline.solver import ContactSolver
+from .shapes import Plane, Shape, ShapeTable
+
+#: manifolds reserved per body before the first overflow (grown on demand)
+MANIFOLDS_PER_BODY = 4
+
+
+class World:
+    """A rigid-body world on one OpenCL device (see the module docstring).
+
+    Settings (attributes, may change between steps): ``gravity``,
+    ``iterations`` (PGS velocity sweeps), ``position_iterations`` (split
+    impulse sweeps), ``relaxation``, ``restitution_threshold`` (m/s),
+    ``penetration_slop`` (m), ``penetration_recovery`` (fraction per step),
+    ``contact_margin`` (m: contacts are created this far apart),
+    ``linear_damping`` and ``angular_damping``.
+    Construction options: ``penetration`` ("split" or "baumgarte"),
+    ``warm_start``, ``gyroscopic``, ``broadphase`` ("grid", "sap", "sap3").
+    """
+
+    def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), *, iterations: int = 10,
+                 position_iterations: int = 4, relaxation: float = 1.0,
+                 penetration: str = "split", warm_start: bool = True, gyroscopic: bool = True,
+                 broadphase: str = "grid", contact_margin: float = 0.02,
+                 restitution_threshold: float = 0.5, penetration_slop: float = 0.005,
+                 penetration_recovery: float = 0.2, linear_damping: float = 0.0,
+                 angular_damping: float = 0.0, group_count: int | None = None):
+        self.runtime: Runtime = coerce_runtime(device)
+        self.gravity = _vector(gravity, 3, "gravity")
+        self.iterations, self.position_iterations = int(iterations), int(position_iterations)
+        self.relaxation = float(relaxation)
+        self.contact_margin = float(contact_margin)
+        self.linear_damping, self.angular_damping = float(linear_damping), float(angular_damping)
+        self.warm_start = bool(warm_start)
+        self.broadphase_name = broadphase
+        self.shapes = ShapeTable()
+        self._host = layouts.BODY.zeros(0)
+        self._inv_inertia = np.zeros((0, 3), np.float32)
+        self._device_stale = True       # host copy newer than the device
+        self._host_stale = False        # device newer than the host copy
+        rt = self.runtime
+        self._prepare = BodyPreparation(rt, gyroscopic=gyroscopic)
+        self._integrate = Integrator(rt, gravity=False, damping=True)
+        self._constraints = ContactConstraints(rt, penetration=penetration, warm_start=warm_start)
+        self._batcher = ConstraintBatcher(rt, group_count=group_count)
+        self._solver = ContactSolver(rt, split_impulse=penetration == "split",
+                                     max_batches=self._batcher.max_batches)
+        self.restitution_threshold = restitution_threshold
+        self.penetration_slop = penetration_slop
+        self.penetration_recovery = penetration_recovery
+        self._stages_types = None
+        self._manifold_capacity = 0
+        self._pending = None            # (dt, backup) of a step whose status is unchecked
+        self.last_step_counters = {"launches": 0, "blocking_reads": 0}
+        self.steps = 0
+
+    # ------------------------------------------------------------- settings
+    restitution_threshold = property(lambda s: s._constraints.restitution_threshold,
+                                     lambda s, v: setattr(s._constraints, "restitution_threshold",
+                                                          float(v)))
+    penetration_slop = property(lambda s: s._constraints.penetration_slop,
+                                lambda s, v: setattr(s._constraints, "penetration_slop", float(v)))
+    penetration_recovery = property(lambda s: s._constraints.penetration_recovery,
+                                    lambda s, v: setattr(s._constraints, "penetration_recovery",
+                                                         float(v)))
+
+    # ------------------------------------------------------------- bodies
+    @property
+    def body_count(self) -> int:
+        return len(self._host)
+
+    def add_static(self, shape: Shape, position=(0.0, 0.0, 0.0), orientation=(0.0, 0.0, 0.0, 1.0),
+                   friction: float = 0.6, restitution: float = 0.0) -> int:
+        """A body that never moves (planes only this way); returns its index."""
+        return int(self._add(shape, np.asarray([position], float), np.asarray([orientation], float),
+                             None, friction, restitution, None, None)[0])
+
+    def add_body(self, shape: Shape, mass: float = 1.0, position=(0.0, 0.0, 0.0),
+                 orientation=(0.0, 0.0, 0.0, 1.0), linear_velocity=(0.0, 0.0, 0.0),
+                 angular_velocity=(0.0, 0.0, 0.0), friction: float = 0.6,
+                 restitution: float = 0.0) -> int:
+        """One dynamic body; returns its index."""
+        return int(self.add_bodies(shape, mass, [position], [orientation], friction, restitution,
+                                   [linear_velocity], [angular_velocity])[0])
+
+    def add_bodies(self, shape: Shape, mass=1.0, positions=None, orientations=None,
+                   friction=0.6, restitution=0.0, linear_velocities=None,
+                   angular_velocities=None) -> np.ndarray:
+        """Many dynamic bodies of one shape; ``mass``, ``friction``, ``restitution``
+        are scalars or one value per body. Returns their indices."""
+        if positions is None:
+            raise RbgenError("add_bodies: positions are required (an (N, 3) array)")
+        positions = np.asarray(positions, float)
+        n = len(positions)
+        masses = _per_body(mass, n, "mass")
+        if isinstance(shape, Plane):
+            raise RbgenError("a Plane can only be static: use add_static")
+        return self._add(shape, positions, orientations, masses, friction, restitution,
+                         linear_velocities, angular_velocities)
+
+    def _add(self, shape, positions, orientations, masses, friction, restitution,
+             linear_velocities, angular_velocities) -> np.ndarray:
+        if not isinstance(shape, Shape):
+            raise RbgenError(f"shape must be an rbgen shape, got {type(shape).__name__}")
+        n = len(positions)
+        first = self.body_count
+        positions = _rows(positions, n, 3, "positions", first)
+        orientations = _orientations(orientations, n, first)
+        lin = _rows(np.zeros((n, 3)) if linear_velocities is None else linear_velocities, n, 3,
+                    "linear_velocities", first)
+        ang = _rows(np.zeros((n, 3)) if angular_velocities is None else angular_velocities, n, 3,
+                    "angular_velocities", first)
+        friction = _per_body(friction, n, "friction")
+        restitution = _per_body(restitution, n, "restitution")
+        for values, name, ok in ((friction, "friction", friction >= 0),
+                                 (restitution, "restitution", (restitution >= 0) & (restitution <= 1))):
+            bad = np.flatnonzero(~(np.isfinite(values) & ok))
+            if len(bad):
+                raise RbgenError(f"body {first + bad[0]}: {name}={values[bad[0]]!r} is out of range")
+        records = layouts.BODY.zeros(n)
+        inv_inertia = np.zeros((n, 3), np.float32)
+        if masses is not None:
+            bad = np.flatnonzero(~(np.isfinite(masses) & (masses > 0)))
+            if len(bad):
+                raise RbgenError(f"body {first + bad[0]}: mass must be positive and finite for a "
+                                 f"dynamic body, got {masses[bad[0]]!r}")
+            unit = shape.mass_properties(mass=1.0)
+            records["inv_mass"] = 1.0 / masses
+            inv_inertia[:] = 1.0 / (masses[:, None] * np.asarray(unit.inertia)[None, :])
+        self._sync_to_host()
+        shape_index = self.shapes.add(shape)
+        records["position"][:, :3] = positions
+        records["orientation"] = orientations
+        records["linear_velocity"][:, :3] = lin
+        records["angular_velocity"][:, :3] = ang
+        records["shape"] = shape_index
+        records["friction"], records["restitution"] = friction, restitution
+        if masses is None:
+            records["linear_velocity"] = 0
+            records["angular_velocity"] = 0
+        self._host = np.concatenate([self._host, records]).astype(layouts.BODY.dtype)
+        self._inv_inertia = np.concatenate([self._inv_inertia, inv_inertia])
+        self._device_stale = True
+        return np.arange(first, first + n)
+
+    # ------------------------------------------------------------- state
+    def _field(self, name, lanes):
+        self._sync_to_host()
+        return self._host[name][:, :lanes].copy()
+
+    def _set_field(self, name, values, lanes, what):
+        self._sync_to_host()
+        values = _rows(values, self.body_count, lanes, what, 0)
+        if name == "orientation":
+            values = _orientations(values, self.body_count, 0)
+        dynamic = self._host["inv_mass"] > 0
+        if name in ("linear_velocity", "angular_velocity"):
+            values = np.where(dynamic[:, None], values, 0.0)
+        self._host[name][:, :lanes] = values
+        self._device_stale = True
+        self._constraints.reset()
+
+    positions = property(lambda s: s._field("position", 3),
+                         lambda s, v: s._set_field("position", v, 3, "positions"),
+                         doc="(N, 3) float32 centres of mass; setting teleports every body")
+    orientations = property(lambda s: s._field("orientation", 4),
+                            lambda s, v: s._set_field("orientation", v, 4, "orientations"),
+                            doc="(N, 4) float32 unit quaternions (x, y, z, w)")
+    linear_velocities = property(lambda s: s._field("linear_velocity", 3),
+                                 lambda s, v: s._set_field("linear_velocity", v, 3,
+                                                           "linear_velocities"))
+    angular_velocities = property(lambda s: s._field("angular_velocity", 3),
+                                  lambda s, v: s._set_field("angular_velocity", v, 3,
+                                                            "angular_velocities"))
+
+    # ------------------------------------------------------------- device
+    def _sync_to_host(self) -> None:
+        self._finish_pending()
+        if self._host_stale:
+            self._host = self.runtime.read(self._bodies)[: self.body_count]
+            self._host_stale = False
+
+    def _upload(self) -> None:
+        """Send the host bodies (after adds or teleports) and size the buffers."""
+        queue, n = self.runtime.queue, self.body_count
+        self._bodies = cla.to_device(queue, self._host if n else layouts.BODY.zeros(1))
+        self._backup = cla.empty_like(self._bodies)
+        self._inertia = cla.to_device(queue, inertia_records(self._inv_inertia if n else
+                                                             np.zeros((1, 3))))
+        self._static = cla.to_device(queue, (self._host["inv_mass"] == 0).astype(np.uint32)
+                                     if n else np.zeros(1, np.uint32))
+        self._aabbs = cla.empty(queue, max(1, n), layouts.AABB.dtype)
+        types = self.shapes.type_names()
+        if types != self._stages_types:
+            from .pipeline.broadphase import make_broadphase
+            from .pipeline.narrowphase import Narrowphase
+            self._world_aabbs = WorldAabbs(self.runtime, types)
+            self._narrowphase = Narrowphase(self.runtime, self.shapes)
+            self._broadphase = make_broadphase(self.runtime, self.broadphase_name)
+            self._stages_types = types
+        self._packed = self.shapes.pack_all().to_device(queue)
+        self._ensure_manifolds(MANIFOLDS_PER_BODY * max(n, 16))
+        self._device_stale = False
+
+    def _ensure_manifolds(self, capacity: int) -> None:
+        if capacity <= self._manifold_capacity:
+            return
+        queue = self.runtime.queue
+        self._manifold_capacity = int(capacity)
+        self._manifolds = cla.empty(queue, self._manifold_capacity, layouts.CONTACT_MANIFOLD.dtype)
+        self._manifold_count = cla.zeros(queue, 1, np.uint32)
+        self._overflow = cla.zeros(queue, 1, np.uint32)
+        pinned = cl.Buffer(self.runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 4)
+        self._overflow_host, _ = cl.enqueue_map_buffer(queue, pinned, cl.map_flags.READ, 0, (1,),
+                                                       np.uint32)
+        self._overflow_pinned = pinned
+
+    # ------------------------------------------------------------- stepping
+    def step(self, dt: float, substeps: int = 1) -> None:
+        """Advance by ``dt`` seconds in ``substeps`` equal steps (no blocking read)."""
+        if not (isinstance(dt, (int, float, np.floating)) and np.isfinite(dt) and dt > 0):
+            raise RbgenError(f"dt must be a positive finite number, got {dt!r}")
+        if not isinstance(substeps, (int, np.integer)) or substeps < 1:
+            raise RbgenError(f"substeps must be a positive integer, got {substeps!r}")
+        before = dict(self.runtime.counters)
+        for _ in range(int(substeps)):
+            self._finish_pending()
+            if self._device_stale:
+                self._sync_to_host()
+                self._upload()
+            self._enqueue_step(float(dt) / int(substeps), backup=True)
+        self.steps += 1
+        self.last_step_counters = {k: self.runtime.counters[k] - before[k] for k in before}
+
+    def _enqueue_step(self, h: float, backup: bool) -> None:
+        rt, n = self.runtime, self.body_count
+        self._host_stale = True
+        if n == 0:
+            return
+        if backup:
+            cl.enqueue_copy(rt.queue, self._backup.data, self._bodies.data)
+        self._prepare(self._bodies, self._inertia, n, h)
+        self._integrate.apply_gravity(self._bodies, n, h, tuple(self.gravity))
+        margin = self.contact_margin
+        self._world_aabbs(self._bodies, self._packed.shapes, self._packed.vertices, self._aabbs, n,
+                          margin)
+        self._broadphase.enqueue(self._aabbs, self._static)
+        self._overflow.fill(np.uint32(0))
+        self._narrowphase.enqueue(self._bodies, self._packed, self._broadphase.pairs,
+                                  self._broadphase.count, self._manifolds, self._manifold_count,
+                                  self._overflow, margin)
+        self._overflow_read = cl.enqueue_copy(rt.queue, self._overflow_host, self._overflow.data,
+                                              is_blocking=False)
+        capacity = self._manifold_capacity
+        self._constraints(self._manifolds, self._manifold_count, self._bodies, self._inertia,
+                          capacity, h)
+        constraints = self._constraints.constraints
+        self._batcher(constraints, self._constraints.count, self._bodies, n, capacity)
+        self._solver.solve_velocities(constraints, self._batcher, self._bodies, self._inertia,
+                                      iterations=self.iterations, relaxation=self.relaxation,
+                                      warm_start=self.warm_start)
+        split = self._solver.split_impulse and self.position_iterations > 0
+        if split:
+            self._solver.solve_positions(constraints, self._batcher, self._bodies, self._inertia, n,
+                                         iterations=self.position_iterations,
+                                         relaxation=self.relaxation)
+        self._integrate(self._bodies, n, h, linear_damping=self.linear_damping,
+                        angular_damping=self.angular_damping)
+        if split:
+            self._solver.apply_split(self._bodies, n, h)
+        self._pending = h
+
+    def _finish_pending(self) -> None:
+        """Check the last step's overflow status (waits for that copy only); redo it if needed."""
+        while self._pending is not None:
+            h = self._pending
+            self._pending = None
+            complete = self._broadphase.check()
+            self._overflow_read.wait()
+            needed = int(self._overflow_host[0])
+            if complete and needed == 0:
+                return
+            if needed:
+                self._ensure_manifolds(int(needed * 1.25) + 16)
+            cl.enqueue_copy(self.runtime.queue, self._bodies.data, self._backup.data)
+            self._constraints.undo()
+            self._enqueue_step(h, backup=False)
+
+    # ------------------------------------------------------------- statistics
+    def statistics(self) -> dict:
+        """Counts of the last step (blocking reads: call outside the timed loop)."""
+        self._finish_pending()
+        if self._device_stale or self.body_count == 0:
+            return {"bodies": self.body_count, "pairs": 0, "manifolds": 0, "contacts": 0,
+                    "batches": 0, **self.last_step_counters}
+        read = self.runtime.read
+        pairs = int(read(self._broadphase.count)[0])
+        manifolds = int(read(self._constraints.count)[0])
+        points = read(self._constraints.constraints)[:manifolds]["point_count"]
+        batch_counts = read(self._batcher.group_batch_count)
+        return {"bodies": self.body_count, "pairs": pairs, "manifolds": manifolds,
+                "contacts": int(points.sum()), "batches": int(batch_counts.max(initial=0)),
+                "groups_used": int((batch_counts > 0).sum()), **self.last_step_counters}
+
+
+# ----------------------------------------------------------------- validation
+
+def _vector(value, n, what):
+    arr = np.asarray(value, float).reshape(-1)
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+        raise RbgenError(f"{what} must be {n} finite numbers, got {value!r}")
+    return arr
+
+
+def _per_body(value, n, what):
+    arr = np.asarray(value, float)
+    if arr.ndim == 0:
+        return np.full(n, float(arr))
+    if arr.shape != (n,):
+        raise RbgenError(f"{what} must be a scalar or one value per body ({n}), got shape {arr.shape}")
+    return arr.astype(float)
+
+
+def _rows(values, n, lanes, what, first):
+    arr = np.asarray(values, float)
+    if arr.shape != (n, lanes):
+        raise RbgenError(f"{what} must have shape ({n}, {lanes}), got {arr.shape}")
+    bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
+    if len(bad):
+        raise RbgenError(f"body {first + bad[0]}: {what} has a NaN or infinite value "
+                         f"{arr[bad[0]].tolist()}")
+    return arr
+
+
+def _orientations(values, n, first):
+    if values is None:
+        out = np.zeros((n, 4))
+        out[:, 3] = 1.0
+        return out
+    q = _rows(values, n, 4, "orientations", first)
+    norms = np.linalg.norm(q, axis=1)
+    bad = np.flatnonzero(norms < 1e-6)
+    if len(bad):
+        raise RbgenError(f"body {first + bad[0]}: orientations has a zero quaternion")
+    off = np.flatnonzero(np.abs(norms - 1) > 1e-3)
+    if len(off):
+        warnings.warn(f"body {first + off[0]}: orientations not unit (norm {norms[off[0]]:.4g}); "
+                      f"normalised ({len(off)} bodies)", stacklevel=3)
+    return q / norms[:, None]
