@@ -144,7 +144,7 @@ class Primitive:
         self.params_override = dict(params) if params is not None else None
         if self.params_override is not None:
             self._spec_for(self.params_override)  # validate now, not at the first call
-        self._programs: dict[int, tuple[dict, Any]] = {}
+        self._programs: dict[tuple, tuple[dict, Any]] = {}
 
     @property
     def variant(self) -> str:
@@ -176,7 +176,8 @@ class Primitive:
     def program(self, capacity: int):
         """``(params, Compiled)`` for arrays of ``capacity`` elements."""
         bucket = size_bucket(capacity)
-        entry = self._programs.get(bucket)
+        key = (tuple(sorted(self.template_values().items())), bucket)
+        entry = self._programs.get(key)
         if entry is None:
             params = self.params_for(capacity)
             try:
@@ -185,7 +186,7 @@ class Primitive:
                 # a tuned entry that no longer fits the template: fall back
                 params = self.default_params(self.runtime.traits)
                 spec = self._spec_for(params)
-            entry = self._programs[bucket] = (params, compile_spec(self.runtime, spec))
+            entry = self._programs[key] = (params, compile_spec(self.runtime, spec))
         return entry
 
 

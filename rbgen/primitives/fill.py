@@ -1,0 +1,79 @@
+"""Fill the first n elements of a uint32, int32 or float32 array with a value.
+
+One template serves both shapes; only the defaults differ: GPUs get one
+element per work-item and round, CPUs long strips per work group.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..codegen import Param, power_of_two
+from ..device import DeviceTraits
+from ._base import PrimitiveTemplate, Primitive, ceil_div, check_array, cl_type, resolve_count
+
+TEMPLATE = PrimitiveTemplate(
+    "primitives/fill.cl.mako",
+    [
+        Param("dtype", ("uint", "int", "float"), "element type"),
+        Param("work_group_size", power_of_two(1, 1024), "work-items per tile",
+              "a power of two from 1 to 1024"),
+        Param("items_per_thread", (1, 4, 16, 64, 256), "elements each work-item writes"),
+    ],
+    doc="Fill an array (or its first n elements) with one value.",
+    defaults=lambda traits: {"dtype": "uint", **_strip(Fill.default_params(traits))},
+)
+
+
+def _strip(params):
+    return {k: v for k, v in params.items() if k != "shape"}
+
+
+class Fill(Primitive):
+    """``Fill(runtime, dtype)(array, value, n=None)``."""
+
+    family = "fill"
+    TEMPLATES = {"gpu": TEMPLATE, "cpu": TEMPLATE}
+
+    def __init__(self, runtime, dtype=np.uint32, *, params=None):
+        self.dtype = np.dtype(dtype) if dtype is not None else None
+        self.type_name = cl_type(dtype, "Fill dtype")
+        super().__init__(runtime, params)
+
+    @property
+    def variant(self) -> str:
+        return self.type_name
+
+    def template_values(self):
+        return {"dtype": self.type_name}
+
+    @classmethod
+    def default_params(cls, traits: DeviceTraits, shape: str | None = None):
+        if (shape or traits.kind) == "gpu":
+            return {"shape": "gpu", "work_group_size": min(256, traits.max_work_group_size),
+                    "items_per_thread": 4}
+        return {"shape": "cpu", "work_group_size": min(64, traits.max_work_group_size),
+                "items_per_thread": 256}
+
+    def __call__(self, array, value, n=None):
+        buf = check_array(self.runtime, array, "array", self.dtype)
+        capacity, device_count = resolve_count(self.runtime, n, array.size)
+        if capacity == 0:
+            return None
+        params, program = self.program(capacity)
+        wg = params["work_group_size"]
+        groups = ceil_div(capacity, wg * params["items_per_thread"])
+        kernel = program.kernel("fill")
+        kernel.set_args(buf, self.dtype.type(value), np.uint32(capacity), device_count)
+        return self.runtime.launch(kernel, groups * wg, wg)
+
+
+def search_space(traits: DeviceTraits) -> list[dict]:
+    space = [Fill.default_params(traits)]
+    shape = traits.kind
+    for wg in (64, 256):
+        for ipt in (1, 4, 16, 64, 256):
+            if wg <= traits.max_work_group_size:
+                p = {"shape": shape, "work_group_size": wg, "items_per_thread": ipt}
+                if p not in space:
+                    space.append(p)
+    return space

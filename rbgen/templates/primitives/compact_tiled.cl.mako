@@ -1,0 +1,96 @@
+<%namespace name="common" file="/primitives/common.cl.mako"/>\
+/* Stream compaction, GPU shape: the ${"values" if gather_values else "indices"} of the elements whose flag is
+ * nonzero, in input order, and their count, left on the device. Tiles of
+ * TILE = WG * ITEMS flags, one per work group; three launches:
+ *   count_tiles        every work group counts the set flags of its tile;
+ *   scan_tile_counts   one work group turns the counts into exclusive offsets
+ *                      and writes the total to out_count[0];
+ *   scatter_tiles      every work group ranks its set flags (serial per item,
+ *                      then a work-group scan) and writes them from its offset.
+ */
+#define WG ${work_group_size}
+#define ITEMS ${items_per_thread}
+#define TILE (WG * ITEMS)
+#define WAVEFRONT ${wavefront}
+${common.element_count()}
+${common.work_group_reduce("uint", "sum", "{a} + {b}")}
+${common.work_group_exclusive_scan("uint")}
+
+/* A work group is responsible for counting the set flags of one tile. */
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void count_tiles(__global const uint* flags, const uint capacity,
+                 __global const uint* device_count, __global uint* tile_counts)
+{
+    __local uint scratch[WG];
+    const uint n = element_count(capacity, device_count);
+    const uint tile_start = get_group_id(0) * TILE;
+    if (tile_start >= n)
+        return;  /* the whole group leaves together */
+    uint count = 0;
+    for (uint j = 0; j < ITEMS; ++j) {
+        uint i = tile_start + j * WG + get_local_id(0);
+        count += (i < n && flags[i] != 0u) ? 1u : 0u;
+    }
+    count = work_group_sum_uint(count, scratch);
+    if (get_local_id(0) == 0)
+        tile_counts[get_group_id(0)] = count;
+}
+
+/* One work group is responsible for all tile counts: exclusive offsets in
+ * place, WG at a time, and the total kept in out_count[0]. */
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void scan_tile_counts(__global uint* tile_counts, const uint capacity,
+                      __global const uint* device_count, __global uint* out_count)
+{
+    __local uint scratch[2 * WG];
+    __local uint segment_sums[WG / WAVEFRONT + 1];
+    const uint n = element_count(capacity, device_count);
+    const uint tiles = (n + TILE - 1) / TILE;
+    const uint lid = get_local_id(0);
+    uint carry = 0;
+    for (uint base = 0; base < tiles; base += WG) {
+        uint i = base + lid;
+        uint value = i < tiles ? tile_counts[i] : 0u;
+        uint block_sum;
+        uint prefix = work_group_exclusive_scan_uint(value, scratch, segment_sums, &block_sum);
+        if (i < tiles)
+            tile_counts[i] = carry + prefix;
+        carry += block_sum;
+    }
+    if (lid == 0)
+        out_count[0] = carry;
+}
+
+/* A work group is responsible for writing the kept elements of one tile. */
+__kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
+void scatter_tiles(__global const uint* flags,
+% if gather_values:
+                   __global const uint* values,
+% endif
+                   __global uint* out, const uint capacity,
+                   __global const uint* device_count, __global const uint* tile_offsets)
+{
+    __local uint scratch[2 * WG];
+    __local uint segment_sums[WG / WAVEFRONT + 1];
+    const uint n = element_count(capacity, device_count);
+    const uint tile_start = get_group_id(0) * TILE;
+    if (tile_start >= n)
+        return;  /* the whole group leaves together */
+    /* work-item lid owns the ITEMS consecutive flags from `first` */
+    const uint first = tile_start + get_local_id(0) * ITEMS;
+    uint kept = 0;
+    for (uint j = 0; j < ITEMS; ++j)
+        kept += (first + j < n && flags[first + j] != 0u) ? 1u : 0u;
+    uint tile_kept;
+    uint position = tile_offsets[get_group_id(0)]
+                  + work_group_exclusive_scan_uint(kept, scratch, segment_sums, &tile_kept);
+    for (uint j = 0; j < ITEMS; ++j) {
+        uint i = first + j;
+        if (i < n && flags[i] != 0u)
+% if gather_values:
+            out[position++] = values[i];
+% else:
+            out[position++] = i;
+% endif
+    }
+}

@@ -1,0 +1,56 @@
+<%namespace name="common" file="/primitives/common.cl.mako"/>\
+<%
+    identity = {("sum", "uint"): "0u", ("sum", "int"): "0", ("sum", "float"): "0.0f",
+                ("min", "uint"): "UINT_MAX", ("min", "int"): "INT_MAX", ("min", "float"): "INFINITY",
+                ("max", "uint"): "0u", ("max", "int"): "INT_MIN", ("max", "float"): "-INFINITY"}[(op, dtype)]
+    combine = {"sum": "{a} + {b}", "min": "min({a}, {b})", "max": "max({a}, {b})"}[op]
+%>\
+/* ${op} of ${dtype} values, CPU shape: CHUNKS work-items (work groups of one)
+ * each combine one long contiguous chunk with LANES independent private
+ * accumulators (so the compiler can keep them in one vector register), then
+ * one work-item combines the chunk results into out[0].
+ * The ${op} of no elements is ${identity}.
+ */
+#define CHUNKS ${work_items}
+#define LANES 8
+#define IDENTITY ${identity}
+typedef ${dtype} T;
+${common.element_count()}
+${common.chunk_range()}
+
+inline T combine(T a, T b)
+{
+    return ${combine.format(a="a", b="b")};
+}
+
+/* A work group (one work-item) is responsible for one chunk. */
+__kernel __attribute__((reqd_work_group_size(1, 1, 1)))
+void reduce_chunks(__global const T* src, const uint capacity,
+                   __global const uint* device_count, __global T* partials)
+{
+    uint begin, end;
+    chunk_range(element_count(capacity, device_count), get_global_id(0), &begin, &end);
+    T lanes[LANES];
+    for (uint l = 0; l < LANES; ++l)
+        lanes[l] = IDENTITY;
+    uint i = begin;
+    for (; i + LANES <= end; i += LANES)
+        for (uint l = 0; l < LANES; ++l)
+            lanes[l] = combine(lanes[l], src[i + l]);
+    T acc = IDENTITY;
+    for (; i < end; ++i)
+        acc = combine(acc, src[i]);
+    for (uint l = 0; l < LANES; ++l)
+        acc = combine(acc, lanes[l]);
+    partials[get_global_id(0)] = acc;
+}
+
+/* One work-item is responsible for combining the CHUNKS chunk results. */
+__kernel __attribute__((reqd_work_group_size(1, 1, 1)))
+void reduce_partials(__global const T* partials, __global T* out)
+{
+    T acc = IDENTITY;
+    for (uint c = 0; c < CHUNKS; ++c)
+        acc = combine(acc, partials[c]);
+    out[0] = acc;
+}
