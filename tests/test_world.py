@@ -1,0 +1,140 @@
+"""World physics against closed forms (each test states its expectation).
+
+All at dt = 1/60 with the default settings (10 PGS iterations, split impulse,
+warm starting) unless a test says otherwise.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import rbgen
+from rbgen.world import World
+
+DT = 1 / 60
+G = 9.81
+
+
+def ground(world, friction=0.6, restitution=0.0, orientation=(0, 0, 0, 1), position=(0, -1, 0)):
+    return world.add_static(rbgen.Box(half_extents=(30, 1, 30)), position=position,
+                            orientation=orientation, friction=friction, restitution=restitution)
+
+
+def test_box_resting_on_ground_does_not_drift(runtime):
+    """A unit box placed on the ground stays put: drift < 1 mm over 600 steps."""
+    world = World(runtime)
+    ground(world)
+    world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0.3, 0.5, -0.2))
+    start = world.positions[1]
+    for _ in range(600):
+        world.step(DT)
+    assert np.linalg.norm(world.positions[1] - start) < 1e-3
+
+
+def _incline(runtime, mu, steps):
+    theta = np.radians(30)
+    q = (0, 0, np.sin(theta / 2), np.cos(theta / 2))  # ramp rising towards -x
+    world = World(runtime)
+    ground(world, friction=mu, orientation=q, position=(0, 0, 0))
+    normal = np.array([-np.sin(theta), np.cos(theta), 0])
+    start = 1.0 * normal + 0.5 * normal  # box centre 0.5 above the slab's top face (half 1)
+    world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=start, orientation=q,
+                   friction=mu)
+    positions = [world.positions[1]]
+    for _ in range(steps):
+        world.step(DT)
+        positions.append(world.positions[1])
+    return np.array(positions), theta
+
+
+def test_box_on_incline_sticks_with_high_friction(runtime):
+    """30 degree incline, mu = 0.7 > tan 30 = 0.577: the box moves < 1 mm over 300 steps."""
+    positions, _ = _incline(runtime, 0.7, 300)
+    assert np.linalg.norm(positions[-1] - positions[0]) < 1e-3
+
+
+def test_box_slides_down_incline_with_low_friction(runtime):
+    """mu = 0.3: the box slides with a = g (sin 30 - mu cos 30) (within 5%), fitted from
+    the distance travelled, s = a t^2 / 2, between steps 60 and 180."""
+    positions, theta = _incline(runtime, 0.3, 180)
+    down = np.array([-np.cos(theta), -np.sin(theta), 0])
+    s = (positions - positions[0]) @ down
+    t = np.arange(len(s)) * DT
+    sel = slice(60, 181)
+    a_fit = np.polyfit(t[sel], s[sel], 2)[0] * 2
+    expected = G * (np.sin(theta) - 0.3 * np.cos(theta))
+    assert a_fit == pytest.approx(expected, rel=0.05)
+
+
+def test_projectile(runtime):
+    """No contacts: semi-implicit Euler's closed form x_n = x0 + v0 t_n + g dt^2 n (n + 1) / 2."""
+    world = World(runtime)
+    v0 = np.array([3.0, 10.0, -1.0])
+    world.add_body(rbgen.Sphere(0.3), mass=2.0, position=(0, 5, 0), linear_velocity=v0)
+    n = 90
+    for _ in range(n):
+        world.step(DT)
+    g = np.array([0, -G, 0])
+    expected = np.array([0, 5, 0]) + v0 * n * DT + g * DT * DT * n * (n + 1) / 2
+    np.testing.assert_allclose(world.positions[0], expected, atol=1e-3)
+    np.testing.assert_allclose(world.linear_velocities[0], v0 + g * n * DT, atol=1e-3)
+    # The exact parabola differs by g dt t / 2 only.
+    exact = np.array([0, 5, 0]) + v0 * n * DT + g * (n * DT) ** 2 / 2
+    assert np.linalg.norm(world.positions[0] - exact) < G * DT * n * DT
+
+
+def test_restitution_rebound_height(runtime):
+    """A box with e = 0.5 dropped from 1 m (bottom face) rebounds to e^2 * 1 m = 0.25 m (5%)."""
+    world = World(runtime, restitution_threshold=0.5)
+    ground(world, restitution=0.5)
+    world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0, 1.5, 0), restitution=0.5)
+    heights, bounced = [], False
+    for _ in range(150):
+        world.step(DT)
+        y, vy = world.positions[1][1], world.linear_velocities[1][1]
+        bounced |= vy > 0
+        if bounced:
+            heights.append(y - 0.5)
+    assert max(heights) == pytest.approx(0.25, rel=0.05)
+
+
+def test_two_free_boxes_conserve_momentum(runtime, rng):
+    """No gravity: two boxes of masses 1 and 3 collide off-centre; linear momentum is
+    conserved within 1e-4 relative (before, during and after contact)."""
+    world = World(runtime, gravity=(0, 0, 0))
+    box = rbgen.Box((0.5, 0.5, 0.5))
+    world.add_body(box, mass=1.0, position=(-1, 0.2, 0), linear_velocity=(3, 0, 0.5),
+                   angular_velocity=rng.normal(size=3))
+    world.add_body(box, mass=3.0, position=(1, -0.2, 0.1), linear_velocity=(-1, 0, 0),
+                   angular_velocity=rng.normal(size=3))
+    masses = np.array([1.0, 3.0])[:, None]
+    p0 = (masses * world.linear_velocities).sum(0)
+    touched = False
+    for _ in range(60):
+        world.step(DT)
+        touched |= world.statistics()["manifolds"] > 0
+        p = (masses * world.linear_velocities).sum(0)
+        assert np.linalg.norm(p - p0) <= 1e-4 * np.linalg.norm(p0)
+    assert touched
+
+
+def test_spinning_asymmetric_box_conserves_angular_momentum(runtime):
+    """A free box with half extents (0.2, 0.5, 1) spinning at 4 rad/s about a tilted axis
+    near its middle principal axis: world L = R I R^T w within 1% over 600 steps."""
+    world = World(runtime, gravity=(0, 0, 0))
+    he = np.array([0.2, 0.5, 1.0])
+    world.add_body(rbgen.Box(he), mass=2.0, angular_velocity=(0.2, 4.0, 0.3))
+    inertia = 2.0 / 3.0 * np.array([he[1] ** 2 + he[2] ** 2, he[0] ** 2 + he[2] ** 2,
+                                    he[0] ** 2 + he[1] ** 2])
+
+    def momentum():
+        x, y, z, w = world.orientations[0]
+        rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        return rot @ (inertia * (rot.T @ world.angular_velocities[0]))
+
+    l0 = momentum()
+    for _ in range(600):
+        world.step(DT)
+    assert np.linalg.norm(momentum() - l0) < 0.01 * np.linalg.norm(l0)
