@@ -23,27 +23,27 @@ from ...errors import RbgenError
 from .base import Broadphase
 from .grid import GridBroadphase
 from .sap import SapBroadphase
+from .sap3 import IncrementalSapBroadphase
 
 BROADPHASES = {
     "grid": GridBroadphase,
     "sap": SapBroadphase,
+    "sap3": IncrementalSapBroadphase,
 }
 
 
 def make_broadphase(runtime, name: str = "grid", **options) -> Broadphase:
     """A broadphase by name ("grid", "sap", "sap3"); options go to its constructor."""
-    if name == "sap3" and name not in BROADPHASES:
-        from .sap3 import IncrementalSapBroadphase
-        BROADPHASES[name] = IncrementalSapBroadphase
     try:
         cls = BROADPHASES[name]
     except (KeyError, TypeError):
         raise RbgenError(f"unknown broadphase {name!r}; choose one of "
-                         f"{sorted({*BROADPHASES, 'sap3'})}") from None
+                         f"{sorted(BROADPHASES)}") from None
     try:
         return cls(runtime, **options)
     except TypeError as err:
         raise RbgenError(f"broadphase {name!r}: bad option ({err})") from None
 
 
-__all__ = ["Broadphase", "GridBroadphase", "SapBroadphase", "make_broadphase", "BROADPHASES"]
+__all__ = ["Broadphase", "GridBroadphase", "SapBroadphase", "IncrementalSapBroadphase",
+           "make_broadphase", "BROADPHASES"]

@@ -1,0 +1,214 @@
+"""Incremental three-axis sweep and prune (Bullet3's third-generation broadphase).
+
+Why: in a simulation most bodies move a little per step, so the sorted
+endpoint arrays change little; the pairs that start or stop overlapping are
+found from the endpoints that changed rank, without a full query.
+
+Each step (all enqueued, no blocking read):
+
+1. validation (``measure_bodies``); the 2n endpoints of each axis are sorted
+   (RadixSort, stable from a canonical order) and their ranks taken;
+2. ``rank_moves`` + Reduce: how far endpoints moved in rank. Above the budget
+   (``max_moves_per_body`` * n) the step is degenerate (teleports, a first
+   step): nothing is scanned and the status says so;
+3. ``find_changes``: each moved endpoint scans the previous and current sorted
+   arrays between its old and new rank and records the pairs whose overlap
+   differs between the old and new boxes (see sap3.cl.mako for why this finds
+   every change);
+4. the previous pair set and the changes are sorted together (two stable
+   key-value sorts); ``mark_survivors`` + Compact + ``gather_survivors`` give
+   the new set, sorted by (a, b).
+
+State is double-buffered: a step writes the slot the last complete step did
+not, and `check` commits it. A degenerate step makes `check` return False and
+the next `enqueue` runs a full query (``full``: "grid" or "sap") into the same
+pair buffer, then keeps the sorted endpoints as history; so the protocol is
+that of every broadphase (base.py): redo the query, or the step, when `check`
+says it is incomplete. The first query, a new body count and `reset()` are
+full queries directly. Static flags must stay the same between steps (call
+`reset` after changing them).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from ... import layouts
+from ...codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ...errors import RbgenError
+from .base import Broadphase, default_work_group_size
+from .pairs import PairBuffer, check_capacity, key_bits
+
+TEMPLATE = KernelTemplate(
+    "pipeline/broadphase/sap3.cl.mako",
+    [Param("work_group_size", power_of_two(1, 1024),
+           "endpoints or records per work group; memory-bound kernels, any size that fills a CU",
+           "a power of two from 1 to 1024")],
+    doc="Incremental 3-axis SAP: endpoint ranks, changed pairs, merge with the previous set.",
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
+)
+
+#: Rank moves per body (summed over its 6 endpoints) above which a step is
+#: degenerate: scanning would cost more than a full query.
+DEFAULT_MAX_MOVES_PER_BODY = 16.0
+#: status.crossings of a step that must be redone in full (see sap3.cl.mako).
+INCREMENTAL_FAILED = 0xFFFFFFFF
+
+
+class _Slot:
+    """One step's state: sorted endpoints, their ranks, the boxes, the pairs."""
+
+    def __init__(self, runtime, n: int, capacity: int):
+        queue = runtime.queue
+        self.sorted = [cla.empty(queue, 2 * n, np.uint32) for _ in range(3)]
+        self.ranks = cla.empty(queue, 6 * n, np.uint32)
+        self.boxes = cla.empty(queue, n, layouts.AABB.dtype)
+        self.pairs = PairBuffer(runtime, capacity)
+
+
+class IncrementalSapBroadphase(Broadphase):
+    """``IncrementalSapBroadphase(runtime, full="grid", max_moves_per_body=16, capacity=None)``."""
+
+    name = "sap3"
+
+    def __init__(self, runtime, *, full: str = "grid",
+                 max_moves_per_body: float = DEFAULT_MAX_MOVES_PER_BODY, capacity=None,
+                 work_group_size=None):
+        super().__init__(runtime, capacity=None, work_group_size=work_group_size)
+        from . import make_broadphase
+        if full not in ("grid", "sap"):
+            raise RbgenError(f"full must be 'grid' or 'sap' (the full-query broadphase), "
+                             f"got {full!r}")
+        if not (isinstance(max_moves_per_body, (int, float)) and math.isfinite(max_moves_per_body)
+                and max_moves_per_body >= 0):
+            raise RbgenError(f"max_moves_per_body must be a non-negative number, "
+                             f"got {max_moves_per_body!r}")
+        self._initial_capacity = None if capacity is None else check_capacity(capacity)
+        self.full = make_broadphase(runtime, full, capacity=capacity,
+                                    work_group_size=work_group_size)
+        self.max_moves_per_body = float(max_moves_per_body)
+        self.program = compile_spec(runtime, TEMPLATE.spec(work_group_size=self.work_group_size))
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history: the next query is a full one."""
+        self._slots: list[_Slot | None] = [None, None]
+        self._current = None       # slot of the last complete step
+        self._target = None        # slot the pending step writes
+        self._pending_full = True
+        self._force_full = False   # set by check() after a degenerate step
+        self._slot_bodies = -1
+
+    @property
+    def incremental(self) -> bool:
+        """Whether the last enqueued query was incremental (not a full one)."""
+        return not self._pending_full
+
+    # ------------------------------------------------------------ protocol
+    def enqueue(self, aabbs, static=None) -> None:
+        aabbs, static, n = self._arguments(aabbs, static)
+        if n != self._slot_bodies:
+            capacity = self._initial_capacity or max(1024, 8 * n)
+            self._slots = [_Slot(self.runtime, max(n, 1), capacity) for _ in (0, 1)]
+            self._slot_bodies, self._current = n, None
+        full = self._current is None or self._force_full
+        self._force_full = False
+        self._target = 0 if self._current is None else 1 - self._current
+        slot = self._slots[self._target]
+        self.buffer = slot.pairs
+        self._aabbs, self.body_count, self._pending_full = aabbs, n, full
+        if full:
+            self.full.buffer = slot.pairs
+            self.full.enqueue(aabbs, static)
+        else:
+            slot.pairs.reset_status()
+            self._measure(aabbs, n)
+        if n >= 1:
+            self._sort_endpoints(aabbs, n, slot)
+            cl.enqueue_copy(self.runtime.queue, slot.boxes.base_data, aabbs.base_data,
+                            byte_count=n * layouts.AABB.itemsize)
+        if not full and n >= 2:
+            self._update_pairs(aabbs, static, n, self._slots[self._current], slot)
+        slot.pairs.start_status_read()
+
+    def check(self) -> bool:
+        status = self.buffer.read_status()
+        if status["bad_body"] != layouts.BP_NO_BODY:
+            self._raise_bad_body(int(status["bad_body"]))
+        if not self._pending_full and int(status["crossings"]) == INCREMENTAL_FAILED:
+            self._force_full = True
+            return False
+        found = int(status["pairs_found"])
+        if found > self.buffer.capacity:
+            self.buffer.grow_for(found)
+            return False
+        self._current, self.last_count = self._target, found
+        return True
+
+    # ---------------------------------------------------------------- steps
+    def _sort_endpoints(self, aabbs, n: int, slot: _Slot) -> None:
+        from ...primitives import RadixSort
+        keys = [self.exact(f"keys{k}", 2 * n) for k in range(3)]
+        self.launch(self.program.kernel("endpoint_keys"), 2 * n, aabbs.base_data, np.uint32(n),
+                    *(k.base_data for k in keys), *(s.base_data for s in slot.sorted))
+        sort = self.primitive("sort32", lambda: RadixSort(self.runtime, key_bits=32,
+                                                          with_values=True))
+        for key, ends in zip(keys, slot.sorted):
+            sort(key, ends, n=2 * n)
+        self.launch(self.program.kernel("endpoint_ranks"), 2 * n, np.uint32(n),
+                    *(s.base_data for s in slot.sorted), slot.ranks.base_data)
+
+    def _update_pairs(self, aabbs, static, n: int, old: _Slot, new: _Slot) -> None:
+        from ...primitives import Compact, RadixSort, Reduce
+        runtime, program = self.runtime, self.program
+        moves = self.exact("moves", 6 * n, np.float32)
+        total_moves = self.exact("total_moves", 1, np.float32)
+        self.launch(program.kernel("rank_moves"), 6 * n, np.uint32(n), old.ranks.base_data,
+                    new.ranks.base_data, moves.base_data)
+        self.primitive("sum", lambda: Reduce(runtime, np.float32, op="sum"))(
+            moves, total_moves, n=6 * n)
+
+        budget = self.max_moves_per_body * n
+        change_capacity = int(2 * budget) + 1024
+        changes_a = self.exact("changes_a", change_capacity)
+        changes_b = self.exact("changes_b", change_capacity)
+        change_count = self.exact("change_count", 1)
+        cl.enqueue_fill_buffer(runtime.queue, change_count.base_data, np.uint32(0), 0, 4)
+        self.launch(program.kernel("find_changes"), 6 * n, aabbs.base_data, old.boxes.base_data,
+                    static.base_data, np.uint32(n), old.ranks.base_data, new.ranks.base_data,
+                    *(s.base_data for s in old.sorted), *(s.base_data for s in new.sorted),
+                    total_moves.base_data, np.float32(budget), change_count.base_data,
+                    np.uint32(change_capacity), changes_a.base_data, changes_b.base_data,
+                    new.pairs.status.base_data)
+
+        merged_capacity = old.pairs.capacity + change_capacity
+        merged_a = self.exact("merged_a", merged_capacity)
+        merged_b = self.exact("merged_b", merged_capacity)
+        merged_count = self.exact("merged_count", 1)
+        self.launch(program.kernel("stage_merge"), merged_capacity, old.pairs.pairs.base_data,
+                    old.pairs.status.base_data, changes_a.base_data, changes_b.base_data,
+                    change_count.base_data, np.uint32(change_capacity), merged_a.base_data,
+                    merged_b.base_data, merged_count.base_data, new.pairs.status.base_data)
+        tagged_bits = key_bits(2 * n - 1)   # b << 1 | tag
+        by_b = self.primitive(("sort", tagged_bits), lambda: RadixSort(
+            runtime, key_bits=tagged_bits, with_values=True))
+        bits = key_bits(n - 1)
+        by_a = self.primitive(("sort", bits), lambda: RadixSort(runtime, key_bits=bits,
+                                                                with_values=True))
+        by_b(merged_b, merged_a, n=merged_count)
+        by_a(merged_a, merged_b, n=merged_count)
+
+        keep = self.exact("keep", merged_capacity)
+        survivors = self.exact("survivors", merged_capacity)
+        survivor_count = self.exact("survivor_count", 1)
+        self.launch(program.kernel("mark_survivors"), merged_capacity, merged_a.base_data,
+                    merged_b.base_data, merged_count.base_data, keep.base_data)
+        self.primitive("compact", lambda: Compact(runtime))(keep, survivors, survivor_count,
+                                                            n=merged_count)
+        self.launch(program.kernel("gather_survivors"), merged_capacity, merged_a.base_data,
+                    merged_b.base_data, survivors.base_data, survivor_count.base_data,
+                    np.uint32(new.pairs.capacity), new.pairs.pairs.base_data,
+                    new.pairs.status.base_data)
