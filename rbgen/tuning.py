@@ -26,6 +26,7 @@ import os
 import statistics
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Any, Callable
 
@@ -120,6 +121,7 @@ def lookup(traits: DeviceTraits, family: str, variant: str, bucket: int) -> dict
 
 def describe_cache(traits: DeviceTraits) -> list[str]:
     """One line per tuned entry of a device's cache (``rbgen info`` prints them)."""
+    from . import primitives  # noqa: F401 - registers the families
     lines = []
     entries = load_cache(traits, reload=True)["entries"]
     for key in sorted(entries):
@@ -205,10 +207,14 @@ def time_runs(runtime: Runtime, run: Callable, repeats: int) -> float:
 
     ``run()`` enqueues on ``runtime.queue`` (a profiling queue); markers
     enqueued before and after it on the in-order queue bound the whole run.
+    ``run.prepare()``, if present, restores the input first, untimed.
     """
     queue = runtime.queue
+    prepare = getattr(run, "prepare", None)
     times = []
     for _ in range(repeats):
+        if prepare is not None:
+            prepare()
         queue.finish()
         before = cl.enqueue_marker(queue)
         run()
@@ -226,22 +232,11 @@ def tune(runtime: Runtime, family: str | Family, variant: str, n: int, *,
     fam = FAMILIES[family] if isinstance(family, str) else family
     runtime = profiling_runtime(runtime)
     rng = np.random.default_rng(seed)
-    results: list[tuple[dict, float | None]] = []
     space = fam.space(runtime.traits)
-    for i, params in enumerate(space):
-        label = ", ".join(f"{k}={v}" for k, v in params.items())
-        try:
-            prim = fam.build(runtime, variant, params)
-            run, check = fam.bench(runtime, prim, n, rng)
-            run()
-            ok = bool(check())
-        except Exception as err:  # noqa: BLE001 - a candidate that fails to build is skipped
-            ok, label = False, f"{label} ({type(err).__name__}: {err})"[:200]
-        ms = time_runs(runtime, run, repeats) if ok else None
-        results.append((params, ms))
-        if progress:
-            what = f"{ms:.3f} ms" if ms is not None else "REJECTED (wrong result or build error)"
-            progress(f"  [{i + 1}/{len(space)}] {fam.name}[{variant}] n={n}: {label}: {what}")
+    with warnings.catch_warnings():
+        # the profiling view builds its own kernel objects from the shared programs
+        warnings.simplefilter("ignore", cl.RepeatedKernelRetrieval)
+        results = _run_candidates(runtime, fam, variant, n, space, rng, repeats, progress)
     winner = pick_winner(results)
     if winner is None:
         raise RbgenError(f"tuning {fam.name}[{variant}]: no candidate gave a correct result")
@@ -256,6 +251,28 @@ def tune(runtime: Runtime, family: str | Family, variant: str, n: int, *,
         cache["entries"][entry_key(fam.name, variant, bucket)] = entry
         save_cache(runtime.traits, cache)
     return entry
+
+
+def _run_candidates(runtime, fam, variant, n, space, rng, repeats, progress):
+    """``[(params, median ms or None when the result was wrong or failed)]``."""
+    results: list[tuple[dict, float | None]] = []
+    for i, params in enumerate(space):
+        label = ", ".join(f"{k}={v}" for k, v in params.items())
+        try:
+            prim = fam.build(runtime, variant, params)
+            run, check = fam.bench(runtime, prim, n, rng)
+            if getattr(run, "prepare", None) is not None:
+                run.prepare()
+            run()
+            ok = bool(check())
+        except Exception as err:  # noqa: BLE001 - a candidate that fails to build is skipped
+            ok, label = False, f"{label} ({type(err).__name__}: {err})"[:200]
+        ms = time_runs(runtime, run, repeats) if ok else None
+        results.append((params, ms))
+        if progress:
+            what = f"{ms:.3f} ms" if ms is not None else "REJECTED (wrong result or build error)"
+            progress(f"  [{i + 1}/{len(space)}] {fam.name}[{variant}] n={n}: {label}: {what}")
+    return results
 
 
 #: sizes tuned by `tune_all` (quick: the first only)

@@ -1,0 +1,117 @@
+"""The primitives' tuning families: search spaces, benchmark inputs, checks.
+
+Each family tells `rbgen.tuning` how to build a candidate for a variant, and
+gives a benchmark input with a numpy check of the result, so that a candidate
+that computes a wrong answer on this device is never chosen however fast.
+Inputs are random but seeded by the tuner, and include duplicate keys for the
+sort so that stability is part of the check.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from .. import tuning
+from . import bound_search, compact, fill, radix_sort, reduce, scan
+from .bound_search import BoundSearch
+from .compact import Compact
+from .fill import Fill
+from .radix_sort import RadixSort
+from .reduce import Reduce
+from .scan import Scan
+
+_NP = {"uint": np.uint32, "int": np.int32, "float": np.float32}
+
+
+def _bench_scan(runtime, prim: Scan, n, rng):
+    x = rng.integers(0, 8, n).astype(prim.dtype)  # small ints: exact in float32 too
+    src = cla.to_device(runtime.queue, x)
+    dst = cla.empty_like(src)
+    expected = np.concatenate([[0], np.cumsum(x, dtype=np.float64)[:-1]]).astype(prim.dtype)
+    return (lambda: prim(src, dst)), (lambda: np.array_equal(dst.get(), expected))
+
+
+def _bench_sort(runtime, prim: RadixSort, n, rng):
+    keys = rng.integers(0, max(2, n // 4), n, dtype=np.uint32)  # duplicates: checks stability
+    order = np.argsort(keys, kind="stable")
+    d_keys = cla.empty(runtime.queue, n, np.uint32)
+    d_values = cla.empty(runtime.queue, n, np.uint32) if prim.with_values else None
+    values = np.arange(n, dtype=np.uint32)
+
+    src_keys = cla.to_device(runtime.queue, keys)
+    src_values = cla.to_device(runtime.queue, values)
+
+    def prepare():  # restore the unsorted input; not timed
+        cl.enqueue_copy(runtime.queue, d_keys.base_data, src_keys.base_data)
+        if d_values is not None:
+            cl.enqueue_copy(runtime.queue, d_values.base_data, src_values.base_data)
+
+    def run():
+        return prim(d_keys, d_values)
+    run.prepare = prepare
+
+    def check():
+        ok = np.array_equal(d_keys.get(), keys[order])
+        return ok and (d_values is None or np.array_equal(d_values.get(), order.astype(np.uint32)))
+    return run, check
+
+
+def _bench_reduce(runtime, prim: Reduce, n, rng):
+    x = rng.integers(-100, 100, n).astype(prim.dtype)
+    src = cla.to_device(runtime.queue, x)
+    out = cla.empty(runtime.queue, 1, prim.dtype)
+    expected = {"sum": x.astype(np.float64).sum(), "min": x.min(), "max": x.max()}[prim.op]
+    return (lambda: prim(src, out)), (lambda: out.get()[0] == expected)
+
+
+def _bench_compact(runtime, prim: Compact, n, rng):
+    flags = (rng.random(n) < 0.3).astype(np.uint32)
+    d_flags = cla.to_device(runtime.queue, flags)
+    out = cla.empty(runtime.queue, n, np.uint32)
+    count = cla.empty(runtime.queue, 1, np.uint32)
+    kept = np.flatnonzero(flags)
+
+    def check():
+        c = int(count.get()[0])
+        return c == kept.size and np.array_equal(out.get()[:c], kept)
+    return (lambda: prim(d_flags, out, count)), check
+
+
+def _bench_fill(runtime, prim: Fill, n, rng):
+    array = cla.zeros(runtime.queue, n, prim.dtype)
+    value = prim.dtype.type(rng.integers(1, 1000))
+    return (lambda: prim(array, value)), (lambda: bool(np.all(array.get() == value)))
+
+
+def _bench_bound_search(runtime, prim: BoundSearch, n, rng):
+    keys = np.sort(rng.integers(0, n, n, dtype=np.uint32))
+    queries = rng.integers(0, n + 10, n, dtype=np.uint32)
+    d_keys, d_queries = cla.to_device(runtime.queue, keys), cla.to_device(runtime.queue, queries)
+    out = cla.empty(runtime.queue, n, np.uint32)
+    expected = np.searchsorted(keys, queries, side="left" if prim.side == "lower" else "right")
+    return (lambda: prim(d_keys, d_queries, out)), (lambda: np.array_equal(out.get(), expected))
+
+
+FAMILIES = [
+    tuning.Family("scan", ("uint", "float"), scan.search_space,
+                  lambda rt, v, p: Scan(rt, _NP[v], inclusive=False, params=p), _bench_scan,
+                  lambda: Scan.TEMPLATES),
+    tuning.Family("radix_sort", ("kv", "keys"), radix_sort.search_space,
+                  lambda rt, v, p: RadixSort(rt, 32, with_values=(v == "kv"), params=p),
+                  _bench_sort, lambda: RadixSort.TEMPLATES),
+    tuning.Family("reduce", ("sum-float",), reduce.search_space,
+                  lambda rt, v, p: Reduce(rt, _NP[v.split("-")[1]], v.split("-")[0], params=p),
+                  _bench_reduce, lambda: Reduce.TEMPLATES),
+    tuning.Family("compact", ("indices",), compact.search_space,
+                  lambda rt, v, p: Compact(rt, params=p), _bench_compact,
+                  lambda: Compact.TEMPLATES),
+    tuning.Family("fill", ("uint",), fill.search_space,
+                  lambda rt, v, p: Fill(rt, _NP[v], params=p), _bench_fill,
+                  lambda: Fill.TEMPLATES),
+    tuning.Family("bound_search", ("lower",), bound_search.search_space,
+                  lambda rt, v, p: BoundSearch(rt, v, params=p), _bench_bound_search,
+                  lambda: BoundSearch.TEMPLATES),
+]
+for _family in FAMILIES:
+    tuning.register(_family)
