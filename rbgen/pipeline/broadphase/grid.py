@@ -1,21 +1,26 @@
 """Uniform-grid broadphase: cell hash, radix sort, bucket starts, neighbour cells.
 
 Why a grid: for bodies of similar size (stacks, piles, granular scenes) each
-body meets only the few bodies of its 27 neighbour cells, so the work is
-linear in the body count with two sorts and no sweep.
+body meets only the few bodies of its own and 13 forward neighbour cells, so
+the work is linear in the body count, with one sort and no sweep.
 
 Step by step (all on the device, no blocking read):
 
-1. ``measure_bodies``: validation and log2 sizes; Reduce sums them.
-2. ``bucket_bodies``: the cell side is ``cell_factor`` times the geometric
-   mean body size; bodies larger than the cell (the ground, big boxes) are
-   flagged large and get a key past every bucket; the others get the bucket
-   of their lower corner's cell.
-3. RadixSort of (bucket, body); BoundSearch of every bucket id gives the
-   start of each bucket in the sorted list; Compact lists the large bodies.
-4. ``count_grid_pairs`` / Scan / ``write_grid_pairs``: each body visits the 27
-   buckets around its cell and the large-body list (see grid.cl.mako).
-5. The pair buffer orders the pairs by (a, b) (pairs.py).
+1. ``measure_bodies`` + Reduce: validation and the geometric mean size;
+   ``classify_sizes`` flags bodies larger than ``large_factor`` times it as
+   large (the ground, big boxes; tested through a list made by Compact) and
+   Reduce max gives the largest small body, which sets the cell side.
+2. ``bucket_bodies``: the bucket of each small body's lower-corner cell;
+   RadixSort of (bucket, body); ``gather_sorted`` copies the boxes in bucket
+   order; BoundSearch of every bucket id gives the bucket starts.
+3. ``count_grid_pairs`` / Scan / ``write_grid_pairs``: each body visits its own
+   cell, the 13 forward neighbour cells and the large-body list (see
+   grid.cl.mako), then the pair buffer orders the pairs by (a, b).
+
+The cell is as small as the small bodies allow (a cell holds about one
+body in a dense packing), so ``large_factor`` only decides which bodies are
+too big for the grid: a larger factor keeps more bodies in the grid at the
+price of larger cells.
 """
 from __future__ import annotations
 
@@ -24,6 +29,7 @@ import math
 import numpy as np
 import pyopencl.array as cla
 
+from ... import layouts
 from ...codegen import KernelTemplate, Param, compile_spec, power_of_two
 from ...errors import RbgenError
 from .base import Broadphase, default_work_group_size
@@ -38,9 +44,9 @@ TEMPLATE = KernelTemplate(
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
 )
 
-#: Cell side over the geometric mean body size. 2 keeps typical bodies small
-#: (in the grid) while a cell holds few of them; tunable per scene.
-DEFAULT_CELL_FACTOR = 2.0
+#: Bodies larger than this many times the geometric mean size are large (kept
+#: out of the grid). 4 keeps ordinary size spreads in the grid.
+DEFAULT_LARGE_FACTOR = 4.0
 #: Buckets per body: sparse enough that distinct cells rarely share a bucket.
 BUCKETS_PER_BODY = 2
 
@@ -54,17 +60,17 @@ def grid_dim_for(body_count: int) -> int:
 
 
 class GridBroadphase(Broadphase):
-    """``GridBroadphase(runtime, cell_factor=2.0, capacity=None)``; see `Broadphase`."""
+    """``GridBroadphase(runtime, large_factor=4.0, capacity=None)``; see `Broadphase`."""
 
     name = "grid"
 
-    def __init__(self, runtime, *, cell_factor: float = DEFAULT_CELL_FACTOR, capacity=None,
+    def __init__(self, runtime, *, large_factor: float = DEFAULT_LARGE_FACTOR, capacity=None,
                  work_group_size=None):
         super().__init__(runtime, capacity=capacity, work_group_size=work_group_size)
-        if not (isinstance(cell_factor, (int, float)) and math.isfinite(cell_factor)
-                and cell_factor > 0):
-            raise RbgenError(f"cell_factor must be a positive finite number, got {cell_factor!r}")
-        self.cell_factor = float(cell_factor)
+        if not (isinstance(large_factor, (int, float)) and math.isfinite(large_factor)
+                and large_factor > 0):
+            raise RbgenError(f"large_factor must be a positive finite number, got {large_factor!r}")
+        self.large_factor = float(large_factor)
         self.program = compile_spec(runtime, TEMPLATE.spec(work_group_size=self.work_group_size))
         self._bucket_ids = None
 
@@ -76,34 +82,43 @@ class GridBroadphase(Broadphase):
         return self._bucket_ids
 
     def _enqueue_query(self, aabbs, static, n):
-        from ...primitives import BoundSearch, Compact, RadixSort, Scan
+        from ...primitives import BoundSearch, Compact, RadixSort, Reduce, Scan
         runtime, program = self.runtime, self.program
         dim = grid_dim_for(n)
         bucket_count = dim ** 3
-        keys = self.exact("keys", n)
-        bodies = self.exact("bodies", n)
-        large_flags = self.exact("large_flags", n)
-        self.launch(program.kernel("bucket_bodies"), n, aabbs.base_data, np.uint32(n),
-                    self.log_size_sum.base_data, np.float32(self.cell_factor), np.int32(dim),
-                    keys.base_data, bodies.base_data, large_flags.base_data)
 
+        small_sizes = self.exact("small_sizes", n, np.float32)
+        large_flags = self.exact("large_flags", n)
+        self.launch(program.kernel("classify_sizes"), n, aabbs.base_data, np.uint32(n),
+                    self.log_size_sum.base_data, np.float32(self.large_factor),
+                    small_sizes.base_data, large_flags.base_data)
+        largest = self.exact("largest_small_size", 1, np.float32)
+        self.primitive("max", lambda: Reduce(runtime, np.float32, op="max"))(
+            small_sizes, largest, n=n)
         large_bodies = self.exact("large_bodies", n)
         large_count = self.exact("large_count", 1)
         self.primitive("compact", lambda: Compact(runtime))(large_flags, large_bodies,
-                                                             large_count, n=n)
+                                                            large_count, n=n)
+
+        keys, bodies = self.exact("keys", n), self.exact("bodies", n)
+        self.launch(program.kernel("bucket_bodies"), n, aabbs.base_data, np.uint32(n),
+                    large_flags.base_data, largest.base_data, np.int32(dim),
+                    keys.base_data, bodies.base_data)
         bits = key_bits(bucket_count)
         self.primitive(("sort", bits), lambda: RadixSort(runtime, key_bits=bits,
-                                                          with_values=True))(keys, bodies, n=n)
+                                                         with_values=True))(keys, bodies, n=n)
+        sorted_boxes = self.exact("sorted_boxes", n, layouts.AABB.dtype)
+        self.launch(program.kernel("gather_sorted"), n, aabbs.base_data, np.uint32(n),
+                    bodies.base_data, sorted_boxes.base_data)
         starts = self.exact("bucket_starts", bucket_count + 1)
         self.primitive("lower_bound", lambda: BoundSearch(runtime, side="lower"))(
             keys, self._bucket_id_queries(bucket_count), starts, n_keys=n,
             n_queries=bucket_count + 1)
 
-        visit = (aabbs.base_data, static.base_data, np.uint32(n), self.log_size_sum.base_data,
-                 np.float32(self.cell_factor), np.int32(dim), keys.base_data, bodies.base_data,
-                 starts.base_data, large_bodies.base_data, large_count.base_data)
-        counts = self.exact("pair_counts", n)
-        offsets = self.exact("pair_offsets", n)
+        visit = (aabbs.base_data, static.base_data, np.uint32(n), largest.base_data,
+                 np.int32(dim), keys.base_data, sorted_boxes.base_data, starts.base_data,
+                 large_bodies.base_data, large_count.base_data)
+        counts, offsets = self.exact("pair_counts", n), self.exact("pair_offsets", n)
         found = self.exact("pairs_found", 1)
         self.launch(program.kernel("count_grid_pairs"), n, *visit, counts.base_data)
         self.primitive("scan", lambda: Scan(runtime, np.uint32, inclusive=False))(

@@ -106,8 +106,8 @@ def test_bad_arguments(runtime):
     for capacity in (-5, 0, 2.5):
         with pytest.raises(RbgenError, match="capacity"):
             make_broadphase(runtime, "grid", capacity=capacity)
-    with pytest.raises(RbgenError, match="cell_factor"):
-        make_broadphase(runtime, "grid", cell_factor=-1.0)
+    with pytest.raises(RbgenError, match="large_factor"):
+        make_broadphase(runtime, "grid", large_factor=-1.0)
     with pytest.raises(RbgenError, match="bad option"):
         make_broadphase(runtime, "sap", colour="red")
     broadphase = make_broadphase(runtime, "grid")

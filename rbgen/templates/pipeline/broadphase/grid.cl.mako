@@ -1,14 +1,18 @@
 /* Uniform-grid broadphase.
  *
  * Small bodies live in the cell of their lower corner. The cell side is at
- * least the size of every small body, so two overlapping small bodies sit in
- * the same or adjacent cells: each body visits the 27 cells around its own
- * and pairs with the bodies of higher index found there. Cells are folded
- * into a table of grid_dim^3 buckets (coordinates modulo grid_dim >= 3), so
- * the 27 buckets visited are distinct and each candidate is met once;
- * bodies of far cells folded into the same bucket fail the box test. Large
- * bodies (see common.cl.mako) are tested separately: every small body tests
- * each large one, and a large body tests the large ones of higher index.
+ * least the size of every small body (SMALL_SLACK times the largest), so two
+ * overlapping small bodies sit in the same or adjacent cells. A body pairs
+ * with the bodies of higher index in its own cell and with every body in the
+ * 13 "forward" neighbour cells (offsets after (0, 0, 0) in z, y, x order):
+ * of two bodies in different adjacent cells exactly one sees the other's
+ * cell as forward, so each pair is met once.
+ *
+ * Cells are folded into a table of grid_dim^3 buckets (coordinates modulo
+ * grid_dim >= 3), so the buckets around a cell are distinct; a body of a far
+ * cell folded into a visited bucket cannot overlap (its true cell would be a
+ * neighbour with the same bucket) and fails the box test. Large bodies (see
+ * common.cl.mako) are tested through their own list (large.mako).
  *
  * Counting and writing are two kernels over the same visit: a scan of the
  * counts gives every body its slice of the pair buffer, so the output order
@@ -21,6 +25,21 @@ ${cl_structs("Aabb", "BroadphaseStatus")}
 <%include file="/pipeline/broadphase/common.cl.mako"/>
 <%namespace name="large" file="/pipeline/broadphase/large.mako"/>
 
+/* Neighbour cells after the own cell in (z, y, x) lexicographic order. */
+__constant int4 FORWARD_CELLS[13] = {
+% for dz, dy, dx in [(dz, dy, dx) for dz in (-1, 0, 1) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dz, dy, dx) > (0, 0, 0)]:
+    (int4)(${dx}, ${dy}, ${dz}, 0),
+% endfor
+};
+
+/* Side of the grid cells: a little more than the largest small body. */
+inline float grid_cell_size(float largest_small_size)
+{
+    return fmax(SMALL_SLACK * largest_small_size, FLT_MIN);
+}
+
+/* Cell of a point; saturating, so far-away points share the border cells
+ * (which keeps neighbours neighbours). */
 inline int3 cell_of(float3 point, float cell_size)
 {
     return convert_int3_sat_rtn(floor(point / cell_size));
@@ -33,58 +52,104 @@ inline uint bucket_of(int3 cell, int grid_dim)
     return ((uint)folded.z * (uint)grid_dim + (uint)folded.y) * (uint)grid_dim + (uint)folded.x;
 }
 
-/* Sort keys: the bucket of each small body, bucket_count (past every bucket)
- * for large bodies, which also get a flag for the large-body list. A work
- * group is responsible for ${work_group_size} consecutive bodies. */
+/* Flags large bodies (larger than large_factor times the geometric mean
+ * size) and writes the size of each small body (0 for large ones), which
+ * Reduce turns into the cell size. A work group is responsible for
+ * ${work_group_size} consecutive bodies. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void bucket_bodies(__global const Aabb* aabbs,
-                   const uint body_count,
-                   __global const float* log_size_sum,
-                   const float cell_factor,
-                   const int grid_dim,
-                   __global uint* bucket_keys,
-                   __global uint* bucket_bodies,
-                   __global uint* large_flags)
+void classify_sizes(__global const Aabb* aabbs,
+                    const uint body_count,
+                    __global const float* log_size_sum,
+                    const float large_factor,
+                    __global float* small_sizes,
+                    __global uint* large_flags)
 {
     uint i = get_global_id(0);
     if (i >= body_count)
         return;
-    float cell_size = size_scale(log_size_sum[0], body_count, cell_factor);
-    float3 lower = aabbs[i].lower.xyz;
-    bool small = is_small(box_size(lower, aabbs[i].upper.xyz), cell_size);
-    uint bucket_count = (uint)(grid_dim * grid_dim * grid_dim);
-    bucket_keys[i] = small ? bucket_of(cell_of(lower, cell_size), grid_dim) : bucket_count;
-    bucket_bodies[i] = i;
+    float size = box_size(aabbs[i].lower.xyz, aabbs[i].upper.xyz);
+    bool small = is_small(size, size_scale(log_size_sum[0], body_count, large_factor));
+    small_sizes[i] = small ? size : 0.0f;
     large_flags[i] = small ? 0u : 1u;
 }
+
+/* Sort keys: the bucket of each small body, bucket_count (past every bucket)
+ * for large bodies. A work group is responsible for ${work_group_size}
+ * consecutive bodies. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void bucket_bodies(__global const Aabb* aabbs,
+                   const uint body_count,
+                   __global const uint* large_flags,
+                   __global const float* largest_small_size,
+                   const int grid_dim,
+                   __global uint* bucket_keys,
+                   __global uint* bucket_bodies)
+{
+    uint i = get_global_id(0);
+    if (i >= body_count)
+        return;
+    float cell_size = grid_cell_size(largest_small_size[0]);
+    uint bucket_count = (uint)(grid_dim * grid_dim * grid_dim);
+    bucket_keys[i] = large_flags[i] ? bucket_count
+                                    : bucket_of(cell_of(aabbs[i].lower.xyz, cell_size), grid_dim);
+    bucket_bodies[i] = i;
+}
+
+/* Boxes in bucket order, body index in lower.w, so that a bucket's boxes are
+ * contiguous. A work group is responsible for ${work_group_size} positions. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void gather_sorted(__global const Aabb* aabbs,
+                   const uint body_count,
+                   __global const uint* sorted_bodies,
+                   __global Aabb* sorted_boxes)
+{
+    uint p = get_global_id(0);
+    if (p >= body_count)
+        return;
+    uint body = sorted_bodies[p];
+    Aabb box = aabbs[body];
+    box.lower.w = as_float(body);
+    sorted_boxes[p] = box;
+}
+
+/* Pairs of one body with the bodies of bucket positions [first, last) that
+ * pass `accept` (a condition on other_index). */
+<%def name="visit_bucket(first, last, accept)">\
+            for (uint k = ${first}; k < ${last}; ++k) {
+                float4 other_lower = sorted_boxes[k].lower;
+                uint other_index = as_uint(other_lower.w);
+                if (${accept} && pair_allowed(static_flags, self_index, other_index)
+                    && boxes_overlap(lower, upper, other_lower.xyz, sorted_boxes[k].upper.xyz)) {
+                    uint a = min(self_index, other_index), b = max(self_index, other_index);
+${caller.body()}
+                }
+            }
+</%def>
 
 <%def name="visit_pairs(setup)">\
     uint slot = get_global_id(0);
     if (slot >= body_count)
         return;
     ${setup}
-    uint self_index = sorted_bodies[slot];
-    float3 lower = aabbs[self_index].lower.xyz;
-    float3 upper = aabbs[self_index].upper.xyz;
+    Aabb self_box = sorted_boxes[slot];
+    uint self_index = as_uint(self_box.lower.w);
+    float3 lower = self_box.lower.xyz, upper = self_box.upper.xyz;
     bool small = sorted_keys[slot] < (uint)(grid_dim * grid_dim * grid_dim);
 
     if (small) {
-        /* Small neighbours: the 27 buckets around this body's cell. */
-        float cell_size = size_scale(log_size_sum[0], body_count, cell_factor);
+        float cell_size = grid_cell_size(largest_small_size[0]);
         int3 home = cell_of(lower, cell_size);
-        for (int dz = -1; dz <= 1; ++dz)
-        for (int dy = -1; dy <= 1; ++dy)
-        for (int dx = -1; dx <= 1; ++dx) {
-            uint bucket = bucket_of(home + (int3)(dx, dy, dz), grid_dim);
-            uint last = bucket_start[bucket + 1];
-            for (uint k = bucket_start[bucket]; k < last; ++k) {
-                uint other = sorted_bodies[k];
-                if (other > self_index && pair_allowed(static_flags, self_index, other)
-                    && boxes_overlap(lower, upper, aabbs[other].lower.xyz, aabbs[other].upper.xyz)) {
-                    uint a = self_index, b = other;
-                    ${caller.body()}
-                }
-            }
+        /* Own cell: bodies of higher index. */
+        uint bucket = bucket_of(home, grid_dim);
+<%self:visit_bucket first="bucket_start[bucket]" last="bucket_start[bucket + 1]" accept="other_index > self_index">
+${caller.body()}
+</%self:visit_bucket>
+        /* Forward neighbour cells: every body. */
+        for (int neighbour = 0; neighbour < 13; ++neighbour) {
+            bucket = bucket_of(home + FORWARD_CELLS[neighbour].xyz, grid_dim);
+<%self:visit_bucket first="bucket_start[bucket]" last="bucket_start[bucket + 1]" accept="true">
+${caller.body()}
+</%self:visit_bucket>
         }
     }
 
@@ -96,23 +161,23 @@ ${caller.body()}
 
 <%def name="visit_arguments()">\
 __global const Aabb* aabbs,
-                     __global const uint* static_flags,
-                     const uint body_count,
-                     __global const float* log_size_sum,
-                     const float cell_factor,
-                     const int grid_dim,
-                     __global const uint* sorted_keys,
-                     __global const uint* sorted_bodies,
-                     __global const uint* bucket_start,
-                     __global const uint* large_bodies,
-                     __global const uint* large_count\
+        __global const uint* static_flags,
+        const uint body_count,
+        __global const float* largest_small_size,
+        const int grid_dim,
+        __global const uint* sorted_keys,
+        __global const Aabb* sorted_boxes,
+        __global const uint* bucket_start,
+        __global const uint* large_bodies,
+        __global const uint* large_count\
 </%def>
 
 /* Counts the pairs each body owns; one work-item per body in bucket order, a
  * work group is responsible for ${work_group_size} consecutive sorted bodies. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void count_grid_pairs(${visit_arguments()},
-                      __global uint* pair_counts)
+void count_grid_pairs(
+        ${visit_arguments()},
+        __global uint* pair_counts)
 {
 <%self:visit_pairs setup="uint found = 0;">
                     ++found;
@@ -125,13 +190,14 @@ void count_grid_pairs(${visit_arguments()},
  * query again). Work item 0 publishes the totals. A work group is responsible
  * for ${work_group_size} consecutive sorted bodies. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void write_grid_pairs(${visit_arguments()},
-                      __global const uint* pair_offsets,
-                      __global const uint* pairs_found,
-                      const uint capacity,
-                      __global uint* pairs_a,
-                      __global uint* pairs_b,
-                      __global BroadphaseStatus* status)
+void write_grid_pairs(
+        ${visit_arguments()},
+        __global const uint* pair_offsets,
+        __global const uint* pairs_found,
+        const uint capacity,
+        __global uint* pairs_a,
+        __global uint* pairs_b,
+        __global BroadphaseStatus* status)
 {
     if (get_global_id(0) == 0) {
         status->pairs_found = pairs_found[0];
