@@ -59,15 +59,18 @@ class World:
     ``penetration_slop`` (m), ``penetration_recovery`` (fraction per step),
     ``contact_margin`` (m: contacts are created this far apart),
     ``linear_damping`` and ``angular_damping``.
-    Construction options: ``penetration`` ("split" or "baumgarte"),
+    Construction options: ``penetration`` ("baumgarte", the default, or "split": split
+    impulse keeps recovery out of the velocities but, without warm starting of its
+    push rows, tilts tall stacks: a 20-row pyramid collapses with it at 10
+    iterations while Baumgarte holds it to 2 cm),
     ``warm_start``, ``gyroscopic``, ``broadphase`` ("grid", "sap", "sap3").
     """
 
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), *, iterations: int = 10,
                  position_iterations: int = 4, relaxation: float = 1.0,
-                 penetration: str = "split", warm_start: bool = True, gyroscopic: bool = True,
+                 penetration: str = "baumgarte", warm_start: bool = True, gyroscopic: bool = True,
                  broadphase: str = "grid", contact_margin: float = 0.02,
-                 restitution_threshold: float = 0.5, penetration_slop: float = 0.005,
+                 restitution_threshold: float = 0.5, penetration_slop: float = 0.001,
                  penetration_recovery: float = 0.2, linear_damping: float = 0.0,
                  angular_damping: float = 0.0, group_count: int | None = None):
         self.runtime: Runtime = coerce_runtime(device)

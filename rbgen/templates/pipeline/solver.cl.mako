@@ -9,7 +9,7 @@
  * Rows per contact point: normal (impulse >= 0, drives the normal velocity to
  * its target; all points' normal rows first) and a friction pair clamped to the disc |f| <= mu * normal
  * impulse. Impulses are accumulated, so warm starting applies last step's
- * totals once before the first iteration.
+ * totals once, for every constraint, before the first iteration's sweep.
 % if split_impulse:
  * The split-impulse position pass solves the same normal rows on separate
  * push velocities, which apply_split_velocities turns into a displacement
@@ -54,11 +54,41 @@ inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, floa
     return vb + cross(wb, rb) - va - cross(wa, ra);
 }
 
+/* Apply last step's accumulated impulses of one constraint (warm start). */
+void warm_start_contact(__global const ContactConstraint* c, __global Body* bodies,
+                        __global const BodyInertia* inertia)
+{
+    uint a = c->body_a, b = c->body_b;
+    float inv_mass_a = bodies[a].inv_mass, inv_mass_b = bodies[b].inv_mass;
+    float3 va = bodies[a].linear_velocity.xyz, wa = bodies[a].angular_velocity.xyz;
+    float3 vb = bodies[b].linear_velocity.xyz, wb = bodies[b].angular_velocity.xyz;
+    float3 inv_inertia_a[3], inv_inertia_b[3];
+    load_inertia(inertia, a, inv_inertia_a);
+    load_inertia(inertia, b, inv_inertia_b);
+    float normal_impulse[4], tangent1_impulse[4], tangent2_impulse[4];
+    vstore4(c->normal_impulse, 0, normal_impulse);
+    vstore4(c->tangent1_impulse, 0, tangent1_impulse);
+    vstore4(c->tangent2_impulse, 0, tangent2_impulse);
+    for (uint k = 0; k < c->point_count; ++k) {
+        float3 p = c->normal.xyz * normal_impulse[k] + c->tangent1.xyz * tangent1_impulse[k]
+                 + c->tangent2.xyz * tangent2_impulse[k];
+        apply_impulse(p, c->r_a[k].xyz, c->r_b[k].xyz, inv_mass_a, inv_inertia_a, &va, &wa,
+                      inv_mass_b, inv_inertia_b, &vb, &wb);
+    }
+    if (inv_mass_a > 0.0f) {
+        bodies[a].linear_velocity.xyz = va;
+        bodies[a].angular_velocity.xyz = wa;
+    }
+    if (inv_mass_b > 0.0f) {
+        bodies[b].linear_velocity.xyz = vb;
+        bodies[b].angular_velocity.xyz = wb;
+    }
+}
+
 /* Solve all rows of one constraint and write back its impulses and the
  * velocities of its dynamic bodies. */
 void solve_contact(__global ContactConstraint* c, __global Body* bodies,
-                   __global const BodyInertia* inertia, const float relaxation,
-                   const uint apply_warm_start)
+                   __global const BodyInertia* inertia, const float relaxation)
 {
     uint a = c->body_a, b = c->body_b, count = c->point_count;
     float inv_mass_a = bodies[a].inv_mass, inv_mass_b = bodies[b].inv_mass;
@@ -79,13 +109,6 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
     vstore4(c->tangent2_mass, 0, tangent2_mass);
     vstore4(c->velocity_target, 0, target);
 
-    if (apply_warm_start) {
-        for (uint k = 0; k < count; ++k) {
-            float3 p = n * normal_impulse[k] + t1 * tangent1_impulse[k] + t2 * tangent2_impulse[k];
-            apply_impulse(p, c->r_a[k].xyz, c->r_b[k].xyz, inv_mass_a, inv_inertia_a, &va, &wa,
-                          inv_mass_b, inv_inertia_b, &vb, &wb);
-        }
-    }
     for (uint k = 0; k < count; ++k) {
         float3 ra = c->r_a[k].xyz, rb = c->r_b[k].xyz;
         /* normal row: impulse >= 0 */
@@ -143,13 +166,23 @@ void solve_contacts(__global ContactConstraint* constraints,
     const uint lane = get_local_id(0), group = get_group_id(0);
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint batch_count = group_batch_count[group];
+    /* warm start (first iteration): every constraint's old impulses, batch by batch */
+    for (uint batch = 0; apply_warm_start && batch < batch_count; ++batch) {
+        uint begin = offsets[batch], end = offsets[batch + 1];
+        uint stride = ${work_group_size};
+        if (batch == SERIAL_BATCH)
+            stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
+        for (uint i = begin + lane; i < end; i += stride)
+            warm_start_contact(&constraints[order[i]], bodies, inertia);
+        barrier(CLK_GLOBAL_MEM_FENCE);
+    }
     for (uint batch = 0; batch < batch_count; ++batch) {
         uint begin = offsets[batch], end = offsets[batch + 1];
         uint stride = ${work_group_size};
         if (batch == SERIAL_BATCH)
             stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
         for (uint i = begin + lane; i < end; i += stride)
-            solve_contact(&constraints[order[i]], bodies, inertia, relaxation, apply_warm_start);
+            solve_contact(&constraints[order[i]], bodies, inertia, relaxation);
         barrier(CLK_GLOBAL_MEM_FENCE);
     }
 }
