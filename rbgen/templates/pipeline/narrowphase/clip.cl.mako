@@ -19,7 +19,9 @@
  * Feature ids: face contacts are reference face | incident face << 11 |
  * point << 22 | (reference on the second shape) << 29, where point is the
  * incident vertex (< 32) or 32 + 2 * the reference edge that clipped it
- * (+ 1 where the incident boundary enters that edge's side plane); edge
+ * (+ 1 where the incident boundary enters that edge's side plane), or 127
+ * for the fallback when nothing survives the clipping (the incident shape's
+ * deepest vertex: deep, off-centre overlaps); edge
  * contacts are 1 << 31 | first edge << 15 | second edge.
  */
 ${cl_constants()}
@@ -32,6 +34,7 @@ ${cl_structs("Body", "Shape", "Pair", "HullFace", "SatResult", "ContactManifold"
 
 #define MAX_CLIP_POINTS ${max_clip}
 #define CLIPPED_BY_EDGE 32u
+#define SUPPORT_VERTEX 127u
 #define REFERENCE_ON_SECOND (1u << 29)
 #define EDGE_CONTACT (1u << 31)
 /* Polygon edges this close to a direction (cosine) count as parallel to it. */
@@ -123,6 +126,24 @@ inline uint clip_faces(const Placement* reference, Shape ref_shape, uint f,
         float3 on_second = reference_is_second ? polygon[k] - ref_plane.xyz * s : polygon[k];
         out_points[count] = (float4)(on_second, s);
         out_features[count++] = face_code | (ids[k] << 22);
+    }
+    if (count == 0) {
+        /* the incident face lies beside the reference face (deep, off-centre overlap):
+         * fall back to the incident shape's deepest vertex */
+        float3 deepest = (float3)(0.0f);
+        float lowest_s = INFINITY;
+        for (uint v = 0; v < inc_shape.vertex_count; ++v) {
+            float3 p = point_to_world(incident, hull_vertices[inc_shape.vertex_offset + v].xyz);
+            float s = dot(ref_plane.xyz, p) - ref_plane.w;
+            if (s < lowest_s)
+                lowest_s = s, deepest = p;
+        }
+        if (lowest_s <= margin) {
+            float3 on_second = reference_is_second ? deepest - ref_plane.xyz * lowest_s : deepest;
+            out_points[0] = (float4)(on_second, lowest_s);
+            out_features[0] = face_code | (SUPPORT_VERTEX << 22);
+            count = 1;
+        }
     }
     return count;
 }
