@@ -15,9 +15,12 @@ Each step (all enqueued, no blocking read):
    arrays between its old and new rank and records the pairs whose overlap
    differs between the old and new boxes (see sap3.cl.mako for why this finds
    every change);
-4. the previous pair set and the changes are sorted together (two stable
-   key-value sorts); ``mark_survivors`` + Compact + ``gather_survivors`` give
-   the new set, sorted by (a, b).
+4. the changes are sorted (two stable key-value sorts) and made distinct
+   (``mark_unique_changes`` + Compact); the new set is the symmetric
+   difference of the old set and the changes, merged in (a, b) order
+   (``mark_*_pairs`` binary-search each list in the other, Scan ranks the
+   kept entries, ``place_*_pairs`` write them): the old set is never
+   re-sorted, so a quiet step costs little more than the endpoint sorts.
 
 State is double-buffered: a step writes the slot the last complete step did
 not, and `check` commits it. A degenerate step makes `check` return False and
@@ -54,6 +57,8 @@ TEMPLATE = KernelTemplate(
 #: Rank moves per body (summed over its 6 endpoints) above which a step is
 #: degenerate: scanning would cost more than a full query.
 DEFAULT_MAX_MOVES_PER_BODY = 16.0
+#: Room for pair changes per body; more changes make the step degenerate.
+CHANGES_PER_BODY = 4
 #: status.crossings of a step that must be redone in full (see sap3.cl.mako).
 INCREMENTAL_FAILED = 0xFFFFFFFF
 
@@ -162,7 +167,7 @@ class IncrementalSapBroadphase(Broadphase):
                     *(s.base_data for s in slot.sorted), slot.ranks.base_data)
 
     def _update_pairs(self, aabbs, static, n: int, old: _Slot, new: _Slot) -> None:
-        from ...primitives import Compact, RadixSort, Reduce
+        from ...primitives import Compact, RadixSort, Reduce, Scan
         runtime, program = self.runtime, self.program
         moves = self.exact("moves", 6 * n, np.float32)
         total_moves = self.exact("total_moves", 1, np.float32)
@@ -172,7 +177,7 @@ class IncrementalSapBroadphase(Broadphase):
             moves, total_moves, n=6 * n)
 
         budget = self.max_moves_per_body * n
-        change_capacity = int(2 * budget) + 1024
+        change_capacity = CHANGES_PER_BODY * n + 1024
         changes_a = self.exact("changes_a", change_capacity)
         changes_b = self.exact("changes_b", change_capacity)
         change_count = self.exact("change_count", 1)
@@ -184,31 +189,47 @@ class IncrementalSapBroadphase(Broadphase):
                     np.uint32(change_capacity), changes_a.base_data, changes_b.base_data,
                     new.pairs.status.base_data)
 
-        merged_capacity = old.pairs.capacity + change_capacity
-        merged_a = self.exact("merged_a", merged_capacity)
-        merged_b = self.exact("merged_b", merged_capacity)
-        merged_count = self.exact("merged_count", 1)
-        self.launch(program.kernel("stage_merge"), merged_capacity, old.pairs.pairs.base_data,
-                    old.pairs.status.base_data, changes_a.base_data, changes_b.base_data,
-                    change_count.base_data, np.uint32(change_capacity), merged_a.base_data,
-                    merged_b.base_data, merged_count.base_data, new.pairs.status.base_data)
-        tagged_bits = key_bits(2 * n - 1)   # b << 1 | tag
-        by_b = self.primitive(("sort", tagged_bits), lambda: RadixSort(
-            runtime, key_bits=tagged_bits, with_values=True))
+        # the distinct changes, sorted by (a, b)
         bits = key_bits(n - 1)
-        by_a = self.primitive(("sort", bits), lambda: RadixSort(runtime, key_bits=bits,
+        sort = self.primitive(("sort", bits), lambda: RadixSort(runtime, key_bits=bits,
                                                                 with_values=True))
-        by_b(merged_b, merged_a, n=merged_count)
-        by_a(merged_a, merged_b, n=merged_count)
+        sort(changes_b, changes_a, n=change_count)
+        sort(changes_a, changes_b, n=change_count)
+        first = self.exact("first_flags", change_capacity)
+        self.launch(program.kernel("mark_unique_changes"), change_capacity, changes_a.base_data,
+                    changes_b.base_data, change_count.base_data, np.uint32(change_capacity),
+                    first.base_data, new.pairs.status.base_data)
+        compact = self.primitive("compact", lambda: Compact(runtime))
+        unique_index = self.exact("unique_index", change_capacity)
+        unique_count = self.exact("unique_count", 1)
+        compact(first, unique_index, unique_count, n=change_count)
+        unique = self.exact("unique_changes", change_capacity, layouts.PAIR.dtype)
+        self.launch(program.kernel("gather_unique_changes"), change_capacity,
+                    changes_a.base_data, changes_b.base_data, unique_index.base_data,
+                    unique_count.base_data, unique.base_data)
 
-        keep = self.exact("keep", merged_capacity)
-        survivors = self.exact("survivors", merged_capacity)
-        survivor_count = self.exact("survivor_count", 1)
-        self.launch(program.kernel("mark_survivors"), merged_capacity, merged_a.base_data,
-                    merged_b.base_data, merged_count.base_data, keep.base_data)
-        self.primitive("compact", lambda: Compact(runtime))(keep, survivors, survivor_count,
-                                                            n=merged_count)
-        self.launch(program.kernel("gather_survivors"), merged_capacity, merged_a.base_data,
-                    merged_b.base_data, survivors.base_data, survivor_count.base_data,
-                    np.uint32(new.pairs.capacity), new.pairs.pairs.base_data,
-                    new.pairs.status.base_data)
+        # new set = old set XOR changes, merged in (a, b) order
+        old_capacity = old.pairs.capacity
+        keep_old = self.exact("keep_old", old_capacity)
+        keep_change = self.exact("keep_change", change_capacity)
+        lists = (old.pairs.pairs.base_data, old.pairs.status.base_data, unique.base_data,
+                 unique_count.base_data)
+        self.launch(program.kernel("mark_old_pairs"), old_capacity, *lists, keep_old.base_data)
+        self.launch(program.kernel("mark_new_pairs"), change_capacity, *lists,
+                    keep_change.base_data)
+        scan = self.primitive("scan", lambda: Scan(runtime, np.uint32, inclusive=False))
+        old_ranks, kept_total = self.exact("old_ranks", old_capacity), self.exact("kept", 1)
+        change_ranks = self.exact("change_ranks", change_capacity)
+        added_total = self.exact("added", 1)
+        scan(keep_old, old_ranks, n=old.pairs.count, total=kept_total)
+        scan(keep_change, change_ranks, n=unique_count, total=added_total)
+        capacity = np.uint32(new.pairs.capacity)
+        self.launch(program.kernel("place_old_pairs"), old_capacity, old.pairs.pairs.base_data,
+                    old.pairs.status.base_data, keep_old.base_data, old_ranks.base_data,
+                    unique.base_data, unique_count.base_data, change_ranks.base_data,
+                    added_total.base_data, capacity, new.pairs.pairs.base_data)
+        self.launch(program.kernel("place_new_pairs"), change_capacity, old.pairs.pairs.base_data,
+                    old.pairs.status.base_data, old_ranks.base_data, kept_total.base_data,
+                    unique.base_data, unique_count.base_data, keep_change.base_data,
+                    change_ranks.base_data, added_total.base_data, capacity,
+                    new.pairs.pairs.base_data, new.pairs.status.base_data)

@@ -13,9 +13,10 @@
  * new ranks, or e's new rank between f's old and new ranks; so each endpoint
  * scans the previous and the current sorted arrays between its old and new
  * rank (read-only) and tests every body met with the old and the new boxes.
- * The changes (found once or more) are merged with the previous pair set:
- * after sorting both together, a pair survives iff it was in the old set or
- * changed, but not both.
+ * The changes (found once or more) are sorted and made distinct; the new
+ * pair set is the symmetric difference of the old set and the changes,
+ * written in (a, b) order by a merge (binary search of each list in the
+ * other), so the old set is never sorted again.
  */
 ${cl_constants()}
 
@@ -23,9 +24,6 @@ ${cl_structs("Aabb", "Pair", "BroadphaseStatus")}
 
 <%include file="/pipeline/broadphase/common.cl.mako"/>
 
-/* Merge records store b as (b << 1) | tag, tag 1 for this step's changes:
- * sorting by that keeps records of one pair adjacent, old record first. */
-#define CHANGE_TAG 1u
 /* status->crossings when the step cannot be done incrementally (too many
  * crossings, or the change buffer overflowed): the host redoes it in full. */
 #define INCREMENTAL_FAILED 0xFFFFFFFFu
@@ -156,85 +154,163 @@ void find_changes(__global const Aabb* aabbs,
     }
 }
 
-/* Concatenates the previous pair set and the changes (tagged) for sorting;
- * work-item 0 writes their total, or 0 and INCREMENTAL_FAILED when the step
- * must be redone in full. A work group is responsible for ${work_group_size}
- * records. */
+/* Number of pairs of sorted[0, count) ordered before (a, b). */
+inline uint pairs_before(__global const Pair* sorted, uint count, uint a, uint b)
+{
+    uint first = 0, last = count;
+    while (first < last) {
+        uint middle = first + (last - first) / 2;
+        Pair probe = sorted[middle];
+        if (probe.a < a || (probe.a == a && probe.b < b))
+            first = middle + 1;
+        else
+            last = middle;
+    }
+    return first;
+}
+
+inline bool pair_at(__global const Pair* sorted, uint count, uint index, uint a, uint b)
+{
+    return index < count && sorted[index].a == a && sorted[index].b == b;
+}
+
+/* Changes sorted by (a, b) may repeat (a change is found from several
+ * endpoints): flags the first of each run. Work-item 0 marks the step failed
+ * when the change buffer overflowed. A work group is responsible for
+ * ${work_group_size} changes. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void stage_merge(__global const Pair* old_pairs,
-                 __global const BroadphaseStatus* old_status,
-                 __global const uint* changes_a,
-                 __global const uint* changes_b,
-                 __global const uint* change_count,
-                 const uint change_capacity,
-                 __global uint* merged_a,
-                 __global uint* merged_b,
-                 __global uint* merged_count,
-                 __global BroadphaseStatus* status)
+void mark_unique_changes(__global const uint* changes_a,
+                         __global const uint* changes_b,
+                         __global const uint* change_count,
+                         const uint change_capacity,
+                         __global uint* first_flags,
+                         __global BroadphaseStatus* status)
+{
+    uint k = get_global_id(0), count = min(change_count[0], change_capacity);
+    if (k == 0 && change_count[0] > change_capacity)
+        status->crossings = INCREMENTAL_FAILED;
+    if (k >= count)
+        return;
+    first_flags[k] = k == 0 || changes_a[k - 1] != changes_a[k] || changes_b[k - 1] != changes_b[k];
+}
+
+/* The distinct changes as Pair records. A work group is responsible for
+ * ${work_group_size} distinct changes. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void gather_unique_changes(__global const uint* changes_a,
+                           __global const uint* changes_b,
+                           __global const uint* unique_index,
+                           __global const uint* unique_count,
+                           __global Pair* unique_changes)
+{
+    uint m = get_global_id(0);
+    if (m >= unique_count[0])
+        return;
+    Pair change;
+    change.a = changes_a[unique_index[m]];
+    change.b = changes_b[unique_index[m]];
+    unique_changes[m] = change;
+}
+
+/* The new set is the symmetric difference of the old set and the changes:
+ * an old pair survives unless it changed (keep_old), a change is a new pair
+ * unless it was in the old set (keep_change). A work group is responsible for
+ * ${work_group_size} old pairs. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void mark_old_pairs(__global const Pair* old_pairs,
+                    __global const BroadphaseStatus* old_status,
+                    __global const Pair* unique_changes,
+                    __global const uint* unique_count,
+                    __global uint* keep_old)
 {
     uint k = get_global_id(0);
-    uint old_count = old_status->pair_count;
-    bool failed = status->crossings == INCREMENTAL_FAILED || change_count[0] > change_capacity;
-    uint total = failed ? 0u : old_count + change_count[0];
-    if (k == 0) {
-        merged_count[0] = total;
-        if (failed)
-            status->crossings = INCREMENTAL_FAILED;
-    }
-    if (k >= total)
+    if (k >= old_status->pair_count)
         return;
-    if (k < old_count) {
-        merged_a[k] = old_pairs[k].a;
-        merged_b[k] = old_pairs[k].b << 1;
-    } else {
-        merged_a[k] = changes_a[k - old_count];
-        merged_b[k] = (changes_b[k - old_count] << 1) | CHANGE_TAG;
-    }
+    Pair pair = old_pairs[k];
+    uint u = unique_count[0];
+    keep_old[k] = !pair_at(unique_changes, u, pairs_before(unique_changes, u, pair.a, pair.b),
+                           pair.a, pair.b);
 }
 
-/* After sorting, equal pairs are adjacent. The first record of each run keeps
- * the pair iff the run holds an old record or a change, but not both. A work
- * group is responsible for ${work_group_size} records. */
+/* See mark_old_pairs. A work group is responsible for ${work_group_size}
+ * distinct changes. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void mark_survivors(__global const uint* merged_a,
-                    __global const uint* merged_b,
-                    __global const uint* merged_count,
-                    __global uint* keep)
+void mark_new_pairs(__global const Pair* old_pairs,
+                    __global const BroadphaseStatus* old_status,
+                    __global const Pair* unique_changes,
+                    __global const uint* unique_count,
+                    __global uint* keep_change)
 {
-    uint k = get_global_id(0), total = merged_count[0];
-    if (k >= total)
+    uint m = get_global_id(0);
+    if (m >= unique_count[0])
         return;
-    uint a = merged_a[k], b = merged_b[k] >> 1;
-    bool first = k == 0 || merged_a[k - 1] != a || merged_b[k - 1] >> 1 != b;
-    bool has_old = false, has_change = false;
-    for (uint q = k; first && q < total && merged_a[q] == a && merged_b[q] >> 1 == b; ++q) {
-        has_change |= (merged_b[q] & CHANGE_TAG) != 0;
-        has_old |= (merged_b[q] & CHANGE_TAG) == 0;
-    }
-    keep[k] = first && has_old != has_change ? 1u : 0u;
+    Pair change = unique_changes[m];
+    uint o = old_status->pair_count;
+    keep_change[m] = !pair_at(old_pairs, o, pairs_before(old_pairs, o, change.a, change.b),
+                              change.a, change.b);
 }
 
-/* Writes the surviving pairs (already in (a, b) order) and publishes the
- * totals (work-item 0); past the capacity they are counted, not stored. A
- * work group is responsible for ${work_group_size} surviving pairs. */
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void gather_survivors(__global const uint* merged_a,
-                      __global const uint* merged_b,
-                      __global const uint* survivors,
-                      __global const uint* survivor_count,
-                      const uint capacity,
-                      __global Pair* pairs,
-                      __global BroadphaseStatus* status)
+/* Kept entries before position `index` of a list, from its exclusive scan. */
+inline uint kept_before(__global const uint* ranks, uint count, uint total, uint index)
 {
-    uint k = get_global_id(0), total = survivor_count[0];
-    if (k == 0) {
+    return index < count ? ranks[index] : total;
+}
+
+/* Merge: a kept old pair goes after the kept old pairs and the new pairs
+ * ordered before it. Past the capacity pairs are counted, not stored. A work
+ * group is responsible for ${work_group_size} old pairs. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void place_old_pairs(__global const Pair* old_pairs,
+                     __global const BroadphaseStatus* old_status,
+                     __global const uint* keep_old,
+                     __global const uint* old_ranks,
+                     __global const Pair* unique_changes,
+                     __global const uint* unique_count,
+                     __global const uint* change_ranks,
+                     __global const uint* added_total,
+                     const uint capacity,
+                     __global Pair* pairs)
+{
+    uint k = get_global_id(0);
+    if (k >= old_status->pair_count || !keep_old[k])
+        return;
+    Pair pair = old_pairs[k];
+    uint u = unique_count[0];
+    uint slot = old_ranks[k] + kept_before(change_ranks, u, added_total[0],
+                                           pairs_before(unique_changes, u, pair.a, pair.b));
+    if (slot < capacity)
+        pairs[slot] = pair;
+}
+
+/* Merge: a new pair goes after the new pairs and the kept old pairs ordered
+ * before it. Work-item 0 publishes the totals. A work group is responsible
+ * for ${work_group_size} distinct changes. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void place_new_pairs(__global const Pair* old_pairs,
+                     __global const BroadphaseStatus* old_status,
+                     __global const uint* old_ranks,
+                     __global const uint* kept_total,
+                     __global const Pair* unique_changes,
+                     __global const uint* unique_count,
+                     __global const uint* keep_change,
+                     __global const uint* change_ranks,
+                     __global const uint* added_total,
+                     const uint capacity,
+                     __global Pair* pairs,
+                     __global BroadphaseStatus* status)
+{
+    uint m = get_global_id(0);
+    if (m == 0) {
+        uint total = kept_total[0] + added_total[0];
         status->pairs_found = total;
         status->pair_count = min(total, capacity);
     }
-    if (k >= min(total, capacity))
+    if (m >= unique_count[0] || !keep_change[m])
         return;
-    Pair pair;
-    pair.a = merged_a[survivors[k]];
-    pair.b = merged_b[survivors[k]] >> 1;
-    pairs[k] = pair;
+    Pair change = unique_changes[m];
+    uint o = old_status->pair_count;
+    uint slot = change_ranks[m] + kept_before(old_ranks, o, kept_total[0],
+                                              pairs_before(old_pairs, o, change.a, change.b));
+    if (slot < capacity)
+        pairs[slot] = change;
 }
