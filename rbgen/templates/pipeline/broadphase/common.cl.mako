@@ -43,3 +43,14 @@ inline bool pair_allowed(__global const uint* static_flags, uint a, uint b)
 {
     return static_flags[a] == 0 || static_flags[b] == 0;
 }
+
+/* Stores pair {first, second} as (a, b), a < b, at slot `at` of the pair
+ * arrays; past the capacity it is only counted (by the caller's offsets). */
+inline void store_pair(__global uint* pairs_a, __global uint* pairs_b, uint capacity, uint at,
+                       uint first, uint second)
+{
+    if (at < capacity) {
+        pairs_a[at] = min(first, second);
+        pairs_b[at] = max(first, second);
+    }
+}

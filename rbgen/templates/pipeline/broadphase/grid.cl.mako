@@ -12,7 +12,7 @@
  * grid_dim >= 3), so the buckets around a cell are distinct; a body of a far
  * cell folded into a visited bucket cannot overlap (its true cell would be a
  * neighbour with the same bucket) and fails the box test. Large bodies (see
- * common.cl.mako) are tested through their own list (large.mako).
+ * common.cl.mako) are tested through their own list (visit.mako).
  *
  * Counting and writing are two kernels over the same visit: a scan of the
  * counts gives every body its slice of the pair buffer, so the output order
@@ -23,7 +23,7 @@ ${cl_constants()}
 ${cl_structs("Aabb", "BroadphaseStatus")}
 
 <%include file="/pipeline/broadphase/common.cl.mako"/>
-<%namespace name="large" file="/pipeline/broadphase/large.mako"/>
+<%namespace name="visit" file="/pipeline/broadphase/visit.mako"/>
 
 /* Neighbour cells after the own cell in (z, y, x) lexicographic order. */
 __constant int4 FORWARD_CELLS[13] = {
@@ -112,55 +112,22 @@ void gather_sorted(__global const Aabb* aabbs,
     sorted_boxes[p] = box;
 }
 
-/* Pairs of one body with the bodies of bucket positions [first, last) that
- * pass `accept` (a condition on other_index). */
-<%def name="visit_bucket(first, last, accept)">\
-            for (uint k = ${first}; k < ${last}; ++k) {
+/* The bodies of one bucket that pair with the visiting body: those passing
+ * `accept` (a condition on `other`) whose boxes overlap. */
+<%def name="visit_bucket(mode, accept)">\
+            for (uint k = bucket_start[bucket]; k < bucket_start[bucket + 1]; ++k) {
                 float4 other_lower = sorted_boxes[k].lower;
-                uint other_index = as_uint(other_lower.w);
-                if (${accept} && pair_allowed(static_flags, self_index, other_index)
-                    && boxes_overlap(lower, upper, other_lower.xyz, sorted_boxes[k].upper.xyz)) {
-                    uint a = min(self_index, other_index), b = max(self_index, other_index);
-${caller.body()}
-                }
+                uint other = as_uint(other_lower.w);
+                if (${accept}pair_allowed(static_flags, self_index, other)
+                    && boxes_overlap(lower, upper, other_lower.xyz, sorted_boxes[k].upper.xyz))
+                    ${visit.emit(mode, "self_index", "other")}
             }
 </%def>
 
-<%def name="visit_pairs(setup)">\
-    uint slot = get_global_id(0);
-    if (slot >= body_count)
-        return;
-    ${setup}
-    Aabb self_box = sorted_boxes[slot];
-    uint self_index = as_uint(self_box.lower.w);
-    float3 lower = self_box.lower.xyz, upper = self_box.upper.xyz;
-    bool small = sorted_keys[slot] < (uint)(grid_dim * grid_dim * grid_dim);
-
-    if (small) {
-        float cell_size = grid_cell_size(largest_small_size[0]);
-        int3 home = cell_of(lower, cell_size);
-        /* Own cell: bodies of higher index. */
-        uint bucket = bucket_of(home, grid_dim);
-<%self:visit_bucket first="bucket_start[bucket]" last="bucket_start[bucket + 1]" accept="other_index > self_index">
-${caller.body()}
-</%self:visit_bucket>
-        /* Forward neighbour cells: every body. */
-        for (int neighbour = 0; neighbour < 13; ++neighbour) {
-            bucket = bucket_of(home + FORWARD_CELLS[neighbour].xyz, grid_dim);
-<%self:visit_bucket first="bucket_start[bucket]" last="bucket_start[bucket + 1]" accept="true">
-${caller.body()}
-</%self:visit_bucket>
-        }
-    }
-
-    /* Large bodies (see large.mako). */
-<%large:visit_large_bodies>
-${caller.body()}
-</%large:visit_large_bodies>
-</%def>
-
-<%def name="visit_arguments()">\
-__global const Aabb* aabbs,
+<%def name="grid_kernel(mode)">\
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void ${mode}_grid_pairs(
+        __global const Aabb* aabbs,
         __global const uint* static_flags,
         const uint body_count,
         __global const float* largest_small_size,
@@ -169,45 +136,51 @@ __global const Aabb* aabbs,
         __global const Aabb* sorted_boxes,
         __global const uint* bucket_start,
         __global const uint* large_bodies,
-        __global const uint* large_count\
+        __global const uint* large_count,
+% if mode == "count":
+${visit.count_arguments()})
+% else:
+${visit.write_arguments()})
+% endif
+{
+% if mode == "write":
+${visit.publish_totals()}
+% endif
+    uint slot = get_global_id(0);
+    if (slot >= body_count)
+        return;
+    ${visit.start(mode)}
+    Aabb self_box = sorted_boxes[slot];
+    uint self_index = as_uint(self_box.lower.w);
+    float3 lower = self_box.lower.xyz, upper = self_box.upper.xyz;
+    bool small = sorted_keys[slot] < (uint)(grid_dim * grid_dim * grid_dim);
+
+    if (small) {
+        int3 home = cell_of(lower, grid_cell_size(largest_small_size[0]));
+        /* Own cell: bodies of higher index. */
+        {
+            uint bucket = bucket_of(home, grid_dim);
+${visit_bucket(mode, "other > self_index && ")}\
+        }
+        /* Forward neighbour cells: every body. */
+        for (int neighbour = 0; neighbour < 13; ++neighbour) {
+            uint bucket = bucket_of(home + FORWARD_CELLS[neighbour].xyz, grid_dim);
+${visit_bucket(mode, "")}\
+        }
+    }
+
+    /* Large bodies. */
+${visit.visit_large_bodies(mode)}\
+% if mode == "count":
+    pair_counts[slot] = found;
+% endif
+}
 </%def>
 
-/* Counts the pairs each body owns; one work-item per body in bucket order, a
- * work group is responsible for ${work_group_size} consecutive sorted bodies. */
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void count_grid_pairs(
-        ${visit_arguments()},
-        __global uint* pair_counts)
-{
-<%self:visit_pairs setup="uint found = 0;">
-                    ++found;
-</%self:visit_pairs>
-    pair_counts[slot] = found;
-}
+/* Counts the pairs each body owns, one work-item per body in bucket order;
+ * a work group is responsible for ${work_group_size} consecutive sorted bodies. */
+${grid_kernel("count")}
 
-/* Writes the pairs each body owns from its scanned offset; pairs past the
- * capacity are counted but not stored (the host grows the buffer and runs the
- * query again). Work item 0 publishes the totals. A work group is responsible
- * for ${work_group_size} consecutive sorted bodies. */
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void write_grid_pairs(
-        ${visit_arguments()},
-        __global const uint* pair_offsets,
-        __global const uint* pairs_found,
-        const uint capacity,
-        __global uint* pairs_a,
-        __global uint* pairs_b,
-        __global BroadphaseStatus* status)
-{
-    if (get_global_id(0) == 0) {
-        status->pairs_found = pairs_found[0];
-        status->pair_count = min(pairs_found[0], capacity);
-    }
-<%self:visit_pairs setup="uint next = pair_offsets[slot];">
-                    if (next < capacity) {
-                        pairs_a[next] = a;
-                        pairs_b[next] = b;
-                    }
-                    ++next;
-</%self:visit_pairs>
-}
+/* Writes the pairs each body owns from its scanned offset; a work group is
+ * responsible for ${work_group_size} consecutive sorted bodies. */
+${grid_kernel("write")}

@@ -23,7 +23,7 @@ ${cl_constants()}
 ${cl_structs("Aabb", "BroadphaseStatus")}
 
 <%include file="/pipeline/broadphase/common.cl.mako"/>
-<%namespace name="large" file="/pipeline/broadphase/large.mako"/>
+<%namespace name="visit" file="/pipeline/broadphase/visit.mako"/>
 
 /* Order-preserving map of a float to a uint (negative values reversed). */
 inline uint sortable_float(float value)
@@ -114,39 +114,56 @@ void gather_sorted(__global const Aabb* aabbs,
     sorted_boxes[p] = box;
 }
 
-<%def name="sweep_pairs(setup)">\
+<%def name="sweep_kernel(mode)">\
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void ${mode}_sweep_pairs(
+        __global const Aabb* aabbs,
+        __global const uint* static_flags,
+        const uint body_count,
+        __global const Aabb* sorted_boxes,
+        __global const uint* large_bodies,
+        __global const uint* large_count,
+% if mode == "count":
+${visit.count_arguments()})
+% else:
+${visit.write_arguments()})
+% endif
+{
+% if mode == "write":
+${visit.publish_totals()}
+% endif
 % if shape == "gpu":
     __local float4 tile_lower[${work_group_size}];
     __local float4 tile_upper[${work_group_size}];
     __local int tile_needed;
     uint lane = get_local_id(0);
     uint group_first = get_group_id(0) * ${work_group_size};
-% endif
+    /* Work-items past the end stay for the barriers, on a valid position. */
+    uint slot = min((uint)get_global_id(0), body_count - 1);
+% else:
     uint slot = get_global_id(0);
-% if shape == "cpu":
     if (slot >= body_count)
         return;
 % endif
-    ${setup}
+    ${visit.start(mode)}
     uint small_count = body_count - large_count[0];
-    Aabb me = sorted_boxes[min(slot, body_count - 1)];
+    Aabb me = sorted_boxes[slot];
     uint self_index = as_uint(me.lower.w);
-    bool small = slot < small_count;
 % if shape == "cpu":
+    bool small = slot < small_count;
     if (small) {
         for (uint q = slot + 1; q < small_count; ++q) {
-            Aabb other = sorted_boxes[q];
-            if (other.lower.x > me.upper.x)
+            Aabb next_box = sorted_boxes[q];
+            if (next_box.lower.x > me.upper.x)
                 break;
-            uint other_index = as_uint(other.lower.w);
-            if (boxes_overlap(me.lower.xyz, me.upper.xyz, other.lower.xyz, other.upper.xyz)
-                && pair_allowed(static_flags, self_index, other_index)) {
-                uint a = min(self_index, other_index), b = max(self_index, other_index);
-${caller.body()}
-            }
+            uint other = as_uint(next_box.lower.w);
+            if (boxes_overlap(me.lower.xyz, me.upper.xyz, next_box.lower.xyz, next_box.upper.xyz)
+                && pair_allowed(static_flags, self_index, other))
+                ${visit.emit(mode, "self_index", "other")}
         }
     }
 % else:
+    bool small = get_global_id(0) < small_count;
     /* Tiles of sorted boxes from the group's first body on, until no sweep
      * of the group needs more. Barriers keep every lane in the loop. */
     bool sweeping = small;
@@ -170,74 +187,34 @@ ${caller.body()}
                     sweeping = false;
                     break;
                 }
-                uint other_index = as_uint(tile_lower[k].w);
+                uint other = as_uint(tile_lower[k].w);
                 if (boxes_overlap(me.lower.xyz, me.upper.xyz, tile_lower[k].xyz, tile_upper[k].xyz)
-                    && pair_allowed(static_flags, self_index, other_index)) {
-                    uint a = min(self_index, other_index), b = max(self_index, other_index);
-${caller.body()}
-                }
+                    && pair_allowed(static_flags, self_index, other))
+                    ${visit.emit(mode, "self_index", "other")}
             }
             if (tile + ${work_group_size} >= small_count)
                 sweeping = false;
         }
         barrier(CLK_LOCAL_MEM_FENCE);
     }
-    if (slot >= body_count)
+    if (get_global_id(0) >= body_count)
         return;
 % endif
 
-    /* Large bodies (see large.mako), in world coordinates. */
+    /* Large bodies, in world coordinates. */
     float3 lower = aabbs[self_index].lower.xyz, upper = aabbs[self_index].upper.xyz;
-<%large:visit_large_bodies>
-${caller.body()}
-</%large:visit_large_bodies>
-</%def>
-
-<%def name="sweep_arguments()">\
-__global const Aabb* aabbs,
-        __global const uint* static_flags,
-        const uint body_count,
-        __global const Aabb* sorted_boxes,
-        __global const uint* large_bodies,
-        __global const uint* large_count\
+${visit.visit_large_bodies(mode)}\
+% if mode == "count":
+    pair_counts[slot] = found;
+% endif
+}
 </%def>
 
 /* Counts the pairs each sorted body owns (those it meets sweeping forward,
  * and its large-body pairs). A work group is responsible for
  * ${work_group_size} consecutive sorted bodies. */
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void count_sweep_pairs(
-        ${sweep_arguments()},
-        __global uint* pair_counts)
-{
-<%self:sweep_pairs setup="uint found = 0;">
-                ++found;
-</%self:sweep_pairs>
-    pair_counts[slot] = found;
-}
+${sweep_kernel("count")}
 
-/* Writes the pairs each sorted body owns from its scanned offset; pairs past
- * the capacity are counted, not stored. Work-item 0 publishes the totals. A
- * work group is responsible for ${work_group_size} consecutive sorted bodies. */
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void write_sweep_pairs(
-        ${sweep_arguments()},
-        __global const uint* pair_offsets,
-        __global const uint* pairs_found,
-        const uint capacity,
-        __global uint* pairs_a,
-        __global uint* pairs_b,
-        __global BroadphaseStatus* status)
-{
-    if (get_global_id(0) == 0) {
-        status->pairs_found = pairs_found[0];
-        status->pair_count = min(pairs_found[0], capacity);
-    }
-<%self:sweep_pairs setup="uint next = pair_offsets[min(slot, body_count - 1)];">
-                if (next < capacity) {
-                    pairs_a[next] = a;
-                    pairs_b[next] = b;
-                }
-                ++next;
-</%self:sweep_pairs>
-}
+/* Writes the pairs each sorted body owns from its scanned offset. A work
+ * group is responsible for ${work_group_size} consecutive sorted bodies. */
+${sweep_kernel("write")}
