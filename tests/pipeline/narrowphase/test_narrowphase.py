@@ -273,3 +273,47 @@ def test_unsupported_shapes_fail_at_construction(runtime):
     table.add(Box((1, 1, 1)))
     with pytest.raises(RbgenError, match="capsule"):
         Narrowphase(runtime, table)
+
+
+@pytest.mark.parametrize("work_group_size", [1, 64])
+def test_mixed_world_is_independent_of_work_group_size(runtime, rng, work_group_size):
+    """Spheres, boxes and hulls on a plane, 301 random pairs: the same manifolds as with the
+    default work-group size (queues are filled by group-aggregated atomics)."""
+    table = ShapeTable()
+    kinds = [table.add(Plane()), table.add(Sphere(0.5)), table.add(Box((0.5, 0.4, 0.3))),
+             table.add(ConvexHull(rng.normal(size=(12, 3)) * 0.5, name="pebble"))]
+    n = 120
+    shapes = np.concatenate([[kinds[0]], rng.choice(kinds[1:], n)])
+    positions = np.vstack([[0, 0, 0], rng.uniform((-3, 0.0, -3), (3, 1.5, 3), (n, 3))])
+    quats = np.vstack([[0, 0, 0, 1], [axis_angle(rng.normal(size=3), a)
+                                      for a in rng.uniform(0, np.pi, n)]])
+    bodies = make_bodies(shapes, positions, quats)
+    candidates = [(0, i) for i in range(1, n + 1)]
+    candidates += sorted({tuple(sorted(p)) for p in rng.integers(1, n + 1, (400, 2)) if p[0] != p[1]})
+    pairs = candidates[:301]
+    reference = find_contacts(runtime, table, bodies, pairs, margin=0.01)
+    other = find_contacts(runtime, table, bodies, pairs, margin=0.01, work_group_size=work_group_size)
+    assert len(reference) > 20
+    np.testing.assert_array_equal(other["body_a"], reference["body_a"])
+    np.testing.assert_array_equal(other["body_b"], reference["body_b"])
+    np.testing.assert_array_equal(other["point_count"], reference["point_count"])
+    np.testing.assert_allclose(other["points"], reference["points"], atol=1e-6)
+
+
+def test_cached_axis_follows_the_bodies(runtime):
+    """The per-pair axis cache: a touching pair moved apart loses its contact, and moved
+    back regains it, with the same Narrowphase (cache warm)."""
+    import pyopencl.array as cla
+    table = ShapeTable()
+    cube = table.add(Box((1, 1, 1)))
+    narrowphase = Narrowphase(runtime, table)
+    q = runtime.queue
+    packed = table.pack_all().to_device(q)
+    pairs = cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype))
+    for gap, expected in [(-0.01, 1), (0.5, 0), (0.5, 0), (-0.02, 1), (0.3, 0)]:
+        bodies = make_bodies([cube, cube], [(0, 0, 0), (2 + gap, 0.1, 0)])
+        m = narrowphase.find_contacts(cla.to_device(q, bodies), packed, pairs, 1)
+        assert len(m) == expected
+        if expected:
+            np.testing.assert_allclose(m[0]["normal"][:3], (1, 0, 0), atol=1e-6)
+            np.testing.assert_allclose(m[0]["points"][:4, 3], gap, atol=1e-5)
