@@ -20,25 +20,25 @@ ${cl_structs("Body", "Shape", "Pair", "HullFace", "ContactManifold")}
     uint slot = get_global_id(0);
     if (slot >= queue_counts[kind])
         return;
-    QueuedPair q = decode_queue_entry(queues[kind * pair_capacity + slot], pairs);
+    QueuedPair q = decode_queue_entry(queues[kind * pair_capacity + slot], pairs);\
 </%def>\
-<%def name="queue_args()">\
+<%def name="queue_args(kernel)"><% pad = " " * len("void " + kernel + "(") %>\
 __global const Pair* pairs,
-                   __global const Body* bodies,
-                   __global const Shape* shapes,
-                   __global const uint* queues,
-                   __global const uint* queue_counts,
-                   const uint pair_capacity,
-                   const uint kind,
-                   __global ContactManifold* slots,
-                   __global uint* contact_flags,
-                   const float margin\
+${pad}__global const Body* bodies,
+${pad}__global const Shape* shapes,
+${pad}__global const uint* queues,
+${pad}__global const uint* queue_counts,
+${pad}const uint pair_capacity,
+${pad}const uint kind,
+${pad}__global ContactManifold* slots,
+${pad}__global uint* contact_flags,
+${pad}const float margin\
 </%def>
 % if "sphere_sphere" in kinds:
 
 /* Sphere (first) against sphere (second): one point, normal along the centres. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void sphere_sphere(${queue_args()})
+void sphere_sphere(${queue_args("sphere_sphere")})
 {
 ${queued_pair()}
     Body a = bodies[q.first], b = bodies[q.second];
@@ -58,7 +58,7 @@ ${queued_pair()}
 
 /* Sphere (first) against plane (second): one point on the plane below the centre. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void sphere_plane(${queue_args()})
+void sphere_plane(${queue_args("sphere_plane")})
 {
 ${queued_pair()}
     Body a = bodies[q.first], b = bodies[q.second];
@@ -107,7 +107,7 @@ inline float3 closest_point_on_face(float3 c, HullFace face, __global const floa
  * Centre outside: the closest point over the faces that face the centre.
  * Centre inside: the face of least penetration. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void sphere_convex(${queue_args()},
+void sphere_convex(${queue_args("sphere_convex")},
                    __global const float4* hull_vertices,
                    __global const HullFace* hull_faces,
                    __global const uint* face_indices)
@@ -165,7 +165,7 @@ ${queued_pair()}
  * then the extremes on both sides of the line through those two). The
  * vertices are streamed four times instead of stored, so any hull size works. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void convex_plane(${queue_args()},
+void convex_plane(${queue_args("convex_plane")},
                   __global const float4* hull_vertices)
 {
 ${queued_pair()}
