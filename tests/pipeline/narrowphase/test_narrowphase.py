@@ -317,3 +317,45 @@ def test_cached_axis_follows_the_bodies(runtime):
         if expected:
             np.testing.assert_allclose(m[0]["normal"][:3], (1, 0, 0), atol=1e-6)
             np.testing.assert_allclose(m[0]["points"][:4, 3], gap, atol=1e-5)
+
+
+def test_enqueue_never_blocks_and_features_persist(runtime):
+    """`enqueue` issues a fixed number of launches and no blocking read; a box resting on a
+    box that moves by 1e-3 keeps its four feature ids (warm-starting keys)."""
+    import pyopencl.array as cla
+    table = ShapeTable()
+    wide, cube = table.add(Box((2, 0.5, 2))), table.add(Box((0.5, 0.5, 0.5)))
+    narrowphase = Narrowphase(runtime, table)
+    q = runtime.queue
+    packed = table.pack_all().to_device(q)
+    pairs = cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype))
+    pair_count = cla.to_device(q, np.array([1], np.uint32))
+    manifolds = cla.empty(q, 4, layouts.CONTACT_MANIFOLD.dtype)
+    count, overflow = cla.zeros(q, 1, np.uint32), cla.zeros(q, 1, np.uint32)
+    features = []
+    for shift in (0.0, 1e-3):
+        bodies = cla.to_device(q, make_bodies([wide, cube], [(0, 0, 0), (0.2 + shift, 0.99, 0.1)],
+                                              [(0, 0, 0, 1), axis_angle((0, 1, 0), 0.2 + shift)]))
+        before = dict(runtime.counters)
+        narrowphase.enqueue(bodies, packed, pairs, pair_count, manifolds, count, overflow, 0.0)
+        assert runtime.counters["blocking_reads"] == before["blocking_reads"]
+        launches = runtime.counters["launches"] - before["launches"]
+        m = manifolds.get()[: count.get()[0]]
+        assert len(m) == 1 and m[0]["point_count"] == 4
+        features.append(sorted(m[0]["features"].tolist()))
+    assert launches < 12
+    assert features[0] == features[1]
+
+
+def test_icosphere_hull_rests_on_a_box(runtime):
+    """The icosphere hull (box-hull separating-axis path) sunk by d into a box top: deepest
+    point within [-d, -d + resolution], normal +y within the resolution."""
+    hull = ConvexHull.from_trimesh(trimesh.creation.icosphere(subdivisions=3), name="icosphere")
+    resolution = 1.0 - np.min(np.abs(hull.cooked().planes[:, 3]))
+    table = ShapeTable()
+    slab, rock = table.add(Box((3, 0.5, 3))), table.add(hull)
+    d = 0.05
+    bodies = make_bodies([slab, rock], [(0, 0, 0), (0.1, 1.5 - d, 0.2)])
+    m = contacts(runtime, table, bodies, [(0, 1)])[(0, 1)]
+    assert np.arccos(min(1.0, m["normal"][1])) < 2 * np.sqrt(2 * resolution)
+    assert -d - 1e-5 <= points(m)[:, 3].min() <= -d + resolution + 1e-5
