@@ -12,6 +12,7 @@ stack): its incremental path then finds no endpoint crossings.
 
 usage: python benchmarks/broadphase.py [--device D] [--sizes 8000 27000 111375]
                                        [--algorithms grid sap sap3] [--repeats 10]
+                                       [--profile]  (adds the slowest kernels of a query)
 """
 from __future__ import annotations
 
@@ -33,6 +34,7 @@ def measure(runtime, name: str, aabbs, static, reference, repeats: int) -> dict:
 
     broadphase = make_broadphase(runtime, name)
     count = broadphase.find_pairs(aabbs, static)           # warm-up: build, grow
+    broadphase.find_pairs(aabbs, static)                   # sap3: its incremental path too
     pairs = broadphase.host_pairs()
     ok = pairs.shape == reference.shape and bool(np.array_equal(pairs, reference))
     device_ms, wall_ms, launches = [], [], []
@@ -52,7 +54,29 @@ def measure(runtime, name: str, aabbs, static, reference, repeats: int) -> dict:
         device_ms.append(1e-6 * (end.profile.end - start.profile.start))
     return {"algorithm": name, "pairs": count, "ok": ok,
             "device_ms": statistics.median(device_ms), "wall_ms": statistics.median(wall_ms),
-            "launches": int(statistics.median(launches))}
+            "launches": int(statistics.median(launches)), "broadphase": broadphase}
+
+
+def kernel_breakdown(runtime, broadphase, aabbs, static) -> list[tuple[float, str]]:
+    """(ms, kernel name) of one more query, from an event per launch, slowest first."""
+    events, launch = [], runtime.launch
+
+    def recording_launch(kernel, global_size, local_size, wait_for=None):
+        event = launch(kernel, global_size, local_size, wait_for)
+        events.append((kernel.function_name, event))
+        return event
+
+    runtime.launch = recording_launch
+    try:
+        broadphase.enqueue(aabbs, static)
+        broadphase.check()
+        runtime.queue.finish()
+    finally:
+        runtime.launch = launch
+    totals: dict[str, float] = {}
+    for name, event in events:
+        totals[name] = totals.get(name, 0.0) + 1e-6 * (event.profile.end - event.profile.start)
+    return sorted(((ms, name) for name, ms in totals.items()), reverse=True)
 
 
 def main(argv=None) -> None:
@@ -61,6 +85,8 @@ def main(argv=None) -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[8000, 27000, 111375])
     parser.add_argument("--algorithms", nargs="+", default=["grid", "sap", "sap3"])
     parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--profile", action="store_true",
+                        help="also print the time per kernel of one query")
     args = parser.parse_args(argv)
 
     import pyopencl.array as cla
@@ -83,6 +109,10 @@ def main(argv=None) -> None:
             print(f"{size:>7} {name:>9} {row['device_ms']:>10.3f} {row['wall_ms']:>9.3f} "
                   f"{row['launches']:>8} {row['pairs']:>8} {len(reference):>9} "
                   f"{'yes' if row['ok'] else 'NO':>3}", flush=True)
+            if args.profile:
+                for ms, kernel in kernel_breakdown(runtime, row["broadphase"], device_aabbs,
+                                                   device_static)[:8]:
+                    print(f"{'':>18} {ms:>10.3f}  {kernel}")
 
 
 if __name__ == "__main__":

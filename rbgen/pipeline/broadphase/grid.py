@@ -8,11 +8,13 @@ Step by step (all on the device, no blocking read):
 
 1. ``measure_bodies`` + Reduce: validation and the geometric mean size;
    ``classify_sizes`` flags bodies larger than ``large_factor`` times it as
-   large (the ground, big boxes; tested through a list made by Compact) and
-   Reduce max gives the largest small body, which sets the cell side.
-2. ``bucket_bodies``: the bucket of each small body's lower-corner cell;
-   RadixSort of (bucket, body); ``gather_sorted`` copies the boxes in bucket
-   order; BoundSearch of every bucket id gives the bucket starts.
+   large (the ground, big boxes) and Reduce max gives the largest small
+   body, which sets the cell side.
+2. ``bucket_bodies``: the bucket of each small body's lower-corner cell (large
+   bodies get a key past every bucket); RadixSort of (bucket, body);
+   ``gather_sorted`` copies the boxes in bucket order; BoundSearch of every
+   bucket id gives the bucket starts, and the start of the large bodies, which
+   end the sorted list in index order.
 3. ``count_grid_pairs`` / Scan / ``write_grid_pairs``: each body visits its own
    cell, the 13 forward neighbour cells and the large-body list (see
    grid.cl.mako), then the pair buffer orders the pairs by (a, b).
@@ -82,7 +84,7 @@ class GridBroadphase(Broadphase):
         return self._bucket_ids
 
     def _enqueue_query(self, aabbs, static, n):
-        from ...primitives import BoundSearch, Compact, RadixSort, Reduce, Scan
+        from ...primitives import BoundSearch, RadixSort, Reduce, Scan
         runtime, program = self.runtime, self.program
         dim = grid_dim_for(n)
         bucket_count = dim ** 3
@@ -95,10 +97,6 @@ class GridBroadphase(Broadphase):
         largest = self.exact("largest_small_size", 1, np.float32)
         self.primitive("max", lambda: Reduce(runtime, np.float32, op="max"))(
             small_sizes, largest, n=n)
-        large_bodies = self.exact("large_bodies", n)
-        large_count = self.exact("large_count", 1)
-        self.primitive("compact", lambda: Compact(runtime))(large_flags, large_bodies,
-                                                            large_count, n=n)
 
         keys, bodies = self.exact("keys", n), self.exact("bodies", n)
         self.launch(program.kernel("bucket_bodies"), n, aabbs.base_data, np.uint32(n),
@@ -116,8 +114,7 @@ class GridBroadphase(Broadphase):
             n_queries=bucket_count + 1)
 
         visit = (aabbs.base_data, static.base_data, np.uint32(n), largest.base_data,
-                 np.int32(dim), keys.base_data, sorted_boxes.base_data, starts.base_data,
-                 large_bodies.base_data, large_count.base_data)
+                 np.int32(dim), keys.base_data, sorted_boxes.base_data, starts.base_data)
         counts, offsets = self.exact("pair_counts", n), self.exact("pair_offsets", n)
         found = self.exact("pairs_found", 1)
         self.launch(program.kernel("count_grid_pairs"), n, *visit, counts.base_data)

@@ -12,7 +12,7 @@
  * grid_dim >= 3), so the buckets around a cell are distinct; a body of a far
  * cell folded into a visited bucket cannot overlap (its true cell would be a
  * neighbour with the same bucket) and fails the box test. Large bodies (see
- * common.cl.mako) are tested through their own list (visit.mako).
+ * common.cl.mako) sort after every bucket and are tested as a list (visit.mako).
  *
  * Counting and writing are two kernels over the same visit: a scan of the
  * counts gives every body its slice of the pair buffer, so the output order
@@ -54,7 +54,8 @@ inline uint bucket_of(int3 cell, int grid_dim)
 
 /* Flags large bodies (larger than large_factor times the geometric mean
  * size) and writes the size of each small body (0 for large ones), which
- * Reduce turns into the cell size. A work group is responsible for
+ * Reduce turns into the cell size. Large bodies sort after every bucket, so
+ * the sorted list ends with the large-body list. A work group is responsible for
  * ${work_group_size} consecutive bodies. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void classify_sizes(__global const Aabb* aabbs,
@@ -135,8 +136,6 @@ void ${mode}_grid_pairs(
         __global const uint* sorted_keys,
         __global const Aabb* sorted_boxes,
         __global const uint* bucket_start,
-        __global const uint* large_bodies,
-        __global const uint* large_count,
 % if mode == "count":
 ${visit.count_arguments()})
 % else:
@@ -153,7 +152,8 @@ ${visit.publish_totals()}
     Aabb self_box = sorted_boxes[slot];
     uint self_index = as_uint(self_box.lower.w);
     float3 lower = self_box.lower.xyz, upper = self_box.upper.xyz;
-    bool small = sorted_keys[slot] < (uint)(grid_dim * grid_dim * grid_dim);
+    uint bucket_count = (uint)(grid_dim * grid_dim * grid_dim);
+    bool small = sorted_keys[slot] < bucket_count;
 
     if (small) {
         int3 home = cell_of(lower, grid_cell_size(largest_small_size[0]));
@@ -169,8 +169,8 @@ ${visit_bucket(mode, "")}\
         }
     }
 
-    /* Large bodies. */
-${visit.visit_large_bodies(mode)}\
+    /* Large bodies: sorted after every bucket, in index order. */
+${visit.visit_large_bodies(mode, "bucket_start[bucket_count]", "body_count", "Aabb other_box = sorted_boxes[k];\n        uint other = as_uint(other_box.lower.w);")}\
 % if mode == "count":
     pair_counts[slot] = found;
 % endif

@@ -203,7 +203,7 @@ ${visit.publish_totals()}
 
     /* Large bodies, in world coordinates. */
     float3 lower = aabbs[self_index].lower.xyz, upper = aabbs[self_index].upper.xyz;
-${visit.visit_large_bodies(mode)}\
+${visit.visit_large_bodies(mode, "0", "large_count[0]", "uint other = large_bodies[k];\n        Aabb other_box = aabbs[other];")}\
 % if mode == "count":
     pair_counts[slot] = found;
 % endif

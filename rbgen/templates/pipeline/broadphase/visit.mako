@@ -24,17 +24,17 @@ uint next = pair_offsets[slot];\
 <%doc>
   Large bodies stay out of the grid and the sweep: every small body tests
   each large one and a large body tests the large ones of higher index, so
-  each pair involving a large body is met exactly once. In scope: aabbs,
-  static_flags, large_bodies, large_count, and the visiting body's self_index,
-  lower, upper and small.
+  each pair involving a large body is met exactly once. The large bodies are
+  entries [first, last) of a list; `fetch` declares `other` (body index) and
+  `other_box` (Aabb) for entry k. In scope: static_flags and the visiting
+  body's self_index, lower, upper and small.
 </%doc>
-<%def name="visit_large_bodies(mode)">\
-    uint large_total = large_count[0];
-    for (uint k = 0; k < large_total; ++k) {
-        uint other = large_bodies[k];
+<%def name="visit_large_bodies(mode, first, last, fetch)">\
+    for (uint k = ${first}; k < ${last}; ++k) {
+        ${fetch}
         if ((small || other > self_index) && other != self_index
             && pair_allowed(static_flags, self_index, other)
-            && boxes_overlap(lower, upper, aabbs[other].lower.xyz, aabbs[other].upper.xyz))
+            && boxes_overlap(lower, upper, other_box.lower.xyz, other_box.upper.xyz))
             ${emit(mode, "self_index", "other")}
     }
 </%def>
