@@ -98,7 +98,7 @@ class Broadphase:
             self._enqueue_query(aabbs, static, n)
             self.buffer.sort(n)
         elif n == 1:
-            self._measure(aabbs, n)  # still validates the single box
+            self._measure(aabbs, n, sizes=False)  # still validates the single box
         self.buffer.start_status_read()
 
     def check(self) -> bool:
@@ -180,15 +180,16 @@ class Broadphase:
                 raise RbgenError(f"static has {static.size} flags for {n} bodies")
         return aabbs, static, n
 
-    def _measure(self, aabbs: cla.Array, n: int) -> None:
-        """Validation plus the sum of log2 sizes (``self.log_size_sum``)."""
+    def _measure(self, aabbs: cla.Array, n: int, sizes: bool = True) -> None:
+        """Validation, plus (``sizes``) the sum of log2 sizes in ``self.log_size_sum``."""
         from ...primitives import Reduce
         log_sizes = self.exact("log_sizes", n, np.float32)
         self.launch(self._bodies.kernel("measure_bodies"), n, aabbs.base_data, np.uint32(n),
                     log_sizes.base_data, self.buffer.status.base_data)
-        self.log_size_sum = self.exact("log_size_sum", 1, np.float32)
-        self.primitive("sum", lambda: Reduce(self.runtime, np.float32, op="sum"))(
-            log_sizes, self.log_size_sum, n=n)
+        if sizes:
+            self.log_size_sum = self.exact("log_size_sum", 1, np.float32)
+            self.primitive("sum", lambda: Reduce(self.runtime, np.float32, op="sum"))(
+                log_sizes, self.log_size_sum, n=n)
 
     def _raise_bad_body(self, body: int) -> None:
         record = self.runtime.read(self._aabbs[body:body + 1])[0]

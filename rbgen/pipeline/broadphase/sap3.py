@@ -130,7 +130,7 @@ class IncrementalSapBroadphase(Broadphase):
             self.full.enqueue(aabbs, static)
         else:
             slot.pairs.reset_status()
-            self._measure(aabbs, n)
+            self._measure(aabbs, n, sizes=False)
         if n >= 1:
             self._sort_endpoints(aabbs, n, slot)
             cl.enqueue_copy(self.runtime.queue, slot.boxes.base_data, aabbs.base_data,
