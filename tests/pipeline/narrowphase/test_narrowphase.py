@@ -359,3 +359,29 @@ def test_icosphere_hull_rests_on_a_box(runtime):
     m = contacts(runtime, table, bodies, [(0, 1)])[(0, 1)]
     assert np.arccos(min(1.0, m["normal"][1])) < 2 * np.sqrt(2 * resolution)
     assert -d - 1e-5 <= points(m)[:, 3].min() <= -d + resolution + 1e-5
+
+
+def test_prism_cap_on_a_box_reduces_to_four_points(runtime, rng):
+    """A 12-sided prism lying on its cap, sunk by d into a box: the whole cap is in contact;
+    the manifold keeps 4 of its 12 corners (all at separation -d), spanning the cap: the
+    deepest/farthest pair is a diameter and the other two lie on both sides of it."""
+    angles = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    ring = np.column_stack([np.cos(angles), np.zeros(12), np.sin(angles)]) * 0.8
+    prism = ConvexHull(np.vstack([ring + (0, -0.3, 0), ring + (0, 0.3, 0)]), name="prism")
+    table = ShapeTable()
+    slab, puck = table.add(Box((3, 0.5, 3))), table.add(prism)
+    assert table.max_face_vertices() == 12
+    d = 0.02
+    q = axis_angle((0, 1, 0), rng.uniform(0, np.pi))
+    centre = np.array([0.2, 0.5 + 0.3 - d, -0.1])
+    bodies = make_bodies([slab, puck], [(0, 0, 0), centre], [(0, 0, 0, 1), q])
+    m = contacts(runtime, table, bodies, [(0, 1)])[(0, 1)]
+    assert m["point_count"] == 4
+    np.testing.assert_allclose(points(m)[:, 3], -d, atol=2e-5)
+    corners = (prism.local_vertices() @ quat_matrix(q).T + centre)
+    bottom = corners[corners[:, 1] < centre[1]]
+    p = points(m)[:, :3]
+    assert all(np.linalg.norm(bottom - x, axis=1).min() < 1e-4 for x in p)
+    assert np.linalg.norm(p[0] - p[1]) > 1.59 * np.cos(np.pi / 12)
+    side = np.cross(p[1] - p[0], p[2:] - p[0]) @ (0, 1, 0)
+    assert side[0] * side[1] < 0

@@ -57,11 +57,13 @@ def random_world(rng, kind: str, n: int):
     return table, bodies, pairs
 
 
-@pytest.mark.parametrize("kind,n", [("box_box", 2001), ("box_hull", 700), ("hull_hull", 700)])
-def test_sat_matches_reference(runtime, rng, kind, n):
+@pytest.mark.parametrize("kind,n,box_path", [("box_box", 2001, "box"), ("box_box", 500, "hull"),
+                                             ("box_hull", 700, "box"), ("hull_hull", 700, "box")])
+def test_sat_matches_reference(runtime, rng, kind, n, box_path):
+    """box_path "hull" runs boxes through the generic hull projection instead of the closed form."""
     table, bodies, pairs = random_world(rng, kind, n)
     q = runtime.queue
-    narrowphase = Narrowphase(runtime, table)
+    narrowphase = Narrowphase(runtime, table, box_path=box_path)
     packed = table.pack_all().to_device(q)
     d_bodies, d_pairs = cla.to_device(q, bodies), cla.to_device(q, pairs)
     manifolds = narrowphase.find_contacts(d_bodies, packed, d_pairs, n)
