@@ -55,19 +55,21 @@ class World:
 
     Settings (attributes, may change between steps): ``gravity``,
     ``iterations`` (PGS velocity sweeps), ``position_iterations`` (split
-    impulse sweeps), ``relaxation``, ``restitution_threshold`` (m/s),
+    impulse sweeps), ``relaxation`` (successive over-relaxation; 1.2 settles
+    4-high columns of a dropped grid within 300 steps at 10 iterations, where
+    1.0 leaves some rocking), ``restitution_threshold`` (m/s),
     ``penetration_slop`` (m), ``penetration_recovery`` (fraction per step),
     ``contact_margin`` (m: contacts are created this far apart),
     ``linear_damping`` and ``angular_damping``.
     Construction options: ``penetration`` ("baumgarte", the default, or "split": split
-    impulse keeps recovery out of the velocities but, without warm starting of its
-    push rows, tilts tall stacks: a 20-row pyramid collapses with it at 10
-    iterations while Baumgarte holds it to 2 cm),
+    impulse keeps recovery out of the velocities; its push rows start from zero
+    every step, and a 20-row pyramid sinks 3 cm with it against 0.7 cm with
+    Baumgarte at 10 iterations),
     ``warm_start``, ``gyroscopic``, ``broadphase`` ("grid", "sap", "sap3").
     """
 
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), *, iterations: int = 10,
-                 position_iterations: int = 4, relaxation: float = 1.0,
+                 position_iterations: int = 4, relaxation: float = 1.2,
                  penetration: str = "baumgarte", warm_start: bool = True, gyroscopic: bool = True,
                  broadphase: str = "grid", contact_margin: float = 0.02,
                  restitution_threshold: float = 0.5, penetration_slop: float = 0.001,

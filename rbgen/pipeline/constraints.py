@@ -10,7 +10,10 @@ the bodies: no bounce from recovery).
 
 Warm starting: each step's constraints are recorded in a hash table keyed by
 body pair; the next step looks its pair up there and copies, point by point,
-the impulses of the old point with the same feature id. The two constraint
+the impulses of the old point with the same feature id, else of the nearest
+old point within ``match_distance`` (the narrowphase's feature ids change
+when it swaps the reference face of a flat face-face contact, which happens
+all the time on stacked boxes). The two constraint
 buffers and tables alternate, so nothing is copied back to the host.
 """
 from __future__ import annotations
@@ -64,7 +67,9 @@ class ContactConstraints:
     ``settings`` (attributes, changeable between steps): ``restitution_threshold``
     (m/s; slower impacts do not bounce), ``penetration_slop`` (m of penetration
     left alone), ``penetration_recovery`` (fraction of the penetration removed
-    per step), ``warm_start_factor`` (scale of the carried impulses).
+    per step), ``warm_start_factor`` (scale of the carried impulses),
+    ``match_distance`` (m: an old point this close to a new one, relative to
+    body B, passes its impulses on when no feature id matches).
     """
 
     def __init__(self, runtime: Runtime, *, penetration: str = "split", warm_start: bool = True,
@@ -83,6 +88,7 @@ class ContactConstraints:
         self.penetration_slop = 0.005
         self.penetration_recovery = 0.2
         self.warm_start_factor = 1.0
+        self.match_distance = 0.02
         #: device uint32 array(1): constraints built by the last call (<= capacity)
         self.count = cl_array.zeros(runtime.queue, 1, np.uint32)
         self._generations: list[_Buffers | None] = [None, None]
@@ -132,7 +138,7 @@ class ContactConstraints:
                 np.uint32(gen.mask)]
         if self.warm_start:
             args += [previous.constraints.data, previous.table.data, np.uint32(previous.mask),
-                     np.float32(self.warm_start_factor)]
+                     np.float32(self.warm_start_factor), np.float32(self.match_distance)]
         args += [np.float32(dt), np.float32(self.restitution_threshold),
                  np.float32(self.penetration_slop), np.float32(self.penetration_recovery)]
         self.setup_kernel.set_args(*args)

@@ -131,7 +131,8 @@ def test_slow_speculative_contact_only_closes_the_gap(runtime):
 
 @pytest.mark.parametrize("warm_start", [True, False])
 def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start):
-    """Impulses carry over only for the same body pair and feature id (per point)."""
+    """Impulses carry over for the same body pair, per point: from the old point with the
+    same feature id, else from an old point within match_distance (relative to B), else 0."""
     n_pairs = 37
     positions = np.zeros((n_pairs + 1, 3))
     positions[1:, 0] = np.arange(n_pairs) * 3.0
@@ -141,29 +142,35 @@ def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start):
     inv_inertia = np.r_[[[0, 0, 0]], np.ones((n_pairs, 3))]
     rig = ContactRig(runtime, bodies, inv_inertia, warm_start=warm_start)
     features = [rng.permutation(50)[:4] for _ in range(n_pairs)]
-    manifolds = np.array([make_manifold(0, i + 1, [0, 1, 0], positions[i + 1] - [[.3, .5, .3], [-.3, .5, .3],
-                                                                       [.3, .5, -.3], [-.3, .5, -.3]],
-                                        [-0.01] * 4, features=features[i]) for i in range(n_pairs)])
+    corners = np.array([[.3, .5, .3], [-.3, .5, .3], [.3, .5, -.3], [-.3, .5, -.3]])
+    manifolds = layouts.CONTACT_MANIFOLD.zeros(n_pairs)
+    for i in range(n_pairs):
+        manifolds[i] = make_manifold(0, i + 1, [0, 1, 0], positions[i + 1] - corners, [-0.01] * 4,
+                                     features=features[i])
     order = rng.permutation(n_pairs)
     _, first = rig.solve(manifolds[order], iterations=5)
     first_by_body = {int(c["body_b"]): c for c in first}
-    # Next step: same pairs in another order, two features changed on every manifold.
+    # Next step, pairs in another order: point 0 keeps its feature and moves 5 cm,
+    # point 1 gets a new feature id at the same place, point 2 a new id and moves 5 cm.
     changed = manifolds.copy()
     for i in range(n_pairs):
-        changed[i]["features"][:2] = [100 + i, 200 + i]
+        changed[i]["features"][1:3] = [100 + i, 200 + i]
+        changed[i]["points"][0, 0] += 0.05
+        changed[i]["points"][2, 0] += 0.05
     second = rig.constraints(changed[rng.permutation(n_pairs)])
+    assert rig.setup.match_distance < 0.05
     for c in second:
         old = first_by_body[int(c["body_b"])]
         for k in range(4):
-            feature = c["features"][k]
-            if not warm_start or feature >= 100:
+            if not warm_start or k == 2:
                 expected = (0.0, 0.0, 0.0)
             else:
-                j = list(old["features"]).index(feature)
+                j = k if k == 1 else list(old["features"]).index(c["features"][k])
                 expected = (old["normal_impulse"][j], old["tangent1_impulse"][j],
                             old["tangent2_impulse"][j])
             got = (c["normal_impulse"][k], c["tangent1_impulse"][k], c["tangent2_impulse"][k])
             np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-7)
+    assert not warm_start or np.all(second["normal_impulse"][:, [0, 1, 3]] > 0)
 
 
 def test_overflowing_manifold_count_is_clamped_to_capacity(runtime):

@@ -12,8 +12,9 @@
 % endif
 % if warm_start:
  * and the previous step's accumulated impulses, found through a hash table
- * keyed by body pair and matched per point by feature id (friction impulses
- * are carried as a world vector and re-projected onto the new tangents).
+ * keyed by body pair and matched per point by feature id, else by distance
+ * (friction impulses are carried as a world vector and re-projected onto the
+ * new tangents).
 % else:
  * with zero starting impulses.
 % endif
@@ -70,10 +71,12 @@ void clear_pair_table(__global uint* table, const uint table_size)
 % if warm_start:
 
 /* Copy the impulses of the previous step's constraint with the same body
- * pair and, per point, the same feature id. */
+ * pair: per point, those of the old point with the same feature id, else of
+ * the nearest old point (relative to B) within match_distance (feature ids
+ * change when the narrowphase swaps its reference face on a flat contact). */
 inline void warm_start_from(__global const ContactConstraint* previous,
                             __global const uint* previous_table, const uint previous_mask,
-                            ContactConstraint* c)
+                            const float match_distance, ContactConstraint* c)
 {
     uint slot = pair_slot(c->body_a, c->body_b, previous_mask);
     for (uint probe = 0; probe <= previous_mask; ++probe, slot = (slot + 1) & previous_mask) {
@@ -86,16 +89,24 @@ inline void warm_start_from(__global const ContactConstraint* previous,
         uint4 old_features = old->features;
         for (uint k = 0; k < c->point_count; ++k) {
             uint feature = ((uint*)&c->features)[k];
+            uint match = RB_SOLVER_NONE;
+            float nearest = match_distance * match_distance;
             for (uint m = 0; m < old->point_count; ++m) {
-                if (((uint*)&old_features)[m] != feature)
-                    continue;
-                float3 friction = old->tangent1.xyz * ((__global const float*)&old->tangent1_impulse)[m]
-                                + old->tangent2.xyz * ((__global const float*)&old->tangent2_impulse)[m];
-                ((float*)&c->normal_impulse)[k] = ((__global const float*)&old->normal_impulse)[m];
-                ((float*)&c->tangent1_impulse)[k] = dot(friction, c->tangent1.xyz);
-                ((float*)&c->tangent2_impulse)[k] = dot(friction, c->tangent2.xyz);
-                break;
+                if (((uint*)&old_features)[m] == feature) {
+                    match = m;
+                    break;
+                }
+                float3 d = old->r_b[m].xyz - c->r_b[k].xyz;
+                if (dot(d, d) < nearest)
+                    nearest = dot(d, d), match = m;
             }
+            if (match == RB_SOLVER_NONE)
+                continue;
+            float3 friction = old->tangent1.xyz * ((__global const float*)&old->tangent1_impulse)[match]
+                            + old->tangent2.xyz * ((__global const float*)&old->tangent2_impulse)[match];
+            ((float*)&c->normal_impulse)[k] = ((__global const float*)&old->normal_impulse)[match];
+            ((float*)&c->tangent1_impulse)[k] = dot(friction, c->tangent1.xyz);
+            ((float*)&c->tangent2_impulse)[k] = dot(friction, c->tangent2.xyz);
         }
     }
 }
@@ -127,6 +138,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
                                __global const uint* previous_table,
                                const uint previous_mask,
                                const float warm_start_factor,
+                               const float match_distance,
 % endif
                                const float dt,
                                const float restitution_threshold,
@@ -202,7 +214,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     c.velocity_target = vload4(0, velocity_target);
     c.position_target = vload4(0, position_target);
 % if warm_start:
-    warm_start_from(previous, previous_table, previous_mask, &c);
+    warm_start_from(previous, previous_table, previous_mask, match_distance, &c);
     c.normal_impulse *= warm_start_factor;
     c.tangent1_impulse *= warm_start_factor;
     c.tangent2_impulse *= warm_start_factor;
