@@ -96,9 +96,14 @@ class Narrowphase:
 
     def __init__(self, runtime: Runtime, shapes, *, max_face_vertices: int | None = None,
                  box_path: str = "box", work_group_size: int | None = None):
-        if isinstance(shapes, ShapeTable):
+        #: a table given here is watched: when shapes with larger faces are added later,
+        #: the clipping kernel is rebuilt for them before the next launch
+        self.table = shapes if isinstance(shapes, ShapeTable) else None
+        self._table_size = 0
+        if self.table is not None:
             types = shapes.type_names()
             max_face_vertices = max_face_vertices or shapes.max_face_vertices()
+            self._table_size = len(shapes.shapes)
         else:
             types = tuple(shapes)
         if box_path not in ("box", "hull"):
@@ -127,14 +132,33 @@ class Narrowphase:
             prog = compile_spec(runtime, SAT.spec(work_group_size=wg, first=first, second=second))
             self.sat_kernels[kind] = prog.kernel("find_separating_axis")
         self.k_clip = self.k_reduce = None
-        if self.sat_kernels:
-            clip = compile_spec(runtime, CLIP.spec(work_group_size=wg,
-                                                   max_face_vertices=self.max_face_vertices))
-            self.k_clip = clip.kernel("clip_incident_face")
-            self.k_reduce = clip.kernel("reduce_contacts")
+        self._build_clip()
         self.scan = Scan(runtime, np.uint32, inclusive=False)
         self.capacity = 0
         self.timings = None  # {stage: seconds} of the last call when profiling
+
+    def _build_clip(self) -> None:
+        if not self.sat_kernels:
+            return
+        clip = compile_spec(self.runtime, CLIP.spec(work_group_size=self.work_group_size,
+                                                    max_face_vertices=self.max_face_vertices))
+        self.k_clip = clip.kernel("clip_incident_face")
+        self.k_reduce = clip.kernel("reduce_contacts")
+
+    def _follow_table(self) -> None:
+        """Rebuild for faces larger than the clipping buffers (shapes added since)."""
+        if self.table is None or len(self.table.shapes) == self._table_size:
+            return
+        self._table_size = len(self.table.shapes)
+        kinds = kinds_for(self.table.type_names())
+        if not set(kinds) <= set(self.kinds):
+            raise RbgenError(f"narrowphase: the shape table now needs kinds {list(kinds)} but this "
+                             f"Narrowphase was built for {list(self.kinds)}; build a new one")
+        needed = self.table.max_face_vertices()
+        if needed > self.max_face_vertices:
+            self.max_face_vertices = needed
+            self._build_clip()
+            self.capacity = 0  # clipping scratch is sized by the face size
 
     # ------------------------------------------------------------------ buffers
     def _ensure(self, pair_capacity: int) -> None:
@@ -170,6 +194,7 @@ class Narrowphase:
         """
         if not (np.isfinite(margin) and margin >= 0):
             raise RbgenError(f"margin must be a non-negative finite number, got {margin!r}")
+        self._follow_table()
         rt, wg = self.runtime, self.work_group_size
         pair_capacity = int(pairs.size)
         self._ensure(max(1, pair_capacity))

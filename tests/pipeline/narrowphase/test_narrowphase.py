@@ -385,3 +385,28 @@ def test_prism_cap_on_a_box_reduces_to_four_points(runtime, rng):
     assert np.linalg.norm(p[0] - p[1]) > 1.59 * np.cos(np.pi / 12)
     side = np.cross(p[1] - p[0], p[2:] - p[0]) @ (0, 1, 0)
     assert side[0] * side[1] < 0
+
+
+def prism_points(sides: int, radius: float, half_height: float) -> np.ndarray:
+    angles = np.linspace(0, 2 * np.pi, sides, endpoint=False)
+    ring = np.column_stack([np.cos(angles), np.zeros(sides), np.sin(angles)]) * radius
+    return np.vstack([ring - (0, half_height, 0), ring + (0, half_height, 0)])
+
+
+def test_larger_faces_added_later_rebuild_the_clipping(runtime):
+    """A Narrowphase built for 8-vertex faces follows its table when a 16-sided prism is
+    added later: both prisms, sunk by 0.01 into a box, get 4 points at that depth."""
+    import pyopencl.array as cla
+    table = ShapeTable()
+    slab = table.add(Box((3, 0.5, 3)))
+    octagon = table.add(ConvexHull(prism_points(8, 1.0, 0.25), name="octagon"))
+    narrowphase = Narrowphase(runtime, table)
+    assert narrowphase.max_face_vertices == 8
+    sixteen = table.add(ConvexHull(prism_points(16, 1.0, 0.25), name="sixteen"))
+    q = runtime.queue
+    bodies = make_bodies([slab, octagon, sixteen], [(0, 0, 0), (-1.5, 0.74, 0), (1.5, 0.74, 0)])
+    pairs = cla.to_device(q, np.array([(0, 1), (0, 2)], layouts.PAIR.dtype))
+    m = narrowphase.find_contacts(cla.to_device(q, bodies), table.pack_all().to_device(q), pairs, 2)
+    assert narrowphase.max_face_vertices == 16
+    assert list(m["point_count"]) == [4, 4]
+    np.testing.assert_allclose(m["points"][:, :, 3], -0.01, atol=2e-5)

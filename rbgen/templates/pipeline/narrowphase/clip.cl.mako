@@ -99,7 +99,7 @@ inline uint clip_faces(const Placement* reference, Shape ref_shape, uint f,
 
     float3 polygon[MAX_CLIP_POINTS];
     uint ids[MAX_CLIP_POINTS];
-    uint n = inc_face.index_count;
+    uint n = min(inc_face.index_count, (uint)${max_face_vertices});  /* the host sizes the buffers */
     for (uint k = 0; k < n; ++k) {
         polygon[k] = polygon_vertex(incident, inc_shape, inc_face, k, hull_vertices, face_indices);
         ids[k] = k;
