@@ -65,7 +65,9 @@ class World:
     impulse keeps recovery out of the velocities; its push rows start from zero
     every step, and a 20-row pyramid sinks 3 cm with it against 0.7 cm with
     Baumgarte at 10 iterations),
-    ``warm_start``, ``gyroscopic``, ``broadphase`` ("grid", "sap", "sap3").
+    ``warm_start``, ``gyroscopic``, ``broadphase`` ("grid", "sap", "sap3"),
+    ``group_count`` (solver work groups), ``manifold_capacity`` and
+    ``pair_capacity`` (initial buffer sizes; grown on overflow).
     """
 
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), *, iterations: int = 10,
@@ -74,7 +76,8 @@ class World:
                  broadphase: str = "grid", contact_margin: float = 0.02,
                  restitution_threshold: float = 0.5, penetration_slop: float = 0.001,
                  penetration_recovery: float = 0.2, linear_damping: float = 0.0,
-                 angular_damping: float = 0.0, group_count: int | None = None):
+                 angular_damping: float = 0.0, group_count: int | None = None,
+                 manifold_capacity: int | None = None, pair_capacity: int | None = None):
         self.runtime: Runtime = coerce_runtime(device)
         self.gravity = _vector(gravity, 3, "gravity")
         self.iterations, self.position_iterations = int(iterations), int(position_iterations)
@@ -100,9 +103,13 @@ class World:
         self.penetration_recovery = penetration_recovery
         self._stages_types = None
         self._manifold_capacity = 0
+        self._initial_manifolds = manifold_capacity
+        self._pair_capacity = pair_capacity
         self._pending = None            # (dt, backup) of a step whose status is unchecked
         self.last_step_counters = {"launches": 0, "blocking_reads": 0}
         self.steps = 0
+        #: steps redone because a buffer overflowed (each grew the buffer)
+        self.overflows = 0
 
     # ------------------------------------------------------------- settings
     restitution_threshold = property(lambda s: s._constraints.restitution_threshold,
@@ -246,10 +253,11 @@ class World:
             from .pipeline.narrowphase import Narrowphase
             self._world_aabbs = WorldAabbs(self.runtime, types)
             self._narrowphase = Narrowphase(self.runtime, self.shapes)
-            self._broadphase = make_broadphase(self.runtime, self.broadphase_name)
+            options = {} if self._pair_capacity is None else {"capacity": int(self._pair_capacity)}
+            self._broadphase = make_broadphase(self.runtime, self.broadphase_name, **options)
             self._stages_types = types
         self._packed = self.shapes.pack_all().to_device(queue)
-        self._ensure_manifolds(MANIFOLDS_PER_BODY * max(n, 16))
+        self._ensure_manifolds(self._initial_manifolds or MANIFOLDS_PER_BODY * max(n, 16))
         self._device_stale = False
 
     def _ensure_manifolds(self, capacity: int) -> None:
@@ -275,6 +283,8 @@ class World:
         before = dict(self.runtime.counters)
         for _ in range(int(substeps)):
             self._finish_pending()
+            if not np.any(self._host["inv_mass"] > 0) and not self._host_stale:
+                continue  # nothing can move (empty or static-only world)
             if self._device_stale:
                 self._sync_to_host()
                 self._upload()
@@ -330,6 +340,7 @@ class World:
             needed = int(self._overflow_host[0])
             if complete and needed == 0:
                 return
+            self.overflows += 1
             if needed:
                 self._ensure_manifolds(int(needed * 1.25) + 16)
             cl.enqueue_copy(self.runtime.queue, self._bodies.data, self._backup.data)
