@@ -7,6 +7,9 @@ median wall time (enqueue to completed status read), launches per query, the
 pairs found and the reference count from a numpy grid (``grid_pairs``), with
 ``ok`` when the device pair list equals the reference exactly.
 
+An algorithm may carry options: ``grid:emission=owner`` (the GPU default),
+``sap:shape=gpu``, ``sap3:full=sap``.
+
 sap3 is measured in steady state (the same boxes every query, as in a resting
 stack): its incremental path then finds no endpoint crossings.
 
@@ -32,7 +35,12 @@ def measure(runtime, name: str, aabbs, static, reference, repeats: int) -> dict:
 
     from rbgen.pipeline.broadphase import make_broadphase
 
-    broadphase = make_broadphase(runtime, name)
+    algorithm, _, text = name.partition(":")
+    options = {}
+    for item in filter(None, text.split(",")):
+        key, _, value = item.partition("=")
+        options[key] = int(value) if value.isdigit() else value
+    broadphase = make_broadphase(runtime, algorithm, **options)
     count = broadphase.find_pairs(aabbs, static)           # warm-up: build, grow
     broadphase.find_pairs(aabbs, static)                   # sap3: its incremental path too
     pairs = broadphase.host_pairs()
@@ -97,7 +105,8 @@ def main(argv=None) -> None:
 
     runtime = Runtime(args.device, profiling=True)
     print(f"device: {runtime.traits.describe()}")
-    print(f"{'boxes':>7} {'algorithm':>9} {'device ms':>10} {'wall ms':>9} {'launches':>8} "
+    width = max(9, *(len(a) for a in args.algorithms))
+    print(f"{'boxes':>7} {'algorithm':>{width}} {'device ms':>10} {'wall ms':>9} {'launches':>8} "
           f"{'pairs':>8} {'reference':>9} {'ok':>3}")
     for size in args.sizes:
         aabbs, static = scene_aabbs(standard_boxbox_scene(size))
@@ -106,13 +115,13 @@ def main(argv=None) -> None:
         device_static = cla.to_device(runtime.queue, static)
         for name in args.algorithms:
             row = measure(runtime, name, device_aabbs, device_static, reference, args.repeats)
-            print(f"{size:>7} {name:>9} {row['device_ms']:>10.3f} {row['wall_ms']:>9.3f} "
+            print(f"{size:>7} {name:>{width}} {row['device_ms']:>10.3f} {row['wall_ms']:>9.3f} "
                   f"{row['launches']:>8} {row['pairs']:>8} {len(reference):>9} "
                   f"{'yes' if row['ok'] else 'NO':>3}", flush=True)
             if args.profile:
                 for ms, kernel in kernel_breakdown(runtime, row["broadphase"], device_aabbs,
                                                    device_static)[:8]:
-                    print(f"{'':>18} {ms:>10.3f}  {kernel}")
+                    print(f"{'':>{width + 9}} {ms:>10.3f}  {kernel}")
 
 
 if __name__ == "__main__":

@@ -244,6 +244,8 @@ SHAPE = declare("Shape", [
     ("edge_offset", "uint", "hull: first unique edge direction"),
     ("edge_count", "uint", "hull: number of unique edge directions"),
     ("child_offset", "uint", "compound/mesh: first child or BVH node"),
+    ("adjacency_offset", "uint", "hull: first HullEdge (edge with its two faces)"),
+    ("adjacency_count", "uint", "hull: number of HullEdge records"),
 ], "A collision shape in its local (principal) frame.")
 
 AABB = declare("Aabb", [
@@ -327,9 +329,19 @@ HULL_FACE = declare("HullFace", [
     ("index_count", "uint", "polygon vertices, counter-clockwise seen from outside"),
 ], "One planar polygon of a cooked convex hull.")
 
+HULL_EDGE = declare("HullEdge", [
+    ("v0", "uint", "start vertex (relative to Shape.vertex_offset)"),
+    ("v1", "uint", "end vertex; v0 -> v1 runs counter-clockwise around face f0"),
+    ("f0", "uint", "face on the left of v0 -> v1 seen from outside (relative to face_offset)"),
+    ("f1", "uint", "the other face"),
+], "One edge of a cooked hull with its two faces (Gauss-map arc for the edge-edge SAT).")
+
 PAIR_SWAPPED = constant("RB_PAIR_SWAPPED", 0x80000000,
                         "queue entry bit: the pair's bodies are in the kernel's shape order b, a")
 NO_FEATURE = constant("RB_NO_FEATURE", 0xFFFFFFFF, "separating-axis cache: no axis cached")
+SAT_EDGE_PAIR = constant("RB_SAT_EDGE_PAIR", 0x80000000,
+                         "separating-axis feature bit: edge i of A x edge j of B in the HullEdge "
+                         "lists, i * B.adjacency_count + j in the low bits")
 
 SAT_CACHE_ENTRY = declare("SatCacheEntry", [
     ("a", "uint", "body a of the pair this entry belongs to (key)"),
@@ -354,4 +366,7 @@ BROADPHASE_STATUS = declare("BroadphaseStatus", [
     ("pairs_found", "uint", "pairs the query found; more than the capacity means overflow"),
     ("bad_body", "uint", "lowest body with a NaN or inverted AABB, RB_BP_NO_BODY if none"),
     ("crossings", "uint", "incremental SAP: endpoint crossings scanned this step"),
+    ("retry", "uint", "nonzero (RB_BP_RETRY_*) when the query must be redone another way"),
 ], "Results of one broadphase query that the host checks without stalling the queue.")
+#: `BroadphaseStatus.retry`: the grid met more large bodies than its owner rows.
+BP_RETRY_LARGE = constant("RB_BP_RETRY_LARGE", 1, "grid: too many large bodies for owner rows")

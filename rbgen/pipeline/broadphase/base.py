@@ -96,7 +96,6 @@ class Broadphase:
         if n >= 2:
             self._measure(aabbs, n)
             self._enqueue_query(aabbs, static, n)
-            self.buffer.sort(n)
         elif n == 1:
             self._measure(aabbs, n, sizes=False)  # still validates the single box
         self.buffer.start_status_read()
@@ -106,6 +105,9 @@ class Broadphase:
         status = self.buffer.read_status()
         if status["bad_body"] != layouts.BP_NO_BODY:
             self._raise_bad_body(int(status["bad_body"]))
+        if status["retry"]:
+            self._prepare_retry(int(status["retry"]))
+            return False
         found = int(status["pairs_found"])
         if found > self.buffer.capacity:
             self.buffer.grow_for(found)
@@ -126,7 +128,12 @@ class Broadphase:
 
     # ---------------------------------------------------------- subclasses
     def _enqueue_query(self, aabbs: cla.Array, static: cla.Array, n: int) -> None:
+        """Enqueue the algorithm for n >= 2 bodies, ending with ordered ``pairs``."""
         raise NotImplementedError
+
+    def _prepare_retry(self, reason: int) -> None:
+        """Adapt after a query that asked to be redone another way (status.retry)."""
+        raise RbgenError(f"{type(self).__name__}: unexpected retry request {reason}")
 
     def primitive(self, key, make):
         """A primitive built once by ``make()`` and kept under ``key``."""

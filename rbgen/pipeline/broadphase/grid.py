@@ -41,16 +41,32 @@ TEMPLATE = KernelTemplate(
     "pipeline/broadphase/grid.cl.mako",
     [Param("work_group_size", power_of_two(1, 1024),
            "bodies per work group; the visit is latency-bound, so any size that fills a CU works",
-           "a power of two from 1 to 1024")],
-    doc="Uniform grid: bucket keys per body, pair counting and writing over 27 neighbour cells.",
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
+           "a power of two from 1 to 1024"),
+     Param("emission", ("owner", "slot"),
+           "owner: each pair written by its lower body into sorted slices (no global sort, "
+           "27 cells visited); slot: 14 cells visited, then a global sort of the pairs"),
+     Param("large_rows", power_of_two(1, 64),
+           "owner emission: most large bodies handled (one flag row of n entries each)",
+           "a power of two from 1 to 64")],
+    doc="Uniform grid: bucket keys per body, pair counting and writing over neighbour cells.",
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "emission": default_emission(traits), "large_rows": LARGE_ROWS},
 )
 
 #: Bodies larger than this many times the geometric mean size are large (kept
 #: out of the grid). 4 keeps ordinary size spreads in the grid.
 DEFAULT_LARGE_FACTOR = 4.0
+#: Owner emission handles at most this many large bodies (ground slabs, walls);
+#: with more, a query is redone with slot emission.
+LARGE_ROWS = 8
 #: Buckets per body: sparse enough that distinct cells rarely share a bucket.
 BUCKETS_PER_BODY = 2
+
+
+def default_emission(traits) -> str:
+    """GPUs: owner emission (the global pair sort costs dozens of launches);
+    CPUs: slot emission (half the cells visited, and sorting is cheap there)."""
+    return "owner" if traits.is_gpu else "slot"
 
 
 def grid_dim_for(body_count: int) -> int:
@@ -66,15 +82,30 @@ class GridBroadphase(Broadphase):
 
     name = "grid"
 
-    def __init__(self, runtime, *, large_factor: float = DEFAULT_LARGE_FACTOR, capacity=None,
-                 work_group_size=None):
+    def __init__(self, runtime, *, large_factor: float = DEFAULT_LARGE_FACTOR,
+                 emission: str | None = None, capacity=None, work_group_size=None):
         super().__init__(runtime, capacity=capacity, work_group_size=work_group_size)
         if not (isinstance(large_factor, (int, float)) and math.isfinite(large_factor)
                 and large_factor > 0):
             raise RbgenError(f"large_factor must be a positive finite number, got {large_factor!r}")
         self.large_factor = float(large_factor)
-        self.program = compile_spec(runtime, TEMPLATE.spec(work_group_size=self.work_group_size))
+        self.emission = emission or default_emission(runtime.traits)
+        self._programs = {}
+        self._program_for(self.emission)  # validates emission now
         self._bucket_ids = None
+
+    def _program_for(self, emission: str):
+        if emission not in self._programs:
+            spec = TEMPLATE.spec(work_group_size=self.work_group_size, emission=emission,
+                                 large_rows=LARGE_ROWS)
+            self._programs[emission] = compile_spec(self.runtime, spec)
+        return self._programs[emission]
+
+    def _prepare_retry(self, reason: int) -> None:
+        """More large bodies than owner rows: use slot emission from now on."""
+        if reason != layouts.BP_RETRY_LARGE:
+            super()._prepare_retry(reason)
+        self.emission = "slot"
 
     def _bucket_id_queries(self, bucket_count: int) -> cla.Array:
         """0, 1, ..., bucket_count: the BoundSearch queries of the bucket starts."""
@@ -84,8 +115,8 @@ class GridBroadphase(Broadphase):
         return self._bucket_ids
 
     def _enqueue_query(self, aabbs, static, n):
-        from ...primitives import BoundSearch, RadixSort, Reduce, Scan
-        runtime, program = self.runtime, self.program
+        from ...primitives import BoundSearch, RadixSort, Reduce
+        runtime, program = self.runtime, self._program_for(self.emission)
         dim = grid_dim_for(n)
         bucket_count = dim ** 3
 
@@ -115,12 +146,47 @@ class GridBroadphase(Broadphase):
 
         visit = (aabbs.base_data, static.base_data, np.uint32(n), largest.base_data,
                  np.int32(dim), keys.base_data, sorted_boxes.base_data, starts.base_data)
+        if self.emission == "owner":
+            self._owner_pairs(program, visit, aabbs, static, n, dim, sorted_boxes, starts)
+        else:
+            self._slot_pairs(program, visit, n)
+
+    def _slot_pairs(self, program, visit, n):
         counts, offsets = self.exact("pair_counts", n), self.exact("pair_offsets", n)
         found = self.exact("pairs_found", 1)
         self.launch(program.kernel("count_grid_pairs"), n, *visit, counts.base_data)
-        self.primitive("scan", lambda: Scan(runtime, np.uint32, inclusive=False))(
-            counts, offsets, n=n, total=found)
+        self._scan(counts, offsets, n, found)
         buffer = self.buffer
         self.launch(program.kernel("write_grid_pairs"), n, *visit, offsets.base_data,
                     found.base_data, np.uint32(buffer.capacity), buffer.pairs_a.base_data,
                     buffer.pairs_b.base_data, buffer.status.base_data)
+        buffer.sort(n)
+
+    def _owner_pairs(self, program, visit, aabbs, static, n, dim, sorted_boxes, starts):
+        buffer, rows = self.buffer, LARGE_ROWS
+        counts, offsets = self.exact("pair_counts", n), self.exact("pair_offsets", n)
+        flags, flag_ranks = self.exact("owner_flags", rows * n), self.exact("owner_ranks", rows * n)
+        found, flag_total = self.exact("pairs_found", 1), self.exact("flag_total", 1)
+        self.launch(program.kernel("count_owned_pairs"), n, *visit, counts.base_data)
+        self.launch(program.kernel("flag_large_owner_pairs"), rows * n, aabbs.base_data,
+                    static.base_data, np.uint32(n), np.int32(dim), sorted_boxes.base_data,
+                    starts.base_data, flags.base_data, buffer.status.base_data)
+        self._scan(flags, flag_ranks, rows * n, flag_total)
+        large_rows = (np.uint32(n), np.int32(dim), sorted_boxes.base_data, starts.base_data,
+                      flags.base_data, flag_ranks.base_data)
+        self.launch(program.kernel("count_large_owner_pairs"), rows, *large_rows,
+                    counts.base_data)
+        self._scan(counts, offsets, n, found)
+        capacity = np.uint32(buffer.capacity)
+        self.launch(program.kernel("write_owned_pairs"), n, *visit, offsets.base_data,
+                    found.base_data, capacity, buffer.pairs_a.base_data,
+                    buffer.pairs_b.base_data, buffer.status.base_data)
+        self.launch(program.kernel("write_large_owner_pairs"), rows * n, *large_rows,
+                    offsets.base_data, capacity, buffer.pairs_a.base_data,
+                    buffer.pairs_b.base_data)
+        buffer.pack()
+
+    def _scan(self, src, dst, n, total):
+        from ...primitives import Scan
+        self.primitive("scan", lambda: Scan(self.runtime, np.uint32, inclusive=False))(
+            src, dst, n=n, total=total)

@@ -66,14 +66,15 @@ class PairBuffer:
     def __init__(self, runtime: Runtime, capacity: int):
         self.runtime = runtime
         queue = runtime.queue
-        self.status = cla.zeros(queue, 4, np.uint32)
+        words = layouts.BROADPHASE_STATUS.itemsize // 4
+        self.status = cla.zeros(queue, words, np.uint32)
         #: ``pair_count`` on the device (a view of the status' first word)
         self.count = self.status[0:1]
         self._initial = np.zeros(1, layouts.BROADPHASE_STATUS.dtype).view(np.uint32).copy()
         self._initial.view(layouts.BROADPHASE_STATUS.dtype)["bad_body"] = layouts.BP_NO_BODY
-        self._pinned_buffer = cl.Buffer(runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 16)
+        self._pinned_buffer = cl.Buffer(runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 4 * words)
         self._pinned, _ = cl.enqueue_map_buffer(queue, self._pinned_buffer, cl.map_flags.READ,
-                                                0, (4,), np.uint32)
+                                                0, (words,), np.uint32)
         self._pinned[:] = self._initial
         self._read_event = None
         self.program = compile_spec(runtime, TEMPLATE.default_spec(runtime.traits))
@@ -131,6 +132,14 @@ class PairBuffer:
             kernel.set_args(self.pairs_a.base_data, self.pairs_b.base_data,
                             self.status.base_data, self.pairs.base_data)
         runtime.launch(kernel, size, wg)
+
+    def pack(self) -> None:
+        """Enqueue the packing of pair halves already in (a, b) order into ``pairs``."""
+        kernel = self.program.kernel("interleave_pairs")
+        kernel.set_args(self.pairs_a.base_data, self.pairs_b.base_data,
+                        self.status.base_data, self.pairs.base_data)
+        wg = self.work_group_size
+        self.runtime.launch(kernel, -(-self.capacity // wg) * wg, wg)
 
     def start_status_read(self) -> None:
         """Enqueue a non-blocking copy of the status into pinned host memory."""

@@ -102,3 +102,4 @@ class SapBroadphase(Broadphase):
         self.launch(program.kernel("write_sweep_pairs"), n, *sweep, offsets.base_data,
                     found.base_data, np.uint32(buffer.capacity), buffer.pairs_a.base_data,
                     buffer.pairs_b.base_data, buffer.status.base_data)
+        buffer.sort(n)

@@ -75,11 +75,12 @@ class _Slot:
 
 
 class IncrementalSapBroadphase(Broadphase):
-    """``IncrementalSapBroadphase(runtime, full="grid", max_moves_per_body=16, capacity=None)``."""
+    """``IncrementalSapBroadphase(runtime, full="grid", full_options=None,
+    max_moves_per_body=16, capacity=None)``; ``full_options`` go to the full-query broadphase."""
 
     name = "sap3"
 
-    def __init__(self, runtime, *, full: str = "grid",
+    def __init__(self, runtime, *, full: str = "grid", full_options: dict | None = None,
                  max_moves_per_body: float = DEFAULT_MAX_MOVES_PER_BODY, capacity=None,
                  work_group_size=None):
         super().__init__(runtime, capacity=None, work_group_size=work_group_size)
@@ -93,7 +94,7 @@ class IncrementalSapBroadphase(Broadphase):
                              f"got {max_moves_per_body!r}")
         self._initial_capacity = None if capacity is None else check_capacity(capacity)
         self.full = make_broadphase(runtime, full, capacity=capacity,
-                                    work_group_size=work_group_size)
+                                    work_group_size=work_group_size, **(full_options or {}))
         self.max_moves_per_body = float(max_moves_per_body)
         self.program = compile_spec(runtime, TEMPLATE.spec(work_group_size=self.work_group_size))
         self.reset()
@@ -143,6 +144,9 @@ class IncrementalSapBroadphase(Broadphase):
         status = self.buffer.read_status()
         if status["bad_body"] != layouts.BP_NO_BODY:
             self._raise_bad_body(int(status["bad_body"]))
+        if self._pending_full and status["retry"]:
+            self.full._prepare_retry(int(status["retry"]))
+            return False
         if not self._pending_full and int(status["crossings"]) == INCREMENTAL_FAILED:
             self._force_full = True
             return False

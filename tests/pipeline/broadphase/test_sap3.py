@@ -95,3 +95,17 @@ def test_reset_and_bad_options(runtime, rng):
         make_broadphase(runtime, "sap3", full="sap3")
     with pytest.raises(RbgenError, match="max_moves_per_body"):
         make_broadphase(runtime, "sap3", max_moves_per_body=-1)
+
+
+def test_full_query_retry_is_honoured(runtime, rng):
+    """A full query by an owner-emission grid with too many large bodies is redone."""
+    from rbgen.pipeline.broadphase.grid import LARGE_ROWS
+    aabbs, static = make_aabbs(rng, 300, "uniform")
+    slabs = rng.choice(300, LARGE_ROWS + 2, replace=False)
+    aabbs["lower"][slabs, :3] = -1e30
+    aabbs["upper"][slabs, 0::2] = 1e30
+    broadphase = make_broadphase(runtime, "sap3", full_options={"emission": "owner"})
+    modes = []
+    np.testing.assert_array_equal(step(broadphase, aabbs, static, modes),
+                                  brute_force_pairs(aabbs, static))
+    assert modes == ["redo", "full"] and broadphase.full.emission == "slot"

@@ -13,11 +13,11 @@ store_pair(pairs_a, pairs_b, capacity, next++, ${first}, ${second});\
 % endif
 </%def>
 
-<%def name="start(mode)">\
+<%def name="start(mode, owner='slot')">\
 % if mode == "count":
 uint found = 0;\
 % else:
-uint next = pair_offsets[slot];\
+uint next = pair_offsets[${owner}];\
 % endif
 </%def>
 
@@ -26,13 +26,14 @@ uint next = pair_offsets[slot];\
   each large one and a large body tests the large ones of higher index, so
   each pair involving a large body is met exactly once. The large bodies are
   entries [first, last) of a list; `fetch` declares `other` (body index) and
-  `other_box` (Aabb) for entry k. In scope: static_flags and the visiting
-  body's self_index, lower, upper and small.
+  `other_box` (Aabb) for entry k; `accept` may narrow the partners (owner
+  emission keeps those of higher index). In scope: static_flags and the
+  visiting body's self_index, lower, upper and small.
 </%doc>
-<%def name="visit_large_bodies(mode, first, last, fetch)">\
+<%def name="visit_large_bodies(mode, first, last, fetch, accept='(small || other > self_index)')">\
     for (uint k = ${first}; k < ${last}; ++k) {
         ${fetch}
-        if ((small || other > self_index) && other != self_index
+        if (${accept} && other != self_index
             && pair_allowed(static_flags, self_index, other)
             && boxes_overlap(lower, upper, other_box.lower.xyz, other_box.upper.xyz))
             ${emit(mode, "self_index", "other")}
