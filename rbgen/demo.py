@@ -1,0 +1,115 @@
+"""Named scenes run through the World, with timing and a sanity summary.
+
+`run_scene` is what ``rbgen run SCENE`` / ``rbgen demo``, the examples and
+``benchmarks/scenes.py`` call, so a number printed by one means the same as
+in the others. Scenes:
+
+``box_pile``  ``n`` unit boxes dropped in a loose grid (1.5 m pitch, 1 cm
+              jitter) onto a static ground slab;
+``boxbox``    Bullet3's BoxBox lattice (rbgen.scenes; ``n`` one of its
+              standard sizes, or any n, rounded to a cube);
+``pyramid``   a 2-D pyramid of unit boxes with ``n`` rows (2 cm gaps).
+
+Timing: each step is followed by ``queue.finish()``, so the per-step time is
+the device time plus the host's enqueue time of that step; the median over
+the timed steps is reported (warm-up steps build and load kernels).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from . import scenes as scene_data
+from .errors import RbgenError
+from .shapes import Box
+from .world import World
+
+SCENES = ("box_pile", "boxbox", "pyramid")
+
+
+def build_scene(name: str, n: int, device=None, **world_options):
+    """(world, ids of the dynamic boxes, ground top height, box half extent)."""
+    if name not in SCENES:
+        raise RbgenError(f"unknown scene {name!r}; choose one of {list(SCENES)}")
+    if not isinstance(n, (int, np.integer)) or n < 1:
+        raise RbgenError(f"scene size n must be a positive integer, got {n!r}")
+    world = World(device, **world_options)
+    if name == "boxbox":
+        if int(n) in scene_data.STANDARD_BOXBOX_DIMS:
+            scene = scene_data.standard_boxbox_scene(int(n))
+        else:
+            side = max(1, round(n ** (1 / 3)))
+            scene = scene_data.boxbox_scene(side, side, side)
+        world.add_static(Box(scene.ground_half_extents), position=scene.ground_position)
+        ids = world.add_bodies(Box(scene.half_extents), mass=scene.mass, positions=scene.positions)
+        return world, ids, float(scene.ground_offset), float(scene.half_extents[1])
+    if name == "box_pile":
+        side = int(np.ceil(n ** (1 / 3)))
+        i, j, k = np.meshgrid(np.arange(side), np.arange(side), np.arange(side), indexing="ij")
+        positions = np.stack([1.5 * i, 1.0 + 1.5 * j, 1.5 * k], -1).reshape(-1, 3)[:n]
+        positions = positions + np.random.default_rng(0).uniform(-0.01, 0.01, positions.shape)
+        extent = 1.5 * side / 2 + 10
+        world.add_static(Box((extent, 1, extent)), position=(1.5 * (side - 1) / 2, -1, 1.5 * (side - 1) / 2))
+        ids = world.add_bodies(Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
+        return world, ids, 0.0, 0.5
+    rows = int(n)
+    positions = np.array([[(i - (rows - r - 1) / 2) * 1.02, 0.5 + r, 0.0]
+                          for r in range(rows) for i in range(rows - r)])
+    world.add_static(Box((rows + 10, 1, 10)), position=(0, -1, 0))
+    ids = world.add_bodies(Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
+    return world, ids, 0.0, 0.5
+
+
+def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True, *,
+              warmup: int = 0, dt: float = 1 / 60, **world_options) -> dict:
+    """Build scene ``name`` of size ``n``, run ``warmup`` then ``steps`` steps; return a summary.
+
+    The summary: device, bodies, steps, ms_per_step (median), launches and
+    blocking_reads per step, pairs / manifolds / contacts / batches of the last
+    step, overflows (redone steps), and sanity: nans, sunk (boxes whose
+    centre is more than 2 cm below its resting height), max_speed (m/s).
+    """
+    world, ids, ground_top, half = build_scene(name, n, device, **world_options)
+    queue = world.runtime.queue
+    if progress:
+        print(f"{name}: {len(ids):,} boxes on {world.runtime.traits.describe()}", flush=True)
+    for _ in range(int(warmup)):
+        world.step(dt)
+    queue.finish()
+    times = []
+    report_every = max(1, int(steps) // 10)
+    for s in range(int(steps)):
+        t0 = time.perf_counter()
+        world.step(dt)
+        queue.finish()
+        times.append(time.perf_counter() - t0)
+        if progress and ((s + 1) % report_every == 0 or s + 1 == steps):
+            speed = np.linalg.norm(world.linear_velocities[ids], axis=1).max()
+            print(f"  step {s + 1:5d}: {1e3 * np.median(times):8.2f} ms/step (median), "
+                  f"max speed {speed:.3f} m/s", flush=True)
+    stats = world.statistics()
+    positions = world.positions[ids]
+    speeds = np.linalg.norm(world.linear_velocities[ids], axis=1)
+    summary = {
+        "scene": name, "device": world.runtime.traits.device_name, "bodies": len(ids),
+        "steps": int(steps), "ms_per_step": 1e3 * float(np.median(times)) if times else 0.0,
+        "launches_per_step": stats["launches"], "blocking_reads_per_step": stats["blocking_reads"],
+        "pairs": stats["pairs"], "manifolds": stats["manifolds"], "contacts": stats["contacts"],
+        "batches": stats["batches"], "groups_used": stats["groups_used"],
+        "overflows": world.overflows,
+        "nans": int(np.isnan(positions).any(axis=1).sum()),
+        "sunk": int((positions[:, 1] < ground_top + half - 0.02).sum()),
+        "max_speed": float(speeds.max()) if len(speeds) else 0.0,
+    }
+    if progress:
+        print(format_summary(summary), flush=True)
+    return summary
+
+
+def format_summary(s: dict) -> str:
+    return (f"{s['scene']} {s['bodies']:,} boxes: {s['ms_per_step']:.2f} ms/step, "
+            f"{s['launches_per_step']} launches and {s['blocking_reads_per_step']} blocking reads "
+            f"per step; {s['pairs']:,} pairs, {s['manifolds']:,} manifolds, {s['contacts']:,} "
+            f"contact points, {s['batches']} batches in the largest group; sanity: NaNs {s['nans']}, "
+            f"sunk {s['sunk']}, max speed {s['max_speed']:.3f} m/s, overflows {s['overflows']}")
