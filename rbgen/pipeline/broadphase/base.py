@@ -8,9 +8,11 @@ A broadphase object is built once per world and queried every step:
     non-blocking read of the status into pinned memory;
 ``check()``
     waits for that status copy only; raises `RbgenError` naming the first
-    body with a NaN or inverted AABB; on overflow grows the pair buffer and
-    returns False (the caller redoes the query, or the step); True when
-    ``pairs[:count]`` holds every pair;
+    body with a NaN or inverted AABB; returns False, after adapting, when the
+    pair buffer overflowed (it is grown to fit) or the status asks for a
+    retry (status.retry: the grid's owner emission met more large bodies than
+    it has rows; sap3: a degenerate step) -- the caller then redoes the query,
+    or the whole step; True when ``pairs[:count]`` holds every pair;
 ``find_pairs(aabbs, static)``
     both, repeated until complete: the simple call for tests and benchmarks.
 """
