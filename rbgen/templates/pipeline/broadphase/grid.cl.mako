@@ -39,14 +39,12 @@ ${cl_structs("Aabb", "BroadphaseStatus")}
 <%include file="/pipeline/broadphase/common.cl.mako"/>
 <%namespace name="visit" file="/pipeline/broadphase/visit.mako"/>
 
-% if emission == "slot":
-/* Neighbour cells after the own cell in (z, y, x) lexicographic order. */
-__constant int4 FORWARD_CELLS[13] = {
-% for dz, dy, dx in [(dz, dy, dx) for dz in (-1, 0, 1) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dz, dy, dx) > (0, 0, 0)]:
-    (int4)(${dx}, ${dy}, ${dz}, 0),
-% endfor
-};
-% endif
+/* Neighbour m of the 27 cells around a cell, m = 9 (dz + 1) + 3 (dy + 1) + (dx + 1):
+ * m = 13 is the cell itself, m > 13 the 13 cells after it in (z, y, x) order. */
+inline int3 neighbour_offset(int m)
+{
+    return (int3)(m % 3 - 1, m / 3 % 3 - 1, m / 9 - 1);
+}
 
 % if emission == "owner":
 /* Rows of the large-owner flag matrix: the most large bodies handled. */
@@ -189,8 +187,8 @@ ${visit.publish_totals()}
 ${visit_bucket(mode, "other > self_index && ")}\
         }
         /* Forward neighbour cells: every body. */
-        for (int neighbour = 0; neighbour < 13; ++neighbour) {
-            uint bucket = bucket_of(home + FORWARD_CELLS[neighbour].xyz, grid_dim);
+        for (int neighbour = 14; neighbour < 27; ++neighbour) {
+            uint bucket = bucket_of(home + neighbour_offset(neighbour), grid_dim);
 ${visit_bucket(mode, "")}\
         }
     }
@@ -254,10 +252,8 @@ ${visit.publish_totals()}
     ${visit.start(mode, "self_index")}
     float3 lower = self_box.lower.xyz, upper = self_box.upper.xyz;
     int3 home = cell_of(lower, grid_cell_size(largest_small_size[0]));
-    for (int dz = -1; dz <= 1; ++dz)
-    for (int dy = -1; dy <= 1; ++dy)
-    for (int dx = -1; dx <= 1; ++dx) {
-        uint bucket = bucket_of(home + (int3)(dx, dy, dz), grid_dim);
+    for (int neighbour = 0; neighbour < 27; ++neighbour) {
+        uint bucket = bucket_of(home + neighbour_offset(neighbour), grid_dim);
 ${visit_bucket(mode, "other > self_index && ")}\
     }
 
