@@ -10,14 +10,23 @@ Step by step (all on the device, no blocking read):
    ``classify_sizes`` flags bodies larger than ``large_factor`` times it as
    large (the ground, big boxes) and Reduce max gives the largest small
    body, which sets the cell side.
-2. ``bucket_bodies``: the bucket of each small body's lower-corner cell (large
-   bodies get a key past every bucket); RadixSort of (bucket, body);
-   ``gather_sorted`` copies the boxes in bucket order; BoundSearch of every
-   bucket id gives the bucket starts, and the start of the large bodies, which
-   end the sorted list in index order.
-3. ``count_grid_pairs`` / Scan / ``write_grid_pairs``: each body visits its own
-   cell, the 13 forward neighbour cells and the large-body list (see
-   grid.cl.mako), then the pair buffer orders the pairs by (a, b).
+2. The bucket of each small body's lower-corner cell (large bodies get a key
+   past every bucket), then the boxes in bucket order and the bucket starts
+   (the last one is the start of the large bodies, which end the list).
+   ``bucketing="sort"`` (CPU default): ``bucket_bodies``, RadixSort of
+   (bucket, body), ``gather_sorted``, BoundSearch of every bucket id.
+   ``bucketing="count"`` (GPU default): ``count_bucket_bodies`` (atomic bucket
+   sizes), Scan (the starts), ``scatter_bucket_bodies`` (atomic cursors):
+   5 launches instead of about 25; the order inside a bucket then varies
+   between runs, the pair list does not (it is ordered afterwards).
+3. ``emission="slot"`` (CPU default): ``count_grid_pairs`` / Scan /
+   ``write_grid_pairs``: each body visits its own cell, the 13 forward
+   neighbour cells and the large-body list, then the pair buffer sorts the
+   pairs by (a, b). ``emission="owner"`` (GPU default): each pair is written
+   by its lower body into its slice, so the list comes out sorted without the
+   global sort (dozens of launches); a small owner visits all 27 cells, large
+   owners (at most LARGE_ROWS, else the query asks to be redone with slot
+   emission) get their slices from scanned flag rows. See grid.cl.mako.
 
 The cell is as small as the small bodies allow (a cell holds about one
 body in a dense packing), so ``large_factor`` only decides which bodies are
@@ -29,6 +38,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pyopencl as cl
 import pyopencl.array as cla
 
 from ... import layouts
@@ -45,12 +55,17 @@ TEMPLATE = KernelTemplate(
      Param("emission", ("owner", "slot"),
            "owner: each pair written by its lower body into sorted slices (no global sort, "
            "27 cells visited); slot: 14 cells visited, then a global sort of the pairs"),
+     Param("bucketing", ("sort", "count"),
+           "sort: radix sort of (bucket, body) and bound search of the bucket starts "
+           "(deterministic order inside buckets); count: counting sort with atomics, "
+           "a fifth of the launches"),
      Param("large_rows", power_of_two(1, 64),
            "owner emission: most large bodies handled (one flag row of n entries each)",
            "a power of two from 1 to 64")],
     doc="Uniform grid: bucket keys per body, pair counting and writing over neighbour cells.",
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "emission": default_emission(traits), "large_rows": LARGE_ROWS},
+                             "emission": default_emission(traits),
+                             "bucketing": default_bucketing(traits), "large_rows": LARGE_ROWS},
 )
 
 #: Bodies larger than this many times the geometric mean size are large (kept
@@ -69,6 +84,11 @@ def default_emission(traits) -> str:
     return "owner" if traits.is_gpu else "slot"
 
 
+def default_bucketing(traits) -> str:
+    """GPUs: counting sort (launch count matters most); CPUs: radix sort."""
+    return "count" if traits.is_gpu else "sort"
+
+
 def grid_dim_for(body_count: int) -> int:
     """Buckets per axis: the cube root of BUCKETS_PER_BODY * n, at least 3.
 
@@ -83,13 +103,15 @@ class GridBroadphase(Broadphase):
     name = "grid"
 
     def __init__(self, runtime, *, large_factor: float = DEFAULT_LARGE_FACTOR,
-                 emission: str | None = None, capacity=None, work_group_size=None):
+                 emission: str | None = None, bucketing: str | None = None, capacity=None,
+                 work_group_size=None):
         super().__init__(runtime, capacity=capacity, work_group_size=work_group_size)
         if not (isinstance(large_factor, (int, float)) and math.isfinite(large_factor)
                 and large_factor > 0):
             raise RbgenError(f"large_factor must be a positive finite number, got {large_factor!r}")
         self.large_factor = float(large_factor)
         self.emission = emission or default_emission(runtime.traits)
+        self.bucketing = bucketing or default_bucketing(runtime.traits)
         self._programs = {}
         self._program_for(self.emission)  # validates emission now
         self._bucket_ids = None
@@ -97,7 +119,7 @@ class GridBroadphase(Broadphase):
     def _program_for(self, emission: str):
         if emission not in self._programs:
             spec = TEMPLATE.spec(work_group_size=self.work_group_size, emission=emission,
-                                 large_rows=LARGE_ROWS)
+                                 bucketing=self.bucketing, large_rows=LARGE_ROWS)
             self._programs[emission] = compile_spec(self.runtime, spec)
         return self._programs[emission]
 
@@ -115,7 +137,7 @@ class GridBroadphase(Broadphase):
         return self._bucket_ids
 
     def _enqueue_query(self, aabbs, static, n):
-        from ...primitives import BoundSearch, RadixSort, Reduce
+        from ...primitives import Reduce
         runtime, program = self.runtime, self._program_for(self.emission)
         dim = grid_dim_for(n)
         bucket_count = dim ** 3
@@ -129,20 +151,16 @@ class GridBroadphase(Broadphase):
         self.primitive("max", lambda: Reduce(runtime, np.float32, op="max"))(
             small_sizes, largest, n=n)
 
-        keys, bodies = self.exact("keys", n), self.exact("bodies", n)
-        self.launch(program.kernel("bucket_bodies"), n, aabbs.base_data, np.uint32(n),
-                    large_flags.base_data, largest.base_data, np.int32(dim),
-                    keys.base_data, bodies.base_data)
-        bits = key_bits(bucket_count)
-        self.primitive(("sort", bits), lambda: RadixSort(runtime, key_bits=bits,
-                                                         with_values=True))(keys, bodies, n=n)
         sorted_boxes = self.exact("sorted_boxes", n, layouts.AABB.dtype)
-        self.launch(program.kernel("gather_sorted"), n, aabbs.base_data, np.uint32(n),
-                    bodies.base_data, sorted_boxes.base_data)
         starts = self.exact("bucket_starts", bucket_count + 1)
-        self.primitive("lower_bound", lambda: BoundSearch(runtime, side="lower"))(
-            keys, self._bucket_id_queries(bucket_count), starts, n_keys=n,
-            n_queries=bucket_count + 1)
+        bucket = (aabbs.base_data, np.uint32(n), large_flags.base_data, largest.base_data,
+                  np.int32(dim))
+        if self.bucketing == "sort":
+            keys = self._sort_buckets(program, bucket, aabbs, n, bucket_count, sorted_boxes,
+                                      starts)
+        else:
+            keys = self._count_buckets(program, bucket, aabbs, n, bucket_count, sorted_boxes,
+                                       starts)
 
         visit = (aabbs.base_data, static.base_data, np.uint32(n), largest.base_data,
                  np.int32(dim), keys.base_data, sorted_boxes.base_data, starts.base_data)
@@ -150,6 +168,40 @@ class GridBroadphase(Broadphase):
             self._owner_pairs(program, visit, aabbs, static, n, dim, sorted_boxes, starts)
         else:
             self._slot_pairs(program, visit, n)
+
+    def _sort_buckets(self, program, bucket, aabbs, n, bucket_count, sorted_boxes, starts):
+        """Radix sort of (bucket, body), gather, bound search: the sorted keys."""
+        from ...primitives import BoundSearch, RadixSort
+        runtime = self.runtime
+        keys, bodies = self.exact("keys", n), self.exact("bodies", n)
+        self.launch(program.kernel("bucket_bodies"), n, *bucket, keys.base_data,
+                    bodies.base_data)
+        bits = key_bits(bucket_count)
+        self.primitive(("sort", bits), lambda: RadixSort(runtime, key_bits=bits,
+                                                         with_values=True))(keys, bodies, n=n)
+        self.launch(program.kernel("gather_sorted"), n, aabbs.base_data, np.uint32(n),
+                    bodies.base_data, sorted_boxes.base_data)
+        self.primitive("lower_bound", lambda: BoundSearch(runtime, side="lower"))(
+            keys, self._bucket_id_queries(bucket_count), starts, n_keys=n,
+            n_queries=bucket_count + 1)
+        return keys
+
+    def _count_buckets(self, program, bucket, aabbs, n, bucket_count, sorted_boxes, starts):
+        """Counting sort: bucket sizes, their scan (the starts), scatter: the sorted keys."""
+        queue = self.runtime.queue
+        keys, sizes = self.exact("keys", n), self.exact("bucket_sizes", bucket_count + 1)
+        cl.enqueue_fill_buffer(queue, sizes.base_data, np.uint32(0), 0, 4 * (bucket_count + 1))
+        self.launch(program.kernel("count_bucket_bodies"), n, *bucket, keys.base_data,
+                    sizes.base_data)
+        self._scan(sizes, starts, bucket_count + 1, None)
+        cursors = self.exact("bucket_cursors", bucket_count + 1)
+        cl.enqueue_copy(queue, cursors.base_data, starts.base_data,
+                        byte_count=4 * (bucket_count + 1))
+        sorted_keys = self.exact("sorted_keys", n)
+        self.launch(program.kernel("scatter_bucket_bodies"), n, aabbs.base_data, np.uint32(n),
+                    keys.base_data, cursors.base_data, sorted_keys.base_data,
+                    sorted_boxes.base_data)
+        return sorted_keys
 
     def _slot_pairs(self, program, visit, n):
         counts, offsets = self.exact("pair_counts", n), self.exact("pair_offsets", n)

@@ -63,8 +63,8 @@ def test_static_pairs_are_dropped(broadphase):
 
 
 def test_overflow_grows_and_keeps_every_pair(runtime, rng):
-    for name, options in (("grid", {"emission": "slot"}), ("grid", {"emission": "owner"}),
-                          ("sap", {})):
+    for name, options in (("grid", {"emission": "slot"}),
+                          ("grid", {"emission": "owner", "bucketing": "count"}), ("sap", {})):
         broadphase = make_broadphase(runtime, name, capacity=1, **options)
         aabbs, static = make_aabbs(rng, 300, "clustered")
         broadphase.enqueue(aabbs, static)
@@ -109,6 +109,8 @@ def test_bad_arguments(runtime):
             make_broadphase(runtime, "grid", capacity=capacity)
     with pytest.raises(RbgenError, match="large_factor"):
         make_broadphase(runtime, "grid", large_factor=-1.0)
+    with pytest.raises(RbgenError, match="bucketing"):
+        make_broadphase(runtime, "grid", bucketing="bogo")
     with pytest.raises(RbgenError, match="bad option"):
         make_broadphase(runtime, "sap", colour="red")
     broadphase = make_broadphase(runtime, "grid")

@@ -93,9 +93,17 @@ void classify_sizes(__global const Aabb* aabbs,
     large_flags[i] = small ? 0u : 1u;
 }
 
-/* Sort keys: the bucket of each small body, bucket_count (past every bucket)
- * for large bodies. A work group is responsible for ${work_group_size}
- * consecutive bodies. */
+/* The bucket of a body: that of its lower corner's cell, or bucket_count
+ * (past every bucket) for a large body. */
+inline uint bucket_key(float3 lower, bool large, float cell_size, int grid_dim)
+{
+    return large ? (uint)(grid_dim * grid_dim * grid_dim)
+                 : bucket_of(cell_of(lower, cell_size), grid_dim);
+}
+
+% if bucketing == "sort":
+/* Sort keys (buckets) and values (body indices) for the radix sort. A work
+ * group is responsible for ${work_group_size} consecutive bodies. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void bucket_bodies(__global const Aabb* aabbs,
                    const uint body_count,
@@ -108,10 +116,8 @@ void bucket_bodies(__global const Aabb* aabbs,
     uint i = get_global_id(0);
     if (i >= body_count)
         return;
-    float cell_size = grid_cell_size(largest_small_size[0]);
-    uint bucket_count = (uint)(grid_dim * grid_dim * grid_dim);
-    bucket_keys[i] = large_flags[i] ? bucket_count
-                                    : bucket_of(cell_of(aabbs[i].lower.xyz, cell_size), grid_dim);
+    bucket_keys[i] = bucket_key(aabbs[i].lower.xyz, large_flags[i] != 0,
+                                grid_cell_size(largest_small_size[0]), grid_dim);
     bucket_bodies[i] = i;
 }
 
@@ -131,6 +137,52 @@ void gather_sorted(__global const Aabb* aabbs,
     box.lower.w = as_float(body);
     sorted_boxes[p] = box;
 }
+% else:
+/* Counting sort, first pass: the bucket of each body and the size of every
+ * bucket (bucket_sizes must be zero before). A work group is responsible for
+ * ${work_group_size} consecutive bodies. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void count_bucket_bodies(__global const Aabb* aabbs,
+                         const uint body_count,
+                         __global const uint* large_flags,
+                         __global const float* largest_small_size,
+                         const int grid_dim,
+                         __global uint* bucket_keys,
+                         __global uint* bucket_sizes)
+{
+    uint i = get_global_id(0);
+    if (i >= body_count)
+        return;
+    uint key = bucket_key(aabbs[i].lower.xyz, large_flags[i] != 0,
+                          grid_cell_size(largest_small_size[0]), grid_dim);
+    bucket_keys[i] = key;
+    atomic_inc(&bucket_sizes[key]);
+}
+
+/* Counting sort, second pass: each body takes the next free position of its
+ * bucket (cursors start at the scanned bucket starts), writing its key and
+ * its box with the body index in lower.w. The order inside a bucket varies
+ * between runs; the pairs do not, since they are ordered afterwards. A work
+ * group is responsible for ${work_group_size} consecutive bodies. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void scatter_bucket_bodies(__global const Aabb* aabbs,
+                           const uint body_count,
+                           __global const uint* bucket_keys,
+                           __global uint* bucket_cursors,
+                           __global uint* sorted_keys,
+                           __global Aabb* sorted_boxes)
+{
+    uint i = get_global_id(0);
+    if (i >= body_count)
+        return;
+    uint key = bucket_keys[i];
+    uint position = atomic_inc(&bucket_cursors[key]);
+    Aabb box = aabbs[i];
+    box.lower.w = as_float(i);
+    sorted_keys[position] = key;
+    sorted_boxes[position] = box;
+}
+% endif
 
 /* The bodies of one bucket that pair with the visiting body: those passing
  * `accept` (a condition on `other`) whose boxes overlap. */
