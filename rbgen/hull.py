@@ -7,7 +7,8 @@ Cooking happens once on the host, so the device never builds topology:
   counter-clockwise seen from outside, with its plane ``n.x = d`` (n outward,
   unit);
 * the unique edge directions (antiparallel edges merged) for the
-  separating-axis test's edge-edge axes;
+  separating-axis test's edge-edge axes, and every edge with its two faces
+  (the arcs of the Gauss map, which prune the edge pairs of hull-hull tests);
 * the exact mass properties (trimesh volume integrals), after which the
   vertices are re-centred on the centre of mass and rotated into the principal
   frame of inertia (`rbgen.mass` explains the stored frame).
@@ -16,9 +17,10 @@ Limits (checked, with an error naming the shape): at most
 `MAX_FACE_VERTICES` vertices on one face (the clipping stage keeps one face
 in private memory), at most `MAX_HULL_VERTICES` vertices and
 `MAX_HULL_FACES` faces (feature ids keep 11 bits per face). Cost note: the
-hull-hull separating-axis test is O(F_A V_B + F_B V_A + E_A E_B (V_A + V_B));
-hulls used against other hulls should stay small (tens of vertices); against
-spheres and planes any hull within the limits is cheap.
+hull-hull separating-axis test is O(F_A V_B + F_B V_A + E_A E_B) with the
+Gauss-map pruning of edge pairs (a cheap test per pair), and only the
+surviving pairs cost more; against spheres and planes any hull within the
+limits is cheap.
 """
 from __future__ import annotations
 
@@ -32,8 +34,8 @@ from .mass import SolidIntegrals, mesh_integrals, principal_frame, quaternion_fr
 MAX_FACE_VERTICES = 32
 MAX_HULL_VERTICES = 4096
 MAX_HULL_FACES = 2048
-#: qhull facets whose unit normals differ by less than this (and whose
-#: offsets differ by less than this times the hull size) form one polygon.
+#: qhull facets whose unit normals differ by less than this angle (radians),
+#: and whose offsets by less than this times the hull size, form one polygon.
 COPLANAR_TOLERANCE = 1e-6
 #: edge directions closer than this to (anti)parallel count as one direction.
 PARALLEL_TOLERANCE = 1e-6
@@ -47,6 +49,7 @@ class CookedHull:
     faces: tuple                # F arrays of vertex indices, counter-clockwise from outside
     planes: np.ndarray          # (F, 4): outward unit normal, offset d (n.x = d on the face)
     edge_directions: np.ndarray  # (E, 3) unit, one per direction up to sign
+    edges: np.ndarray           # (E', 4) v0, v1, f0, f1: every edge with its two faces
     volume: float
     com: np.ndarray             # centre of mass in the input frame
     rotation: tuple             # quaternion (x, y, z, w): stored frame -> input frame
@@ -107,7 +110,7 @@ def _polygons(pts: np.ndarray, size: float, name: str):
     for i in range(len(normals)):
         if group_of[i] >= 0:
             continue
-        same = ((normals @ normals[i] > 1 - COPLANAR_TOLERANCE)
+        same = ((normals @ normals[i] > 1 - 0.5 * COPLANAR_TOLERANCE ** 2)
                 & (np.abs(offsets - offsets[i]) < COPLANAR_TOLERANCE * size) & (group_of < 0))
         group_of[same] = len(groups)
         groups.append(list(np.nonzero(same)[0]))
@@ -119,12 +122,52 @@ def _polygons(pts: np.ndarray, size: float, name: str):
         n = normals[g].mean(axis=0)
         n /= np.linalg.norm(n)
         idx = np.unique(remap[qhull.simplices[g]].reshape(-1))
-        if len(idx) > MAX_FACE_VERTICES:
-            raise RbgenError(f"{name}: a face has {len(idx)} vertices, more than "
+        polygon = _without_collinear(vertices, _counter_clockwise(vertices, idx, n), n, size)
+        if len(polygon) > MAX_FACE_VERTICES:
+            raise RbgenError(f"{name}: a face has {len(polygon)} vertices, more than "
                              f"MAX_FACE_VERTICES={MAX_FACE_VERTICES}")
-        faces.append(_counter_clockwise(vertices, idx, n))
-        planes.append((*n, float(np.mean(vertices[idx] @ n))))
-    return vertices, tuple(faces), np.array(planes, np.float64)
+        faces.append(polygon)
+        # the plane touches the hull: no vertex lies above it (a face's separation is
+        # exact when measured with the plane offset)
+        planes.append((*n, float(np.max(vertices @ n))))
+    # vertices left only on the straight sides of polygons are not corners: drop them
+    corners = np.unique(np.concatenate(faces))
+    compact = -np.ones(len(vertices), np.int64)
+    compact[corners] = np.arange(len(corners))
+    return vertices[corners], tuple(compact[f] for f in faces), np.array(planes, np.float64)
+
+
+def _without_collinear(vertices, polygon, normal, size) -> np.ndarray:
+    """The polygon without vertices on straight runs of its boundary."""
+    polygon = list(polygon)
+    changed = True
+    while changed and len(polygon) > 3:
+        changed = False
+        for k in range(len(polygon)):
+            prev, cur, nxt = (vertices[polygon[k - 1]], vertices[polygon[k]],
+                              vertices[polygon[(k + 1) % len(polygon)]])
+            if np.dot(np.cross(cur - prev, nxt - cur), normal) <= 1e-9 * size * size:
+                del polygon[k]
+                changed = True
+                break
+    return np.array(polygon, np.int64)
+
+
+def edge_adjacency(faces, name: str) -> np.ndarray:
+    """(E, 4) int64 rows v0, v1, f0, f1: each edge once, v0 -> v1 counter-clockwise around
+    face f0 (seen from outside), f1 the face on its other side."""
+    owner = {}
+    for f, polygon in enumerate(faces):
+        for a, b in zip(polygon, np.roll(polygon, -1)):
+            owner[(int(a), int(b))] = f
+    edges = []
+    for (a, b), f in owner.items():
+        g = owner.get((b, a))
+        if g is None:
+            raise RbgenError(f"{name}: the hull surface is not closed at edge ({a}, {b})")
+        if a < b:
+            edges.append((a, b, f, g))
+    return np.array(edges, np.int64).reshape(-1, 4)
 
 
 def _counter_clockwise(vertices: np.ndarray, idx: np.ndarray, normal: np.ndarray) -> np.ndarray:
@@ -164,6 +207,7 @@ def _to_principal_frame(vertices, faces, planes, integrals: SolidIntegrals, name
         faces=faces,
         planes=local_planes,
         edge_directions=unique_edge_directions(local, faces),
+        edges=edge_adjacency(faces, name),
         volume=integrals.volume,
         com=integrals.centroid.copy(),
         rotation=quaternion_from_matrix(axes),
@@ -183,6 +227,7 @@ def box_hull(half_extents) -> CookedHull:
     planes = np.array([[1, 0, 0, h[0]], [-1, 0, 0, h[0]], [0, 1, 0, h[1]],
                        [0, -1, 0, h[1]], [0, 0, 1, h[2]], [0, 0, -1, h[2]]], np.float64)
     a2, b2, c2 = h ** 2
-    return CookedHull(vertices, faces, planes, np.eye(3), float(8 * h.prod()), np.zeros(3),
+    return CookedHull(vertices, faces, planes, np.eye(3), edge_adjacency(faces, "box"),
+                      float(8 * h.prod()), np.zeros(3),
                       (0.0, 0.0, 0.0, 1.0),
                       np.array([(b2 + c2) / 3, (a2 + c2) / 3, (a2 + b2) / 3]))

@@ -237,8 +237,8 @@ class ShapeTable:
     def pack_all(self) -> "PackedShapes":
         """Every device array of the shapes: records and cooked hull topology."""
         records = layouts.SHAPE.zeros(max(1, len(self.shapes)))
-        vertices, faces, indices, edges = [], [], [], []
-        counts = dict(v=0, f=0, i=0, e=0)
+        vertices, faces, indices, edges, adjacency = [], [], [], [], []
+        counts = dict(v=0, f=0, i=0, e=0, a=0)
         for i, shape in enumerate(self.shapes):
             rec = records[i]
             rec["type"] = shape.type_code
@@ -249,6 +249,7 @@ class ShapeTable:
             rec["vertex_offset"], rec["vertex_count"] = counts["v"], len(cooked.vertices)
             rec["face_offset"], rec["face_count"] = counts["f"], len(cooked.faces)
             rec["edge_offset"], rec["edge_count"] = counts["e"], len(cooked.edge_directions)
+            rec["adjacency_offset"], rec["adjacency_count"] = counts["a"], len(cooked.edges)
             face_records = layouts.HULL_FACE.zeros(len(cooked.faces))
             for k, polygon in enumerate(cooked.faces):
                 face_records[k]["plane"] = cooked.planes[k]
@@ -259,6 +260,11 @@ class ShapeTable:
             vertices.append(cooked.vertices)
             faces.append(face_records)
             edges.append(cooked.edge_directions)
+            edge_records = layouts.HULL_EDGE.zeros(len(cooked.edges))
+            for k, field in enumerate(("v0", "v1", "f0", "f1")):
+                edge_records[field] = cooked.edges[:, k]
+            adjacency.append(edge_records)
+            counts["a"] += len(cooked.edges)
             counts["v"] += len(cooked.vertices)
             counts["f"] += len(cooked.faces)
             counts["e"] += len(cooked.edge_directions)
@@ -268,6 +274,7 @@ class ShapeTable:
             faces=_records(layouts.HULL_FACE, faces),
             face_indices=np.concatenate(indices) if indices else np.zeros(1, np.uint32),
             edges=_float4(edges),
+            adjacency=_records(layouts.HULL_EDGE, adjacency),
         )
 
 
@@ -298,6 +305,7 @@ class PackedShapes:
     faces: np.ndarray         # HullFace records
     face_indices: np.ndarray  # uint32 polygon vertex indices (relative to vertex_offset)
     edges: np.ndarray         # (E, 4) float32 unique edge directions, w unused
+    adjacency: np.ndarray     # HullEdge records: every edge with its two faces
 
     def to_device(self, queue) -> "PackedShapes":
         """The same arrays as pyopencl arrays on ``queue``'s device."""
@@ -305,4 +313,4 @@ class PackedShapes:
 
         return PackedShapes(*(cla.to_device(queue, np.ascontiguousarray(a))
                               for a in (self.shapes, self.vertices, self.faces,
-                                        self.face_indices, self.edges)))
+                                        self.face_indices, self.edges, self.adjacency)))

@@ -90,3 +90,24 @@ def test_face_vertex_limit_names_the_shape():
     with pytest.raises(RbgenError, match="MAX_FACE_VERTICES") as err:
         ConvexHull(pts, name="wheel")
     assert "wheel" in str(err.value)
+
+
+def test_edges_know_their_faces(rng):
+    """Each edge v0 -> v1 runs counter-clockwise around f0 and clockwise around f1;
+    together the edges are every polygon side exactly once."""
+    cooked = hull.cook(rng.normal(size=(40, 3)), "blob")
+    sides = {(int(a), int(b)): f for f, poly in enumerate(cooked.faces)
+             for a, b in zip(poly, np.roll(poly, -1))}
+    assert 2 * len(cooked.edges) == len(sides)
+    for v0, v1, f0, f1 in cooked.edges:
+        assert sides[(v0, v1)] == f0 and sides[(v1, v0)] == f1
+
+
+def test_points_on_edges_and_faces_are_not_corners():
+    """A cube sampled on its edges and faces (a 5 x 5 x 5 grid): 8 corners, 6 quads."""
+    g = np.linspace(-1, 1, 5)
+    pts = np.array([[x, y, z] for x in g for y in g for z in g])
+    cooked = hull.cook(pts, "grid cube")
+    assert len(cooked.vertices) == 8
+    assert sorted(len(f) for f in cooked.faces) == [4] * 6
+    assert len(cooked.edges) == 12

@@ -91,11 +91,15 @@ class Narrowphase:
     then give ``max_face_vertices``). A shape pair without a kernel raises here,
     at construction, never during a step. ``box_path``: "box" projects boxes
     in closed form in the separating-axis test, "hull" treats them as hulls
-    (the benchmark compares both).
+    (the benchmark compares both). ``edge_axes`` maps a convex kind to
+    "directions" or "gauss_map" (the edge-edge axes of its separating-axis
+    test); by default hull-hull tests use the Gauss map, tests with a box the
+    box's three directions.
     """
 
     def __init__(self, runtime: Runtime, shapes, *, max_face_vertices: int | None = None,
-                 box_path: str = "box", work_group_size: int | None = None):
+                 box_path: str = "box", work_group_size: int | None = None,
+                 edge_axes: dict | None = None):
         #: a table given here is watched: when shapes with larger faces are added later,
         #: the clipping kernel is rebuilt for them before the next launch
         self.table = shapes if isinstance(shapes, ShapeTable) else None
@@ -106,6 +110,7 @@ class Narrowphase:
             self._table_size = len(shapes.shapes)
         else:
             types = tuple(shapes)
+        edge_axes_for = dict(edge_axes or {})
         if box_path not in ("box", "hull"):
             raise RbgenError(f"box_path must be 'box' or 'hull', got {box_path!r}")
         self.runtime = runtime
@@ -124,13 +129,19 @@ class Narrowphase:
         if primitive:
             prog = compile_spec(runtime, PRIMITIVE_PAIRS.spec(work_group_size=wg, kinds=primitive))
             self.primitive_kernels = {k: prog.kernel(k) for k in primitive}
-        self.sat_kernels = {}
+        self.sat_kernels, self.sat_edge_axes = {}, {}
         for kind in (k for k in self.kinds if k in CONVEX_KINDS):
             first, second = kind.split("_")
             if box_path == "hull":
                 first, second = "hull", "hull"
-            prog = compile_spec(runtime, SAT.spec(work_group_size=wg, first=first, second=second))
+            # unique directions win when a box is involved (3 of them); hull pairs prune
+            # their edge pairs on the Gauss map instead
+            edge_axes = edge_axes_for.get(kind) or ("gauss_map" if (first, second) == ("hull", "hull")
+                                                    else "directions")
+            prog = compile_spec(runtime, SAT.spec(work_group_size=wg, first=first, second=second,
+                                                  edge_axes=edge_axes))
             self.sat_kernels[kind] = prog.kernel("find_separating_axis")
+            self.sat_edge_axes[kind] = edge_axes
         self.k_clip = self.k_reduce = None
         self._build_clip()
         self.scan = Scan(runtime, np.uint32, inclusive=False)
@@ -220,14 +231,15 @@ class Narrowphase:
         if self.sat_kernels:
             result_count = self.sat_count
             for kind, kernel in self.sat_kernels.items():
+                edges = shapes.edges if self.sat_edge_axes[kind] == "directions" else shapes.adjacency
                 kernel.set_args(*common, _data(shapes.vertices), _data(shapes.faces),
-                                _data(shapes.edges), *queue_args, np.uint32(self.kind_index[kind]),
+                                _data(edges), *queue_args, np.uint32(self.kind_index[kind]),
                                 self.sat_cache.data, self.sat_results.data, result_count.data,
                                 np.float32(margin))
                 events["sat_" + kind] = rt.launch(kernel, size, wg)
             self.k_clip.set_args(*common, _data(shapes.vertices), _data(shapes.faces),
                                  _data(shapes.face_indices), _data(shapes.edges),
-                                 self.sat_results.data, result_count.data, self.clip_points.data,
+                                 _data(shapes.adjacency), self.sat_results.data, result_count.data, self.clip_points.data,
                                  self.clip_features.data, self.clip_counts.data, np.float32(margin))
             events["clip"] = rt.launch(self.k_clip, size, wg)
             self.k_reduce.set_args(_data(pairs), self.sat_results.data, result_count.data,

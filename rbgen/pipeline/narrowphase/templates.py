@@ -53,11 +53,15 @@ SAT = KernelTemplate(
     "pipeline/narrowphase/sat.cl.mako",
     [_WORK_GROUP,
      Param("first", ("box", "hull"), "box: closed-form projection; hull: loop over the vertices"),
-     Param("second", ("box", "hull"), "as first, for the second shape of the kind")],
+     Param("second", ("box", "hull"), "as first, for the second shape of the kind"),
+     Param("edge_axes", ("directions", "gauss_map"),
+           "directions: every pair of unique edge directions, each measured over the vertices "
+           "(cheap for boxes: 3 x 3); gauss_map: only edge pairs whose Gauss-map arcs cross, "
+           "measured between the edges (scales to large hulls)")],
     doc="Separating-axis test of convex pairs with a per-pair best-axis cache.",
     roles={"cache": "inout", "result_count": "inout"},
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "first": "box", "second": "box"},
+                             "first": "box", "second": "box", "edge_axes": "directions"},
 )
 
 CLIP = KernelTemplate(

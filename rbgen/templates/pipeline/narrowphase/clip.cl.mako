@@ -26,7 +26,7 @@
  */
 ${cl_constants()}
 
-${cl_structs("Body", "Shape", "Pair", "HullFace", "SatResult", "ContactManifold")}
+${cl_structs("Body", "Shape", "Pair", "HullFace", "HullEdge", "SatResult", "ContactManifold")}
 
 <%include file="/common/quaternion.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
@@ -197,6 +197,7 @@ void clip_incident_face(__global const Pair* pairs,
                         __global const HullFace* hull_faces,
                         __global const uint* face_indices,
                         __global const float4* hull_edges,
+                        __global const HullEdge* hull_adjacency,
                         __global const SatResult* results,
                         __global const uint* result_count,
                         __global float4* clip_points,
@@ -222,7 +223,21 @@ void clip_incident_face(__global const Pair* pairs,
     } else if (r.feature < sa.face_count + sb.face_count) {
         count = clip_faces(&pb, sb, r.feature - sa.face_count, &pa, sa, true, hull_vertices,
                            hull_faces, face_indices, margin, out_points, out_features);
+    } else if (r.feature & (uint)RB_SAT_EDGE_PAIR) {
+        /* an edge pair of the Gauss-map test: the edges themselves are known */
+        uint e = r.feature & ~(uint)RB_SAT_EDGE_PAIR;
+        uint i = e / sb.adjacency_count, j = e % sb.adjacency_count;
+        HullEdge edge_a = hull_adjacency[sa.adjacency_offset + i];
+        HullEdge edge_b = hull_adjacency[sb.adjacency_offset + j];
+        float3 a0 = point_to_world(&pa, hull_vertices[sa.vertex_offset + edge_a.v0].xyz);
+        float3 a1 = point_to_world(&pa, hull_vertices[sa.vertex_offset + edge_a.v1].xyz);
+        float3 b0 = point_to_world(&pb, hull_vertices[sb.vertex_offset + edge_b.v0].xyz);
+        float3 b1 = point_to_world(&pb, hull_vertices[sb.vertex_offset + edge_b.v1].xyz);
+        out_points[0] = (float4)(closest_on_second_segment(a0, a1, b0, b1), r.axis.w);
+        out_features[0] = EDGE_CONTACT | ((i & 0x7FFFu) << 15) | (j & 0x7FFFu);
+        count = 1;
     } else {
+        /* an edge-direction pair: find the supporting edges along the axis */
         uint e = r.feature - sa.face_count - sb.face_count;
         uint i = e / sb.edge_count, j = e % sb.edge_count;
         float3 a0, a1, b0, b1;

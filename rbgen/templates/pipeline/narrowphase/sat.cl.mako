@@ -1,10 +1,21 @@
-/* Separating-axis test between convex shapes: ${first} (first) against ${second} (second).
+<%
+    # the edge array each variant reads: unique directions, or edges with their faces
+    edges_arg = "hull_edges" if edge_axes == "directions" else "hull_adjacency"
+    edges_decl = ("__global const float4* hull_edges" if edge_axes == "directions"
+                  else "__global const HullEdge* hull_adjacency")
+%>/* Separating-axis test between convex shapes: ${first} (first) against ${second} (second).
  *
  * One work-item per queued pair; a work group is responsible for
  * ${work_group_size} consecutive entries of the kind's queue. Candidate axes
- * are the first shape's outward face normals, the second's (negated), and the
- * cross products of their unique edge directions (oriented whichever way
- * separates more). The axis of greatest separation is the contact normal
+ * are the first shape's outward face normals, the second's (negated), and
+% if edge_axes == "directions":
+ * the cross products of their unique edge directions (oriented whichever way
+ * separates more). The axis
+% else:
+ * the cross products of the edge pairs whose Gauss-map arcs intersect (the
+ * pairs that form a face of the Minkowski difference A - B; any other pair
+ * costs four dot products), oriented away from the first centre. The axis
+% endif of greatest separation is the contact normal
  * (least penetration). The test stops at the first axis that separates the
  * shapes by more than `margin`, and starts with the axis that was best for
  * this pair last step (the per-pair cache, keyed by the pair's bodies), which
@@ -13,7 +24,7 @@
  */
 ${cl_constants()}
 
-${cl_structs("Body", "Shape", "Pair", "HullFace", "SatCacheEntry", "SatResult")}
+${cl_structs("Body", "Shape", "Pair", "HullFace", "HullEdge", "SatCacheEntry", "SatResult")}
 
 <%include file="/common/quaternion.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
@@ -23,7 +34,7 @@ ${cl_structs("Body", "Shape", "Pair", "HullFace", "SatCacheEntry", "SatResult")}
  * near-equal axes keeps the reference face (and the points) from flickering. */
 #define FACE_TOLERANCE 1e-4f
 #define EDGE_TOLERANCE 1e-4f
-/* Edge directions closer to parallel than this (sine of the angle, squared) give no axis. */
+/* Edges closer to parallel than this (sine of the angle, squared) give no axis. */
 #define PARALLEL_SIN2 1e-8f
 
 /* The two shapes of a pair, placed in the world. */
@@ -75,6 +86,21 @@ inline float2 interval_second(const ConvexPair* g, __global const float4* hull_v
     return ${interval_call(second, "&g->b", "g->shape_b")};
 }
 
+/* Along an unnormalised axis, oriented whichever way separates more:
+ * min(second) - max(first) or min(first) - max(second). w = -INFINITY for a
+ * degenerate axis (parallel edges). */
+inline float4 interval_separation(const ConvexPair* g, __global const float4* hull_vertices, float3 axis)
+{
+    float sin2 = dot(axis, axis);
+    if (sin2 < PARALLEL_SIN2)
+        return (float4)(axis, -INFINITY);
+    axis *= rsqrt(sin2);
+    float2 ia = interval_first(g, hull_vertices, axis);
+    float2 ib = interval_second(g, hull_vertices, axis);
+    float forward = ib.x - ia.y, backward = ia.x - ib.y;
+    return forward >= backward ? (float4)(axis, forward) : (float4)(-axis, backward);
+}
+
 /* Along face f of the first shape: xyz the axis (first to second), w the separation. */
 inline float4 first_face_separation(const ConvexPair* g, uint f, __global const HullFace* hull_faces,
                                     __global const float4* hull_vertices)
@@ -91,6 +117,7 @@ inline float4 second_face_separation(const ConvexPair* g, uint f, __global const
     return (float4)(-plane.xyz, interval_first(g, hull_vertices, plane.xyz).x - plane.w);
 }
 
+% if edge_axes == "directions":
 /* Along edge direction i of the first shape crossed with j of the second;
  * w = -INFINITY for parallel edges (no axis). */
 inline float4 edge_separation(const ConvexPair* g, uint i, uint j, __global const float4* hull_edges,
@@ -98,28 +125,88 @@ inline float4 edge_separation(const ConvexPair* g, uint i, uint j, __global cons
 {
     float3 ea = rotate_to_world(&g->a, hull_edges[g->shape_a.edge_offset + i].xyz);
     float3 eb = rotate_to_world(&g->b, hull_edges[g->shape_b.edge_offset + j].xyz);
-    float3 axis = cross(ea, eb);
-    float sin2 = dot(axis, axis);
-    if (sin2 < PARALLEL_SIN2)
-        return (float4)(axis, -INFINITY);
-    axis *= rsqrt(sin2);
-    float2 ia = interval_first(g, hull_vertices, axis);
-    float2 ib = interval_second(g, hull_vertices, axis);
-    float forward = ib.x - ia.y, backward = ia.x - ib.y;
-    return forward >= backward ? (float4)(axis, forward) : (float4)(-axis, backward);
+    return interval_separation(g, hull_vertices, cross(ea, eb));
 }
 
+% else:
+/* Do the Gauss-map arcs (a, b) and (c, d) intersect? (a, b: the face normals
+ * of an edge of A; c, d: the negated face normals of an edge of B.) Then the
+ * edge pair forms a face of the Minkowski difference and is a candidate axis.
+ * c and d must lie on both sides of the plane of arc ab, a and b on both
+ * sides of the plane of arc cd, and the arcs on the same hemisphere. */
+inline bool arcs_intersect(float3 a, float3 b, float3 c, float3 d)
+{
+    float3 b_x_a = cross(b, a), d_x_c = cross(d, c);
+    float cba = dot(c, b_x_a), dba = dot(d, b_x_a);
+    float adc = dot(a, d_x_c), bdc = dot(b, d_x_c);
+    return cba * dba < 0.0f && adc * bdc < 0.0f && cba * bdc > 0.0f;
+}
+
+/* An edge of a hull in the world: its start, its direction and its two face normals. */
+inline void world_edge(const Placement* p, Shape s, HullEdge e, __global const float4* hull_vertices,
+                       __global const HullFace* hull_faces, float3* start, float3* direction,
+                       float3* normal0, float3* normal1)
+{
+    *start = point_to_world(p, hull_vertices[s.vertex_offset + e.v0].xyz);
+    *direction = point_to_world(p, hull_vertices[s.vertex_offset + e.v1].xyz) - *start;
+    *normal0 = rotate_to_world(p, hull_faces[s.face_offset + e.f0].plane.xyz);
+    *normal1 = rotate_to_world(p, hull_faces[s.face_offset + e.f1].plane.xyz);
+}
+
+/* Along the cross product of an edge pair that forms a Minkowski face, oriented
+ * away from the first centre: the separation is the distance between the edge
+ * lines (w = -INFINITY for parallel edges). */
+inline float4 edge_pair_separation(float3 a0, float3 ea, float3 b0, float3 eb, float3 centre_a)
+{
+    float3 axis = cross(ea, eb);
+    float sin2 = dot(axis, axis);
+    if (sin2 < PARALLEL_SIN2 * dot(ea, ea) * dot(eb, eb))
+        return (float4)(axis, -INFINITY);
+    axis *= rsqrt(sin2);
+    if (dot(axis, a0 - centre_a) < 0.0f)
+        axis = -axis;
+    return (float4)(axis, dot(axis, b0 - a0));
+}
+
+/* Along the cross product of edge i of the first shape and edge j of the second,
+ * measured on the shapes' extents (valid for any edge pair: used for last
+ * step's axis, which may no longer be a Minkowski face). */
+inline float4 edge_pair_interval_separation(const ConvexPair* g, uint i, uint j,
+                                            __global const HullEdge* hull_adjacency,
+                                            __global const HullFace* hull_faces,
+                                            __global const float4* hull_vertices)
+{
+    float3 a0, ea, b0, eb, n0, n1;
+    world_edge(&g->a, g->shape_a, hull_adjacency[g->shape_a.adjacency_offset + i], hull_vertices,
+               hull_faces, &a0, &ea, &n0, &n1);
+    world_edge(&g->b, g->shape_b, hull_adjacency[g->shape_b.adjacency_offset + j], hull_vertices,
+               hull_faces, &b0, &eb, &n0, &n1);
+    return interval_separation(g, hull_vertices, cross(normalize(ea), normalize(eb)));
+}
+
+% endif
 /* Separation along a feature code: face of the first shape, face of the second, or edge pair. */
 inline float4 feature_separation(const ConvexPair* g, uint feature, __global const HullFace* hull_faces,
-                                 __global const float4* hull_edges, __global const float4* hull_vertices)
+                                 ${edges_decl}, __global const float4* hull_vertices)
 {
     uint fa = g->shape_a.face_count, fb = g->shape_b.face_count;
+% if edge_axes == "directions":
     if (feature < fa)
         return first_face_separation(g, feature, hull_faces, hull_vertices);
     if (feature < fa + fb)
         return second_face_separation(g, feature - fa, hull_faces, hull_vertices);
     uint e = feature - fa - fb;
     return edge_separation(g, e / g->shape_b.edge_count, e % g->shape_b.edge_count, hull_edges, hull_vertices);
+% else:
+    if (feature & (uint)RB_SAT_EDGE_PAIR) {
+        uint e = feature & ~(uint)RB_SAT_EDGE_PAIR;
+        uint eb = g->shape_b.adjacency_count;
+        return edge_pair_interval_separation(g, e / eb, e % eb, hull_adjacency, hull_faces, hull_vertices);
+    }
+    if (feature < fa)
+        return first_face_separation(g, feature, hull_faces, hull_vertices);
+    return second_face_separation(g, feature - fa, hull_faces, hull_vertices);
+% endif
 }
 
 inline void remember_axis(__global SatCacheEntry* entry, Pair pair, uint feature)
@@ -132,18 +219,18 @@ inline void remember_axis(__global SatCacheEntry* entry, Pair pair, uint feature
 /* True when the shapes are within `margin`: then *best is the axis of least
  * penetration (w: separation) and *best_feature its code. */
 inline bool separating_axis_test(const ConvexPair* g, Pair pair, __global SatCacheEntry* entry,
-                                 __global const HullFace* hull_faces, __global const float4* hull_edges,
+                                 __global const HullFace* hull_faces,
+                                 ${edges_decl},
                                  __global const float4* hull_vertices, float margin,
                                  float4* best, uint* best_feature)
 {
     SatCacheEntry cached = *entry;
     if (cached.a == pair.a && cached.b == pair.b && cached.feature != (uint)RB_NO_FEATURE) {
-        float4 s = feature_separation(g, cached.feature, hull_faces, hull_edges, hull_vertices);
+        float4 s = feature_separation(g, cached.feature, hull_faces, ${edges_arg}, hull_vertices);
         if (s.w > margin)
             return false;  /* last step's axis still separates: the entry stays */
     }
     uint fa = g->shape_a.face_count, fb = g->shape_b.face_count;
-    uint ea = g->shape_a.edge_count, eb = g->shape_b.edge_count;
 
     float4 face_a = (float4)(0.0f, 0.0f, 0.0f, -INFINITY);
     uint face_a_feature = 0;
@@ -168,6 +255,8 @@ inline bool separating_axis_test(const ConvexPair* g, Pair pair, __global SatCac
             face_b = s, face_b_feature = fa + f;
     }
     float4 edge = (float4)(0.0f, 0.0f, 0.0f, -INFINITY);
+% if edge_axes == "directions":
+    uint ea = g->shape_a.edge_count, eb = g->shape_b.edge_count;
     uint edge_feature = fa + fb;
     for (uint i = 0; i < ea; ++i) {
         for (uint j = 0; j < eb; ++j) {
@@ -180,7 +269,30 @@ inline bool separating_axis_test(const ConvexPair* g, Pair pair, __global SatCac
                 edge = s, edge_feature = fa + fb + i * eb + j;
         }
     }
-
+% else:
+    uint ea = g->shape_a.adjacency_count, eb = g->shape_b.adjacency_count;
+    uint edge_feature = RB_SAT_EDGE_PAIR;
+    for (uint i = 0; i < ea; ++i) {
+        float3 a0, dir_a, na0, na1;
+        world_edge(&g->a, g->shape_a, hull_adjacency[g->shape_a.adjacency_offset + i], hull_vertices,
+                   hull_faces, &a0, &dir_a, &na0, &na1);
+        for (uint j = 0; j < eb; ++j) {
+            float3 b0, dir_b, nb0, nb1;
+            world_edge(&g->b, g->shape_b, hull_adjacency[g->shape_b.adjacency_offset + j], hull_vertices,
+                       hull_faces, &b0, &dir_b, &nb0, &nb1);
+            if (!arcs_intersect(na0, na1, -nb0, -nb1))
+                continue;
+            float4 s = edge_pair_separation(a0, dir_a, b0, dir_b, g->a.position);
+            uint code = (uint)RB_SAT_EDGE_PAIR | (i * eb + j);
+            if (s.w > margin) {
+                remember_axis(entry, pair, code);
+                return false;
+            }
+            if (s.w > edge.w)
+                edge = s, edge_feature = code;
+        }
+    }
+% endif
     *best = face_a, *best_feature = face_a_feature;
     if (face_b.w > face_a.w + FACE_TOLERANCE)
         *best = face_b, *best_feature = face_b_feature;
@@ -196,7 +308,7 @@ void find_separating_axis(__global const Pair* pairs,
                           __global const Shape* shapes,
                           __global const float4* hull_vertices,
                           __global const HullFace* hull_faces,
-                          __global const float4* hull_edges,
+                          ${edges_decl},
                           __global const uint* queues,
                           __global const uint* queue_counts,
                           const uint pair_capacity,
@@ -224,7 +336,7 @@ void find_separating_axis(__global const Pair* pairs,
         g.b = placement_of(b);
         g.shape_a = shapes[a.shape];
         g.shape_b = shapes[b.shape];
-        touching = separating_axis_test(&g, pairs[q.index], &cache[q.index], hull_faces, hull_edges,
+        touching = separating_axis_test(&g, pairs[q.index], &cache[q.index], hull_faces, ${edges_arg},
                                         hull_vertices, margin, &axis, &feature);
     }
     uint ticket = touching ? atomic_inc(&group_count) : 0u;
