@@ -38,6 +38,11 @@ ${cl_structs("Aabb", "BroadphaseStatus")}
 
 <%include file="/pipeline/broadphase/common.cl.mako"/>
 <%namespace name="visit" file="/pipeline/broadphase/visit.mako"/>
+<%!
+    def dedent(text):
+        """Shift generated lines one level (4 spaces) left."""
+        return "\n".join(line[4:] if line.startswith("    ") else line for line in text.split("\n"))
+%>
 
 /* Neighbour m of the 27 cells around a cell, m = 9 (dz + 1) + 3 (dy + 1) + (dx + 1):
  * m = 13 is the cell itself, m > 13 the 13 cells after it in (z, y, x) order. */
@@ -306,7 +311,7 @@ ${visit.publish_totals()}
     int3 home = cell_of(lower, grid_cell_size(largest_small_size[0]));
     for (int neighbour = 0; neighbour < 27; ++neighbour) {
         uint bucket = bucket_of(home + neighbour_offset(neighbour), grid_dim);
-${visit_bucket(mode, "other > self_index && ")}\
+${dedent(capture(visit_bucket, mode, "other > self_index && "))}\
     }
 
     /* Large partners of higher index (those of lower index own the pair). */

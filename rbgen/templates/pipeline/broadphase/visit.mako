@@ -30,10 +30,10 @@ uint next = pair_offsets[${owner}];\
   emission keeps those of higher index). In scope: static_flags and the
   visiting body's self_index, lower, upper and small.
 </%doc>
-<%def name="visit_large_bodies(mode, first, last, fetch, accept='(small || other > self_index)')">\
+<%def name="visit_large_bodies(mode, first, last, fetch, accept='(small || other > self_index) && other != self_index')">\
     for (uint k = ${first}; k < ${last}; ++k) {
         ${fetch}
-        if (${accept} && other != self_index
+        if (${accept}
             && pair_allowed(static_flags, self_index, other)
             && boxes_overlap(lower, upper, other_box.lower.xyz, other_box.upper.xyz))
             ${emit(mode, "self_index", "other")}
