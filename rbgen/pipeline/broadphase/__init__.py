@@ -10,12 +10,19 @@ Touching rule: boxes are closed. Two AABBs overlap when, on every axis,
 face, an edge or a corner are a pair (a box resting on another touches it
 exactly, and the narrowphase must see that contact).
 
-Algorithms, chosen per world by name with `make_broadphase`:
+Algorithms, chosen per world by name with `make_broadphase` (options in
+brackets; every one also takes ``capacity`` and ``work_group_size``):
 
-``"grid"``  uniform grid (grid.py): similar sizes, any density;
-``"sap"``   one-axis sweep and prune (sap.py): no cell size to choose;
+``"grid"``  uniform grid (grid.py): similar sizes, any density
+            [large_factor, emission="owner"|"slot", bucketing="count"|"sort"];
+``"sap"``   one-axis sweep and prune (sap.py): no cell size to choose
+            [large_factor, shape="gpu"|"cpu"];
 ``"sap3"``  incremental three-axis sweep and prune (sap3.py): coherent motion,
-            pairs updated from the changes of the sorted axes.
+            pairs updated from the changes of the sorted axes
+            [full="grid"|"sap", full_options, max_moves_per_body].
+
+The query protocol (``enqueue`` / ``check`` / ``find_pairs``) is in base.py,
+the pair buffer and its overflow contract in pairs.py.
 """
 from __future__ import annotations
 
