@@ -1,7 +1,7 @@
 """Narrowphase benchmark: contacts of the BoxBox scene's candidate pairs.
 
     python benchmarks/narrowphase.py [--device D] [--sizes 27000 111375]
-                                     [--ground box|plane] [--box-path box hull]
+                                     [--ground box|plane] [--box-path box hull gauss] [--hulls]
 
 Scene: rbgen.scenes.boxbox_scene (cubes of half extent 1 on a ground whose top
 is y = 0). A fresh scene only touches exactly (separation 0), so every layer
@@ -11,7 +11,9 @@ host (AABBs grown by the margin), the ground being body 0 paired with the
 bottom layer. Each configuration runs once cold (empty best-axis cache), then
 ``--repeat`` times warm; we report the warm median of the total enqueue-to-
 finish wall time and of each stage's kernel time (OpenCL events), the launch
-count and the contact counts. No scipy here (the GPU machine has none).
+count and the contact counts. No scipy here (the GPU machine has none), except
+for the opt-in ``--hulls`` table (hull-hull edge axes: unique directions vs
+Gauss map), which cooks hulls with qhull.
 """
 from __future__ import annotations
 
@@ -102,7 +104,11 @@ def run(runtime: Runtime, count: int, ground: str, box_path: str, sink: float, m
         repeat: int) -> dict:
     table, bodies, pairs = build(count, ground, sink, margin)
     q = runtime.queue
-    narrowphase = Narrowphase(runtime, table, box_path=box_path)
+    # "box": closed-form box projection and the 3 x 3 edge directions; "hull": boxes as
+    # hulls (vertex projection), same directions; "gauss": boxes as hulls, Gauss-map edges
+    narrowphase = Narrowphase(runtime, table, box_path="box" if box_path == "box" else "hull",
+                              edge_axes={"box_box": "gauss_map" if box_path == "gauss"
+                                         else "directions"})
     packed = table.pack_all().to_device(q)
     d_bodies, d_pairs = cla.to_device(q, bodies), cla.to_device(q, pairs)
     pair_count = cla.to_device(q, np.array([len(pairs)], np.uint32))
@@ -136,15 +142,76 @@ def run(runtime: Runtime, count: int, ground: str, box_path: str, sink: float, m
     }
 
 
+def hull_comparison(runtime: Runtime, repeat: int) -> None:
+    """Hull-hull separating-axis stage, edge axes by unique directions vs Gauss map.
+
+    Random pairs of three hulls of one kind, about three quarters touching, with
+    a cold best-axis cache each time. Cooking hulls needs scipy (qhull), so this
+    table is opt-in (``--hulls``).
+    """
+    import trimesh
+
+    from rbgen.shapes import ConvexHull
+
+    rng = np.random.default_rng(1)
+    makers = [("random 16 points", lambda k: ConvexHull(rng.normal(size=(16, 3)), name=f"h{k}"), 4000),
+              ("icosphere(1)", lambda k: ConvexHull.from_trimesh(trimesh.creation.icosphere(1)), 500),
+              ("icosphere(2)", lambda k: ConvexHull.from_trimesh(trimesh.creation.icosphere(2)), 100)]
+    q = runtime.queue
+    print(f"{'hulls':>18} {'V':>4} {'E':>4} {'dirs':>4} {'pairs':>6} {'touch':>6} "
+          f"{'directions ms':>14} {'gauss_map ms':>13}")
+    for label, make, n in makers:
+        table = ShapeTable()
+        ids = [table.add(make(k)) for k in range(3)]
+        shapes = rng.choice(ids, 2 * n)
+        pa = rng.uniform(-50, 50, (n, 3))
+        d = rng.normal(size=(n, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        pb = pa + d * rng.uniform(1.0, 2.2, (n, 1))
+        bodies = layouts.BODY.zeros(2 * n)
+        bodies["shape"] = shapes
+        bodies["position"][:, :3] = np.stack([pa, pb], axis=1).reshape(-1, 3)
+        quats = rng.normal(size=(2 * n, 4))
+        bodies["orientation"] = quats / np.linalg.norm(quats, axis=1, keepdims=True)
+        pairs = layouts.PAIR.zeros(n)
+        pairs["a"], pairs["b"] = np.arange(0, 2 * n, 2), np.arange(1, 2 * n, 2)
+        packed = table.pack_all().to_device(q)
+        args = (cla.to_device(q, bodies), packed, cla.to_device(q, pairs),
+                cla.to_device(q, np.array([n], np.uint32)),
+                cla.empty(q, n, layouts.CONTACT_MANIFOLD.dtype), cla.zeros(q, 1, np.uint32),
+                cla.zeros(q, 1, np.uint32), 0.0)
+        times = {}
+        for edge_axes in ("directions", "gauss_map"):
+            narrowphase = Narrowphase(runtime, table, edge_axes={"hull_hull": edge_axes})
+            narrowphase.enqueue(*args)
+            samples = []
+            for _ in range(repeat):
+                cl.enqueue_fill_buffer(q, narrowphase.sat_cache.data, np.uint32(0), 0,
+                                       narrowphase.sat_cache.nbytes)
+                events = narrowphase.enqueue(*args)
+                q.finish()
+                samples.append(event_ms(events["sat_hull_hull"]))
+            times[edge_axes] = float(np.median(samples))
+        c = table.shapes[ids[0]].cooked()
+        print(f"{label:>18} {len(c.vertices):>4} {len(c.edges):>4} {len(c.edge_directions):>4} "
+              f"{n:>6} {int(args[5].get()[0]):>6} {times['directions']:>14.2f} "
+              f"{times['gauss_map']:>13.2f}")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="device choice for rbgen.Runtime")
     parser.add_argument("--sizes", type=int, nargs="+", default=[27_000, 111_375])
     parser.add_argument("--ground", choices=("box", "plane"), default="box")
-    parser.add_argument("--box-path", nargs="+", choices=("box", "hull"), default=["box", "hull"])
+    parser.add_argument("--box-path", nargs="+", choices=("box", "hull", "gauss"),
+                        default=["box", "hull", "gauss"],
+                        help="box: closed-form SAT projection; hull: boxes as hulls; gauss: boxes "
+                             "as hulls with Gauss-map edge pairs")
     parser.add_argument("--sink", type=float, default=0.01)
     parser.add_argument("--margin", type=float, default=0.0)
     parser.add_argument("--repeat", type=int, default=10)
+    parser.add_argument("--hulls", action="store_true",
+                        help="also compare hull-hull edge axes (needs scipy for hull cooking)")
     args = parser.parse_args(argv)
     runtime = Runtime(args.device, profiling=True)
     print(f"# {runtime.traits.describe()}")
@@ -156,13 +223,15 @@ def main(argv=None):
             rows.append(run(runtime, count, args.ground, box_path, args.sink, args.margin,
                             args.repeat))
     stage_names = list(dict.fromkeys(k for r in rows for k in r["stages"]))
-    header = (f"{'boxes':>7} {'path':>4} {'pairs':>7} {'manif':>7} {'points':>7} {'total':>8} "
+    header = (f"{'boxes':>7} {'path':>5} {'pairs':>7} {'manif':>7} {'points':>7} {'total':>8} "
               f"{'launch':>6} " + " ".join(f"{s[:12]:>12}" for s in stage_names))
     print(header)
     for r in rows:
-        print(f"{r['count']:>7} {r['box_path']:>4} {r['pairs']:>7} {r['manifolds']:>7} "
+        print(f"{r['count']:>7} {r['box_path']:>5} {r['pairs']:>7} {r['manifolds']:>7} "
               f"{r['points']:>7} {r['total_ms']:>8.3f} {r['launches']:>6} "
               + " ".join(f"{r['stages'].get(s, float('nan')):>12.3f}" for s in stage_names))
+    if args.hulls:
+        hull_comparison(runtime, max(1, min(args.repeat, 3)))
 
 
 if __name__ == "__main__":

@@ -272,17 +272,25 @@ inline bool separating_axis_test(const ConvexPair* g, Pair pair, __global SatCac
 % else:
     uint ea = g->shape_a.adjacency_count, eb = g->shape_b.adjacency_count;
     uint edge_feature = RB_SAT_EDGE_PAIR;
+    /* in the second shape's frame, its edges are read as stored: no transform in the inner loop */
+    __global const float4* vertices_b = hull_vertices + g->shape_b.vertex_offset;
+    __global const HullFace* faces_b = hull_faces + g->shape_b.face_offset;
+    __global const HullEdge* edges_b = hull_adjacency + g->shape_b.adjacency_offset;
+    float3 centre_a = point_to_local(&g->b, g->a.position);
     for (uint i = 0; i < ea; ++i) {
         float3 a0, dir_a, na0, na1;
         world_edge(&g->a, g->shape_a, hull_adjacency[g->shape_a.adjacency_offset + i], hull_vertices,
                    hull_faces, &a0, &dir_a, &na0, &na1);
+        a0 = point_to_local(&g->b, a0);
+        dir_a = rotate_to_local(&g->b, dir_a);
+        na0 = rotate_to_local(&g->b, na0);
+        na1 = rotate_to_local(&g->b, na1);
         for (uint j = 0; j < eb; ++j) {
-            float3 b0, dir_b, nb0, nb1;
-            world_edge(&g->b, g->shape_b, hull_adjacency[g->shape_b.adjacency_offset + j], hull_vertices,
-                       hull_faces, &b0, &dir_b, &nb0, &nb1);
-            if (!arcs_intersect(na0, na1, -nb0, -nb1))
+            HullEdge e = edges_b[j];
+            if (!arcs_intersect(na0, na1, -faces_b[e.f0].plane.xyz, -faces_b[e.f1].plane.xyz))
                 continue;
-            float4 s = edge_pair_separation(a0, dir_a, b0, dir_b, g->a.position);
+            float3 b0 = vertices_b[e.v0].xyz;
+            float4 s = edge_pair_separation(a0, dir_a, b0, vertices_b[e.v1].xyz - b0, centre_a);
             uint code = (uint)RB_SAT_EDGE_PAIR | (i * eb + j);
             if (s.w > margin) {
                 remember_axis(entry, pair, code);
@@ -292,6 +300,7 @@ inline bool separating_axis_test(const ConvexPair* g, Pair pair, __global SatCac
                 edge = s, edge_feature = code;
         }
     }
+    edge.xyz = rotate_to_world(&g->b, edge.xyz);
 % endif
     *best = face_a, *best_feature = face_a_feature;
     if (face_b.w > face_a.w + FACE_TOLERANCE)
