@@ -44,7 +44,7 @@ from .pipeline.constraints import ContactConstraints
 from .pipeline.gyroscopic import BodyPreparation, inertia_records
 from .pipeline.integrate import Integrator
 from .pipeline.solver import ContactSolver
-from .shapes import Plane, Shape, ShapeTable
+from .shapes import Capsule, Plane, Shape, ShapeTable, Sphere
 
 #: manifolds reserved per body before the first overflow (grown on demand)
 MANIFOLDS_PER_BODY = 4
@@ -55,9 +55,11 @@ class World:
 
     Settings (attributes, may change between steps): ``gravity``,
     ``iterations`` (PGS velocity sweeps), ``position_iterations`` (split
-    impulse sweeps), ``relaxation`` (successive over-relaxation; 1.2 settles
-    4-high columns of a dropped grid within 300 steps at 10 iterations, where
-    1.0 leaves some rocking), ``restitution_threshold`` (m/s),
+    impulse sweeps), ``relaxation`` (successive over-relaxation; default 1.2
+    with components batching, which settles 4-high columns of a dropped grid
+    within 300 steps at 10 iterations where 1.0 leaves some rocking, and 1.0
+    with cells batching, where 1.2 lets a 20-row pyramid drift 11 cm),
+    ``restitution_threshold`` (m/s),
     ``penetration_slop`` (m), ``penetration_recovery`` (fraction per step),
     ``contact_margin`` (m: contacts are created this far apart),
     ``linear_damping`` and ``angular_damping``.
@@ -66,22 +68,25 @@ class World:
     every step, and a 20-row pyramid sinks 3 cm with it against 0.7 cm with
     Baumgarte at 10 iterations),
     ``warm_start``, ``gyroscopic``, ``broadphase`` ("grid", "sap", "sap3"),
-    ``group_count`` (solver work groups), ``manifold_capacity`` and
+    ``batching`` ("components": one solver launch per iteration, one work group
+    per pile, the CPU default; "cells": 9 launches per iteration, piles spread
+    over the device, the GPU default), ``group_count`` (solver work groups per
+    launch), ``manifold_capacity`` and
     ``pair_capacity`` (initial buffer sizes; grown on overflow).
     """
 
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), *, iterations: int = 10,
-                 position_iterations: int = 4, relaxation: float = 1.2,
+                 position_iterations: int = 4, relaxation: float | None = None,
                  penetration: str = "baumgarte", warm_start: bool = True, gyroscopic: bool = True,
                  broadphase: str = "grid", contact_margin: float = 0.02,
                  restitution_threshold: float = 0.5, penetration_slop: float = 0.001,
                  penetration_recovery: float = 0.2, linear_damping: float = 0.0,
-                 angular_damping: float = 0.0, group_count: int | None = None,
+                 angular_damping: float = 0.0, batching: str | None = None,
+                 group_count: int | None = None,
                  manifold_capacity: int | None = None, pair_capacity: int | None = None):
         self.runtime: Runtime = coerce_runtime(device)
         self.gravity = _vector(gravity, 3, "gravity")
         self.iterations, self.position_iterations = int(iterations), int(position_iterations)
-        self.relaxation = float(relaxation)
         self.contact_margin = float(contact_margin)
         self.linear_damping, self.angular_damping = float(linear_damping), float(angular_damping)
         self.warm_start = bool(warm_start)
@@ -95,7 +100,10 @@ class World:
         self._prepare = BodyPreparation(rt, gyroscopic=gyroscopic)
         self._integrate = Integrator(rt, gravity=False, damping=True)
         self._constraints = ContactConstraints(rt, penetration=penetration, warm_start=warm_start)
-        self._batcher = ConstraintBatcher(rt, group_count=group_count)
+        self._batcher = ConstraintBatcher(rt, mode=batching, group_count=group_count)
+        if relaxation is None:
+            relaxation = 1.2 if self._batcher.mode == "components" else 1.0
+        self.relaxation = float(relaxation)
         self._solver = ContactSolver(rt, split_impulse=penetration == "split",
                                      max_batches=self._batcher.max_batches)
         self.restitution_threshold = restitution_threshold
@@ -257,6 +265,7 @@ class World:
             self._broadphase = make_broadphase(self.runtime, self.broadphase_name, **options)
             self._stages_types = types
         self._packed = self.shapes.pack_all().to_device(queue)
+        self._batcher.cell_size = self._cell_size()
         self._ensure_manifolds(self._initial_manifolds or MANIFOLDS_PER_BODY * max(n, 16))
         self._device_stale = False
 
@@ -272,6 +281,13 @@ class World:
         self._overflow_host, _ = cl.enqueue_map_buffer(queue, pinned, cl.map_flags.READ, 0, (1,),
                                                        np.uint32)
         self._overflow_pinned = pinned
+
+    def _cell_size(self) -> float:
+        """Batching cells: the widest dynamic body plus twice the contact margin."""
+        radius = 0.0
+        for index in np.unique(self._host["shape"][self._host["inv_mass"] > 0]):
+            radius = max(radius, bounding_radius(self.shapes.shapes[int(index)]))
+        return 2.0 * radius + 2.0 * self.contact_margin + 1e-3
 
     # ------------------------------------------------------------- stepping
     def step(self, dt: float, substeps: int = 1) -> None:
@@ -362,6 +378,15 @@ class World:
         return {"bodies": self.body_count, "pairs": pairs, "manifolds": manifolds,
                 "contacts": int(points.sum()), "batches": int(batch_counts.max(initial=0)),
                 "groups_used": int((batch_counts > 0).sum()), **self.last_step_counters}
+
+
+def bounding_radius(shape: Shape) -> float:
+    """Radius of a sphere about the body's origin that holds the shape."""
+    if isinstance(shape, Sphere):
+        return shape.radius
+    if isinstance(shape, Capsule):
+        return shape.radius + shape.half_height
+    return float(np.linalg.norm(np.asarray(shape.local_vertices()), axis=1).max())
 
 
 # ----------------------------------------------------------------- validation

@@ -6,14 +6,20 @@ touch the same dynamic body (static bodies never move, so they are ignored).
 
 Two levels, after Harada's two-level solver:
 
-1. **Groups** (one solver work group each). The components of the contact
-   graph over dynamic bodies are found on the device (lock-free union-find);
-   a component goes whole to the group its root hashes to. So no dynamic
-   body is ever touched by two groups and the solver needs no synchronisation
-   between work groups: one launch per iteration. (Harada splits by spatial
-   cells and launches one kernel per cell colour; components are the
-   strictest split that needs only one launch, and they are spatially
-   coherent. A single pile becomes one group, solved by one work group.)
+1. **Groups** (one solver work group each), two modes:
+
+   * ``components``: the components of the contact graph over dynamic
+     bodies are found on the device (lock-free union-find); a component goes
+     whole to the group its root hashes to. No dynamic body is touched by two
+     groups, so the solver needs no synchronisation between work groups: ONE
+     launch per iteration. But a single pile is one group, solved by one work
+     group (fine on a CPU, a bottleneck for 100k boxes on a GPU).
+   * ``cells`` (Harada): constraints go to spatial cells of 8 colours; the
+     cells of one colour share no body (cell size >= body size), so a colour
+     runs as one launch over many work groups; bodies are claimed per colour
+     and a constraint losing a claim (oversized body) goes to a leftover
+     group run alone. 9 launches per iteration, and any pile spreads over
+     the whole device.
 2. **Batches** inside a group, coloured by one work group with barriers
    (maximal independent sets grown by rounds of lowest-priority-wins). The
    last batch slot takes any remainder and is solved by a single lane.
@@ -31,6 +37,8 @@ from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 
+MODES = ("components", "cells")
+
 TEMPLATE = KernelTemplate(
     "pipeline/batching.cl.mako",
     [
@@ -40,13 +48,26 @@ TEMPLATE = KernelTemplate(
         Param("max_batches", power_of_two(2, 4096),
               "batch slots per group; the last slot holds the remainder, solved serially, "
               "so this bounds local memory, not correctness", "a power of two from 2 to 4096"),
+        Param("mode", MODES,
+              "level 1: components (one solver launch per iteration, one group per pile) or "
+              "cells (8 colour launches + leftovers per iteration, piles spread over the device)"),
     ],
-    doc="Level-1 groups by union-find over dynamic bodies; level-2 batches per work group.",
-    roles={"constraints": "inout", "parent": "inout", "body_stamp": "inout",
-           "group_counts": "inout"},
+    doc="Level-1 groups (contact-graph components or coloured cells); level-2 batches per "
+        "work group.",
+    roles={"constraints": "inout", "parent": "inout", "body_owner": "inout",
+           "all_body_stamps": "inout", "group_counts": "inout"},
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "max_batches": 128},
+                             "max_batches": 128, "mode": default_mode(traits)},
 )
+
+#: colours of the cells mode (parity of 3 cell coordinates)
+CELL_COLOURS = 8
+
+
+def default_mode(traits: DeviceTraits) -> str:
+    """cells on GPUs (a large pile must spread over many compute units); components on
+    CPUs (few cores: one launch per iteration matters more)."""
+    return "cells" if traits.is_gpu else "components"
 
 
 def default_work_group_size(traits: DeviceTraits) -> int:
@@ -55,7 +76,7 @@ def default_work_group_size(traits: DeviceTraits) -> int:
 
 
 def default_group_count(traits: DeviceTraits) -> int:
-    """Two groups per compute unit, so that small islands balance across the device."""
+    """Two groups per compute unit (per colour in cells mode), so that work balances."""
     return max(1, min(1024, 2 * traits.compute_units))
 
 
@@ -87,23 +108,42 @@ class ConstraintBatcher:
     After a call, the device arrays ``order`` (constraint indices sorted by
     group then batch), ``group_batches`` (per group, ``max_batches + 1``
     absolute offsets into ``order``) and ``group_batch_count`` describe the
-    batches; the solver reads them directly.
+    batches; the solver reads them directly, one launch per entry of
+    ``launch_plan`` ((first group, group count) of groups that may run
+    concurrently). ``mode="cells"`` needs ``cell_size`` (at least the largest
+    dynamic body's diameter plus the contact margin; smaller only costs
+    leftovers).
     """
 
-    def __init__(self, runtime: Runtime, *, group_count: int | None = None,
-                 max_batches: int = 128, work_group_size: int | None = None):
+    def __init__(self, runtime: Runtime, *, mode: str | None = None, group_count: int | None = None,
+                 cell_size: float | None = None, max_batches: int = 128,
+                 work_group_size: int | None = None):
         self.runtime = runtime
+        self.mode = mode or default_mode(runtime.traits)
+        if self.mode not in MODES:
+            raise RbgenError(f"batching mode must be one of {MODES}, got {mode!r}")
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
-        self.group_count = int(group_count or default_group_count(runtime.traits))
-        if self.group_count < 1:
+        per_colour = int(group_count or default_group_count(runtime.traits))
+        if per_colour < 1:
             raise RbgenError(f"group_count must be >= 1, got {group_count!r}")
+        self.cell_size = None if cell_size is None else float(cell_size)
+        if self.mode == "cells":
+            self.groups_per_colour = per_colour
+            self.group_count = CELL_COLOURS * per_colour + 1
+            self.colours = CELL_COLOURS + 1
+            self.launch_plan = [(c * per_colour, per_colour) for c in range(CELL_COLOURS)]
+            self.launch_plan.append((CELL_COLOURS * per_colour, 1))
+        else:
+            self.groups_per_colour = self.group_count = per_colour
+            self.colours = 1
+            self.launch_plan = [(0, per_colour)]
         self.max_batches = int(max_batches)
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
-                                  max_batches=self.max_batches)
+                                  max_batches=self.max_batches, mode=self.mode)
         program = compile_spec(runtime, self.spec)
-        self._kernels = {name: program.kernel(name) for name in (
-            "reset_batching", "link_bodies", "assign_groups", "scan_groups", "scatter_groups",
-            "batch_groups")}
+        names = ["reset_batching", "scan_groups", "scatter_groups", "batch_groups"]
+        names += ["link_bodies", "assign_groups"] if self.mode == "components" else ["assign_cells"]
+        self._kernels = {name: program.kernel(name) for name in names}
         self.body_capacity = self.constraint_capacity = 0
         queue, g = runtime.queue, self.group_count
         self.group_counts = cl_array.zeros(queue, g, np.uint32)
@@ -117,8 +157,10 @@ class ConstraintBatcher:
         if body_capacity > self.body_capacity:
             self.body_capacity = int(body_capacity)
             n = max(1, self.body_capacity)
-            self.parent, self.body_stamp, self.body_taken = (
-                cl_array.empty(queue, n, np.uint32) for _ in range(3))
+            self.body_stamp = cl_array.empty(queue, self.colours * n, np.uint32)
+            self.body_taken = cl_array.empty(queue, self.colours * n, np.uint32)
+            self.body_links = cl_array.empty(  # union-find parents, or per-colour cell claims
+                queue, n if self.mode == "components" else CELL_COLOURS * n, np.uint32)
         if constraint_capacity > self.constraint_capacity:
             self.constraint_capacity = int(constraint_capacity)
             n = max(1, self.constraint_capacity)
@@ -131,22 +173,35 @@ class ConstraintBatcher:
 
         ``constraint_capacity`` bounds the count and sizes the launches.
         """
+        if self.mode == "cells" and not self.cell_size:
+            raise RbgenError("batching mode 'cells' needs a positive cell_size")
         self.ensure_capacity(body_count, constraint_capacity)
         k, wg, launch = self._kernels, self.work_group_size, self.runtime.launch
-        g = self.group_count
-        over = lambda n: max(wg, -(-n // wg) * wg)  # noqa: E731 - launch size over n items
+        g, n = self.group_count, self.body_capacity
+        over = lambda count: max(wg, -(-count // wg) * wg)  # noqa: E731 - launch size
         data = _data
-        k["reset_batching"].set_args(self.parent.data, self.body_stamp.data, self.body_taken.data,
-                                     self.group_counts.data, np.uint32(body_count), np.uint32(g))
-        launch(k["reset_batching"], over(max(body_count, g)), wg)
+        marks = max(self.colours, CELL_COLOURS if self.mode == "cells" else 1) * n
+        k["reset_batching"].set_args(self.body_stamp.data, self.body_taken.data,
+                                     self.body_links.data, self.group_counts.data,
+                                     np.uint32(n), np.uint32(g))
+        launch(k["reset_batching"], over(max(marks, g)), wg)
         if constraint_capacity > 0:
-            k["link_bodies"].set_args(data(constraints), data(constraint_count), data(bodies),
-                                      self.parent.data)
-            launch(k["link_bodies"], over(constraint_capacity), wg)
-            k["assign_groups"].set_args(data(constraints), data(constraint_count), data(bodies),
-                                        self.parent.data, self.group_counts.data,
-                                        self.constraint_slot.data, np.uint32(g))
-            launch(k["assign_groups"], over(constraint_capacity), wg)
+            if self.mode == "components":
+                k["link_bodies"].set_args(data(constraints), data(constraint_count), data(bodies),
+                                          self.body_links.data)
+                launch(k["link_bodies"], over(constraint_capacity), wg)
+                k["assign_groups"].set_args(data(constraints), data(constraint_count),
+                                            data(bodies), self.body_links.data,
+                                            self.group_counts.data, self.constraint_slot.data,
+                                            np.uint32(g))
+                launch(k["assign_groups"], over(constraint_capacity), wg)
+            else:
+                k["assign_cells"].set_args(data(constraints), data(constraint_count), data(bodies),
+                                           self.body_links.data, self.group_counts.data,
+                                           self.constraint_slot.data, np.uint32(n),
+                                           np.uint32(self.groups_per_colour),
+                                           np.float32(1.0 / self.cell_size))
+                launch(k["assign_cells"], over(constraint_capacity), wg)
         k["scan_groups"].set_args(self.group_counts.data, self.group_offsets.data, np.uint32(g))
         launch(k["scan_groups"], 1, 1)
         if constraint_capacity > 0:
@@ -159,7 +214,8 @@ class ConstraintBatcher:
                                    self.group_list.data, self.body_stamp.data,
                                    self.body_taken.data, self.constraint_batch.data,
                                    self.constraint_blocked.data, self.order.data,
-                                   self.group_batches.data, self.group_batch_count.data)
+                                   self.group_batches.data, self.group_batch_count.data,
+                                   np.uint32(n), np.uint32(self.groups_per_colour))
         launch(k["batch_groups"], g * wg, wg)
 
     def read_batches(self):

@@ -1,11 +1,14 @@
 """Projected Gauss-Seidel contact solver: one launch per iteration.
 
 Each work group owns one level-1 group of `ConstraintBatcher` (no dynamic
-body shared with any other group) and walks its batches with a barrier
-between them, so an iteration needs no synchronisation between work groups
-and no host round trip: ``iterations`` launches of `solve_contacts`, plus,
-with split impulse, ``position_iterations`` launches of `solve_penetration`
-and one `apply_split_velocities` after integration.
+body shared with any other group of the same launch) and walks its batches
+with a barrier between them, so an iteration needs no synchronisation between
+work groups and no host round trip: with the batcher's ``components`` mode,
+ONE launch of `solve_contacts` per iteration (the warm start fused into the
+first); with ``cells``, one per cell colour plus one for the leftovers (and
+one warm-start sweep before the iterations). Split impulse adds
+``position_iterations`` sweeps of `solve_penetration` and one
+`apply_split_velocities` after integration.
 
 Relaxation (successive over-relaxation factor, 1 = plain Gauss-Seidel) and
 the iteration counts are World settings, passed per call.
@@ -44,6 +47,10 @@ def default_work_group_size(traits: DeviceTraits) -> int:
     return min(64 if traits.is_gpu else 8, traits.max_work_group_size)
 
 
+#: bit flags of one `solve_contacts` launch (as in the template)
+WARM_START_PASS, SOLVE_PASS = 1, 2
+
+
 class ContactSolver:
     """Launches the PGS iterations over a `ConstraintBatcher`'s batches."""
 
@@ -76,17 +83,28 @@ class ContactSolver:
 
     def solve_velocities(self, constraints, batcher, bodies, inertia, *, iterations: int,
                          relaxation: float = 1.0, warm_start: bool = True) -> None:
-        """``iterations`` PGS sweeps; the first applies the warm-start impulses."""
+        """Warm start (every constraint's old impulses, before any sweep), then
+        ``iterations`` PGS sweeps; one launch per entry of the batcher's launch plan."""
         self._check(batcher)
         if iterations < 0 or not 0.0 < relaxation < 2.0:
             raise RbgenError(f"need iterations >= 0 and 0 < relaxation < 2, got "
                              f"iterations={iterations!r}, relaxation={relaxation!r}")
+        passes = []
+        if warm_start and len(batcher.launch_plan) > 1:
+            passes.append(WARM_START_PASS)
+        elif warm_start and iterations > 0:
+            passes.append(WARM_START_PASS | SOLVE_PASS)  # fused into the first sweep
+            iterations -= 1
+        elif warm_start:
+            passes.append(WARM_START_PASS)
+        passes += [SOLVE_PASS] * int(iterations)
         k, wg = self.velocity_kernel, self.work_group_size
-        for it in range(int(iterations)):
-            k.set_args(_data(constraints), batcher.order.data, batcher.group_batches.data,
-                       batcher.group_batch_count.data, _data(bodies), _data(inertia),
-                       np.float32(relaxation), np.uint32(warm_start and it == 0))
-            self.runtime.launch(k, batcher.group_count * wg, wg)
+        for flags in passes:
+            for first, count in batcher.launch_plan:
+                k.set_args(_data(constraints), batcher.order.data, batcher.group_batches.data,
+                           batcher.group_batch_count.data, _data(bodies), _data(inertia),
+                           np.float32(relaxation), np.uint32(first), np.uint32(flags))
+                self.runtime.launch(k, count * wg, wg)
 
     def solve_positions(self, constraints, batcher, bodies, inertia, body_capacity: int, *,
                         iterations: int, relaxation: float = 1.0) -> None:
@@ -97,10 +115,11 @@ class ContactSolver:
         split = self.split_velocities(body_capacity)
         k, wg = self.position_kernel, self.work_group_size
         for _ in range(int(iterations)):
-            k.set_args(_data(constraints), batcher.order.data, batcher.group_batches.data,
-                       batcher.group_batch_count.data, split.data, _data(bodies), _data(inertia),
-                       np.float32(relaxation))
-            self.runtime.launch(k, batcher.group_count * wg, wg)
+            for first, count in batcher.launch_plan:
+                k.set_args(_data(constraints), batcher.order.data, batcher.group_batches.data,
+                           batcher.group_batch_count.data, split.data, _data(bodies),
+                           _data(inertia), np.float32(relaxation), np.uint32(first))
+                self.runtime.launch(k, count * wg, wg)
 
     def apply_split(self, bodies, body_count: int, dt: float) -> None:
         """Move bodies by their push velocities (after integration) and clear them."""

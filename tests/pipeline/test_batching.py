@@ -1,9 +1,10 @@
 """Constraint batching: invariants of the device batches against the host reference.
 
-Invariants (checked on random constraint graphs): every constraint appears
-exactly once in ``order``; no dynamic body appears twice in one batch (except
-the serial last batch); no dynamic body is touched by two groups (the solver's
-work groups never synchronise); static bodies are ignored.
+Invariants (checked on random constraint graphs, both level-1 modes): every
+constraint appears exactly once in ``order``; no dynamic body appears twice in
+one batch (except the serial last batch); no dynamic body is touched by two
+groups that run in the same solver launch (work groups never synchronise);
+static bodies are ignored.
 """
 from __future__ import annotations
 
@@ -29,12 +30,18 @@ def random_graph(rng, n_bodies, n_constraints, static_fraction=0.1, chain=False)
     return a.astype(np.uint32), b.astype(np.uint32), dynamic
 
 
-def run_device(runtime, a, b, dynamic, **kwargs):
+def run_device(runtime, a, b, dynamic, rng=None, **kwargs):
+    """Bodies scattered in a 20 m box, contact points 0.5 m from B (cell size 1.5 m)."""
     queue = runtime.queue
+    rng = rng or np.random.default_rng(0)
     bodies = layouts.BODY.zeros(max(1, len(dynamic)))
     bodies["inv_mass"][: len(dynamic)] = np.where(dynamic, 1.0, 0.0)
+    bodies["position"][:, :3] = rng.uniform(-10, 10, (len(bodies), 3))
     cons = layouts.CONTACT_CONSTRAINT.zeros(max(1, len(a)))
     cons["body_a"][: len(a)], cons["body_b"][: len(a)] = a, b
+    cons["r_b"][:, 0, :3] = rng.uniform(-0.3, 0.3, (len(cons), 3))
+    if kwargs.get("mode") == "cells":
+        kwargs.setdefault("cell_size", 1.5)
     capacity = len(a) + 7  # launches over capacity, count on the device
     d_cons = cl_array.to_device(queue, np.resize(cons, capacity) if len(a) else cons)
     d_bodies = cl_array.to_device(queue, bodies)
@@ -49,11 +56,12 @@ def run_device(runtime, a, b, dynamic, **kwargs):
 def check_invariants(batcher, a, b, dynamic, order, offsets, batch_counts, groups):
     n = len(a)
     assert sorted(order.tolist()) == list(range(n)), "every constraint exactly once"
-    owner = {}
-    for i in range(n):
-        for x in (int(a[i]), int(b[i])):
-            if dynamic[x]:
-                assert owner.setdefault(x, groups[i]) == groups[i], f"body {x} in two groups"
+    for first, count in batcher.launch_plan:  # groups running in one launch
+        owner = {}
+        for i in np.flatnonzero((groups >= first) & (groups < first + count)):
+            for x in (int(a[i]), int(b[i])):
+                if dynamic[x]:
+                    assert owner.setdefault(x, groups[i]) == groups[i], f"body {x} in two groups"
     total = 0
     for g in range(batcher.group_count):
         nb = int(batch_counts[g])
@@ -73,11 +81,12 @@ def check_invariants(batcher, a, b, dynamic, order, offsets, batch_counts, group
     assert total == n
 
 
+@pytest.mark.parametrize("mode", ["components", "cells"])
 @pytest.mark.parametrize("n_bodies,n_constraints", [(1, 0), (2, 1), (9, 31), (100, 333),
                                                    (2000, 5003)])
-def test_batches_are_independent(runtime, rng, n_bodies, n_constraints):
+def test_batches_are_independent(runtime, rng, n_bodies, n_constraints, mode):
     a, b, dynamic = random_graph(rng, n_bodies, n_constraints)
-    batcher, *result = run_device(runtime, a, b, dynamic, group_count=5)
+    batcher, *result = run_device(runtime, a, b, dynamic, rng, group_count=5, mode=mode)
     check_invariants(batcher, a, b, dynamic, *result)
     # The device's maximal sets stay close to the greedy reference's colour count.
     host = batch_host(a, b, dynamic)
@@ -92,14 +101,15 @@ def test_chain_and_tiny_batch_limit(runtime, rng, work_group_size):
     a, b, dynamic = random_graph(rng, 301, 300, static_fraction=0.0, chain=True)
     dynamic[:] = True
     batcher, *result = run_device(runtime, a, b, dynamic, group_count=3, max_batches=4,
-                                  work_group_size=work_group_size)
+                                  work_group_size=work_group_size, mode="components")
     check_invariants(batcher, a, b, dynamic, *result)
     assert len(set(result[3].tolist())) == 1  # one component: one group
     # A star (every constraint on body 1) needs one batch per constraint: 3 + the remainder.
     star_b = np.arange(2, 40, dtype=np.uint32)
     star_a = np.ones_like(star_b)
     batcher, *result = run_device(runtime, star_a, star_b, np.ones(40, bool), group_count=3,
-                                  max_batches=4, work_group_size=work_group_size)
+                                  max_batches=4, work_group_size=work_group_size,
+                                  mode="components")
     check_invariants(batcher, star_a, star_b, np.ones(40, bool), *result)
     assert int(result[2].max()) == 4
 
@@ -111,3 +121,41 @@ def test_host_reference_colours_properly(rng):
         members = np.flatnonzero(batches == k)
         bodies = [x for i in members for x in (a[i], b[i]) if dynamic[x]]
         assert len(bodies) == len(set(bodies))
+
+
+def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rng):
+    """Cells mode: a dense 2-D lattice of bodies with contacts to their neighbours (one
+    connected pile) spreads over many groups; bodies scattered 10x the cell size apart
+    on an oversized body's contacts land in the leftover group, never in two
+    concurrent groups."""
+    side = 30
+    ids = np.arange(side * side).reshape(side, side)
+    a = np.r_[ids[:-1, :].ravel(), ids[:, :-1].ravel()]
+    b = np.r_[ids[1:, :].ravel(), ids[:, 1:].ravel()]
+    dynamic = np.ones(side * side, bool)
+    queue = runtime.queue
+    bodies = layouts.BODY.zeros(side * side)
+    bodies["inv_mass"] = 1.0
+    gx, gz = np.meshgrid(np.arange(side), np.arange(side), indexing="ij")
+    bodies["position"][:, 0], bodies["position"][:, 2] = gx.ravel(), gz.ravel()
+    cons = layouts.CONTACT_CONSTRAINT.zeros(len(a))
+    cons["body_a"], cons["body_b"] = a, b
+    cons["r_b"][:, 0, :3] = (bodies["position"][a, :3] - bodies["position"][b, :3]) / 2
+    # body 0 is "huge": it also touches bodies far away
+    far = rng.choice(np.arange(1, side * side), 25, replace=False)
+    extra = layouts.CONTACT_CONSTRAINT.zeros(25)
+    extra["body_a"], extra["body_b"] = 0, far
+    extra["r_b"][:, 0, :3] = -bodies["position"][far, :3] / 2
+    cons = np.concatenate([cons, extra]).astype(cons.dtype)
+    batcher = ConstraintBatcher(runtime, mode="cells", group_count=7, cell_size=1.5)
+    d_cons = cl_array.to_device(queue, cons)
+    count = cl_array.to_device(queue, np.array([len(cons)], np.uint32))
+    batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
+    order, offsets, batch_counts = batcher.read_batches()
+    groups = d_cons.get()["group"]
+    a_all, b_all = cons["body_a"], cons["body_b"]
+    check_invariants(batcher, a_all, b_all, dynamic, order[: len(cons)], offsets, batch_counts,
+                     groups)
+    assert len(np.unique(groups)) > 20
+    leftover = batcher.launch_plan[-1][0]
+    assert np.count_nonzero(groups == leftover) >= 20  # most of body 0's far contacts

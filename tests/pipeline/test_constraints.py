@@ -50,7 +50,7 @@ class ContactRig:
     """Bodies + manifolds on the device, through setup, batching and the solver (no integration)."""
 
     def __init__(self, runtime, bodies, inv_inertia, *, penetration="split", warm_start=True,
-                 group_count=3, solver_work_group_size=None):
+                 group_count=3, solver_work_group_size=None, batching="components"):
         self.runtime = runtime
         queue = runtime.queue
         self.body_count = len(bodies)
@@ -58,7 +58,8 @@ class ContactRig:
         self.inertia = cl_array.to_device(queue, inertia_records(inv_inertia))
         self.prepare = BodyPreparation(runtime, gyroscopic=False)
         self.setup = ContactConstraints(runtime, penetration=penetration, warm_start=warm_start)
-        self.batcher = ConstraintBatcher(runtime, group_count=group_count)
+        self.batcher = ConstraintBatcher(runtime, group_count=group_count, mode=batching,
+                                         cell_size=2.5)
         self.solver = ContactSolver(runtime, split_impulse=penetration == "split",
                                     work_group_size=solver_work_group_size)
         self.warm_start = warm_start

@@ -91,7 +91,7 @@ def test_two_free_bodies_conserve_momentum(runtime, rng):
                          np.array(angular))
     rig = ContactRig(runtime, bodies, np.array(inv_inertia), penetration="baumgarte",
                      warm_start=False)
-    out, cons = rig.solve(np.array(manifolds), iterations=40)
+    out, cons = rig.solve(np.array(manifolds), iterations=100)
 
     def momenta(b):
         mass = 1 / b["inv_mass"]
@@ -112,7 +112,8 @@ def test_two_free_bodies_conserve_momentum(runtime, rng):
             ra, rb = c["r_a"][k, :3], c["r_b"][k, :3]
             dv = (out["linear_velocity"][b, :3] + np.cross(out["angular_velocity"][b, :3], rb)
                   - out["linear_velocity"][a, :3] - np.cross(out["angular_velocity"][a, :3], ra))
-            assert dv @ c["normal"][:3] >= c["velocity_target"][k] - 1e-2
+            target = c["velocity_target"][k]
+            assert dv @ c["normal"][:3] >= target - 1e-2 * max(1.0, abs(target))
 
 
 @pytest.mark.parametrize("penetration", ["split", "baumgarte"])
@@ -133,10 +134,12 @@ def test_penetration_recovery(runtime, penetration):
         assert out["linear_velocity"][1, 1] == pytest.approx(push / dt, rel=1e-3)
 
 
-@pytest.mark.parametrize("work_group_size", [1, 32, 64])
-def test_stacked_columns_end_resting(runtime, rng, work_group_size):
+@pytest.mark.parametrize("work_group_size,batching", [(1, "components"), (32, "components"),
+                                                     (64, "cells"), (1, "cells")])
+def test_stacked_columns_end_resting(runtime, rng, work_group_size, batching):
     """Columns of 6 boxes falling onto each other (one pile per column, batched):
-    after the solve every box's vertical speed is ~0 (inelastic); PGS converges slowly on
+    after the solve every box's vertical speed is ~0 (inelastic), in both batching modes
+    (in cells mode each column spans several cells and colours); PGS converges slowly on
     the lateral drift its point ordering creates, which friction removes (< 10% of v)."""
     columns, height, speed = 17, 6, 1.0
     positions = [[0, 0, 0]]
@@ -154,7 +157,8 @@ def test_stacked_columns_end_resting(runtime, rng, work_group_size):
     velocities[0] = 0
     bodies = make_bodies(positions, np.r_[0.0, np.ones(n - 1)], velocities=velocities)
     rig = ContactRig(runtime, bodies, np.r_[[[0, 0, 0]], np.full((n - 1, 3), 6.0)],
-                     warm_start=False, group_count=4, solver_work_group_size=work_group_size)
+                     warm_start=False, group_count=4, solver_work_group_size=work_group_size,
+                     batching=batching)
     manifolds = np.array(manifolds)[rng.permutation(len(manifolds))]
     out, _ = rig.solve(manifolds, iterations=200)
     assert np.abs(out["linear_velocity"][1:, 1]).max() < 5e-3 * speed

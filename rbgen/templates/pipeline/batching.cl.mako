@@ -1,19 +1,31 @@
 /* Two-level constraint batching (after Harada's two-level solver).
  *
- * Level 1 splits the constraints into G groups (one solver work
- * group each) such that no dynamic body is touched by two groups: the contact
- * graph's connected components over dynamic bodies are found with a lock-free
+% if mode == "components":
+ * Level 1 splits the constraints into G groups (one solver work group each)
+ * such that no dynamic body is touched by two groups: the contact graph's
+ * connected components over dynamic bodies are found with a lock-free
  * union-find (static bodies join nothing), and each component goes whole to
- * the group its root hashes to. Spatially coherent piles therefore stay in one
- * group, and the solver needs no synchronisation between work groups: one
- * launch per iteration.
+ * the group its root hashes to. The solver then needs no synchronisation
+ * between work groups: one launch per iteration. A single pile is one group.
+% else:
+ * Level 1 splits space into cells of at least the largest dynamic body's
+ * size; a constraint belongs to the cell of its first contact point. Cells
+ * get one of 8 colours by the parity of their coordinates, and each colour's
+ * cells are hashed into groups_per_colour groups: two cells of one colour are
+ * a whole cell apart, so their constraints share no body. Each dynamic body
+ * is claimed, per colour, by the first group that touches it; a constraint
+ * that loses a claim (a body wider than a cell) goes to the leftover group,
+ * solved alone after the 8 colours, so correctness never depends on sizes.
+ * The solver launches once per colour and once for the leftovers.
+% endif
  *
  * Level 2 colours each group's constraints into batches inside one work group
  * (batch_groups): a batch is a maximal set of constraints that share no dynamic
  * body, grown by rounds of "local minimum priority wins" (Luby) with barriers
  * between the rounds. Batch ${max_batches - 1} (the last) takes whatever is
  * left and is flagged to be solved by a single lane, so nothing is ever
- * dropped.
+ * dropped. Bodies are marked in per-colour copies of the stamp arrays, since
+ * one body may be in a group of every colour.
  *
  * Counts stay on the device: kernels read the constraint count from
  * constraint_count[0] and exit past it.
@@ -23,6 +35,14 @@ ${cl_constants()}
 ${cl_structs("ContactConstraint", "Body")}
 
 #define MAX_BATCHES ${max_batches}
+% if mode == "components":
+/* one set of batching marks: groups never share a dynamic body */
+#define BATCH_COLOURS 1
+% else:
+/* cell colours (parity of the cell coordinates) and the leftover group */
+#define CELL_COLOURS 8
+#define BATCH_COLOURS (CELL_COLOURS + 1)
+% endif
 
 /* A bijective mix of 32-bit integers (lowbias32): distinct constraints get
  * distinct, well spread priorities and groups. */
@@ -41,6 +61,38 @@ inline bool is_dynamic(__global const Body* bodies, uint body)
     return bodies[body].inv_mass > 0.0f;
 }
 
+/* One work-item per body mark (and per group counter): batching marks of
+ * every colour cleared, ${"every body its own component" if mode == "components" else "cell claims released"}. A work group is
+ * responsible for ${work_group_size} consecutive marks. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void reset_batching(__global uint* body_stamp,
+                    __global uint* body_taken,
+% if mode == "components":
+                    __global uint* parent,
+% else:
+                    __global uint* body_owner,
+% endif
+                    __global uint* group_counts,
+                    const uint body_count,
+                    const uint group_count)
+{
+    uint i = get_global_id(0);
+    if (i < group_count)
+        group_counts[i] = 0;
+    if (i < BATCH_COLOURS * body_count) {
+        body_stamp[i] = RB_SOLVER_NONE;
+        body_taken[i] = RB_SOLVER_NONE;
+    }
+% if mode == "components":
+    if (i < body_count)
+        parent[i] = i;
+% else:
+    if (i < CELL_COLOURS * body_count)
+        body_owner[i] = RB_SOLVER_NONE;
+% endif
+}
+
+% if mode == "components":
 /* Root of x's component; parents only ever point to smaller indices, and the
  * path-halving stores are benign races (ECL-CC). */
 inline uint find_root(volatile __global uint* parent, uint x)
@@ -55,27 +107,6 @@ inline uint find_root(volatile __global uint* parent, uint x)
         }
     }
     return current;
-}
-
-/* One work-item per body (and per group counter): every body its own
- * component, batching marks cleared. A work group is responsible for
- * ${work_group_size} consecutive bodies. */
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void reset_batching(__global uint* parent,
-                    __global uint* body_stamp,
-                    __global uint* body_taken,
-                    __global uint* group_counts,
-                    const uint body_count,
-                    const uint group_count)
-{
-    uint i = get_global_id(0);
-    if (i < group_count)
-        group_counts[i] = 0;
-    if (i >= body_count)
-        return;
-    parent[i] = i;
-    body_stamp[i] = RB_SOLVER_NONE;
-    body_taken[i] = RB_SOLVER_NONE;
 }
 
 /* One work-item per constraint: join the components of its two dynamic
@@ -129,6 +160,65 @@ void assign_groups(__global ContactConstraint* constraints,
     constraint_slot[i] = atomic_inc(&group_counts[group]);
 }
 
+% else:
+/* Cell of a point, and its colour (parity of the coordinates). */
+inline int4 cell_of(float3 p, float inv_cell_size)
+{
+    float3 c = floor(p * inv_cell_size);
+    return (int4)((int)c.x, (int)c.y, (int)c.z, 0);
+}
+
+inline uint cell_colour(int4 cell)
+{
+    return (uint)(cell.x & 1) | ((uint)(cell.y & 1) << 1) | ((uint)(cell.z & 1) << 2);
+}
+
+/* Claim a dynamic body for a group within one colour; false when another
+ * group of that colour holds it. */
+inline bool claim_body(volatile __global uint* body_owner, uint colour, uint body_count,
+                       uint body, uint group)
+{
+    uint held = atomic_cmpxchg(&body_owner[colour * body_count + body], RB_SOLVER_NONE, group);
+    return held == RB_SOLVER_NONE || held == group;
+}
+
+/* One work-item per constraint: its cell (from its first contact point)
+ * gives a colour and a group; if another group of that colour already holds
+ * one of its dynamic bodies it goes to the leftover group. A work group is
+ * responsible for ${work_group_size} consecutive constraints. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void assign_cells(__global ContactConstraint* constraints,
+                  __global const uint* constraint_count,
+                  __global const Body* bodies,
+                  volatile __global uint* body_owner,
+                  volatile __global uint* group_counts,
+                  __global uint* constraint_slot,
+                  const uint body_count,
+                  const uint groups_per_colour,
+                  const float inv_cell_size)
+{
+    uint i = get_global_id(0);
+    if (i >= constraint_count[0])
+        return;
+    uint a = constraints[i].body_a, b = constraints[i].body_b;
+    float3 point = bodies[b].position.xyz + constraints[i].r_b[0].xyz;
+    int4 cell = cell_of(point, inv_cell_size);
+    uint colour = cell_colour(cell);
+    uint hash = mix32((uint)cell.x * 73856093u ^ (uint)cell.y * 19349663u ^ (uint)cell.z * 83492791u);
+    uint group = colour * groups_per_colour + hash % groups_per_colour;
+    bool owned = true;
+    if (is_dynamic(bodies, a))
+        owned = claim_body(body_owner, colour, body_count, a, group);
+    if (is_dynamic(bodies, b))
+        owned = claim_body(body_owner, colour, body_count, b, group) && owned;
+    if (!owned)
+        group = CELL_COLOURS * groups_per_colour;  /* the leftover group */
+    constraints[i].group = group;
+    constraint_slot[i] = atomic_inc(&group_counts[group]);
+}
+
+% endif
+
 /* A single work-item turns the group counts into offsets (exclusive scan);
  * group_count is a few hundred at most. */
 __kernel void scan_groups(__global const uint* group_counts,
@@ -181,18 +271,24 @@ void batch_groups(__global const ContactConstraint* constraints,
                   __global const Body* bodies,
                   __global const uint* group_offsets,
                   __global const uint* group_list,
-                  volatile __global uint* body_stamp,
-                  __global uint* body_taken,
+                  volatile __global uint* all_body_stamps,
+                  __global uint* all_body_taken,
                   __global uint* constraint_batch,
                   __global uint* constraint_blocked,
                   __global uint* order,
                   __global uint* group_batches,
-                  __global uint* group_batch_count)
+                  __global uint* group_batch_count,
+                  const uint body_count,
+                  const uint groups_per_colour)
 {
     __local uint candidates_left, unassigned_left;
     __local uint batch_offsets[MAX_BATCHES + 1];
     const uint lane = get_local_id(0), group = get_group_id(0);
     const uint begin = group_offsets[group], end = group_offsets[group + 1];
+    /* this group's colour owns one copy of the body marks */
+    const uint colour = group / groups_per_colour;
+    volatile __global uint* body_stamp = all_body_stamps + colour * body_count;
+    __global uint* body_taken = all_body_taken + colour * body_count;
 
     uint batch_count = 0;
     bool done = begin == end;

@@ -1,7 +1,8 @@
 /* Projected Gauss-Seidel over batched contact constraints.
  *
- * One launch per iteration: a work group is responsible for one level-1 group
- * (no dynamic body is shared between groups) and walks its batches in order,
+ * One launch per iteration (per cell colour in the cells batching mode): a
+ * work group is responsible for one level-1 group (no dynamic body is shared
+ * with a group of the same launch) and walks its batches in order,
  * with a barrier between batches; the lanes of a batch solve constraints that
  * share no dynamic body, so they may write body velocities without atomics.
  * The last batch slot (${max_batches - 1}) holds any remainder and is solved by lane 0 alone.
@@ -26,6 +27,9 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
 
 #define MAX_BATCHES ${max_batches}
 #define SERIAL_BATCH (MAX_BATCHES - 1)
+/* what one solve_contacts launch does (bit flags of its `passes` argument) */
+#define WARM_START_PASS 1u
+#define SOLVE_PASS 2u
 
 inline float3 mul_rows(const float3 row[3], float3 v)
 {
@@ -151,8 +155,9 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
     }
 }
 
-/* One velocity iteration. A work group is responsible for one level-1
- * group: its batches in order, a barrier after each. */
+/* One velocity iteration over the groups that may run concurrently (all of
+ * them, or one cell colour). A work group is responsible for one level-1
+ * group (group_offset + its id): its batches in order, a barrier after each. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void solve_contacts(__global ContactConstraint* constraints,
                     __global const uint* order,
@@ -161,12 +166,14 @@ void solve_contacts(__global ContactConstraint* constraints,
                     __global Body* bodies,
                     __global const BodyInertia* inertia,
                     const float relaxation,
-                    const uint apply_warm_start)
+                    const uint group_offset,
+                    const uint passes)
 {
-    const uint lane = get_local_id(0), group = get_group_id(0);
+    const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
+    const bool apply_warm_start = passes & WARM_START_PASS, solve = passes & SOLVE_PASS;
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint batch_count = group_batch_count[group];
-    /* warm start (first iteration): every constraint's old impulses, batch by batch */
+    /* warm start (before the first sweep): old impulses, batch by batch */
     for (uint batch = 0; apply_warm_start && batch < batch_count; ++batch) {
         uint begin = offsets[batch], end = offsets[batch + 1];
         uint stride = ${work_group_size};
@@ -176,7 +183,7 @@ void solve_contacts(__global ContactConstraint* constraints,
             warm_start_contact(&constraints[order[i]], bodies, inertia);
         barrier(CLK_GLOBAL_MEM_FENCE);
     }
-    for (uint batch = 0; batch < batch_count; ++batch) {
+    for (uint batch = 0; solve && batch < batch_count; ++batch) {
         uint begin = offsets[batch], end = offsets[batch + 1];
         uint stride = ${work_group_size};
         if (batch == SERIAL_BATCH)
@@ -235,9 +242,10 @@ void solve_penetration(__global ContactConstraint* constraints,
                        __global SplitVelocity* split,
                        __global const Body* bodies,
                        __global const BodyInertia* inertia,
-                       const float relaxation)
+                       const float relaxation,
+                       const uint group_offset)
 {
-    const uint lane = get_local_id(0), group = get_group_id(0);
+    const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint batch_count = group_batch_count[group];
     for (uint batch = 0; batch < batch_count; ++batch) {
