@@ -68,10 +68,12 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
     The summary: device, bodies, steps, ms_per_step (median), launches and
     blocking_reads per step, pairs / manifolds / contacts / batches of the last
     step, overflows (redone steps), and sanity: nans, sunk (boxes whose
-    centre is more than 2 cm below its resting height), max_speed (m/s).
+    centre is more than 2 cm below its resting height), max_speed (m/s), and
+    last_box_moved (m; the top box of a pyramid).
     """
     world, ids, ground_top, half = build_scene(name, n, device, **world_options)
     queue = world.runtime.queue
+    top_start = world.positions[ids[-1]] if len(ids) else np.zeros(3)
     if progress:
         print(f"{name}: {len(ids):,} boxes on {world.runtime.traits.describe()}", flush=True)
     for _ in range(int(warmup)):
@@ -101,6 +103,7 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
         "nans": int(np.isnan(positions).any(axis=1).sum()),
         "sunk": int((positions[:, 1] < ground_top + half - 0.02).sum()),
         "max_speed": float(speeds.max()) if len(speeds) else 0.0,
+        "last_box_moved": float(np.linalg.norm(positions[-1] - top_start)) if len(ids) else 0.0,
     }
     if progress:
         print(format_summary(summary), flush=True)
@@ -112,4 +115,5 @@ def format_summary(s: dict) -> str:
             f"{s['launches_per_step']} launches and {s['blocking_reads_per_step']} blocking reads "
             f"per step; {s['pairs']:,} pairs, {s['manifolds']:,} manifolds, {s['contacts']:,} "
             f"contact points, {s['batches']} batches in the largest group; sanity: NaNs {s['nans']}, "
-            f"sunk {s['sunk']}, max speed {s['max_speed']:.3f} m/s, overflows {s['overflows']}")
+            f"sunk {s['sunk']}, max speed {s['max_speed']:.3f} m/s, overflows {s['overflows']}, "
+            f"last box moved {100 * s['last_box_moved']:.2f} cm")
