@@ -70,10 +70,10 @@ class Fill(Primitive):
 def search_space(traits: DeviceTraits) -> list[dict]:
     space = [Fill.default_params(traits)]
     shape = traits.kind
-    for wg in (64, 256):
-        for ipt in (1, 4, 16, 64, 256):
-            if wg <= traits.max_work_group_size:
-                p = {"shape": shape, "work_group_size": wg, "items_per_thread": ipt}
-                if p not in space:
-                    space.append(p)
+    shapes = ((64, 256), (64, 16), (64, 1)) if shape == "cpu" else ((256, 1), (256, 4), (256, 16))
+    for wg, ipt in shapes:
+        p = {"shape": shape, "work_group_size": min(wg, traits.max_work_group_size),
+             "items_per_thread": ipt}
+        if p not in space:
+            space.append(p)
     return space

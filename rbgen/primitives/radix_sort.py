@@ -235,9 +235,10 @@ def search_space(traits: DeviceTraits) -> list[dict]:
     cu = max(1, traits.compute_units)
     if traits.is_gpu:
         wf = clamp_wavefront(traits)
-        for bits, wg, ipt in ((4, 128, 8), (4, 256, 8), (4, 256, 16), (4, 512, 8),
-                              (8, 64, 16), (8, 64, 32), (8, 128, 8)):
-            local = (wg << bits) * (2 if bits == 8 else 4) + 4 * wg * ipt
+        for bits, wg, ipt in ((4, 128, 8), (4, 128, 16), (4, 256, 4), (4, 256, 8), (4, 512, 4),
+                              (8, 64, 8), (8, 64, 16), (8, 128, 4)):
+            # rank counters + the tile's keys and values (padded 1/32) + scan scratch
+            local = (wg << bits) * (2 if bits == 8 else 4) + 2 * 4 * (wg * ipt * 33 // 32) + 12 * wg
             if wf <= wg <= traits.max_work_group_size and local <= traits.local_mem_size - 2048:
                 space.append({"shape": "gpu", "radix_bits": bits, "work_group_size": wg,
                               "items_per_thread": ipt, "wavefront": wf})

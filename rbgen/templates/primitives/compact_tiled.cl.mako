@@ -13,8 +13,8 @@
 #define TILE (WG * ITEMS)
 #define WAVEFRONT ${wavefront}
 ${common.element_count()}
-${common.work_group_reduce("uint", "sum", "{a} + {b}")}
-${common.work_group_exclusive_scan("uint")}
+${common.work_group_reduce("uint", "sum", "{a} + {b}", work_group_size)}
+${common.work_group_exclusive_scan("uint", work_group_size, wavefront)}
 
 /* A work group is responsible for counting the set flags of one tile. */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
@@ -36,8 +36,9 @@ void count_tiles(__global const uint* flags, const uint capacity,
         tile_counts[get_group_id(0)] = count;
 }
 
-/* One work group is responsible for all tile counts: exclusive offsets in
- * place, WG at a time, and the total kept in out_count[0]. */
+/* One work group is responsible for all tile counts: each work-item takes a
+ * contiguous run of them, the work group scans the runs' sums, then each
+ * work-item rewrites its run as exclusive offsets; the total goes to out_count[0]. */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void scan_tile_counts(__global uint* tile_counts, const uint capacity,
                       __global const uint* device_count, __global uint* out_count)
@@ -46,19 +47,21 @@ void scan_tile_counts(__global uint* tile_counts, const uint capacity,
     __local uint segment_sums[WG / WAVEFRONT + 1];
     const uint n = element_count(capacity, device_count);
     const uint tiles = (n + TILE - 1) / TILE;
-    const uint lid = get_local_id(0);
-    uint carry = 0;
-    for (uint base = 0; base < tiles; base += WG) {
-        uint i = base + lid;
-        uint value = i < tiles ? tile_counts[i] : 0u;
-        uint block_sum;
-        uint prefix = work_group_exclusive_scan_uint(value, scratch, segment_sums, &block_sum);
-        if (i < tiles)
-            tile_counts[i] = carry + prefix;
-        carry += block_sum;
+    const uint run = (tiles + WG - 1) / WG;
+    const uint first = min((uint)get_local_id(0) * run, tiles);
+    const uint end = min(first + run, tiles);
+    uint run_count = 0;
+    for (uint i = first; i < end; ++i)
+        run_count += tile_counts[i];
+    uint kept;
+    uint running = work_group_exclusive_scan_uint(run_count, scratch, segment_sums, &kept);
+    for (uint i = first; i < end; ++i) {
+        uint count = tile_counts[i];
+        tile_counts[i] = running;
+        running += count;
     }
-    if (lid == 0)
-        out_count[0] = carry;
+    if (get_local_id(0) == 0)
+        out_count[0] = kept;
 }
 
 /* A work group is responsible for writing the kept elements of one tile. */

@@ -17,7 +17,7 @@
 #define IDENTITY ${identity}
 typedef ${dtype} T;
 ${common.element_count()}
-${common.work_group_reduce(dtype, op, combine)}
+${common.work_group_reduce(dtype, op, combine, work_group_size)}
 
 inline T combine(T a, T b)
 {

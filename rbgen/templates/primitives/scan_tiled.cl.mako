@@ -18,8 +18,8 @@
 #define PADDED(i) ((i) + ((i) >> 5))
 typedef ${dtype} T;
 ${common.element_count()}
-${common.work_group_reduce(dtype, "sum", "{a} + {b}")}
-${common.work_group_exclusive_scan(dtype)}
+${common.work_group_reduce(dtype, "sum", "{a} + {b}", work_group_size)}
+${common.work_group_exclusive_scan(dtype, work_group_size, wavefront)}
 
 /* A work group is responsible for summing one tile of the input. */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
@@ -42,8 +42,9 @@ void reduce_tiles(__global const T* src, const uint capacity,
         tile_sums[get_group_id(0)] = sum;
 }
 
-/* One work group is responsible for all tile sums: it replaces them by their
- * exclusive prefix sums, WG at a time, and writes the total if asked. */
+/* One work group is responsible for all tile sums: each work-item takes a
+ * contiguous run of them, the work group scans the runs' sums, then each
+ * work-item rewrites its run as exclusive offsets. The total is written if asked. */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void scan_tile_sums(__global T* tile_sums, const uint capacity,
                     __global const uint* device_count, __global T* total)
@@ -52,19 +53,21 @@ void scan_tile_sums(__global T* tile_sums, const uint capacity,
     __local T segment_sums[WG / WAVEFRONT + 1];
     const uint n = element_count(capacity, device_count);
     const uint tiles = (n + TILE - 1) / TILE;
-    const uint lid = get_local_id(0);
-    T carry = 0;
-    for (uint base = 0; base < tiles; base += WG) {
-        uint i = base + lid;
-        T value = i < tiles ? tile_sums[i] : (T)0;
-        T block_sum;
-        T prefix = work_group_exclusive_scan_${dtype}(value, scratch, segment_sums, &block_sum);
-        if (i < tiles)
-            tile_sums[i] = carry + prefix;
-        carry += block_sum;
+    const uint run = (tiles + WG - 1) / WG;
+    const uint first = min((uint)get_local_id(0) * run, tiles);
+    const uint end = min(first + run, tiles);
+    T run_sum = 0;
+    for (uint i = first; i < end; ++i)
+        run_sum += tile_sums[i];
+    T all_tiles;
+    T running = work_group_exclusive_scan_${dtype}(run_sum, scratch, segment_sums, &all_tiles);
+    for (uint i = first; i < end; ++i) {
+        T sum = tile_sums[i];
+        tile_sums[i] = running;
+        running += sum;
     }
-    if (total && lid == 0)
-        total[0] = carry;
+    if (total && get_local_id(0) == 0)
+        total[0] = all_tiles;
 }
 
 /* A work group is responsible for scanning one tile, starting from the

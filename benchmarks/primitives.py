@@ -1,0 +1,231 @@
+"""Throughput of rbgen's primitives beside baselines measured in the same run.
+
+    python benchmarks/primitives.py [--device D] [--n N] [--repeats R]
+
+Baselines: numpy on the host always; on a GPU also pyopencl's own
+``pyopencl.algorithm.RadixSort`` and, when importable with CUDA, ``torch.sort``
+and ``torch.cumsum``. The device's copy bandwidth (``enqueue_copy`` and a
+float4 copy kernel) is measured too, and the scan is reported as a fraction
+of it (a scan moves at least the bytes of one copy: read n, write n).
+
+Device times come from OpenCL event timestamps (markers around each run on a
+profiling queue, median of R runs); host baselines from ``perf_counter``
+(median). Sort inputs are restored before every run, outside the timing.
+Uses the tuned parameters if ``rbgen tune`` was run, else the heuristics.
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import rbgen  # noqa: E402
+from rbgen import tuning  # noqa: E402
+from rbgen.primitives import BoundSearch, Compact, Fill, RadixSort, Reduce, Scan  # noqa: E402
+
+COPY_SOURCE = """
+__kernel void copy_float4(__global const float4* src, __global float4* dst, const uint count)
+{
+    /* one float4 per work-item; a work group is responsible for 256 of them */
+    uint i = get_global_id(0);
+    if (i < count)
+        dst[i] = src[i];
+}
+"""
+
+
+def host_ms(fn, repeats, prepare=None):
+    times = []
+    for _ in range(repeats):
+        if prepare is not None:
+            prepare()
+        t0 = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(times)
+
+
+def device_ms(runtime, fn, repeats, prepare=None):
+    fn()  # warm-up: builds programs, first-touch of buffers
+    runtime.queue.finish()
+    run = lambda: fn()  # noqa: E731 - time_runs reads .prepare from the callable
+    run.prepare = prepare
+    return tuning.time_runs(runtime, run, repeats)
+
+
+class Table:
+    def __init__(self, n):
+        self.n = n
+        self.rows = []
+
+    def add(self, name, ms, bytes_moved, baseline=None, baseline_ms=None):
+        self.rows.append((name, ms, bytes_moved, baseline, baseline_ms))
+
+    def print(self):
+        head = f"{'primitive':<26}{'ms':>9}{'Melem/s':>10}{'GB/s':>8}  {'baseline':<34}{'ms':>9}{'speedup':>9}"
+        print(head)
+        print("-" * len(head))
+        for name, ms, nbytes, base, base_ms in self.rows:
+            melem = self.n / ms / 1e3
+            gbs = nbytes / ms / 1e6 if nbytes else float("nan")
+            line = f"{name:<26}{ms:9.3f}{melem:10.1f}{gbs:8.1f}"
+            if base is not None:
+                line += f"  {base:<34}{base_ms:9.3f}{base_ms / ms:8.2f}x"
+            print(line)
+
+
+def copy_bandwidth(runtime, n, repeats):
+    src = cla.to_device(runtime.queue, np.ones(n, np.float32))
+    dst = cla.empty_like(src)
+    copy_ms = device_ms(runtime, lambda: cl.enqueue_copy(runtime.queue, dst.data, src.data),
+                        repeats)
+    kernel = cl.Program(runtime.context, COPY_SOURCE).build().copy_float4
+    count = n // 4
+    kernel.set_args(src.data, dst.data, np.uint32(count))
+    wg = min(256, runtime.traits.max_work_group_size)
+    kernel_ms = device_ms(runtime, lambda: cl.enqueue_nd_range_kernel(
+        runtime.queue, kernel, (-(-count // wg) * wg,), (wg,)), repeats)
+    return copy_ms, kernel_ms
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", default=None, help="device choice for rbgen.Runtime")
+    parser.add_argument("--n", type=int, default=None,
+                        help="elements (default 2^24 on a GPU, 2^22 otherwise)")
+    parser.add_argument("--repeats", type=int, default=None, help="runs per measurement")
+    args = parser.parse_args(argv)
+
+    runtime = rbgen.Runtime(args.device, profiling=True)
+    traits = runtime.traits
+    n = args.n or (1 << 24 if traits.is_gpu else 1 << 22)
+    repeats = args.repeats or (20 if traits.is_gpu else 5)
+    q = runtime.queue
+    rng = np.random.default_rng(0)
+    print(f"device: {traits.describe()}")
+    print(f"n = {n}, median of {repeats} runs; tuned entries: {len(tuning.describe_cache(traits))}")
+
+    table = Table(n)
+    copy_ms, kernel_ms = copy_bandwidth(runtime, n, repeats)
+    best_copy = min(copy_ms, kernel_ms)
+    table.add("copy (enqueue_copy)", copy_ms, 8 * n)
+    table.add("copy (float4 kernel)", kernel_ms, 8 * n)
+
+    # scan
+    small = rng.integers(0, 8, n).astype(np.uint32)
+    floats = rng.random(n, dtype=np.float32)
+    for dtype, host, label in ((np.uint32, small, "uint32"), (np.float32, floats, "float32")):
+        src = cla.to_device(q, host)
+        dst = cla.empty_like(src)
+        scan = Scan(runtime, dtype, inclusive=True)
+        ms = device_ms(runtime, lambda: scan(src, dst), repeats)
+        base = host_ms(lambda: np.cumsum(host), repeats)
+        table.add(f"scan {label}", ms, 8 * n, f"np.cumsum({label}) [-> {np.cumsum(host[:1]).dtype}]", base)
+        if dtype == np.uint32:
+            scan_ms = ms
+            base_same = host_ms(lambda: np.cumsum(host, dtype=np.uint32), repeats)
+            table.add("scan uint32", ms, 8 * n, "np.cumsum(uint32, dtype=uint32)", base_same)
+
+    # reduce, fill, compact, bound search
+    src = cla.to_device(q, floats)
+    out = cla.empty(q, 1, np.float32)
+    reduce = Reduce(runtime, np.float32, "sum")
+    table.add("reduce sum float32", device_ms(runtime, lambda: reduce(src, out), repeats), 4 * n,
+              "np.sum(float32)", host_ms(lambda: floats.sum(), repeats))
+    fill_array = cla.empty(q, n, np.uint32)
+    fill = Fill(runtime, np.uint32)
+    host_array = np.empty(n, np.uint32)
+    table.add("fill uint32", device_ms(runtime, lambda: fill(fill_array, 7), repeats), 4 * n,
+              "ndarray.fill", host_ms(lambda: host_array.fill(7), repeats))
+    flags = (rng.random(n) < 0.25).astype(np.uint32)
+    d_flags, kept, count = cla.to_device(q, flags), cla.empty(q, n, np.uint32), cla.empty(q, 1, np.uint32)
+    compact = Compact(runtime)
+    table.add("compact (25% kept)", device_ms(runtime, lambda: compact(d_flags, kept, count), repeats),
+              4 * n + n, "np.flatnonzero", host_ms(lambda: np.flatnonzero(flags), repeats))
+    keys = np.sort(rng.integers(0, n, n, dtype=np.uint32))
+    queries = rng.integers(0, n, n, dtype=np.uint32)
+    d_keys, d_queries, found = (cla.to_device(q, keys), cla.to_device(q, queries),
+                                cla.empty(q, n, np.uint32))
+    search = BoundSearch(runtime, "lower")
+    table.add("bound search (n in n)", device_ms(runtime, lambda: search(d_keys, d_queries, found),
+                                                  repeats), 8 * n,
+              "np.searchsorted", host_ms(lambda: np.searchsorted(keys, queries), max(1, repeats // 2)))
+
+    # sorts
+    sort_keys = rng.integers(0, 2**32, n, dtype=np.uint32)
+    sort_values = np.arange(n, dtype=np.uint32)
+    src_keys, src_values = cla.to_device(q, sort_keys), cla.to_device(q, sort_values)
+    work_keys, work_values = cla.empty_like(src_keys), cla.empty_like(src_values)
+
+    def restore():
+        cl.enqueue_copy(q, work_keys.data, src_keys.data)
+        cl.enqueue_copy(q, work_values.data, src_values.data)
+    kv, keys_only = RadixSort(runtime, 32, with_values=True), RadixSort(runtime, 32, with_values=False)
+    host_reps = max(1, min(repeats, 3))
+    kv_ms = device_ms(runtime, lambda: kv(work_keys, work_values), repeats, restore)
+    table.add("sort key-value uint32", kv_ms, 0,
+              "np.argsort(stable)+gather", host_ms(
+                  lambda: (lambda o: (sort_keys[o], sort_values[o]))(
+                      np.argsort(sort_keys, kind="stable")), host_reps))
+    table.add("sort keys uint32", device_ms(runtime, lambda: keys_only(work_keys), repeats, restore),
+              0, "np.sort", host_ms(lambda: np.sort(sort_keys), host_reps))
+
+    if traits.is_gpu:
+        gpu_baselines(runtime, table, n, repeats, sort_keys, sort_values, kv_ms, scan_ms)
+    table.print()
+    print(f"scan uint32 reaches {100 * best_copy / scan_ms:.0f}% of the copy bandwidth "
+          f"({8 * n / best_copy / 1e6:.1f} GB/s)")
+    print(f"program cache: {rbgen.codegen.PROGRAMS.stats}; launches: {runtime.counters['launches']}")
+
+
+def gpu_baselines(runtime, table, n, repeats, sort_keys, sort_values, kv_ms, scan_ms):
+    """pyopencl's RadixSort on the same device; torch.sort/cumsum on CUDA if present."""
+    q = runtime.queue
+    try:
+        from pyopencl.algorithm import RadixSort as PyopenclRadixSort
+        from pyopencl.scan import GenericScanKernel
+        sorter = PyopenclRadixSort(runtime.context, "uint *keys, uint *values", key_expr="keys[i]",
+                                   sort_arg_names=["keys", "values"], scan_kernel=GenericScanKernel)
+        d_keys, d_values = cla.to_device(q, sort_keys), cla.to_device(q, sort_values)
+        ms = device_ms(runtime, lambda: sorter(d_keys, d_values, key_bits=32, queue=q)[1], repeats)
+        table.add("sort key-value uint32", kv_ms, 0, "pyopencl.algorithm.RadixSort", ms)
+    except Exception as err:  # noqa: BLE001 - a baseline that cannot run is reported, not fatal
+        print(f"pyopencl RadixSort baseline skipped: {type(err).__name__}: {err}")
+    try:
+        import torch
+        if not torch.cuda.is_available():
+            raise RuntimeError("CUDA not available")
+    except Exception as err:  # noqa: BLE001
+        print(f"torch baselines skipped: {type(err).__name__}: {err}")
+        return
+    keys = torch.from_numpy(sort_keys.view(np.int32).copy()).cuda()
+    ints = torch.randint(0, 8, (n,), dtype=torch.int32, device="cuda")
+
+    def cuda_ms(fn):
+        fn()
+        torch.cuda.synchronize()
+        times = []
+        for _ in range(repeats):
+            start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+            start.record()
+            fn()
+            end.record()
+            torch.cuda.synchronize()
+            times.append(start.elapsed_time(end))
+        return statistics.median(times)
+    table.add("sort key-value uint32", kv_ms, 0, "torch.sort(int32, stable) [CUDA]",
+              cuda_ms(lambda: torch.sort(keys, stable=True)))
+    table.add("scan uint32", scan_ms, 8 * n, "torch.cumsum(int32->int32) [CUDA]",
+              cuda_ms(lambda: torch.cumsum(ints, 0, dtype=torch.int32)))
+
+
+if __name__ == "__main__":
+    main()
