@@ -146,7 +146,6 @@ class Narrowphase:
         self._build_clip()
         self.scan = Scan(runtime, np.uint32, inclusive=False)
         self.capacity = 0
-        self.timings = None  # {stage: seconds} of the last call when profiling
 
     def _build_clip(self) -> None:
         if not self.sat_kernels:
@@ -193,8 +192,8 @@ class Narrowphase:
 
     # ------------------------------------------------------------------ step
     def enqueue(self, bodies, shapes: PackedShapes, pairs, pair_count, manifolds, manifold_count,
-                overflow, margin: float = 0.0) -> list:
-        """Enqueue the whole stage; returns the events (no blocking read).
+                overflow, margin: float = 0.0) -> dict:
+        """Enqueue the whole stage; returns its events by stage name (no blocking read).
 
         ``bodies``, ``pairs`` (Pair records), ``pair_count`` (uint32 array(1)),
         ``manifolds`` (ContactManifold records, its size is the capacity),
@@ -239,8 +238,9 @@ class Narrowphase:
                 events["sat_" + kind] = rt.launch(kernel, size, wg)
             self.k_clip.set_args(*common, _data(shapes.vertices), _data(shapes.faces),
                                  _data(shapes.face_indices), _data(shapes.edges),
-                                 _data(shapes.adjacency), self.sat_results.data, result_count.data, self.clip_points.data,
-                                 self.clip_features.data, self.clip_counts.data, np.float32(margin))
+                                 _data(shapes.adjacency), self.sat_results.data, result_count.data,
+                                 self.clip_points.data, self.clip_features.data,
+                                 self.clip_counts.data, np.float32(margin))
             events["clip"] = rt.launch(self.k_clip, size, wg)
             self.k_reduce.set_args(_data(pairs), self.sat_results.data, result_count.data,
                                    self.clip_points.data, self.clip_features.data,
