@@ -1,7 +1,8 @@
 """Narrowphase benchmark: contacts of the BoxBox scene's candidate pairs.
 
     python benchmarks/narrowphase.py [--device D] [--sizes 27000 111375]
-                                     [--ground box|plane] [--box-path box hull gauss] [--hulls]
+                                     [--ground box|plane] [--box-path box_box box hull gauss]
+                                     [--hulls]
 
 Scene: rbgen.scenes.boxbox_scene (cubes of half extent 1 on a ground whose top
 is y = 0). A fresh scene only touches exactly (separation 0), so every layer
@@ -104,11 +105,15 @@ def run(runtime: Runtime, count: int, ground: str, box_path: str, sink: float, m
         repeat: int) -> dict:
     table, bodies, pairs = build(count, ground, sink, margin)
     q = runtime.queue
-    # "box": closed-form box projection and the 3 x 3 edge directions; "hull": boxes as
-    # hulls (vertex projection), same directions; "gauss": boxes as hulls, Gauss-map edges
-    narrowphase = Narrowphase(runtime, table, box_path="box" if box_path == "box" else "hull",
-                              edge_axes={"box_box": "gauss_map" if box_path == "gauss"
-                                         else "directions"})
+    # "box_box": the closed-form 15-axis kernel; "box": the generic test with closed-form
+    # box projection and 3 x 3 edge directions; "hull": boxes as hulls (vertex projection),
+    # same directions; "gauss": boxes as hulls, Gauss-map edge pairs
+    if box_path == "box_box":
+        narrowphase = Narrowphase(runtime, table, box_path="box_box")
+    else:
+        narrowphase = Narrowphase(runtime, table, box_path="box" if box_path == "box" else "hull",
+                                  edge_axes={"box_box": "gauss_map" if box_path == "gauss"
+                                             else "directions"})
     packed = table.pack_all().to_device(q)
     d_bodies, d_pairs = cla.to_device(q, bodies), cla.to_device(q, pairs)
     pair_count = cla.to_device(q, np.array([len(pairs)], np.uint32))
@@ -203,10 +208,11 @@ def main(argv=None):
     parser.add_argument("--device", default=None, help="device choice for rbgen.Runtime")
     parser.add_argument("--sizes", type=int, nargs="+", default=[27_000, 111_375])
     parser.add_argument("--ground", choices=("box", "plane"), default="box")
-    parser.add_argument("--box-path", nargs="+", choices=("box", "hull", "gauss"),
-                        default=["box", "hull", "gauss"],
-                        help="box: closed-form SAT projection; hull: boxes as hulls; gauss: boxes "
-                             "as hulls with Gauss-map edge pairs")
+    parser.add_argument("--box-path", nargs="+", choices=("box_box", "box", "hull", "gauss"),
+                        default=["box_box", "box", "hull", "gauss"],
+                        help="box_box: closed-form 15-axis kernel; box: generic test, closed-form "
+                             "box projection; hull: boxes as hulls; gauss: boxes as hulls with "
+                             "Gauss-map edge pairs")
     parser.add_argument("--sink", type=float, default=0.01)
     parser.add_argument("--margin", type=float, default=0.0)
     parser.add_argument("--repeat", type=int, default=10)
@@ -223,11 +229,11 @@ def main(argv=None):
             rows.append(run(runtime, count, args.ground, box_path, args.sink, args.margin,
                             args.repeat))
     stage_names = list(dict.fromkeys(k for r in rows for k in r["stages"]))
-    header = (f"{'boxes':>7} {'path':>5} {'pairs':>7} {'manif':>7} {'points':>7} {'total':>8} "
+    header = (f"{'boxes':>7} {'path':>7} {'pairs':>7} {'manif':>7} {'points':>7} {'total':>8} "
               f"{'launch':>6} " + " ".join(f"{s[:12]:>12}" for s in stage_names))
     print(header)
     for r in rows:
-        print(f"{r['count']:>7} {r['box_path']:>5} {r['pairs']:>7} {r['manifolds']:>7} "
+        print(f"{r['count']:>7} {r['box_path']:>7} {r['pairs']:>7} {r['manifolds']:>7} "
               f"{r['points']:>7} {r['total_ms']:>8.3f} {r['launches']:>6} "
               + " ".join(f"{r['stages'].get(s, float('nan')):>12.3f}" for s in stage_names))
     if args.hulls:

@@ -44,10 +44,14 @@ from ...device import Runtime
 from ...errors import RbgenError
 from ...primitives.scan import Scan
 from ...shapes import PackedShapes, ShapeTable
-from .templates import ALL_KINDS, CLIP, CONVEX_KINDS, DISPATCH, PRIMITIVE_KINDS, PRIMITIVE_PAIRS, SAT
+from .templates import (ALL_KINDS, CLIP, CONVEX_KINDS, DISPATCH, PRIMITIVE_KINDS, PRIMITIVE_PAIRS,
+                        SAT, SAT_BOX_BOX)
 from .templates import default_work_group_size
 
 SUPPORTED_TYPES = ("box", "hull", "plane", "sphere")
+#: box_box: box pairs get the closed-form 15-axis kernel; box: the generic test with
+#: boxes projected in closed form; hull: boxes treated as hulls (benchmarks compare them)
+BOX_PATHS = ("box_box", "box", "hull")
 
 
 def kinds_for(shape_types) -> tuple[str, ...]:
@@ -89,16 +93,17 @@ class Narrowphase:
 
     ``shapes`` is the world's `ShapeTable` (or a tuple of shape type names,
     then give ``max_face_vertices``). A shape pair without a kernel raises here,
-    at construction, never during a step. ``box_path``: "box" projects boxes
-    in closed form in the separating-axis test, "hull" treats them as hulls
-    (the benchmark compares both). ``edge_axes`` maps a convex kind to
+    at construction, never during a step. ``box_path`` (see `BOX_PATHS`):
+    "box_box" (default) runs box pairs through a closed-form 15-axis kernel,
+    "box" through the generic test with boxes projected in closed form, "hull"
+    treats boxes as hulls (the benchmark compares them). ``edge_axes`` maps a convex kind to
     "directions" or "gauss_map" (the edge-edge axes of its separating-axis
     test); by default hull-hull tests use the Gauss map, tests with a box the
     box's three directions.
     """
 
     def __init__(self, runtime: Runtime, shapes, *, max_face_vertices: int | None = None,
-                 box_path: str = "box", work_group_size: int | None = None,
+                 box_path: str = "box_box", work_group_size: int | None = None,
                  edge_axes: dict | None = None):
         #: a table given here is watched: when shapes with larger faces are added later,
         #: the clipping kernel is rebuilt for them before the next launch
@@ -111,8 +116,8 @@ class Narrowphase:
         else:
             types = tuple(shapes)
         edge_axes_for = dict(edge_axes or {})
-        if box_path not in ("box", "hull"):
-            raise RbgenError(f"box_path must be 'box' or 'hull', got {box_path!r}")
+        if box_path not in BOX_PATHS:
+            raise RbgenError(f"box_path must be one of {BOX_PATHS}, got {box_path!r}")
         self.runtime = runtime
         self.kinds = kinds_for(types)
         if not self.kinds:
@@ -131,6 +136,11 @@ class Narrowphase:
             self.primitive_kernels = {k: prog.kernel(k) for k in primitive}
         self.sat_kernels, self.sat_edge_axes = {}, {}
         for kind in (k for k in self.kinds if k in CONVEX_KINDS):
+            if kind == "box_box" and box_path == "box_box" and "box_box" not in edge_axes_for:
+                prog = compile_spec(runtime, SAT_BOX_BOX.spec(work_group_size=wg))
+                self.sat_kernels[kind] = prog.kernel("find_separating_axis")
+                self.sat_edge_axes[kind] = "closed_form"
+                continue
             first, second = kind.split("_")
             if box_path == "hull":
                 first, second = "hull", "hull"
@@ -230,9 +240,12 @@ class Narrowphase:
         if self.sat_kernels:
             result_count = self.sat_count
             for kind, kernel in self.sat_kernels.items():
-                edges = shapes.edges if self.sat_edge_axes[kind] == "directions" else shapes.adjacency
-                kernel.set_args(*common, _data(shapes.vertices), _data(shapes.faces),
-                                _data(edges), *queue_args, np.uint32(self.kind_index[kind]),
+                edge_axes = self.sat_edge_axes[kind]
+                hull_args = []
+                if edge_axes != "closed_form":
+                    edges = shapes.edges if edge_axes == "directions" else shapes.adjacency
+                    hull_args = [_data(shapes.vertices), _data(shapes.faces), _data(edges)]
+                kernel.set_args(*common, *hull_args, *queue_args, np.uint32(self.kind_index[kind]),
                                 self.sat_cache.data, self.sat_results.data, result_count.data,
                                 np.float32(margin))
                 events["sat_" + kind] = rt.launch(kernel, size, wg)

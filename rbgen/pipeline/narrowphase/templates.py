@@ -64,6 +64,14 @@ SAT = KernelTemplate(
                              "first": "box", "second": "box", "edge_axes": "directions"},
 )
 
+SAT_BOX_BOX = KernelTemplate(
+    "pipeline/narrowphase/sat_box_box.cl.mako",
+    [_WORK_GROUP],
+    doc="Separating-axis test of box pairs in closed form (15 axes, no array reads).",
+    roles={"cache": "inout", "result_count": "inout"},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
+)
+
 CLIP = KernelTemplate(
     "pipeline/narrowphase/clip.cl.mako",
     [_WORK_GROUP,
