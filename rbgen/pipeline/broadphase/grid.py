@@ -28,6 +28,11 @@ Step by step (all on the device, no blocking read):
    owners (at most LARGE_ROWS, else the query asks to be redone with slot
    emission) get their slices from scanned flag rows. See grid.cl.mako.
 
+Exactness: overlapping small bodies must land in adjacent cells; with the
+1% slack on the cell side this holds while coordinates stay within about
+80,000 cell sides of the origin (float32 rounding of lower / cell), e.g.
+160 km for 2 m cells.
+
 The cell is as small as the small bodies allow (a cell holds about one
 body in a dense packing), so ``large_factor`` only decides which bodies are
 too big for the grid: a larger factor keeps more bodies in the grid at the
