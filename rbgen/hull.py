@@ -183,14 +183,17 @@ def _counter_clockwise(vertices: np.ndarray, idx: np.ndarray, normal: np.ndarray
 
 def unique_edge_directions(vertices: np.ndarray, faces) -> np.ndarray:
     """One unit direction per family of (anti)parallel polygon edges."""
-    directions: list[np.ndarray] = []
-    for f in faces:
-        for a, b in zip(f, np.roll(f, -1)):
-            d = vertices[b] - vertices[a]
-            d = d / np.linalg.norm(d)
-            if not any(abs(np.dot(d, e)) > 1 - PARALLEL_TOLERANCE for e in directions):
-                directions.append(d)
-    return np.array(directions, np.float64).reshape(-1, 3)
+    starts = np.concatenate([f for f in faces])
+    ends = np.concatenate([np.roll(f, -1) for f in faces])
+    d = vertices[ends] - vertices[starts]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    kept = np.zeros((len(d), 3))
+    count = 0
+    for e in d:
+        if count == 0 or np.max(np.abs(kept[:count] @ e)) <= 1 - PARALLEL_TOLERANCE:
+            kept[count] = e
+            count += 1
+    return kept[:count].copy()
 
 
 def _to_principal_frame(vertices, faces, planes, integrals: SolidIntegrals, name) -> CookedHull:
