@@ -4,8 +4,9 @@
 ``benchmarks/scenes.py`` call, so a number printed by one means the same as
 in the others. Scenes:
 
-``box_pile``  ``n`` unit boxes dropped in a loose grid (1.5 m pitch, 1 cm
-              jitter) onto a static ground slab;
+``box_pile``  ``n`` unit boxes dropped in a loose grid (5 layers, 1.5 m
+              pitch, 1 cm jitter) onto a static ground slab: they land in
+              columns of 5 and should be at rest by step 300;
 ``boxbox``    Bullet3's BoxBox lattice (rbgen.scenes; ``n`` one of its
               standard sizes, or any n, rounded to a cube);
 ``pyramid``   a 2-D pyramid of unit boxes with ``n`` rows (2 cm gaps).
@@ -27,6 +28,9 @@ from .world import World
 
 SCENES = ("box_pile", "boxbox", "pyramid")
 
+#: layers of the box_pile grid (8,000 boxes: 40 x 5 x 40 at a 1.5 m pitch)
+PILE_LAYERS = 5
+
 
 def build_scene(name: str, n: int, device=None, **world_options):
     """(world, ids of the dynamic boxes, ground top height, box half extent)."""
@@ -45,8 +49,9 @@ def build_scene(name: str, n: int, device=None, **world_options):
         ids = world.add_bodies(Box(scene.half_extents), mass=scene.mass, positions=scene.positions)
         return world, ids, float(scene.ground_offset), float(scene.half_extents[1])
     if name == "box_pile":
-        side = int(np.ceil(n ** (1 / 3)))
-        i, j, k = np.meshgrid(np.arange(side), np.arange(side), np.arange(side), indexing="ij")
+        layers = min(PILE_LAYERS, int(n))
+        side = int(np.ceil(np.sqrt(n / layers)))
+        i, j, k = np.meshgrid(np.arange(side), np.arange(layers), np.arange(side), indexing="ij")
         positions = np.stack([1.5 * i, 1.0 + 1.5 * j, 1.5 * k], -1).reshape(-1, 3)[:n]
         positions = positions + np.random.default_rng(0).uniform(-0.01, 0.01, positions.shape)
         extent = 1.5 * side / 2 + 10

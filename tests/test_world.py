@@ -20,9 +20,10 @@ def ground(world, friction=0.6, restitution=0.0, orientation=(0, 0, 0, 1), posit
                             orientation=orientation, friction=friction, restitution=restitution)
 
 
-def test_box_resting_on_ground_does_not_drift(runtime):
+@pytest.mark.parametrize("penetration", ["baumgarte", "split"])
+def test_box_resting_on_ground_does_not_drift(runtime, penetration):
     """A unit box placed on the ground stays put: drift < 1 mm over 600 steps."""
-    world = World(runtime)
+    world = World(runtime, penetration=penetration)
     ground(world)
     world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0.3, 0.5, -0.2))
     start = world.positions[1]
