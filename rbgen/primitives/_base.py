@@ -121,8 +121,9 @@ def split_params(params: dict[str, Any]) -> tuple[str, dict[str, Any]]:
     """``(shape, template parameters)`` of a primitive parameter dict."""
     params = dict(params)
     shape = params.pop("shape", None)
-    if shape not in ("gpu", "cpu"):
-        raise RbgenError(f"params['shape'] must be 'gpu' or 'cpu', got {shape!r}")
+    if shape not in ("gpu", "cpu", "chained"):
+        raise RbgenError(f"params['shape'] must be 'gpu' or 'cpu' (or 'chained' for a chained "
+                         f"Scan), got {shape!r}")
     return shape, params
 
 
@@ -159,6 +160,9 @@ class Primitive:
 
     def _spec_for(self, params: dict):
         shape, values = split_params(params)
+        if shape not in self.TEMPLATES:
+            raise RbgenError(f"params['shape']={shape!r} is not a shape of {type(self).__name__}; "
+                             f"expected one of {sorted(self.TEMPLATES)}")
         if "wavefront" in values and values.get("work_group_size", 0) < values["wavefront"]:
             raise RbgenError(f"params: work_group_size={values.get('work_group_size')} is smaller "
                              f"than wavefront={values['wavefront']}")

@@ -79,9 +79,11 @@ def _bench_compact(runtime, prim: Compact, n, rng):
 
 
 def _bench_fill(runtime, prim: Fill, n, rng):
+    """A device count: host counts use the driver's fill, not the tuned kernel."""
     array = cla.zeros(runtime.queue, n, prim.dtype)
+    count = cla.to_device(runtime.queue, np.array([n], np.uint32))
     value = prim.dtype.type(rng.integers(1, 1000))
-    return (lambda: prim(array, value)), (lambda: bool(np.all(array.get() == value)))
+    return (lambda: prim(array, value, n=count)), (lambda: bool(np.all(array.get() == value)))
 
 
 def _bench_bound_search(runtime, prim: BoundSearch, n, rng):
@@ -97,6 +99,9 @@ FAMILIES = [
     tuning.Family("scan", ("uint", "float"), scan.search_space,
                   lambda rt, v, p: Scan(rt, _NP[v], inclusive=False, params=p), _bench_scan,
                   lambda: Scan.TEMPLATES),
+    tuning.Family("scan_chained", ("uint",), scan.chained_search_space,
+                  lambda rt, v, p: Scan(rt, _NP[v], inclusive=False, chained=True, params=p),
+                  _bench_scan, lambda: {"chained": Scan.TEMPLATES["chained"]}),
     tuning.Family("radix_sort", ("kv", "keys"), radix_sort.search_space,
                   lambda rt, v, p: RadixSort(rt, 32, with_values=(v == "kv"), params=p),
                   _bench_sort, lambda: RadixSort.TEMPLATES),

@@ -8,14 +8,17 @@ without a round trip. Integer sums wrap modulo 2^32 like C.
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pyopencl as cl
+import pyopencl.array as cla
 
-from ..codegen import Param, power_of_two
+from ..codegen import Param, compile_spec, power_of_two
 from ..device import DeviceTraits
 from ..errors import RbgenError
 from ._base import (PrimitiveTemplate, Primitive, ceil_div, check_array, clamp_wavefront,
-                    cl_type, default_work_items, resolve_count)
+                    cl_type, default_work_items, resolve_count, size_bucket)
 
 DTYPES = ("uint", "int", "float")
 
@@ -53,6 +56,24 @@ CHUNKED = PrimitiveTemplate(
 )
 
 
+CHAINED = PrimitiveTemplate(
+    "primitives/scan_chained.cl.mako",
+    [
+        _DTYPE, _INCLUSIVE,
+        Param("work_group_size", power_of_two(1, 1024),
+              "work-items per tile (1 on CPUs: one work-item walks a whole tile)",
+              "a power of two from 1 to 1024, at least the wavefront"),
+        Param("items_per_thread", power_of_two(1, 1 << 16),
+              "elements per work-item; the tile stays in local memory between sum and scan",
+              "a power of two from 1 to 65536"),
+        Param("wavefront", (1, 32, 64), "segment width of the work-group scan (1: serial)"),
+    ],
+    doc="Prefix sum in one pass (chained scan, decoupled look-back); opt-in with a guard.",
+    defaults=lambda traits: {"dtype": "uint", "inclusive": False,
+                             **Scan.default_params(traits, shape="chained", strip=True)},
+)
+
+
 class Scan(Primitive):
     """``Scan(runtime, dtype, inclusive)(src, dst, n=None, total=None)``.
 
@@ -61,15 +82,23 @@ class Scan(Primitive):
     an optional device array that receives the sum of the n elements.
     """
 
-    family = "scan"
-    TEMPLATES = {"gpu": TILED, "cpu": CHUNKED}
+    TEMPLATES = {"gpu": TILED, "cpu": CHUNKED, "chained": CHAINED}
 
-    def __init__(self, runtime, dtype=np.uint32, inclusive: bool = False, *, params=None):
+    def __init__(self, runtime, dtype=np.uint32, inclusive: bool = False, *,
+                 chained: bool = False, params=None):
         self.dtype = np.dtype(dtype) if dtype is not None else None
         self.type_name = cl_type(dtype, "Scan dtype")
         self.inclusive = bool(inclusive)
+        #: opt-in single-pass scan; see scan_chained.cl.mako for its guard
+        self.chained = bool(chained)
+        if params is not None and (params.get("shape") == "chained") != self.chained:
+            raise RbgenError("params['shape'] == 'chained' if and only if chained=True")
         super().__init__(runtime, params)
         self._sums = None
+
+    @property
+    def family(self) -> str:
+        return "scan_chained" if self.chained else "scan"
 
     @property
     def variant(self) -> str:
@@ -81,7 +110,12 @@ class Scan(Primitive):
     @classmethod
     def default_params(cls, traits: DeviceTraits, shape: str | None = None, strip=False):
         shape = shape or traits.kind
-        if shape == "gpu":
+        if shape == "chained":
+            params = ({"shape": "chained", "work_group_size": 256, "items_per_thread": 16,
+                       "wavefront": clamp_wavefront(traits)} if traits.is_gpu else
+                      {"shape": "chained", "work_group_size": 1, "items_per_thread": 16384,
+                       "wavefront": 1})
+        elif shape == "gpu":
             params = {"shape": "gpu", "work_group_size": min(256, traits.max_work_group_size),
                       "items_per_thread": 8, "wavefront": clamp_wavefront(traits)}
             if params["work_group_size"] < params["wavefront"]:
@@ -93,7 +127,7 @@ class Scan(Primitive):
         return params
 
     def _scratch(self, count: int):
-        if self._sums is None or self._sums.size < count:
+        if self._sums is None or self._sums.size < 4 * count:
             self._sums = cl.Buffer(self.runtime.context, cl.mem_flags.READ_WRITE,
                                    4 * max(count, 1))
         return self._sums
@@ -108,10 +142,34 @@ class Scan(Primitive):
         capacity, device_count = resolve_count(self.runtime, n, src.size)
         return self.enqueue(buf_src, buf_dst, capacity, device_count, buf_total)
 
+    def params_for(self, capacity: int):
+        params = super().params_for(capacity)
+        if self.chained and self.params_override is None and params.get("shape") != "chained":
+            params = self.default_params(self.runtime.traits, "chained")
+        return params
+
+    def program(self, capacity: int):
+        """As `Primitive.program`, but a chained scan must first pass its guard."""
+        params, program = super().program(capacity)
+        if params["shape"] == "chained" and not chained_scan_works(self.runtime, params):
+            key = (tuple(sorted(self.template_values().items())), size_bucket(capacity))
+            fallback = self.default_params(self.runtime.traits)
+            self._programs[key] = (fallback, compile_spec(self.runtime, self._spec_for(fallback)))
+            return self._programs[key]
+        return params, program
+
     def enqueue(self, src, dst, capacity: int, device_count, total):
         """Launch on raw buffers (arguments already checked); used by other primitives."""
         params, program = self.program(capacity)
         rt, cap = self.runtime, np.uint32(capacity)
+        if params["shape"] == "chained":
+            tiles = max(1, ceil_div(capacity, params["work_group_size"] * params["items_per_thread"]))
+            state = self._scratch(2 + 3 * tiles)
+            cl.enqueue_fill_buffer(rt.queue, state, np.uint32(0), 0, 4 * (2 + tiles))
+            kernel = program.kernel("scan_chained")
+            kernel.set_args(src, dst, cap, device_count, state, total)
+            wg = params["work_group_size"]
+            return rt.launch(kernel, tiles * wg, wg)
         if params["shape"] == "gpu":
             wg = params["work_group_size"]
             tiles = max(1, ceil_div(capacity, wg * params["items_per_thread"]))
@@ -134,6 +192,55 @@ class Scan(Primitive):
         rt.launch(k_reduce, chunks, 1)
         rt.launch(k_sums, 1, 1)
         return rt.launch(k_scan, chunks, 1)
+
+
+_GUARD: dict[tuple, bool] = {}
+
+
+def chained_scan_works(runtime, params: dict) -> bool:
+    """The chained scan's guard: run it once per device and parameters on a
+    many-tile input and compare with numpy; a failure (wrong result or the
+    device-side spin limit hit) warns and makes callers fall back."""
+    key = (id(runtime.context), tuple(sorted(params.items())))
+    if key not in _GUARD:
+        _GUARD[key] = True  # the probe itself must use the chained kernel
+        tile = params["work_group_size"] * params["items_per_thread"]
+        n = 6 * tile + 3
+        x = np.random.default_rng(12345).integers(0, 8, n).astype(np.uint32)
+        probe = Scan(runtime, np.uint32, inclusive=False, chained=True, params=params)
+        src = cla.to_device(runtime.queue, x)
+        dst = cla.empty_like(src)
+        probe(src, dst)
+        state = np.empty(2, np.uint32)
+        cl.enqueue_copy(runtime.queue, state, probe._sums, is_blocking=True)
+        expected = np.concatenate([[0], np.cumsum(x, dtype=np.uint32)[:-1]])
+        ok = bool(state[1] == 0 and np.array_equal(dst.get(), expected))
+        if not ok:
+            warnings.warn(f"chained scan with {params} failed its check on "
+                          f"{runtime.traits.device_name}; using reduce-then-scan instead",
+                          RuntimeWarning, stacklevel=3)
+        _GUARD[key] = ok
+    return _GUARD[key]
+
+
+def chained_search_space(traits: DeviceTraits) -> list[dict]:
+    """Candidates for the opt-in chained scan (tuned as family ``scan_chained``)."""
+    space = [Scan.default_params(traits, "chained")]
+    if traits.is_gpu:
+        wf = clamp_wavefront(traits)
+        for wg, ipt in ((128, 16), (256, 8), (256, 16), (512, 8)):
+            if wg <= traits.max_work_group_size:
+                space.append({"shape": "chained", "work_group_size": wg, "items_per_thread": ipt,
+                              "wavefront": wf})
+    else:
+        for ipt in (4096, 16384, 65536):
+            space.append({"shape": "chained", "work_group_size": 1, "items_per_thread": ipt,
+                          "wavefront": 1})
+    unique = []
+    for p in space:
+        if p not in unique:
+            unique.append(p)
+    return unique
 
 
 def search_space(traits: DeviceTraits) -> list[dict]:

@@ -107,3 +107,51 @@ def test_host_count_prefix(runtime, rng):
     assert np.array_equal(out[:1234], reference(x[:1234], True))
     assert np.all(out[1234:] == 7)
     assert total == x[:1234].sum()
+
+
+def chained_points(traits):
+    """The chained scan's own space, plus a GPU-like point on CPU devices."""
+    from rbgen.primitives.scan import chained_search_space
+    from .primitive_spaces import NVIDIA
+    points = list(chained_search_space(traits))
+    if not traits.is_gpu:
+        points.append(chained_search_space(NVIDIA)[0])
+    return points
+
+
+def test_chained_scan_every_point(runtime, rng):
+    """The opt-in single-pass scan: reduced size list plus a many-tile size, every point."""
+    for params in chained_points(runtime.traits):
+        tile = params["work_group_size"] * params["items_per_thread"]
+        for dtype, inclusive in ((np.uint32, False), (np.float32, True)):
+            scan = Scan(runtime, dtype, inclusive, chained=True, params=params)
+            assert scan.program(1000)[0] == params  # the guard passed: no fallback
+            for n in REDUCED_SIZES + [7 * tile + 3]:
+                x = small_values(rng, n, dtype)
+                out, total = run_scan(runtime, scan, x, in_place=(n == 1000))
+                assert np.array_equal(out, reference(x, inclusive).astype(dtype)), \
+                    f"{label(params)} n={n}"
+                assert total == x.astype(np.float64).sum()
+
+
+def test_chained_scan_device_count(runtime, rng):
+    scan = Scan(runtime, np.uint32, chained=True)
+    x = small_values(rng, 50_000, np.uint32)
+    for count in (0, 1, 33_333, 10**6):
+        m = min(count, x.size)
+        out, total = run_scan(runtime, scan, x,
+                              n=cla.to_device(runtime.queue, np.array([count], np.uint32)))
+        assert np.array_equal(out[:m], reference(x[:m], False)) and np.all(out[m:] == 7)
+        assert total == x[:m].sum()
+
+
+def test_chained_scan_guard_falls_back(runtime, rng, monkeypatch):
+    """When the guard reports failure (it warns then) the scan runs reduce-then-scan."""
+    from rbgen.primitives import scan as scan_module
+    monkeypatch.setattr(scan_module, "chained_scan_works", lambda rt, params: False)
+    scan = Scan(runtime, np.int32, inclusive=True, chained=True)
+    params, _ = scan.program(5000)
+    assert params == Scan.default_params(runtime.traits)
+    x = small_values(rng, 5000, np.int32)
+    out, _ = run_scan(runtime, scan, x)
+    assert np.array_equal(out, reference(x, True))

@@ -6,19 +6,26 @@
     combine = {"sum": "{a} + {b}", "min": "min({a}, {b})", "max": "max({a}, {b})"}[op]
 %>\
 /* ${op} of ${dtype} values, CPU shape: CHUNKS work-items (work groups of one)
- * each combine one long contiguous chunk with LANES independent private
- * accumulators (so the compiler can keep them in one vector register), then
+ * each combine one long contiguous chunk with LANES independent accumulators
+ * held in one vector, then
  * one work-item combines the chunk results into out[0].
  * The ${op} of no elements is ${identity}.
  */
 #define CHUNKS ${work_items}
-#define LANES 8
+<% lanes = 8 %>\
+#define LANES ${lanes}
 #define IDENTITY ${identity}
 typedef ${dtype} T;
+typedef ${dtype}${lanes} V;
 ${common.element_count()}
 ${common.chunk_range()}
 
 inline T combine(T a, T b)
+{
+    return ${combine.format(a="a", b="b")};
+}
+
+inline V combine_lanes(V a, V b)
 {
     return ${combine.format(a="a", b="b")};
 }
@@ -30,18 +37,18 @@ void reduce_chunks(__global const T* src, const uint capacity,
 {
     uint begin, end;
     chunk_range(element_count(capacity, device_count), get_global_id(0), &begin, &end);
-    T lanes[LANES];
-    for (uint l = 0; l < LANES; ++l)
-        lanes[l] = IDENTITY;
+    /* LANES independent accumulators in one vector: no loop-carried chain
+     * through a single register, and one vector load per step */
+    V lanes = (V)(IDENTITY);
     uint i = begin;
     for (; i + LANES <= end; i += LANES)
-        for (uint l = 0; l < LANES; ++l)
-            lanes[l] = combine(lanes[l], src[i + l]);
+        lanes = combine_lanes(lanes, vload${lanes}(0, src + i));
     T acc = IDENTITY;
     for (; i < end; ++i)
         acc = combine(acc, src[i]);
-    for (uint l = 0; l < LANES; ++l)
-        acc = combine(acc, lanes[l]);
+% for k in range(lanes):
+    acc = combine(acc, lanes.s${"%x" % k});
+% endfor
     partials[get_global_id(0)] = acc;
 }
 
