@@ -7,7 +7,8 @@ orientations and offsets, about half of them overlapping), margin 0:
 * for overlapping pairs, the axis within 1e-3 rad of the reference's and the
   penetration depth within 1e-4 relative (+ 4e-6 absolute: float32 rounding
   of coordinates of magnitude ~4);
-* the manifold's normal is that axis and no point is deeper than the depth.
+* the manifold's normal is that axis, no point is deeper than the depth, and
+  every point lies on B's surface (the ContactManifold convention).
 
 Skipped, by design (documented): pairs whose separation is within 1e-4 of
 zero (the float32 decision is a coin toss), and for the axis/depth checks,
@@ -25,7 +26,7 @@ from rbgen import layouts
 from rbgen.pipeline.narrowphase import Narrowphase
 from rbgen.shapes import Box, ConvexHull, ShapeTable
 
-from .reference import Placed, make_bodies, random_quaternions, sat
+from .reference import Placed, make_bodies, quat_matrix, random_quaternions, sat
 
 TIE = 3e-4
 UNDECIDED = 1e-4
@@ -104,6 +105,12 @@ def test_sat_matches_reference(runtime, rng, kind, n, box_path):
         np.testing.assert_allclose(m["normal"][:3], got[:3], atol=1e-6)
         seps = m["points"][: m["point_count"], 3]
         assert np.all(seps >= ref.separation - 1e-4) and np.all(seps <= 1e-6)
+        # the points lie on B's surface: on its boundary, inside all its face planes
+        shape_b = table.shapes[bodies["shape"][b]].cooked()
+        local = ((m["points"][: m["point_count"], :3] - bodies["position"][b, :3])
+                 @ quat_matrix(bodies["orientation"][b]))
+        height = (local @ shape_b.planes[:, :3].T - shape_b.planes[:, 3]).max(axis=1)
+        assert np.all(np.abs(height) < 1e-4), f"pair {i}: points off B's surface by {height}"
         checked += 1
     assert checked > n // 10, f"only {checked} of {n} pairs checked ({skipped_ties} ties)"
 
