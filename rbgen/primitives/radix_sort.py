@@ -106,7 +106,9 @@ class RadixSort(Primitive):
             wg = max(clamp_wavefront(traits), min(256, traits.max_work_group_size))
             return {"shape": "gpu", "radix_bits": 4, "work_group_size": wg,
                     "items_per_thread": 8, "wavefront": clamp_wavefront(traits)}
-        return {"shape": "cpu", "radix_bits": 8, "work_items": default_work_items(traits)}
+        # one chunk per compute unit: each chunk scatters to RADIX output streams,
+        # and more streams than the caches hold slow the scatter down
+        return {"shape": "cpu", "radix_bits": 8, "work_items": max(1, traits.compute_units)}
 
     def _buffer(self, name: str, count: int) -> cl.Buffer:
         buf = self._scratch.get(name)

@@ -8,12 +8,24 @@
  *   scan_chunk_sums   one work-item turns chunk_sums into exclusive offsets
  *                     (and writes the grand total when asked);
  *   scan_chunks       every work-item scans its chunk from its offset.
+ * Both walks take eight elements at a time as one vector, so the running sum
+ * (a serial dependency) advances once per eight elements.
  * src and dst may be the same buffer.
  */
 #define CHUNKS ${work_items}
 typedef ${dtype} T;
+typedef ${dtype}8 V;  /* eight consecutive elements, scanned in registers */
 ${common.element_count()}
 ${common.chunk_range()}
+
+/* Inclusive scan of the eight lanes of v, in three shifted additions. */
+inline V inclusive_scan8(V v)
+{
+    v.s1357 += v.s0246;
+    v.s2367 += v.s1155;
+    v.s4567 += v.s3333;
+    return v;
+}
 
 /* A work group (one work-item) is responsible for summing one chunk. */
 __kernel __attribute__((reqd_work_group_size(1, 1, 1)))
@@ -22,8 +34,12 @@ void reduce_chunks(__global const T* src, const uint capacity,
 {
     uint begin, end;
     chunk_range(element_count(capacity, device_count), get_global_id(0), &begin, &end);
-    T sum = 0;
-    for (uint i = begin; i < end; ++i)
+    V lanes = 0;
+    uint i = begin;
+    for (; i + 8 <= end; i += 8)
+        lanes += vload8(0, src + i);
+    T sum = inclusive_scan8(lanes).s7;
+    for (; i < end; ++i)
         sum += src[i];
     chunk_sums[get_global_id(0)] = sum;
 }
@@ -52,7 +68,17 @@ void scan_chunks(__global const T* src, __global T* dst, const uint capacity,
     uint begin, end;
     chunk_range(element_count(capacity, device_count), get_global_id(0), &begin, &end);
     T running = chunk_offsets[get_global_id(0)];
-    for (uint i = begin; i < end; ++i) {
+    uint i = begin;
+    for (; i + 8 <= end; i += 8) {
+        V inclusive = inclusive_scan8(vload8(0, src + i)) + running;
+% if inclusive:
+        vstore8(inclusive, 0, dst + i);
+% else:
+        vstore8((V)(running, inclusive.s012, inclusive.s3456), 0, dst + i);
+% endif
+        running = inclusive.s7;
+    }
+    for (; i < end; ++i) {
         T x = src[i];
 % if inclusive:
         running += x;
