@@ -58,15 +58,19 @@ def random_world(rng, kind: str, n: int):
     return table, bodies, pairs
 
 
-@pytest.mark.parametrize("kind,n,box_path", [("box_box", 2001, "box_box"), ("box_box", 500, "box"),
-                                             ("box_box", 500, "hull"), ("box_hull", 700, "box_box"),
-                                             ("hull_hull", 700, "box_box")])
-def test_sat_matches_reference(runtime, rng, kind, n, box_path):
+@pytest.mark.parametrize("kind,n,box_path,edge_axes", [
+    ("box_box", 2001, "box_box", None), ("box_box", 500, "box", None),
+    ("box_box", 500, "hull", "directions"), ("box_box", 300, "hull", "gauss_map"),
+    ("box_hull", 700, "box_box", None), ("hull_hull", 700, "box_box", None),
+    ("hull_hull", 300, "box_box", "directions")])
+def test_sat_matches_reference(runtime, rng, kind, n, box_path, edge_axes):
     """box_path: "box_box" (default) is the closed-form box-box kernel, "box" the generic test
-    with closed-form box projection, "hull" boxes through the generic hull projection."""
+    with closed-form box projection, "hull" boxes through the generic hull projection;
+    edge_axes: unique edge directions or Gauss-map edge pairs (None: the default)."""
     table, bodies, pairs = random_world(rng, kind, n)
     q = runtime.queue
-    narrowphase = Narrowphase(runtime, table, box_path=box_path)
+    narrowphase = Narrowphase(runtime, table, box_path=box_path,
+                              edge_axes={kind: edge_axes} if edge_axes else None)
     packed = table.pack_all().to_device(q)
     d_bodies, d_pairs = cla.to_device(q, bodies), cla.to_device(q, pairs)
     manifolds = narrowphase.find_contacts(d_bodies, packed, d_pairs, n)
