@@ -67,7 +67,9 @@ class World:
     impulse keeps recovery out of the velocities; its push rows start from zero
     every step, and a 20-row pyramid sinks 3 cm with it against 0.7 cm with
     Baumgarte at 10 iterations),
-    ``warm_start``, ``gyroscopic``, ``broadphase`` ("grid", "sap", "sap3"),
+    ``warm_start``, ``gyroscopic``, ``friction_model`` ("point": two friction
+    rows per contact point; "manifold": one pair at the centre plus twist),
+    ``broadphase`` ("grid", "sap", "sap3"),
     ``batching`` ("components": one solver launch per iteration, one work group
     per pile, the CPU default; "cells": 9 launches per iteration, piles spread
     over the device, the GPU default), ``group_count`` (solver work groups per
@@ -78,6 +80,7 @@ class World:
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), *, iterations: int = 10,
                  position_iterations: int = 4, relaxation: float | None = None,
                  penetration: str = "baumgarte", warm_start: bool = True, gyroscopic: bool = True,
+                 friction_model: str = "point",
                  broadphase: str = "grid", contact_margin: float = 0.02,
                  restitution_threshold: float = 0.5, penetration_slop: float = 0.001,
                  penetration_recovery: float = 0.2, linear_damping: float = 0.0,
@@ -99,13 +102,14 @@ class World:
         rt = self.runtime
         self._prepare = BodyPreparation(rt, gyroscopic=gyroscopic)
         self._integrate = Integrator(rt, gravity=False, damping=True)
-        self._constraints = ContactConstraints(rt, penetration=penetration, warm_start=warm_start)
+        self._constraints = ContactConstraints(rt, penetration=penetration, warm_start=warm_start,
+                                               friction=friction_model)
         self._batcher = ConstraintBatcher(rt, mode=batching, group_count=group_count)
         if relaxation is None:
             relaxation = 1.2 if self._batcher.mode == "components" else 1.0
         self.relaxation = float(relaxation)
         self._solver = ContactSolver(rt, split_impulse=penetration == "split",
-                                     max_batches=self._batcher.max_batches)
+                                     max_batches=self._batcher.max_batches, friction=friction_model)
         self.restitution_threshold = restitution_threshold
         self.penetration_slop = penetration_slop
         self.penetration_recovery = penetration_recovery

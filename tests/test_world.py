@@ -32,10 +32,10 @@ def test_box_resting_on_ground_does_not_drift(runtime, penetration):
     assert np.linalg.norm(world.positions[1] - start) < 1e-3
 
 
-def _incline(runtime, mu, steps):
+def _incline(runtime, mu, steps, friction_model="point"):
     theta = np.radians(30)
     q = (0, 0, np.sin(theta / 2), np.cos(theta / 2))  # ramp rising towards -x
-    world = World(runtime)
+    world = World(runtime, friction_model=friction_model)
     ground(world, friction=mu, orientation=q, position=(0, 0, 0))
     normal = np.array([-np.sin(theta), np.cos(theta), 0])
     start = 1.0 * normal + 0.5 * normal  # box centre 0.5 above the slab's top face (half 1)
@@ -48,16 +48,18 @@ def _incline(runtime, mu, steps):
     return np.array(positions), theta
 
 
-def test_box_on_incline_sticks_with_high_friction(runtime):
+@pytest.mark.parametrize("friction_model", ["point", "manifold"])
+def test_box_on_incline_sticks_with_high_friction(runtime, friction_model):
     """30 degree incline, mu = 0.7 > tan 30 = 0.577: the box moves < 1 mm over 300 steps."""
-    positions, _ = _incline(runtime, 0.7, 300)
+    positions, _ = _incline(runtime, 0.7, 300, friction_model)
     assert np.linalg.norm(positions[-1] - positions[0]) < 1e-3
 
 
-def test_box_slides_down_incline_with_low_friction(runtime):
+@pytest.mark.parametrize("friction_model", ["point", "manifold"])
+def test_box_slides_down_incline_with_low_friction(runtime, friction_model):
     """mu = 0.3: the box slides with a = g (sin 30 - mu cos 30) (within 5%), fitted from
     the distance travelled, s = a t^2 / 2, between steps 60 and 180."""
-    positions, theta = _incline(runtime, 0.3, 180)
+    positions, theta = _incline(runtime, 0.3, 180, friction_model)
     down = np.array([-np.cos(theta), -np.sin(theta), 0])
     s = (positions - positions[0]) @ down
     t = np.arange(len(s)) * DT

@@ -26,6 +26,9 @@ from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 
+#: friction models (see the template parameter "friction")
+FRICTION_MODELS = ("point", "manifold")
+
 PENETRATION_MODES = ("baumgarte", "split")
 
 TEMPLATE = KernelTemplate(
@@ -38,9 +41,12 @@ TEMPLATE = KernelTemplate(
               "Baumgarte biases the velocity rows; split impulse solves separate push rows"),
         Param("warm_start", (True, False),
               "emit the previous-step lookup only when warm starting is on"),
+        Param("friction", FRICTION_MODELS,
+              "point: two tangent rows per contact point; manifold: one tangent pair at the "
+              "points' centre plus a twist row (fewer rows, Bullet3's GPU choice)"),
     ],
     doc="Contact constraints (normal + two friction rows per point) from contact manifolds.",
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+    defaults=lambda traits: {"friction": "point", "work_group_size": default_work_group_size(traits),
                              "penetration": "split", "warm_start": True},
 )
 
@@ -73,14 +79,17 @@ class ContactConstraints:
     """
 
     def __init__(self, runtime: Runtime, *, penetration: str = "split", warm_start: bool = True,
-                 work_group_size: int | None = None):
+                 friction: str = "point", work_group_size: int | None = None):
         if penetration not in PENETRATION_MODES:
             raise RbgenError(f"penetration must be one of {PENETRATION_MODES}, got {penetration!r}")
         self.runtime = runtime
         self.penetration, self.warm_start = penetration, bool(warm_start)
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
+        if friction not in FRICTION_MODELS:
+            raise RbgenError(f"friction must be one of {FRICTION_MODELS}, got {friction!r}")
+        self.friction = friction
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, penetration=penetration,
-                                  warm_start=self.warm_start)
+                                  warm_start=self.warm_start, friction=friction)
         program = compile_spec(runtime, self.spec)
         self.setup_kernel = program.kernel("setup_contact_constraints")
         self.clear_kernel = program.kernel("clear_pair_table")

@@ -23,6 +23,9 @@ from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 
+#: friction models (see the template parameter "friction")
+FRICTION_MODELS = ("point", "manifold")
+
 TEMPLATE = KernelTemplate(
     "pipeline/solver.cl.mako",
     [
@@ -34,10 +37,13 @@ TEMPLATE = KernelTemplate(
               "a power of two from 2 to 4096"),
         Param("split_impulse", (True, False),
               "emit the position pass and the push-velocity kernels"),
+        Param("friction", FRICTION_MODELS,
+              "point: two tangent rows per contact point; manifold: one tangent pair at the "
+              "points' centre plus a twist row (fewer rows, Bullet3's GPU choice)"),
     ],
     doc="PGS velocity iterations (and split-impulse position iterations) over batched contacts.",
     roles={"constraints": "inout", "bodies": "inout", "split": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+    defaults=lambda traits: {"friction": "point", "work_group_size": default_work_group_size(traits),
                              "max_batches": 128, "split_impulse": True},
 )
 
@@ -55,12 +61,14 @@ class ContactSolver:
     """Launches the PGS iterations over a `ConstraintBatcher`'s batches."""
 
     def __init__(self, runtime: Runtime, *, split_impulse: bool = True, max_batches: int = 128,
-                 work_group_size: int | None = None):
+                 friction: str = "point", work_group_size: int | None = None):
         self.runtime = runtime
         self.split_impulse = bool(split_impulse)
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
+        if friction not in FRICTION_MODELS:
+            raise RbgenError(f"friction must be one of {FRICTION_MODELS}, got {friction!r}")
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, max_batches=int(max_batches),
-                                  split_impulse=self.split_impulse)
+                                  split_impulse=self.split_impulse, friction=friction)
         program = compile_spec(runtime, self.spec)
         self.velocity_kernel = program.kernel("solve_contacts")
         if self.split_impulse:

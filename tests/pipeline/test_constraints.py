@@ -50,18 +50,20 @@ class ContactRig:
     """Bodies + manifolds on the device, through setup, batching and the solver (no integration)."""
 
     def __init__(self, runtime, bodies, inv_inertia, *, penetration="split", warm_start=True,
-                 group_count=3, solver_work_group_size=None, batching="components"):
+                 group_count=3, solver_work_group_size=None, batching="components",
+                 friction="point"):
         self.runtime = runtime
         queue = runtime.queue
         self.body_count = len(bodies)
         self.bodies = cl_array.to_device(queue, bodies)
         self.inertia = cl_array.to_device(queue, inertia_records(inv_inertia))
         self.prepare = BodyPreparation(runtime, gyroscopic=False)
-        self.setup = ContactConstraints(runtime, penetration=penetration, warm_start=warm_start)
+        self.setup = ContactConstraints(runtime, penetration=penetration, warm_start=warm_start,
+                                        friction=friction)
         self.batcher = ConstraintBatcher(runtime, group_count=group_count, mode=batching,
                                          cell_size=2.5)
         self.solver = ContactSolver(runtime, split_impulse=penetration == "split",
-                                    work_group_size=solver_work_group_size)
+                                    work_group_size=solver_work_group_size, friction=friction)
         self.warm_start = warm_start
 
     def constraints(self, manifolds, dt=1 / 60, capacity_slack=3):

@@ -1,7 +1,15 @@
 /* Contact manifolds -> contact constraints (one per manifold, up to four
  * points, each with a normal row and two friction rows).
  *
- * For every point: lever arms, effective masses of the three rows, the normal
+% if friction == "point":
+ * Friction: per point, two tangent rows each.
+% else:
+ * Friction: per manifold, one tangent pair at the centre of the points (slot
+ * 0 of the tangent arrays) and a twist row about the normal (slot 1 of
+ * tangent1).
+% endif
+ *
+ * For every point: lever arms, effective masses of its rows, the normal
  * velocity target (restitution above a threshold velocity, speculative
  * approach for points still apart,
 % if penetration == "baumgarte":
@@ -102,12 +110,22 @@ inline void warm_start_from(__global const ContactConstraint* previous,
             }
             if (match == RB_SOLVER_NONE)
                 continue;
+            ((float*)&c->normal_impulse)[k] = ((__global const float*)&old->normal_impulse)[match];
+% if friction == "point":
             float3 friction = old->tangent1.xyz * ((__global const float*)&old->tangent1_impulse)[match]
                             + old->tangent2.xyz * ((__global const float*)&old->tangent2_impulse)[match];
-            ((float*)&c->normal_impulse)[k] = ((__global const float*)&old->normal_impulse)[match];
             ((float*)&c->tangent1_impulse)[k] = dot(friction, c->tangent1.xyz);
             ((float*)&c->tangent2_impulse)[k] = dot(friction, c->tangent2.xyz);
+% endif
         }
+% if friction == "manifold":
+        /* the manifold's friction pair (slot 0) and twist (tangent1 slot 1) */
+        float3 friction = old->tangent1.xyz * old->tangent1_impulse.x
+                        + old->tangent2.xyz * old->tangent2_impulse.x;
+        c->tangent1_impulse.x = dot(friction, c->tangent1.xyz);
+        c->tangent2_impulse.x = dot(friction, c->tangent2.xyz);
+        c->tangent1_impulse.y = old->tangent1_impulse.y;
+% endif
     }
 }
 % endif
@@ -188,8 +206,10 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
         c.r_a[k] = (float4)(ra, 0.0f);
         c.r_b[k] = (float4)(rb, 0.0f);
         normal_mass[k] = row_mass(n, ra, rb, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b);
+% if friction == "point":
         tangent1_mass[k] = row_mass(t1, ra, rb, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b);
         tangent2_mass[k] = row_mass(t2, ra, rb, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b);
+% endif
 
         /* normal velocity of B relative to A (> 0: separating) */
         float approach = dot(vb + cross(wb, rb) - va - cross(wa, ra), n);
@@ -208,6 +228,21 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
         position_target[k] = push;
 % endif
     }
+% if friction == "manifold":
+    /* one friction pair at the centre of the points, and a twist row about n */
+    float3 centre_a = (float3)(0.0f), centre_b = (float3)(0.0f);
+    for (uint k = 0; k < c.point_count; ++k)
+        centre_a += c.r_a[k].xyz, centre_b += c.r_b[k].xyz;
+    float share = c.point_count > 0 ? 1.0f / (float)c.point_count : 0.0f;
+    centre_a *= share;
+    centre_b *= share;
+    tangent1_mass[0] = row_mass(t1, centre_a, centre_b, inv_mass_a, inv_mass_b, inv_inertia_a,
+                                inv_inertia_b);
+    tangent2_mass[0] = row_mass(t2, centre_a, centre_b, inv_mass_a, inv_mass_b, inv_inertia_a,
+                                inv_inertia_b);
+    float twist = dot(n, mul_rows(inv_inertia_a, n)) + dot(n, mul_rows(inv_inertia_b, n));
+    tangent1_mass[1] = twist > 0.0f ? 1.0f / twist : 0.0f;
+% endif
     c.normal_mass = vload4(0, normal_mass);
     c.tangent1_mass = vload4(0, tangent1_mass);
     c.tangent2_mass = vload4(0, tangent2_mass);

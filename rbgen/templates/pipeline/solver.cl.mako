@@ -7,9 +7,15 @@
  * share no dynamic body, so they may write body velocities without atomics.
  * The last batch slot (${max_batches - 1}) holds any remainder and is solved by lane 0 alone.
  *
- * Rows per contact point: normal (impulse >= 0, drives the normal velocity to
- * its target; all points' normal rows first) and a friction pair clamped to the disc |f| <= mu * normal
- * impulse. Impulses are accumulated, so warm starting applies last step's
+ * Rows: per contact point a normal row (impulse >= 0, drives the normal
+ * velocity to its target; all points' normal rows first), then
+% if friction == "point":
+ * per point a friction pair clamped to the disc |f| <= mu * its normal impulse.
+% else:
+ * one friction pair at the centre of the points, clamped to the disc
+ * |f| <= mu * the total normal impulse, and a twist row about the normal.
+% endif
+ * Impulses are accumulated, so warm starting applies last step's
  * totals once, for every constraint, before the first iteration's sweep.
 % if split_impulse:
  * The split-impulse position pass solves the same normal rows on separate
@@ -73,12 +79,27 @@ void warm_start_contact(__global const ContactConstraint* c, __global Body* bodi
     vstore4(c->normal_impulse, 0, normal_impulse);
     vstore4(c->tangent1_impulse, 0, tangent1_impulse);
     vstore4(c->tangent2_impulse, 0, tangent2_impulse);
+% if friction == "point":
     for (uint k = 0; k < c->point_count; ++k) {
         float3 p = c->normal.xyz * normal_impulse[k] + c->tangent1.xyz * tangent1_impulse[k]
                  + c->tangent2.xyz * tangent2_impulse[k];
         apply_impulse(p, c->r_a[k].xyz, c->r_b[k].xyz, inv_mass_a, inv_inertia_a, &va, &wa,
                       inv_mass_b, inv_inertia_b, &vb, &wb);
     }
+% else:
+    float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
+    for (uint k = 0; k < c->point_count; ++k) {
+        apply_impulse(c->normal.xyz * normal_impulse[k], c->r_a[k].xyz, c->r_b[k].xyz,
+                      inv_mass_a, inv_inertia_a, &va, &wa, inv_mass_b, inv_inertia_b, &vb, &wb);
+        ra += c->r_a[k].xyz, rb += c->r_b[k].xyz;
+    }
+    float share = c->point_count > 0 ? 1.0f / (float)c->point_count : 0.0f;
+    float3 p = c->tangent1.xyz * tangent1_impulse[0] + c->tangent2.xyz * tangent2_impulse[0];
+    apply_impulse(p, ra * share, rb * share, inv_mass_a, inv_inertia_a, &va, &wa,
+                  inv_mass_b, inv_inertia_b, &vb, &wb);
+    wa -= mul_rows(inv_inertia_a, c->normal.xyz * tangent1_impulse[1]);
+    wb += mul_rows(inv_inertia_b, c->normal.xyz * tangent1_impulse[1]);
+% endif
     if (inv_mass_a > 0.0f) {
         bodies[a].linear_velocity.xyz = va;
         bodies[a].angular_velocity.xyz = wa;
@@ -123,6 +144,7 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
         apply_impulse(n * delta, ra, rb, inv_mass_a, inv_inertia_a, &va, &wa,
                       inv_mass_b, inv_inertia_b, &vb, &wb);
     }
+% if friction == "point":
     for (uint k = 0; k < count; ++k) {
         /* friction pair: |(f1, f2)| <= mu * normal impulse */
         float3 ra = c->r_a[k].xyz, rb = c->r_b[k].xyz;
@@ -142,6 +164,42 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
         apply_impulse(p, ra, rb, inv_mass_a, inv_inertia_a, &va, &wa,
                       inv_mass_b, inv_inertia_b, &vb, &wb);
     }
+% else:
+    /* one friction pair at the centre of the points: |(f1, f2)| <= mu * total normal
+     * impulse, and a twist row about n: |f| <= mu * total * mean point distance */
+    float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
+    float total = 0.0f;
+    for (uint k = 0; k < count; ++k)
+        ra += c->r_a[k].xyz, rb += c->r_b[k].xyz, total += normal_impulse[k];
+    float share = count > 0 ? 1.0f / (float)count : 0.0f;
+    ra *= share;
+    rb *= share;
+    float3 dv = relative_velocity(ra, rb, va, wa, vb, wb);
+    float f1 = tangent1_impulse[0] - relaxation * tangent1_mass[0] * dot(dv, t1);
+    float f2 = tangent2_impulse[0] - relaxation * tangent2_mass[0] * dot(dv, t2);
+    float limit = friction * total;
+    float length_sq = f1 * f1 + f2 * f2;
+    if (length_sq > limit * limit) {
+        float scale = limit * rsqrt(length_sq);
+        f1 *= scale;
+        f2 *= scale;
+    }
+    float3 p = t1 * (f1 - tangent1_impulse[0]) + t2 * (f2 - tangent2_impulse[0]);
+    tangent1_impulse[0] = f1;
+    tangent2_impulse[0] = f2;
+    apply_impulse(p, ra, rb, inv_mass_a, inv_inertia_a, &va, &wa, inv_mass_b, inv_inertia_b,
+                  &vb, &wb);
+    float radius = 0.0f;
+    for (uint k = 0; k < count; ++k)
+        radius += length(c->r_b[k].xyz - rb);
+    float twist_limit = limit * radius * share;
+    float twist = clamp(tangent1_impulse[1] - relaxation * tangent1_mass[1] * dot(wb - wa, n),
+                        -twist_limit, twist_limit);
+    float twist_delta = twist - tangent1_impulse[1];
+    tangent1_impulse[1] = twist;
+    wa -= mul_rows(inv_inertia_a, n * twist_delta);
+    wb += mul_rows(inv_inertia_b, n * twist_delta);
+% endif
     c->normal_impulse = vload4(0, normal_impulse);
     c->tangent1_impulse = vload4(0, tangent1_impulse);
     c->tangent2_impulse = vload4(0, tangent2_impulse);
