@@ -5,7 +5,8 @@ A step enqueues a fixed sequence of launches with no blocking read:
 1. ``classify_pairs`` routes every pair to the queue of its shape-type pair
    ("kind", see `templates.ALL_KINDS`) and clears its contact flag;
 2. one kernel per primitive kind (sphere-sphere, sphere-plane, sphere-convex,
-   convex-plane) writes the pair's manifold slot;
+   sphere-capsule, capsule-capsule, capsule-plane, convex-plane) writes the
+   pair's manifold slot;
 3. convex pairs (box-box, box-hull, hull-hull) go through three small kernels
    instead of one large one (which would spill registers and diverge on
    GPUs): ``find_separating_axis`` (one launch per convex kind) appends the
@@ -48,7 +49,7 @@ from .templates import (ALL_KINDS, CLIP, CONVEX_KINDS, DISPATCH, PRIMITIVE_KINDS
                         SAT, SAT_BOX_BOX)
 from .templates import default_work_group_size
 
-SUPPORTED_TYPES = ("box", "hull", "plane", "sphere")
+SUPPORTED_TYPES = ("box", "capsule", "hull", "plane", "sphere")
 #: box_box: box pairs get the closed-form 15-axis kernel; box: the generic test with
 #: boxes projected in closed form; hull: boxes treated as hulls (benchmarks compare them)
 BOX_PATHS = ("box_box", "box", "hull")
@@ -62,7 +63,16 @@ def kinds_for(shape_types) -> tuple[str, ...]:
         raise RbgenError(f"narrowphase: shape type(s) {unsupported} are not supported "
                          f"(supported: {list(SUPPORTED_TYPES)})")
     convex = types & {"box", "hull"}
+    if "capsule" in types and convex:
+        raise RbgenError(f"narrowphase: capsules against {sorted(convex)} are not supported "
+                         "(capsules collide with spheres, capsules and planes)")
     wanted = set()
+    if "capsule" in types:
+        wanted.add("capsule_capsule")
+        if "sphere" in types:
+            wanted.add("sphere_capsule")
+        if "plane" in types:
+            wanted.add("capsule_plane")
     if "sphere" in types:
         wanted.add("sphere_sphere")
         if "plane" in types:

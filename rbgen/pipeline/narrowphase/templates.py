@@ -11,7 +11,8 @@ from ...device import DeviceTraits
 
 #: Shape-type pairs with a kernel; each names the kernel's (first, second) shape
 #: order. "convex" is a box or a hull (both carry cooked polygons).
-PRIMITIVE_KINDS = ("sphere_sphere", "sphere_plane", "sphere_convex", "convex_plane")
+PRIMITIVE_KINDS = ("sphere_sphere", "sphere_plane", "sphere_convex", "sphere_capsule",
+                   "capsule_capsule", "capsule_plane", "convex_plane")
 CONVEX_KINDS = ("box_box", "box_hull", "hull_hull")
 ALL_KINDS = PRIMITIVE_KINDS + CONVEX_KINDS
 
@@ -43,7 +44,7 @@ DISPATCH = KernelTemplate(
 PRIMITIVE_PAIRS = KernelTemplate(
     "pipeline/narrowphase/primitive_pairs.cl.mako",
     [_WORK_GROUP, _kinds_param(PRIMITIVE_KINDS)],
-    doc="Sphere-sphere, sphere-plane, sphere-convex and convex-plane contacts.",
+    doc="Contacts of pairs with a sphere, a capsule or a plane (closed forms, one kernel each).",
     roles={"slots": "inout", "contact_flags": "inout"},
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
                              "kinds": PRIMITIVE_KINDS},

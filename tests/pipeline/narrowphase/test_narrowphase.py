@@ -410,3 +410,63 @@ def test_larger_faces_added_later_rebuild_the_clipping(runtime):
     assert narrowphase.max_face_vertices == 16
     assert list(m["point_count"]) == [4, 4]
     np.testing.assert_allclose(m["points"][:, :, 3], -0.01, atol=2e-5)
+
+
+def segment_closest(p, a0, a1):
+    d = a1 - a0
+    return a0 + d * np.clip(np.dot(p - a0, d) / np.dot(d, d), 0, 1)
+
+
+def test_capsule_pairs(runtime, rng):
+    """Capsules (radius r, segment of half length h along local y): a sphere beside the
+    segment and one beyond an end (closest segment point), a capsule lying on a plane
+    (2 points at the projected ends, depth d), a tilted one (1 point, the lower end),
+    crossed capsules (1 point between the segments) and parallel ones (2 points)."""
+    table = ShapeTable()
+    ground, ball = table.add(Plane()), table.add(Sphere(0.4))
+    rod = table.add(Capsule(0.3, 0.8))
+    q = axis_angle(rng.normal(size=3), rng.uniform(0, np.pi))
+    axis = quat_matrix(q) @ (0, 1, 0)
+    centre = np.array([5.0, 5.0, 5.0])
+    side = np.cross(axis, rng.normal(size=3))
+    side /= np.linalg.norm(side)
+    lying = axis_angle((0, 0, 1), np.pi / 2)
+    tilted = axis_angle((0, 0, 1), 0.4)
+    d = 0.02
+    tilt_low = 0.8 * np.cos(0.4) + 0.3 - d  # centre height: lower end sunk by d
+    flat = axis_angle((1, 0, 0), np.pi / 2)  # segment along z
+    bodies = make_bodies(
+        [ground, rod, ball, ball, rod, rod, rod, rod, rod, rod],
+        [(0, 0, 0), centre, centre + 0.3 * axis + 0.65 * side, centre + 1.5 * axis,
+         (10, 0.3 - d, 0), (20, tilt_low, 0),
+         (30, 0, 0), (30, 0.6 - d, 0.1), (40, 0, 0), (40.2, 0.6 - d, 0)],
+        [(0, 0, 0, 1), q, (0, 0, 0, 1), (0, 0, 0, 1), lying, tilted, lying, flat, lying, lying])
+    pairs = [(1, 2), (1, 3), (0, 4), (0, 5), (6, 7), (8, 9)]
+    found = contacts(runtime, table, bodies, pairs)
+    assert set(found) == set(pairs)
+    a0, a1 = centre - 0.8 * axis, centre + 0.8 * axis
+    for pair in [(1, 2), (1, 3)]:
+        m = found[pair]
+        c = bodies["position"][pair[1], :3].astype(np.float64)
+        on = segment_closest(c, a0, a1)
+        n = (c - on) / np.linalg.norm(c - on)  # from the capsule (a) to the sphere (b)
+        np.testing.assert_allclose(m["normal"][:3], n, atol=2e-5)
+        np.testing.assert_allclose(points(m)[0], (*(c - 0.4 * n), np.linalg.norm(c - on) - 0.7),
+                                   atol=2e-5)
+    m = found[(0, 4)]
+    assert m["point_count"] == 2
+    # points on body b, the capsule: the bottoms of its end caps
+    assert same_point_sets(points(m)[:, :3], [(10 - 0.8, -d, 0), (10 + 0.8, -d, 0)], atol=1e-5)
+    np.testing.assert_allclose(points(m)[:, 3], -d, atol=2e-5)
+    m = found[(0, 5)]
+    assert m["point_count"] == 1
+    low_end = np.array([20, tilt_low, 0]) - 0.8 * (quat_matrix(tilted) @ (0, 1, 0))
+    np.testing.assert_allclose(points(m)[0], (low_end[0], -d, 0, -d), atol=2e-5)
+    m = found[(6, 7)]  # crossing: x axis below, z axis above, offset 0.1 along z
+    assert m["point_count"] == 1
+    np.testing.assert_allclose(m["normal"][:3], (0, 1, 0), atol=1e-5)
+    np.testing.assert_allclose(points(m)[0], (30, 0.3 - d, 0, -d), atol=2e-5)
+    m = found[(8, 9)]  # parallel along x, shifted by 0.2: overlap [-0.6, 0.8] around x = 40
+    assert m["point_count"] == 2
+    assert same_point_sets(points(m)[:, :3], [(40 - 0.6, 0.3 - d, 0), (40.8, 0.3 - d, 0)], atol=1e-5)
+    np.testing.assert_allclose(points(m)[:, 3], -d, atol=2e-5)

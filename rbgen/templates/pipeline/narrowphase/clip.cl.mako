@@ -31,6 +31,7 @@ ${cl_structs("Body", "Shape", "Pair", "HullFace", "HullEdge", "SatResult", "Cont
 <%include file="/common/quaternion.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 <%include file="/pipeline/narrowphase/store_manifold.cl.mako"/>
+<%include file="/pipeline/narrowphase/segments.cl.mako"/>
 
 #define MAX_CLIP_POINTS ${max_clip}
 #define CLIPPED_BY_EDGE 32u
@@ -173,22 +174,6 @@ inline void supporting_edge(const Placement* p, Shape s, float3 direction, float
     *e1 = point_to_world(p, best1);
 }
 
-/* Closest point on segment q0 q1 to segment p0 p1 (both non-degenerate). */
-inline float3 closest_on_second_segment(float3 p0, float3 p1, float3 q0, float3 q1)
-{
-    float3 d1 = p1 - p0, d2 = q1 - q0, r = p0 - q0;
-    float a = dot(d1, d1), e = dot(d2, d2), f = dot(d2, r);
-    float b = dot(d1, d2), c = dot(d1, r);
-    float denom = a * e - b * b;
-    float s = denom > 1e-12f * a * e ? clamp((b * f - c * e) / denom, 0.0f, 1.0f) : 0.0f;
-    float t = (b * s + f) / e;
-    if (t < 0.0f)
-        t = 0.0f, s = clamp(-c / a, 0.0f, 1.0f);
-    else if (t > 1.0f)
-        t = 1.0f, s = clamp((b - c) / a, 0.0f, 1.0f);
-    return q0 + d2 * t;
-}
-
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void clip_incident_face(__global const Pair* pairs,
                         __global const Body* bodies,
@@ -233,7 +218,9 @@ void clip_incident_face(__global const Pair* pairs,
         float3 a1 = point_to_world(&pa, hull_vertices[sa.vertex_offset + edge_a.v1].xyz);
         float3 b0 = point_to_world(&pb, hull_vertices[sb.vertex_offset + edge_b.v0].xyz);
         float3 b1 = point_to_world(&pb, hull_vertices[sb.vertex_offset + edge_b.v1].xyz);
-        out_points[0] = (float4)(closest_on_second_segment(a0, a1, b0, b1), r.axis.w);
+        float3 on_a, on_b;
+        closest_points_of_segments(a0, a1, b0, b1, &on_a, &on_b);
+        out_points[0] = (float4)(on_b, r.axis.w);
         out_features[0] = EDGE_CONTACT | ((i & 0x7FFFu) << 15) | (j & 0x7FFFu);
         count = 1;
     } else {
@@ -245,7 +232,9 @@ void clip_incident_face(__global const Pair* pairs,
                         hull_faces, face_indices, &a0, &a1);
         supporting_edge(&pb, sb, hull_edges[sb.edge_offset + j].xyz, -r.axis.xyz, hull_vertices,
                         hull_faces, face_indices, &b0, &b1);
-        out_points[0] = (float4)(closest_on_second_segment(a0, a1, b0, b1), r.axis.w);
+        float3 on_a, on_b;
+        closest_points_of_segments(a0, a1, b0, b1, &on_a, &on_b);
+        out_points[0] = (float4)(on_b, r.axis.w);
         out_features[0] = EDGE_CONTACT | ((i & 0x7FFFu) << 15) | (j & 0x7FFFu);
         count = 1;
     }

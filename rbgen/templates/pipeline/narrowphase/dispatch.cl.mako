@@ -5,6 +5,7 @@
         "plane": "{v} == RB_SHAPE_PLANE",
         "box": "{v} == RB_SHAPE_BOX",
         "hull": "{v} == RB_SHAPE_HULL",
+        "capsule": "{v} == RB_SHAPE_CAPSULE",
         "convex": "({v} == RB_SHAPE_BOX || {v} == RB_SHAPE_HULL)",
     }
     def test(type_name, var):

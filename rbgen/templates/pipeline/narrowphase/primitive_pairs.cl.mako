@@ -1,4 +1,4 @@
-/* Narrowphase kernels for pairs with a sphere or a plane: ${", ".join(kinds)}.
+/* Narrowphase kernels for pairs with a sphere, a capsule or a plane: ${", ".join(kinds)}.
  *
  * One work-item per queued pair; a work group is responsible for
  * ${work_group_size} consecutive entries of the kind's queue. Each kernel
@@ -12,6 +12,9 @@ ${cl_structs("Body", "Shape", "Pair", "HullFace", "ContactManifold")}
 <%include file="/common/quaternion.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 <%include file="/pipeline/narrowphase/store_manifold.cl.mako"/>
+% if any("capsule" in k for k in kinds):
+<%include file="/pipeline/narrowphase/segments.cl.mako"/>
+% endif
 
 /* Any unit vector: the normal used when two centres coincide. */
 #define FALLBACK_NORMAL ((float3)(0.0f, 1.0f, 0.0f))
@@ -156,6 +159,125 @@ ${queued_pair()}
         return;
     float4 point = (float4)(point_to_world(&hull_body, surface), separation);
     store_manifold(slots, contact_flags, q, rotate_to_world(&hull_body, normal), &point, &feature, 1u);
+}
+% endif
+% if any("capsule" in k for k in kinds):
+
+/* The segment of a capsule (along its local y axis) in the world. */
+inline void capsule_segment(Body body, float half_height, float3* p0, float3* p1)
+{
+    float3 half_axis = quat_rotate(body.orientation, (float3)(0.0f, half_height, 0.0f));
+    *p0 = body.position.xyz - half_axis;
+    *p1 = body.position.xyz + half_axis;
+}
+
+/* A unit vector perpendicular to v, or FALLBACK_NORMAL when v is zero. */
+inline float3 any_perpendicular(float3 v)
+{
+    if (dot(v, v) == 0.0f)
+        return FALLBACK_NORMAL;
+    float3 other = fabs(v.x) < 0.9f * length(v) ? (float3)(1.0f, 0.0f, 0.0f) : (float3)(0.0f, 1.0f, 0.0f);
+    return normalize(cross(v, other));
+}
+% endif
+% if "sphere_capsule" in kinds:
+
+/* Sphere (first) against capsule (second): the sphere against the closest point
+ * of the capsule's segment. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void sphere_capsule(${queue_args("sphere_capsule")})
+{
+${queued_pair()}
+    Body a = bodies[q.first], b = bodies[q.second];
+    float ra = shapes[a.shape].extents.x;
+    float4 capsule = shapes[b.shape].extents;  /* radius, half height */
+    float3 p0, p1, centre = a.position.xyz, on_centre, on_segment;
+    capsule_segment(b, capsule.y, &p0, &p1);
+    closest_points_of_segments(centre, centre, p0, p1, &on_centre, &on_segment);
+    float3 d = on_segment - centre;
+    float distance = length(d);
+    float separation = distance - ra - capsule.x;
+    if (separation > margin)
+        return;
+    float3 normal = distance > 1e-6f * (ra + capsule.x) ? d / distance : any_perpendicular(p1 - p0);
+    float4 point = (float4)(on_segment - normal * capsule.x, separation);
+    uint feature = 0u;
+    store_manifold(slots, contact_flags, q, normal, &point, &feature, 1u);
+}
+% endif
+% if "capsule_capsule" in kinds:
+
+/* Capsule (first) against capsule (second): the closest points of the segments;
+ * parallel segments that overlap along their axis touch at the two ends of the
+ * overlap. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void capsule_capsule(${queue_args("capsule_capsule")})
+{
+${queued_pair()}
+    Body a = bodies[q.first], b = bodies[q.second];
+    float4 ca = shapes[a.shape].extents, cb = shapes[b.shape].extents;
+    float3 a0, a1, b0, b1, on_a, on_b;
+    capsule_segment(a, ca.y, &a0, &a1);
+    capsule_segment(b, cb.y, &b0, &b1);
+    closest_points_of_segments(a0, a1, b0, b1, &on_a, &on_b);
+    float3 d = on_b - on_a;
+    float distance = length(d);
+    float separation = distance - ca.x - cb.x;
+    if (separation > margin)
+        return;
+    float3 da = a1 - a0, db = b1 - b0;
+    float3 normal = distance > 1e-6f * (ca.x + cb.x) ? d / distance : any_perpendicular(da);
+
+    float4 points[2];
+    uint features[2] = {0u, 1u};
+    uint count = 1;
+    points[0] = (float4)(on_b - normal * cb.x, separation);
+    float la2 = dot(da, da), lb2 = dot(db, db);
+    float3 twist = cross(da, db);
+    if (la2 > 0.0f && lb2 > 0.0f && dot(twist, twist) < 1e-6f * la2 * lb2) {
+        /* parallel: the overlap of b's segment on a's axis, as fractions of a */
+        float u0 = dot(b0 - a0, da) / la2, u1 = dot(b1 - a0, da) / la2;
+        float lo = fmax(0.0f, fmin(u0, u1)), hi = fmin(1.0f, fmax(u0, u1));
+        if ((hi - lo) * sqrt(la2) > 1e-4f * (ca.x + cb.x)) {
+            float3 ends[2] = {a0 + da * lo, a0 + da * hi};
+            for (uint k = 0; k < 2; ++k) {
+                float3 across, on_second;
+                closest_points_of_segments(ends[k], ends[k], b0, b1, &across, &on_second);
+                points[k] = (float4)(on_second - normal * cb.x,
+                                     dot(normal, on_second - ends[k]) - ca.x - cb.x);
+            }
+            count = 2;
+        }
+    }
+    store_manifold(slots, contact_flags, q, normal, points, features, count);
+}
+% endif
+% if "capsule_plane" in kinds:
+
+/* Capsule (first) against plane (second): each end of the segment within the
+ * margin (plus the radius) of the plane gives a point. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void capsule_plane(${queue_args("capsule_plane")})
+{
+${queued_pair()}
+    Body a = bodies[q.first], b = bodies[q.second];
+    float4 capsule = shapes[a.shape].extents;
+    Placement plane_body = placement_of(b);
+    float4 plane = plane_to_world(&plane_body, shapes[b.shape].extents);
+    float3 ends[2];
+    capsule_segment(a, capsule.y, &ends[0], &ends[1]);
+    float4 points[2];
+    uint features[2];
+    uint count = 0;
+    for (uint k = 0; k < (capsule.y > 0.0f ? 2u : 1u); ++k) {
+        float height = dot(plane.xyz, ends[k]) - plane.w;
+        if (height - capsule.x > margin)
+            continue;
+        points[count] = (float4)(ends[k] - plane.xyz * height, height - capsule.x);
+        features[count++] = k;
+    }
+    if (count > 0)
+        store_manifold(slots, contact_flags, q, -plane.xyz, points, features, count);
 }
 % endif
 % if "convex_plane" in kinds:
