@@ -106,10 +106,11 @@ class Narrowphase:
     at construction, never during a step. ``box_path`` (see `BOX_PATHS`):
     "box_box" (default) runs box pairs through a closed-form 15-axis kernel,
     "box" through the generic test with boxes projected in closed form, "hull"
-    treats boxes as hulls (the benchmark compares them). ``edge_axes`` maps a convex kind to
-    "directions" or "gauss_map" (the edge-edge axes of its separating-axis
-    test); by default hull-hull tests use the Gauss map, tests with a box the
-    box's three directions.
+    treats boxes as hulls (the benchmark compares them). ``edge_axes`` maps a
+    convex kind to "directions" or "gauss_map" (the edge-edge axes of its
+    separating-axis test); by default hull-hull tests use the Gauss map, tests
+    with a box the box's three directions. A world whose shapes cannot touch
+    each other (only planes) gets a narrowphase that reports no contacts.
     """
 
     def __init__(self, runtime: Runtime, shapes, *, max_face_vertices: int | None = None,
@@ -126,19 +127,22 @@ class Narrowphase:
         else:
             types = tuple(shapes)
         edge_axes_for = dict(edge_axes or {})
+        unknown = sorted(set(edge_axes_for) - set(CONVEX_KINDS))
+        if unknown:
+            raise RbgenError(f"edge_axes: {unknown} are not convex kinds {list(CONVEX_KINDS)}")
         if box_path not in BOX_PATHS:
             raise RbgenError(f"box_path must be one of {BOX_PATHS}, got {box_path!r}")
         self.runtime = runtime
         self.kinds = kinds_for(types)
-        if not self.kinds:
-            raise RbgenError(f"narrowphase: no shape pair to test among shape types {list(types)}")
         self.kind_index = {k: i for i, k in enumerate(self.kinds)}
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
         wg = self.work_group_size
         self.max_face_vertices = max(3, int(max_face_vertices or 4))
-        dispatch = compile_spec(runtime, DISPATCH.spec(work_group_size=wg, kinds=self.kinds))
-        self.k_classify = dispatch.kernel("classify_pairs")
-        self.k_scatter = dispatch.kernel("scatter_manifolds")
+        self.k_classify = self.k_scatter = None
+        if self.kinds:
+            dispatch = compile_spec(runtime, DISPATCH.spec(work_group_size=wg, kinds=self.kinds))
+            self.k_classify = dispatch.kernel("classify_pairs")
+            self.k_scatter = dispatch.kernel("scatter_manifolds")
         primitive = tuple(k for k in self.kinds if k in PRIMITIVE_KINDS)
         self.primitive_kernels = {}
         if primitive:
@@ -226,6 +230,9 @@ class Narrowphase:
             raise RbgenError(f"margin must be a non-negative finite number, got {margin!r}")
         self._follow_table()
         rt, wg = self.runtime, self.work_group_size
+        if not self.kinds:  # nothing can touch: no manifolds
+            return {"clear": cl.enqueue_fill_buffer(rt.queue, _data(manifold_count), np.uint32(0),
+                                                     0, 4)}
         pair_capacity = int(pairs.size)
         self._ensure(max(1, pair_capacity))
         cap = np.uint32(self.capacity)

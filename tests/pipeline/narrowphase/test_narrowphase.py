@@ -470,3 +470,24 @@ def test_capsule_pairs(runtime, rng):
     assert m["point_count"] == 2
     assert same_point_sets(points(m)[:, :3], [(40 - 0.6, 0.3 - d, 0), (40.8, 0.3 - d, 0)], atol=1e-5)
     np.testing.assert_allclose(points(m)[:, 3], -d, atol=2e-5)
+
+
+def test_world_of_planes_reports_no_contacts(runtime):
+    """Shapes that cannot touch (only planes): no kernels, manifold count 0, no error."""
+    import pyopencl.array as cla
+    table = ShapeTable()
+    table.add(Plane())
+    table.add(Plane((1, 0, 0), 2.0))
+    narrowphase = Narrowphase(runtime, table)
+    assert narrowphase.kinds == ()
+    q = runtime.queue
+    count = cla.to_device(q, np.array([5], np.uint32))
+    narrowphase.enqueue(cla.to_device(q, make_bodies([0, 1], np.zeros((2, 3)))),
+                        table.pack_all().to_device(q),
+                        cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype)),
+                        cla.to_device(q, np.array([1], np.uint32)),
+                        cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype), count,
+                        cla.zeros(q, 1, np.uint32))
+    assert count.get()[0] == 0
+    with pytest.raises(RbgenError, match="edge_axes"):
+        Narrowphase(runtime, table, edge_axes={"sphere_sphere": "directions"})
