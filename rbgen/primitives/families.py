@@ -95,12 +95,20 @@ def _bench_bound_search(runtime, prim: BoundSearch, n, rng):
     return (lambda: prim(d_keys, d_queries, out)), (lambda: np.array_equal(out.get(), expected))
 
 
+def _build_chained(runtime, variant, params):
+    """A chained-scan candidate; one that fails its guard is rejected, not timed
+    as the reduce-then-scan it would fall back to."""
+    prim = Scan(runtime, _NP[variant], inclusive=False, chained=True, params=params)
+    if not scan.chained_scan_works(runtime, params):
+        raise RuntimeError("the chained scan failed its guard on this device")
+    return prim
+
+
 FAMILIES = [
     tuning.Family("scan", ("uint", "float"), scan.search_space,
                   lambda rt, v, p: Scan(rt, _NP[v], inclusive=False, params=p), _bench_scan,
                   lambda: Scan.TEMPLATES),
-    tuning.Family("scan_chained", ("uint",), scan.chained_search_space,
-                  lambda rt, v, p: Scan(rt, _NP[v], inclusive=False, chained=True, params=p),
+    tuning.Family("scan_chained", ("uint",), scan.chained_search_space, _build_chained,
                   _bench_scan, lambda: {"chained": Scan.TEMPLATES["chained"]}),
     tuning.Family("radix_sort", ("kv", "keys"), radix_sort.search_space,
                   lambda rt, v, p: RadixSort(rt, 32, with_values=(v == "kv"), params=p),
