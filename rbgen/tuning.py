@@ -5,9 +5,10 @@ search space for a device, how to build a candidate, and a benchmark input
 with a correctness check. `tune` runs every candidate once on that input and
 rejects those whose result is wrong, then times the rest with OpenCL events on
 `runtime.profiling_queue`'s timestamps (median of repeated runs) and keeps the
-fastest; candidates within `NOISE` of the fastest count as ties and the one
-listed first (the heuristic default leads every space) wins, so noise never
-flips a result away from the default.
+fastest; candidates within `NOISE` of the fastest (or within the fastest's own
+measured spread, if larger) count as ties and the one listed first (the
+heuristic default leads every space) wins, so noise never flips a result away
+from the default.
 
 Winners are stored in ``cache_dir()/"tuning"/<device fingerprint>.json``
 (format `CACHE_VERSION`), one entry per family, variant, template source hash
@@ -202,8 +203,8 @@ def profiling_runtime(runtime: Runtime) -> Runtime:
     return view
 
 
-def time_runs(runtime: Runtime, run: Callable, repeats: int) -> float:
-    """Median milliseconds of ``repeats`` runs, from OpenCL event timestamps.
+def time_samples(runtime: Runtime, run: Callable, repeats: int) -> list[float]:
+    """Milliseconds of ``repeats`` runs, from OpenCL event timestamps.
 
     ``run()`` enqueues on ``runtime.queue`` (a profiling queue); markers
     enqueued before and after it on the in-order queue bound the whole run.
@@ -221,7 +222,20 @@ def time_runs(runtime: Runtime, run: Callable, repeats: int) -> float:
         after = cl.enqueue_marker(queue)
         after.wait()
         times.append((after.profile.end - before.profile.start) * 1e-6)
-    return statistics.median(times)
+    return times
+
+
+def time_runs(runtime: Runtime, run: Callable, repeats: int) -> float:
+    """Median milliseconds of ``repeats`` runs (see `time_samples`)."""
+    return statistics.median(time_samples(runtime, run, repeats))
+
+
+def relative_spread(samples: list[float]) -> float:
+    """Interquartile range over median: how noisy a candidate's timings were."""
+    if len(samples) < 4:
+        return 0.0
+    q1, _, q3 = statistics.quantiles(samples, n=4)
+    return (q3 - q1) / statistics.median(samples)
 
 
 def tune(runtime: Runtime, family: str | Family, variant: str, n: int, *,
@@ -236,8 +250,12 @@ def tune(runtime: Runtime, family: str | Family, variant: str, n: int, *,
     with warnings.catch_warnings():
         # the profiling view builds its own kernel objects from the shared programs
         warnings.simplefilter("ignore", cl.RepeatedKernelRetrieval)
-        results = _run_candidates(runtime, fam, variant, n, space, rng, repeats, progress)
-    winner = pick_winner(results)
+        results, spreads = _run_candidates(runtime, fam, variant, n, space, rng, repeats, progress)
+    # ties: within NOISE, or within the measured spread of the fastest candidate
+    timed = [(i, ms) for i, (_, ms) in enumerate(results) if ms is not None]
+    fastest = min(timed, key=lambda item: item[1])[0] if timed else None
+    noise = max(NOISE, spreads[fastest]) if fastest is not None else NOISE
+    winner = pick_winner(results, noise)
     if winner is None:
         raise RbgenError(f"tuning {fam.name}[{variant}]: no candidate gave a correct result")
     params, ms = results[winner]
@@ -254,8 +272,9 @@ def tune(runtime: Runtime, family: str | Family, variant: str, n: int, *,
 
 
 def _run_candidates(runtime, fam, variant, n, space, rng, repeats, progress):
-    """``[(params, median ms or None when the result was wrong or failed)]``."""
+    """``[(params, median ms or None when wrong or failed)]`` and each one's spread."""
     results: list[tuple[dict, float | None]] = []
+    spreads: list[float] = []
     for i, params in enumerate(space):
         label = ", ".join(f"{k}={v}" for k, v in params.items())
         try:
@@ -267,12 +286,14 @@ def _run_candidates(runtime, fam, variant, n, space, rng, repeats, progress):
             ok = bool(check())
         except Exception as err:  # noqa: BLE001 - a candidate that fails to build is skipped
             ok, label = False, f"{label} ({type(err).__name__}: {err})"[:200]
-        ms = time_runs(runtime, run, repeats) if ok else None
+        samples = time_samples(runtime, run, repeats) if ok else []
+        ms = statistics.median(samples) if ok else None
         results.append((params, ms))
+        spreads.append(relative_spread(samples))
         if progress:
             what = f"{ms:.3f} ms" if ms is not None else "REJECTED (wrong result or build error)"
             progress(f"  [{i + 1}/{len(space)}] {fam.name}[{variant}] n={n}: {label}: {what}")
-    return results
+    return results, spreads
 
 
 #: sizes tuned by `tune_all` (quick: the first only)

@@ -167,3 +167,12 @@ def test_tune_rejects_wrong_candidates(cache_root, runtime):
     with pytest.raises(RbgenError, match="no candidate gave a correct result"):
         tuning.tune(runtime, all_wrong, "uint", 3000, repeats=1, store=False)
     assert not tuning.cache_path(runtime.traits).exists()
+
+
+def test_relative_spread():
+    """Interquartile range over median; too few samples count as no spread."""
+    assert tuning.relative_spread([1.0, 1.0, 1.0]) == 0.0
+    assert tuning.relative_spread([2.0] * 8) == 0.0
+    samples = [1.0, 1.0, 1.2, 1.2, 1.2, 1.4, 1.4]
+    q1, _, q3 = np.quantile(samples, [0.25, 0.5, 0.75], method="weibull")
+    assert tuning.relative_spread(samples) == pytest.approx((q3 - q1) / np.median(samples))

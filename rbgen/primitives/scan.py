@@ -80,6 +80,9 @@ class Scan(Primitive):
     ``src`` and ``dst`` are pyopencl arrays of ``dtype`` (may be the same);
     ``n`` is None (all of src), a host int or a device uint32 count; ``total``
     an optional device array that receives the sum of the n elements.
+    ``chained=True`` opts in to the single-pass chained scan (tuned as family
+    ``scan_chained``); it is checked once per device by `chained_scan_works`
+    and falls back to reduce-then-scan when that check fails.
     """
 
     TEMPLATES = {"gpu": TILED, "cpu": CHUNKED, "chained": CHAINED}
