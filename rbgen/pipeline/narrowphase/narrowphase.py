@@ -5,8 +5,8 @@ A step enqueues a fixed sequence of launches with no blocking read:
 1. ``classify_pairs`` routes every pair to the queue of its shape-type pair
    ("kind", see `templates.ALL_KINDS`) and clears its contact flag;
 2. one kernel per primitive kind (sphere-sphere, sphere-plane, sphere-convex,
-   sphere-capsule, capsule-capsule, capsule-plane, convex-plane) writes the
-   pair's manifold slot;
+   sphere-capsule, capsule-capsule, capsule-plane, capsule-convex,
+   convex-plane) writes the pair's manifold slot;
 3. convex pairs (box-box, box-hull, hull-hull) go through three small kernels
    instead of one large one (which would spill registers and diverge on
    GPUs): ``find_separating_axis`` (one launch per convex kind) appends the
@@ -45,8 +45,8 @@ from ...device import Runtime
 from ...errors import RbgenError
 from ...primitives.scan import Scan
 from ...shapes import PackedShapes, ShapeTable
-from .templates import (ALL_KINDS, CLIP, CONVEX_KINDS, DISPATCH, PRIMITIVE_KINDS, PRIMITIVE_PAIRS,
-                        SAT, SAT_BOX_BOX)
+from .templates import (ALL_KINDS, CAPSULE_CONVEX, CAPSULE_CONVEX_KIND, CLIP, CONVEX_KINDS,
+                        DISPATCH, PRIMITIVE_KINDS, PRIMITIVE_PAIRS, SAT, SAT_BOX_BOX)
 from .templates import default_work_group_size
 
 SUPPORTED_TYPES = ("box", "capsule", "hull", "plane", "sphere")
@@ -63,12 +63,11 @@ def kinds_for(shape_types) -> tuple[str, ...]:
         raise RbgenError(f"narrowphase: shape type(s) {unsupported} are not supported "
                          f"(supported: {list(SUPPORTED_TYPES)})")
     convex = types & {"box", "hull"}
-    if "capsule" in types and convex:
-        raise RbgenError(f"narrowphase: capsules against {sorted(convex)} are not supported "
-                         "(capsules collide with spheres, capsules and planes)")
     wanted = set()
     if "capsule" in types:
         wanted.add("capsule_capsule")
+        if convex:
+            wanted.add(CAPSULE_CONVEX_KIND)
         if "sphere" in types:
             wanted.add("sphere_capsule")
         if "plane" in types:
@@ -148,6 +147,9 @@ class Narrowphase:
         if primitive:
             prog = compile_spec(runtime, PRIMITIVE_PAIRS.spec(work_group_size=wg, kinds=primitive))
             self.primitive_kernels = {k: prog.kernel(k) for k in primitive}
+        if CAPSULE_CONVEX_KIND in self.kinds:
+            prog = compile_spec(runtime, CAPSULE_CONVEX.spec(work_group_size=wg))
+            self.primitive_kernels[CAPSULE_CONVEX_KIND] = prog.kernel("capsule_convex")
         self.sat_kernels, self.sat_edge_axes = {}, {}
         for kind in (k for k in self.kinds if k in CONVEX_KINDS):
             if kind == "box_box" and box_path == "box_box" and "box_box" not in edge_axes_for:
@@ -250,6 +252,9 @@ class Narrowphase:
             args = [*common, *queue_args, np.uint32(self.kind_index[kind]), *out_args]
             if kind == "sphere_convex":
                 args += [_data(shapes.vertices), _data(shapes.faces), _data(shapes.face_indices)]
+            elif kind == CAPSULE_CONVEX_KIND:
+                args += [_data(shapes.vertices), _data(shapes.faces), _data(shapes.face_indices),
+                         _data(shapes.edges)]
             elif kind == "convex_plane":
                 args += [_data(shapes.vertices)]
             kernel.set_args(*args)

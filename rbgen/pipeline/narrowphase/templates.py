@@ -13,8 +13,9 @@ from ...device import DeviceTraits
 #: order. "convex" is a box or a hull (both carry cooked polygons).
 PRIMITIVE_KINDS = ("sphere_sphere", "sphere_plane", "sphere_convex", "sphere_capsule",
                    "capsule_capsule", "capsule_plane", "convex_plane")
+CAPSULE_CONVEX_KIND = "capsule_convex"
 CONVEX_KINDS = ("box_box", "box_hull", "hull_hull")
-ALL_KINDS = PRIMITIVE_KINDS + CONVEX_KINDS
+ALL_KINDS = PRIMITIVE_KINDS + (CAPSULE_CONVEX_KIND,) + CONVEX_KINDS
 
 
 def default_work_group_size(traits: DeviceTraits) -> int:
@@ -48,6 +49,14 @@ PRIMITIVE_PAIRS = KernelTemplate(
     roles={"slots": "inout", "contact_flags": "inout"},
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
                              "kinds": PRIMITIVE_KINDS},
+)
+
+CAPSULE_CONVEX = KernelTemplate(
+    "pipeline/narrowphase/capsule_convex.cl.mako",
+    [_WORK_GROUP],
+    doc="Capsule against box or hull: segment separating axes, closest points, face clipping.",
+    roles={"slots": "inout", "contact_flags": "inout"},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
 )
 
 SAT = KernelTemplate(
