@@ -50,6 +50,8 @@ class BoundSearch(Primitive):
 
     @classmethod
     def default_params(cls, traits: DeviceTraits, shape: str | None = None):
+        """Heuristics: 128 queries per group on GPUs (4 warps hide the dependent
+        loads), 64 on CPUs."""
         shape = shape or traits.kind
         return {"shape": shape, "work_group_size": min(128 if shape == "gpu" else 64,
                                                         traits.max_work_group_size)}

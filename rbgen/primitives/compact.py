@@ -71,6 +71,7 @@ class Compact(Primitive):
 
     @classmethod
     def default_params(cls, traits: DeviceTraits, shape: str | None = None):
+        """Heuristics as for `Scan`: GPU tiles of 256 x 8 flags, CPU four chunks per CU."""
         if (shape or traits.kind) == "gpu":
             wf = clamp_wavefront(traits)
             return {"shape": "gpu", "work_group_size": max(wf, min(256, traits.max_work_group_size)),

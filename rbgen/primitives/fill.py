@@ -50,6 +50,8 @@ class Fill(Primitive):
 
     @classmethod
     def default_params(cls, traits: DeviceTraits, shape: str | None = None):
+        """Heuristics (device counts only): GPU 256 x 4 coalesced stores; CPU 64 x 256
+        (PoCL vectorises across the 64 work-items, each group fills 64 KiB)."""
         if (shape or traits.kind) == "gpu":
             return {"shape": "gpu", "work_group_size": min(256, traits.max_work_group_size),
                     "items_per_thread": 4}

@@ -102,6 +102,9 @@ class RadixSort(Primitive):
 
     @classmethod
     def default_params(cls, traits: DeviceTraits, shape: str | None = None):
+        """Heuristics: GPU 4-bit digits over tiles of 256 x 8 keys (16 KiB of rank
+        counters plus the 17 KiB tile fit 48 KiB of local memory); CPU 8-bit
+        digits (four passes, a 1 KiB private histogram) in one chunk per CU."""
         if (shape or traits.kind) == "gpu":
             wg = max(clamp_wavefront(traits), min(256, traits.max_work_group_size))
             return {"shape": "gpu", "radix_bits": 4, "work_group_size": wg,

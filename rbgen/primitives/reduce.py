@@ -73,6 +73,8 @@ class Reduce(Primitive):
 
     @classmethod
     def default_params(cls, traits: DeviceTraits, shape: str | None = None):
+        """Heuristics: GPU tiles of 256 x 16 (few partials, one tree per 4096
+        elements); CPU four chunks per compute unit."""
         if (shape or traits.kind) == "gpu":
             return {"shape": "gpu", "work_group_size": min(256, traits.max_work_group_size),
                     "items_per_thread": 16}
