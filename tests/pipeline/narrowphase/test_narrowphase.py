@@ -562,3 +562,20 @@ def test_capsule_box_distance_matches_brute_force(runtime, rng):
             np.testing.assert_allclose(points(found[i])[:, 3].min(), separation, atol=1e-4)
             checked += 1
     assert checked > 20
+
+
+def test_capsule_core_across_a_box_edge(runtime):
+    """A capsule whose core segment (along (-1, 1, 0)) cuts across the box's +x +y edge,
+    its centre d inside along the diagonal: the edge-edge axis wins; one point, normal
+    along the diagonal (box to capsule), separation -(d + r), point the capsule's deepest."""
+    table = ShapeTable()
+    slab, rod = table.add(Box((3, 0.5, 3))), table.add(Capsule(0.3, 0.8))
+    d = 0.05
+    diagonal = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
+    centre = np.array([3.0, 0.5, 0.0]) - d * diagonal
+    bodies = make_bodies([slab, rod], [(0, 0, 0), centre],
+                         [(0, 0, 0, 1), axis_angle((0, 0, 1), np.pi / 4)])
+    m = contacts(runtime, table, bodies, [(0, 1)])[(0, 1)]
+    assert m["point_count"] == 1
+    np.testing.assert_allclose(m["normal"][:3], diagonal, atol=1e-5)
+    np.testing.assert_allclose(points(m)[0], (*(centre - 0.3 * diagonal), -(d + 0.3)), atol=2e-5)
