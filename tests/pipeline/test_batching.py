@@ -158,4 +158,6 @@ def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rn
                      groups)
     assert len(np.unique(groups)) > 20
     leftover = batcher.launch_plan[-1][0]
-    assert np.count_nonzero(groups == leftover) >= 20  # most of body 0's far contacts
+    # body 0's far contacts lie in cells of other groups; only the first to claim body 0
+    # in each of the 8 colours keeps its group, the others are leftovers
+    assert np.count_nonzero(groups == leftover) >= 25 - 8

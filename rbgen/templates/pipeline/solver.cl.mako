@@ -8,7 +8,10 @@
  * The last batch slot (${max_batches - 1}) holds any remainder and is solved by lane 0 alone.
  *
  * Rows: per contact point a normal row (impulse >= 0, drives the normal
- * velocity to its target; all points' normal rows first), then
+ * velocity to its target; all points' normal rows first, forwards and
+ * backwards on alternate sweeps: always solving point 0 first biases a heavy
+ * stack's base and makes the whole column wobble, while rotating the order or
+ * changing it per step does not cure that), then
 % if friction == "point":
  * per point a friction pair clamped to the disc |f| <= mu * its normal impulse.
 % else:
@@ -36,6 +39,7 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
 /* what one solve_contacts launch does (bit flags of its `passes` argument) */
 #define WARM_START_PASS 1u
 #define SOLVE_PASS 2u
+#define REVERSE_PASS 4u
 
 inline float3 mul_rows(const float3 row[3], float3 v)
 {
@@ -113,7 +117,8 @@ void warm_start_contact(__global const ContactConstraint* c, __global Body* bodi
 /* Solve all rows of one constraint and write back its impulses and the
  * velocities of its dynamic bodies. */
 void solve_contact(__global ContactConstraint* c, __global Body* bodies,
-                   __global const BodyInertia* inertia, const float relaxation)
+                   __global const BodyInertia* inertia, const float relaxation,
+                   const bool reverse)
 {
     uint a = c->body_a, b = c->body_b, count = c->point_count;
     float inv_mass_a = bodies[a].inv_mass, inv_mass_b = bodies[b].inv_mass;
@@ -134,7 +139,9 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
     vstore4(c->tangent2_mass, 0, tangent2_mass);
     vstore4(c->velocity_target, 0, target);
 
-    for (uint k = 0; k < count; ++k) {
+    for (uint step = 0; step < count; ++step) {
+        /* alternate the point order between sweeps, so that no point is always first */
+        uint k = reverse ? count - 1 - step : step;
         float3 ra = c->r_a[k].xyz, rb = c->r_b[k].xyz;
         /* normal row: impulse >= 0 */
         float vn = dot(relative_velocity(ra, rb, va, wa, vb, wb), n);
@@ -229,6 +236,7 @@ void solve_contacts(__global ContactConstraint* constraints,
 {
     const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
     const bool apply_warm_start = passes & WARM_START_PASS, solve = passes & SOLVE_PASS;
+    const bool reverse = passes & REVERSE_PASS;
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint batch_count = group_batch_count[group];
     /* warm start (before the first sweep): old impulses, batch by batch */
@@ -247,7 +255,7 @@ void solve_contacts(__global ContactConstraint* constraints,
         if (batch == SERIAL_BATCH)
             stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
         for (uint i = begin + lane; i < end; i += stride)
-            solve_contact(&constraints[order[i]], bodies, inertia, relaxation);
+            solve_contact(&constraints[order[i]], bodies, inertia, relaxation, reverse);
         barrier(CLK_GLOBAL_MEM_FENCE);
     }
 }
