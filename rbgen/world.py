@@ -369,7 +369,7 @@ class World:
         self._finish_pending()
         if self._device_stale or self.body_count == 0:
             return {"bodies": self.body_count, "pairs": 0, "manifolds": 0, "contacts": 0,
-                    "batches": 0, **self.last_step_counters}
+                    "batches": 0, "groups_used": 0, **self.last_step_counters}
         read = self.runtime.read
         pairs = int(read(self._broadphase.count)[0])
         manifolds = int(read(self._constraints.count)[0])
