@@ -6,12 +6,15 @@
  *   scan_tile_counts   one work group turns the counts into exclusive offsets
  *                      and writes the total to out_count[0];
  *   scatter_tiles      every work group ranks its set flags (serial per item,
- *                      then a work-group scan) and writes them from its offset.
+ *                      then a work-group scan), gathers the kept elements in
+ *                      local memory and writes them from its offset, coalesced.
  */
 #define WG ${work_group_size}
 #define ITEMS ${items_per_thread}
 #define TILE (WG * ITEMS)
 #define WAVEFRONT ${wavefront}
+/* one padding slot every 32 flags: the serial per-item walk (stride ITEMS) hits distinct banks */
+#define PADDED(i) ((i) + ((i) >> 5))
 ${common.element_count()}
 ${common.work_group_reduce("uint", "sum", "{a} + {b}", work_group_size)}
 ${common.work_group_exclusive_scan("uint", work_group_size, wavefront)}
@@ -64,7 +67,10 @@ void scan_tile_counts(__global uint* tile_counts, const uint capacity,
         out_count[0] = kept;
 }
 
-/* A work group is responsible for writing the kept elements of one tile. */
+/* A work group is responsible for writing the kept elements of one tile.
+ * Flags are read coalesced into local memory, ranked (serial per work-item
+ * over ITEMS consecutive flags, then a work-group scan), the kept elements
+ * gathered in rank order in local memory and written out coalesced. */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void scatter_tiles(__global const uint* flags,
 % if gather_values:
@@ -73,27 +79,41 @@ void scatter_tiles(__global const uint* flags,
                    __global uint* out, const uint capacity,
                    __global const uint* device_count, __global const uint* tile_offsets)
 {
+    __local uint keep[PADDED(TILE)];   /* 1 if the element is kept */
+    __local uint kept[TILE];           /* kept elements in rank order */
     __local uint scratch[2 * WG];
     __local uint segment_sums[WG / WAVEFRONT + 1];
+    const uint lid = get_local_id(0);
     const uint n = element_count(capacity, device_count);
     const uint tile_start = get_group_id(0) * TILE;
     if (tile_start >= n)
         return;  /* the whole group leaves together */
-    /* work-item lid owns the ITEMS consecutive flags from `first` */
-    const uint first = tile_start + get_local_id(0) * ITEMS;
-    uint kept = 0;
-    for (uint j = 0; j < ITEMS; ++j)
-        kept += (first + j < n && flags[first + j] != 0u) ? 1u : 0u;
-    uint tile_kept;
-    uint position = tile_offsets[get_group_id(0)]
-                  + work_group_exclusive_scan_uint(kept, scratch, segment_sums, &tile_kept);
     for (uint j = 0; j < ITEMS; ++j) {
-        uint i = first + j;
-        if (i < n && flags[i] != 0u)
+        uint i = j * WG + lid;
+        keep[PADDED(i)] = (tile_start + i < n && flags[tile_start + i] != 0u) ? 1u : 0u;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+
+    /* work-item lid ranks the ITEMS consecutive flags from `first` */
+    const uint first = lid * ITEMS;
+    uint item_kept = 0;
+    for (uint j = 0; j < ITEMS; ++j)
+        item_kept += keep[PADDED(first + j)];
+    uint tile_kept;
+    uint rank = work_group_exclusive_scan_uint(item_kept, scratch, segment_sums, &tile_kept);
+    for (uint j = 0; j < ITEMS; ++j)
+        if (keep[PADDED(first + j)])
 % if gather_values:
-            out[position++] = values[i];
+            kept[rank++] = values[tile_start + first + j];
 % else:
-            out[position++] = i;
+            kept[rank++] = tile_start + first + j;
 % endif
+    barrier(CLK_LOCAL_MEM_FENCE);
+
+    const uint offset = tile_offsets[get_group_id(0)];
+    for (uint j = 0; j < ITEMS; ++j) {
+        uint r = j * WG + lid;
+        if (r < tile_kept)
+            out[offset + r] = kept[r];
     }
 }
