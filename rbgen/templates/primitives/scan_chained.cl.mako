@@ -5,10 +5,10 @@
  * Work groups take tiles of TILE = WG * ITEMS elements in the order they
  * start, by drawing a ticket from an atomic counter, so every tile's
  * predecessors have already started. A tile sums itself, publishes its sum
- * (AGGREGATE), then one work-item walks back over the predecessors adding
- * their sums until it meets one that knows its inclusive prefix (INCLUSIVE);
- * the tile publishes its own inclusive prefix and scans itself from its
- * exclusive prefix. The input is read once from memory: the tile is kept in
+ * (AGGREGATE), then looks back over its predecessors, WINDOW at a time (one
+ * per work-item), adding their sums until it meets one that knows its
+ * inclusive prefix (INCLUSIVE); the tile publishes its own inclusive prefix
+ * and scans itself from its exclusive prefix. The input is read once from memory: the tile is kept in
  * local memory between its sum and its scan.
  *
  * Guard: this relies on started work groups making progress while others
@@ -30,6 +30,8 @@
 #define TILE_AGGREGATE 1u
 #define TILE_INCLUSIVE 2u
 #define MAX_SPINS (1u << 26)
+/* predecessors examined at once by the look-back, one per work-item */
+#define WINDOW ${min(work_group_size, max(wavefront, 1))}
 typedef ${dtype} T;
 ${common.element_count()}
 ${common.work_group_exclusive_scan(dtype, work_group_size, wavefront)}
@@ -43,30 +45,25 @@ inline void publish(__global uint* status, __global uint* slot, uint flag, T val
     atomic_xchg(status, flag);
 }
 
-/* Exclusive prefix of `tile`: walk back over its predecessors, summing their
- * aggregates until one publishes its inclusive prefix. Run by one work-item. */
-inline T look_back(__global uint* state, uint tiles, uint tile)
+/* Wait (bounded) until tile t has published something; return its status,
+ * and its inclusive prefix or aggregate in *value. */
+inline uint wait_for_tile(__global uint* state, uint tiles, uint t, T* value)
 {
     __global uint* status = state + 2;
     __global uint* aggregates = status + tiles;
     __global uint* inclusives = aggregates + tiles;
-    T prefix = 0;
-    while (tile > 0) {
-        --tile;
-        uint flag, spins = 0;
-        do {
-            flag = atomic_or(&status[tile], 0u);
-        } while (flag == TILE_EMPTY && ++spins < MAX_SPINS);
-        if (flag == TILE_EMPTY) {
-            atomic_xchg(&state[1], 1u);  /* no progress: report, don't hang */
-            return prefix;
-        }
-        mem_fence(CLK_GLOBAL_MEM_FENCE);
-        if (flag == TILE_INCLUSIVE)
-            return prefix + as_${dtype}(atomic_or(&inclusives[tile], 0u));
-        prefix += as_${dtype}(atomic_or(&aggregates[tile], 0u));
+    uint flag, spins = 0;
+    do {
+        flag = atomic_or(&status[t], 0u);
+    } while (flag == TILE_EMPTY && ++spins < MAX_SPINS);
+    if (flag == TILE_EMPTY) {
+        atomic_xchg(&state[1], 1u);  /* no progress: report, don't hang */
+        *value = 0;
+        return TILE_INCLUSIVE;       /* and stop looking back */
     }
-    return prefix;
+    mem_fence(CLK_GLOBAL_MEM_FENCE);
+    *value = as_${dtype}(atomic_or(flag == TILE_INCLUSIVE ? &inclusives[t] : &aggregates[t], 0u));
+    return flag;
 }
 
 /* A work group is responsible for the tile whose ticket it draws. */
@@ -79,6 +76,9 @@ void scan_chained(__global const T* src, __global T* dst, const uint capacity,
     __local T segment_sums[WG / WAVEFRONT + 1];
     __local uint ticket;
     __local T tile_prefix;
+    __local uint window_flags[WINDOW];
+    __local T window_values[WINDOW];
+    __local uint look_from;  /* predecessors below this index are still to be read */
     const uint lid = get_local_id(0);
     const uint n = element_count(capacity, device_count);
     const uint tiles = (capacity + TILE - 1) / TILE;  /* state is sized by capacity */
@@ -104,23 +104,55 @@ void scan_chained(__global const T* src, __global T* dst, const uint capacity,
     T tile_sum;
     T running = work_group_exclusive_scan_${dtype}(item_sum, scratch, segment_sums, &tile_sum);
 
+    /* publish this tile's sum: tile 0 knows its inclusive prefix already */
+    __global uint* status = state + 2;
+    __global uint* aggregates = status + tiles;
+    __global uint* inclusives = aggregates + tiles;
     if (lid == 0) {
-        __global uint* status = state + 2;
-        __global uint* aggregates = status + tiles;
-        __global uint* inclusives = aggregates + tiles;
-        T prefix = 0;
-        if (tile == 0) {
+        if (tile == 0)
             publish(&status[0], &inclusives[0], TILE_INCLUSIVE, tile_sum);
-        } else {
+        else
             publish(&status[tile], &aggregates[tile], TILE_AGGREGATE, tile_sum);
-            prefix = look_back(state, tiles, tile);
-            publish(&status[tile], &inclusives[tile], TILE_INCLUSIVE, prefix + tile_sum);
-        }
-        tile_prefix = prefix;
-        if (total && tile_start + TILE >= n)
-            total[0] = prefix + tile_sum;
+        tile_prefix = 0;
+        look_from = tile;
     }
     barrier(CLK_LOCAL_MEM_FENCE);
+
+    /* decoupled look-back, WINDOW predecessors at a time: work-item k reads
+     * tile look_from - 1 - k; then one work-item adds the window's values up
+     * to the nearest tile that knows its inclusive prefix. The loop condition
+     * is read from local memory after a barrier, so it is uniform. */
+    while (look_from > 0) {
+        const uint base = look_from;
+        if (lid < WINDOW && lid < base) {
+            T value;
+            window_flags[lid] = wait_for_tile(state, tiles, base - 1 - lid, &value);
+            window_values[lid] = value;
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (lid == 0) {
+            const uint width = min((uint)WINDOW, base);
+            T sum = 0;
+            uint next = base - width;
+            for (uint k = 0; k < width; ++k) {
+                sum += window_values[k];
+                if (window_flags[k] == TILE_INCLUSIVE) {
+                    next = 0;
+                    break;
+                }
+            }
+            tile_prefix += sum;
+            look_from = next;
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+
+    if (lid == 0) {
+        if (tile > 0)
+            publish(&status[tile], &inclusives[tile], TILE_INCLUSIVE, tile_prefix + tile_sum);
+        if (total && tile_start + TILE >= n)
+            total[0] = tile_prefix + tile_sum;
+    }
 
     running += tile_prefix;
     for (uint j = 0; j < ITEMS; ++j) {
