@@ -3,8 +3,8 @@
     python benchmarks/scenes.py [--device D] [--sizes 1000 8000 27000 111375]
                                 [--steps 100] [--warmup 10] [--batching cells|components]
 
-For each size: median ms/step over ``--steps`` steps after ``--warmup``
-(each step followed by queue.finish()), kernel launches and blocking reads per
+For each size: ms/step = wall time of ``--steps`` steps enqueued back to back
+after ``--warmup`` (one queue.finish() at the end), kernel launches and blocking reads per
 step, broadphase pairs, manifolds and contact points of the last step, the
 batches of the largest group, and a sanity line (NaNs, boxes sunk more than
 2 cm below their resting height, max speed). Imports nothing beyond numpy,

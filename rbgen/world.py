@@ -11,10 +11,12 @@ a fixed sequence of enqueues with no blocking read:
 
 Counts (pairs, manifolds, constraints, batches) stay on the device. Capacity
 overflow: the broadphase and the narrowphase report the size they needed in
-small status buffers that are copied to the host without blocking; the next
-`step()` (or any read of the state) waits for that copy only, and if a buffer
-was too small it grows it, restores the bodies saved at the start of the step
-and redoes the step, so no pair or contact is ever dropped.
+small status buffers that are copied to pinned host memory without blocking.
+`step()` checks the status of the step before the previous one (done long
+ago, so the host does not wait for the device to drain; any read of the state
+checks all), and if a buffer was too small it grows it, restores the bodies
+saved at the start of that step and redoes it and the step after it, so no
+pair or contact is ever dropped.
 
 Bodies: every body, static or dynamic, has an index (returned by `add_static`,
 `add_body`, `add_bodies`) into the state arrays (`positions`, ...). A body's
@@ -48,6 +50,10 @@ from .shapes import Capsule, Plane, Shape, ShapeTable, Sphere
 
 #: manifolds reserved per body before the first overflow (grown on demand)
 MANIFOLDS_PER_BODY = 4
+#: enqueued steps whose overflow status may be unchecked: a step checks the one
+#: before the last, whose status copy is done by then, so the host never drains
+#: the queue (the constraint ring keeps the warm-start data of both)
+STEPS_IN_FLIGHT = 2
 
 
 class World:
@@ -113,7 +119,10 @@ class World:
         self._manifold_capacity = 0
         self._initial_manifolds = manifold_capacity
         self._pair_capacity = pair_capacity
-        self._pending = None            # (dt, backup) of a step whose status is unchecked
+        #: enqueued steps whose overflow status is not checked yet (oldest first)
+        self._in_flight: list[_InFlight] = []
+        self._serial = 0                # steps enqueued, picks the backup slot
+        self._status_pinned: dict = {}  # slot -> (pinned buffer, mapped uint32 words)
         self.last_step_counters = {"launches": 0, "blocking_reads": 0}
         self.steps = 0
         #: steps redone because a buffer overflowed (each grew the buffer)
@@ -249,7 +258,7 @@ class World:
         """Send the host bodies (after adds or teleports) and size the buffers."""
         queue, n = self.runtime.queue, self.body_count
         self._bodies = cla.to_device(queue, self._host if n else layouts.BODY.zeros(1))
-        self._backup = cla.empty_like(self._bodies)
+        self._backups = [cla.empty_like(self._bodies) for _ in range(STEPS_IN_FLIGHT)]
         self._inertia = cla.to_device(queue, inertia_records(self._inv_inertia if n else
                                                              np.zeros((1, 3))))
         self._static = cla.to_device(queue, (self._host["inv_mass"] == 0).astype(np.uint32)
@@ -277,10 +286,6 @@ class World:
         self._manifolds = cla.empty(queue, self._manifold_capacity, layouts.CONTACT_MANIFOLD.dtype)
         self._manifold_count = cla.zeros(queue, 1, np.uint32)
         self._overflow = cla.zeros(queue, 1, np.uint32)
-        pinned = cl.Buffer(self.runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 4)
-        self._overflow_host, _ = cl.enqueue_map_buffer(queue, pinned, cl.map_flags.READ, 0, (1,),
-                                                       np.uint32)
-        self._overflow_pinned = pinned
 
     def _cell_size(self) -> float:
         """Batching cells: the widest dynamic body plus twice the contact margin."""
@@ -298,23 +303,24 @@ class World:
             raise RbgenError(f"substeps must be a positive integer, got {substeps!r}")
         before = dict(self.runtime.counters)
         for _ in range(int(substeps)):
-            self._finish_pending()
+            self._check_in_flight(keep=STEPS_IN_FLIGHT - 1)
             if not np.any(self._host["inv_mass"] > 0) and not self._host_stale:
                 continue  # nothing can move (empty or static-only world)
             if self._device_stale:
                 self._sync_to_host()
                 self._upload()
-            self._enqueue_step(float(dt) / int(substeps), backup=True)
+            self._enqueue_step(float(dt) / int(substeps))
         self.steps += 1
         self.last_step_counters = {k: self.runtime.counters[k] - before[k] for k in before}
 
-    def _enqueue_step(self, h: float, backup: bool) -> None:
+    def _enqueue_step(self, h: float) -> None:
         rt, n = self.runtime, self.body_count
         self._host_stale = True
         if n == 0:
             return
-        if backup:
-            cl.enqueue_copy(rt.queue, self._backup.data, self._bodies.data)
+        slot = self._serial % STEPS_IN_FLIGHT
+        self._serial += 1
+        cl.enqueue_copy(rt.queue, self._backups[slot].data, self._bodies.data)
         self._prepare(self._bodies, self._inertia, n, h)
         self._integrate.apply_gravity(self._bodies, n, h, tuple(self.gravity))
         margin = self.contact_margin
@@ -325,8 +331,6 @@ class World:
         self._narrowphase.enqueue(self._bodies, self._packed, self._broadphase.pairs,
                                   self._broadphase.count, self._manifolds, self._manifold_count,
                                   self._overflow, margin)
-        self._overflow_read = cl.enqueue_copy(rt.queue, self._overflow_host, self._overflow.data,
-                                              is_blocking=False)
         capacity = self._manifold_capacity
         self._constraints(self._manifolds, self._manifold_count, self._bodies, self._inertia,
                           capacity, h)
@@ -344,24 +348,40 @@ class World:
                         angular_damping=self.angular_damping)
         if split:
             self._solver.apply_split(self._bodies, n, h)
-        self._pending = h
+        self._in_flight.append(_InFlight.start(self, h, slot))
 
     def _finish_pending(self) -> None:
-        """Check the last step's overflow status (waits for that copy only); redo it if needed."""
-        while self._pending is not None:
-            h = self._pending
-            self._pending = None
-            complete = self._broadphase.check()
-            self._overflow_read.wait()
-            needed = int(self._overflow_host[0])
-            if complete and needed == 0:
-                return
+        """Check every enqueued step (waits for their status copies only)."""
+        self._check_in_flight(keep=0)
+
+    def _check_in_flight(self, keep: int) -> None:
+        """Check the oldest enqueued steps until at most ``keep`` remain unchecked.
+
+        With ``keep=1`` (every `step`) the step checked is the one before the
+        last: its status copy is normally long done, so the host never waits
+        for the device to drain. An overflowed step is redone, with every step
+        after it, from the bodies saved when it started (buffers grown first).
+        """
+        while len(self._in_flight) > keep:
+            entry = self._in_flight[0]
+            problem = entry.problem(self)
+            if problem is None:
+                self._in_flight.pop(0)
+                continue
             self.overflows += 1
+            self.runtime.queue.finish()
+            self._broadphase.check()  # raises for a NaN body, grows the pair buffer
+            pairs_found, needed = problem
+            self._broadphase.buffer.grow_for(pairs_found)
             if needed:
                 self._ensure_manifolds(int(needed * 1.25) + 16)
-            cl.enqueue_copy(self.runtime.queue, self._bodies.data, self._backup.data)
-            self._constraints.undo()
-            self._enqueue_step(h, backup=False)
+            redo = [e.h for e in self._in_flight]
+            cl.enqueue_copy(self.runtime.queue, self._bodies.data,
+                            self._backups[entry.slot].data)
+            self._constraints.undo(len(redo))
+            self._in_flight = []
+            for h in redo:
+                self._enqueue_step(h)
 
     # ------------------------------------------------------------- statistics
     def statistics(self) -> dict:
@@ -378,6 +398,42 @@ class World:
         return {"bodies": self.body_count, "pairs": pairs, "manifolds": manifolds,
                 "contacts": int(points.sum()), "batches": int(batch_counts.max(initial=0)),
                 "groups_used": int((batch_counts > 0).sum()), **self.last_step_counters}
+
+
+class _InFlight:
+    """One enqueued step: its dt, backup slot, and a pinned copy of its overflow status."""
+
+    def __init__(self, h, slot, host, event):
+        self.h, self.slot, self.host, self.event = h, slot, host, event
+
+    @classmethod
+    def start(cls, world: "World", h: float, slot: int) -> "_InFlight":
+        """Enqueue non-blocking copies of the broadphase status and the narrowphase overflow."""
+        queue = world.runtime.queue
+        status = world._broadphase.buffer.status
+        words = status.size + 1
+        pinned = world._status_pinned.get(slot)
+        if pinned is None or pinned[1].size != words:
+            buffer = cl.Buffer(world.runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 4 * words)
+            host, _ = cl.enqueue_map_buffer(queue, buffer, cl.map_flags.READ | cl.map_flags.WRITE,
+                                            0, (words,), np.uint32)
+            pinned = world._status_pinned[slot] = (buffer, host)
+        host = pinned[1]
+        cl.enqueue_copy(queue, host[:-1], status.data, is_blocking=False)
+        event = cl.enqueue_copy(queue, host[-1:], world._overflow.data, is_blocking=False)
+        return cls(h, slot, host, event)
+
+    def problem(self, world: "World"):
+        """None when the step was complete, else (pairs found, manifolds needed)."""
+        self.event.wait()
+        status = self.host[:-1].view(layouts.BROADPHASE_STATUS.dtype)[0]
+        pairs_found = int(status["pairs_found"])
+        needed = int(self.host[-1])
+        retry = int(status["retry"]) if "retry" in status.dtype.names else 0
+        if (status["bad_body"] != layouts.BP_NO_BODY or retry or needed
+                or pairs_found > world._broadphase.capacity):
+            return pairs_found, needed
+        return None
 
 
 def bounding_radius(shape: Shape) -> float:

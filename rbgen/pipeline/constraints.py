@@ -13,8 +13,9 @@ body pair; the next step looks its pair up there and copies, point by point,
 the impulses of the old point with the same feature id, else of the nearest
 old point within ``match_distance`` (the narrowphase's feature ids change
 when it swaps the reference face of a flat face-face contact, which happens
-all the time on stacked boxes). The two constraint
-buffers and tables alternate, so nothing is copied back to the host.
+all the time on stacked boxes). Constraint buffers and tables rotate in a
+ring of three, so nothing is copied back to the host and a step redone after
+an overflow still finds the generation it warm-started from.
 """
 from __future__ import annotations
 
@@ -30,6 +31,9 @@ from ..errors import RbgenError
 FRICTION_MODELS = ("point", "manifold")
 
 PENETRATION_MODES = ("baumgarte", "split")
+
+#: constraint buffers kept in a ring (this step's, and two before it)
+GENERATIONS = 3
 
 TEMPLATE = KernelTemplate(
     "pipeline/constraints.cl.mako",
@@ -100,8 +104,10 @@ class ContactConstraints:
         self.match_distance = 0.02
         #: device uint32 array(1): constraints built by the last call (<= capacity)
         self.count = cl_array.zeros(runtime.queue, 1, np.uint32)
-        self._generations: list[_Buffers | None] = [None, None]
-        self._current = 1
+        #: generations in a ring: the current one, and the ones before it that a redone
+        #: step (the World redoes up to two) may need again for its warm start
+        self._generations: list[_Buffers | None] = [None] * GENERATIONS
+        self._current = GENERATIONS - 1
 
     @property
     def constraints(self):
@@ -119,23 +125,24 @@ class ContactConstraints:
             if gen is not None:
                 gen.table.fill(np.uint32(layouts.SOLVER_NONE), queue=self.runtime.queue)
 
-    def undo(self) -> None:
-        """Forget the last call (its step is being redone): the generation before it is
-        again the one the next call warm-starts from."""
-        self._current = 1 - self._current
+    def undo(self, calls: int = 1) -> None:
+        """Forget the last ``calls`` calls (their steps are being redone): the generation
+        before them is again the one the next call warm-starts from."""
+        if not 0 <= calls < GENERATIONS:
+            raise RbgenError(f"can undo at most {GENERATIONS - 1} calls, asked {calls}")
+        self._current = (self._current - calls) % GENERATIONS
 
     def __call__(self, manifolds, manifold_count, bodies, inertia, capacity: int, dt: float):
         """Set up min(``manifold_count[0]``, ``capacity``) constraints (count: a device
         uint32 array(1)); that number is written to ``self.count`` on the device."""
         queue, wg, launch = self.runtime.queue, self.work_group_size, self.runtime.launch
         previous = self._generations[self._current]
-        self._current = 1 - self._current
+        if previous is None:
+            previous = self._generations[self._current] = _Buffers(queue, 0)
+        self._current = (self._current + 1) % GENERATIONS
         gen = self._generations[self._current]
         if gen is None or gen.capacity < capacity:
             gen = self._generations[self._current] = _Buffers(queue, capacity)
-        if previous is None:
-            previous = _Buffers(queue, 0)
-            self._generations[1 - self._current] = previous
         table_size = gen.mask + 1
         self.clear_kernel.set_args(gen.table.data, np.uint32(table_size))
         launch(self.clear_kernel, -(-table_size // wg) * wg, wg)
