@@ -39,7 +39,7 @@ import pyopencl.array as cla
 
 from . import layouts
 from .device import Runtime, coerce_runtime
-from .errors import RbgenError
+from .errors import CapacityOverflowError, RbgenError
 from .pipeline.aabbs import WorldAabbs
 from .pipeline.batching import ConstraintBatcher
 from .pipeline.constraints import ContactConstraints
@@ -54,6 +54,8 @@ MANIFOLDS_PER_BODY = 4
 #: before the last, whose status copy is done by then, so the host never drains
 #: the queue (the constraint ring keeps the warm-start data of both)
 STEPS_IN_FLIGHT = 2
+#: redos of one step before giving up (each grows the buffers that overflowed)
+MAX_REDOS = 16
 
 
 class World:
@@ -362,12 +364,18 @@ class World:
         for the device to drain. An overflowed step is redone, with every step
         after it, from the bodies saved when it started (buffers grown first).
         """
+        redone = 0
         while len(self._in_flight) > keep:
             entry = self._in_flight[0]
             problem = entry.problem(self)
             if problem is None:
                 self._in_flight.pop(0)
                 continue
+            redone += 1
+            if redone > MAX_REDOS:
+                raise CapacityOverflowError(
+                    f"a step still overflowed after {MAX_REDOS} redos with grown buffers "
+                    f"(pairs found {problem[0]}, manifolds needed {problem[1]})")
             self.overflows += 1
             self.runtime.queue.finish()
             self._broadphase.check()  # raises for a NaN body, grows the pair buffer
