@@ -37,14 +37,22 @@ void reduce_chunks(__global const T* src, const uint capacity,
 {
     uint begin, end;
     chunk_range(element_count(capacity, device_count), get_global_id(0), &begin, &end);
-    /* LANES independent accumulators in one vector: no loop-carried chain
-     * through a single register, and one vector load per step */
-    V lanes = (V)(IDENTITY);
-    uint i = begin;
-    for (; i + LANES <= end; i += LANES)
-        lanes = combine_lanes(lanes, vload${lanes}(0, src + i));
+    /* two vectors of LANES independent accumulators: no loop-carried chain
+     * through a single register. Chunks start on 64-byte boundaries, so the
+     * chunk can be read as aligned vectors (much faster on PoCL than vload). */
+    __global const V* vectors = (__global const V*)(src + begin);
+    const uint vector_count = (end - begin) / LANES;
+    V lanes = (V)(IDENTITY), more_lanes = (V)(IDENTITY);
+    uint k = 0;
+    for (; k + 2 <= vector_count; k += 2) {
+        lanes = combine_lanes(lanes, vectors[k]);
+        more_lanes = combine_lanes(more_lanes, vectors[k + 1]);
+    }
+    if (k < vector_count)
+        lanes = combine_lanes(lanes, vectors[k]);
+    lanes = combine_lanes(lanes, more_lanes);
     T acc = IDENTITY;
-    for (; i < end; ++i)
+    for (uint i = begin + vector_count * LANES; i < end; ++i)
         acc = combine(acc, src[i]);
 % for k in range(lanes):
     acc = combine(acc, lanes.s${"%x" % k});

@@ -43,10 +43,14 @@ void reduce_chunks(__global const T* src, const uint capacity,
     chunk_range(element_count(capacity, device_count), get_global_id(0), &begin, &end);
     uint i = begin;
 % if vector:
-    V lanes = 0;
-    for (; i + 8 <= end; i += 8)
-        lanes += vload8(0, src + i);
-    T sum = inclusive_scan8(lanes).s7;
+    /* chunks start on 64-byte boundaries: read them as aligned vectors */
+    __global const V* vectors = (__global const V*)(src + begin);
+    V lanes = 0, more_lanes = 0;
+    for (; i + 16 <= end; i += 16, vectors += 2) {
+        lanes += vectors[0];
+        more_lanes += vectors[1];
+    }
+    T sum = inclusive_scan8(lanes + more_lanes).s7;
 % else:
     T sum = 0;
 % endif
@@ -82,11 +86,11 @@ void scan_chunks(__global const T* src, __global T* dst, const uint capacity,
     uint i = begin;
 % if vector:
     for (; i + 8 <= end; i += 8) {
-        V inclusive = inclusive_scan8(vload8(0, src + i)) + running;
+        V inclusive = inclusive_scan8(*(__global const V*)(src + i)) + running;
 % if inclusive:
-        vstore8(inclusive, 0, dst + i);
+        *(__global V*)(dst + i) = inclusive;
 % else:
-        vstore8((V)(running, inclusive.s012, inclusive.s3456), 0, dst + i);
+        *(__global V*)(dst + i) = (V)(running, inclusive.s012, inclusive.s3456);
 % endif
         running = inclusive.s7;
     }
