@@ -114,7 +114,8 @@ class Compact(Primitive):
             k_scan.set_args(self._counts, buf_count)
             rt.launch(k_scan, 1, 1)
         gathered = (buf_values,) if values is not None else ()
-        k_scatter.set_args(buf_flags, *gathered, buf_out, cap, device_count, self._counts)
+        extra = (buf_count,) if params["shape"] == "cpu" else ()
+        k_scatter.set_args(buf_flags, *gathered, buf_out, cap, device_count, self._counts, *extra)
         return rt.launch(k_scatter, global_size, local_size)
 
 
