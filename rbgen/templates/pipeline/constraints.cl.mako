@@ -222,7 +222,9 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
             target = bounce;
         float push = penetration_recovery / dt * fmax(-separation - penetration_slop, 0.0f);
 % if penetration == "baumgarte":
-        velocity_target[k] = fmax(target, push);
+        /* push > 0 only when penetrating beyond the slop; a speculative
+         * (negative) target of a contact still apart must survive as is */
+        velocity_target[k] = push > 0.0f ? fmax(target, push) : target;
 % else:
         velocity_target[k] = target;
         position_target[k] = push;
