@@ -211,6 +211,12 @@ class Runtime:
         cl.enqueue_copy(self.queue, host_array, device_array, is_blocking=True)
         return host_array
 
+    def bound(self, kernel: cl.Kernel):
+        """The `rbgen.launch.BoundKernel` of ``kernel``: its argument cache, shared by every
+        caller of that kernel object (arguments are set only when they change)."""
+        from .launch import bound
+        return bound(self, kernel)
+
     @cached_property
     def profiling_queue(self) -> cl.CommandQueue:
         """A second queue with profiling on (for timing with events)."""

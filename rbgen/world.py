@@ -3,7 +3,7 @@
 A World owns one `Runtime` and every device buffer of the pipeline. A step is
 a fixed sequence of enqueues with no blocking read:
 
-    prepare bodies (world inverse inertia, gyroscopic term) -> gravity ->
+    prepare bodies (world inverse inertia, gyroscopic term, gravity) ->
     world AABBs -> broadphase pairs -> narrowphase manifolds ->
     contact constraints -> batching -> ``iterations`` PGS launches ->
     (split impulse: ``position_iterations`` launches) -> integrate ->
@@ -103,11 +103,12 @@ class World:
         self.broadphase_name = broadphase
         self.shapes = ShapeTable()
         self._host = layouts.BODY.zeros(0)
+        self._has_dynamic = False       # any body with inv_mass > 0 (kept by _add)
         self._inv_inertia = np.zeros((0, 3), np.float32)
         self._device_stale = True       # host copy newer than the device
         self._host_stale = False        # device newer than the host copy
         rt = self.runtime
-        self._prepare = BodyPreparation(rt, gyroscopic=gyroscopic)
+        self._prepare = BodyPreparation(rt, gyroscopic=gyroscopic, gravity=True)
         self._integrate = Integrator(rt, gravity=False, damping=True)
         self._constraints = ContactConstraints(rt, penetration=penetration, warm_start=warm_start,
                                                friction=friction_model)
@@ -216,6 +217,7 @@ class World:
             records["linear_velocity"] = 0
             records["angular_velocity"] = 0
         self._host = np.concatenate([self._host, records]).astype(layouts.BODY.dtype)
+        self._has_dynamic = bool(np.any(self._host["inv_mass"] > 0))
         self._inv_inertia = np.concatenate([self._inv_inertia, inv_inertia])
         self._device_stale = True
         return np.arange(first, first + n)
@@ -307,7 +309,7 @@ class World:
         before = dict(self.runtime.counters)
         for _ in range(int(substeps)):
             self._check_in_flight(keep=STEPS_IN_FLIGHT - 1)
-            if not np.any(self._host["inv_mass"] > 0) and not self._host_stale:
+            if not self._has_dynamic and not self._host_stale:
                 continue  # nothing can move (empty or static-only world)
             if self._device_stale:
                 self._sync_to_host()
@@ -324,13 +326,11 @@ class World:
         slot = self._serial % STEPS_IN_FLIGHT
         self._serial += 1
         cl.enqueue_copy(rt.queue, self._backups[slot].data, self._bodies.data)
-        self._prepare(self._bodies, self._inertia, n, h)
-        self._integrate.apply_gravity(self._bodies, n, h, tuple(self.gravity))
+        self._prepare(self._bodies, self._inertia, n, h, self.gravity)  # gravity fused in
         margin = self.contact_margin
         self._world_aabbs(self._bodies, self._packed.shapes, self._packed.vertices, self._aabbs, n,
                           margin)
         self._broadphase.enqueue(self._aabbs, self._static)
-        self._overflow.fill(np.uint32(0))
         self._narrowphase.enqueue(self._bodies, self._packed, self._broadphase.pairs,
                                   self._broadphase.count, self._manifolds, self._manifold_count,
                                   self._overflow, margin)
@@ -410,10 +410,14 @@ class World:
 
 
 class _InFlight:
-    """One enqueued step: its dt, backup slot, and a pinned copy of its overflow status."""
+    """One enqueued step: its dt, backup slot, and a pinned copy of its overflow status.
 
-    def __init__(self, h, slot, host, event):
-        self.h, self.slot, self.host, self.event = h, slot, host, event
+    Both copy events are kept: pyopencl returns a NannyEvent for a copy into host
+    memory, and deleting one waits for its copy (dropping the first at once
+    drained the whole queue every step)."""
+
+    def __init__(self, h, slot, host, events):
+        self.h, self.slot, self.host, self.events = h, slot, host, events
 
     @classmethod
     def start(cls, world: "World", h: float, slot: int) -> "_InFlight":
@@ -428,13 +432,13 @@ class _InFlight:
                                             0, (words,), np.uint32)
             pinned = world._status_pinned[slot] = (buffer, host)
         host = pinned[1]
-        cl.enqueue_copy(queue, host[:-1], status.data, is_blocking=False)
-        event = cl.enqueue_copy(queue, host[-1:], world._overflow.data, is_blocking=False)
-        return cls(h, slot, host, event)
+        events = (cl.enqueue_copy(queue, host[:-1], status.data, is_blocking=False),
+                  cl.enqueue_copy(queue, host[-1:], world._overflow.data, is_blocking=False))
+        return cls(h, slot, host, events)
 
     def problem(self, world: "World"):
         """None when the step was complete, else (pairs found, manifolds needed)."""
-        self.event.wait()
+        cl.wait_for_events(self.events)
         status = self.host[:-1].view(layouts.BROADPHASE_STATUS.dtype)[0]
         pairs_found = int(status["pairs_found"])
         needed = int(self.host[-1])

@@ -39,12 +39,10 @@ class WorldAabbs:
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
                                   shape_types=tuple(sorted(set(shape_types))))
-        self.kernel = compile_spec(runtime, self.spec).kernel("compute_world_aabbs")
+        self.kernel = runtime.bound(compile_spec(runtime, self.spec).kernel("compute_world_aabbs"))
 
     def __call__(self, bodies, shapes, hull_vertices, aabbs, body_count: int, margin: float = 0.0):
         if body_count == 0:
             return None
-        data = [a.data if hasattr(a, "data") else a for a in (bodies, shapes, hull_vertices, aabbs)]
-        self.kernel.set_args(*data, np.uint32(body_count), np.float32(margin))
-        wg = self.work_group_size
-        return self.runtime.launch(self.kernel, -(-body_count // wg) * wg, wg)
+        return self.kernel.over(body_count, self.work_group_size, bodies, shapes, hull_vertices,
+                                aabbs, np.uint32(body_count), np.float32(margin))

@@ -143,7 +143,7 @@ class ConstraintBatcher:
         program = compile_spec(runtime, self.spec)
         names = ["reset_batching", "scan_groups", "scatter_groups", "batch_groups"]
         names += ["link_bodies", "assign_groups"] if self.mode == "components" else ["assign_cells"]
-        self._kernels = {name: program.kernel(name) for name in names}
+        self._kernels = {name: runtime.bound(program.kernel(name)) for name in names}
         self.body_capacity = self.constraint_capacity = 0
         queue, g = runtime.queue, self.group_count
         self.group_counts = cl_array.zeros(queue, g, np.uint32)
@@ -176,47 +176,34 @@ class ConstraintBatcher:
         if self.mode == "cells" and not self.cell_size:
             raise RbgenError("batching mode 'cells' needs a positive cell_size")
         self.ensure_capacity(body_count, constraint_capacity)
-        k, wg, launch = self._kernels, self.work_group_size, self.runtime.launch
+        k, wg = self._kernels, self.work_group_size
         g, n = self.group_count, self.body_capacity
-        over = lambda count: max(wg, -(-count // wg) * wg)  # noqa: E731 - launch size
-        data = _data
         marks = max(self.colours, CELL_COLOURS if self.mode == "cells" else 1) * n
-        k["reset_batching"].set_args(self.body_stamp.data, self.body_taken.data,
-                                     self.body_links.data, self.group_counts.data,
-                                     np.uint32(n), np.uint32(g))
-        launch(k["reset_batching"], over(max(marks, g)), wg)
+        k["reset_batching"].over(max(marks, g), wg, self.body_stamp, self.body_taken,
+                                 self.body_links, self.group_counts, np.uint32(n), np.uint32(g))
         if constraint_capacity > 0:
             if self.mode == "components":
-                k["link_bodies"].set_args(data(constraints), data(constraint_count), data(bodies),
-                                          self.body_links.data)
-                launch(k["link_bodies"], over(constraint_capacity), wg)
-                k["assign_groups"].set_args(data(constraints), data(constraint_count),
-                                            data(bodies), self.body_links.data,
-                                            self.group_counts.data, self.constraint_slot.data,
-                                            np.uint32(g))
-                launch(k["assign_groups"], over(constraint_capacity), wg)
+                k["link_bodies"].over(constraint_capacity, wg, constraints, constraint_count,
+                                      bodies, self.body_links)
+                k["assign_groups"].over(constraint_capacity, wg, constraints, constraint_count,
+                                        bodies, self.body_links, self.group_counts,
+                                        self.constraint_slot, np.uint32(g))
             else:
-                k["assign_cells"].set_args(data(constraints), data(constraint_count), data(bodies),
-                                           self.body_links.data, self.group_counts.data,
-                                           self.constraint_slot.data, np.uint32(n),
-                                           np.uint32(self.groups_per_colour),
-                                           np.float32(1.0 / self.cell_size))
-                launch(k["assign_cells"], over(constraint_capacity), wg)
-        k["scan_groups"].set_args(self.group_counts.data, self.group_offsets.data, np.uint32(g))
-        launch(k["scan_groups"], 1, 1)
+                k["assign_cells"].over(constraint_capacity, wg, constraints, constraint_count,
+                                       bodies, self.body_links, self.group_counts,
+                                       self.constraint_slot, np.uint32(n),
+                                       np.uint32(self.groups_per_colour),
+                                       np.float32(1.0 / self.cell_size))
+        k["scan_groups"].bind(self.group_counts, self.group_offsets, np.uint32(g)).launch(1, 1)
         if constraint_capacity > 0:
-            k["scatter_groups"].set_args(data(constraints), data(constraint_count),
-                                         self.constraint_slot.data, self.group_offsets.data,
-                                         self.group_list.data, self.constraint_batch.data,
-                                         self.constraint_blocked.data)
-            launch(k["scatter_groups"], over(constraint_capacity), wg)
-        k["batch_groups"].set_args(data(constraints), data(bodies), self.group_offsets.data,
-                                   self.group_list.data, self.body_stamp.data,
-                                   self.body_taken.data, self.constraint_batch.data,
-                                   self.constraint_blocked.data, self.order.data,
-                                   self.group_batches.data, self.group_batch_count.data,
-                                   np.uint32(n), np.uint32(self.groups_per_colour))
-        launch(k["batch_groups"], g * wg, wg)
+            k["scatter_groups"].over(constraint_capacity, wg, constraints, constraint_count,
+                                     self.constraint_slot, self.group_offsets, self.group_list,
+                                     self.constraint_batch, self.constraint_blocked)
+        k["batch_groups"].bind(constraints, bodies, self.group_offsets, self.group_list,
+                               self.body_stamp, self.body_taken, self.constraint_batch,
+                               self.constraint_blocked, self.order, self.group_batches,
+                               self.group_batch_count, np.uint32(n),
+                               np.uint32(self.groups_per_colour)).launch(g * wg, wg)
 
     def read_batches(self):
         """Host copy of the result (tests, statistics): (order, per-group batch offsets, counts).
@@ -226,7 +213,3 @@ class ConstraintBatcher:
         read = self.runtime.read
         offsets = read(self.group_batches).reshape(self.group_count, self.max_batches + 1)
         return read(self.order), offsets, read(self.group_batch_count)
-
-
-def _data(array):
-    return array.data if hasattr(array, "data") else array

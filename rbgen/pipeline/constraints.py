@@ -95,8 +95,8 @@ class ContactConstraints:
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, penetration=penetration,
                                   warm_start=self.warm_start, friction=friction)
         program = compile_spec(runtime, self.spec)
-        self.setup_kernel = program.kernel("setup_contact_constraints")
-        self.clear_kernel = program.kernel("clear_pair_table")
+        self.setup_kernel = runtime.bound(program.kernel("setup_contact_constraints"))
+        self.clear_kernel = runtime.bound(program.kernel("clear_pair_table"))
         self.restitution_threshold = 0.5
         self.penetration_slop = 0.005
         self.penetration_recovery = 0.2
@@ -135,7 +135,7 @@ class ContactConstraints:
     def __call__(self, manifolds, manifold_count, bodies, inertia, capacity: int, dt: float):
         """Set up min(``manifold_count[0]``, ``capacity``) constraints (count: a device
         uint32 array(1)); that number is written to ``self.count`` on the device."""
-        queue, wg, launch = self.runtime.queue, self.work_group_size, self.runtime.launch
+        queue, wg = self.runtime.queue, self.work_group_size
         previous = self._generations[self._current]
         if previous is None:
             previous = self._generations[self._current] = _Buffers(queue, 0)
@@ -144,22 +144,15 @@ class ContactConstraints:
         if gen is None or gen.capacity < capacity:
             gen = self._generations[self._current] = _Buffers(queue, capacity)
         table_size = gen.mask + 1
-        self.clear_kernel.set_args(gen.table.data, np.uint32(table_size))
-        launch(self.clear_kernel, -(-table_size // wg) * wg, wg)
+        self.clear_kernel.over(table_size, wg, gen.table, np.uint32(table_size))
         if capacity == 0:
             self.count.fill(np.uint32(0), queue=queue)
             return None
-        args = [_data(manifolds), _data(manifold_count), _data(bodies), _data(inertia),
-                np.uint32(capacity), gen.constraints.data, self.count.data, gen.table.data,
-                np.uint32(gen.mask)]
+        args = [manifolds, manifold_count, bodies, inertia, np.uint32(capacity),
+                gen.constraints, self.count, gen.table, np.uint32(gen.mask)]
         if self.warm_start:
-            args += [previous.constraints.data, previous.table.data, np.uint32(previous.mask),
+            args += [previous.constraints, previous.table, np.uint32(previous.mask),
                      np.float32(self.warm_start_factor), np.float32(self.match_distance)]
         args += [np.float32(dt), np.float32(self.restitution_threshold),
                  np.float32(self.penetration_slop), np.float32(self.penetration_recovery)]
-        self.setup_kernel.set_args(*args)
-        return launch(self.setup_kernel, -(-capacity // wg) * wg, wg)
-
-
-def _data(array):
-    return array.data if hasattr(array, "data") else array
+        return self.setup_kernel.over(capacity, wg, *args)

@@ -14,6 +14,7 @@ import numpy as np
 from .. import layouts
 from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
 from ..device import DeviceTraits, Runtime
+from ..errors import RbgenError
 
 TEMPLATE = KernelTemplate(
     "pipeline/gyroscopic.cl.mako",
@@ -23,11 +24,13 @@ TEMPLATE = KernelTemplate(
               "a power of two from 1 to 1024"),
         Param("gyroscopic", (True, False),
               "emit the implicit gyroscopic update only when the world enables it"),
+        Param("gravity", (True, False),
+              "add g dt to dynamic bodies here, saving the World a separate gravity launch"),
     ],
     doc="World inverse inertia and the implicit gyroscopic term, one work-item per body.",
     roles={"bodies": "inout", "inertia": "inout"},
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "gyroscopic": True},
+                             "gyroscopic": True, "gravity": False},
 )
 
 
@@ -50,19 +53,27 @@ def inertia_records(inv_inertia_diag: np.ndarray) -> np.ndarray:
 class BodyPreparation:
     """Launches `prepare_bodies` over `Body` and `BodyInertia` device arrays."""
 
-    def __init__(self, runtime: Runtime, *, gyroscopic: bool = True,
+    def __init__(self, runtime: Runtime, *, gyroscopic: bool = True, gravity: bool = False,
                  work_group_size: int | None = None):
         self.runtime = runtime
+        self.gravity = bool(gravity)
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, gyroscopic=bool(gyroscopic))
-        self.kernel = compile_spec(runtime, self.spec).kernel("prepare_bodies")
+        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, gyroscopic=bool(gyroscopic),
+                                  gravity=self.gravity)
+        self.kernel = runtime.bound(compile_spec(runtime, self.spec).kernel("prepare_bodies"))
 
-    def __call__(self, bodies, inertia, body_count: int, dt: float):
+    def __call__(self, bodies, inertia, body_count: int, dt: float, gravity=None):
+        """Prepare ``body_count`` bodies; ``gravity`` (3 numbers) is required exactly
+        when built with gravity=True (v += g dt on dynamic bodies)."""
+        if (gravity is not None) != self.gravity:
+            raise RbgenError("gravity must be given exactly when this BodyPreparation was "
+                             f"built with gravity=True (built with gravity={self.gravity})")
         if body_count == 0:
             return None
-        self.kernel.set_args(_data(bodies), _data(inertia), np.uint32(body_count), np.float32(dt))
-        wg = self.work_group_size
-        return self.runtime.launch(self.kernel, -(-body_count // wg) * wg, wg)
+        args = [_data(bodies), _data(inertia), np.uint32(body_count), np.float32(dt)]
+        if self.gravity:
+            args.append(np.array([*gravity, 0.0], dtype=np.float32))
+        return self.kernel.over(body_count, self.work_group_size, *args)
 
 
 def _data(array):

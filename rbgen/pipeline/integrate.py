@@ -47,8 +47,8 @@ class Integrator:
                                   gravity=bool(gravity))
         self.damping, self.gravity = bool(damping), bool(gravity)
         program = compile_spec(runtime, self.spec)
-        self.kernel = program.kernel("integrate_bodies")
-        self.gravity_kernel = None if gravity else program.kernel("apply_gravity")
+        self.kernel = runtime.bound(program.kernel("integrate_bodies"))
+        self.gravity_kernel = None if gravity else runtime.bound(program.kernel("apply_gravity"))
 
     def apply_gravity(self, bodies, body_count: int, dt: float, gravity=(0.0, -9.81, 0.0)):
         """v += g dt on dynamic bodies (only for an Integrator built with gravity=False)."""
@@ -57,11 +57,9 @@ class Integrator:
                              "(built with gravity=True)")
         if body_count == 0:
             return None
-        self.gravity_kernel.set_args(bodies.data if hasattr(bodies, "data") else bodies,
-                                     np.uint32(body_count), np.float32(dt),
-                                     np.array([*gravity, 0.0], dtype=np.float32))
-        wg = self.work_group_size
-        return self.runtime.launch(self.gravity_kernel, -(-body_count // wg) * wg, wg)
+        return self.gravity_kernel.over(body_count, self.work_group_size, bodies,
+                                        np.uint32(body_count), np.float32(dt),
+                                        np.array([*gravity, 0.0], dtype=np.float32))
 
     def __call__(self, bodies, body_count: int, dt: float, gravity=(0.0, -9.81, 0.0),
                  linear_damping: float = 0.0, angular_damping: float = 0.0,
@@ -76,13 +74,10 @@ class Integrator:
                 raise RbgenError(f"{name} must be in [0, 1), got {value!r}")
         if body_count == 0:
             return None
-        args = [bodies.data if hasattr(bodies, "data") else bodies,
-                np.uint32(body_count), np.float32(dt)]
+        args = [bodies, np.uint32(body_count), np.float32(dt)]
         if self.gravity:
             args.append(np.array([*gravity, 0.0], dtype=np.float32))
         if self.damping:
             args += [np.float32(linear_damping), np.float32(angular_damping)]
         args.append(np.float32(max_angular_step))
-        self.kernel.set_args(*args)
-        wg = self.work_group_size
-        return self.runtime.launch(self.kernel, -(-body_count // wg) * wg, wg)
+        return self.kernel.over(body_count, self.work_group_size, *args)

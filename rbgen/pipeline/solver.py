@@ -12,6 +12,12 @@ one warm-start sweep before the iterations). Split impulse adds
 
 Relaxation (successive over-relaxation factor, 1 = plain Gauss-Seidel) and
 the iteration counts are World settings, passed per call.
+
+Host cost: a launch sets no argument. Each distinct (first group, passes)
+of the launch plan has its own kernel object (`rbgen.launch.instance`) with
+those scalars set once; the buffers and ``relaxation`` are bound once per
+call through `rbgen.launch.BoundKernel` (the driver sees only the changed
+ones: this step's constraint buffer, a grown buffer, a new relaxation).
 """
 from __future__ import annotations
 
@@ -22,6 +28,7 @@ from .. import layouts
 from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
+from ..launch import instance
 
 #: friction models (see the template parameter "friction")
 FRICTION_MODELS = ("point", "manifold")
@@ -69,13 +76,15 @@ class ContactSolver:
             raise RbgenError(f"friction must be one of {FRICTION_MODELS}, got {friction!r}")
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, max_batches=int(max_batches),
                                   split_impulse=self.split_impulse, friction=friction)
-        program = compile_spec(runtime, self.spec)
-        self.velocity_kernel = program.kernel("solve_contacts")
+        self._program = program = compile_spec(runtime, self.spec)
         if self.split_impulse:
-            self.position_kernel = program.kernel("solve_penetration")
-            self.apply_kernel = program.kernel("apply_split_velocities")
+            self.apply_kernel = runtime.bound(program.kernel("apply_split_velocities"))
         self.max_batches = int(max_batches)
         self._split = None
+        #: (kernel name, first group, passes) -> kernel object with those scalars set
+        self._instances: dict = {}
+        #: (kernel name, plan, iterations, warm start) -> ([(kernel, global size)], kernels)
+        self._schedules: dict = {}
 
     def split_velocities(self, body_capacity: int):
         """The zeroed push-velocity array (grown to ``body_capacity``)."""
@@ -102,23 +111,51 @@ class ContactSolver:
         if iterations < 0 or not 0.0 < relaxation < 2.0:
             raise RbgenError(f"need iterations >= 0 and 0 < relaxation < 2, got "
                              f"iterations={iterations!r}, relaxation={relaxation!r}")
-        passes = []
-        if warm_start and len(batcher.launch_plan) > 1:
-            passes.append(WARM_START_PASS)
-        elif warm_start and iterations > 0:
-            passes.append(WARM_START_PASS | SOLVE_PASS)  # fused into the first sweep
-            iterations -= 1
-        elif warm_start:
-            passes.append(WARM_START_PASS)
-        passes += [SOLVE_PASS] * int(iterations)
-        passes = [flags | (REVERSE_PASS if i % 2 else 0) for i, flags in enumerate(passes)]
-        k, wg = self.velocity_kernel, self.work_group_size
-        for flags in passes:
-            for first, count in batcher.launch_plan:
-                k.set_args(_data(constraints), batcher.order.data, batcher.group_batches.data,
-                           batcher.group_batch_count.data, _data(bodies), _data(inertia),
-                           np.float32(relaxation), np.uint32(first), np.uint32(flags))
-                self.runtime.launch(k, count * wg, wg)
+        launches, kernels = self._schedule("solve_contacts", batcher.launch_plan, int(iterations),
+                                           bool(warm_start))
+        shared = (_data(constraints), batcher.order, batcher.group_batches,
+                  batcher.group_batch_count, _data(bodies), _data(inertia), np.float32(relaxation))
+        for kernel in kernels:
+            kernel.bind_first(*shared)
+        wg = self.work_group_size
+        for kernel, size in launches:
+            kernel.launch(size, wg)
+
+    def _schedule(self, name: str, plan, iterations: int, warm_start: bool = False):
+        """Every launch of one call (kernel object, global size) and the distinct
+        kernel objects, computed once per plan and settings."""
+        key = (name, tuple(plan), iterations, warm_start)
+        schedule = self._schedules.get(key)
+        if schedule is not None:
+            return schedule
+        if name == "solve_contacts":
+            passes = []
+            if warm_start and len(plan) > 1:
+                passes.append(WARM_START_PASS)
+            elif warm_start and iterations > 0:
+                passes.append(WARM_START_PASS | SOLVE_PASS)  # fused into the first sweep
+                iterations -= 1
+            elif warm_start:
+                passes.append(WARM_START_PASS)
+            passes += [SOLVE_PASS] * iterations
+            passes = [(flags | (REVERSE_PASS if i % 2 else 0),) for i, flags in enumerate(passes)]
+        else:
+            passes = [()] * iterations  # solve_penetration has no pass flags
+        wg = self.work_group_size
+        launches = [(self._instance(name, first, flags), count * wg)
+                    for flags in passes for first, count in plan]
+        kernels = list({id(k): k for k, _ in launches}.values())
+        schedule = self._schedules[key] = (launches, kernels)
+        return schedule
+
+    def _instance(self, name: str, first: int, flags: tuple):
+        """The kernel object of ``name`` whose trailing scalars are (first group, *flags)."""
+        key = (name, first, flags)
+        kernel = self._instances.get(key)
+        if kernel is None:
+            kernel = self._instances[key] = instance(self.runtime, self._program, name)
+            kernel.bind_last(np.uint32(first), *(np.uint32(f) for f in flags))
+        return kernel
 
     def solve_positions(self, constraints, batcher, bodies, inertia, body_capacity: int, *,
                         iterations: int, relaxation: float = 1.0) -> None:
@@ -127,13 +164,16 @@ class ContactSolver:
             raise RbgenError("this ContactSolver was built with split_impulse=False")
         self._check(batcher)
         split = self.split_velocities(body_capacity)
-        k, wg = self.position_kernel, self.work_group_size
-        for _ in range(int(iterations)):
-            for first, count in batcher.launch_plan:
-                k.set_args(_data(constraints), batcher.order.data, batcher.group_batches.data,
-                           batcher.group_batch_count.data, split.data, _data(bodies),
-                           _data(inertia), np.float32(relaxation), np.uint32(first))
-                self.runtime.launch(k, count * wg, wg)
+        launches, kernels = self._schedule("solve_penetration", batcher.launch_plan,
+                                           int(iterations))
+        shared = (_data(constraints), batcher.order, batcher.group_batches,
+                  batcher.group_batch_count, split, _data(bodies), _data(inertia),
+                  np.float32(relaxation))
+        for kernel in kernels:
+            kernel.bind_first(*shared)
+        wg = self.work_group_size
+        for kernel, size in launches:
+            kernel.launch(size, wg)
 
     def apply_split(self, bodies, body_count: int, dt: float) -> None:
         """Move bodies by their push velocities (after integration) and clear them."""
@@ -141,8 +181,8 @@ class ContactSolver:
             return
         split = self.split_velocities(body_count)
         wg = self.work_group_size
-        self.apply_kernel.set_args(_data(bodies), split.data, np.uint32(body_count), np.float32(dt))
-        self.runtime.launch(self.apply_kernel, -(-body_count // wg) * wg, wg)
+        self.apply_kernel.over(body_count, wg, _data(bodies), split, np.uint32(body_count),
+                               np.float32(dt))
 
 
 def _data(array):

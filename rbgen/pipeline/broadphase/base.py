@@ -67,6 +67,7 @@ class Broadphase:
         self._bodies = compile_spec(runtime, BODIES_TEMPLATE.spec(
             work_group_size=self.work_group_size))
         self._scratch: dict[str, cla.Array] = {}
+        self._views: dict[str, cla.Array] = {}
         self._primitives: dict = {}
         self._no_static = None
         self._aabbs = None
@@ -154,12 +155,17 @@ class Broadphase:
         return array
 
     def exact(self, name: str, size: int, dtype=np.uint32) -> cla.Array:
-        """A scratch array of exactly ``size`` elements (a view from its start)."""
-        return self.scratch(name, size, dtype)[:size]
+        """A scratch array of exactly ``size`` elements (a view from its start, kept
+        while the scratch array and the size stay the same)."""
+        array = self.scratch(name, size, dtype)
+        view = self._views.get(name)
+        if view is None or view.size != size or view.base_data is not array.base_data:
+            view = self._views[name] = array[:size]
+        return view
 
     def launch(self, kernel, count: int, *args) -> None:
-        kernel.set_args(*args)
-        self.runtime.launch(kernel, round_up(count, self.work_group_size), self.work_group_size)
+        """``kernel`` over ``count`` items; arguments set only when changed (`rbgen.launch`)."""
+        self.runtime.bound(kernel).over(count, self.work_group_size, *args)
 
     # -------------------------------------------------------------- helpers
     def _arguments(self, aabbs, static):

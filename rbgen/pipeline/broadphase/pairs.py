@@ -39,6 +39,9 @@ TEMPLATE = KernelTemplate(
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
 )
 
+#: status-read events kept alive (more than the steps a World keeps in flight)
+KEPT_READ_EVENTS = 4
+
 #: Largest body count whose pairs fold into one 32-bit key a * n + b.
 MAX_FOLDED_BODIES = 1 << 16
 
@@ -76,7 +79,13 @@ class PairBuffer:
         self._pinned, _ = cl.enqueue_map_buffer(queue, self._pinned_buffer, cl.map_flags.READ,
                                                 0, (words,), np.uint32)
         self._pinned[:] = self._initial
-        self._read_event = None
+        #: the initial status on the device: the reset is a device copy (a copy from
+        #: host memory returns a pyopencl NannyEvent, whose deletion waits for it)
+        self._initial_device = cla.to_device(queue, self._initial)
+        #: events of the last status reads; a NannyEvent waits for its copy when it is
+        #: deleted, so the few last ones are kept (steps in flight) and only older,
+        #: long-finished ones are dropped
+        self._read_events: list = []
         self.program = compile_spec(runtime, TEMPLATE.default_spec(runtime.traits))
         self.work_group_size = self.program.spec.values["work_group_size"]
         self._sorts: dict[tuple[int, bool], object] = {}
@@ -98,8 +107,8 @@ class PairBuffer:
 
     def reset_status(self) -> None:
         """Enqueue the status reset that starts every query (no launch, no wait)."""
-        cl.enqueue_copy(self.runtime.queue, self.status.base_data, self._initial,
-                        is_blocking=False)
+        cl.enqueue_copy(self.runtime.queue, self.status.base_data,
+                        self._initial_device.base_data)
 
     def _sorter(self, bits: int, with_values: bool):
         from ...primitives import RadixSort
@@ -113,44 +122,38 @@ class PairBuffer:
         if body_count < 2:
             return
         program, runtime = self.program, self.runtime
-        wg = self.work_group_size
-        size = -(-self.capacity // wg) * wg
         if body_count <= MAX_FOLDED_BODIES:
-            kernel = program.kernel("combine_pair_keys")
-            kernel.set_args(self.pairs_a.base_data, self.pairs_b.base_data,
-                            self.status.base_data, np.uint32(body_count))
-            runtime.launch(kernel, size, wg)
+            self._launch("combine_pair_keys", self.pairs_a, self.pairs_b, self.status,
+                         np.uint32(body_count))
             self._sorter(key_bits(body_count * body_count - 1), False)(self.pairs_a, n=self.count)
-            kernel = program.kernel("split_pair_keys")
-            kernel.set_args(self.pairs_a.base_data, self.status.base_data,
-                            np.uint32(body_count), self.pairs.base_data)
+            self._launch("split_pair_keys", self.pairs_a, self.status, np.uint32(body_count),
+                         self.pairs)
         else:
             sort = self._sorter(key_bits(body_count - 1), True)
             sort(self.pairs_b, self.pairs_a, n=self.count)
             sort(self.pairs_a, self.pairs_b, n=self.count)
-            kernel = program.kernel("interleave_pairs")
-            kernel.set_args(self.pairs_a.base_data, self.pairs_b.base_data,
-                            self.status.base_data, self.pairs.base_data)
-        runtime.launch(kernel, size, wg)
+            self.pack()
 
     def pack(self) -> None:
         """Enqueue the packing of pair halves already in (a, b) order into ``pairs``."""
-        kernel = self.program.kernel("interleave_pairs")
-        kernel.set_args(self.pairs_a.base_data, self.pairs_b.base_data,
-                        self.status.base_data, self.pairs.base_data)
-        wg = self.work_group_size
-        self.runtime.launch(kernel, -(-self.capacity // wg) * wg, wg)
+        self._launch("interleave_pairs", self.pairs_a, self.pairs_b, self.status, self.pairs)
+
+    def _launch(self, name: str, *args) -> None:
+        """One kernel of this buffer's program over the whole capacity."""
+        self.runtime.bound(self.program.kernel(name)).over(self.capacity, self.work_group_size,
+                                                           *args)
 
     def start_status_read(self) -> None:
         """Enqueue a non-blocking copy of the status into pinned host memory."""
-        self._read_event = cl.enqueue_copy(self.runtime.queue, self._pinned,
-                                           self.status.base_data, is_blocking=False)
+        event = cl.enqueue_copy(self.runtime.queue, self._pinned, self.status.base_data,
+                                is_blocking=False)
+        self._read_events = [*self._read_events[-(KEPT_READ_EVENTS - 1):], event]
 
     def read_status(self) -> np.void:
         """The status of the last query whose read was started (waits for that copy only)."""
-        if self._read_event is None:
+        if not self._read_events:
             raise RbgenError("read_status called before start_status_read")
-        self._read_event.wait()
+        self._read_events[-1].wait()
         return self._pinned.view(layouts.BROADPHASE_STATUS.dtype)[0].copy()
 
     def host_pairs(self, count: int) -> np.ndarray:

@@ -17,8 +17,9 @@ A step enqueues a fixed sequence of launches with no blocking read:
 
 Counts stay on the device: the pair count, the queue lengths, the manifold
 count. Non-blocking contract for a step: the manifold buffer has a capacity;
-when more manifolds exist, ``overflow[0]`` receives the number needed and
-``manifold_count[0]`` the true count (consumers use min(count, capacity)).
+when more manifolds exist, ``overflow[0]`` receives the number needed (else
+0, so nobody clears it) and ``manifold_count[0]`` the true count (consumers
+use min(count, capacity)).
 The host reads ``overflow`` without stalling (e.g. a non-blocking copy
 checked at the start of the next step), then grows the buffer and redoes the
 step; nothing is dropped silently. `find_contacts` does this synchronously.
@@ -93,10 +94,6 @@ def _data(a):
     return a.data if hasattr(a, "data") else a
 
 
-def _round_up(n: int, m: int) -> int:
-    return max(m, -(-int(n) // m) * m)
-
-
 class Narrowphase:
     """Contact manifolds for pairs of bodies with the shape types of one world.
 
@@ -140,21 +137,21 @@ class Narrowphase:
         self.k_classify = self.k_scatter = None
         if self.kinds:
             dispatch = compile_spec(runtime, DISPATCH.spec(work_group_size=wg, kinds=self.kinds))
-            self.k_classify = dispatch.kernel("classify_pairs")
-            self.k_scatter = dispatch.kernel("scatter_manifolds")
+            self.k_classify = runtime.bound(dispatch.kernel("classify_pairs"))
+            self.k_scatter = runtime.bound(dispatch.kernel("scatter_manifolds"))
         primitive = tuple(k for k in self.kinds if k in PRIMITIVE_KINDS)
         self.primitive_kernels = {}
         if primitive:
             prog = compile_spec(runtime, PRIMITIVE_PAIRS.spec(work_group_size=wg, kinds=primitive))
-            self.primitive_kernels = {k: prog.kernel(k) for k in primitive}
+            self.primitive_kernels = {k: runtime.bound(prog.kernel(k)) for k in primitive}
         if CAPSULE_CONVEX_KIND in self.kinds:
             prog = compile_spec(runtime, CAPSULE_CONVEX.spec(work_group_size=wg))
-            self.primitive_kernels[CAPSULE_CONVEX_KIND] = prog.kernel("capsule_convex")
+            self.primitive_kernels[CAPSULE_CONVEX_KIND] = runtime.bound(prog.kernel("capsule_convex"))
         self.sat_kernels, self.sat_edge_axes = {}, {}
         for kind in (k for k in self.kinds if k in CONVEX_KINDS):
             if kind == "box_box" and box_path == "box_box" and "box_box" not in edge_axes_for:
                 prog = compile_spec(runtime, SAT_BOX_BOX.spec(work_group_size=wg))
-                self.sat_kernels[kind] = prog.kernel("find_separating_axis")
+                self.sat_kernels[kind] = runtime.bound(prog.kernel("find_separating_axis"))
                 self.sat_edge_axes[kind] = "closed_form"
                 continue
             first, second = kind.split("_")
@@ -166,7 +163,7 @@ class Narrowphase:
                                                     else "directions")
             prog = compile_spec(runtime, SAT.spec(work_group_size=wg, first=first, second=second,
                                                   edge_axes=edge_axes))
-            self.sat_kernels[kind] = prog.kernel("find_separating_axis")
+            self.sat_kernels[kind] = runtime.bound(prog.kernel("find_separating_axis"))
             self.sat_edge_axes[kind] = edge_axes
         self.k_clip = self.k_reduce = None
         self._build_clip()
@@ -178,8 +175,8 @@ class Narrowphase:
             return
         clip = compile_spec(self.runtime, CLIP.spec(work_group_size=self.work_group_size,
                                                     max_face_vertices=self.max_face_vertices))
-        self.k_clip = clip.kernel("clip_incident_face")
-        self.k_reduce = clip.kernel("reduce_contacts")
+        self.k_clip = self.runtime.bound(clip.kernel("clip_incident_face"))
+        self.k_reduce = self.runtime.bound(clip.kernel("reduce_contacts"))
 
     def _follow_table(self) -> None:
         """Rebuild for faces larger than the clipping buffers (shapes added since)."""
@@ -224,41 +221,40 @@ class Narrowphase:
         ``bodies``, ``pairs`` (Pair records), ``pair_count`` (uint32 array(1)),
         ``manifolds`` (ContactManifold records, its size is the capacity),
         ``manifold_count`` (uint32 array(1), written) and ``overflow`` (uint32
-        array(1), set to the needed capacity when it is exceeded; the caller
-        clears it) are pyopencl arrays; ``shapes`` are `PackedShapes` on the
-        device.
+        array(1), set to the needed capacity when it is exceeded, else to 0)
+        are pyopencl arrays; ``shapes`` are `PackedShapes` on the device.
         """
         if not (np.isfinite(margin) and margin >= 0):
             raise RbgenError(f"margin must be a non-negative finite number, got {margin!r}")
         self._follow_table()
         rt, wg = self.runtime, self.work_group_size
-        if not self.kinds:  # nothing can touch: no manifolds
+        if not self.kinds:  # nothing can touch: no manifolds, no overflow
+            cl.enqueue_fill_buffer(rt.queue, _data(overflow), np.uint32(0), 0, 4)
             return {"clear": cl.enqueue_fill_buffer(rt.queue, _data(manifold_count), np.uint32(0),
                                                      0, 4)}
         pair_capacity = int(pairs.size)
         self._ensure(max(1, pair_capacity))
         cap = np.uint32(self.capacity)
-        size = _round_up(max(1, pair_capacity), wg)
+        size = max(1, pair_capacity)
+        margin = np.float32(margin)
         events = {}
         for counter in (self.queue_counts, self.sat_count):
             cl.enqueue_fill_buffer(rt.queue, counter.data, np.uint32(0), 0, counter.nbytes)
-        common = (_data(pairs), _data(bodies), _data(shapes.shapes))
-        self.k_classify.set_args(_data(pairs), _data(pair_count), _data(bodies), _data(shapes.shapes),
-                                 self.contact_flags.data, self.queues.data, self.queue_counts.data, cap)
-        events["classify"] = rt.launch(self.k_classify, size, wg)
-        queue_args = (self.queues.data, self.queue_counts.data, cap)
-        out_args = (self.slots.data, self.contact_flags.data, np.float32(margin))
+        common = (pairs, bodies, shapes.shapes)
+        events["classify"] = self.k_classify.over(
+            size, wg, pairs, pair_count, bodies, shapes.shapes, self.contact_flags, self.queues,
+            self.queue_counts, cap)
+        queue_args = (self.queues, self.queue_counts, cap)
+        out_args = (self.slots, self.contact_flags, margin)
         for kind, kernel in self.primitive_kernels.items():
             args = [*common, *queue_args, np.uint32(self.kind_index[kind]), *out_args]
             if kind == "sphere_convex":
-                args += [_data(shapes.vertices), _data(shapes.faces), _data(shapes.face_indices)]
+                args += [shapes.vertices, shapes.faces, shapes.face_indices]
             elif kind == CAPSULE_CONVEX_KIND:
-                args += [_data(shapes.vertices), _data(shapes.faces), _data(shapes.face_indices),
-                         _data(shapes.edges)]
+                args += [shapes.vertices, shapes.faces, shapes.face_indices, shapes.edges]
             elif kind == "convex_plane":
-                args += [_data(shapes.vertices)]
-            kernel.set_args(*args)
-            events[kind] = rt.launch(kernel, size, wg)
+                args += [shapes.vertices]
+            events[kind] = kernel.over(size, wg, *args)
         if self.sat_kernels:
             result_count = self.sat_count
             for kind, kernel in self.sat_kernels.items():
@@ -266,29 +262,31 @@ class Narrowphase:
                 hull_args = []
                 if edge_axes != "closed_form":
                     edges = shapes.edges if edge_axes == "directions" else shapes.adjacency
-                    hull_args = [_data(shapes.vertices), _data(shapes.faces), _data(edges)]
-                kernel.set_args(*common, *hull_args, *queue_args, np.uint32(self.kind_index[kind]),
-                                self.sat_cache.data, self.sat_results.data, result_count.data,
-                                np.float32(margin))
-                events["sat_" + kind] = rt.launch(kernel, size, wg)
-            self.k_clip.set_args(*common, _data(shapes.vertices), _data(shapes.faces),
-                                 _data(shapes.face_indices), _data(shapes.edges),
-                                 _data(shapes.adjacency), self.sat_results.data, result_count.data,
-                                 self.clip_points.data, self.clip_features.data,
-                                 self.clip_counts.data, np.float32(margin))
-            events["clip"] = rt.launch(self.k_clip, size, wg)
-            self.k_reduce.set_args(_data(pairs), self.sat_results.data, result_count.data,
-                                   self.clip_points.data, self.clip_features.data,
-                                   self.clip_counts.data, self.slots.data, self.contact_flags.data)
-            events["reduce"] = rt.launch(self.k_reduce, size, wg)
-        events["scan"] = self.scan(self.contact_flags[:pair_capacity] if pair_capacity else
-                                   self.contact_flags[:1], self.slot_offsets, n=pair_count,
+                    hull_args = [shapes.vertices, shapes.faces, edges]
+                events["sat_" + kind] = kernel.over(
+                    size, wg, *common, *hull_args, *queue_args, np.uint32(self.kind_index[kind]),
+                    self.sat_cache, self.sat_results, result_count, margin)
+            events["clip"] = self.k_clip.over(
+                size, wg, *common, shapes.vertices, shapes.faces, shapes.face_indices,
+                shapes.edges, shapes.adjacency, self.sat_results, result_count, self.clip_points,
+                self.clip_features, self.clip_counts, margin)
+            events["reduce"] = self.k_reduce.over(
+                size, wg, pairs, self.sat_results, result_count, self.clip_points,
+                self.clip_features, self.clip_counts, self.slots, self.contact_flags)
+        events["scan"] = self.scan(self._scan_flags(size), self.slot_offsets, n=pair_count,
                                    total=manifold_count)
-        self.k_scatter.set_args(self.slots.data, self.contact_flags.data, self.slot_offsets.data,
-                                _data(pair_count), _data(manifold_count), _data(bodies),
-                                _data(manifolds), np.uint32(manifolds.size), _data(overflow))
-        events["scatter"] = rt.launch(self.k_scatter, size, wg)
+        events["scatter"] = self.k_scatter.over(
+            size, wg, self.slots, self.contact_flags, self.slot_offsets, pair_count,
+            manifold_count, bodies, manifolds, np.uint32(manifolds.size), overflow)
         return events
+
+    def _scan_flags(self, size: int):
+        """The first ``size`` contact flags (a view kept while the flag buffer lives)."""
+        view = getattr(self, "_flags_view", None)
+        flags = self.contact_flags.base_data
+        if view is None or view.size != size or view.base_data is not flags:
+            view = self._flags_view = self.contact_flags[:size]
+        return view
 
     # ------------------------------------------------------------------ convenience
     def find_contacts(self, bodies, shapes: PackedShapes, pairs, pair_count, margin: float = 0.0,
@@ -306,7 +304,6 @@ class Narrowphase:
         overflow = cla.zeros(q, 1, np.uint32)
         while True:
             manifolds = cla.empty(q, capacity, layouts.CONTACT_MANIFOLD.dtype)
-            overflow.fill(0)
             self.enqueue(bodies, shapes, pairs, pair_count, manifolds, count, overflow, margin)
             needed = int(self.runtime.read(overflow)[0])
             if needed == 0:

@@ -2,6 +2,9 @@
  *
  * One work-item per body; a work group is responsible for ${work_group_size}
  * consecutive bodies. For every dynamic body:
+% if gravity:
+ *   - gravity, v += g dt (here rather than in a launch of its own);
+% endif
 % if gyroscopic:
  *   - the implicit gyroscopic term: one Newton step (from w) of the implicit
  *     midpoint rule I (w' - w) + dt m x (I m) = 0, m = (w + w') / 2, in the
@@ -53,13 +56,23 @@ __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void prepare_bodies(__global Body* bodies,
                     __global BodyInertia* inertia,
                     const uint body_count,
+% if gravity:
+                    const float dt,
+                    const float4 gravity)
+% else:
                     const float dt)
+% endif
 {
     uint i = get_global_id(0);
     if (i >= body_count)
         return;
     float4 q = bodies[i].orientation;
     float3 inv_local = inertia[i].inv_inertia_local.xyz;
+% if gravity:
+    /* gravity before the solver, so that resting contacts cancel this step's */
+    if (bodies[i].inv_mass > 0.0f)
+        bodies[i].linear_velocity.xyz += gravity.xyz * dt;
+% endif
 % if gyroscopic:
     if (bodies[i].inv_mass > 0.0f && all(inv_local > 0.0f)) {
         float3 w_body = quat_rotate(quat_conjugate(q), bodies[i].angular_velocity.xyz);

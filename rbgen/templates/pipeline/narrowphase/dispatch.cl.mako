@@ -23,7 +23,8 @@
  * ${work_group_size} consecutive pairs. Copies each flagged per-pair slot to
  * its place in the output (the exclusive prefix sum of the flags, so the
  * output is in pair order), adds the combined material coefficients
- * (friction sqrt(fa fb), restitution max(ra, rb)), and records an overflow.
+ * (friction sqrt(fa fb), restitution max(ra, rb)), and sets the overflow
+ * word (the count needed, or 0: the caller need not clear it).
  */
 ${cl_constants()}
 
@@ -102,8 +103,8 @@ void scatter_manifolds(__global const ContactManifold* slots,
                        __global uint* overflow)
 {
     uint i = get_global_id(0);
-    if (i == 0 && manifold_count[0] > manifold_capacity)
-        overflow[0] = manifold_count[0];  /* the capacity the host must grow to */
+    if (i == 0)  /* the capacity the host must grow to, 0 when everything fits */
+        overflow[0] = manifold_count[0] > manifold_capacity ? manifold_count[0] : 0u;
     if (i >= pair_count[0] || contact_flags[i] == 0u || slot_offsets[i] >= manifold_capacity)
         return;
     ContactManifold m = slots[i];

@@ -1,0 +1,138 @@
+"""Kernel launches that set an argument only when its value changed.
+
+Why: a World step is ~70-140 launches, and on NVIDIA's OpenCL driver the host
+cost of pyopencl's ``set_args`` (37 us for 9 arguments; 12 us for ONE scalar
+through the generic ``set_arg``) dwarfs the enqueue itself (10 us). Most
+arguments are the same buffers and the same scalars step after step, so a
+`BoundKernel` remembers what it last set per argument index and calls the
+driver only for those that differ: a buffer by identity (re-set after a
+reallocation), a scalar or small numpy array by value. Scalars are passed to
+the driver as raw bytes (pyopencl's own generated invokers do the same),
+which costs 0.1 us instead of the generic path's several.
+
+OpenCL kernel arguments belong to the ``cl.Kernel`` object, and one kernel
+object may be used by several owners (programs are cached per source): the
+cache therefore lives with the kernel, one `BoundKernel` per kernel object,
+obtained with `bound` (or ``Runtime.bound``). Every caller of a kernel must
+go through it; a direct ``kernel.set_args`` would make its cache lie (call
+`BoundKernel.forget` after one).
+
+A kernel launched many times per step with different scalars (the solver's
+first group and pass flags) gets one kernel object per distinct set of values
+(`instance`), each with its arguments set once, instead of re-setting them
+per launch. (Passing such values in the global work offset does not work
+everywhere: PoCL 6 folds ``get_global_offset(0) >> 16`` to 0, as if the
+offset were always small.)
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+
+class BoundKernel:
+    """One ``cl.Kernel`` with a cache of its argument values (see the module docstring)."""
+
+    __slots__ = ("runtime", "kernel", "_values", "_set_bytes")
+
+    def __init__(self, runtime, kernel: cl.Kernel):
+        self.runtime = runtime
+        self.kernel = kernel
+        self._values: list = [_UNSET] * kernel.num_args
+        # raw-bytes setter of pyopencl's generated invokers; the public set_arg otherwise
+        self._set_bytes = getattr(kernel, "_set_arg_buf", None) or kernel.set_arg
+
+    def set(self, index: int, value) -> None:
+        """Set argument ``index`` unless it already holds ``value``.
+
+        ``value``: a ``cl.MemoryObject`` or pyopencl Array (compared by
+        identity of the buffer), a numpy scalar (by type and value) or a small
+        numpy array (by dtype and bytes; it is copied).
+        """
+        old = self._values[index]
+        if isinstance(value, np.generic):
+            if type(old) is type(value) and old == value:
+                return
+            self._set_bytes(index, value)
+        elif isinstance(value, np.ndarray):
+            if (isinstance(old, np.ndarray) and old.dtype == value.dtype
+                    and old.tobytes() == value.tobytes()):
+                return
+            value = np.ascontiguousarray(value).copy()
+            self._set_bytes(index, value)
+        else:
+            if hasattr(value, "base_data"):  # a pyopencl Array: its buffer
+                value = value.data
+            if old is value:
+                return
+            self.kernel.set_arg(index, value)
+        self._values[index] = value
+
+    def bind(self, *args) -> "BoundKernel":
+        """Set every argument in order (only the changed ones reach the driver)."""
+        if len(args) != len(self._values):
+            raise TypeError(f"kernel {self.kernel.function_name} takes {len(self._values)} "
+                            f"arguments, got {len(args)}")
+        for index, value in enumerate(args):
+            self.set(index, value)
+        return self
+
+    def bind_first(self, *args) -> "BoundKernel":
+        """Set the first ``len(args)`` arguments (the rest stay as they are)."""
+        for index, value in enumerate(args):
+            self.set(index, value)
+        return self
+
+    def bind_last(self, *args) -> "BoundKernel":
+        """Set the last ``len(args)`` arguments (the rest stay as they are)."""
+        first = len(self._values) - len(args)
+        for index, value in enumerate(args):
+            self.set(first + index, value)
+        return self
+
+    def forget(self) -> None:
+        """Drop the cache (after arguments were set around this object)."""
+        self._values = [_UNSET] * len(self._values)
+
+    def launch(self, global_size: int, local_size: int | None, wait_for=None) -> cl.Event:
+        """Enqueue over ``global_size`` work-items (1-D) with the arguments as set, counted
+        in ``runtime.counters``."""
+        runtime = self.runtime
+        runtime.counters["launches"] += 1
+        return cl.enqueue_nd_range_kernel(
+            runtime.queue, self.kernel, (int(global_size),),
+            None if local_size is None else (int(local_size),), wait_for=wait_for)
+
+    def over(self, count: int, local_size: int, *args) -> cl.Event:
+        """`bind` ``args``, then launch over ``count`` items rounded up to whole groups
+        (at least one group)."""
+        if args:
+            self.bind(*args)
+        return self.launch(max(1, -(-int(count) // local_size)) * local_size, local_size)
+
+
+class _Unset:
+    """Marker of an argument never set through the cache (equal to nothing)."""
+
+    def __eq__(self, other):
+        return False
+
+    __hash__ = object.__hash__
+
+
+_UNSET = _Unset()
+
+
+def bound(runtime, kernel: cl.Kernel) -> BoundKernel:
+    """The one `BoundKernel` of ``kernel`` in ``runtime`` (made on first use)."""
+    registry = runtime.__dict__.setdefault("_bound_kernels", {})
+    entry = registry.get(kernel)
+    if entry is None:
+        entry = registry[kernel] = BoundKernel(runtime, kernel)
+    return entry
+
+
+def instance(runtime, built, name: str) -> BoundKernel:
+    """A NEW kernel object of ``name`` from ``built`` (a `rbgen.codegen` built program),
+    with arguments of its own: for a kernel launched with several fixed sets of scalars."""
+    return bound(runtime, cl.Kernel(built.program, name))
