@@ -33,12 +33,13 @@ import pyopencl as cl
 class BoundKernel:
     """One ``cl.Kernel`` with a cache of its argument values (see the module docstring)."""
 
-    __slots__ = ("runtime", "kernel", "_values", "_set_bytes")
+    __slots__ = ("runtime", "kernel", "_values", "_given", "_set_bytes")
 
     def __init__(self, runtime, kernel: cl.Kernel):
         self.runtime = runtime
         self.kernel = kernel
-        self._values: list = [_UNSET] * kernel.num_args
+        self._values: list = [_UNSET] * kernel.num_args  # what the driver holds
+        self._given: list = [_UNSET] * kernel.num_args   # the object last passed (fast path)
         # raw-bytes setter of pyopencl's generated invokers; the public set_arg otherwise
         self._set_bytes = getattr(kernel, "_set_arg_buf", None) or kernel.set_arg
 
@@ -49,12 +50,17 @@ class BoundKernel:
         identity of the buffer), a numpy scalar (by type and value) or a small
         numpy array (by dtype and bytes; it is copied).
         """
+        if value is self._given[index]:  # the same object again (never a numpy array)
+            return
         old = self._values[index]
+        given = value
         if isinstance(value, np.generic):
             if type(old) is type(value) and old == value:
+                self._given[index] = given
                 return
             self._set_bytes(index, value)
         elif isinstance(value, np.ndarray):
+            given = _UNSET  # may be changed in place by its owner: compare bytes every time
             if (isinstance(old, np.ndarray) and old.dtype == value.dtype
                     and old.tobytes() == value.tobytes()):
                 return
@@ -63,18 +69,20 @@ class BoundKernel:
         else:
             if hasattr(value, "base_data"):  # a pyopencl Array: its buffer
                 value = value.data
-            if old is value:
-                return
-            self.kernel.set_arg(index, value)
+            if old is not value:
+                self.kernel.set_arg(index, value)
         self._values[index] = value
+        self._given[index] = given
 
     def bind(self, *args) -> "BoundKernel":
         """Set every argument in order (only the changed ones reach the driver)."""
-        if len(args) != len(self._values):
-            raise TypeError(f"kernel {self.kernel.function_name} takes {len(self._values)} "
+        given = self._given
+        if len(args) != len(given):
+            raise TypeError(f"kernel {self.kernel.function_name} takes {len(given)} "
                             f"arguments, got {len(args)}")
         for index, value in enumerate(args):
-            self.set(index, value)
+            if value is not given[index]:
+                self.set(index, value)
         return self
 
     def bind_first(self, *args) -> "BoundKernel":
@@ -93,6 +101,7 @@ class BoundKernel:
     def forget(self) -> None:
         """Drop the cache (after arguments were set around this object)."""
         self._values = [_UNSET] * len(self._values)
+        self._given = [_UNSET] * len(self._given)
 
     def launch(self, global_size: int, local_size: int | None, wait_for=None) -> cl.Event:
         """Enqueue over ``global_size`` work-items (1-D) with the arguments as set, counted

@@ -169,6 +169,7 @@ class Narrowphase:
         self._build_clip()
         self.scan = Scan(runtime, np.uint32, inclusive=False)
         self.capacity = 0
+        self._counters_clear = True  # queue counters hold zeros (see enqueue)
 
     def _build_clip(self) -> None:
         if not self.sat_kernels:
@@ -200,6 +201,7 @@ class Narrowphase:
         q = self.runtime.queue
         cap = int(pair_capacity)
         clip_cap = cap * 2 * self.max_face_vertices if self.sat_kernels else 1
+        self._counters_clear = True  # fresh zeros (scatter_manifolds clears them after use)
         self.contact_flags = cla.zeros(q, cap, np.uint32)
         self.slot_offsets = cla.zeros(q, cap, np.uint32)
         self.slots = cla.zeros(q, cap, layouts.CONTACT_MANIFOLD.dtype)
@@ -238,12 +240,14 @@ class Narrowphase:
         size = max(1, pair_capacity)
         margin = np.float32(margin)
         events = {}
-        for counter in (self.queue_counts, self.sat_count):
-            cl.enqueue_fill_buffer(rt.queue, counter.data, np.uint32(0), 0, counter.nbytes)
+        if not self._counters_clear:  # a call that stopped before its scatter_manifolds
+            cl.enqueue_fill_buffer(rt.queue, self.queue_counts.data, np.uint32(0), 0,
+                                   self.queue_counts.nbytes)
+        self._counters_clear = False
         common = (pairs, bodies, shapes.shapes)
         events["classify"] = self.k_classify.over(
             size, wg, pairs, pair_count, bodies, shapes.shapes, self.contact_flags, self.queues,
-            self.queue_counts, cap)
+            self.queue_counts, cap, self.sat_count)
         queue_args = (self.queues, self.queue_counts, cap)
         out_args = (self.slots, self.contact_flags, margin)
         for kind, kernel in self.primitive_kernels.items():
@@ -277,7 +281,9 @@ class Narrowphase:
                                    total=manifold_count)
         events["scatter"] = self.k_scatter.over(
             size, wg, self.slots, self.contact_flags, self.slot_offsets, pair_count,
-            manifold_count, bodies, manifolds, np.uint32(manifolds.size), overflow)
+            manifold_count, bodies, manifolds, np.uint32(manifolds.size), overflow,
+            self.queue_counts)
+        self._counters_clear = True
         return events
 
     def _scan_flags(self, size: int):

@@ -14,7 +14,8 @@
  *
  * classify_pairs: one work-item per broadphase pair; a work group is
  * responsible for ${work_group_size} consecutive pairs. It clears the pair's
- * contact flag and appends the pair to the queue of its shape-type pair, so
+ * contact flag (work-item 0: the clipping queue's count too) and appends the
+ * pair to the queue of its shape-type pair, so
  * that each pair kernel runs over a homogeneous queue. Appends are aggregated
  * per work group (one global atomic per kind and group).
  * Kinds: ${", ".join(kinds)}.
@@ -23,8 +24,9 @@
  * ${work_group_size} consecutive pairs. Copies each flagged per-pair slot to
  * its place in the output (the exclusive prefix sum of the flags, so the
  * output is in pair order), adds the combined material coefficients
- * (friction sqrt(fa fb), restitution max(ra, rb)), and sets the overflow
- * word (the count needed, or 0: the caller need not clear it).
+ * (friction sqrt(fa fb), restitution max(ra, rb)), sets the overflow word
+ * (the count needed, or 0: the caller need not clear it) and clears the queue
+ * counters for the next call.
  */
 ${cl_constants()}
 
@@ -61,11 +63,14 @@ void classify_pairs(__global const Pair* pairs,
                     __global uint* contact_flags,
                     __global uint* queues,
                     __global uint* queue_counts,
-                    const uint pair_capacity)
+                    const uint pair_capacity,
+                    __global uint* sat_count)
 {
     __local uint group_counts[KIND_COUNT];
     __local uint group_bases[KIND_COUNT];
     uint i = get_global_id(0);
+    if (i == 0)  /* the clipping queue is filled by later kernels (no fill command) */
+        sat_count[0] = 0u;
     if (get_local_id(0) == 0)
         for (uint k = 0; k < KIND_COUNT; ++k)
             group_counts[k] = 0;
@@ -100,11 +105,18 @@ void scatter_manifolds(__global const ContactManifold* slots,
                        __global const Body* bodies,
                        __global ContactManifold* manifolds,
                        const uint manifold_capacity,
-                       __global uint* overflow)
+                       __global uint* overflow,
+                       __global uint* queue_counts)
 {
     uint i = get_global_id(0);
-    if (i == 0)  /* the capacity the host must grow to, 0 when everything fits */
+    if (i == 0) {
+        /* the capacity the host must grow to, 0 when everything fits */
         overflow[0] = manifold_count[0] > manifold_capacity ? manifold_count[0] : 0u;
+        /* every reader of the queue counters ran before this kernel: clear them for
+         * the next call's classify_pairs (instead of a fill command before it) */
+        for (uint k = 0; k < KIND_COUNT; ++k)
+            queue_counts[k] = 0u;
+    }
     if (i >= pair_count[0] || contact_flags[i] == 0u || slot_offsets[i] >= manifold_capacity)
         return;
     ContactManifold m = slots[i];
