@@ -146,7 +146,8 @@ class Narrowphase:
             self.primitive_kernels = {k: runtime.bound(prog.kernel(k)) for k in primitive}
         if CAPSULE_CONVEX_KIND in self.kinds:
             prog = compile_spec(runtime, CAPSULE_CONVEX.spec(work_group_size=wg))
-            self.primitive_kernels[CAPSULE_CONVEX_KIND] = runtime.bound(prog.kernel("capsule_convex"))
+            capsule_convex = runtime.bound(prog.kernel("capsule_convex"))
+            self.primitive_kernels[CAPSULE_CONVEX_KIND] = capsule_convex
         self.sat_kernels, self.sat_edge_axes = {}, {}
         for kind in (k for k in self.kinds if k in CONVEX_KINDS):
             if kind == "box_box" and box_path == "box_box" and "box_box" not in edge_axes_for:
