@@ -1,0 +1,63 @@
+"""Device time per kernel of a World step (OpenCL profiling events), largest first.
+
+usage: python benchmarks/kernel_times.py [--device D] [--scene boxbox] [--n 8000] [--steps 10]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
+
+import pyopencl as cl  # noqa: E402
+
+
+def main() -> None:
+    from rbgen.demo import build_scene
+    from rbgen.device import Runtime
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--device", default=None)
+    parser.add_argument("--scene", default="boxbox")
+    parser.add_argument("--n", type=int, default=8000)
+    parser.add_argument("--steps", type=int, default=10)
+    parser.add_argument("--batching", default=None)
+    parser.add_argument("--top", type=int, default=15)
+    args = parser.parse_args()
+    runtime = Runtime(args.device, profiling=True)
+    options = {"batching": args.batching} if args.batching else {}
+    world = build_scene(args.scene, args.n, runtime, **options)[0]
+    for _ in range(5):
+        world.step(1 / 60)
+    runtime.queue.finish()
+
+    events = []
+    original = cl.enqueue_nd_range_kernel
+
+    def recording(queue, kernel, *rest, **kw):
+        event = original(queue, kernel, *rest, **kw)
+        events.append((kernel.function_name, event))
+        return event
+
+    cl.enqueue_nd_range_kernel = recording
+    try:
+        for _ in range(args.steps):
+            world.step(1 / 60)
+        runtime.queue.finish()
+    finally:
+        cl.enqueue_nd_range_kernel = original
+    totals, counts = defaultdict(float), defaultdict(int)
+    for name, event in events:
+        totals[name] += 1e-6 * (event.profile.end - event.profile.start) / args.steps
+        counts[name] += 1
+    total = sum(totals.values())
+    print(f"{args.scene} n={args.n} on {runtime.traits.device_name}: kernel time {total:.3f} ms/step, "
+          f"{len(events) / args.steps:.0f} launches/step")
+    for name, ms in sorted(totals.items(), key=lambda kv: -kv[1])[:args.top]:
+        print(f"  {ms:9.3f} ms  {counts[name] / args.steps:5.1f}x  {name}")
+
+
+if __name__ == "__main__":
+    main()
