@@ -32,6 +32,8 @@ from ..launch import instance
 
 #: friction models (see the template parameter "friction")
 FRICTION_MODELS = ("point", "manifold")
+#: how a manifold's normal rows are solved (see the template parameter "normal_solve")
+NORMAL_SOLVES = ("block", "sequential")
 
 TEMPLATE = KernelTemplate(
     "pipeline/solver.cl.mako",
@@ -44,6 +46,10 @@ TEMPLATE = KernelTemplate(
               "a power of two from 2 to 4096"),
         Param("split_impulse", (True, False),
               "emit the position pass and the push-velocity kernels"),
+        Param("normal_solve", NORMAL_SOLVES,
+              "block: a manifold's normal rows solved together (no point-order bias, so "
+              "symmetric stacks stay upright); sequential: one row after another (cheaper, "
+              "tips columns)"),
         Param("friction", FRICTION_MODELS,
               "point: two tangent rows per contact point; manifold: one tangent pair at the "
               "points' centre plus a twist row (fewer rows, Bullet3's GPU choice)"),
@@ -51,7 +57,8 @@ TEMPLATE = KernelTemplate(
     doc="PGS velocity iterations (and split-impulse position iterations) over batched contacts.",
     roles={"constraints": "inout", "bodies": "inout", "split": "inout"},
     defaults=lambda traits: {"friction": "point", "work_group_size": default_work_group_size(traits),
-                             "max_batches": 128, "split_impulse": True},
+                             "max_batches": 128, "split_impulse": True,
+                             "normal_solve": "block"},
 )
 
 
@@ -68,14 +75,18 @@ class ContactSolver:
     """Launches the PGS iterations over a `ConstraintBatcher`'s batches."""
 
     def __init__(self, runtime: Runtime, *, split_impulse: bool = True, max_batches: int = 128,
-                 friction: str = "point", work_group_size: int | None = None):
+                 friction: str = "point", work_group_size: int | None = None,
+                 normal_solve: str = "block"):
         self.runtime = runtime
         self.split_impulse = bool(split_impulse)
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
         if friction not in FRICTION_MODELS:
             raise RbgenError(f"friction must be one of {FRICTION_MODELS}, got {friction!r}")
+        if normal_solve not in NORMAL_SOLVES:
+            raise RbgenError(f"normal_solve must be one of {NORMAL_SOLVES}, got {normal_solve!r}")
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, max_batches=int(max_batches),
-                                  split_impulse=self.split_impulse, friction=friction)
+                                  split_impulse=self.split_impulse, friction=friction,
+                                  normal_solve=normal_solve)
         self._program = program = compile_spec(runtime, self.spec)
         if self.split_impulse:
             self.apply_kernel = runtime.bound(program.kernel("apply_split_velocities"))

@@ -227,7 +227,10 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
         velocity_target[k] = push > 0.0f ? fmax(target, push) : target;
 % else:
         velocity_target[k] = target;
-        position_target[k] = push;
+        /* a point still apart may close (part of) its gap while the others
+         * push out: a target of 0 there would make an exactly solved push
+         * lift a tilted box whole instead of levelling it, and towers sway */
+        position_target[k] = separation > 0.0f ? -penetration_recovery / dt * separation : push;
 % endif
     }
 % if friction == "manifold":

@@ -8,10 +8,19 @@
  * The last batch slot (${max_batches - 1}) holds any remainder and is solved by lane 0 alone.
  *
  * Rows: per contact point a normal row (impulse >= 0, drives the normal
- * velocity to its target; all points' normal rows first, forwards and
- * backwards on alternate sweeps: always solving point 0 first biases a heavy
- * stack's base and makes the whole column wobble, while rotating the order or
- * changing it per step does not cure that), then
+ * velocity to its target),
+% if normal_solve == "block":
+ * all points' normal rows of a manifold solved together as one block
+ * (solve_normal_block: exact for the points that stay pushing, so that the
+ * result does not depend on the order of the points: solving them one after
+ * another leaves a residual torque that tips a symmetric column from its
+ * first step and makes it lean or walk), then once more one after another
+ * (forwards and backwards on alternate sweeps) for the points it released, then
+% else:
+ * all points' normal rows first, one after another, forwards and backwards
+ * on alternate sweeps (always solving point 0 first biases a heavy stack's
+ * base and makes the whole column wobble), then
+% endif
 % if friction == "point":
  * per point a friction pair clamped to the disc |f| <= mu * its normal impulse.
 % else:
@@ -68,6 +77,105 @@ inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, floa
     return vb + cross(wb, rb) - va - cross(wa, ra);
 }
 
+% if normal_solve == "block":
+/* The normal rows of one manifold as a block: the accumulated impulses
+ * lambda[k] (>= 0) of its `count` points are replaced by totals with which
+ * every point that keeps a positive impulse reaches its normal velocity
+ * target at once, K (total - lambda) = target - vn, with K[j][k] = the normal
+ * velocity change at point j per unit impulse at point k. Points whose
+ * impulse would turn negative are released (impulse 0) and the rest is
+ * solved again, at most `count` rounds. K is singular for four points on one
+ * face (only three of their motions are independent), so the totals are
+ * found by conjugate gradients started from zero: they converge to the
+ * smallest such totals, the evenly spread ones (no drift of the split
+ * between the points from step to step, which would skew the per-point
+ * friction limits), and stop once the remaining residual lies in K's null
+ * space (no velocity left to fix). Updates the velocities in place. */
+void solve_normal_block(const uint count, const float3 n, __global const float4* r_a,
+                        __global const float4* r_b, const float relaxation,
+                        float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
+                        float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
+                        const float target[4], float lambda[4])
+{
+    /* per point: the torque arms of its normal row on A and B */
+    float3 arm_a[4], arm_b[4];
+    float residual[4], total[4], k_matrix[4][4];
+    float largest = 0.0f;
+    for (uint k = 0; k < count; ++k) {
+        float3 ra = r_a[k].xyz, rb = r_b[k].xyz;
+        arm_a[k] = cross(ra, n);
+        arm_b[k] = cross(rb, n);
+        residual[k] = target[k] - dot(relative_velocity(ra, rb, *va, *wa, *vb, *wb), n);
+    }
+    for (uint j = 0; j < count; ++j)
+        for (uint k = 0; k < count; ++k) {
+            k_matrix[j][k] = inv_mass_a + inv_mass_b
+                           + dot(arm_a[j], mul_rows(inv_inertia_a, arm_a[k]))
+                           + dot(arm_b[j], mul_rows(inv_inertia_b, arm_b[k]));
+            largest = fmax(largest, k_matrix[j][k]);
+        }
+    bool active[4];
+    for (uint k = 0; k < count; ++k)
+        active[k] = true;
+    /* the velocity the current impulses produce: residual + K lambda */
+    float rhs[4];
+    for (uint j = 0; j < count; ++j) {
+        rhs[j] = residual[j];
+        for (uint k = 0; k < count; ++k)
+            rhs[j] += k_matrix[j][k] * lambda[k];
+    }
+    for (uint attempt = 0; attempt < count; ++attempt) {
+        /* new totals: 0 for released points; for the others, from 0 so that
+         * they end as the smallest (most even) totals that reach the targets */
+        float gradient[4], direction[4], rr = 0.0f;
+        for (uint j = 0; j < count; ++j) {
+            total[j] = 0.0f;
+            gradient[j] = direction[j] = active[j] ? rhs[j] : 0.0f;
+            rr += gradient[j] * gradient[j];
+        }
+        for (uint iteration = 0; iteration < count; ++iteration) {
+            float k_direction[4], dkd = 0.0f, dd = 0.0f;
+            for (uint j = 0; j < count; ++j) {
+                k_direction[j] = 0.0f;
+                for (uint k = 0; k < count; ++k)
+                    k_direction[j] += k_matrix[j][k] * direction[k];
+                k_direction[j] = active[j] ? k_direction[j] : 0.0f;
+                dkd += direction[j] * k_direction[j];
+                dd += direction[j] * direction[j];
+            }
+            /* nothing left but directions K (almost) does not move: its null
+             * space, blurred by a slightly tilted face; a step along them would
+             * be huge impulses that cancel each other */
+            if (dkd <= 1e-3f * largest * dd)
+                break;
+            float distance = rr / dkd, next_rr = 0.0f;
+            for (uint j = 0; j < count; ++j) {
+                total[j] += active[j] ? distance * direction[j] : 0.0f;
+                gradient[j] -= distance * k_direction[j];
+                next_rr += gradient[j] * gradient[j];
+            }
+            for (uint j = 0; j < count; ++j)
+                direction[j] = gradient[j] + next_rr / rr * direction[j];
+            rr = next_rr;
+        }
+        bool released = false;
+        for (uint k = 0; k < count; ++k)
+            if (active[k] && lambda[k] + relaxation * (total[k] - lambda[k]) < 0.0f)
+                active[k] = false, released = true;
+        if (!released)
+            break;
+    }
+    for (uint k = 0; k < count; ++k) {
+        float change = fmax(lambda[k] + relaxation * (total[k] - lambda[k]), 0.0f) - lambda[k];
+        lambda[k] += change;
+        *va -= n * (change * inv_mass_a);
+        *wa -= mul_rows(inv_inertia_a, arm_a[k] * change);
+        *vb += n * (change * inv_mass_b);
+        *wb += mul_rows(inv_inertia_b, arm_b[k] * change);
+    }
+}
+
+% endif
 /* Apply last step's accumulated impulses of one constraint (warm start). */
 void warm_start_contact(__global const ContactConstraint* c, __global Body* bodies,
                         __global const BodyInertia* inertia)
@@ -139,6 +247,12 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
     vstore4(c->tangent2_mass, 0, tangent2_mass);
     vstore4(c->velocity_target, 0, target);
 
+% if normal_solve == "block":
+    solve_normal_block(count, n, c->r_a, c->r_b, relaxation, inv_mass_a, inv_inertia_a, &va, &wa,
+                       inv_mass_b, inv_inertia_b, &vb, &wb, target, normal_impulse);
+    /* then the rows one after another: no change where the block was exact;
+     * completes a point the block released while it still approaches */
+% endif
     for (uint step = 0; step < count; ++step) {
         /* alternate the point order between sweeps, so that no point is always first */
         uint k = reverse ? count - 1 - step : step;
@@ -152,8 +266,9 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
                       inv_mass_b, inv_inertia_b, &vb, &wb);
     }
 % if friction == "point":
-    for (uint k = 0; k < count; ++k) {
-        /* friction pair: |(f1, f2)| <= mu * normal impulse */
+    for (uint step = 0; step < count; ++step) {
+        /* friction pair: |(f1, f2)| <= mu * normal impulse (same point order) */
+        uint k = reverse ? count - 1 - step : step;
         float3 ra = c->r_a[k].xyz, rb = c->r_b[k].xyz;
         float3 dv = relative_velocity(ra, rb, va, wa, vb, wb);
         float f1 = tangent1_impulse[k] - relaxation * tangent1_mass[k] * dot(dv, t1);
@@ -278,6 +393,10 @@ void solve_push(__global ContactConstraint* c, __global SplitVelocity* split,
     vstore4(c->push_impulse, 0, push_impulse);
     vstore4(c->normal_mass, 0, normal_mass);
     vstore4(c->position_target, 0, target);
+% if normal_solve == "block":
+    solve_normal_block(count, n, c->r_a, c->r_b, relaxation, inv_mass_a, inv_inertia_a, &va, &wa,
+                       inv_mass_b, inv_inertia_b, &vb, &wb, target, push_impulse);
+% else:
     for (uint k = 0; k < count; ++k) {
         float3 ra = c->r_a[k].xyz, rb = c->r_b[k].xyz;
         float vn = dot(relative_velocity(ra, rb, va, wa, vb, wb), n);
@@ -287,6 +406,7 @@ void solve_push(__global ContactConstraint* c, __global SplitVelocity* split,
         apply_impulse(n * delta, ra, rb, inv_mass_a, inv_inertia_a, &va, &wa,
                       inv_mass_b, inv_inertia_b, &vb, &wb);
     }
+% endif
     c->push_impulse = vload4(0, push_impulse);
     if (inv_mass_a > 0.0f) {
         split[a].linear.xyz = va;
