@@ -125,12 +125,20 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
             rhs[j] += k_matrix[j][k] * lambda[k];
     }
     for (uint attempt = 0; attempt < count; ++attempt) {
-        /* new totals: 0 for released points; for the others, from 0 so that
-         * they end as the smallest (most even) totals that reach the targets */
+        /* new totals: 0 for released points; for the others, four points
+         * (K singular) start from 0 so that they end as the smallest, evenly
+         * spread totals that reach the targets; fewer points (K regular, but
+         * ill-conditioned when two lie close) start from the current ones so
+         * that a direction the iteration gives up on keeps what earlier
+         * sweeps built */
         float gradient[4], direction[4], rr = 0.0f;
+        for (uint j = 0; j < count; ++j)
+            total[j] = active[j] && count < 4 ? lambda[j] : 0.0f;
         for (uint j = 0; j < count; ++j) {
-            total[j] = 0.0f;
-            gradient[j] = direction[j] = active[j] ? rhs[j] : 0.0f;
+            gradient[j] = rhs[j];
+            for (uint k = 0; k < count; ++k)
+                gradient[j] -= k_matrix[j][k] * total[k];
+            gradient[j] = direction[j] = active[j] ? gradient[j] : 0.0f;
             rr += gradient[j] * gradient[j];
         }
         for (uint iteration = 0; iteration < count; ++iteration) {
