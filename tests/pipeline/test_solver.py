@@ -72,8 +72,9 @@ def test_friction_clamped_by_normal_impulse(runtime, rng, mu, model):
 
 
 def test_two_free_bodies_conserve_momentum(runtime, rng):
-    """Random masses, inertias, normal and 1-4 points: P and L conserved; no point of a
-    1- or 2-point manifold approaching faster than its target allows."""
+    """Random masses, inertias, normal and 1-4 points: P and L conserved within 1e-4 relative
+    (the issue's bound; 1000 float32 iterations of round-off); no point of a 1- or 2-point
+    manifold approaching faster than its target allows."""
     n_pairs = 21
     positions, inv_mass, velocities, angular, inv_inertia, manifolds = [], [], [], [], [], []
     for i in range(n_pairs):
@@ -110,8 +111,8 @@ def test_two_free_bodies_conserve_momentum(runtime, rng):
     p0, l0 = momenta(bodies.astype(bodies.dtype))
     p1, l1 = momenta(out)
     scale = np.abs(p0).max() + 1
-    np.testing.assert_allclose(p1, p0, atol=2e-5 * scale)
-    np.testing.assert_allclose(l1, l0, atol=2e-5 * (np.abs(l0).max() + 1))
+    np.testing.assert_allclose(p1, p0, atol=1e-4 * scale)
+    np.testing.assert_allclose(l1, l0, atol=1e-4 * (np.abs(l0).max() + 1))
     for i, c in enumerate(cons):
         a, b = c["body_a"], c["body_b"]
         if c["point_count"] > 2:
