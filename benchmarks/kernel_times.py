@@ -24,10 +24,13 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=8000)
     parser.add_argument("--steps", type=int, default=10)
     parser.add_argument("--batching", default=None)
+    parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"])
     parser.add_argument("--top", type=int, default=15)
     args = parser.parse_args()
     runtime = Runtime(args.device, profiling=True)
     options = {"batching": args.batching} if args.batching else {}
+    if args.normal_solve:
+        options["normal_solve"] = args.normal_solve
     world = build_scene(args.scene, args.n, runtime, **options)[0]
     for _ in range(5):
         world.step(1 / 60)

@@ -31,9 +31,13 @@ def main(argv=None) -> int:
     parser.add_argument("--batching", default=None, choices=["cells", "components"],
                         help="level-1 batching (default: cells on GPUs, components on CPUs)")
     parser.add_argument("--iterations", type=int, default=10)
+    parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"],
+                        help="a manifold's normal rows as one block (default) or one by one")
     args = parser.parse_args(argv)
 
     options = {"iterations": args.iterations}
+    if args.normal_solve:
+        options["normal_solve"] = args.normal_solve
     if args.batching:
         options["batching"] = args.batching
     rows = []
