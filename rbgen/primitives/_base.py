@@ -196,3 +196,31 @@ class Primitive:
 
 def ceil_div(a: int, b: int) -> int:
     return -(-a // b)
+
+
+def tiled_or_chunked_space(default: dict, traits: DeviceTraits) -> list[dict]:
+    """Search space shared by the scan-shaped primitives (scan, compact), default first.
+
+    GPU: tiles of 128-512 work-items with 4-16 items each (local-memory scans);
+    CPU: 1-16 long chunks per compute unit (no barriers)."""
+    space = [default]
+    if traits.is_gpu:
+        wf = clamp_wavefront(traits)
+        for wg in (128, 256, 512):
+            for ipt in (4, 8, 16):
+                if wf <= wg <= traits.max_work_group_size:
+                    space.append({"shape": "gpu", "work_group_size": wg,
+                                  "items_per_thread": ipt, "wavefront": wf})
+    else:
+        cu = max(1, traits.compute_units)
+        space += [{"shape": "cpu", "work_items": k * cu} for k in (1, 2, 4, 8, 16)]
+    return unique_params(space)
+
+
+def unique_params(space: list[dict]) -> list[dict]:
+    """The candidates in order, each once."""
+    unique = []
+    for p in space:
+        if p not in unique:
+            unique.append(p)
+    return unique

@@ -15,8 +15,8 @@ import pyopencl as cl
 from ..codegen import Param, power_of_two
 from ..device import DeviceTraits
 from ..errors import RbgenError
-from ._base import (PrimitiveTemplate, Primitive, ceil_div, check_array, clamp_wavefront,
-                    default_work_items, resolve_count)
+from ._base import (ceil_div, check_array, clamp_wavefront, default_work_items, Primitive,
+                    PrimitiveTemplate, resolve_count, tiled_or_chunked_space)
 
 _GATHER = Param("gather_values", (True, False),
                 "write values[i] of kept elements instead of their index i")
@@ -120,19 +120,5 @@ class Compact(Primitive):
 
 
 def search_space(traits: DeviceTraits) -> list[dict]:
-    space = [Compact.default_params(traits)]
-    if traits.is_gpu:
-        wf = clamp_wavefront(traits)
-        for wg in (128, 256, 512):
-            for ipt in (4, 8, 16):
-                if wf <= wg <= traits.max_work_group_size:
-                    space.append({"shape": "gpu", "work_group_size": wg,
-                                  "items_per_thread": ipt, "wavefront": wf})
-    else:
-        cu = max(1, traits.compute_units)
-        space += [{"shape": "cpu", "work_items": k * cu} for k in (1, 2, 4, 8, 16)]
-    out = []
-    for p in space:
-        if p not in out:
-            out.append(p)
-    return out
+    """Candidate parameters the tuner tries on a device (heuristic default first)."""
+    return tiled_or_chunked_space(Compact.default_params(traits), traits)

@@ -17,8 +17,9 @@ import pyopencl.array as cla
 from ..codegen import Param, compile_spec, power_of_two
 from ..device import DeviceTraits
 from ..errors import RbgenError
-from ._base import (PrimitiveTemplate, Primitive, ceil_div, check_array, clamp_wavefront,
-                    cl_type, default_work_items, resolve_count, size_bucket)
+from ._base import (ceil_div, check_array, cl_type, clamp_wavefront, default_work_items,
+                    Primitive, PrimitiveTemplate, resolve_count, size_bucket,
+                    tiled_or_chunked_space, unique_params)
 
 DTYPES = ("uint", "int", "float")
 
@@ -242,33 +243,9 @@ def chained_search_space(traits: DeviceTraits) -> list[dict]:
         for ipt in (4096, 16384, 65536):
             space.append({"shape": "chained", "work_group_size": 1, "items_per_thread": ipt,
                           "wavefront": 1})
-    unique = []
-    for p in space:
-        if p not in unique:
-            unique.append(p)
-    return unique
+    return unique_params(space)
 
 
 def search_space(traits: DeviceTraits) -> list[dict]:
     """Candidate parameters the tuner tries on a device (heuristic default first)."""
-    return _search_space(Scan, traits)
-
-
-def _search_space(cls, traits: DeviceTraits) -> list[dict]:
-    space = [cls.default_params(traits)]
-    cu = max(1, traits.compute_units)
-    if traits.is_gpu:
-        wf = clamp_wavefront(traits)
-        for wg in (128, 256, 512):
-            for ipt in (4, 8, 16):
-                if wf <= wg <= traits.max_work_group_size:
-                    space.append({"shape": "gpu", "work_group_size": wg,
-                                  "items_per_thread": ipt, "wavefront": wf})
-    else:
-        for k in (1, 2, 4, 8, 16):
-            space.append({"shape": "cpu", "work_items": k * cu})
-    unique = []
-    for p in space:
-        if p not in unique:
-            unique.append(p)
-    return unique
+    return tiled_or_chunked_space(Scan.default_params(traits), traits)
