@@ -97,34 +97,37 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
                         float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
                         const float target[4], float lambda[4])
 {
+    /* Loops run to the constant RB_MAX_MANIFOLD_POINTS and test `count` inside, so
+     * that compilers unroll them and keep these small arrays in registers (with a
+     * runtime trip count NVIDIA's compiler put them in slow private memory). */
     /* per point: the torque arms of its normal row on A and B */
     float3 arm_a[4], arm_b[4];
     float residual[4], total[4], k_matrix[4][4];
     float largest = 0.0f;
-    for (uint k = 0; k < count; ++k) {
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         float3 ra = r_a[k].xyz, rb = r_b[k].xyz;
         arm_a[k] = cross(ra, n);
         arm_b[k] = cross(rb, n);
         residual[k] = target[k] - dot(relative_velocity(ra, rb, *va, *wa, *vb, *wb), n);
     }
-    for (uint j = 0; j < count; ++j)
-        for (uint k = 0; k < count; ++k) {
+    for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count)
+        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
             k_matrix[j][k] = inv_mass_a + inv_mass_b
                            + dot(arm_a[j], mul_rows(inv_inertia_a, arm_a[k]))
                            + dot(arm_b[j], mul_rows(inv_inertia_b, arm_b[k]));
             largest = fmax(largest, k_matrix[j][k]);
         }
     bool active[4];
-    for (uint k = 0; k < count; ++k)
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         active[k] = true;
     /* the velocity the current impulses produce: residual + K lambda */
     float rhs[4];
-    for (uint j = 0; j < count; ++j) {
+    for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count) {
         rhs[j] = residual[j];
-        for (uint k = 0; k < count; ++k)
+        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
             rhs[j] += k_matrix[j][k] * lambda[k];
     }
-    for (uint attempt = 0; attempt < count; ++attempt) {
+    for (uint attempt = 0; attempt < RB_MAX_MANIFOLD_POINTS; ++attempt) if (attempt < count) {
         /* new totals: 0 for released points; for the others, four points
          * (K singular) start from 0 so that they end as the smallest, evenly
          * spread totals that reach the targets; fewer points (K regular, but
@@ -132,20 +135,20 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
          * that a direction the iteration gives up on keeps what earlier
          * sweeps built */
         float gradient[4], direction[4], rr = 0.0f;
-        for (uint j = 0; j < count; ++j)
+        for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count)
             total[j] = active[j] && count < 4 ? lambda[j] : 0.0f;
-        for (uint j = 0; j < count; ++j) {
+        for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count) {
             gradient[j] = rhs[j];
-            for (uint k = 0; k < count; ++k)
+            for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
                 gradient[j] -= k_matrix[j][k] * total[k];
             gradient[j] = direction[j] = active[j] ? gradient[j] : 0.0f;
             rr += gradient[j] * gradient[j];
         }
-        for (uint iteration = 0; iteration < count; ++iteration) {
+        for (uint iteration = 0; iteration < RB_MAX_MANIFOLD_POINTS; ++iteration) if (iteration < count) {
             float k_direction[4], dkd = 0.0f, dd = 0.0f;
-            for (uint j = 0; j < count; ++j) {
+            for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count) {
                 k_direction[j] = 0.0f;
-                for (uint k = 0; k < count; ++k)
+                for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
                     k_direction[j] += k_matrix[j][k] * direction[k];
                 k_direction[j] = active[j] ? k_direction[j] : 0.0f;
                 dkd += direction[j] * k_direction[j];
@@ -157,23 +160,23 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
             if (dkd <= 1e-3f * largest * dd)
                 break;
             float distance = rr / dkd, next_rr = 0.0f;
-            for (uint j = 0; j < count; ++j) {
+            for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count) {
                 total[j] += active[j] ? distance * direction[j] : 0.0f;
                 gradient[j] -= distance * k_direction[j];
                 next_rr += gradient[j] * gradient[j];
             }
-            for (uint j = 0; j < count; ++j)
+            for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count)
                 direction[j] = gradient[j] + next_rr / rr * direction[j];
             rr = next_rr;
         }
         bool released = false;
-        for (uint k = 0; k < count; ++k)
+        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
             if (active[k] && lambda[k] + relaxation * (total[k] - lambda[k]) < 0.0f)
                 active[k] = false, released = true;
         if (!released)
             break;
     }
-    for (uint k = 0; k < count; ++k) {
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         float change = fmax(lambda[k] + relaxation * (total[k] - lambda[k]), 0.0f) - lambda[k];
         lambda[k] += change;
         *va -= n * (change * inv_mass_a);
