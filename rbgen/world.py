@@ -58,6 +58,15 @@ STEPS_IN_FLIGHT = 2
 MAX_REDOS = 16
 
 
+def _default_normal_solve(batching_mode: str) -> str:
+    """Measured on PoCL, 10 iterations, dt 1/60 (10-box column drift in 10 s / 1,000-box pile
+    max speed at step 300): cells + sequential 2.4 cm / 0.009 m/s, cells + block 0.0 cm /
+    0.002 m/s; components + sequential 0.4 cm / 0.004 m/s, components + block 0.0 cm / 0.125 m/s
+    (top boxes of jittered stacks keep rocking; cause not found yet). So each mode gets the
+    solve that holds both scenes."""
+    return "block" if batching_mode == "cells" else "sequential"
+
+
 class World:
     """A rigid-body world on one OpenCL device (see the module docstring).
 
@@ -75,14 +84,10 @@ class World:
     every step); a 20-row pyramid's top then moves ~2 cm in 10 s and comes to
     rest, while Baumgarte's recovery velocity keeps the same pyramid jittering
     at up to 0.8 m/s),
-    ``normal_solve`` ("sequential", the default: a manifold's normal rows one after
-    another; "block": solved together, so the order of its points leaves no torque.
-    Measured on PoCL at 10 iterations, dt 1/60 — 10-box column drift in 10 s, and
-    max speed at step 300 of an 8,000-box dropped pile: cells + sequential 2.4 cm,
-    0.029 m/s; cells + block 0.0 cm, 0.138 m/s (a few stack tops keep rocking,
-    cause not found yet); components + sequential 0.4 cm, 0.032 m/s. Block also
-    costs 2x solver time on the H200. Sequential meets the pile and pyramid criteria,
-    block the column; pick block for tall single columns),
+    ``normal_solve`` ("block": a manifold's normal rows solved together, so
+    the order of its points leaves no torque; "sequential": one row after another;
+    default: block with cells batching, sequential with components batching — see
+    `_default_normal_solve`),
     ``warm_start``, ``gyroscopic``, ``friction_model`` ("point": two friction
     rows per contact point; "manifold": one pair at the centre plus twist),
     ``broadphase`` ("grid", "sap", "sap3"),
@@ -96,7 +101,7 @@ class World:
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), *, iterations: int = 10,
                  position_iterations: int = 4, relaxation: float = 1.0,
                  penetration: str = "split", warm_start: bool = True, gyroscopic: bool = True,
-                 friction_model: str = "point", normal_solve: str = "sequential",
+                 friction_model: str = "point", normal_solve: str | None = None,
                  broadphase: str = "grid", contact_margin: float = 0.02,
                  restitution_threshold: float = 0.5, penetration_slop: float | None = None,
                  penetration_recovery: float = 0.2, linear_damping: float = 0.0,
@@ -125,7 +130,8 @@ class World:
         self.relaxation = float(relaxation)
         self._solver = ContactSolver(rt, split_impulse=penetration == "split",
                                      max_batches=self._batcher.max_batches, friction=friction_model,
-                                     normal_solve=normal_solve)
+                                     normal_solve=normal_solve or _default_normal_solve(
+                                         self._batcher.mode))
         self.restitution_threshold = restitution_threshold
         if penetration_slop is None:
             # Baumgarte feeds its push into the warm-started impulse: with a 1 mm slop a

@@ -12,9 +12,7 @@ def test_ten_box_column_stands(batching):
     """Closed form: at rest box k's centre is at 0.5 + k (half extent 0.5, ground top y = 0).
     Over 600 steps no box may drift sideways more than 2 cm or sink more than 2 cm (10 contacts
     at the ~1 mm slop), and the column ends at rest (speeds < 0.05 m/s)."""
-    # cells batching needs the block solve for a straight column (sequential leans ~2.4 cm)
-    solve = "block" if batching == "cells" else "sequential"
-    world = rbgen.World(batching=batching, normal_solve=solve)
+    world = rbgen.World(batching=batching)
     world.add_static(rbgen.Box((50, 1, 50)), position=(0, -1, 0))
     start = np.array([[0.0, 0.5 + k, 0.0] for k in range(10)])
     ids = world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=start)
