@@ -73,6 +73,13 @@ def power_of_two(lo: int = 1, hi: int = 1 << 16) -> Callable[[Any], bool]:
     return lambda v: isinstance(v, int) and lo <= v <= hi and (v & (v - 1)) == 0
 
 
+def work_group_size_param(doc: str) -> Param:
+    """The ``work_group_size`` parameter most kernels take: a power of two up to 1024
+    (the largest work group OpenCL devices commonly allow). ``doc`` says what one
+    work-item of this kernel handles and why the size matters."""
+    return Param("work_group_size", power_of_two(1, 1024), doc, "a power of two from 1 to 1024")
+
+
 #: every KernelTemplate by path (filled as modules are imported; export uses it)
 TEMPLATES: dict[str, "KernelTemplate"] = {}
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
 from ..device import DeviceTraits, Runtime
 
 SHAPE_TYPE_NAMES = ("box", "capsule", "hull", "plane", "sphere")
@@ -11,9 +11,8 @@ SHAPE_TYPE_NAMES = ("box", "capsule", "hull", "plane", "sphere")
 TEMPLATE = KernelTemplate(
     "pipeline/world_aabbs.cl.mako",
     [
-        Param("work_group_size", power_of_two(1, 1024),
-              "bodies per work group; memory-bound, so any size that fills a CU works",
-              "a power of two from 1 to 1024"),
+        work_group_size_param(
+            "bodies per work group; memory-bound, so any size that fills a CU works"),
         Param("shape_types",
               lambda v: isinstance(v, tuple) and len(v) > 0 and set(v) <= set(SHAPE_TYPE_NAMES)
               and tuple(sorted(set(v))) == v,

@@ -33,7 +33,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cl_array
 
-from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ..codegen import compile_spec, KernelTemplate, Param, power_of_two, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 
@@ -42,9 +42,8 @@ MODES = ("components", "cells")
 TEMPLATE = KernelTemplate(
     "pipeline/batching.cl.mako",
     [
-        Param("work_group_size", power_of_two(1, 1024),
-              "lanes of the batching work group (and of the per-item kernels); more lanes "
-              "colour a large group faster", "a power of two from 1 to 1024"),
+        work_group_size_param("lanes of the batching work group (and of the per-item kernels); "
+                              "more lanes colour a large group faster"),
         Param("max_batches", power_of_two(2, 4096),
               "batch slots per group; the last slot holds the remainder, solved serially, "
               "so this bounds local memory, not correctness", "a power of two from 2 to 4096"),

@@ -23,7 +23,7 @@ import numpy as np
 import pyopencl.array as cl_array
 
 from .. import layouts
-from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 
@@ -38,9 +38,8 @@ GENERATIONS = 3
 TEMPLATE = KernelTemplate(
     "pipeline/constraints.cl.mako",
     [
-        Param("work_group_size", power_of_two(1, 1024),
-              "manifolds per work group; memory-bound, any size that fills a CU works",
-              "a power of two from 1 to 1024"),
+        work_group_size_param(
+            "manifolds per work group; memory-bound, any size that fills a CU works"),
         Param("penetration", PENETRATION_MODES,
               "Baumgarte biases the velocity rows; split impulse solves separate push rows"),
         Param("warm_start", (True, False),

@@ -12,16 +12,15 @@ from __future__ import annotations
 import numpy as np
 
 from .. import layouts
-from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 
 TEMPLATE = KernelTemplate(
     "pipeline/gyroscopic.cl.mako",
     [
-        Param("work_group_size", power_of_two(1, 1024),
-              "bodies per work group; memory-bound, so any size that fills a CU works",
-              "a power of two from 1 to 1024"),
+        work_group_size_param(
+            "bodies per work group; memory-bound, so any size that fills a CU works"),
         Param("gyroscopic", (True, False),
               "emit the implicit gyroscopic update only when the world enables it"),
         Param("gravity", (True, False),

@@ -25,7 +25,7 @@ import numpy as np
 import pyopencl.array as cl_array
 
 from .. import layouts
-from ..codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ..codegen import compile_spec, KernelTemplate, Param, power_of_two, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 from ..launch import instance
@@ -38,9 +38,8 @@ NORMAL_SOLVES = ("block", "sequential")
 TEMPLATE = KernelTemplate(
     "pipeline/solver.cl.mako",
     [
-        Param("work_group_size", power_of_two(1, 1024),
-              "lanes solving one batch at a time; a batch of a dense pile holds a few "
-              "hundred constraints", "a power of two from 1 to 1024"),
+        work_group_size_param("lanes solving one batch at a time; a batch of a dense pile holds "
+                              "a few hundred constraints"),
         Param("max_batches", power_of_two(2, 4096),
               "must equal the batcher's max_batches (the layout of group_batches)",
               "a power of two from 2 to 4096"),

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..codegen import Param, power_of_two
+from ..codegen import Param, work_group_size_param
 from ..device import DeviceTraits
 from ..errors import RbgenError
 from ._base import PrimitiveTemplate, Primitive, ceil_div, check_array, resolve_count
@@ -21,8 +21,7 @@ TEMPLATE = PrimitiveTemplate(
     "primitives/bound_search.cl.mako",
     [
         Param("side", SIDES, "first key >= query (lower) or > query (upper)"),
-        Param("work_group_size", power_of_two(1, 1024), "queries per work group",
-              "a power of two from 1 to 1024"),
+        work_group_size_param("queries per work group"),
     ],
     doc="Binary search of many queries in sorted keys.",
     defaults=lambda traits: {"side": "lower", "work_group_size": 64},

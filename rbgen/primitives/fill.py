@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from ..codegen import Param, power_of_two
+from ..codegen import Param, work_group_size_param
 from ..device import DeviceTraits
 from ._base import PrimitiveTemplate, Primitive, ceil_div, check_array, cl_type, resolve_count
 
@@ -17,8 +17,7 @@ TEMPLATE = PrimitiveTemplate(
     "primitives/fill.cl.mako",
     [
         Param("dtype", ("uint", "int", "float"), "element type"),
-        Param("work_group_size", power_of_two(1, 1024), "work-items per tile",
-              "a power of two from 1 to 1024"),
+        work_group_size_param("work-items per tile"),
         Param("items_per_thread", (1, 4, 16, 64, 256), "elements each work-item writes"),
     ],
     doc="Fill an array (or its first n elements) with one value.",

@@ -14,7 +14,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from ..codegen import Param, compile_spec, power_of_two
+from ..codegen import compile_spec, Param, power_of_two, work_group_size_param
 from ..device import DeviceTraits
 from ..errors import RbgenError
 from ._base import (PrimitiveTemplate, Primitive, ceil_div, check_array, clamp_wavefront,
@@ -183,8 +183,7 @@ def _template_defaults(traits: DeviceTraits, shape: str) -> dict:
 
 FLOAT_KEYS = PrimitiveTemplate(
     "primitives/sortable_float.cl.mako",
-    [Param("work_group_size", power_of_two(1, 1024), "elements per work group; memory-bound",
-           "a power of two from 1 to 1024")],
+    [work_group_size_param("elements per work group; memory-bound")],
     doc="Order-preserving float32 <-> uint32 key flips.",
     defaults=lambda traits: {"work_group_size": 64},
 )

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from ..codegen import Param, power_of_two
+from ..codegen import Param, work_group_size_param
 from ..device import DeviceTraits
 from ..errors import RbgenError
 from ._base import (PrimitiveTemplate, Primitive, ceil_div, check_array, cl_type,
@@ -24,9 +24,7 @@ TILED = PrimitiveTemplate(
     "primitives/reduce_tiled.cl.mako",
     [
         _DTYPE, _OP,
-        Param("work_group_size", power_of_two(1, 1024),
-              "work-items per tile (tree reduction in local memory)",
-              "a power of two from 1 to 1024"),
+        work_group_size_param("work-items per tile (tree reduction in local memory)"),
         Param("items_per_thread", (1, 2, 4, 8, 16, 32),
               "elements each work-item combines before the tree"),
     ],

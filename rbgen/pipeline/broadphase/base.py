@@ -22,16 +22,15 @@ import numpy as np
 import pyopencl.array as cla
 
 from ... import layouts
-from ...codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ...codegen import compile_spec, KernelTemplate, power_of_two, work_group_size_param
 from ...device import DeviceTraits, Runtime
 from ...errors import RbgenError
 from .pairs import PairBuffer, check_capacity
 
 BODIES_TEMPLATE = KernelTemplate(
     "pipeline/broadphase/bodies.cl.mako",
-    [Param("work_group_size", power_of_two(1, 1024),
-           "bodies per work group; memory-bound, so any size that fills a CU works",
-           "a power of two from 1 to 1024")],
+    [work_group_size_param(
+        "bodies per work group; memory-bound, so any size that fills a CU works")],
     doc="Validation of world AABBs and their log2 sizes for the size statistics.",
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
 )

@@ -47,16 +47,15 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from ... import layouts
-from ...codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ...codegen import compile_spec, KernelTemplate, Param, power_of_two, work_group_size_param
 from ...errors import RbgenError
 from .base import Broadphase, default_work_group_size
 from .pairs import key_bits
 
 TEMPLATE = KernelTemplate(
     "pipeline/broadphase/grid.cl.mako",
-    [Param("work_group_size", power_of_two(1, 1024),
-           "bodies per work group; the visit is latency-bound, so any size that fills a CU works",
-           "a power of two from 1 to 1024"),
+    [work_group_size_param(
+        "bodies per work group; the visit is latency-bound, so any size that fills a CU works"),
      Param("emission", ("owner", "slot"),
            "owner: each pair written by its lower body into sorted slices (no global sort, "
            "27 cells visited); slot: 14 cells visited, then a global sort of the pairs"),

@@ -26,15 +26,14 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from ... import layouts
-from ...codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ...codegen import compile_spec, KernelTemplate, work_group_size_param
 from ...device import DeviceTraits, Runtime
 from ...errors import RbgenError
 
 TEMPLATE = KernelTemplate(
     "pipeline/broadphase/pairs.cl.mako",
-    [Param("work_group_size", power_of_two(1, 1024),
-           "pairs per work group; memory-bound, so any size that fills a CU works",
-           "a power of two from 1 to 1024")],
+    [work_group_size_param(
+        "pairs per work group; memory-bound, so any size that fills a CU works")],
     doc="Folding pairs into sort keys and packing sorted halves into Pair records.",
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
 )

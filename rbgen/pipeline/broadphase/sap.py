@@ -24,15 +24,14 @@ import math
 import numpy as np
 
 from ... import layouts
-from ...codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ...codegen import compile_spec, KernelTemplate, Param, work_group_size_param
 from ...errors import RbgenError
 from .base import Broadphase, default_work_group_size
 
 TEMPLATE = KernelTemplate(
     "pipeline/broadphase/sap.cl.mako",
-    [Param("work_group_size", power_of_two(1, 1024),
-           "bodies per work group, and the tile of sorted boxes staged in the GPU shape",
-           "a power of two from 1 to 1024"),
+    [work_group_size_param(
+        "bodies per work group, and the tile of sorted boxes staged in the GPU shape"),
      Param("shape", ("gpu", "cpu"),
            "gpu: a group sweeps together over tiles in local memory; cpu: independent "
            "sweeps through the cache, no barriers")],

@@ -40,16 +40,15 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from ... import layouts
-from ...codegen import KernelTemplate, Param, compile_spec, power_of_two
+from ...codegen import compile_spec, KernelTemplate, work_group_size_param
 from ...errors import RbgenError
 from .base import Broadphase, default_work_group_size
 from .pairs import PairBuffer, check_capacity, key_bits
 
 TEMPLATE = KernelTemplate(
     "pipeline/broadphase/sap3.cl.mako",
-    [Param("work_group_size", power_of_two(1, 1024),
-           "endpoints or records per work group; memory-bound kernels, any size that fills a CU",
-           "a power of two from 1 to 1024")],
+    [work_group_size_param(
+        "endpoints or records per work group; memory-bound kernels, any size that fills a CU")],
     doc="Incremental 3-axis SAP: endpoint ranks, changed pairs, merge with the previous set.",
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
 )

@@ -6,7 +6,7 @@ each `KernelTemplate` sits beside its file in
 """
 from __future__ import annotations
 
-from ...codegen import KernelTemplate, Param, power_of_two
+from ...codegen import KernelTemplate, Param, work_group_size_param
 from ...device import DeviceTraits
 
 #: Shape-type pairs with a kernel; each names the kernel's (first, second) shape
@@ -30,8 +30,7 @@ def _kinds_param(allowed):
                  f"a non-empty tuple of distinct names from {allowed}, in that order")
 
 
-_WORK_GROUP = Param("work_group_size", power_of_two(1, 1024),
-                    "queue entries per work group", "a power of two from 1 to 1024")
+_WORK_GROUP = work_group_size_param("queue entries per work group")
 
 DISPATCH = KernelTemplate(
     "pipeline/narrowphase/dispatch.cl.mako",
