@@ -67,7 +67,7 @@ class BoundSearch(Primitive):
         params, program = self.program(query_capacity)
         wg = params["work_group_size"]
         kernel = program.kernel("bound_search")
-        kernel.set_args(buf_keys, np.uint32(key_capacity), device_keys, buf_queries,
+        rt.bound(kernel).bind(buf_keys, np.uint32(key_capacity), device_keys, buf_queries,
                         np.uint32(query_capacity), device_queries, buf_out)
         return rt.launch(kernel, ceil_div(query_capacity, wg) * wg, wg)
 

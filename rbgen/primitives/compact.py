@@ -105,17 +105,18 @@ class Compact(Primitive):
         if self._counts is None or self._counts.size < 4 * groups:
             self._counts = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, 4 * groups)
         k_count, k_scan, k_scatter = (program.kernel(k) for k in names)
-        k_count.set_args(buf_flags, cap, device_count, self._counts)
+        rt.bound(k_count).bind(buf_flags, cap, device_count, self._counts)
         rt.launch(k_count, global_size, local_size)
         if params["shape"] == "gpu":
-            k_scan.set_args(self._counts, cap, device_count, buf_count)
+            rt.bound(k_scan).bind(self._counts, cap, device_count, buf_count)
             rt.launch(k_scan, local_size, local_size)
         else:
-            k_scan.set_args(self._counts, buf_count)
+            rt.bound(k_scan).bind(self._counts, buf_count)
             rt.launch(k_scan, 1, 1)
         gathered = (buf_values,) if values is not None else ()
         extra = (buf_count,) if params["shape"] == "cpu" else ()
-        k_scatter.set_args(buf_flags, *gathered, buf_out, cap, device_count, self._counts, *extra)
+        rt.bound(k_scatter).bind(buf_flags, *gathered, buf_out, cap, device_count, self._counts,
+                                 *extra)
         return rt.launch(k_scatter, global_size, local_size)
 
 

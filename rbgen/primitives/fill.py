@@ -71,7 +71,8 @@ class Fill(Primitive):
         wg = params["work_group_size"]
         groups = ceil_div(capacity, wg * params["items_per_thread"])
         kernel = program.kernel("fill")
-        kernel.set_args(buf, self.dtype.type(value), np.uint32(capacity), device_count)
+        self.runtime.bound(kernel).bind(buf, self.dtype.type(value), np.uint32(capacity),
+                                        device_count)
         return self.runtime.launch(kernel, groups * wg, wg)
 
 

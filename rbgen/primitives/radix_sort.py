@@ -161,16 +161,17 @@ class RadixSort(Primitive):
             shift = p * bits
             mask = np.uint32((1 << min(bits, self.key_bits - shift)) - 1)
             (k_in, v_in), (k_out, v_out) = pair[p % 2], pair[1 - p % 2]
-            count.set_args(k_in, cap, device_count, np.uint32(shift), mask, table)
+            rt.bound(count).bind(k_in, cap, device_count, np.uint32(shift), mask, table)
             rt.launch(count, global_size, local_size)
             self.scan.enqueue(table, table, groups << bits, None, None)
             vals = (v_in, v_out) if values is not None else ()
-            scatter.set_args(k_in, k_out, *vals, cap, device_count, np.uint32(shift), mask, table)
+            rt.bound(scatter).bind(k_in, k_out, *vals, cap, device_count, np.uint32(shift), mask,
+                                   table)
             event = rt.launch(scatter, global_size, local_size)
         if passes % 2:
             (k_in, v_in), (k_out, v_out) = pair[1], pair[0]
             vals = (v_in, v_out) if values is not None else ()
-            copy.set_args(k_in, k_out, *vals, cap, device_count)
+            rt.bound(copy).bind(k_in, k_out, *vals, cap, device_count)
             event = rt.launch(copy, global_size, local_size)
         return event
 
@@ -228,7 +229,7 @@ def _flip_on_device(runtime, array, dtype, kernel_name, out_dtype):
     if array.size:
         wg = 64
         kernel = compile_spec(runtime, FLOAT_KEYS.spec(work_group_size=wg)).kernel(kernel_name)
-        kernel.set_args(src, out.base_data, np.uint32(array.size))
+        runtime.bound(kernel).bind(src, out.base_data, np.uint32(array.size))
         runtime.launch(kernel, ceil_div(array.size, wg) * wg, wg)
     return out
 

@@ -95,12 +95,12 @@ class Reduce(Primitive):
             self._partials = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, 4 * groups)
         k_tiles = program.kernel("reduce_tiles" if params["shape"] == "gpu" else "reduce_chunks")
         k_final = program.kernel("reduce_partials")
-        k_tiles.set_args(buf_src, cap, device_count, self._partials)
+        rt.bound(k_tiles).bind(buf_src, cap, device_count, self._partials)
         rt.launch(k_tiles, global_size, local_size)
         if params["shape"] == "gpu":
-            k_final.set_args(self._partials, cap, device_count, buf_out)
+            rt.bound(k_final).bind(self._partials, cap, device_count, buf_out)
             return rt.launch(k_final, local_size, local_size)
-        k_final.set_args(self._partials, buf_out)
+        rt.bound(k_final).bind(self._partials, buf_out)
         return rt.launch(k_final, 1, 1)
 
 

@@ -174,7 +174,7 @@ class Scan(Primitive):
             state = self._scratch(2 + 3 * tiles)
             cl.enqueue_fill_buffer(rt.queue, state, np.uint32(0), 0, 4 * (2 + tiles))
             kernel = program.kernel("scan_chained")
-            kernel.set_args(src, dst, cap, device_count, state, total)
+            rt.bound(kernel).bind(src, dst, cap, device_count, state, total)
             wg = params["work_group_size"]
             return rt.launch(kernel, tiles * wg, wg)
         if params["shape"] == "gpu":
@@ -183,9 +183,9 @@ class Scan(Primitive):
             sums = self._scratch(tiles)
             k_reduce, k_sums, k_scan = (program.kernel(k) for k in
                                         ("reduce_tiles", "scan_tile_sums", "scan_tiles"))
-            k_reduce.set_args(src, cap, device_count, sums)
-            k_sums.set_args(sums, cap, device_count, total)
-            k_scan.set_args(src, dst, cap, device_count, sums)
+            rt.bound(k_reduce).bind(src, cap, device_count, sums)
+            rt.bound(k_sums).bind(sums, cap, device_count, total)
+            rt.bound(k_scan).bind(src, dst, cap, device_count, sums)
             rt.launch(k_reduce, tiles * wg, wg)
             rt.launch(k_sums, wg, wg)
             return rt.launch(k_scan, tiles * wg, wg)
@@ -193,9 +193,9 @@ class Scan(Primitive):
         sums = self._scratch(chunks)
         k_reduce, k_sums, k_scan = (program.kernel(k) for k in
                                     ("reduce_chunks", "scan_chunk_sums", "scan_chunks"))
-        k_reduce.set_args(src, cap, device_count, sums)
-        k_sums.set_args(sums, total)
-        k_scan.set_args(src, dst, cap, device_count, sums)
+        rt.bound(k_reduce).bind(src, cap, device_count, sums)
+        rt.bound(k_sums).bind(sums, total)
+        rt.bound(k_scan).bind(src, dst, cap, device_count, sums)
         rt.launch(k_reduce, chunks, 1)
         rt.launch(k_sums, 1, 1)
         return rt.launch(k_scan, chunks, 1)
