@@ -69,11 +69,8 @@ class BodyPreparation:
                              f"built with gravity=True (built with gravity={self.gravity})")
         if body_count == 0:
             return None
-        args = [_data(bodies), _data(inertia), np.uint32(body_count), np.float32(dt)]
+        args = [bodies, inertia, np.uint32(body_count), np.float32(dt)]
         if self.gravity:
             args.append(np.array([*gravity, 0.0], dtype=np.float32))
         return self.kernel.over(body_count, self.work_group_size, *args)
 
-
-def _data(array):
-    return array.data if hasattr(array, "data") else array

@@ -123,8 +123,8 @@ class ContactSolver:
                              f"iterations={iterations!r}, relaxation={relaxation!r}")
         launches, kernels = self._schedule("solve_contacts", batcher.launch_plan, int(iterations),
                                            bool(warm_start))
-        shared = (_data(constraints), batcher.order, batcher.group_batches,
-                  batcher.group_batch_count, _data(bodies), _data(inertia), np.float32(relaxation))
+        shared = (constraints, batcher.order, batcher.group_batches,
+                  batcher.group_batch_count, bodies, inertia, np.float32(relaxation))
         for kernel in kernels:
             kernel.bind_first(*shared)
         wg = self.work_group_size
@@ -176,8 +176,8 @@ class ContactSolver:
         split = self.split_velocities(body_capacity)
         launches, kernels = self._schedule("solve_penetration", batcher.launch_plan,
                                            int(iterations))
-        shared = (_data(constraints), batcher.order, batcher.group_batches,
-                  batcher.group_batch_count, split, _data(bodies), _data(inertia),
+        shared = (constraints, batcher.order, batcher.group_batches,
+                  batcher.group_batch_count, split, bodies, inertia,
                   np.float32(relaxation))
         for kernel in kernels:
             kernel.bind_first(*shared)
@@ -191,9 +191,6 @@ class ContactSolver:
             return
         split = self.split_velocities(body_count)
         wg = self.work_group_size
-        self.apply_kernel.over(body_count, wg, _data(bodies), split, np.uint32(body_count),
+        self.apply_kernel.over(body_count, wg, bodies, split, np.uint32(body_count),
                                np.float32(dt))
 
-
-def _data(array):
-    return array.data if hasattr(array, "data") else array

@@ -18,6 +18,8 @@ A broadphase object is built once per world and queried every step:
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pyopencl.array as cla
 
@@ -42,6 +44,14 @@ DEFAULT_PAIRS_PER_BODY = 8
 def default_work_group_size(traits: DeviceTraits) -> int:
     """128 on GPUs; 64 on CPUs (PoCL vectorises across work-items)."""
     return min(128 if traits.is_gpu else 64, traits.max_work_group_size)
+
+
+def check_large_factor(value) -> float:
+    """A body whose size exceeds ``value`` times the typical size is tested apart from the
+    others (grid, sap); it must be a positive finite number."""
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise RbgenError(f"large_factor must be a positive finite number, got {value!r}")
+    return float(value)
 
 
 def round_up(count: int, multiple: int) -> int:

@@ -48,8 +48,7 @@ import pyopencl.array as cla
 
 from ... import layouts
 from ...codegen import compile_spec, KernelTemplate, Param, power_of_two, work_group_size_param
-from ...errors import RbgenError
-from .base import Broadphase, default_work_group_size
+from .base import Broadphase, check_large_factor, default_work_group_size
 from .pairs import key_bits
 
 TEMPLATE = KernelTemplate(
@@ -110,10 +109,7 @@ class GridBroadphase(Broadphase):
                  emission: str | None = None, bucketing: str | None = None, capacity=None,
                  work_group_size=None):
         super().__init__(runtime, capacity=capacity, work_group_size=work_group_size)
-        if not (isinstance(large_factor, (int, float)) and math.isfinite(large_factor)
-                and large_factor > 0):
-            raise RbgenError(f"large_factor must be a positive finite number, got {large_factor!r}")
-        self.large_factor = float(large_factor)
+        self.large_factor = check_large_factor(large_factor)
         self.emission = emission or default_emission(runtime.traits)
         self.bucketing = bucketing or default_bucketing(runtime.traits)
         self._programs = {}

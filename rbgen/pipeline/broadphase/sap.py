@@ -19,14 +19,12 @@ Step by step (all on the device, no blocking read):
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
 from ... import layouts
 from ...codegen import compile_spec, KernelTemplate, Param, work_group_size_param
-from ...errors import RbgenError
-from .base import Broadphase, default_work_group_size
+from .base import Broadphase, check_large_factor, default_work_group_size
 
 TEMPLATE = KernelTemplate(
     "pipeline/broadphase/sap.cl.mako",
@@ -54,10 +52,7 @@ class SapBroadphase(Broadphase):
                  large_factor: float = DEFAULT_LARGE_FACTOR, capacity=None,
                  work_group_size=None):
         super().__init__(runtime, capacity=capacity, work_group_size=work_group_size)
-        if not (isinstance(large_factor, (int, float)) and math.isfinite(large_factor)
-                and large_factor > 0):
-            raise RbgenError(f"large_factor must be a positive finite number, got {large_factor!r}")
-        self.large_factor = float(large_factor)
+        self.large_factor = check_large_factor(large_factor)
         self.shape = shape or runtime.traits.kind
         self.program = compile_spec(runtime, TEMPLATE.spec(work_group_size=self.work_group_size,
                                                            shape=self.shape))
