@@ -46,7 +46,7 @@ from .pipeline.constraints import ContactConstraints
 from .pipeline.gyroscopic import BodyPreparation, inertia_records
 from .pipeline.integrate import Integrator
 from .pipeline.solver import ContactSolver
-from .shapes import Capsule, Plane, Shape, ShapeTable, Sphere
+from .shapes import Box, Capsule, ConvexHull, Plane, Shape, ShapeTable, Sphere
 
 #: manifolds reserved per body before the first overflow (grown on demand)
 MANIFOLDS_PER_BODY = 4
@@ -206,6 +206,10 @@ class World:
              linear_velocities, angular_velocities) -> np.ndarray:
         if not isinstance(shape, Shape):
             raise RbgenError(f"shape must be an rbgen shape, got {type(shape).__name__}")
+        if type(shape) not in (Sphere, Box, Capsule, ConvexHull, Plane):
+            # the narrowphase has kernels for these pairs only: fail here, not mid-step
+            raise RbgenError(f"shape {type(shape).__name__} has no narrowphase kernels; "
+                             f"supported: Sphere, Box, Capsule, ConvexHull, Plane")
         n = len(positions)
         first = self.body_count
         positions = _rows(positions, n, 3, "positions", first)

@@ -141,3 +141,14 @@ def test_spinning_asymmetric_box_conserves_angular_momentum(runtime):
     for _ in range(600):
         world.step(DT)
     assert np.linalg.norm(momentum() - l0) < 0.01 * np.linalg.norm(l0)
+
+
+def test_shape_without_narrowphase_kernels_fails_when_added():
+    """An unsupported shape pair is reported when the body is added, not in step()."""
+    class Torus(rbgen.Shape):
+        type_name = "torus"
+
+    world = rbgen.World()
+    with pytest.raises(rbgen.RbgenError, match="Torus has no narrowphase kernels"):
+        world.add_body(Torus(), mass=1.0)
+    assert world.body_count == 0

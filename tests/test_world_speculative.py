@@ -22,3 +22,4 @@ def test_box_released_inside_the_margin_lands(penetration, gap):
     y = world.positions[ids][:, 1]
     np.testing.assert_allclose(y, [0.5, 1.5], atol=2e-3)
     assert np.abs(world.linear_velocities[ids]).max() < 0.02
+
