@@ -11,6 +11,7 @@ convex-convex kernel can treat them as hulls.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -28,10 +29,41 @@ def _finite_vector(value, n: int, what: str) -> np.ndarray:
 
 
 class Shape:
-    """Base class; subclasses set ``type_code`` and fill `pack`."""
+    """Base class; subclasses set ``type_code`` and fill `pack`.
+
+    A shape is an immutable value: once its constructor has validated it, its
+    attributes cannot be set and its arrays are read-only. So one shape object
+    may be added to any number of Worlds (each copies it into its own
+    `ShapeTable`), and a shape already added cannot change under a World
+    behind its back (its dedup key, mass properties and device record would
+    disagree). Make a new shape instead of changing one.
+    """
 
     type_code: int = -1
     type_name: str = "shape"
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        init = cls.__dict__.get("__init__")
+        if init is None:
+            return
+
+        @functools.wraps(init)
+        def init_then_freeze(self, *args, **kw):
+            init(self, *args, **kw)
+            if type(self).__init__ is cls.__init__:  # the outermost constructor has finished
+                for value in vars(self).values():
+                    if isinstance(value, np.ndarray):
+                        value.flags.writeable = False
+                object.__setattr__(self, "_frozen", True)
+
+        cls.__init__ = init_then_freeze
+
+    def __setattr__(self, name, value):
+        if self.__dict__.get("_frozen", False):
+            raise RbgenError(f"{type(self).__name__} shapes are immutable (a World may share "
+                             f"this one); make a new shape instead of setting {name!r}")
+        object.__setattr__(self, name, value)
 
     def pack(self, record: np.void, hull_vertices: list) -> None:
         raise NotImplementedError

@@ -102,6 +102,10 @@ class World:
     over the device, the GPU default), ``group_count`` (solver work groups per
     launch), ``manifold_capacity`` and
     ``pair_capacity`` (initial buffer sizes; grown on overflow).
+
+    Shapes are immutable values (see `rbgen.Shape`): one shape object may be
+    added to several Worlds, each keeping its own copy; a shape index (an int
+    from some World's table) is refused, naming the index.
     """
 
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), *, iterations: int = 10,
@@ -204,6 +208,11 @@ class World:
 
     def _add(self, shape, positions, orientations, masses, friction, restitution,
              linear_velocities, angular_velocities) -> np.ndarray:
+        if isinstance(shape, (int, np.integer)):
+            # shapes are values, never indices: an index means one World's table
+            raise RbgenError(f"shape must be an rbgen shape object (e.g. rbgen.Box(...)), got "
+                             f"the index {int(shape)}: shape indices belong to one World's "
+                             f"table, while a shape object can be added to any World")
         if not isinstance(shape, Shape):
             raise RbgenError(f"shape must be an rbgen shape, got {type(shape).__name__}")
         if type(shape) not in (Sphere, Box, Capsule, ConvexHull, Plane):

@@ -152,3 +152,30 @@ def test_shape_without_narrowphase_kernels_fails_when_added():
     with pytest.raises(rbgen.RbgenError, match="Torus has no narrowphase kernels"):
         world.add_body(Torus(), mass=1.0)
     assert world.body_count == 0
+
+
+def test_one_shape_object_serves_two_worlds_and_cannot_change(runtime):
+    """Shapes are values: the same Box in two Worlds gives both the same fall (semi-implicit
+    Euler's closed form y = y0 - g h^2 n (n + 1) / 2 after n steps of h), and setting or writing into it afterwards is refused
+    (it would change a World's shape behind its back)."""
+    box = rbgen.Box((0.5, 0.5, 0.5))
+    worlds = [World(runtime) for _ in range(2)]
+    for world in worlds:
+        world.add_body(box, mass=1.0, position=(0.0, 10.0, 0.0))
+        for _ in range(30):
+            world.step(DT)
+    for world in worlds:
+        assert world.positions[0, 1] == pytest.approx(10.0 - 9.81 * DT * DT * 30 * 31 / 2, abs=1e-4)
+    with pytest.raises(rbgen.RbgenError, match="immutable.*'half_extents'"):
+        box.half_extents = np.ones(3)
+    with pytest.raises(ValueError):
+        box.half_extents[0] = 2.0
+    assert tuple(box.half_extents) == (0.5, 0.5, 0.5)
+
+
+def test_shape_index_is_refused_with_a_reason(runtime):
+    """A shape index (from some World's table) is not a shape: the error names the index."""
+    world = World(runtime)
+    world.add_body(rbgen.Sphere(0.5), mass=1.0)
+    with pytest.raises(rbgen.RbgenError, match="got the index 0"):
+        world.add_body(0, mass=1.0)
