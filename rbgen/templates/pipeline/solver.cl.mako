@@ -78,6 +78,9 @@ inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, floa
 }
 
 % if normal_solve == "block":
+/* a pushing point counts as separating beyond its target above this fraction of the
+ * largest right-hand side (float32 round-off of an exact solve stays far below) */
+#define OVERSHOOT_TOLERANCE 1e-4f
 /* The normal rows of one manifold as a block: the accumulated impulses
  * lambda[k] (>= 0) of its `count` points are replaced by totals with which
  * every point that keeps a positive impulse reaches its normal velocity
@@ -90,7 +93,17 @@ inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, floa
  * smallest such totals, the evenly spread ones (no drift of the split
  * between the points from step to step, which would skew the per-point
  * friction limits), and stop once the remaining residual lies in K's null
- * space (no velocity left to fix). Updates the velocities in place. */
+ * space (no velocity left to fix).
+ * Targets that no rigid motion meets together (a corner still apart, target
+ * -gap/dt, beside touching corners at 0; the kink of the split-impulse slop)
+ * leave conjugate gradients at a least-squares compromise with every impulse
+ * positive: it moves the apart corner down and lifts the opposite one, i.e.
+ * tilts the box towards the gap on every sweep, which kept stacks of a
+ * dropped pile rocking for ever. Such a compromise shows as a pushing point
+ * that would separate faster than its target (complementarity violated): the
+ * one of those with the lowest target (farthest apart) is released and the
+ * rest solved exactly, as the contact problem demands. Updates the
+ * velocities in place. */
 void solve_normal_block(const uint count, const float3 n, __global const float4* r_a,
                         __global const float4* r_b, const float relaxation,
                         float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
@@ -121,11 +134,12 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         active[k] = true;
     /* the velocity the current impulses produce: residual + K lambda */
-    float rhs[4];
+    float rhs[4], tolerance = 0.0f;
     for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count) {
         rhs[j] = residual[j];
         for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
             rhs[j] += k_matrix[j][k] * lambda[k];
+        tolerance = fmax(tolerance, OVERSHOOT_TOLERANCE * fabs(rhs[j]));
     }
     for (uint attempt = 0; attempt < RB_MAX_MANIFOLD_POINTS; ++attempt) if (attempt < count) {
         /* new totals: 0 for released points; for the others, four points
@@ -173,11 +187,22 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
         for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
             if (active[k] && lambda[k] + relaxation * (total[k] - lambda[k]) < 0.0f)
                 active[k] = false, released = true;
+        /* none negative: release the pushing point that overshoots its target
+         * (gradient = target - velocity reached < 0) and has the lowest target */
+        uint overshoot = RB_MAX_MANIFOLD_POINTS;
+        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+            if (active[k] && gradient[k] < -tolerance
+                && (overshoot == RB_MAX_MANIFOLD_POINTS || target[k] < target[overshoot]))
+                overshoot = k;
+        if (!released && overshoot < RB_MAX_MANIFOLD_POINTS)
+            active[overshoot] = false, released = true;
         if (!released)
             break;
     }
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-        float change = fmax(lambda[k] + relaxation * (total[k] - lambda[k]), 0.0f) - lambda[k];
+        /* a point released in the last round keeps no impulse */
+        float change = fmax(lambda[k] + relaxation * ((active[k] ? total[k] : 0.0f) - lambda[k]),
+                            0.0f) - lambda[k];
         lambda[k] += change;
         *va -= n * (change * inv_mass_a);
         *wa -= mul_rows(inv_inertia_a, arm_a[k] * change);
