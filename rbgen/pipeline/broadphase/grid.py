@@ -160,10 +160,10 @@ class GridBroadphase(Broadphase):
         self.emission = "slot"
         self.bucketing = default_bucketing(self.runtime.traits, "slot")
 
-    def _measure(self, aabbs, n, sizes=True):
-        """Owner emission validates and measures in its own first kernel."""
-        if not (sizes and self.emission == "owner"):
-            super()._measure(aabbs, n, sizes)
+    def _start_query(self, aabbs, n):
+        """Owner emission resets the status, validates and measures in its own kernels."""
+        if self.emission != "owner":
+            super()._start_query(aabbs, n)
 
     def _enqueue_query(self, aabbs, static, n):
         if self.emission == "owner":

@@ -1,15 +1,17 @@
 <%namespace name="group" file="/primitives/common.cl.mako"/>\
-/* Uniform-grid broadphase, owner emission: the whole query in six launches.
+/* Uniform-grid broadphase, owner emission: the whole query in six launches
+ * (the status reset included).
  *
  * Pair (a, b), a < b, is written by its owner a into a's slice of the pair
  * buffer, and the slices are in body order, so the list comes out sorted by
  * (a, b) with no global sort. The query, one kernel per global dependency:
  *
- *   measure_grid_bodies   validation, per-group sums of log2 sizes, and the
- *                         reset of the bucket lists and the size statistics;
- *   classify_grid_bodies  the geometric mean from those sums; large bodies
- *                         (the ground, big boxes) go to the large-body list,
- *                         the largest small body (an atomic max) sets the cell;
+ *   measure_grid_bodies   the status reset, per-group sums of log2 sizes, and
+ *                         the reset of the bucket lists and size statistics;
+ *   classify_grid_bodies  validation; the geometric mean from those sums:
+ *                         large bodies (the ground, big boxes) go to the
+ *                         large-body list, the largest small one (an atomic
+ *                         max) sets the cell;
  *   link_bucket_bodies    each small body joins the linked list of its lower
  *                         corner's bucket (cells.cl.mako): no sort, no scan;
  *   count_owned_pairs     per body (index order): the pairs it owns, their
@@ -54,12 +56,12 @@ inline uint group_exclusive_scan(uint value, __local uint* scratch, uint* total)
     return work_group_exclusive_scan_uint(value, scratch, scratch + 2 * WG, total);
 }
 
-/* Validates every AABB (a NaN bound or lower > upper records the lowest such
- * body in status->bad_body) and sums the clamped log2 sizes, one partial sum
- * per work group; also empties the bucket lists and resets the statistics
- * the next kernel gathers. The launch has at most as many work groups as the
- * partial sums the classification reads, so a work group is responsible for
- * the bodies and buckets at every global-size stride from its work-items. */
+/* Starts the query: resets the status, sums the clamped log2 sizes (one
+ * partial sum per work group), empties the bucket lists and resets the
+ * statistics the next kernel gathers. The launch has at most as many work
+ * groups as the partial sums the classification reads, so a work group is
+ * responsible for the bodies and buckets at every global-size stride from its
+ * work-items. */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void measure_grid_bodies(__global const Aabb* aabbs,
                          const uint body_count,
@@ -74,11 +76,7 @@ void measure_grid_bodies(__global const Aabb* aabbs,
     const uint stride = get_global_size(0);
     float log_sum = 0.0f;
     for (uint i = get_global_id(0); i < body_count; i += stride) {
-        float3 lower = aabbs[i].lower.xyz, upper = aabbs[i].upper.xyz;
-        /* Comparisons with NaN are false, so this also catches NaN bounds. */
-        if (!all(lower <= upper))
-            atomic_min(&status->bad_body, i);
-        float size = box_size(lower, upper);
+        float size = box_size(aabbs[i].lower.xyz, aabbs[i].upper.xyz);
         float log_size = isfinite(size) ? log2(fmax(size, 1e-30f)) : LOG_SIZE_LIMIT;
         log_sum += clamp(log_size, -LOG_SIZE_LIMIT, LOG_SIZE_LIMIT);
     }
@@ -88,14 +86,20 @@ void measure_grid_bodies(__global const Aabb* aabbs,
     for (uint b = get_global_id(0); b < bucket_count; b += stride)
         bucket_heads[b] = NO_BODY;
     if (get_global_id(0) == 0) {
+        status->pair_count = 0;
+        status->pairs_found = 0;
+        status->bad_body = RB_BP_NO_BODY;
+        status->crossings = 0;
+        status->retry = 0;
         *large_count = 0;
         *largest_small_bits = 0;  /* the bits of 0.0f */
     }
 }
 
-/* Tells small from large bodies (larger than large_factor times the geometric
- * mean size, which every work group sums from the same partials in the same
- * order): large ones get large_flags[i] = 1 and join the large-body list
+/* Validates every AABB (a NaN bound or lower > upper records the lowest such
+ * body in status->bad_body) and tells small from large bodies (larger than
+ * large_factor times the geometric mean size, which every work group sums
+ * from the same partials in the same order): large ones get large_flags[i] = 1 and join the large-body list
  * (status->retry past LARGE_ROWS of them); the largest small size reaches
  * *largest_small_bits by one atomic max per work group (non-negative floats
  * order like their bits). A work group is responsible for WG consecutive
@@ -121,7 +125,11 @@ void classify_grid_bodies(__global const Aabb* aabbs,
     uint i = get_global_id(0);
     float small_size = 0.0f;
     if (i < body_count) {
-        float size = box_size(aabbs[i].lower.xyz, aabbs[i].upper.xyz);
+        float3 lower = aabbs[i].lower.xyz, upper = aabbs[i].upper.xyz;
+        /* Comparisons with NaN are false, so this also catches NaN bounds. */
+        if (!all(lower <= upper))
+            atomic_min(&status->bad_body, i);
+        float size = box_size(lower, upper);
         bool small = is_small(size, scale);
         large_flags[i] = small ? 0u : 1u;
         if (small) {
@@ -276,8 +284,8 @@ ${visit_arguments()}
     const uint i = get_global_id(0), lid = get_local_id(0), group = get_group_id(0);
     const uint group_count = get_num_groups(0);
     const uint large_total = min(*large_count, (uint)LARGE_ROWS);
-    if (lid < LARGE_ROWS)
-        row_counts[lid] = 0;
+    for (uint row = lid; row < LARGE_ROWS; row += WG)
+        row_counts[row] = 0;
     uint found = 0, mask = 0;
     if (i < body_count) {
         mask = large_owner_mask(aabbs, static_flags, large_total, large_bodies, i);
@@ -297,8 +305,8 @@ ${visit_arguments()}
         in_group_offsets[i] = offset;
     if (lid == 0)
         group_pairs[group] = total;
-    if (lid < large_total)
-        group_rows[lid * group_count + group] = row_counts[lid];
+    for (uint row = lid; row < large_total; row += WG)
+        group_rows[row * group_count + group] = row_counts[row];
 }
 
 /* Exclusive prefix sums of values[0, count) in place, by one work group in
@@ -348,15 +356,15 @@ void place_owner_slices(const uint group_count,
         found += total;
     }
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
-    if (lid < large_total) {
+    for (uint owner_row = lid; owner_row < large_total; owner_row += WG) {
         /* A large owner's slice follows those of every body of lower index. */
-        uint owner = large_bodies[lid];
+        uint owner = large_bodies[owner_row];
         uint start = group_pairs[owner / WG] + in_group_offsets[owner];
         for (uint row = 0; row < large_total; ++row)
             if (large_bodies[row] < owner)
                 start += row_totals[row];
-        owner_starts[lid] = start;
-        owner_counts[lid] = row_totals[lid];
+        owner_starts[owner_row] = start;
+        owner_counts[owner_row] = row_totals[owner_row];
     }
     if (lid == 0) {
         status->pairs_found = found;
