@@ -1,32 +1,39 @@
-"""Uniform-grid broadphase: cell hash, radix sort, bucket starts, neighbour cells.
+"""Uniform-grid broadphase: cell hash, bucket lists or sorted buckets, neighbour cells.
 
 Why a grid: for bodies of similar size (stacks, piles, granular scenes) each
-body meets only the few bodies of its own and 13 forward neighbour cells, so
-the work is linear in the body count, with one sort and no sweep.
+body meets only the few bodies of the cells around its own, so the work is
+linear in the body count, with no sweep.
 
-Step by step (all on the device, no blocking read):
+Both emissions measure the same things: validation, the geometric mean
+size, bodies larger than ``large_factor`` times it flagged large (the
+ground, big boxes: kept out of the grid and tested as a list), and the
+largest small body, which sets the cell side. Then (all on the device, no
+blocking read):
 
-1. ``measure_bodies`` + Reduce: validation and the geometric mean size;
-   ``classify_sizes`` flags bodies larger than ``large_factor`` times it as
-   large (the ground, big boxes) and Reduce max gives the largest small
-   body, which sets the cell side.
-2. The bucket of each small body's lower-corner cell (large bodies get a key
-   past every bucket), then the boxes in bucket order and the bucket starts
-   (the last one is the start of the large bodies, which end the list).
-   ``bucketing="sort"`` (CPU default): ``bucket_bodies``, RadixSort of
-   (bucket, body), ``gather_sorted``, BoundSearch of every bucket id.
-   ``bucketing="count"`` (GPU default): ``count_bucket_bodies`` (atomic bucket
-   sizes), Scan (the starts), ``scatter_bucket_bodies`` (atomic cursors):
-   5 launches instead of about 25; the order inside a bucket then varies
-   between runs, the pair list does not (it is ordered afterwards).
-3. ``emission="slot"`` (CPU default): ``count_grid_pairs`` / Scan /
-   ``write_grid_pairs``: each body visits its own cell, the 13 forward
-   neighbour cells and the large-body list, then the pair buffer sorts the
-   pairs by (a, b). ``emission="owner"`` (GPU default): each pair is written
-   by its lower body into its slice, so the list comes out sorted without the
-   global sort (dozens of launches); a small owner visits all 27 cells, large
-   owners (at most LARGE_ROWS, else the query asks to be redone with slot
-   emission) get their slices from scanned flag rows. See grid.cl.mako.
+``emission="owner"`` (GPU default; grid_owner.cl.mako): the whole query in
+   six launches, because on a GPU the launch count sets the time of a query
+   of up to ~10^5 bodies. Partial sums per work group replace the
+   reductions; each small body joins the linked list of its bucket
+   (``bucketing="list"``, one atomic exchange: no sort, no scan); each pair
+   is written by its lower body (its owner) into the owner's slice, so the
+   list comes out sorted without a global sort: a small owner visits all 27
+   cells around its own, a large owner (at most LARGE_ROWS, else the query
+   asks to be redone with slot emission) ranks its partners by prefix counts.
+   Slice offsets are scanned per work group and the group totals by one
+   work group.
+``emission="slot"`` (CPU default; grid.cl.mako): ``measure_bodies`` +
+   Reduce, ``classify_sizes`` + Reduce max; the boxes in bucket order and
+   the bucket starts (large bodies get a key past every bucket and end the
+   list): ``bucketing="sort"`` (CPU default) is ``bucket_bodies``, RadixSort
+   of (bucket, body), ``gather_sorted``, BoundSearch of every bucket id;
+   ``bucketing="count"`` is ``count_bucket_bodies`` (atomic bucket sizes),
+   Scan, ``scatter_bucket_bodies`` (atomic cursors). Then
+   ``count_grid_pairs`` / Scan / ``write_grid_pairs``: each body visits its
+   own cell, the 13 forward neighbour cells and the large-body list, and the
+   pair buffer sorts the pairs by (a, b).
+
+Atomics make the order inside a bucket vary between runs; the pair list does
+not (it is ordered by construction or afterwards).
 
 Exactness: overlapping small bodies must land in adjacent cells; with the
 1% slack on the cell side this holds while coordinates stay within about

@@ -30,9 +30,30 @@ inline int3 cell_of(float3 point, float cell_size)
     return convert_int3_sat_rtn(floor(point / cell_size));
 }
 
+/* A cell's coordinates modulo grid_dim, in [0, grid_dim). */
+inline int3 folded_cell(int3 cell, int grid_dim)
+{
+    return (cell % grid_dim + grid_dim) % grid_dim;
+}
+
+/* Bucket of a cell from its folded coordinates: linearised. */
+inline uint folded_bucket(int3 folded, int grid_dim)
+{
+    return ((uint)folded.z * (uint)grid_dim + (uint)folded.y) * (uint)grid_dim + (uint)folded.x;
+}
+
 /* Bucket of a cell: its coordinates modulo grid_dim, linearised. */
 inline uint bucket_of(int3 cell, int grid_dim)
 {
-    int3 folded = (cell % grid_dim + grid_dim) % grid_dim;
-    return ((uint)folded.z * (uint)grid_dim + (uint)folded.y) * (uint)grid_dim + (uint)folded.x;
+    return folded_bucket(folded_cell(cell, grid_dim), grid_dim);
+}
+
+/* Bucket of neighbour m (see neighbour_offset) of the cell with folded
+ * coordinates `folded`: one step folds back by one add or subtract. */
+inline uint neighbour_bucket(int3 folded, int m, int grid_dim)
+{
+    int3 cell = folded + neighbour_offset(m);
+    cell = select(cell, cell + grid_dim, cell < 0);
+    cell = select(cell, cell - grid_dim, cell >= grid_dim);
+    return folded_bucket(cell, grid_dim);
 }

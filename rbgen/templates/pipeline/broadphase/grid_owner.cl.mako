@@ -209,11 +209,14 @@ inline uint visit_owned_partners(__global const Aabb* aabbs,
                                  uint capacity)
 {
     float3 lower = aabbs[self].lower.xyz, upper = aabbs[self].upper.xyz;
-    int3 home = cell_of(lower, cell_size);
+    int3 home = folded_cell(cell_of(lower, cell_size), grid_dim);
+    /* The 27 list heads first: independent loads, in flight together. */
+    uint heads[27];
+    for (int neighbour = 0; neighbour < 27; ++neighbour)
+        heads[neighbour] = bucket_heads[neighbour_bucket(home, neighbour, grid_dim)];
     uint found = 0;
     for (int neighbour = 0; neighbour < 27; ++neighbour) {
-        uint bucket = bucket_of(home + neighbour_offset(neighbour), grid_dim);
-        for (uint other = bucket_heads[bucket]; other != NO_BODY; other = next_body[other]) {
+        for (uint other = heads[neighbour]; other != NO_BODY; other = next_body[other]) {
             if (other > self && pair_allowed(static_flags, self, other)
                 && boxes_overlap(lower, upper, aabbs[other].lower.xyz, aabbs[other].upper.xyz)) {
                 if (pairs)
