@@ -67,8 +67,8 @@ ALGORITHMS = [("grid", {"emission": "slot", "bucketing": "sort"}),
               ("grid", {"emission": "slot", "bucketing": "count"}),
               ("sap", {"shape": "cpu"}), ("sap", {"shape": "gpu"}),
               ("sap", {"shape": "gpu", "work_group_size": 4}), ("sap3", {})]
-ALGORITHM_IDS = ["grid-slot-sort", "grid-owner", "grid-owner-wg4", "grid-slot-count", "sap-cpu", "sap-gpu",
-                 "sap-gpu-wg4", "sap3"]
+ALGORITHM_IDS = ["grid-slot-sort", "grid-owner", "grid-owner-wg4", "grid-slot-count", "sap-cpu",
+                 "sap-gpu", "sap-gpu-wg4", "sap3"]
 
 
 @pytest.fixture(params=ALGORITHMS, ids=ALGORITHM_IDS)

@@ -99,11 +99,11 @@ void measure_grid_bodies(__global const Aabb* aabbs,
 /* Validates every AABB (a NaN bound or lower > upper records the lowest such
  * body in status->bad_body) and tells small from large bodies (larger than
  * large_factor times the geometric mean size, which every work group sums
- * from the same partials in the same order): large ones get large_flags[i] = 1 and join the large-body list
- * (status->retry past LARGE_ROWS of them); the largest small size reaches
- * *largest_small_bits by one atomic max per work group (non-negative floats
- * order like their bits). A work group is responsible for WG consecutive
- * bodies. */
+ * from the same partials in the same order): large ones get large_flags[i] = 1
+ * and join the large-body list (status->retry past LARGE_ROWS of them); the
+ * largest small size reaches *largest_small_bits by one atomic max per work
+ * group (non-negative floats order like their bits). A work group is
+ * responsible for WG consecutive bodies. */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void classify_grid_bodies(__global const Aabb* aabbs,
                           const uint body_count,
@@ -303,7 +303,8 @@ ${visit_arguments()}
         if (mask & (1u << row))
             atomic_inc(&row_counts[row]);
     uint total;
-    uint offset = group_exclusive_scan(found, scan_scratch, &total);  /* its barriers cover row_counts */
+    /* the scan's barriers also order the row_counts increments before their reads */
+    uint offset = group_exclusive_scan(found, scan_scratch, &total);
     if (i < body_count)
         in_group_offsets[i] = offset;
     if (lid == 0)
@@ -312,20 +313,23 @@ ${visit_arguments()}
         group_rows[row * group_count + group] = row_counts[row];
 }
 
-/* Exclusive prefix sums of values[0, count) in place, by one work group in
- * chunks of WG; returns the total. */
+/* Exclusive prefix sums of values[0, count) in place, by one work group: each
+ * work-item sums a contiguous run (independent loads), one group scan of the
+ * run sums, then each work-item rewrites its run. Returns the total. */
 inline uint scan_in_place(__global uint* values, uint count, __local uint* scratch)
 {
-    uint carry = 0;
-    for (uint first = 0; first < count; first += WG) {
-        uint k = first + get_local_id(0);
-        uint value = k < count ? values[k] : 0u, chunk_total;
-        uint prefix = group_exclusive_scan(value, scratch, &chunk_total);
-        if (k < count)
-            values[k] = carry + prefix;
-        carry += chunk_total;
+    const uint run = (count + WG - 1) / WG;
+    const uint first = min((uint)get_local_id(0) * run, count), end = min(first + run, count);
+    uint run_sum = 0, total;
+    for (uint k = first; k < end; ++k)
+        run_sum += values[k];
+    uint prefix = group_exclusive_scan(run_sum, scratch, &total);
+    for (uint k = first; k < end; ++k) {
+        uint value = values[k];
+        values[k] = prefix;
+        prefix += value;
     }
-    return carry;
+    return total;
 }
 
 /* One work group is responsible for the whole query's slices: group_pairs
