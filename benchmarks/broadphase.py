@@ -67,20 +67,27 @@ def measure(runtime, name: str, aabbs, static, reference, repeats: int) -> dict:
 
 def kernel_breakdown(runtime, broadphase, aabbs, static) -> list[tuple[float, str]]:
     """(ms, kernel name) of one more query, from an event per launch, slowest first."""
-    events, launch = [], runtime.launch
+    from rbgen.launch import BoundKernel
+
+    events, launch, bound_launch = [], runtime.launch, BoundKernel.launch
 
     def recording_launch(kernel, global_size, local_size, wait_for=None):
         event = launch(kernel, global_size, local_size, wait_for)
         events.append((kernel.function_name, event))
         return event
 
-    runtime.launch = recording_launch
+    def recording_bound_launch(self, global_size, local_size, wait_for=None):
+        event = bound_launch(self, global_size, local_size, wait_for)
+        events.append((self.kernel.function_name, event))
+        return event
+
+    runtime.launch, BoundKernel.launch = recording_launch, recording_bound_launch
     try:
         broadphase.enqueue(aabbs, static)
         broadphase.check()
         runtime.queue.finish()
     finally:
-        runtime.launch = launch
+        runtime.launch, BoundKernel.launch = launch, bound_launch
     totals: dict[str, float] = {}
     for name, event in events:
         totals[name] = totals.get(name, 0.0) + 1e-6 * (event.profile.end - event.profile.start)

@@ -104,12 +104,13 @@ class Broadphase:
         if self.buffer is None:
             self.buffer = PairBuffer(self.runtime, max(1024, DEFAULT_PAIRS_PER_BODY * n))
         self._aabbs, self.body_count = aabbs, n
-        self.buffer.reset_status()
         if n >= 2:
-            self._measure(aabbs, n)
+            self._start_query(aabbs, n)
             self._enqueue_query(aabbs, static, n)
-        elif n == 1:
-            self._measure(aabbs, n, sizes=False)  # still validates the single box
+        else:
+            self.buffer.reset_status()
+            if n == 1:
+                self._measure(aabbs, n, sizes=False)  # still validates the single box
         self.buffer.start_status_read()
 
     def check(self) -> bool:
@@ -142,6 +143,13 @@ class Broadphase:
     def _enqueue_query(self, aabbs: cla.Array, static: cla.Array, n: int) -> None:
         """Enqueue the algorithm for n >= 2 bodies, ending with ordered ``pairs``."""
         raise NotImplementedError
+
+    def _start_query(self, aabbs: cla.Array, n: int) -> None:
+        """Enqueue what precedes the algorithm for n >= 2 bodies: the status reset,
+        validation and the size statistics (overridden where the algorithm's first
+        kernel does these itself)."""
+        self.buffer.reset_status()
+        self._measure(aabbs, n)
 
     def _prepare_retry(self, reason: int) -> None:
         """Adapt after a query that asked to be redone another way (status.retry)."""

@@ -1,32 +1,39 @@
-"""Uniform-grid broadphase: cell hash, radix sort, bucket starts, neighbour cells.
+"""Uniform-grid broadphase: cell hash, bucket lists or sorted buckets, neighbour cells.
 
 Why a grid: for bodies of similar size (stacks, piles, granular scenes) each
-body meets only the few bodies of its own and 13 forward neighbour cells, so
-the work is linear in the body count, with one sort and no sweep.
+body meets only the few bodies of the cells around its own, so the work is
+linear in the body count, with no sweep.
 
-Step by step (all on the device, no blocking read):
+Both emissions measure the same things: validation, the geometric mean
+size, bodies larger than ``large_factor`` times it flagged large (the
+ground, big boxes: kept out of the grid and tested as a list), and the
+largest small body, which sets the cell side. Then (all on the device, no
+blocking read):
 
-1. ``measure_bodies`` + Reduce: validation and the geometric mean size;
-   ``classify_sizes`` flags bodies larger than ``large_factor`` times it as
-   large (the ground, big boxes) and Reduce max gives the largest small
-   body, which sets the cell side.
-2. The bucket of each small body's lower-corner cell (large bodies get a key
-   past every bucket), then the boxes in bucket order and the bucket starts
-   (the last one is the start of the large bodies, which end the list).
-   ``bucketing="sort"`` (CPU default): ``bucket_bodies``, RadixSort of
-   (bucket, body), ``gather_sorted``, BoundSearch of every bucket id.
-   ``bucketing="count"`` (GPU default): ``count_bucket_bodies`` (atomic bucket
-   sizes), Scan (the starts), ``scatter_bucket_bodies`` (atomic cursors):
-   5 launches instead of about 25; the order inside a bucket then varies
-   between runs, the pair list does not (it is ordered afterwards).
-3. ``emission="slot"`` (CPU default): ``count_grid_pairs`` / Scan /
-   ``write_grid_pairs``: each body visits its own cell, the 13 forward
-   neighbour cells and the large-body list, then the pair buffer sorts the
-   pairs by (a, b). ``emission="owner"`` (GPU default): each pair is written
-   by its lower body into its slice, so the list comes out sorted without the
-   global sort (dozens of launches); a small owner visits all 27 cells, large
-   owners (at most LARGE_ROWS, else the query asks to be redone with slot
-   emission) get their slices from scanned flag rows. See grid.cl.mako.
+``emission="owner"`` (GPU default; grid_owner.cl.mako): the whole query in
+   six launches, because on a GPU the launch count sets the time of a query
+   of up to ~10^5 bodies. Partial sums per work group replace the
+   reductions; each small body joins the linked list of its bucket
+   (``bucketing="list"``, one atomic exchange: no sort, no scan); each pair
+   is written by its lower body (its owner) into the owner's slice, so the
+   list comes out sorted without a global sort: a small owner visits all 27
+   cells around its own, a large owner (at most LARGE_ROWS, else the query
+   asks to be redone with slot emission) ranks its partners by prefix counts.
+   Slice offsets are scanned per work group and the group totals by one
+   work group.
+``emission="slot"`` (CPU default; grid.cl.mako): ``measure_bodies`` +
+   Reduce, ``classify_sizes`` + Reduce max; the boxes in bucket order and
+   the bucket starts (large bodies get a key past every bucket and end the
+   list): ``bucketing="sort"`` (CPU default) is ``bucket_bodies``, RadixSort
+   of (bucket, body), ``gather_sorted``, BoundSearch of every bucket id;
+   ``bucketing="count"`` is ``count_bucket_bodies`` (atomic bucket sizes),
+   Scan, ``scatter_bucket_bodies`` (atomic cursors). Then
+   ``count_grid_pairs`` / Scan / ``write_grid_pairs``: each body visits its
+   own cell, the 13 forward neighbour cells and the large-body list, and the
+   pair buffer sorts the pairs by (a, b).
+
+Atomics make the order inside a bucket vary between runs; the pair list does
+not (it is ordered by construction or afterwards).
 
 Exactness: overlapping small bodies must land in adjacent cells; with the
 1% slack on the cell side this holds while coordinates stay within about
@@ -48,6 +55,7 @@ import pyopencl.array as cla
 
 from ... import layouts
 from ...codegen import compile_spec, KernelTemplate, Param, power_of_two, work_group_size_param
+from ...errors import RbgenError
 from .base import Broadphase, check_large_factor, default_work_group_size
 from .pairs import key_bits
 
@@ -55,20 +63,28 @@ TEMPLATE = KernelTemplate(
     "pipeline/broadphase/grid.cl.mako",
     [work_group_size_param(
         "bodies per work group; the visit is latency-bound, so any size that fills a CU works"),
-     Param("emission", ("owner", "slot"),
-           "owner: each pair written by its lower body into sorted slices (no global sort, "
-           "27 cells visited); slot: 14 cells visited, then a global sort of the pairs"),
      Param("bucketing", ("sort", "count"),
            "sort: radix sort of (bucket, body) and bound search of the bucket starts "
            "(deterministic order inside buckets); count: counting sort with atomics, "
-           "a fifth of the launches"),
-     Param("large_rows", power_of_two(1, 64),
-           "owner emission: most large bodies handled (one flag row of n entries each)",
-           "a power of two from 1 to 64")],
-    doc="Uniform grid: bucket keys per body, pair counting and writing over neighbour cells.",
+           "a fifth of the launches")],
+    doc="Uniform grid, slot emission: bucket keys per body, pair counting and writing over "
+        "neighbour cells, then a global sort of the pairs.",
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "emission": default_emission(traits),
-                             "bucketing": default_bucketing(traits), "large_rows": LARGE_ROWS},
+                             "bucketing": default_bucketing(traits, "slot")},
+)
+
+OWNER_TEMPLATE = KernelTemplate(
+    "pipeline/broadphase/grid_owner.cl.mako",
+    [work_group_size_param(
+        "bodies per work group; the visit is latency-bound, and the pair offsets are "
+        "scanned per group (one work group scans the group totals)"),
+     Param("large_rows", power_of_two(1, 32),
+           "most large bodies handled (one bit of a body's row mask each)",
+           "a power of two from 1 to 32")],
+    doc="Uniform grid, owner emission: the whole query in six launches, bucket lists, "
+        "pairs written sorted by their lower body.",
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "large_rows": LARGE_ROWS},
 )
 
 #: Bodies larger than this many times the geometric mean size are large (kept
@@ -79,16 +95,25 @@ DEFAULT_LARGE_FACTOR = 4.0
 LARGE_ROWS = 8
 #: Buckets per body: sparse enough that distinct cells rarely share a bucket.
 BUCKETS_PER_BODY = 2
+#: Most work groups of ``measure_grid_bodies``: every work group of the
+#: classification sums all their partial sums, so they are few; 512 still
+#: give each of an H200's 132 CUs several groups.
+MEASURE_GROUPS = 512
+#: Bucketings each emission can use.
+BUCKETINGS = {"owner": ("list",), "slot": ("sort", "count")}
 
 
 def default_emission(traits) -> str:
-    """GPUs: owner emission (the global pair sort costs dozens of launches);
+    """GPUs: owner emission (six launches, no global pair sort);
     CPUs: slot emission (half the cells visited, and sorting is cheap there)."""
     return "owner" if traits.is_gpu else "slot"
 
 
-def default_bucketing(traits) -> str:
-    """GPUs: counting sort (launch count matters most); CPUs: radix sort."""
+def default_bucketing(traits, emission: str) -> str:
+    """Owner emission: bucket lists. Slot emission: counting sort on GPUs (launch
+    count matters most), radix sort on CPUs (deterministic buckets, cheap there)."""
+    if emission == "owner":
+        return "list"
     return "count" if traits.is_gpu else "sort"
 
 
@@ -101,7 +126,8 @@ def grid_dim_for(body_count: int) -> int:
 
 
 class GridBroadphase(Broadphase):
-    """``GridBroadphase(runtime, large_factor=4.0, capacity=None)``; see `Broadphase`."""
+    """``GridBroadphase(runtime, large_factor=4.0, emission=None, bucketing=None,
+    capacity=None, work_group_size=None)``; see `Broadphase` and the module docstring."""
 
     name = "grid"
 
@@ -111,24 +137,92 @@ class GridBroadphase(Broadphase):
         super().__init__(runtime, capacity=capacity, work_group_size=work_group_size)
         self.large_factor = check_large_factor(large_factor)
         self.emission = emission or default_emission(runtime.traits)
-        self.bucketing = bucketing or default_bucketing(runtime.traits)
+        if self.emission not in BUCKETINGS:
+            raise RbgenError(f"emission must be one of {list(BUCKETINGS)}, got {emission!r}")
+        self.bucketing = bucketing or default_bucketing(runtime.traits, self.emission)
+        if self.bucketing not in BUCKETINGS[self.emission]:
+            raise RbgenError(f"bucketing={bucketing!r} does not go with emission="
+                             f"{self.emission!r}; choose one of {list(BUCKETINGS[self.emission])}")
         self._programs = {}
-        self._program_for(self.emission)  # validates emission now
+        self._program()  # builds the kernels now
         self._bucket_ids = None
 
-    def _program_for(self, emission: str):
-        if emission not in self._programs:
-            spec = TEMPLATE.spec(work_group_size=self.work_group_size, emission=emission,
-                                 bucketing=self.bucketing, large_rows=LARGE_ROWS)
-            self._programs[emission] = compile_spec(self.runtime, spec)
-        return self._programs[emission]
+    def _program(self):
+        """The program of the current emission (and bucketing)."""
+        key = (self.emission, self.bucketing)
+        if key not in self._programs:
+            if self.emission == "owner":
+                spec = OWNER_TEMPLATE.spec(work_group_size=self.work_group_size,
+                                           large_rows=LARGE_ROWS)
+            else:
+                spec = TEMPLATE.spec(work_group_size=self.work_group_size,
+                                     bucketing=self.bucketing)
+            self._programs[key] = compile_spec(self.runtime, spec)
+        return self._programs[key]
 
     def _prepare_retry(self, reason: int) -> None:
         """More large bodies than owner rows: use slot emission from now on."""
         if reason != layouts.BP_RETRY_LARGE:
             super()._prepare_retry(reason)
         self.emission = "slot"
+        self.bucketing = default_bucketing(self.runtime.traits, "slot")
 
+    def _start_query(self, aabbs, n):
+        """Owner emission resets the status, validates and measures in its own kernels."""
+        if self.emission != "owner":
+            super()._start_query(aabbs, n)
+
+    def _enqueue_query(self, aabbs, static, n):
+        if self.emission == "owner":
+            self._owner_query(aabbs, static, n)
+        else:
+            self._slot_query(aabbs, static, n)
+
+    # ------------------------------------------------------- owner emission
+    def _owner_query(self, aabbs, static, n):
+        """The six launches of grid_owner.cl.mako."""
+        program, buffer, wg = self._program(), self.buffer, self.work_group_size
+        dim = grid_dim_for(n)
+        bucket_count, groups = dim ** 3, -(-n // wg)
+        measure_groups = min(groups, MEASURE_GROUPS)
+        partials = self.exact("log_size_partials", measure_groups, np.float32)
+        heads, next_body = self.exact("bucket_heads", bucket_count), self.exact("next_body", n)
+        large_flags = self.exact("large_flags", n)
+        large_count, large_bodies = self.exact("large_count", 1), self.exact("large_bodies",
+                                                                            LARGE_ROWS)
+        largest = self.exact("largest_small_bits", 1)
+        status = buffer.status.base_data
+        self.launch(program.kernel("measure_grid_bodies"), measure_groups * wg,
+                    aabbs.base_data, np.uint32(n), np.uint32(bucket_count), partials.base_data,
+                    heads.base_data, large_count.base_data, largest.base_data, status)
+        self.launch(program.kernel("classify_grid_bodies"), n, aabbs.base_data, np.uint32(n),
+                    partials.base_data, np.uint32(measure_groups),
+                    np.float32(self.large_factor), large_flags.base_data,
+                    large_count.base_data, large_bodies.base_data, largest.base_data, status)
+        self.launch(program.kernel("link_bucket_bodies"), n, aabbs.base_data, np.uint32(n),
+                    np.int32(dim), large_flags.base_data, largest.base_data, heads.base_data,
+                    next_body.base_data)
+
+        visit = (aabbs.base_data, static.base_data, np.uint32(n), np.int32(dim),
+                 large_flags.base_data, largest.base_data, heads.base_data, next_body.base_data,
+                 large_count.base_data, large_bodies.base_data)
+        in_group = self.exact("in_group_offsets", n)
+        group_pairs, group_rows = (self.exact("group_pairs", groups),
+                                   self.exact("group_rows", LARGE_ROWS * groups))
+        owner_starts, owner_counts = (self.exact("owner_starts", LARGE_ROWS),
+                                      self.exact("owner_counts", LARGE_ROWS))
+        capacity = np.uint32(buffer.capacity)
+        self.launch(program.kernel("count_owned_pairs"), n, *visit, in_group.base_data,
+                    group_pairs.base_data, group_rows.base_data)
+        self.launch(program.kernel("place_owner_slices"), wg, np.uint32(groups),
+                    large_count.base_data, large_bodies.base_data, in_group.base_data,
+                    group_pairs.base_data, group_rows.base_data, owner_starts.base_data,
+                    owner_counts.base_data, capacity, status)
+        self.launch(program.kernel("write_owned_pairs"), n, *visit, in_group.base_data,
+                    group_pairs.base_data, group_rows.base_data, owner_starts.base_data,
+                    owner_counts.base_data, capacity, buffer.pairs.base_data)
+
+    # -------------------------------------------------------- slot emission
     def _bucket_id_queries(self, bucket_count: int) -> cla.Array:
         """0, 1, ..., bucket_count: the BoundSearch queries of the bucket starts."""
         if self._bucket_ids is None or self._bucket_ids.size != bucket_count + 1:
@@ -136,9 +230,9 @@ class GridBroadphase(Broadphase):
                                              np.arange(bucket_count + 1, dtype=np.uint32))
         return self._bucket_ids
 
-    def _enqueue_query(self, aabbs, static, n):
+    def _slot_query(self, aabbs, static, n):
         from ...primitives import Reduce
-        runtime, program = self.runtime, self._program_for(self.emission)
+        runtime, program = self.runtime, self._program()
         dim = grid_dim_for(n)
         bucket_count = dim ** 3
 
@@ -161,14 +255,9 @@ class GridBroadphase(Broadphase):
         else:
             keys = self._count_buckets(program, bucket, aabbs, n, bucket_count, sorted_boxes,
                                        starts)
-
         visit = (aabbs.base_data, static.base_data, np.uint32(n), largest.base_data,
                  np.int32(dim), keys.base_data, sorted_boxes.base_data, starts.base_data)
-        if self.emission == "owner":
-            self._owner_pairs(program, visit, aabbs, static, n, dim, sorted_boxes, starts)
-        else:
-            self._slot_pairs(program, visit, n)
-
+        self._slot_pairs(program, visit, n)
     def _sort_buckets(self, program, bucket, aabbs, n, bucket_count, sorted_boxes, starts):
         """Radix sort of (bucket, body), gather, bound search: the sorted keys."""
         from ...primitives import BoundSearch, RadixSort
@@ -213,30 +302,6 @@ class GridBroadphase(Broadphase):
                     found.base_data, np.uint32(buffer.capacity), buffer.pairs_a.base_data,
                     buffer.pairs_b.base_data, buffer.status.base_data)
         buffer.sort(n)
-
-    def _owner_pairs(self, program, visit, aabbs, static, n, dim, sorted_boxes, starts):
-        buffer, rows = self.buffer, LARGE_ROWS
-        counts, offsets = self.exact("pair_counts", n), self.exact("pair_offsets", n)
-        flags, flag_ranks = self.exact("owner_flags", rows * n), self.exact("owner_ranks", rows * n)
-        found, flag_total = self.exact("pairs_found", 1), self.exact("flag_total", 1)
-        self.launch(program.kernel("count_owned_pairs"), n, *visit, counts.base_data)
-        self.launch(program.kernel("flag_large_owner_pairs"), rows * n, aabbs.base_data,
-                    static.base_data, np.uint32(n), np.int32(dim), sorted_boxes.base_data,
-                    starts.base_data, flags.base_data, buffer.status.base_data)
-        self._scan(flags, flag_ranks, rows * n, flag_total)
-        large_rows = (np.uint32(n), np.int32(dim), sorted_boxes.base_data, starts.base_data,
-                      flags.base_data, flag_ranks.base_data)
-        self.launch(program.kernel("count_large_owner_pairs"), rows, *large_rows,
-                    counts.base_data)
-        self._scan(counts, offsets, n, found)
-        capacity = np.uint32(buffer.capacity)
-        self.launch(program.kernel("write_owned_pairs"), n, *visit, offsets.base_data,
-                    found.base_data, capacity, buffer.pairs_a.base_data,
-                    buffer.pairs_b.base_data, buffer.status.base_data)
-        self.launch(program.kernel("write_large_owner_pairs"), rows * n, *large_rows,
-                    offsets.base_data, capacity, buffer.pairs_a.base_data,
-                    buffer.pairs_b.base_data)
-        buffer.pack()
 
     def _scan(self, src, dst, n, total):
         from ...primitives import Scan

@@ -62,12 +62,13 @@ def make_aabbs(rng: np.random.Generator, n: int, kind: str):
 
 #: (name, options) of every broadphase configuration the tests cover.
 ALGORITHMS = [("grid", {"emission": "slot", "bucketing": "sort"}),
-              ("grid", {"emission": "owner", "bucketing": "count"}),
+              ("grid", {"emission": "owner"}),
+              ("grid", {"emission": "owner", "work_group_size": 4}),
               ("grid", {"emission": "slot", "bucketing": "count"}),
               ("sap", {"shape": "cpu"}), ("sap", {"shape": "gpu"}),
               ("sap", {"shape": "gpu", "work_group_size": 4}), ("sap3", {})]
-ALGORITHM_IDS = ["grid-slot-sort", "grid-owner-count", "grid-slot-count", "sap-cpu", "sap-gpu",
-                 "sap-gpu-wg4", "sap3"]
+ALGORITHM_IDS = ["grid-slot-sort", "grid-owner", "grid-owner-wg4", "grid-slot-count", "sap-cpu",
+                 "sap-gpu", "sap-gpu-wg4", "sap3"]
 
 
 @pytest.fixture(params=ALGORITHMS, ids=ALGORITHM_IDS)

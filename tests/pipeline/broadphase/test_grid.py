@@ -1,9 +1,11 @@
-"""Grid specifics: owner emission, its large-body rows and the fallback to slot emission."""
+"""Grid specifics: owner emission, its large-body rows, its launch count and the
+fallback to slot emission; the expected pairs come from `brute_force_pairs`."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from rbgen.errors import RbgenError
 from rbgen.pipeline.broadphase import make_broadphase
 from rbgen.pipeline.broadphase.grid import LARGE_ROWS, grid_dim_for
 from rbgen.pipeline.broadphase.reference import brute_force_pairs
@@ -11,18 +13,24 @@ from rbgen.scenes import boxbox_scene, scene_aabbs
 
 from .conftest import make_aabbs
 
+#: Launches of one owner-emission query (grid_owner.cl.mako): its whole point.
+OWNER_LAUNCHES = 6
 
+
+@pytest.mark.parametrize("work_group_size", [None, 4])
 @pytest.mark.parametrize("large", [LARGE_ROWS, LARGE_ROWS + 1])
-def test_owner_emission_large_rows_and_fallback(runtime, rng, large):
+def test_owner_emission_large_rows_and_fallback(runtime, rng, large, work_group_size):
     """Up to LARGE_ROWS large bodies stay in owner emission; one more makes the
-    first query ask for a retry, which runs with slot emission; both are exact."""
-    aabbs, static = make_aabbs(rng, 400, "uniform")
-    slabs = rng.choice(400, large, replace=False)
+    first query ask for a retry, which runs with slot emission; both are exact.
+    The slabs overlap each other, so large owners have large partners too."""
+    aabbs, static = make_aabbs(rng, 401, "uniform")
+    slabs = rng.choice(401, large, replace=False)
     aabbs["lower"][slabs, :3] = -1e30
     aabbs["upper"][slabs, 0] = 1e30
     aabbs["upper"][slabs, 2] = 1e30
     aabbs["upper"][slabs, 1] = rng.uniform(0, 10, large)
-    broadphase = make_broadphase(runtime, "grid", emission="owner")
+    broadphase = make_broadphase(runtime, "grid", emission="owner",
+                                 work_group_size=work_group_size)
     broadphase.enqueue(aabbs, static)
     assert broadphase.check() is (large <= LARGE_ROWS)
     broadphase.find_pairs(aabbs, static)
@@ -30,13 +38,37 @@ def test_owner_emission_large_rows_and_fallback(runtime, rng, large):
     np.testing.assert_array_equal(broadphase.host_pairs(), brute_force_pairs(aabbs, static))
 
 
+@pytest.mark.parametrize("capacity", [None, 1])
 @pytest.mark.parametrize("emission", ["owner", "slot"])
-def test_boxbox_scene(runtime, emission):
-    """The BoxBox lattice: resting faces touch exactly; the ground is the large body."""
+def test_boxbox_scene(runtime, emission, capacity):
+    """The BoxBox lattice: resting faces touch exactly; the ground (body 0) is the
+    large body. Capacity 1: the first query overflows inside the ground's slice."""
     aabbs, static = scene_aabbs(boxbox_scene(7, 6, 5))
-    broadphase = make_broadphase(runtime, "grid", emission=emission)
+    broadphase = make_broadphase(runtime, "grid", emission=emission, capacity=capacity)
     broadphase.find_pairs(aabbs, static)
     np.testing.assert_array_equal(broadphase.host_pairs(), brute_force_pairs(aabbs, static))
+
+
+def test_owner_query_launch_count(runtime, rng):
+    """An owner-emission query is OWNER_LAUNCHES launches at any size, and exact."""
+    broadphase = make_broadphase(runtime, "grid", emission="owner")
+    for n in (2, 333, 4099):
+        aabbs, static = make_aabbs(rng, n, "clustered")
+        broadphase.find_pairs(aabbs, static)                  # grows the buffer if needed
+        before = runtime.counters["launches"]
+        broadphase.enqueue(aabbs, static)
+        assert runtime.counters["launches"] - before == OWNER_LAUNCHES
+        assert broadphase.check()
+        np.testing.assert_array_equal(broadphase.host_pairs(), brute_force_pairs(aabbs, static))
+
+
+def test_emission_and_bucketing_are_checked(runtime):
+    with pytest.raises(RbgenError, match="emission must be one of"):
+        make_broadphase(runtime, "grid", emission="broadcast")
+    with pytest.raises(RbgenError, match="bucketing='count' does not go with emission='owner'"):
+        make_broadphase(runtime, "grid", emission="owner", bucketing="count")
+    with pytest.raises(RbgenError, match="bucketing='list' does not go with emission='slot'"):
+        make_broadphase(runtime, "grid", emission="slot", bucketing="list")
 
 
 def test_grid_dim_keeps_neighbour_buckets_distinct():
