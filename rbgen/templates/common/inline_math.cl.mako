@@ -25,6 +25,11 @@ inline float abs1(float x)
     return as_float(as_uint(x) & 0x7FFFFFFFu);
 }
 
+inline float3 abs3(float3 v)
+{
+    return as_float3(as_uint3(v) & (uint3)(0x7FFFFFFFu));
+}
+
 inline float max1(float a, float b)
 {
     return a > b ? a : b;
@@ -59,4 +64,9 @@ inline float length3(float3 v)
 inline float3 normalize3(float3 v)
 {
     return v * (1.0f / length3(v));
+}
+
+inline float clamp1(float x, float lo, float hi)
+{
+    return min1(max1(x, lo), hi);
 }

@@ -24,6 +24,7 @@ ${cl_constants()}
 ${cl_structs("Body", "Shape", "Pair", "HullFace", "ContactManifold")}
 
 <%include file="/common/quaternion.cl.mako"/>
+<%include file="/common/inline_math.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 <%include file="/pipeline/narrowphase/store_manifold.cl.mako"/>
 <%include file="/pipeline/narrowphase/segments.cl.mako"/>
@@ -48,17 +49,17 @@ inline bool clip_segment_to_face(float3* p0, float3* p1, HullFace face,
     float3 prev = vertices[face_indices[face.index_offset + face.index_count - 1]].xyz;
     for (uint k = 0; k < face.index_count; ++k) {
         float3 cur = vertices[face_indices[face.index_offset + k]].xyz;
-        float3 side = cross(cur - prev, n);  /* outward side normal */
-        float at0 = dot(side, *p0 - prev), rate = dot(side, d);
+        float3 side = cross3(cur - prev, n);  /* outward side normal */
+        float at0 = dot3(side, *p0 - prev), rate = dot3(side, d);
         if (rate == 0.0f) {
             if (at0 > 0.0f)
                 return false;
         } else {
             float t = -at0 / rate;
             if (rate > 0.0f)
-                t1 = fmin(t1, t);
+                t1 = min1(t1, t);
             else
-                t0 = fmax(t0, t);
+                t0 = max1(t0, t);
         }
         prev = cur;
     }
@@ -80,7 +81,7 @@ inline float closest_to_face(float3 s0, float3 s1, HullFace face, __global const
     for (uint k = 0; k < 2; ++k) {
         /* an end above the polygon's interior (on its outer side): its projection */
         float3 top = ends[k], bottom = ends[k];
-        float h = dot(face.plane.xyz, ends[k]) - face.plane.w;
+        float h = dot3(face.plane.xyz, ends[k]) - face.plane.w;
         if (h >= 0.0f && clip_segment_to_face(&top, &bottom, face, vertices, face_indices)) {
             if (h * h < best)
                 best = h * h, *on_segment = ends[k], *on_face = ends[k] - face.plane.xyz * h;
@@ -91,7 +92,7 @@ inline float closest_to_face(float3 s0, float3 s1, HullFace face, __global const
         float3 cur = vertices[face_indices[face.index_offset + k]].xyz;
         float3 p, q;
         closest_points_of_segments(s0, s1, prev, cur, &p, &q);
-        float d2 = dot(p - q, p - q);
+        float d2 = dot3(p - q, p - q);
         if (d2 < best)
             best = d2, *on_segment = p, *on_face = q;
         prev = cur;
@@ -111,8 +112,8 @@ inline void supporting_edge(Shape s, float3 direction, float3 towards, __global 
         for (uint k = 0; k < face.index_count; ++k) {
             float3 cur = vertices[face_indices[face.index_offset + k]].xyz;
             float3 edge = cur - prev;
-            float reach = dot(towards, cur + prev);
-            if (fabs(dot(edge, direction)) > 0.9999f * length(edge) && reach > best)
+            float reach = dot3(towards, cur + prev);
+            if (abs1(dot3(edge, direction)) > 0.9999f * length3(edge) && reach > best)
                 best = reach, *e0 = prev, *e1 = cur;
             prev = cur;
         }
@@ -129,8 +130,8 @@ inline uint points_above_face(float3 s0, float3 s1, HullFace face, uint f, float
         return 0;
     float3 ends[2] = {s0, s1};
     uint count = 0;
-    for (uint k = 0; k < (dot(s1 - s0, s1 - s0) > 1e-12f ? 2u : 1u); ++k) {
-        float h = dot(face.plane.xyz, ends[k]) - face.plane.w;
+    for (uint k = 0; k < (dot3(s1 - s0, s1 - s0) > 1e-12f ? 2u : 1u); ++k) {
+        float h = dot3(face.plane.xyz, ends[k]) - face.plane.w;
         if (h - radius > margin)
             continue;
         points[count] = (float4)(ends[k] - face.plane.xyz * h, h - radius);
@@ -176,26 +177,26 @@ void capsule_convex(__global const Pair* pairs,
     uint best_face = 0, best_edge = 0;
     bool edge_axis = false;
     for (uint f = 0; f < hull.face_count; ++f) {
-        float s = fmin(dot(faces[f].plane.xyz, s0), dot(faces[f].plane.xyz, s1)) - faces[f].plane.w;
+        float s = min1(dot3(faces[f].plane.xyz, s0), dot3(faces[f].plane.xyz, s1)) - faces[f].plane.w;
         if (s > best)
             best = s, best_face = f, normal = -faces[f].plane.xyz;
     }
     float face_best = best;
     for (uint j = 0; j < hull.edge_count && capsule.y > 0.0f; ++j) {
-        float3 axis = cross(s1 - s0, hull_edges[hull.edge_offset + j].xyz);
-        float sin2 = dot(axis, axis) / dot(s1 - s0, s1 - s0);
+        float3 axis = cross3(s1 - s0, hull_edges[hull.edge_offset + j].xyz);
+        float sin2 = dot3(axis, axis) / dot3(s1 - s0, s1 - s0);
         if (sin2 < PARALLEL_SIN2)
             continue;
-        axis = normalize(axis);
+        axis = normalize3(axis);
         float lo = INFINITY, hi = -INFINITY;
         for (uint v = 0; v < hull.vertex_count; ++v) {
-            float d = dot(axis, vertices[v].xyz);
-            lo = fmin(lo, d);
-            hi = fmax(hi, d);
+            float d = dot3(axis, vertices[v].xyz);
+            lo = min1(lo, d);
+            hi = max1(hi, d);
         }
-        float seg_lo = fmin(dot(axis, s0), dot(axis, s1)), seg_hi = fmax(dot(axis, s0), dot(axis, s1));
+        float seg_lo = min1(dot3(axis, s0), dot3(axis, s1)), seg_hi = max1(dot3(axis, s0), dot3(axis, s1));
         float forward = lo - seg_hi, backward = seg_lo - hi;
-        float s = fmax(forward, backward);
+        float s = max1(forward, backward);
         if (s > best && s > face_best + EDGE_TOLERANCE)
             best = s, best_edge = j, edge_axis = true, normal = forward >= backward ? axis : -axis;
     }
@@ -212,19 +213,19 @@ void capsule_convex(__global const Pair* pairs,
         uint nearest_face = 0;
         for (uint f = 0; f < hull.face_count; ++f) {
             HullFace face = faces[f];
-            if (fmax(dot(face.plane.xyz, s0), dot(face.plane.xyz, s1)) - face.plane.w <= 0.0f)
+            if (max1(dot3(face.plane.xyz, s0), dot3(face.plane.xyz, s1)) - face.plane.w <= 0.0f)
                 continue;
             float3 p, h;
             float d2 = closest_to_face(s0, s1, face, vertices, face_indices, &p, &h);
             if (d2 < nearest)
                 nearest = d2, on_segment = p, on_hull = h, nearest_face = f;
         }
-        float distance = sqrt(nearest);
+        float distance = sqrt1(nearest);
         if (distance - radius > margin)
             return;
         normal = (on_hull - on_segment) / distance;
         float3 off_face = normal + faces[nearest_face].plane.xyz;
-        if (dot(off_face, off_face) < FACE_NORMAL_TOLERANCE2) {
+        if (dot3(off_face, off_face) < FACE_NORMAL_TOLERANCE2) {
             normal = -faces[nearest_face].plane.xyz;
             count = points_above_face(s0, s1, faces[nearest_face], nearest_face, radius, margin,
                                       vertices, face_indices, points, features);
@@ -241,8 +242,8 @@ void capsule_convex(__global const Pair* pairs,
         if (count == 0) {
             /* the segment passes beside the face: its deepest end */
             float3 n = faces[best_face].plane.xyz;
-            float3 deepest = dot(n, s0) < dot(n, s1) ? s0 : s1;
-            float h = dot(n, deepest) - faces[best_face].plane.w;
+            float3 deepest = dot3(n, s0) < dot3(n, s1) ? s0 : s1;
+            float h = dot3(n, deepest) - faces[best_face].plane.w;
             points[0] = (float4)(deepest - n * h, h - radius);
             features[0] = best_face << 1;
             count = 1;

@@ -29,6 +29,7 @@ ${cl_constants()}
 ${cl_structs("Body", "Shape", "Pair", "HullFace", "HullEdge", "SatResult", "ContactManifold")}
 
 <%include file="/common/quaternion.cl.mako"/>
+<%include file="/common/inline_math.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 <%include file="/pipeline/narrowphase/store_manifold.cl.mako"/>
 <%include file="/pipeline/narrowphase/segments.cl.mako"/>
@@ -57,10 +58,10 @@ inline uint clip_polygon(float3* points, uint* ids, uint n, float3 side, float s
     uint out_ids[MAX_CLIP_POINTS];
     uint m = 0;
     float3 prev = points[n - 1];
-    float prev_d = dot(side, prev) - side_d;
+    float prev_d = dot3(side, prev) - side_d;
     for (uint k = 0; k < n; ++k) {
         float3 cur = points[k];
-        float cur_d = dot(side, cur) - side_d;
+        float cur_d = dot3(side, cur) - side_d;
         if ((prev_d <= 0.0f) != (cur_d <= 0.0f) && m < MAX_CLIP_POINTS) {
             out_points[m] = prev + (cur - prev) * (prev_d / (prev_d - cur_d));
             out_ids[m++] = clip_id + (cur_d <= 0.0f ? 1u : 0u);
@@ -92,7 +93,7 @@ inline uint clip_faces(const Placement* reference, Shape ref_shape, uint f,
     uint inc = 0;
     float lowest = INFINITY;
     for (uint g = 0; g < inc_shape.face_count; ++g) {
-        float d = dot(hull_faces[inc_shape.face_offset + g].plane.xyz, ref_normal_in_incident);
+        float d = dot3(hull_faces[inc_shape.face_offset + g].plane.xyz, ref_normal_in_incident);
         if (d < lowest)
             lowest = d, inc = g;
     }
@@ -111,8 +112,8 @@ inline uint clip_faces(const Placement* reference, Shape ref_shape, uint f,
                                  hull_vertices, face_indices);
     for (uint j = 0; j < ref_face.index_count && n > 0; ++j) {
         float3 cur = polygon_vertex(reference, ref_shape, ref_face, j, hull_vertices, face_indices);
-        float3 side = cross(cur - prev, ref_plane.xyz);
-        n = clip_polygon(polygon, ids, n, side, dot(side, prev), CLIPPED_BY_EDGE + 2u * j);
+        float3 side = cross3(cur - prev, ref_plane.xyz);
+        n = clip_polygon(polygon, ids, n, side, dot3(side, prev), CLIPPED_BY_EDGE + 2u * j);
         prev = cur;
     }
 
@@ -120,7 +121,7 @@ inline uint clip_faces(const Placement* reference, Shape ref_shape, uint f,
     uint face_code = (f & 0x7FFu) | ((inc & 0x7FFu) << 11) | (reference_is_second ? REFERENCE_ON_SECOND : 0u);
     uint count = 0;
     for (uint k = 0; k < n; ++k) {
-        float s = dot(ref_plane.xyz, polygon[k]) - ref_plane.w;
+        float s = dot3(ref_plane.xyz, polygon[k]) - ref_plane.w;
         if (s > margin)
             continue;
         /* an incident point on the first shape moves onto the second's reference plane */
@@ -135,7 +136,7 @@ inline uint clip_faces(const Placement* reference, Shape ref_shape, uint f,
         float lowest_s = INFINITY;
         for (uint v = 0; v < inc_shape.vertex_count; ++v) {
             float3 p = point_to_world(incident, hull_vertices[inc_shape.vertex_offset + v].xyz);
-            float s = dot(ref_plane.xyz, p) - ref_plane.w;
+            float s = dot3(ref_plane.xyz, p) - ref_plane.w;
             if (s < lowest_s)
                 lowest_s = s, deepest = p;
         }
@@ -164,8 +165,8 @@ inline void supporting_edge(const Placement* p, Shape s, float3 direction, float
         for (uint k = 0; k < face.index_count; ++k) {
             float3 cur = hull_vertices[s.vertex_offset + face_indices[face.index_offset + k]].xyz;
             float3 edge = cur - prev;
-            float reach = dot(local_towards, cur + prev);
-            if (fabs(dot(edge, direction)) > PARALLEL_COS * length(edge) && reach > best)
+            float reach = dot3(local_towards, cur + prev);
+            if (abs1(dot3(edge, direction)) > PARALLEL_COS * length3(edge) && reach > best)
                 best = reach, best0 = prev, best1 = cur;
             prev = cur;
         }
@@ -279,23 +280,23 @@ void reduce_contacts(__global const Pair* pairs,
         chosen[1] = chosen[0];
         for (uint k = 0; k < n; ++k) {
             float3 d = candidates[k].xyz - p0;
-            d -= normal * dot(normal, d);
-            if (dot(d, d) > far2)
-                far2 = dot(d, d), chosen[1] = k;
+            d -= normal * dot3(normal, d);
+            if (dot3(d, d) > far2)
+                far2 = dot3(d, d), chosen[1] = k;
         }
         count = far2 > 0.0f ? 2 : 1;
         /* the extremes on both sides of the line through those two */
-        float3 across = cross(normal, candidates[chosen[1]].xyz - p0);
+        float3 across = cross3(normal, candidates[chosen[1]].xyz - p0);
         float high = 0.0f, low = 0.0f;
         uint high_k = 0, low_k = 0;
         for (uint k = 0; k < n; ++k) {
-            float side = dot(across, candidates[k].xyz - p0);
+            float side = dot3(across, candidates[k].xyz - p0);
             if (side > high)
                 high = side, high_k = k;
             if (side < low)
                 low = side, low_k = k;
         }
-        float tolerance = 1e-6f * dot(across, across);
+        float tolerance = 1e-6f * dot3(across, across);
         if (count == 2 && high > tolerance)
             chosen[count++] = high_k;
         if (count >= 2 && low < -tolerance)

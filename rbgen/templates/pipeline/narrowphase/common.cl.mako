@@ -27,7 +27,7 @@ inline Placement placement_of(Body body)
 
 inline float3 rotate_to_world(const Placement* p, float3 v)
 {
-    return (float3)(dot(p->r0, v), dot(p->r1, v), dot(p->r2, v));
+    return (float3)(dot3(p->r0, v), dot3(p->r1, v), dot3(p->r2, v));
 }
 
 inline float3 rotate_to_local(const Placement* p, float3 v)
@@ -49,7 +49,7 @@ inline float3 point_to_local(const Placement* p, float3 v)
 inline float4 plane_to_world(const Placement* p, float4 local_plane)
 {
     float3 n = rotate_to_world(p, local_plane.xyz);
-    return (float4)(n, local_plane.w + dot(n, p->position));
+    return (float4)(n, local_plane.w + dot3(n, p->position));
 }
 
 /* The pair a queue entry refers to, with its bodies in the kernel's shape order. */

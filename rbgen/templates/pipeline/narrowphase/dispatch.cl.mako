@@ -32,6 +32,8 @@ ${cl_constants()}
 
 ${cl_structs("Body", "Shape", "Pair", "ContactManifold")}
 
+<%include file="/common/inline_math.cl.mako"/>
+
 #define KIND_COUNT ${len(kinds)}
 #define NO_KIND KIND_COUNT
 
@@ -121,7 +123,7 @@ void scatter_manifolds(__global const ContactManifold* slots,
         return;
     ContactManifold m = slots[i];
     Body a = bodies[m.body_a], b = bodies[m.body_b];
-    m.friction = sqrt(a.friction * b.friction);
-    m.restitution = fmax(a.restitution, b.restitution);
+    m.friction = sqrt1(a.friction * b.friction);
+    m.restitution = max1(a.restitution, b.restitution);
     manifolds[slot_offsets[i]] = m;
 }

@@ -10,6 +10,7 @@ ${cl_constants()}
 ${cl_structs("Body", "Shape", "Pair", "HullFace", "ContactManifold")}
 
 <%include file="/common/quaternion.cl.mako"/>
+<%include file="/common/inline_math.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 <%include file="/pipeline/narrowphase/store_manifold.cl.mako"/>
 % if any("capsule" in k for k in kinds):
@@ -47,7 +48,7 @@ ${queued_pair()}
     Body a = bodies[q.first], b = bodies[q.second];
     float ra = shapes[a.shape].extents.x, rb = shapes[b.shape].extents.x;
     float3 d = b.position.xyz - a.position.xyz;
-    float distance = length(d);
+    float distance = length3(d);
     float separation = distance - ra - rb;
     if (separation > margin)
         return;
@@ -68,7 +69,7 @@ ${queued_pair()}
     float radius = shapes[a.shape].extents.x;
     Placement plane_body = placement_of(b);
     float4 plane = plane_to_world(&plane_body, shapes[b.shape].extents);
-    float height = dot(plane.xyz, a.position.xyz) - plane.w;
+    float height = dot3(plane.xyz, a.position.xyz) - plane.w;
     float separation = height - radius;
     if (separation > margin)
         return;
@@ -84,7 +85,7 @@ inline float3 closest_point_on_face(float3 c, HullFace face, __global const floa
                                     __global const uint* face_indices)
 {
     float3 n = face.plane.xyz;
-    float3 projected = c - n * (dot(n, c) - face.plane.w);
+    float3 projected = c - n * (dot3(n, c) - face.plane.w);
     float3 best = projected;
     float best_distance2 = INFINITY;
     bool inside = true;
@@ -92,12 +93,12 @@ inline float3 closest_point_on_face(float3 c, HullFace face, __global const floa
     for (uint k = 0; k < face.index_count; ++k) {
         float3 cur = vertices[face_indices[face.index_offset + k]].xyz;
         float3 edge = cur - prev;
-        if (dot(cross(edge, n), projected - prev) > 0.0f) {
+        if (dot3(cross3(edge, n), projected - prev) > 0.0f) {
             /* outside this edge: the closest point may lie on it */
             inside = false;
-            float t = clamp(dot(c - prev, edge) / dot(edge, edge), 0.0f, 1.0f);
+            float t = clamp1(dot3(c - prev, edge) / dot3(edge, edge), 0.0f, 1.0f);
             float3 on_edge = prev + edge * t;
-            float d2 = dot(c - on_edge, c - on_edge);
+            float d2 = dot3(c - on_edge, c - on_edge);
             if (d2 < best_distance2)
                 best_distance2 = d2, best = on_edge;
         }
@@ -127,7 +128,7 @@ ${queued_pair()}
     uint deepest_face = 0;
     float deepest = -INFINITY;
     for (uint f = 0; f < hull.face_count; ++f) {
-        float s = dot(faces[f].plane.xyz, c) - faces[f].plane.w;
+        float s = dot3(faces[f].plane.xyz, c) - faces[f].plane.w;
         if (s > deepest)
             deepest = s, deepest_face = f;
     }
@@ -144,14 +145,14 @@ ${queued_pair()}
             return;  /* a face plane already separates by more than the margin */
         float best_distance2 = INFINITY;
         for (uint f = 0; f < hull.face_count; ++f) {
-            if (dot(faces[f].plane.xyz, c) - faces[f].plane.w <= 0.0f)
+            if (dot3(faces[f].plane.xyz, c) - faces[f].plane.w <= 0.0f)
                 continue;
             float3 p = closest_point_on_face(c, faces[f], vertices, face_indices);
-            float d2 = dot(p - c, p - c);
+            float d2 = dot3(p - c, p - c);
             if (d2 < best_distance2)
                 best_distance2 = d2, surface = p, feature = f;
         }
-        float distance = sqrt(best_distance2);
+        float distance = sqrt1(best_distance2);
         normal = (surface - c) / distance;
         separation = distance - radius;
     }
@@ -174,10 +175,10 @@ inline void capsule_segment(Body body, float half_height, float3* p0, float3* p1
 /* A unit vector perpendicular to v, or FALLBACK_NORMAL when v is zero. */
 inline float3 any_perpendicular(float3 v)
 {
-    if (dot(v, v) == 0.0f)
+    if (dot3(v, v) == 0.0f)
         return FALLBACK_NORMAL;
-    float3 other = fabs(v.x) < 0.9f * length(v) ? (float3)(1.0f, 0.0f, 0.0f) : (float3)(0.0f, 1.0f, 0.0f);
-    return normalize(cross(v, other));
+    float3 other = abs1(v.x) < 0.9f * length3(v) ? (float3)(1.0f, 0.0f, 0.0f) : (float3)(0.0f, 1.0f, 0.0f);
+    return normalize3(cross3(v, other));
 }
 % endif
 % if "sphere_capsule" in kinds:
@@ -195,7 +196,7 @@ ${queued_pair()}
     capsule_segment(b, capsule.y, &p0, &p1);
     closest_points_of_segments(centre, centre, p0, p1, &on_centre, &on_segment);
     float3 d = on_segment - centre;
-    float distance = length(d);
+    float distance = length3(d);
     float separation = distance - ra - capsule.x;
     if (separation > margin)
         return;
@@ -221,7 +222,7 @@ ${queued_pair()}
     capsule_segment(b, cb.y, &b0, &b1);
     closest_points_of_segments(a0, a1, b0, b1, &on_a, &on_b);
     float3 d = on_b - on_a;
-    float distance = length(d);
+    float distance = length3(d);
     float separation = distance - ca.x - cb.x;
     if (separation > margin)
         return;
@@ -232,19 +233,19 @@ ${queued_pair()}
     uint features[2] = {0u, 1u};
     uint count = 1;
     points[0] = (float4)(on_b - normal * cb.x, separation);
-    float la2 = dot(da, da), lb2 = dot(db, db);
-    float3 twist = cross(da, db);
-    if (la2 > 0.0f && lb2 > 0.0f && dot(twist, twist) < 1e-6f * la2 * lb2) {
+    float la2 = dot3(da, da), lb2 = dot3(db, db);
+    float3 twist = cross3(da, db);
+    if (la2 > 0.0f && lb2 > 0.0f && dot3(twist, twist) < 1e-6f * la2 * lb2) {
         /* parallel: the overlap of b's segment on a's axis, as fractions of a */
-        float u0 = dot(b0 - a0, da) / la2, u1 = dot(b1 - a0, da) / la2;
-        float lo = fmax(0.0f, fmin(u0, u1)), hi = fmin(1.0f, fmax(u0, u1));
-        if ((hi - lo) * sqrt(la2) > 1e-4f * (ca.x + cb.x)) {
+        float u0 = dot3(b0 - a0, da) / la2, u1 = dot3(b1 - a0, da) / la2;
+        float lo = max1(0.0f, min1(u0, u1)), hi = min1(1.0f, max1(u0, u1));
+        if ((hi - lo) * sqrt1(la2) > 1e-4f * (ca.x + cb.x)) {
             float3 ends[2] = {a0 + da * lo, a0 + da * hi};
             for (uint k = 0; k < 2; ++k) {
                 float3 across, on_second;
                 closest_points_of_segments(ends[k], ends[k], b0, b1, &across, &on_second);
                 points[k] = (float4)(on_second - normal * cb.x,
-                                     dot(normal, on_second - ends[k]) - ca.x - cb.x);
+                                     dot3(normal, on_second - ends[k]) - ca.x - cb.x);
             }
             count = 2;
         }
@@ -270,7 +271,7 @@ ${queued_pair()}
     uint features[2];
     uint count = 0;
     for (uint k = 0; k < (capsule.y > 0.0f ? 2u : 1u); ++k) {
-        float height = dot(plane.xyz, ends[k]) - plane.w;
+        float height = dot3(plane.xyz, ends[k]) - plane.w;
         if (height - capsule.x > margin)
             continue;
         points[count] = (float4)(ends[k] - plane.xyz * height, height - capsule.x);
@@ -301,7 +302,7 @@ ${queued_pair()}
     uint chosen[4];
     float best = INFINITY;
     for (uint v = 0; v < hull.vertex_count; ++v) {
-        float s = dot(plane.xyz, point_to_world(&hull_body, vertices[v].xyz)) - plane.w;
+        float s = dot3(plane.xyz, point_to_world(&hull_body, vertices[v].xyz)) - plane.w;
         if (s < best)
             best = s, chosen[0] = v;
     }
@@ -315,28 +316,28 @@ ${queued_pair()}
     for (uint v = 0; v < hull.vertex_count; ++v) {
         float3 p = point_to_world(&hull_body, vertices[v].xyz);
         float3 d = p - p0;
-        d -= plane.xyz * dot(plane.xyz, d);
-        if (dot(plane.xyz, p) - plane.w <= margin && dot(d, d) > far2)
-            far2 = dot(d, d), chosen[1] = v;
+        d -= plane.xyz * dot3(plane.xyz, d);
+        if (dot3(plane.xyz, p) - plane.w <= margin && dot3(d, d) > far2)
+            far2 = dot3(d, d), chosen[1] = v;
     }
     if (far2 > 0.0f) {
         count = 2;
         /* pass 3: extremes on both sides of the line p0 p1 */
         float3 p1 = point_to_world(&hull_body, vertices[chosen[1]].xyz);
-        float3 across = cross(plane.xyz, p1 - p0);
+        float3 across = cross3(plane.xyz, p1 - p0);
         float high = 0.0f, low = 0.0f;
         uint high_vertex = 0, low_vertex = 0;
         for (uint v = 0; v < hull.vertex_count; ++v) {
             float3 p = point_to_world(&hull_body, vertices[v].xyz);
-            if (dot(plane.xyz, p) - plane.w > margin)
+            if (dot3(plane.xyz, p) - plane.w > margin)
                 continue;
-            float side = dot(across, p - p0);
+            float side = dot3(across, p - p0);
             if (side > high)
                 high = side, high_vertex = v;
             if (side < low)
                 low = side, low_vertex = v;
         }
-        float tolerance = 1e-6f * dot(across, across);
+        float tolerance = 1e-6f * dot3(across, across);
         if (high > tolerance)
             chosen[count++] = high_vertex;
         if (low < -tolerance)
@@ -346,7 +347,7 @@ ${queued_pair()}
     float4 points[4];
     for (uint k = 0; k < count; ++k) {
         float3 p = point_to_world(&hull_body, vertices[chosen[k]].xyz);
-        float s = dot(plane.xyz, p) - plane.w;
+        float s = dot3(plane.xyz, p) - plane.w;
         points[k] = (float4)(p - plane.xyz * s, s);
     }
     store_manifold(slots, contact_flags, q, -plane.xyz, points, chosen, count);

@@ -27,6 +27,7 @@ ${cl_constants()}
 ${cl_structs("Body", "Shape", "Pair", "HullFace", "HullEdge", "SatCacheEntry", "SatResult")}
 
 <%include file="/common/quaternion.cl.mako"/>
+<%include file="/common/inline_math.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 
 /* A face of the second shape wins over one of the first, and an edge pair over
@@ -47,8 +48,8 @@ typedef struct {
 /* Extent of a box along a world axis: centre +- |axis in box frame| . half extents. */
 inline float2 box_interval(const Placement* p, Shape s, float3 axis)
 {
-    float reach = dot(fabs(rotate_to_local(p, axis)), s.extents.xyz);
-    float centre = dot(axis, p->position);
+    float reach = dot3(abs3(rotate_to_local(p, axis)), s.extents.xyz);
+    float centre = dot3(axis, p->position);
     return (float2)(centre - reach, centre + reach);
 }
 
@@ -60,11 +61,11 @@ inline float2 hull_interval(const Placement* p, Shape s, __global const float4* 
     float3 local_axis = rotate_to_local(p, axis);
     float lo = INFINITY, hi = -INFINITY;
     for (uint v = 0; v < s.vertex_count; ++v) {
-        float d = dot(local_axis, hull_vertices[s.vertex_offset + v].xyz);
-        lo = fmin(lo, d);
-        hi = fmax(hi, d);
+        float d = dot3(local_axis, hull_vertices[s.vertex_offset + v].xyz);
+        lo = min1(lo, d);
+        hi = max1(hi, d);
     }
-    float centre = dot(axis, p->position);
+    float centre = dot3(axis, p->position);
     return (float2)(lo + centre, hi + centre);
 }
 
@@ -91,10 +92,10 @@ inline float2 interval_second(const ConvexPair* g, __global const float4* hull_v
  * degenerate axis (parallel edges). */
 inline float4 interval_separation(const ConvexPair* g, __global const float4* hull_vertices, float3 axis)
 {
-    float sin2 = dot(axis, axis);
+    float sin2 = dot3(axis, axis);
     if (sin2 < PARALLEL_SIN2)
         return (float4)(axis, -INFINITY);
-    axis *= rsqrt(sin2);
+    axis *= 1.0f / sqrt1(sin2);
     float2 ia = interval_first(g, hull_vertices, axis);
     float2 ib = interval_second(g, hull_vertices, axis);
     float forward = ib.x - ia.y, backward = ia.x - ib.y;
@@ -125,7 +126,7 @@ inline float4 edge_separation(const ConvexPair* g, uint i, uint j, __global cons
 {
     float3 ea = rotate_to_world(&g->a, hull_edges[g->shape_a.edge_offset + i].xyz);
     float3 eb = rotate_to_world(&g->b, hull_edges[g->shape_b.edge_offset + j].xyz);
-    return interval_separation(g, hull_vertices, cross(ea, eb));
+    return interval_separation(g, hull_vertices, cross3(ea, eb));
 }
 
 % else:
@@ -136,9 +137,9 @@ inline float4 edge_separation(const ConvexPair* g, uint i, uint j, __global cons
  * sides of the plane of arc cd, and the arcs on the same hemisphere. */
 inline bool arcs_intersect(float3 a, float3 b, float3 c, float3 d)
 {
-    float3 b_x_a = cross(b, a), d_x_c = cross(d, c);
-    float cba = dot(c, b_x_a), dba = dot(d, b_x_a);
-    float adc = dot(a, d_x_c), bdc = dot(b, d_x_c);
+    float3 b_x_a = cross3(b, a), d_x_c = cross3(d, c);
+    float cba = dot3(c, b_x_a), dba = dot3(d, b_x_a);
+    float adc = dot3(a, d_x_c), bdc = dot3(b, d_x_c);
     return cba * dba < 0.0f && adc * bdc < 0.0f && cba * bdc > 0.0f;
 }
 
@@ -158,14 +159,14 @@ inline void world_edge(const Placement* p, Shape s, HullEdge e, __global const f
  * lines (w = -INFINITY for parallel edges). */
 inline float4 edge_pair_separation(float3 a0, float3 ea, float3 b0, float3 eb, float3 centre_a)
 {
-    float3 axis = cross(ea, eb);
-    float sin2 = dot(axis, axis);
-    if (sin2 < PARALLEL_SIN2 * dot(ea, ea) * dot(eb, eb))
+    float3 axis = cross3(ea, eb);
+    float sin2 = dot3(axis, axis);
+    if (sin2 < PARALLEL_SIN2 * dot3(ea, ea) * dot3(eb, eb))
         return (float4)(axis, -INFINITY);
-    axis *= rsqrt(sin2);
-    if (dot(axis, a0 - centre_a) < 0.0f)
+    axis *= 1.0f / sqrt1(sin2);
+    if (dot3(axis, a0 - centre_a) < 0.0f)
         axis = -axis;
-    return (float4)(axis, dot(axis, b0 - a0));
+    return (float4)(axis, dot3(axis, b0 - a0));
 }
 
 /* Along the cross product of edge i of the first shape and edge j of the second,
@@ -181,7 +182,7 @@ inline float4 edge_pair_interval_separation(const ConvexPair* g, uint i, uint j,
                hull_faces, &a0, &ea, &n0, &n1);
     world_edge(&g->b, g->shape_b, hull_adjacency[g->shape_b.adjacency_offset + j], hull_vertices,
                hull_faces, &b0, &eb, &n0, &n1);
-    return interval_separation(g, hull_vertices, cross(normalize(ea), normalize(eb)));
+    return interval_separation(g, hull_vertices, cross3(normalize3(ea), normalize3(eb)));
 }
 
 % endif
@@ -305,7 +306,7 @@ inline bool separating_axis_test(const ConvexPair* g, Pair pair, __global SatCac
     *best = face_a, *best_feature = face_a_feature;
     if (face_b.w > face_a.w + FACE_TOLERANCE)
         *best = face_b, *best_feature = face_b_feature;
-    if (edge.w > fmax(face_a.w, face_b.w) + EDGE_TOLERANCE)
+    if (edge.w > max1(face_a.w, face_b.w) + EDGE_TOLERANCE)
         *best = edge, *best_feature = edge_feature;
     remember_axis(entry, pair, *best_feature);
     return true;
