@@ -40,7 +40,6 @@ import pyopencl.array as cla
 from . import layouts
 from .device import Runtime, coerce_runtime
 from .errors import CapacityOverflowError, RbgenError
-from .pipeline.aabbs import WorldAabbs
 from .pipeline.batching import ConstraintBatcher
 from .pipeline.constraints import ContactConstraints
 from .pipeline.gyroscopic import BodyPreparation, inertia_records
@@ -312,7 +311,9 @@ class World:
         if types != self._stages_types:
             from .pipeline.broadphase import make_broadphase
             from .pipeline.narrowphase import Narrowphase
-            self._world_aabbs = WorldAabbs(self.runtime, types)
+            # world AABBs are written by the body preparation (one launch for both)
+            self._prepare = BodyPreparation(self.runtime, gyroscopic=self._prepare.gyroscopic,
+                                            gravity=True, shape_types=types)
             self._narrowphase = Narrowphase(self.runtime, self.shapes)
             options = {} if self._pair_capacity is None else {"capacity": int(self._pair_capacity)}
             self._broadphase = make_broadphase(self.runtime, self.broadphase_name, **options)
@@ -365,10 +366,9 @@ class World:
         slot = self._serial % STEPS_IN_FLIGHT
         self._serial += 1
         cl.enqueue_copy(rt.queue, self._backups[slot].data, self._bodies.data)
-        self._prepare(self._bodies, self._inertia, n, h, self.gravity)  # gravity fused in
         margin = self.contact_margin
-        self._world_aabbs(self._bodies, self._packed.shapes, self._packed.vertices, self._aabbs, n,
-                          margin)
+        self._prepare(self._bodies, self._inertia, n, h, self.gravity,  # gravity, AABBs fused in
+                      aabbs=(self._packed.shapes, self._packed.vertices, self._aabbs, margin))
         self._broadphase.enqueue(self._aabbs, self._static)
         self._narrowphase.enqueue(self._bodies, self._packed, self._broadphase.pairs,
                                   self._broadphase.count, self._manifolds, self._manifold_count,

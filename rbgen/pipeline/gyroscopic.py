@@ -6,6 +6,10 @@ diagonal kept in `BodyInertia`. The same pass applies the implicit gyroscopic
 term (Bullet 2.x's implicit scheme, with the implicit midpoint rule in place
 of implicit Euler, which loses momentum): without it an asymmetric box spinning freely keeps its
 angular *velocity* instead of its angular *momentum*, which is wrong.
+
+Built with ``shape_types``, the pass also writes every body's world AABB
+(the World's broadphase input, see `aabbs`): the step's poses are the same
+before and after this kernel, so a World saves the separate AABB launch.
 """
 from __future__ import annotations
 
@@ -15,6 +19,7 @@ from .. import layouts
 from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
+from .aabbs import SHAPE_TYPE_NAMES
 
 TEMPLATE = KernelTemplate(
     "pipeline/gyroscopic.cl.mako",
@@ -25,11 +30,17 @@ TEMPLATE = KernelTemplate(
               "emit the implicit gyroscopic update only when the world enables it"),
         Param("gravity", (True, False),
               "add g dt to dynamic bodies here, saving the World a separate gravity launch"),
+        Param("shape_types",
+              lambda v: isinstance(v, tuple) and set(v) <= set(SHAPE_TYPE_NAMES)
+              and tuple(sorted(set(v))) == v,
+              "write world AABBs here for these shape types, saving the World the AABB launch; "
+              "() writes none",
+              f"a sorted tuple of distinct names from {SHAPE_TYPE_NAMES} (empty: no AABBs)"),
     ],
     doc="World inverse inertia and the implicit gyroscopic term, one work-item per body.",
     roles={"bodies": "inout", "inertia": "inout"},
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "gyroscopic": True, "gravity": False},
+                             "gyroscopic": True, "gravity": False, "shape_types": ()},
 )
 
 
@@ -50,27 +61,41 @@ def inertia_records(inv_inertia_diag: np.ndarray) -> np.ndarray:
 
 
 class BodyPreparation:
-    """Launches `prepare_bodies` over `Body` and `BodyInertia` device arrays."""
+    """Launches `prepare_bodies` over `Body` and `BodyInertia` device arrays.
+
+    ``shape_types`` (the world's shape type names): also write world AABBs,
+    whose inputs are then given to each call as ``aabbs``.
+    """
 
     def __init__(self, runtime: Runtime, *, gyroscopic: bool = True, gravity: bool = False,
-                 work_group_size: int | None = None):
+                 shape_types=(), work_group_size: int | None = None):
         self.runtime = runtime
+        self.gyroscopic = bool(gyroscopic)
         self.gravity = bool(gravity)
+        self.shape_types = tuple(sorted(set(shape_types)))
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, gyroscopic=bool(gyroscopic),
-                                  gravity=self.gravity)
+        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, gyroscopic=self.gyroscopic,
+                                  gravity=self.gravity, shape_types=self.shape_types)
         self.kernel = runtime.bound(compile_spec(runtime, self.spec).kernel("prepare_bodies"))
 
-    def __call__(self, bodies, inertia, body_count: int, dt: float, gravity=None):
+    def __call__(self, bodies, inertia, body_count: int, dt: float, gravity=None, aabbs=None):
         """Prepare ``body_count`` bodies; ``gravity`` (3 numbers) is required exactly
-        when built with gravity=True (v += g dt on dynamic bodies)."""
+        when built with gravity=True (v += g dt on dynamic bodies); ``aabbs``, a tuple
+        (shapes, hull_vertices, aabbs, margin) as `WorldAabbs` takes them, exactly
+        when built with shape types."""
         if (gravity is not None) != self.gravity:
             raise RbgenError("gravity must be given exactly when this BodyPreparation was "
                              f"built with gravity=True (built with gravity={self.gravity})")
+        if (aabbs is not None) != bool(self.shape_types):
+            raise RbgenError("aabbs must be given exactly when this BodyPreparation was built "
+                             f"with shape types (built with shape_types={self.shape_types})")
         if body_count == 0:
             return None
-        args = [bodies, inertia, np.uint32(body_count), np.float32(dt)]
+        args = [bodies, inertia, np.uint32(body_count)]
         if self.gravity:
             args.append(np.array([*gravity, 0.0], dtype=np.float32))
+        if aabbs is not None:
+            shapes, hull_vertices, boxes, margin = aabbs
+            args += [shapes, hull_vertices, boxes, np.float32(margin)]
+        args.append(np.float32(dt))
         return self.kernel.over(body_count, self.work_group_size, *args)
-

@@ -77,6 +77,7 @@ class Integrator:
         if self.gravity:
             args.append(np.array([*gravity, 0.0], dtype=np.float32))
         if self.damping:
-            args += [np.float32(linear_damping), np.float32(angular_damping)]
+            # (1 - damping)^dt is the same for every body
+            args += [np.float32((1.0 - linear_damping) ** dt), np.float32((1.0 - angular_damping) ** dt)]
         args.append(np.float32(max_angular_step))
         return self.kernel.over(body_count, self.work_group_size, *args)

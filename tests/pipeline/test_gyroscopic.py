@@ -1,4 +1,5 @@
-"""prepare_bodies: world inverse inertia R diag(I^-1) R^T and, fused in, gravity v += g dt.
+"""prepare_bodies: world inverse inertia R diag(I^-1) R^T and, fused in, gravity v += g dt
+and world AABBs.
 
 Closed forms checked against a float64 numpy reference, for body counts that
 are not multiples of the work-group size (and zero bodies)."""
@@ -63,3 +64,53 @@ def test_gravity_argument_must_match_the_build(runtime):
         BodyPreparation(runtime, gravity=True)(bodies, inertia, 1, 0.1)
     with pytest.raises(RbgenError, match="gravity"):
         BodyPreparation(runtime, gravity=False)(bodies, inertia, 1, 0.1, (0, -9.81, 0))
+
+
+@pytest.mark.parametrize("n", [0, 1, 67, 1000])
+def test_fused_world_aabbs(runtime, rng, n):
+    """Built with shape types, prepare_bodies also writes every body's world AABB: each
+    holds the float64 bounds of the rotated shape (grown by the margin, within 1e-5), and
+    velocities and inertia tensors are those of the pass without AABBs, bit for bit."""
+    from rbgen.shapes import ShapeTable
+    from tests.pipeline.test_aabbs import expected_bounds, make_shapes
+
+    table = ShapeTable()
+    shape_list = make_shapes(rng)
+    ids = np.asarray([table.add(s) for s in shape_list])
+    bodies, diag = _random_bodies(rng, max(n, 1))
+    which = rng.integers(0, len(shape_list), len(bodies))
+    bodies["shape"] = ids[which]
+    bodies["position"][:, :3] = rng.uniform(-50, 50, (len(bodies), 3))
+    queue = runtime.queue
+    shapes, vertices = table.pack()
+    margin, dt, gravity = 0.05, 1 / 60, (0.0, -9.81, 0.0)
+    outputs = []
+    for shape_types in ((), table.type_names()):
+        d_bodies = cl_array.to_device(queue, bodies)
+        d_inertia = cl_array.to_device(queue, inertia_records(diag))
+        prepare = BodyPreparation(runtime, gyroscopic=True, gravity=True, shape_types=shape_types)
+        aabbs = cl_array.empty(queue, max(n, 1), layouts.AABB.dtype)
+        inputs = (cl_array.to_device(queue, shapes), cl_array.to_device(queue, vertices), aabbs,
+                  margin) if shape_types else None
+        prepare(d_bodies, d_inertia, n, dt, gravity, aabbs=inputs)
+        outputs.append((d_bodies.get()[:n], d_inertia.get()[:n], aabbs.get()[:n]))
+    (plain_bodies, plain_inertia, _), (fused_bodies, fused_inertia, boxes) = outputs
+    np.testing.assert_array_equal(fused_bodies, plain_bodies)
+    np.testing.assert_array_equal(fused_inertia, plain_inertia)
+    for i in range(n):
+        lo, hi = expected_bounds(shape_list[which[i]], bodies["position"][i, :3].astype(np.float64),
+                                 bodies["orientation"][i])
+        tol = 1e-5 + 1e-6 * max(np.abs(lo).max(), np.abs(hi).max())
+        np.testing.assert_allclose(boxes["lower"][i, :3], lo - margin, atol=tol)
+        np.testing.assert_allclose(boxes["upper"][i, :3], hi + margin, atol=tol)
+
+
+def test_aabb_inputs_must_match_the_build(runtime):
+    bodies = cl_array.to_device(runtime.queue, layouts.BODY.zeros(1))
+    inertia = cl_array.to_device(runtime.queue, inertia_records(np.ones((1, 3))))
+    with pytest.raises(RbgenError, match="aabbs"):
+        BodyPreparation(runtime, shape_types=("box",))(bodies, inertia, 1, 0.1)
+    with pytest.raises(RbgenError, match="aabbs"):
+        BodyPreparation(runtime)(bodies, inertia, 1, 0.1, aabbs=(None, None, None, 0.0))
+    with pytest.raises(Exception, match="shape_types"):
+        BodyPreparation(runtime, shape_types=("box", "torus"))

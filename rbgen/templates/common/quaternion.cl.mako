@@ -1,10 +1,11 @@
 /* Quaternion and rotation helpers. Quaternions are float4 (x, y, z, w) with
  * w the scalar part; rotations are body-to-world. */
+<%include file="/common/inline_math.cl.mako"/>
 
 inline float4 quat_mul(float4 a, float4 b)
 {
-    return (float4)(a.w * b.xyz + b.w * a.xyz + cross(a.xyz, b.xyz),
-                    a.w * b.w - dot(a.xyz, b.xyz));
+    return (float4)(a.w * b.xyz + b.w * a.xyz + cross3(a.xyz, b.xyz),
+                    a.w * b.w - dot3(a.xyz, b.xyz));
 }
 
 inline float4 quat_conjugate(float4 q)
@@ -15,8 +16,8 @@ inline float4 quat_conjugate(float4 q)
 /* q v q*, expanded: v + 2w (u x v) + 2 u x (u x v) with u = q.xyz. */
 inline float3 quat_rotate(float4 q, float3 v)
 {
-    float3 t = 2.0f * cross(q.xyz, v);
-    return v + q.w * t + cross(q.xyz, t);
+    float3 t = 2.0f * cross3(q.xyz, v);
+    return v + q.w * t + cross3(q.xyz, t);
 }
 
 /* Rows of the rotation matrix of a unit quaternion. */

@@ -16,21 +16,29 @@
  *   - the world inverse inertia tensor R diag(I^-1) R^T, which the solver
  *     reads for every contact row.
  * Static bodies get a zero tensor.
+% if shape_types:
+ * Every body, static or not, also gets its world AABB for the broadphase
+ * (the step's positions and orientations, which this kernel does not change:
+ * one launch instead of a compute_world_aabbs of its own).
+% endif
  */
 ${cl_constants()}
 
-${cl_structs("Body", "BodyInertia")}
+${cl_structs("Body", "BodyInertia", *(("Shape", "Aabb") if shape_types else ()))}
 
 <%include file="/common/quaternion.cl.mako"/>
+% if shape_types:
+<%include file="/pipeline/world_aabb.cl.mako"/>
+% endif
 
 % if gyroscopic:
 /* Solve J x = f for a 3x3 matrix given by rows (Cramer's rule); J is the
  * Jacobian of the gyroscopic residual, diagonally dominant for dt small. */
 inline float3 solve3(float3 j0, float3 j1, float3 j2, float3 f)
 {
-    float3 c0 = cross(j1, j2), c1 = cross(j2, j0), c2 = cross(j0, j1);
-    float det = dot(j0, c0);
-    if (fabs(det) < 1e-30f)
+    float3 c0 = cross3(j1, j2), c1 = cross3(j2, j0), c2 = cross3(j0, j1);
+    float det = dot3(j0, c0);
+    if (abs1(det) < 1e-30f)
         return (float3)(0.0f);
     /* inverse = [c0 c1 c2] / det (columns are the cofactor rows) */
     return (c0 * f.x + c1 * f.y + c2 * f.z) / det;
@@ -41,7 +49,7 @@ inline float3 solve3(float3 j0, float3 j1, float3 j2, float3 f)
 inline float3 implicit_gyroscopic(float3 w_body, float3 inertia, float dt)
 {
     float3 momentum = inertia * w_body;
-    float3 residual = dt * cross(w_body, momentum);
+    float3 residual = dt * cross3(w_body, momentum);
     /* J = I + (dt / 2) (skew(w) I - skew(I w)), written row by row */
     float h = 0.5f * dt;
     float3 w = w_body, m = momentum, d = inertia;
@@ -57,11 +65,15 @@ void prepare_bodies(__global Body* bodies,
                     __global BodyInertia* inertia,
                     const uint body_count,
 % if gravity:
-                    const float dt,
-                    const float4 gravity)
-% else:
-                    const float dt)
+                    const float4 gravity,
 % endif
+% if shape_types:
+                    __global const Shape* shapes,
+                    __global const float4* hull_vertices,
+                    __global Aabb* aabbs,
+                    const float margin,
+% endif
+                    const float dt)
 {
     uint i = get_global_id(0);
     if (i >= body_count)
@@ -83,10 +95,14 @@ void prepare_bodies(__global Body* bodies,
     float3 r0, r1, r2;
     quat_to_rows(q, &r0, &r1, &r2);
     /* (R D R^T)_jk = sum_m R_jm D_m R_km */
-    inertia[i].inv_inertia_world[0] = (float4)(dot(r0 * inv_local, r0), dot(r0 * inv_local, r1),
-                                                dot(r0 * inv_local, r2), 0.0f);
-    inertia[i].inv_inertia_world[1] = (float4)(dot(r1 * inv_local, r0), dot(r1 * inv_local, r1),
-                                                dot(r1 * inv_local, r2), 0.0f);
-    inertia[i].inv_inertia_world[2] = (float4)(dot(r2 * inv_local, r0), dot(r2 * inv_local, r1),
-                                                dot(r2 * inv_local, r2), 0.0f);
+    inertia[i].inv_inertia_world[0] = (float4)(dot3(r0 * inv_local, r0), dot3(r0 * inv_local, r1),
+                                                dot3(r0 * inv_local, r2), 0.0f);
+    inertia[i].inv_inertia_world[1] = (float4)(dot3(r1 * inv_local, r0), dot3(r1 * inv_local, r1),
+                                                dot3(r1 * inv_local, r2), 0.0f);
+    inertia[i].inv_inertia_world[2] = (float4)(dot3(r2 * inv_local, r0), dot3(r2 * inv_local, r1),
+                                                dot3(r2 * inv_local, r2), 0.0f);
+% if shape_types:
+    Body body = bodies[i];
+    write_world_aabb(body, shapes[body.shape], r0, r1, r2, hull_vertices, margin, &aabbs[i]);
+% endif
 }

@@ -8,7 +8,9 @@
  *   (gravity is applied before the solver by apply_gravity, not here)
 % endif
 % if damping:
- *   v  *= (1 - linear_damping)^dt,  w *= (1 - angular_damping)^dt
+ *   v  *= linear_factor,  w *= angular_factor
+ *         (the factors (1 - damping)^dt are the same for every body: the host
+ *         computes them once)
 % endif
  *   x  += v dt
  *   q   = dq(w dt) q, renormalised, where dq is the axis-angle quaternion of
@@ -22,23 +24,27 @@ ${cl_structs("Body")}
 
 <%include file="/common/quaternion.cl.mako"/>
 
-/* Below this angular speed * dt, sin(a/2)/a is replaced by its series. */
+/* Below this angular speed * dt, sin(a/2)/a and cos(a/2) are replaced by their
+ * series (the next terms are below float precision). */
 #define SMALL_ROTATION 0.001f
 
 inline float4 rotate_by_angular_velocity(float4 q, float3 w, float dt, float max_angular_step)
 {
-    float speed = length(w);
+    float speed = length3(w);
     if (speed * dt > max_angular_step)
-        speed = max_angular_step / dt, w = normalize(w) * speed;
+        w *= max_angular_step / (dt * speed), speed = max_angular_step / dt;
     float half_angle = 0.5f * speed * dt;
-    float3 axis;
-    if (speed * dt < SMALL_ROTATION)
-        /* sin(s dt / 2) / s = dt/2 - dt^3 s^2 / 48 + O(s^4) */
-        axis = w * (0.5f * dt - dt * dt * dt * (1.0f / 48.0f) * speed * speed);
-    else
-        axis = w * (sin(half_angle) / speed);
-    float4 dq = (float4)(axis, cos(half_angle));
-    return normalize(quat_mul(dq, q));
+    float4 dq;
+    if (speed * dt < SMALL_ROTATION) {
+        /* sin(s dt / 2) / s = dt/2 - dt^3 s^2 / 48 + O(s^4); cos(a) = 1 - a^2/2 + O(a^4) */
+        dq.xyz = w * (0.5f * dt - dt * dt * dt * (1.0f / 48.0f) * speed * speed);
+        dq.w = 1.0f - 0.5f * half_angle * half_angle;
+    } else {
+        dq.xyz = w * (sin(half_angle) / speed);
+        dq.w = cos(half_angle);
+    }
+    float4 turned = quat_mul(dq, q);
+    return turned * (1.0f / sqrt1(dot3(turned.xyz, turned.xyz) + turned.w * turned.w));
 }
 
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
@@ -49,8 +55,8 @@ void integrate_bodies(__global Body* bodies,
                       const float4 gravity,
 % endif
 % if damping:
-                      const float linear_damping,
-                      const float angular_damping,
+                      const float linear_factor,
+                      const float angular_factor,
 % endif
                       const float max_angular_step)
 {
@@ -68,8 +74,8 @@ void integrate_bodies(__global Body* bodies,
 % endif
     float3 w = body->angular_velocity.xyz;
 % if damping:
-    v *= pow(1.0f - linear_damping, dt);
-    w *= pow(1.0f - angular_damping, dt);
+    v *= linear_factor;
+    w *= angular_factor;
 % endif
     body->linear_velocity.xyz = v;
     body->angular_velocity.xyz = w;

@@ -10,7 +10,6 @@ ${cl_constants()}
 ${cl_structs("Body", "Shape", "Pair", "HullFace", "ContactManifold")}
 
 <%include file="/common/quaternion.cl.mako"/>
-<%include file="/common/inline_math.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 <%include file="/pipeline/narrowphase/store_manifold.cl.mako"/>
 % if any("capsule" in k for k in kinds):

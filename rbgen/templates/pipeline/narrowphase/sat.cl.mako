@@ -27,7 +27,6 @@ ${cl_constants()}
 ${cl_structs("Body", "Shape", "Pair", "HullFace", "HullEdge", "SatCacheEntry", "SatResult")}
 
 <%include file="/common/quaternion.cl.mako"/>
-<%include file="/common/inline_math.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 
 /* A face of the second shape wins over one of the first, and an edge pair over

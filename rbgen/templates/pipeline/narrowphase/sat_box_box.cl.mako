@@ -18,7 +18,6 @@ ${cl_constants()}
 ${cl_structs("Body", "Shape", "Pair", "SatCacheEntry", "SatResult")}
 
 <%include file="/common/quaternion.cl.mako"/>
-<%include file="/common/inline_math.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 
 /* See the generic test: preferences between near-equal axes. */
