@@ -12,8 +12,11 @@ A step enqueues a fixed sequence of launches with no blocking read:
    GPUs): ``find_separating_axis`` (one launch per convex kind) appends the
    touching pairs to a clipping queue; ``clip_incident_face`` and
    ``reduce_contacts`` run over that queue;
-4. an exclusive scan of the per-pair flags places each manifold, and
-   ``scatter_manifolds`` writes them in pair order (deterministic).
+4. ``scatter_manifolds`` writes the manifolds in pair order (deterministic):
+   every kernel that stores a manifold also counts it in its placement tile
+   (a fixed run of pairs, one atomic increment), so each work group of the
+   scatter finds its tile's start by summing the counts before it, with no
+   prefix-sum launches of its own.
 
 Counts stay on the device: the pair count, the queue lengths, the manifold
 count. Non-blocking contract for a step: the manifold buffer has a capacity;
@@ -44,11 +47,10 @@ from ... import layouts
 from ...codegen import compile_spec
 from ...device import Runtime
 from ...errors import RbgenError
-from ...primitives.scan import Scan
 from ...shapes import PackedShapes, ShapeTable
 from .templates import (ALL_KINDS, CAPSULE_CONVEX, CAPSULE_CONVEX_KIND, CLIP, CONVEX_KINDS,
                         DISPATCH, PRIMITIVE_KINDS, PRIMITIVE_PAIRS, SAT, SAT_BOX_BOX)
-from .templates import default_work_group_size
+from .templates import default_placement_tile, default_work_group_size
 
 SUPPORTED_TYPES = ("box", "capsule", "hull", "plane", "sphere")
 #: box_box: box pairs get the closed-form 15-axis kernel; box: the generic test with
@@ -111,7 +113,7 @@ class Narrowphase:
 
     def __init__(self, runtime: Runtime, shapes, *, max_face_vertices: int | None = None,
                  box_path: str = "box_box", work_group_size: int | None = None,
-                 edge_axes: dict | None = None):
+                 edge_axes: dict | None = None, placement_tile: int | None = None):
         #: a table given here is watched: when shapes with larger faces are added later,
         #: the clipping kernel is rebuilt for them before the next launch
         self.table = shapes if isinstance(shapes, ShapeTable) else None
@@ -133,19 +135,24 @@ class Narrowphase:
         self.kind_index = {k: i for i, k in enumerate(self.kinds)}
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
         wg = self.work_group_size
+        self.placement_tile = tile = placement_tile or default_placement_tile(runtime.traits, wg)
+        if tile % wg:
+            raise RbgenError(f"placement_tile ({tile}) must be a multiple of work_group_size ({wg})")
         self.max_face_vertices = max(3, int(max_face_vertices or 4))
         self.k_classify = self.k_scatter = None
         if self.kinds:
-            dispatch = compile_spec(runtime, DISPATCH.spec(work_group_size=wg, kinds=self.kinds))
+            dispatch = compile_spec(runtime, DISPATCH.spec(work_group_size=wg, kinds=self.kinds,
+                                                           placement_tile=tile))
             self.k_classify = runtime.bound(dispatch.kernel("classify_pairs"))
             self.k_scatter = runtime.bound(dispatch.kernel("scatter_manifolds"))
         primitive = tuple(k for k in self.kinds if k in PRIMITIVE_KINDS)
         self.primitive_kernels = {}
         if primitive:
-            prog = compile_spec(runtime, PRIMITIVE_PAIRS.spec(work_group_size=wg, kinds=primitive))
+            prog = compile_spec(runtime, PRIMITIVE_PAIRS.spec(work_group_size=wg, kinds=primitive,
+                                                               placement_tile=tile))
             self.primitive_kernels = {k: runtime.bound(prog.kernel(k)) for k in primitive}
         if CAPSULE_CONVEX_KIND in self.kinds:
-            prog = compile_spec(runtime, CAPSULE_CONVEX.spec(work_group_size=wg))
+            prog = compile_spec(runtime, CAPSULE_CONVEX.spec(work_group_size=wg, placement_tile=tile))
             capsule_convex = runtime.bound(prog.kernel("capsule_convex"))
             self.primitive_kernels[CAPSULE_CONVEX_KIND] = capsule_convex
         self.sat_kernels, self.sat_edge_axes = {}, {}
@@ -168,7 +175,6 @@ class Narrowphase:
             self.sat_edge_axes[kind] = edge_axes
         self.k_clip = self.k_reduce = None
         self._build_clip()
-        self.scan = Scan(runtime, np.uint32, inclusive=False)
         self.capacity = 0
         self._counters_clear = True  # queue counters hold zeros (see enqueue)
 
@@ -176,6 +182,7 @@ class Narrowphase:
         if not self.sat_kernels:
             return
         clip = compile_spec(self.runtime, CLIP.spec(work_group_size=self.work_group_size,
+                                                    placement_tile=self.placement_tile,
                                                     max_face_vertices=self.max_face_vertices))
         self.k_clip = self.runtime.bound(clip.kernel("clip_incident_face"))
         self.k_reduce = self.runtime.bound(clip.kernel("reduce_contacts"))
@@ -204,7 +211,8 @@ class Narrowphase:
         clip_cap = cap * 2 * self.max_face_vertices if self.sat_kernels else 1
         self._counters_clear = True  # fresh zeros (scatter_manifolds clears them after use)
         self.contact_flags = cla.zeros(q, cap, np.uint32)
-        self.slot_offsets = cla.zeros(q, cap, np.uint32)
+        self.tile_count = -(-cap // self.placement_tile)
+        self.tile_counts = cla.zeros(q, self.tile_count, np.uint32)
         self.slots = cla.zeros(q, cap, layouts.CONTACT_MANIFOLD.dtype)
         self.queues = cla.zeros(q, cap * len(self.kinds), np.uint32)
         self.queue_counts = cla.zeros(q, len(self.kinds), np.uint32)
@@ -248,9 +256,9 @@ class Narrowphase:
         common = (pairs, bodies, shapes.shapes)
         events["classify"] = self.k_classify.over(
             size, wg, pairs, pair_count, bodies, shapes.shapes, self.contact_flags, self.queues,
-            self.queue_counts, cap, self.sat_count)
+            self.queue_counts, cap, self.sat_count, self.tile_counts, np.uint32(self.tile_count))
         queue_args = (self.queues, self.queue_counts, cap)
-        out_args = (self.slots, self.contact_flags, margin)
+        out_args = (self.slots, self.contact_flags, self.tile_counts, margin)
         for kind, kernel in self.primitive_kernels.items():
             args = [*common, *queue_args, np.uint32(self.kind_index[kind]), *out_args]
             if kind == "sphere_convex":
@@ -277,23 +285,14 @@ class Narrowphase:
                 self.clip_features, self.clip_counts, margin)
             events["reduce"] = self.k_reduce.over(
                 size, wg, pairs, self.sat_results, result_count, self.clip_points,
-                self.clip_features, self.clip_counts, self.slots, self.contact_flags)
-        events["scan"] = self.scan(self._scan_flags(size), self.slot_offsets, n=pair_count,
-                                   total=manifold_count)
+                self.clip_features, self.clip_counts, self.slots, self.contact_flags,
+                self.tile_counts)
         events["scatter"] = self.k_scatter.over(
-            size, wg, self.slots, self.contact_flags, self.slot_offsets, pair_count,
-            manifold_count, bodies, manifolds, np.uint32(manifolds.size), overflow,
+            self.tile_count * wg, wg, self.slots, self.contact_flags, self.tile_counts, pair_count,
+            np.uint32(size), bodies, manifolds, np.uint32(manifolds.size), manifold_count, overflow,
             self.queue_counts)
         self._counters_clear = True
         return events
-
-    def _scan_flags(self, size: int):
-        """The first ``size`` contact flags (a view kept while the flag buffer lives)."""
-        view = getattr(self, "_flags_view", None)
-        flags = self.contact_flags.base_data
-        if view is None or view.size != size or view.base_data is not flags:
-            view = self._flags_view = self.contact_flags[:size]
-        return view
 
     # ------------------------------------------------------------------ convenience
     def find_contacts(self, bodies, shapes: PackedShapes, pairs, pair_count, margin: float = 0.0,

@@ -23,6 +23,13 @@ def default_work_group_size(traits: DeviceTraits) -> int:
     return min(64 if traits.is_gpu else 16, traits.max_work_group_size)
 
 
+def default_placement_tile(traits: DeviceTraits, work_group_size: int) -> int:
+    """Pairs per placement tile: 256 on GPUs (enough work groups for scatter_manifolds to fill
+    the device at a few thousand pairs), 1024 on CPUs (fewer, longer groups); at least one
+    pair per work-item."""
+    return max(256 if traits.is_gpu else 1024, work_group_size)
+
+
 def _kinds_param(allowed):
     return Param("kinds", lambda v: isinstance(v, tuple) and len(v) > 0 and set(v) <= set(allowed)
                  and tuple(sorted(set(v), key=allowed.index)) == v,
@@ -30,32 +37,40 @@ def _kinds_param(allowed):
                  f"a non-empty tuple of distinct names from {allowed}, in that order")
 
 
+def _sizes(traits: DeviceTraits) -> dict:
+    wg = default_work_group_size(traits)
+    return {"work_group_size": wg, "placement_tile": default_placement_tile(traits, wg)}
+
+
 _WORK_GROUP = work_group_size_param("queue entries per work group")
+_PLACEMENT_TILE = Param(
+    "placement_tile", lambda v: isinstance(v, int) and 1 <= v <= 1 << 16 and v & (v - 1) == 0,
+    "pairs whose manifolds one scatter_manifolds work group places: kernels that store a "
+    "manifold count it in its tile, so placement needs no separate prefix-sum launches",
+    "a power of two from 1 to 65536, a multiple of work_group_size")
 
 DISPATCH = KernelTemplate(
     "pipeline/narrowphase/dispatch.cl.mako",
-    [_WORK_GROUP, _kinds_param(ALL_KINDS)],
+    [_WORK_GROUP, _kinds_param(ALL_KINDS), _PLACEMENT_TILE],
     doc="Route broadphase pairs to per-kind queues; gather flagged manifold slots.",
     roles={"queue_counts": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "kinds": ("convex_plane", "box_box")},
+    defaults=lambda traits: {**_sizes(traits), "kinds": ("convex_plane", "box_box")},
 )
 
 PRIMITIVE_PAIRS = KernelTemplate(
     "pipeline/narrowphase/primitive_pairs.cl.mako",
-    [_WORK_GROUP, _kinds_param(PRIMITIVE_KINDS)],
+    [_WORK_GROUP, _kinds_param(PRIMITIVE_KINDS), _PLACEMENT_TILE],
     doc="Contacts of pairs with a sphere, a capsule or a plane (closed forms, one kernel each).",
-    roles={"slots": "inout", "contact_flags": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "kinds": PRIMITIVE_KINDS},
+    roles={"slots": "inout", "contact_flags": "inout", "tile_counts": "inout"},
+    defaults=lambda traits: {**_sizes(traits), "kinds": PRIMITIVE_KINDS},
 )
 
 CAPSULE_CONVEX = KernelTemplate(
     "pipeline/narrowphase/capsule_convex.cl.mako",
-    [_WORK_GROUP],
+    [_WORK_GROUP, _PLACEMENT_TILE],
     doc="Capsule against box or hull: segment separating axes, closest points, face clipping.",
-    roles={"slots": "inout", "contact_flags": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
+    roles={"slots": "inout", "contact_flags": "inout", "tile_counts": "inout"},
+    defaults=_sizes,
 )
 
 SAT = KernelTemplate(
@@ -83,12 +98,11 @@ SAT_BOX_BOX = KernelTemplate(
 
 CLIP = KernelTemplate(
     "pipeline/narrowphase/clip.cl.mako",
-    [_WORK_GROUP,
+    [_WORK_GROUP, _PLACEMENT_TILE,
      Param("max_face_vertices", lambda v: isinstance(v, int) and 3 <= v <= 32,
            "sizes the private clipping buffers (2x): the world's largest face",
            "an int from 3 to 32 (rbgen.hull.MAX_FACE_VERTICES)")],
     doc="Clip incident faces against reference faces; reduce to at most 4 points.",
-    roles={"slots": "inout", "contact_flags": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "max_face_vertices": 4},
+    roles={"slots": "inout", "contact_flags": "inout", "tile_counts": "inout"},
+    defaults=lambda traits: {**_sizes(traits), "max_face_vertices": 4},
 )

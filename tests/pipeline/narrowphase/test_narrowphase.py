@@ -272,11 +272,14 @@ def test_unsupported_shapes_fail_at_construction(runtime):
         Narrowphase(runtime, ("box", "mesh"))
 
 
-@pytest.mark.parametrize("work_group_size", [1, 64])
-def test_mixed_world_is_independent_of_work_group_size(runtime, rng, work_group_size):
+@pytest.mark.parametrize("work_group_size,placement_tile", [(1, None), (64, None), (1, 1),
+                                                            (16, 16), (64, 256), (32, 1024)])
+def test_mixed_world_is_independent_of_work_group_size(runtime, rng, work_group_size,
+                                                       placement_tile):
     """Spheres, capsules, boxes and hulls on a plane (every kind), 301 random pairs: the same
-    manifolds as with the default work-group size (queues are filled by group-aggregated
-    atomics)."""
+    manifolds, in the same order, as with the default work-group size and placement tile
+    (queues are filled by group-aggregated atomics; manifolds are placed per tile of pairs,
+    from 1 pair to more than all of them)."""
     table = ShapeTable()
     kinds = [table.add(Plane()), table.add(Sphere(0.5)), table.add(Box((0.5, 0.4, 0.3))),
              table.add(ConvexHull(rng.normal(size=(12, 3)) * 0.5, name="pebble")),
@@ -291,12 +294,37 @@ def test_mixed_world_is_independent_of_work_group_size(runtime, rng, work_group_
     candidates += sorted({tuple(sorted(p)) for p in rng.integers(1, n + 1, (400, 2)) if p[0] != p[1]})
     pairs = candidates[:301]
     reference = find_contacts(runtime, table, bodies, pairs, margin=0.01)
-    other = find_contacts(runtime, table, bodies, pairs, margin=0.01, work_group_size=work_group_size)
+    other = find_contacts(runtime, table, bodies, pairs, margin=0.01, work_group_size=work_group_size,
+                          placement_tile=placement_tile)
     assert len(reference) > 20
     np.testing.assert_array_equal(other["body_a"], reference["body_a"])
     np.testing.assert_array_equal(other["body_b"], reference["body_b"])
     np.testing.assert_array_equal(other["point_count"], reference["point_count"])
     np.testing.assert_allclose(other["points"], reference["points"], atol=1e-6)
+    np.testing.assert_array_equal(other["friction"], reference["friction"])
+
+
+def test_no_pairs_give_no_manifolds(runtime):
+    """Zero pairs after a call with contacts: count 0, no overflow (the placement counters
+    and the contact flags of the earlier call do not leak into this one)."""
+    import pyopencl.array as cla
+    table = ShapeTable()
+    cube = table.add(Box((1, 1, 1)))
+    narrowphase = Narrowphase(runtime, table)
+    q = runtime.queue
+    packed = table.pack_all().to_device(q)
+    bodies = cla.to_device(q, make_bodies([cube, cube], [(0, 0, 0), (1.9, 0, 0)]))
+    pairs = cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype))
+    assert len(narrowphase.find_contacts(bodies, packed, pairs, 1)) == 1
+    count, overflow = cla.to_device(q, np.array([7], np.uint32)), cla.to_device(q, np.array([7], np.uint32))
+    manifolds = cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype)
+    narrowphase.enqueue(bodies, packed, pairs, cla.zeros(q, 1, np.uint32), manifolds, count, overflow)
+    assert count.get()[0] == 0 and overflow.get()[0] == 0
+
+
+def test_placement_tile_must_hold_whole_work_groups(runtime):
+    with pytest.raises(RbgenError, match="placement_tile"):
+        Narrowphase(runtime, ("box",), work_group_size=64, placement_tile=32)
 
 
 def test_cached_axis_follows_the_bodies(runtime):

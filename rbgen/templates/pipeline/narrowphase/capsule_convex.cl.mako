@@ -149,6 +149,7 @@ void capsule_convex(__global const Pair* pairs,
                     const uint kind,
                     __global ContactManifold* slots,
                     __global uint* contact_flags,
+                    __global uint* tile_counts,
                     const float margin,
                     __global const float4* hull_vertices,
                     __global const HullFace* hull_faces,
@@ -259,5 +260,5 @@ void capsule_convex(__global const Pair* pairs,
     }
     for (uint k = 0; k < count; ++k)
         points[k].xyz = point_to_world(&frame, points[k].xyz);
-    store_manifold(slots, contact_flags, q, rotate_to_world(&frame, normal), points, features, count);
+    store_manifold(slots, contact_flags, tile_counts, q, rotate_to_world(&frame, normal), points, features, count);
 }

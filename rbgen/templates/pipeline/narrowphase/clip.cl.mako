@@ -249,7 +249,8 @@ void reduce_contacts(__global const Pair* pairs,
                      __global const uint* clip_features,
                      __global const uint* clip_counts,
                      __global ContactManifold* slots,
-                     __global uint* contact_flags)
+                     __global uint* contact_flags,
+                     __global uint* tile_counts)
 {
     uint slot = get_global_id(0);
     if (slot >= result_count[0])
@@ -308,6 +309,6 @@ void reduce_contacts(__global const Pair* pairs,
         points[k] = candidates[chosen[k]];
         features[k] = candidate_features[chosen[k]];
     }
-    store_manifold(slots, contact_flags, decode_queue_entry(r.pair, pairs), normal, points,
+    store_manifold(slots, contact_flags, tile_counts, decode_queue_entry(r.pair, pairs), normal, points,
                    features, count);
 }

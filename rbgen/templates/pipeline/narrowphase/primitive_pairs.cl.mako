@@ -35,6 +35,7 @@ ${pad}const uint pair_capacity,
 ${pad}const uint kind,
 ${pad}__global ContactManifold* slots,
 ${pad}__global uint* contact_flags,
+${pad}__global uint* tile_counts,
 ${pad}const float margin\
 </%def>
 % if "sphere_sphere" in kinds:
@@ -54,7 +55,7 @@ ${queued_pair()}
     float3 normal = distance > 1e-6f * (ra + rb) ? d / distance : FALLBACK_NORMAL;
     float4 point = (float4)(b.position.xyz - normal * rb, separation);
     uint feature = 0u;
-    store_manifold(slots, contact_flags, q, normal, &point, &feature, 1u);
+    store_manifold(slots, contact_flags, tile_counts, q, normal, &point, &feature, 1u);
 }
 % endif
 % if "sphere_plane" in kinds:
@@ -74,7 +75,7 @@ ${queued_pair()}
         return;
     float4 point = (float4)(a.position.xyz - plane.xyz * height, separation);
     uint feature = 0u;
-    store_manifold(slots, contact_flags, q, -plane.xyz, &point, &feature, 1u);
+    store_manifold(slots, contact_flags, tile_counts, q, -plane.xyz, &point, &feature, 1u);
 }
 % endif
 % if "sphere_convex" in kinds:
@@ -158,7 +159,7 @@ ${queued_pair()}
     if (separation > margin)
         return;
     float4 point = (float4)(point_to_world(&hull_body, surface), separation);
-    store_manifold(slots, contact_flags, q, rotate_to_world(&hull_body, normal), &point, &feature, 1u);
+    store_manifold(slots, contact_flags, tile_counts, q, rotate_to_world(&hull_body, normal), &point, &feature, 1u);
 }
 % endif
 % if any("capsule" in k for k in kinds):
@@ -202,7 +203,7 @@ ${queued_pair()}
     float3 normal = distance > 1e-6f * (ra + capsule.x) ? d / distance : any_perpendicular(p1 - p0);
     float4 point = (float4)(on_segment - normal * capsule.x, separation);
     uint feature = 0u;
-    store_manifold(slots, contact_flags, q, normal, &point, &feature, 1u);
+    store_manifold(slots, contact_flags, tile_counts, q, normal, &point, &feature, 1u);
 }
 % endif
 % if "capsule_capsule" in kinds:
@@ -249,7 +250,7 @@ ${queued_pair()}
             count = 2;
         }
     }
-    store_manifold(slots, contact_flags, q, normal, points, features, count);
+    store_manifold(slots, contact_flags, tile_counts, q, normal, points, features, count);
 }
 % endif
 % if "capsule_plane" in kinds:
@@ -277,7 +278,7 @@ ${queued_pair()}
         features[count++] = k;
     }
     if (count > 0)
-        store_manifold(slots, contact_flags, q, -plane.xyz, points, features, count);
+        store_manifold(slots, contact_flags, tile_counts, q, -plane.xyz, points, features, count);
 }
 % endif
 % if "convex_plane" in kinds:
@@ -349,6 +350,6 @@ ${queued_pair()}
         float s = dot3(plane.xyz, p) - plane.w;
         points[k] = (float4)(p - plane.xyz * s, s);
     }
-    store_manifold(slots, contact_flags, q, -plane.xyz, points, chosen, count);
+    store_manifold(slots, contact_flags, tile_counts, q, -plane.xyz, points, chosen, count);
 }
 % endif
