@@ -10,8 +10,9 @@ A step enqueues a fixed sequence of launches with no blocking read:
 3. convex pairs (box-box, box-hull, hull-hull) go through three small kernels
    instead of one large one (which would spill registers and diverge on
    GPUs): ``find_separating_axis`` (one launch per convex kind) appends the
-   touching pairs to a clipping queue; ``clip_incident_face`` and
-   ``reduce_contacts`` run over that queue;
+   touching pairs to a clipping queue; ``clip_incident_face`` runs over that
+   queue and reduces each pair's points to at most four itself (by default,
+   ``reduce_in_clip``), or leaves that to ``reduce_contacts``;
 4. ``scatter_manifolds`` writes the manifolds in pair order (deterministic):
    every kernel that stores a manifold also counts it in its placement tile
    (a fixed run of pairs, one atomic increment), so each work group of the
@@ -109,11 +110,15 @@ class Narrowphase:
     separating-axis test); by default hull-hull tests use the Gauss map, tests
     with a box the box's three directions. A world whose shapes cannot touch
     each other (only planes) gets a narrowphase that reports no contacts.
+    ``placement_tile`` (pairs per scatter work group, a multiple of the work-group
+    size; default per device) and ``reduce_in_clip`` (False: a separate
+    reduce_contacts launch) choose kernel shapes; results are the same.
     """
 
     def __init__(self, runtime: Runtime, shapes, *, max_face_vertices: int | None = None,
                  box_path: str = "box_box", work_group_size: int | None = None,
-                 edge_axes: dict | None = None, placement_tile: int | None = None):
+                 edge_axes: dict | None = None, placement_tile: int | None = None,
+                 reduce_in_clip: bool = True):
         #: a table given here is watched: when shapes with larger faces are added later,
         #: the clipping kernel is rebuilt for them before the next launch
         self.table = shapes if isinstance(shapes, ShapeTable) else None
@@ -173,6 +178,7 @@ class Narrowphase:
                                                   edge_axes=edge_axes))
             self.sat_kernels[kind] = runtime.bound(prog.kernel("find_separating_axis"))
             self.sat_edge_axes[kind] = edge_axes
+        self.reduce_in_clip = bool(reduce_in_clip)
         self.k_clip = self.k_reduce = None
         self._build_clip()
         self.capacity = 0
@@ -183,9 +189,11 @@ class Narrowphase:
             return
         clip = compile_spec(self.runtime, CLIP.spec(work_group_size=self.work_group_size,
                                                     placement_tile=self.placement_tile,
-                                                    max_face_vertices=self.max_face_vertices))
+                                                    max_face_vertices=self.max_face_vertices,
+                                                    reduce_in_clip=self.reduce_in_clip))
         self.k_clip = self.runtime.bound(clip.kernel("clip_incident_face"))
-        self.k_reduce = self.runtime.bound(clip.kernel("reduce_contacts"))
+        if not self.reduce_in_clip:
+            self.k_reduce = self.runtime.bound(clip.kernel("reduce_contacts"))
 
     def _follow_table(self) -> None:
         """Rebuild for faces larger than the clipping buffers (shapes added since)."""
@@ -208,7 +216,8 @@ class Narrowphase:
             return
         q = self.runtime.queue
         cap = int(pair_capacity)
-        clip_cap = cap * 2 * self.max_face_vertices if self.sat_kernels else 1
+        scratch = self.sat_kernels and not self.reduce_in_clip  # clipped points between kernels
+        clip_cap = cap * 2 * self.max_face_vertices if scratch else 1
         self._counters_clear = True  # fresh zeros (scatter_manifolds clears them after use)
         self.contact_flags = cla.zeros(q, cap, np.uint32)
         self.tile_count = -(-cap // self.placement_tile)
@@ -221,7 +230,7 @@ class Narrowphase:
         self.sat_results = cla.zeros(q, cap if self.sat_kernels else 1, layouts.SAT_RESULT.dtype)
         self.clip_points = cla.zeros(q, (clip_cap, 4), np.float32)
         self.clip_features = cla.zeros(q, clip_cap, np.uint32)
-        self.clip_counts = cla.zeros(q, cap if self.sat_kernels else 1, np.uint32)
+        self.clip_counts = cla.zeros(q, cap if scratch else 1, np.uint32)
         self.capacity = cap
 
     # ------------------------------------------------------------------ step
@@ -279,14 +288,16 @@ class Narrowphase:
                 events["sat_" + kind] = kernel.over(
                     size, wg, *common, *hull_args, *queue_args, np.uint32(self.kind_index[kind]),
                     self.sat_cache, self.sat_results, result_count, margin)
+            hulls = (shapes.vertices, shapes.faces, shapes.face_indices, shapes.edges,
+                     shapes.adjacency)
+            scratch = (self.clip_points, self.clip_features, self.clip_counts)
+            out = (self.slots, self.contact_flags, self.tile_counts)
             events["clip"] = self.k_clip.over(
-                size, wg, *common, shapes.vertices, shapes.faces, shapes.face_indices,
-                shapes.edges, shapes.adjacency, self.sat_results, result_count, self.clip_points,
-                self.clip_features, self.clip_counts, margin)
-            events["reduce"] = self.k_reduce.over(
-                size, wg, pairs, self.sat_results, result_count, self.clip_points,
-                self.clip_features, self.clip_counts, self.slots, self.contact_flags,
-                self.tile_counts)
+                size, wg, *common, *hulls, self.sat_results, result_count,
+                *(out if self.reduce_in_clip else scratch), margin)
+            if not self.reduce_in_clip:
+                events["reduce"] = self.k_reduce.over(
+                    size, wg, pairs, self.sat_results, result_count, *scratch, *out)
         events["scatter"] = self.k_scatter.over(
             self.tile_count * wg, wg, self.slots, self.contact_flags, self.tile_counts, pair_count,
             np.uint32(size), bodies, manifolds, np.uint32(manifolds.size), manifold_count, overflow,

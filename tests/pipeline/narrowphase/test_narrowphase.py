@@ -272,14 +272,16 @@ def test_unsupported_shapes_fail_at_construction(runtime):
         Narrowphase(runtime, ("box", "mesh"))
 
 
-@pytest.mark.parametrize("work_group_size,placement_tile", [(1, None), (64, None), (1, 1),
-                                                            (16, 16), (64, 256), (32, 1024)])
+@pytest.mark.parametrize("work_group_size,placement_tile,reduce_in_clip", [
+    (1, None, True), (64, None, True), (1, 1, True), (16, 16, False), (64, 256, True),
+    (32, 1024, False)])
 def test_mixed_world_is_independent_of_work_group_size(runtime, rng, work_group_size,
-                                                       placement_tile):
+                                                       placement_tile, reduce_in_clip):
     """Spheres, capsules, boxes and hulls on a plane (every kind), 301 random pairs: the same
-    manifolds, in the same order, as with the default work-group size and placement tile
-    (queues are filled by group-aggregated atomics; manifolds are placed per tile of pairs,
-    from 1 pair to more than all of them)."""
+    manifolds, in the same order, as with the default work-group size, placement tile and
+    clipping kernels (queues are filled by group-aggregated atomics; manifolds are placed
+    per tile of pairs, from 1 pair to more than all of them; convex pairs reduced in the
+    clipping kernel or by reduce_contacts)."""
     table = ShapeTable()
     kinds = [table.add(Plane()), table.add(Sphere(0.5)), table.add(Box((0.5, 0.4, 0.3))),
              table.add(ConvexHull(rng.normal(size=(12, 3)) * 0.5, name="pebble")),
@@ -295,7 +297,7 @@ def test_mixed_world_is_independent_of_work_group_size(runtime, rng, work_group_
     pairs = candidates[:301]
     reference = find_contacts(runtime, table, bodies, pairs, margin=0.01)
     other = find_contacts(runtime, table, bodies, pairs, margin=0.01, work_group_size=work_group_size,
-                          placement_tile=placement_tile)
+                          placement_tile=placement_tile, reduce_in_clip=reduce_in_clip)
     assert len(reference) > 20
     np.testing.assert_array_equal(other["body_a"], reference["body_a"])
     np.testing.assert_array_equal(other["body_b"], reference["body_b"])

@@ -10,11 +10,17 @@
  * faces have at most ${max_face_vertices} vertices). For an edge-edge axis,
  * the closest points of the two supporting edges give one point.
  *
- * reduce_contacts: one work-item per separating-axis result; a work group is
- * responsible for ${work_group_size} of them. Keeps at most four of the
- * clipped points (the deepest; the farthest from it in the contact plane; the
- * extremes on both sides of the line through those two) and stores the
- * manifold in the pair's slot.
+ * Reduction: at most four of the clipped points are kept (the deepest; the
+ * farthest from it in the contact plane; the extremes on both sides of the
+ * line through those two) and the manifold is stored in the pair's slot.
+% if reduce_in_clip:
+ * clip_incident_face does this itself, from its private points.
+% else:
+ * clip_incident_face writes its points to a scratch buffer and a second
+ * kernel, reduce_contacts (one work-item per separating-axis result; a work
+ * group is responsible for ${work_group_size} of them), reduces them: two
+ * smaller kernels for devices where one large one spills registers.
+% endif
  *
  * Feature ids: face contacts are reference face | incident face << 11 |
  * point << 22 | (reference on the second shape) << 29, where point is the
@@ -82,7 +88,7 @@ inline uint clip_faces(const Placement* reference, Shape ref_shape, uint f,
                        const Placement* incident, Shape inc_shape, bool reference_is_second,
                        __global const float4* hull_vertices, __global const HullFace* hull_faces,
                        __global const uint* face_indices, float margin,
-                       __global float4* out_points, __global uint* out_features)
+                       float4* out_points, uint* out_features)
 {
     HullFace ref_face = hull_faces[ref_shape.face_offset + f];
     float4 ref_plane = plane_to_world(reference, ref_face.plane);
@@ -174,6 +180,69 @@ inline void supporting_edge(const Placement* p, Shape s, float3 direction, float
     *e1 = point_to_world(p, best1);
 }
 
+/* Keep at most four of the n candidate points of a manifold with this
+ * normal (see reduce_contacts); returns how many, their indices in chosen. */
+inline uint choose_contacts(const float4* candidates, uint n, float3 normal, uint* chosen)
+{
+    if (n <= 4) {
+        for (uint k = 0; k < n; ++k)
+            chosen[k] = k;
+        return n;
+    }
+    /* the deepest point */
+    chosen[0] = 0;
+    for (uint k = 1; k < n; ++k)
+        if (candidates[k].w < candidates[chosen[0]].w)
+            chosen[0] = k;
+    float3 p0 = candidates[chosen[0]].xyz;
+    /* the farthest from it in the contact plane */
+    float far2 = 0.0f;
+    chosen[1] = chosen[0];
+    for (uint k = 0; k < n; ++k) {
+        float3 d = candidates[k].xyz - p0;
+        d -= normal * dot3(normal, d);
+        if (dot3(d, d) > far2)
+            far2 = dot3(d, d), chosen[1] = k;
+    }
+    uint count = far2 > 0.0f ? 2 : 1;
+    /* the extremes on both sides of the line through those two */
+    float3 across = cross3(normal, candidates[chosen[1]].xyz - p0);
+    float high = 0.0f, low = 0.0f;
+    uint high_k = 0, low_k = 0;
+    for (uint k = 0; k < n; ++k) {
+        float side = dot3(across, candidates[k].xyz - p0);
+        if (side > high)
+            high = side, high_k = k;
+        if (side < low)
+            low = side, low_k = k;
+    }
+    float tolerance = 1e-6f * dot3(across, across);
+    if (count == 2 && high > tolerance)
+        chosen[count++] = high_k;
+    if (count >= 2 && low < -tolerance)
+        chosen[count++] = low_k;
+    return count;
+}
+
+/* Reduce a pair's candidates to at most four points and store its manifold. */
+inline void reduce_and_store(SatResult r, const float4* candidates, const uint* candidate_features,
+                             uint n, __global const Pair* pairs, __global ContactManifold* slots,
+                             __global uint* contact_flags, __global uint* tile_counts)
+{
+    if (n == 0)
+        return;
+    uint chosen[4];
+    uint count = choose_contacts(candidates, n, r.axis.xyz, chosen);
+    float4 points[4];
+    uint features[4];
+    for (uint k = 0; k < count; ++k) {
+        points[k] = candidates[chosen[k]];
+        features[k] = candidate_features[chosen[k]];
+    }
+    store_manifold(slots, contact_flags, tile_counts, decode_queue_entry(r.pair, pairs),
+                   r.axis.xyz, points, features, count);
+}
+
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void clip_incident_face(__global const Pair* pairs,
                         __global const Body* bodies,
@@ -185,9 +254,15 @@ void clip_incident_face(__global const Pair* pairs,
                         __global const HullEdge* hull_adjacency,
                         __global const SatResult* results,
                         __global const uint* result_count,
+% if reduce_in_clip:
+                        __global ContactManifold* slots,
+                        __global uint* contact_flags,
+                        __global uint* tile_counts,
+% else:
                         __global float4* clip_points,
                         __global uint* clip_features,
                         __global uint* clip_counts,
+% endif
                         const float margin)
 {
     uint slot = get_global_id(0);
@@ -198,8 +273,8 @@ void clip_incident_face(__global const Pair* pairs,
     Body a = bodies[q.first], b = bodies[q.second];
     Shape sa = shapes[a.shape], sb = shapes[b.shape];
     Placement pa = placement_of(a), pb = placement_of(b);
-    __global float4* out_points = clip_points + slot * MAX_CLIP_POINTS;
-    __global uint* out_features = clip_features + slot * MAX_CLIP_POINTS;
+    float4 out_points[MAX_CLIP_POINTS];
+    uint out_features[MAX_CLIP_POINTS];
 
     uint count;
     if (r.feature < sa.face_count) {
@@ -238,8 +313,17 @@ void clip_incident_face(__global const Pair* pairs,
         out_features[0] = EDGE_CONTACT | ((i & 0x7FFFu) << 15) | (j & 0x7FFFu);
         count = 1;
     }
+% if reduce_in_clip:
+    reduce_and_store(r, out_points, out_features, count, pairs, slots, contact_flags, tile_counts);
+% else:
+    for (uint k = 0; k < count; ++k) {
+        clip_points[slot * MAX_CLIP_POINTS + k] = out_points[k];
+        clip_features[slot * MAX_CLIP_POINTS + k] = out_features[k];
+    }
     clip_counts[slot] = count;
+% endif
 }
+% if not reduce_in_clip:
 
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void reduce_contacts(__global const Pair* pairs,
@@ -256,59 +340,13 @@ void reduce_contacts(__global const Pair* pairs,
     if (slot >= result_count[0])
         return;
     uint n = clip_counts[slot];
-    if (n == 0)
-        return;
-    SatResult r = results[slot];
-    float3 normal = r.axis.xyz;
-    __global const float4* candidates = clip_points + slot * MAX_CLIP_POINTS;
-    __global const uint* candidate_features = clip_features + slot * MAX_CLIP_POINTS;
-
-    uint chosen[4];
-    uint count = 0;
-    if (n <= 4) {
-        for (uint k = 0; k < n; ++k)
-            chosen[count++] = k;
-    } else {
-        /* the deepest point */
-        chosen[0] = 0;
-        for (uint k = 1; k < n; ++k)
-            if (candidates[k].w < candidates[chosen[0]].w)
-                chosen[0] = k;
-        float3 p0 = candidates[chosen[0]].xyz;
-        /* the farthest from it in the contact plane */
-        float far2 = 0.0f;
-        chosen[1] = chosen[0];
-        for (uint k = 0; k < n; ++k) {
-            float3 d = candidates[k].xyz - p0;
-            d -= normal * dot3(normal, d);
-            if (dot3(d, d) > far2)
-                far2 = dot3(d, d), chosen[1] = k;
-        }
-        count = far2 > 0.0f ? 2 : 1;
-        /* the extremes on both sides of the line through those two */
-        float3 across = cross3(normal, candidates[chosen[1]].xyz - p0);
-        float high = 0.0f, low = 0.0f;
-        uint high_k = 0, low_k = 0;
-        for (uint k = 0; k < n; ++k) {
-            float side = dot3(across, candidates[k].xyz - p0);
-            if (side > high)
-                high = side, high_k = k;
-            if (side < low)
-                low = side, low_k = k;
-        }
-        float tolerance = 1e-6f * dot3(across, across);
-        if (count == 2 && high > tolerance)
-            chosen[count++] = high_k;
-        if (count >= 2 && low < -tolerance)
-            chosen[count++] = low_k;
+    float4 candidates[MAX_CLIP_POINTS];
+    uint candidate_features[MAX_CLIP_POINTS];
+    for (uint k = 0; k < n; ++k) {
+        candidates[k] = clip_points[slot * MAX_CLIP_POINTS + k];
+        candidate_features[k] = clip_features[slot * MAX_CLIP_POINTS + k];
     }
-
-    float4 points[4];
-    uint features[4];
-    for (uint k = 0; k < count; ++k) {
-        points[k] = candidates[chosen[k]];
-        features[k] = candidate_features[chosen[k]];
-    }
-    store_manifold(slots, contact_flags, tile_counts, decode_queue_entry(r.pair, pairs), normal, points,
-                   features, count);
+    reduce_and_store(results[slot], candidates, candidate_features, n, pairs, slots,
+                     contact_flags, tile_counts);
 }
+% endif
