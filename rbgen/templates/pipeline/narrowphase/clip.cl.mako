@@ -54,13 +54,12 @@ inline float3 polygon_vertex(const Placement* p, Shape s, HullFace face, uint k,
     return point_to_world(p, hull_vertices[s.vertex_offset + face_indices[face.index_offset + k]].xyz);
 }
 
-/* Clip a polygon (points + ids) by the half-space dot(side, x) <= side_d; returns
- * the new size. New points get clip_id (leaving the half-space) or clip_id + 1
- * (entering it). */
-inline uint clip_polygon(float3* points, uint* ids, uint n, float3 side, float side_d, uint clip_id)
+/* Clip a polygon (points + ids, n > 0) by the half-space dot(side, x) <= side_d
+ * into (out_points, out_ids); returns the new size. New points get clip_id
+ * (leaving the half-space) or clip_id + 1 (entering it). */
+inline uint clip_polygon(const float3* points, const uint* ids, uint n, float3 side, float side_d,
+                         uint clip_id, float3* out_points, uint* out_ids)
 {
-    float3 out_points[MAX_CLIP_POINTS];
-    uint out_ids[MAX_CLIP_POINTS];
     uint m = 0;
     float3 prev = points[n - 1];
     float prev_d = dot3(side, prev) - side_d;
@@ -77,8 +76,6 @@ inline uint clip_polygon(float3* points, uint* ids, uint n, float3 side, float s
         }
         prev = cur, prev_d = cur_d;
     }
-    for (uint k = 0; k < m; ++k)
-        points[k] = out_points[k], ids[k] = out_ids[k];
     return m;
 }
 
@@ -104,9 +101,12 @@ inline uint clip_faces(const Placement* reference, Shape ref_shape, uint f,
     }
     HullFace inc_face = hull_faces[inc_shape.face_offset + inc];
 
-    float3 polygon[MAX_CLIP_POINTS];
-    uint ids[MAX_CLIP_POINTS];
-    uint n = min(inc_face.index_count, (uint)${max_face_vertices});  /* the host sizes the buffers */
+    /* the polygon being clipped alternates between two buffers */
+    float3 polygon[MAX_CLIP_POINTS], clipped[MAX_CLIP_POINTS];
+    uint ids[MAX_CLIP_POINTS], clipped_ids[MAX_CLIP_POINTS];
+    uint n = inc_face.index_count;
+    if (n > ${max_face_vertices}u)
+        n = ${max_face_vertices}u;  /* the host sizes the buffers for the largest face */
     for (uint k = 0; k < n; ++k) {
         polygon[k] = polygon_vertex(incident, inc_shape, inc_face, k, hull_vertices, face_indices);
         ids[k] = k;
@@ -115,12 +115,22 @@ inline uint clip_faces(const Placement* reference, Shape ref_shape, uint f,
     /* side planes of the reference polygon: cross(edge, normal) points outwards */
     float3 prev = polygon_vertex(reference, ref_shape, ref_face, ref_face.index_count - 1,
                                  hull_vertices, face_indices);
+    bool in_clipped = false;  /* where the last clipping left the polygon */
     for (uint j = 0; j < ref_face.index_count && n > 0; ++j) {
         float3 cur = polygon_vertex(reference, ref_shape, ref_face, j, hull_vertices, face_indices);
         float3 side = cross3(cur - prev, ref_plane.xyz);
-        n = clip_polygon(polygon, ids, n, side, dot3(side, prev), CLIPPED_BY_EDGE + 2u * j);
+        if (in_clipped)
+            n = clip_polygon(clipped, clipped_ids, n, side, dot3(side, prev),
+                             CLIPPED_BY_EDGE + 2u * j, polygon, ids);
+        else
+            n = clip_polygon(polygon, ids, n, side, dot3(side, prev), CLIPPED_BY_EDGE + 2u * j,
+                             clipped, clipped_ids);
+        in_clipped = !in_clipped;
         prev = cur;
     }
+    if (in_clipped)
+        for (uint k = 0; k < n; ++k)
+            polygon[k] = clipped[k], ids[k] = clipped_ids[k];
 
     /* keep what lies at most `margin` above the reference face */
     uint face_code = (f & 0x7FFu) | ((inc & 0x7FFu) << 11) | (reference_is_second ? REFERENCE_ON_SECOND : 0u);
