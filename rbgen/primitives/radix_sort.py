@@ -1,12 +1,18 @@
 """Stable LSD radix sort of uint32 keys, optionally carrying uint32 values.
 
 One pass per digit of ``radix_bits`` bits over the low ``key_bits`` bits of
-the keys (bits above are ignored): count digits per tile (GPU shape) or per
+the keys (bits above are ignored): count digits per tile (GPU shapes) or per
 chunk (CPU shape) into a digit-major table, scan the table with `Scan`, then
-scatter each tile/chunk stably. Passes ping-pong between the caller's arrays
-and scratch arrays owned by the sorter; after an odd number of passes a copy
-brings the result back, so the sort is in place. Only the first n elements
-are read or written. Float keys sort through `float_to_sortable_uint`.
+scatter each tile/chunk stably. Three shapes share that loop and differ in how
+a tile is ranked: ``"gpu"`` (radix_sort_tiled) keeps RADIX counters per
+work-item, cheap for 4-bit digits only; ``"split"`` (radix_sort_split) sorts
+the tile in local memory by one or two 4-bit splits with packed counters, so
+8-bit digits (half the passes, half the launches) cost little local memory;
+``"cpu"`` (radix_sort_chunked) walks long chunks serially. Passes ping-pong
+between the caller's arrays and scratch arrays owned by the sorter; after an
+odd number of passes a copy brings the result back, so the sort is in place.
+Only the first n elements are read or written. Float keys sort through
+`float_to_sortable_uint`.
 """
 from __future__ import annotations
 
@@ -18,12 +24,24 @@ from ..codegen import compile_spec, Param, power_of_two, work_group_size_param
 from ..device import DeviceTraits
 from ..errors import RbgenError
 from ._base import (PrimitiveTemplate, Primitive, ceil_div, check_array, clamp_wavefront,
-                    default_work_items, resolve_count)
+                    resolve_count, unique_params)
 from .scan import Scan
 
-_WITH_VALUES = Param("with_values", (True, False), "move a uint value with every key")
+#: the shape GPUs get by default ("split": 8-bit digits ranked by two 4-bit
+#: splits, half the passes of "gpu"'s 4-bit digits); one place to flip it
+GPU_DEFAULT_SHAPE = "split"
 
-TILED = PrimitiveTemplate(
+_WITH_VALUES = Param("with_values", (True, False), "move a uint value with every key")
+_WAVEFRONT = Param("wavefront", (32, 64), "segment width of the work-group scan")
+
+
+class _TileTemplate(PrimitiveTemplate):
+    """The tile shapes also include the kernels they share."""
+
+    INCLUDES = PrimitiveTemplate.INCLUDES + ("primitives/radix_sort_tiles.cl.mako",)
+
+
+TILED = _TileTemplate(
     "primitives/radix_sort_tiled.cl.mako",
     [
         _WITH_VALUES,
@@ -34,13 +52,31 @@ TILED = PrimitiveTemplate(
               "a power of two from 32 to 1024, at least the wavefront"),
         Param("items_per_thread", (1, 2, 4, 8, 16, 32),
               "consecutive keys ranked serially by each work-item"),
-        Param("wavefront", (32, 64), "segment width of the work-group scan"),
+        _WAVEFRONT,
         Param("counter_type", ("uint", "ushort"),
               "local rank counters: ushort halves their local memory (tiles < 65536 keys)"),
     ],
     doc="Radix sort pass kernels, GPU shape: tile histograms and stable tile scatter.",
     roles={"keys": "inout"},
     defaults=lambda traits: _template_defaults(traits, "gpu"),
+)
+
+SPLIT = _TileTemplate(
+    "primitives/radix_sort_split.cl.mako",
+    [
+        _WITH_VALUES,
+        Param("radix_bits", (4, 8),
+              "bits per pass, ranked by one or two 4-bit splits of the tile: 8 halves the passes"),
+        Param("work_group_size", power_of_two(32, 1024),
+              "work-items per tile; 8 packed counters each, plus the tile, in local memory",
+              "a power of two from 32 to 1024, at least the wavefront"),
+        Param("items_per_thread", (1, 2, 4, 8, 16, 32),
+              "consecutive keys ranked serially by each work-item: amortises the scans"),
+        _WAVEFRONT,
+    ],
+    doc="Radix sort pass kernels, GPU shape: tile histograms, tile sorted by 4-bit splits.",
+    roles={"keys": "inout"},
+    defaults=lambda traits: _template_defaults(traits, "split"),
 )
 
 CHUNKED = PrimitiveTemplate(
@@ -67,7 +103,7 @@ class RadixSort(Primitive):
     """
 
     family = "radix_sort"
-    TEMPLATES = {"gpu": TILED, "cpu": CHUNKED}
+    TEMPLATES = {"gpu": TILED, "split": SPLIT, "cpu": CHUNKED}
 
     def __init__(self, runtime, key_bits: int = 32, with_values: bool = True, *, params=None):
         if isinstance(key_bits, bool) or not isinstance(key_bits, (int, np.integer)) \
@@ -87,7 +123,15 @@ class RadixSort(Primitive):
         return {"with_values": self.with_values}
 
     def _spec_for(self, params):
-        return super()._spec_for(self.template_params(params))
+        params = self.template_params(params)
+        if params.get("shape") != "split":
+            return super()._spec_for(params)
+        # "split" is a shape of this primitive only (the shared check knows gpu and cpu)
+        values = {k: v for k, v in params.items() if k != "shape"}
+        if values.get("work_group_size", 0) < values.get("wavefront", 0):
+            raise RbgenError(f"params: work_group_size={values.get('work_group_size')} is smaller "
+                             f"than wavefront={values['wavefront']}")
+        return SPLIT.spec(**values, **self.template_values())
 
     @staticmethod
     def template_params(params: dict) -> dict:
@@ -102,13 +146,22 @@ class RadixSort(Primitive):
 
     @classmethod
     def default_params(cls, traits: DeviceTraits, shape: str | None = None):
-        """Heuristics: GPU 4-bit digits over tiles of 256 x 8 keys (16 KiB of rank
-        counters plus the 17 KiB tile fit 48 KiB of local memory); CPU 8-bit
-        digits (four passes, a 1 KiB private histogram) in one chunk per CU."""
-        if (shape or traits.kind) == "gpu":
-            wg = max(clamp_wavefront(traits), min(256, traits.max_work_group_size))
+        """Heuristics. GPUs get `GPU_DEFAULT_SHAPE`: "split" sorts 8-bit digits
+        (four passes over 32-bit keys) in tiles of 256 x 16 keys (a 33 KiB tile
+        of keys and values plus 8 KiB of packed counters fit 48 KiB of local
+        memory; 256 x 8 where less is available); "gpu" 4-bit digits over tiles
+        of 256 x 8 keys (16 KiB of rank counters plus the 17 KiB tile). CPUs:
+        8-bit digits (four passes, a 1 KiB private histogram) in one chunk per CU."""
+        shape = shape or (GPU_DEFAULT_SHAPE if traits.is_gpu else "cpu")
+        wf = clamp_wavefront(traits)
+        wg = max(wf, min(256, traits.max_work_group_size))
+        if shape == "split":
+            items = 16 if split_local_bytes(wg, 16) <= _usable_local(traits) else 8
+            return {"shape": "split", "radix_bits": 8, "work_group_size": wg,
+                    "items_per_thread": items, "wavefront": wf}
+        if shape == "gpu":
             return {"shape": "gpu", "radix_bits": 4, "work_group_size": wg,
-                    "items_per_thread": 8, "wavefront": clamp_wavefront(traits)}
+                    "items_per_thread": 8, "wavefront": wf}
         # one chunk per compute unit: each chunk scatters to RADIX output streams,
         # and more streams than the caches hold slow the scatter down
         return {"shape": "cpu", "radix_bits": 8, "work_items": max(1, traits.compute_units)}
@@ -143,7 +196,7 @@ class RadixSort(Primitive):
         params, program = self.program(capacity)
         rt, cap = self.runtime, np.uint32(capacity)
         bits = params["radix_bits"]
-        if params["shape"] == "gpu":
+        if params["shape"] in ("gpu", "split"):
             wg = params["work_group_size"]
             groups = ceil_div(capacity, wg * params["items_per_thread"])
             global_size, local_size = groups * wg, wg
@@ -234,12 +287,33 @@ def _flip_on_device(runtime, array, dtype, kernel_name, out_dtype):
     return out
 
 
+def split_local_bytes(work_group_size: int, items_per_thread: int, radix_bits: int = 8,
+                      with_values: bool = True) -> int:
+    """Local memory of the split shape's scatter kernel: the padded tile (keys and
+    values), 8 packed counters per work-item, per-digit bases, scan scratch."""
+    padded = lambda words: words + words // 32  # noqa: E731
+    tile = padded(work_group_size * items_per_thread) * (2 if with_values else 1)
+    return 4 * (tile + padded(8 * work_group_size) + (1 << radix_bits) + 2 * work_group_size
+                + work_group_size // 32 + 1)
+
+
+def _usable_local(traits: DeviceTraits) -> int:
+    """Local memory a sort kernel may plan for (a little left to the compiler)."""
+    return traits.local_mem_size - 1024
+
+
 def search_space(traits: DeviceTraits) -> list[dict]:
     """Candidate parameters the tuner tries on a device (heuristic default first)."""
     space = [RadixSort.default_params(traits)]
     cu = max(1, traits.compute_units)
     if traits.is_gpu:
         wf = clamp_wavefront(traits)
+        for bits, wg, ipt in ((8, 128, 16), (8, 256, 8), (8, 256, 16), (8, 512, 4), (8, 512, 8),
+                              (8, 1024, 4), (4, 256, 16)):
+            if wf <= wg <= traits.max_work_group_size \
+                    and split_local_bytes(wg, ipt, bits) <= _usable_local(traits):
+                space.append({"shape": "split", "radix_bits": bits, "work_group_size": wg,
+                              "items_per_thread": ipt, "wavefront": wf})
         for bits, wg, ipt in ((4, 128, 8), (4, 128, 16), (4, 256, 4), (4, 256, 8), (4, 512, 4),
                               (8, 64, 8), (8, 64, 16), (8, 128, 4)):
             # rank counters + the tile's keys and values (padded 1/32) + scan scratch
@@ -251,8 +325,4 @@ def search_space(traits: DeviceTraits) -> list[dict]:
         for bits in (8, 11):
             for k in (1, 2, 4, 8):
                 space.append({"shape": "cpu", "radix_bits": bits, "work_items": k * cu})
-    unique = []
-    for p in space:
-        if p not in unique:
-            unique.append(p)
-    return unique
+    return unique_params(space)
