@@ -234,8 +234,10 @@ def sort_variants(runtime, table, repeats, work_keys, work_values, restore, expe
         launches = runtime.counters["launches"] - before
         right = (np.array_equal(work_keys.get(), expected[0])
                  and np.array_equal(work_values.get(), expected[1]))
-        bits = params["radix_bits"]
-        name = (f"sort kv {params['shape']} {bits}b {params['work_group_size']}x"
+        bits, shape = params["radix_bits"], params["shape"]
+        used = sorter.program(table.n)[0]["shape"]  # onesweep falls back if its guard fails
+        shape = shape if used == shape else f"{shape}->{used}"
+        name = (f"sort kv {shape} {bits}b {params['work_group_size']}x"
                 f"{params['items_per_thread']} [{launches}]" + ("" if right else " WRONG"))
         table.add(name, ms, 20 * table.n * -(-32 // bits))
 
