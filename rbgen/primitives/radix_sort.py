@@ -38,8 +38,9 @@ from ._base import (PrimitiveTemplate, Primitive, ceil_div, check_array, clamp_w
                     resolve_count, unique_params)
 from .scan import Scan
 
-#: the shape GPUs get by default ("split": 8-bit digits ranked by two 4-bit
-#: splits, half the passes of "gpu"'s 4-bit digits); one place to flip it
+#: the shape GPUs get by default, one place to flip it: "split" (8-bit digits
+#: ranked by two 4-bit splits, half the passes of "gpu"'s 4-bit digits);
+#: "onesweep" has fewer launches but its guard costs a blocking probe at first use
 GPU_DEFAULT_SHAPE = "split"
 
 _WITH_VALUES = Param("with_values", (True, False), "move a uint value with every key")
@@ -182,15 +183,18 @@ class RadixSort(Primitive):
         """Heuristics. GPUs get `GPU_DEFAULT_SHAPE`: "split" sorts 8-bit digits
         (four passes over 32-bit keys) in tiles of 256 x 16 keys (a 33 KiB tile
         of keys and values plus 8 KiB of packed counters fit 48 KiB of local
-        memory; 256 x 8 where less is available); "gpu" 4-bit digits over tiles
-        of 256 x 8 keys (16 KiB of rank counters plus the 17 KiB tile). CPUs:
+        memory; 256 x 8 where less is available); "onesweep" the same tiles (its
+        look-back needs a work-item per digit: 4-bit digits on devices whose
+        work groups hold fewer than 256); "gpu" 4-bit digits over tiles of
+        256 x 8 keys (16 KiB of rank counters plus the 17 KiB tile). CPUs:
         8-bit digits (four passes, a 1 KiB private histogram) in one chunk per CU."""
         shape = shape or (GPU_DEFAULT_SHAPE if traits.is_gpu else "cpu")
         wf = clamp_wavefront(traits)
         wg = max(wf, min(256, traits.max_work_group_size))
         if shape in ("split", "onesweep"):
-            items = 16 if tile_local_bytes(shape, wg, 16) <= _usable_local(traits) else 8
-            return {"shape": shape, "radix_bits": 8, "work_group_size": wg,
+            bits = 4 if shape == "onesweep" and wg < 256 else 8
+            items = 16 if tile_local_bytes(shape, wg, 16, bits) <= _usable_local(traits) else 8
+            return {"shape": shape, "radix_bits": bits, "work_group_size": wg,
                     "items_per_thread": items, "wavefront": wf}
         if shape == "gpu":
             return {"shape": "gpu", "radix_bits": 4, "work_group_size": wg,

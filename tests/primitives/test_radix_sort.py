@@ -14,6 +14,7 @@ import numpy as np
 import pyopencl.array as cla
 import pytest
 
+from rbgen.errors import RbgenError
 from rbgen.primitives import RadixSort, float_to_sortable_uint, sortable_uint_to_float
 from rbgen.primitives.radix_sort import search_space
 
@@ -180,3 +181,8 @@ def test_float_keys_through_bit_flip(runtime, rng):
     assert np.array_equal(sortable_uint_to_float(d_keys.get()), x[order])
     nonzero = x[d_values.get()] != 0
     assert np.array_equal(d_values.get()[nonzero], order[x[order] != 0])
+
+
+def test_onesweep_needs_a_work_item_per_digit(runtime):
+    with pytest.raises(RbgenError, match="smaller than the 256 digits"):
+        RadixSort(runtime, params=dict(GPU_SHAPES["onesweep"], work_group_size=128))
