@@ -1,11 +1,14 @@
 """Throughput of rbgen's primitives beside baselines measured in the same run.
 
-    python benchmarks/primitives.py [--device D] [--n N] [--repeats R]
+    python benchmarks/primitives.py [--device D] [--n N] [--repeats R] [--only sort]
 
 Baselines: numpy on the host always; on a GPU also pyopencl's own
 ``pyopencl.algorithm.RadixSort`` and, when importable with CUDA, ``torch.sort``
-and ``torch.cumsum``. The device's copy bandwidth (``enqueue_copy`` and a
-float4 copy kernel) is measured too, and the scan is reported as a fraction
+and ``torch.cumsum``. The key-value sort is also timed (and checked) at each
+of its GPU-shape search-space points, 4-bit and 8-bit digits, rows "sort kv
+<shape> <bits>b <WG>x<ITEMS> [launches per sort]", so that one run compares
+them; ``--only sort`` times the sorts and their baselines only. The device's
+copy bandwidth (``enqueue_copy`` and a float4 copy kernel) is measured too, and the scan is reported as a fraction
 of it (a scan moves at least the bytes of one copy: read n, write n).
 
 Device times come from OpenCL event timestamps (markers around each run on a
@@ -16,6 +19,7 @@ Uses the tuned parameters if ``rbgen tune`` was run, else the heuristics.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import sys
 import time
@@ -30,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import rbgen  # noqa: E402
 from rbgen import tuning  # noqa: E402
 from rbgen.primitives import BoundSearch, Compact, Fill, RadixSort, Reduce, Scan  # noqa: E402
+from rbgen.primitives import radix_sort  # noqa: E402
 
 COPY_SOURCE = """
 __kernel void copy_float4(__global const float4* src, __global float4* dst, const uint count)
@@ -70,13 +75,13 @@ class Table:
         self.rows.append((name, ms, bytes_moved, baseline, baseline_ms, elements or self.n))
 
     def print(self):
-        head = f"{'primitive':<26}{'ms':>9}{'Melem/s':>10}{'GB/s':>8}  {'baseline':<34}{'ms':>9}{'speedup':>9}"
+        head = f"{'primitive':<36}{'ms':>9}{'Melem/s':>10}{'GB/s':>8}  {'baseline':<34}{'ms':>9}{'speedup':>9}"
         print(head)
         print("-" * len(head))
         for name, ms, nbytes, base, base_ms, elements in self.rows:
             melem = elements / ms / 1e3
             gbs = nbytes / ms / 1e6 if nbytes else float("nan")
-            line = f"{name:<26}{ms:9.3f}{melem:10.1f}{gbs:8.1f}"
+            line = f"{name:<36}{ms:9.3f}{melem:10.1f}{gbs:8.1f}"
             if base is not None:
                 line += f"  {base:<34}{base_ms:9.3f}{base_ms / ms:8.2f}x"
             print(line)
@@ -102,6 +107,8 @@ def main(argv=None):
     parser.add_argument("--n", type=int, default=None,
                         help="elements (default 2^24 on a GPU, 2^22 otherwise)")
     parser.add_argument("--repeats", type=int, default=None, help="runs per measurement")
+    parser.add_argument("--only", choices=("all", "sort"), default="all",
+                        help="'sort': only the sorts (all variants) and their baselines")
     args = parser.parse_args(argv)
 
     runtime = rbgen.Runtime(args.device, profiling=True)
@@ -114,6 +121,11 @@ def main(argv=None):
     print(f"n = {n}, median of {repeats} runs; tuned entries: {len(tuning.describe_cache(traits))}")
 
     table = Table(n)
+    if args.only == "sort":
+        sorts(runtime, table, n, repeats, rng, scan_ms=None)
+        table.print()
+        print(f"program cache: {rbgen.codegen.PROGRAMS.stats}")
+        return
     copy_ms, kernel_ms = copy_bandwidth(runtime, n, repeats)
     best_copy = min(copy_ms, kernel_ms)
     table.add("copy (enqueue_copy)", copy_ms, 8 * n)
@@ -165,7 +177,18 @@ def main(argv=None):
               "np.searchsorted", host_ms(lambda: np.searchsorted(keys, queries), max(1, repeats // 2)),
               elements=queries.size)
 
-    # sorts
+    sorts(runtime, table, n, repeats, rng, scan_ms)
+    table.print()
+    print(f"copy bandwidth {8 * n / best_copy / 1e6:.1f} GB/s; scan uint32 reaches "
+          f"{100 * best_copy / scan_ms:.0f}% of it (reduce-then-scan), "
+          f"{100 * best_copy / chained_ms:.0f}% (chained, opt-in)")
+    print(f"program cache: {rbgen.codegen.PROGRAMS.stats}; launches: {runtime.counters['launches']}")
+
+
+def sorts(runtime, table, n, repeats, rng, scan_ms):
+    """Sort rows: the default key-value and keys-only sorts against numpy, each
+    variant, and on a GPU the GPU baselines (torch.cumsum too when scan_ms is given)."""
+    q = runtime.queue
     sort_keys = rng.integers(0, 2**32, n, dtype=np.uint32)
     sort_values = np.arange(n, dtype=np.uint32)
     src_keys, src_values = cla.to_device(q, sort_keys), cla.to_device(q, sort_values)
@@ -184,13 +207,39 @@ def main(argv=None):
     table.add("sort keys uint32", device_ms(runtime, lambda: keys_only(work_keys), repeats, restore),
               0, "np.sort", host_ms(lambda: np.sort(sort_keys), host_reps))
 
-    if traits.is_gpu:
+    order = np.argsort(sort_keys, kind="stable").astype(np.uint32)
+    sort_variants(runtime, table, repeats, work_keys, work_values, restore,
+                  (sort_keys[order], sort_values[order]))
+    if runtime.traits.is_gpu:
         gpu_baselines(runtime, table, n, repeats, sort_keys, sort_values, kv_ms, scan_ms)
-    table.print()
-    print(f"copy bandwidth {8 * n / best_copy / 1e6:.1f} GB/s; scan uint32 reaches "
-          f"{100 * best_copy / scan_ms:.0f}% of it (reduce-then-scan), "
-          f"{100 * best_copy / chained_ms:.0f}% (chained, opt-in)")
-    print(f"program cache: {rbgen.codegen.PROGRAMS.stats}; launches: {runtime.counters['launches']}")
+
+
+def sort_variants(runtime, table, repeats, work_keys, work_values, restore, expected):
+    """The key-value sort at every GPU-shape point of its search space (on a CPU
+    device: of a GPU's) and the tiled shape with 8-bit digits, each checked
+    against ``expected`` (keys, values). Bytes: each pass reads the keys twice
+    and the values once and writes both (20 bytes per element), 32 / bits passes."""
+    traits = runtime.traits
+    gpu_traits = traits if traits.is_gpu else dataclasses.replace(traits, is_gpu=True)
+    points = [p for p in radix_sort.search_space(gpu_traits) if p["shape"] != "cpu"]
+    tiled = RadixSort.default_params(gpu_traits, "gpu")
+    points.append(dict(tiled, radix_bits=8, work_group_size=max(64, tiled["wavefront"]),
+                       items_per_thread=16))
+    for params in radix_sort.unique_params(points):
+        sorter = RadixSort(runtime, 32, with_values=True, params=params)
+        ms = device_ms(runtime, lambda: sorter(work_keys, work_values), repeats, restore)
+        restore()
+        before = runtime.counters["launches"]
+        sorter(work_keys, work_values)
+        launches = runtime.counters["launches"] - before
+        right = (np.array_equal(work_keys.get(), expected[0])
+                 and np.array_equal(work_values.get(), expected[1]))
+        bits, shape = params["radix_bits"], params["shape"]
+        used = sorter.program(table.n)[0]["shape"]  # onesweep falls back if its guard fails
+        shape = shape if used == shape else f"{shape}->{used}"
+        name = (f"sort kv {shape} {bits}b {params['work_group_size']}x"
+                f"{params['items_per_thread']} [{launches}]" + ("" if right else " WRONG"))
+        table.add(name, ms, 20 * table.n * -(-32 // bits))
 
 
 def gpu_baselines(runtime, table, n, repeats, sort_keys, sort_values, kv_ms, scan_ms):
@@ -230,8 +279,9 @@ def gpu_baselines(runtime, table, n, repeats, sort_keys, sort_values, kv_ms, sca
         return statistics.median(times)
     table.add("sort key-value uint32", kv_ms, 0, "torch.sort(int32, stable) [CUDA]",
               cuda_ms(lambda: torch.sort(keys, stable=True)))
-    table.add("scan uint32", scan_ms, 8 * n, "torch.cumsum(int32->int32) [CUDA]",
-              cuda_ms(lambda: torch.cumsum(ints, 0, dtype=torch.int32)))
+    if scan_ms is not None:
+        table.add("scan uint32", scan_ms, 8 * n, "torch.cumsum(int32->int32) [CUDA]",
+                  cuda_ms(lambda: torch.cumsum(ints, 0, dtype=torch.int32)))
 
 
 if __name__ == "__main__":
