@@ -1,10 +1,21 @@
 """Prefix sums (inclusive or exclusive) of uint32, int32 or float32 arrays.
 
-Reduce-then-scan in three launches, in either shape (see `_base`): a GPU
-shape over tiles of ``work_group_size * items_per_thread`` elements and a CPU
-shape over a few long chunks. The optional total (sum of the first n
-elements) is written to a device array so that a following step can use it
-without a round trip. Integer sums wrap modulo 2^32 like C.
+Two algorithms:
+
+* reduce-then-scan, always available and the heuristic default: three
+  launches, in either shape (see `_base`): a GPU shape over tiles of
+  ``work_group_size * items_per_thread`` elements and a CPU shape over a few
+  long chunks. It reads the input twice (3n words moved).
+* the chained scan (``scan_chained.cl.mako``): ONE launch for any n, input
+  read once (2n words). It relies on forward progress between work groups,
+  so it runs only where its guard (`chained_scan_works`) passed, and only
+  when asked for (``chained=True``) or chosen by the tuner (its candidates
+  are part of the ``scan`` family's space). Its state persists between calls
+  with a new epoch per call instead of being zeroed.
+
+The optional total (sum of the first n elements) is written to a device array
+so that a following step can use it without a round trip. Integer sums wrap
+modulo 2^32 like C.
 """
 from __future__ import annotations
 
@@ -72,6 +83,8 @@ CHAINED = PrimitiveTemplate(
               "segment width of the work-group scan and look-back window (1: serial)"),
     ],
     doc="Prefix sum in one launch (chained scan, decoupled look-back); opt-in with a guard.",
+    # zeroed once at allocation, then carried from call to call (with a new epoch each)
+    roles={"state": "inout"},
     defaults=lambda traits: {"dtype": "uint", "inclusive": False,
                              **Scan.default_params(traits, shape="chained", strip=True)},
 )
