@@ -75,7 +75,8 @@ class Table:
         self.rows.append((name, ms, bytes_moved, baseline, baseline_ms, elements or self.n))
 
     def print(self):
-        head = f"{'primitive':<34}{'ms':>9}{'Melem/s':>10}{'GB/s':>8}  {'baseline':<34}{'ms':>9}{'speedup':>9}"
+        head = (f"{'primitive':<34}{'ms':>9}{'Melem/s':>10}{'GB/s':>8}  "
+                f"{'baseline':<34}{'ms':>9}{'speedup':>9}")
         print(head)
         print("-" * len(head))
         for name, ms, nbytes, base, base_ms, elements in self.rows:
@@ -239,6 +240,7 @@ def main(argv=None):
         return
 
     # reduce, fill, compact, bound search
+    floats = rng.random(n, dtype=np.float32)
     src = cla.to_device(q, floats)
     out = cla.empty(q, 1, np.float32)
     reduce = Reduce(runtime, np.float32, "sum")

@@ -107,7 +107,8 @@ class Scan(Primitive):
     reduce-then-scan heuristic. ``chained=True`` opts in to the single-pass
     chained scan: tuned as family ``scan_chained``, else its heuristic. Any
     chained choice is checked once per device by `chained_scan_works` and falls
-    back to reduce-then-scan when that check fails.
+    back to reduce-then-scan when that check fails. Calls of one Scan share
+    the chained scan's state, so they must run in order (one in-order queue).
     """
 
     TEMPLATES = {"gpu": TILED, "cpu": CHUNKED, "chained": CHAINED}

@@ -187,8 +187,12 @@ def test_chained_scan_many_calls_in_a_row(runtime, rng, shape):
     sizes = [9 * tile + 5, 2 * tile, 9 * tile + 5, 1, 5 * tile - 1, 0, 9 * tile + 5, 33] * 4
     fills = []
     real_fill = cl.enqueue_fill_buffer
+
+    def counted_fill(*args, **kwargs):
+        fills.append(args)
+        return real_fill(*args, **kwargs)
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(cl, "enqueue_fill_buffer", lambda *a, **k: fills.append(a) or real_fill(*a, **k))
+        patch.setattr(cl, "enqueue_fill_buffer", counted_fill)
         inputs, outputs, totals = [], [], []
         for n in sizes:
             x = small_values(rng, n, np.int32)
@@ -223,7 +227,8 @@ def test_chained_scan_ignores_words_of_other_epochs(runtime, rng):
         words = np.empty(scan._state.size // 8, np.uint64)
         for i, epoch in enumerate((next_epoch - 1, next_epoch + 1, 0)):
             low = (epoch % EPOCHS << 2) | 2  # INCLUSIVE
-            words[1 + i::3] = (rng.integers(1, 1000, words[1 + i::3].size, dtype=np.uint64) << 32) | low
+            values = rng.integers(1, 1000, words[1 + i::3].size, dtype=np.uint64)
+            words[1 + i::3] = (values << np.uint64(32)) | np.uint64(low)
         words[0] = 0
         cl.enqueue_copy(runtime.queue, scan._state, words)
         out, total = run_scan(runtime, scan, x)
