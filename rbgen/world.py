@@ -101,8 +101,10 @@ class World:
     rows per contact point; "manifold": one pair at the centre plus twist),
     ``broadphase`` ("grid", "sap", "sap3"),
     ``batching`` ("components": one solver launch per step, one work group
-    (GPU) or work-item (CPU) per pile, the CPU default; "cells": 9 launches per
-    sweep, piles spread over the device, the GPU default), ``group_count``
+    (GPU) or work-item (CPU) per pile; "cells": 9 launches per sweep, piles
+    spread over the device, the GPU default; "slabs": 3 launches per sweep,
+    piles spread over a few cores in slabs across the widest horizontal axis
+    of the bodies when they were last set, the CPU default), ``group_count``
     (solver groups per colour), ``manifold_capacity`` and
     ``pair_capacity`` (initial buffer sizes; grown on overflow).
     """
@@ -314,6 +316,7 @@ class World:
             self._stages_types = types
         self._packed = self.shapes.pack_all().to_device(queue)
         self._batcher.cell_size = self._cell_size()
+        self._batcher.slab_axis = self._slab_axis()
         self._ensure_manifolds(self._initial_manifolds or MANIFOLDS_PER_BODY * max(n, 16))
         self._device_stale = False
 
@@ -332,6 +335,17 @@ class World:
         for index in np.unique(self._host["shape"][self._host["inv_mass"] > 0]):
             radius = max(radius, bounding_radius(self.shapes.shapes[int(index)]))
         return 2.0 * radius + 2.0 * self.contact_margin + 1e-3
+
+    def _slab_axis(self) -> tuple:
+        """Batching slabs: across the coordinate axis, of the two least along gravity, on
+        which the dynamic bodies spread widest (a pile then spreads over most slabs)."""
+        positions = self._host["position"][self._host["inv_mass"] > 0, :3]
+        candidates = np.argsort(np.abs(self.gravity))[:2]
+        if len(positions) == 0:
+            return tuple(float(i == candidates[0]) for i in range(3))
+        spread = positions.max(axis=0) - positions.min(axis=0)
+        best = max(candidates, key=lambda axis: spread[axis])
+        return tuple(float(i == best) for i in range(3))
 
     # ------------------------------------------------------------- stepping
     def step(self, dt: float, substeps: int = 1) -> None:

@@ -42,7 +42,7 @@ def run_device(runtime, a, b, dynamic, rng=None, **kwargs):
     cons = layouts.CONTACT_CONSTRAINT.zeros(max(1, len(a)))
     cons["body_a"][: len(a)], cons["body_b"][: len(a)] = a, b
     cons["r_b"][:, 0, :3] = rng.uniform(-0.3, 0.3, (len(cons), 3))
-    if kwargs.get("mode") == "cells":
+    if kwargs.get("mode") in ("cells", "slabs"):
         kwargs.setdefault("cell_size", 1.5)
     capacity = len(a) + 7  # launches over capacity, count on the device
     d_cons = cl_array.to_device(queue, np.resize(cons, capacity) if len(a) else cons)
@@ -89,7 +89,7 @@ def check_invariants(batcher, a, b, dynamic, order, offsets, batch_counts, group
 
 
 @pytest.mark.parametrize("shape", ["gpu", "cpu"])
-@pytest.mark.parametrize("mode", ["components", "cells"])
+@pytest.mark.parametrize("mode", ["components", "cells", "slabs"])
 @pytest.mark.parametrize("n_bodies,n_constraints", [(1, 0), (2, 1), (9, 31), (100, 333),
                                                    (2000, 5003)])
 def test_batches_are_independent(runtime, rng, n_bodies, n_constraints, mode, shape):
@@ -176,7 +176,7 @@ def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rn
     assert np.count_nonzero(groups == leftover) >= 25 - 8
 
 
-@pytest.mark.parametrize("mode", ["components", "cells"])
+@pytest.mark.parametrize("mode", ["components", "cells", "slabs"])
 def test_cpu_shape_lists_each_group_once_in_index_order_twice_running(runtime, rng, mode):
     """CPU shape: the same input batched twice gives the same order (no atomics decide it),
     and the count on the device may be below the capacity the launches are sized for."""
@@ -194,3 +194,38 @@ def test_cpu_shape_lists_each_group_once_in_index_order_twice_running(runtime, r
 def test_unknown_shape_is_refused(runtime):
     with pytest.raises(RbgenError, match="shape"):
         ConstraintBatcher(runtime, shape="tpu")
+
+
+@pytest.mark.parametrize("shape", ["gpu", "cpu"])
+def test_slabs_spread_a_pile_over_consecutive_groups(runtime, rng, shape):
+    """Slabs across a tilted axis: a dense lattice (one connected pile) of 40 x 40 bodies at
+    unit pitch in slabs 1.5 m wide gives 33 slabs, 16-17 per colour: with 8 groups per colour
+    every group of both colours is used, and no body is in two concurrent groups."""
+    side = 40
+    ids = np.arange(side * side).reshape(side, side)
+    a = np.r_[ids[:-1, :].ravel(), ids[:, :-1].ravel()].astype(np.uint32)
+    b = np.r_[ids[1:, :].ravel(), ids[:, 1:].ravel()].astype(np.uint32)
+    queue = runtime.queue
+    bodies = layouts.BODY.zeros(side * side)
+    bodies["inv_mass"] = 1.0
+    gx, gz = np.meshgrid(np.arange(side), np.arange(side), indexing="ij")
+    bodies["position"][:, 0], bodies["position"][:, 2] = gx.ravel(), gz.ravel()
+    cons = layouts.CONTACT_CONSTRAINT.zeros(len(a))
+    cons["body_a"], cons["body_b"] = a, b
+    cons["r_b"][:, 0, :3] = (bodies["position"][a, :3] - bodies["position"][b, :3]) / 2
+    order = rng.permutation(len(a))
+    cons = cons[order]
+    batcher = ConstraintBatcher(runtime, mode="slabs", group_count=8, cell_size=1.5, shape=shape)
+    batcher.slab_axis = (0.96, 0.0, 0.28)
+    d_cons = cl_array.to_device(queue, cons)
+    count = cl_array.to_device(queue, np.array([len(cons)], np.uint32))
+    batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
+    order, offsets, batch_counts = batcher.read_batches()
+    groups = d_cons.get()["group"]
+    check_invariants(batcher, cons["body_a"], cons["body_b"], np.ones(len(bodies), bool),
+                     order[: len(cons)], offsets, batch_counts, groups)
+    assert len(batcher.launch_plan) == 3
+    assert set(np.unique(groups).tolist()) == set(range(16))  # no leftovers
+    with pytest.raises(RbgenError, match="slab_axis"):
+        batcher.slab_axis = (0.0, 0.0, 0.0)
+        batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))

@@ -170,7 +170,8 @@ def test_penetration_recovery(runtime, penetration, shape):
 
 @pytest.mark.parametrize("shape,work_group_size,batching", [
     ("gpu", 1, "components"), ("gpu", 32, "components"), ("gpu", 64, "cells"), ("gpu", 1, "cells"),
-    ("cpu", 1, "components"), ("cpu", 1, "cells"), ("cpu", 2, "cells")])
+    ("gpu", 32, "slabs"), ("cpu", 1, "components"), ("cpu", 1, "cells"), ("cpu", 2, "cells"),
+    ("cpu", 1, "slabs")])
 def test_stacked_columns_end_resting(runtime, rng, shape, work_group_size, batching):
     """Columns of 6 boxes falling onto each other (one pile per column, batched):
     after the solve every box's vertical speed is ~0 (inelastic), in both batching modes
@@ -235,7 +236,7 @@ def test_gyroscopic_term_conserves_angular_momentum(runtime):
     assert largest_change > 0.5 * np.linalg.norm(w0)
 
 
-@pytest.mark.parametrize("batching", ["components", "cells"])
+@pytest.mark.parametrize("batching", ["components", "cells", "slabs"])
 def test_launch_schedule(runtime, batching):
     """components: the warm start and every sweep in ONE launch; cells: a warm-start sweep,
     then one launch per colour and velocity sweep, the position sweeps riding along."""

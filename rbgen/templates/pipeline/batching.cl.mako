@@ -17,6 +17,14 @@
  * that loses a claim (a body wider than a cell) goes to the leftover group,
  * solved alone after the 8 colours, so correctness never depends on sizes.
  * The solver launches once per colour and once for the leftovers.
+% if mode == "slabs":
+ *
+ * Slabs: the cells are slabs across slab_axis (infinite along the other
+ * two axes), coloured by the parity of their index (2 colours); consecutive
+ * slabs of a colour go to consecutive groups. A slab holds whole stacks,
+ * whose constraints one work-item then solves in index order (for piles
+ * built bottom-up, from the ground up), which cells split over colours.
+% endif
 % endif
  *
 % if shape == "gpu":
@@ -45,6 +53,9 @@ ${cl_structs("ContactConstraint", "Body")}
 % if mode == "cells":
 /* cell colours (parity of the cell coordinates) */
 #define CELL_COLOURS 8
+% elif mode == "slabs":
+/* slab colours (parity of the slab index) */
+#define CELL_COLOURS 2
 % endif
 % if shape == "gpu" and mode == "components":
 /* one set of level-2 batching marks: groups never share a dynamic body */
@@ -189,6 +200,7 @@ ${note_group()}
 }
 
 % else:
+% if mode == "cells":
 /* Cell of a point, and its colour (parity of the coordinates). */
 inline int4 cell_of(float3 p, float inv_cell_size)
 {
@@ -200,6 +212,7 @@ inline uint cell_colour(int4 cell)
 {
     return (uint)(cell.x & 1) | ((uint)(cell.y & 1) << 1) | ((uint)(cell.z & 1) << 2);
 }
+% endif
 
 /* Claim a dynamic body for a group within one colour; false when another
  * group of that colour holds it. */
@@ -210,7 +223,7 @@ inline bool claim_body(volatile __global uint* body_owner, uint colour, uint bod
     return held == RB_SOLVER_NONE || held == group;
 }
 
-/* One work-item per constraint: its cell (from its first contact point)
+/* One work-item per constraint: its ${"cell" if mode == "cells" else "slab"} (from its first contact point)
  * gives a colour and a group; if another group of that colour already holds
  * one of its dynamic bodies it goes to the leftover group. A work group is
  * responsible for ${work_group_size} consecutive constraints. */
@@ -222,6 +235,9 @@ void assign_cells(__global ContactConstraint* constraints,
 ${group_outputs(" " * 18)}
                   const uint body_count,
                   const uint groups_per_colour,
+% if mode == "slabs":
+                  const float4 slab_axis,
+% endif
                   const float inv_cell_size)
 {
     uint i = get_global_id(0);
@@ -229,10 +245,16 @@ ${group_outputs(" " * 18)}
         return;
     uint a = constraints[i].body_a, b = constraints[i].body_b;
     float3 point = bodies[b].position.xyz + constraints[i].r_b[0].xyz;
+% if mode == "cells":
     int4 cell = cell_of(point, inv_cell_size);
     uint colour = cell_colour(cell);
     uint hash = mix32((uint)cell.x * 73856093u ^ (uint)cell.y * 19349663u ^ (uint)cell.z * 83492791u);
     uint group = colour * groups_per_colour + hash % groups_per_colour;
+% else:
+    int slab = (int)floor(dot(point, slab_axis.xyz) * inv_cell_size);
+    uint colour = (uint)slab & 1u;
+    uint group = colour * groups_per_colour + (uint)(slab >> 1) % groups_per_colour;
+% endif
     bool owned = true;
     if (is_dynamic(bodies, a))
         owned = claim_body(body_owner, colour, body_count, a, group);
