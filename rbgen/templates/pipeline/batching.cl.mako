@@ -6,7 +6,7 @@
  * connected components over dynamic bodies are found with a lock-free
  * union-find (static bodies join nothing), and each component goes whole to
  * the group its root hashes to. The solver then needs no synchronisation
- * between work groups: one launch per iteration. A single pile is one group.
+ * between work groups: one launch per step. A single pile is one group.
 % else:
  * Level 1 splits space into cells of at least the largest dynamic body's
  * size; a constraint belongs to the cell of its first contact point. Cells
