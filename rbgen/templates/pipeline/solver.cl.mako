@@ -567,7 +567,7 @@ ${each_constraint("solve_push(&constraints[order[i]], split, bodies, inertia, re
  * the push. A work group is responsible for consecutive bodies (as many as
  * the host's launch asks: the solver's work-group size does not fit here). */
 __kernel void apply_split_velocities(__global Body* bodies, __global SplitVelocity* split,
-                            const uint body_count, const float dt)
+                                     const uint body_count, const float dt)
 {
     uint i = get_global_id(0);
     if (i >= body_count || bodies[i].inv_mass == 0.0f)
