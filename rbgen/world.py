@@ -5,8 +5,9 @@ a fixed sequence of enqueues with no blocking read:
 
     prepare bodies (world inverse inertia, gyroscopic term, gravity) ->
     world AABBs -> broadphase pairs -> narrowphase manifolds ->
-    contact constraints -> batching -> ``iterations`` PGS launches ->
-    (split impulse: ``position_iterations`` launches) -> integrate ->
+    contact constraints -> batching -> warm start, ``iterations`` PGS sweeps
+    and (split impulse) ``position_iterations`` push sweeps (one launch with
+    components batching, one per colour and sweep otherwise) -> integrate ->
     (split impulse: apply push velocities)
 
 Counts (pairs, manifolds, constraints, batches) stay on the device. Capacity
@@ -61,15 +62,17 @@ MAX_REDOS = 16
 def _default_normal_solve(batching_mode: str) -> str:
     """The normal solve that holds stacks in each batching mode (10 iterations, dt 1/60).
 
-    Measured (10-box column drift in 10 s / max speed at step 300 of a dropped 8,000-box
-    pile / top motion of a 20-row pyramid in 600 steps):
+    Measured with the gpu shape (10-box column drift in 10 s / max speed at step 300 of a
+    dropped 8,000-box pile / top motion of a 20-row pyramid in 600 steps):
     cells + block: 0.0 cm / 0.14 m/s PoCL, 0.23 m/s H200 / 3.4 cm H200;
     cells + sequential: 2.4 cm / 0.029 m/s / 6.7 cm on the H200 (over its 5 cm bound);
     components + sequential: 0.4 cm / 0.032 m/s / 2-3 cm;
     components + block: 0.0 cm / a 1,000-box pile still at 0.125 m/s.
-    So cells (the GPU default) gets the block solve and components (the CPU default) the
-    sequential one. Open: a few stack tops of a dropped pile keep rocking under the block
-    solve (cause not found yet), and it costs 2x the solver time on the H200."""
+    The cpu shape (PoCL) agrees on the pyramid: cells + sequential 7.7 cm, cells + block
+    3.4 cm, components + sequential 2.3 cm. So cells (the GPU default) gets the block
+    solve and components the sequential one. Open: a few stack tops of a dropped pile keep
+    rocking under the block solve (cause not found yet), and it costs 2x the solver time on
+    the H200 and 8x on PoCL."""
     return "block" if batching_mode == "cells" else "sequential"
 
 
@@ -97,10 +100,12 @@ class World:
     ``warm_start``, ``gyroscopic``, ``friction_model`` ("point": two friction
     rows per contact point; "manifold": one pair at the centre plus twist),
     ``broadphase`` ("grid", "sap", "sap3"),
-    ``batching`` ("components": one solver launch per iteration, one work group
-    per pile, the CPU default; "cells": 9 launches per iteration, piles spread
-    over the device, the GPU default), ``group_count`` (solver work groups per
-    launch), ``manifold_capacity`` and
+    ``batching`` ("components": one solver launch per step, one work group
+    (GPU) or work-item (CPU) per pile; "cells": 9 launches per sweep, piles
+    spread over the device, the GPU default; "slabs": 3 launches per sweep,
+    piles spread over a few cores in slabs across the widest horizontal axis
+    of the bodies when they were last set, the CPU default), ``group_count``
+    (solver groups per colour), ``manifold_capacity`` and
     ``pair_capacity`` (initial buffer sizes; grown on overflow).
 
     Shapes are immutable values (see `rbgen.Shape`): one shape object may be
@@ -141,7 +146,8 @@ class World:
         self._solver = ContactSolver(rt, split_impulse=penetration == "split",
                                      max_batches=self._batcher.max_batches, friction=friction_model,
                                      normal_solve=normal_solve or _default_normal_solve(
-                                         self._batcher.mode))
+                                         self._batcher.mode),
+                                     shape=self._batcher.shape)
         self.restitution_threshold = restitution_threshold
         if penetration_slop is None:
             # Baumgarte feeds its push into the warm-started impulse: with a 1 mm slop a
@@ -319,6 +325,7 @@ class World:
             self._stages_types = types
         self._packed = self.shapes.pack_all().to_device(queue)
         self._batcher.cell_size = self._cell_size()
+        self._batcher.slab_axis = self._slab_axis()
         self._ensure_manifolds(self._initial_manifolds or MANIFOLDS_PER_BODY * max(n, 16))
         self._device_stale = False
 
@@ -337,6 +344,17 @@ class World:
         for index in np.unique(self._host["shape"][self._host["inv_mass"] > 0]):
             radius = max(radius, bounding_radius(self.shapes.shapes[int(index)]))
         return 2.0 * radius + 2.0 * self.contact_margin + 1e-3
+
+    def _slab_axis(self) -> tuple:
+        """Batching slabs: across the coordinate axis, of the two least along gravity, on
+        which the dynamic bodies spread widest (a pile then spreads over most slabs)."""
+        positions = self._host["position"][self._host["inv_mass"] > 0, :3]
+        candidates = np.argsort(np.abs(self.gravity))[:2]
+        if len(positions) == 0:
+            return tuple(float(i == candidates[0]) for i in range(3))
+        spread = positions.max(axis=0) - positions.min(axis=0)
+        best = max(candidates, key=lambda axis: spread[axis])
+        return tuple(float(i == best) for i in range(3))
 
     # ------------------------------------------------------------- stepping
     def step(self, dt: float, substeps: int = 1) -> None:
@@ -378,14 +396,11 @@ class World:
                           capacity, h)
         constraints = self._constraints.constraints
         self._batcher(constraints, self._constraints.count, self._bodies, n, capacity)
-        self._solver.solve_velocities(constraints, self._batcher, self._bodies, self._inertia,
-                                      iterations=self.iterations, relaxation=self.relaxation,
-                                      warm_start=self.warm_start)
         split = self._solver.split_impulse and self.position_iterations > 0
-        if split:
-            self._solver.solve_positions(constraints, self._batcher, self._bodies, self._inertia, n,
-                                         iterations=self.position_iterations,
-                                         relaxation=self.relaxation)
+        self._solver.solve(constraints, self._batcher, self._bodies, self._inertia, n,
+                           iterations=self.iterations,
+                           position_iterations=self.position_iterations if split else 0,
+                           relaxation=self.relaxation, warm_start=self.warm_start)
         self._integrate(self._bodies, n, h, linear_damping=self.linear_damping,
                         angular_damping=self.angular_damping)
         if split:
