@@ -239,14 +239,17 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
 
 % endif
 /* The two bodies of one constraint as the solver sees them: inverse masses
- * and world inverse inertias, and the (push) velocities being solved for. */
+ * and world inverse inertias, and the (push) velocities being solved for.
+ * Functions take it as `__private ContactBodies*`: NVIDIA's compiler treats an
+ * unqualified pointer as generic and refuses to pass its inertia arrays on to
+ * array parameters (private). */
 typedef struct {
     float inv_mass_a, inv_mass_b;
     float3 inv_inertia_a[3], inv_inertia_b[3];
     float3 va, wa, vb, wb;
 } ContactBodies;
 
-inline void load_bodies(ContactBodies* p, __global const Body* bodies,
+inline void load_bodies(__private ContactBodies* p, __global const Body* bodies,
                         __global const BodyInertia* inertia, uint a, uint b)
 {
     p->inv_mass_a = bodies[a].inv_mass;
@@ -256,7 +259,7 @@ inline void load_bodies(ContactBodies* p, __global const Body* bodies,
 }
 
 /* Impulse p at lever arms ra (on A, as -p) and rb (on B, as +p). */
-inline void apply_impulse(float3 p, float3 ra, float3 rb, ContactBodies* q)
+inline void apply_impulse(float3 p, float3 ra, float3 rb, __private ContactBodies* q)
 {
     q->va -= p * q->inv_mass_a;
     q->wa -= mul_rows(q->inv_inertia_a, cross3(ra, p));
@@ -271,7 +274,7 @@ typedef struct {
     float3 linear, arm_a, arm_b, turn_a, turn_b;
 } Row;
 
-inline Row point_row(float3 direction, float3 ra, float3 rb, const ContactBodies* p)
+inline Row point_row(float3 direction, float3 ra, float3 rb, const __private ContactBodies* p)
 {
     Row row;
     row.linear = direction;
@@ -282,7 +285,7 @@ inline Row point_row(float3 direction, float3 ra, float3 rb, const ContactBodies
     return row;
 }
 
-inline Row twist_row(float3 axis, const ContactBodies* p)
+inline Row twist_row(float3 axis, const __private ContactBodies* p)
 {
     Row row;
     row.linear = (float3)(0.0f);
@@ -293,13 +296,13 @@ inline Row twist_row(float3 axis, const ContactBodies* p)
 }
 
 /* velocity of B relative to A along the row */
-inline float row_speed(const Row* row, const ContactBodies* p)
+inline float row_speed(const Row* row, const __private ContactBodies* p)
 {
     float3 s = row->linear * (p->vb - p->va) + row->arm_b * p->wb - row->arm_a * p->wa;
     return s.x + s.y + s.z;
 }
 
-inline void apply_row(const Row* row, float impulse, ContactBodies* p)
+inline void apply_row(const Row* row, float impulse, __private ContactBodies* p)
 {
     p->va -= row->linear * (impulse * p->inv_mass_a);
     p->wa -= row->turn_a * impulse;
@@ -309,7 +312,7 @@ inline void apply_row(const Row* row, float impulse, ContactBodies* p)
 
 /* A normal row: the accumulated impulse stays >= 0. */
 inline void solve_normal_row(float3 n, float3 ra, float3 rb, float mass, float target,
-                             float relaxation, float* impulse, ContactBodies* p)
+                             float relaxation, float* impulse, __private ContactBodies* p)
 {
     Row row = point_row(n, ra, rb, p);
     float total = positive_part(*impulse + relaxation * mass * (target - row_speed(&row, p)));
@@ -323,7 +326,7 @@ inline void solve_normal_row(float3 n, float3 ra, float3 rb, float mass, float t
 __attribute__((always_inline))
 inline void solve_friction_pair(float3 t1, float3 t2, float3 ra, float3 rb, float mass1,
                                 float mass2, float limit, float relaxation, float* impulse1,
-                                float* impulse2, ContactBodies* p)
+                                float* impulse2, __private ContactBodies* p)
 {
     Row row1 = point_row(t1, ra, rb, p), row2 = point_row(t2, ra, rb, p);
     float f1 = *impulse1 - relaxation * mass1 * row_speed(&row1, p);
@@ -350,14 +353,14 @@ inline float4 pack4(const float in[4])
     return (float4)(in[0], in[1], in[2], in[3]);
 }
 
-inline void load_velocities(ContactBodies* p, __global const Body* bodies, uint a, uint b)
+inline void load_velocities(__private ContactBodies* p, __global const Body* bodies, uint a, uint b)
 {
     p->va = bodies[a].linear_velocity.xyz, p->wa = bodies[a].angular_velocity.xyz;
     p->vb = bodies[b].linear_velocity.xyz, p->wb = bodies[b].angular_velocity.xyz;
 }
 
 /* write back the velocities of the dynamic bodies (a static body is never written) */
-inline void store_velocities(const ContactBodies* p, __global Body* bodies, uint a, uint b)
+inline void store_velocities(const __private ContactBodies* p, __global Body* bodies, uint a, uint b)
 {
     if (p->inv_mass_a > 0.0f) {
         bodies[a].linear_velocity.xyz = p->va;
