@@ -60,19 +60,21 @@ MAX_REDOS = 16
 
 
 def _default_normal_solve(batching_mode: str) -> str:
-    """The normal solve that holds stacks in each batching mode (10 iterations, dt 1/60).
+    """The normal solve that holds stacks in each batching mode (10 iterations, dt 1/60,
+    manifold friction, PoCL; H200 to be confirmed).
 
-    Measured with the gpu shape (10-box column drift in 10 s / max speed at step 300 of a
-    dropped 8,000-box pile / top motion of a 20-row pyramid in 600 steps):
-    cells + block: 0.0 cm / 0.14 m/s PoCL, 0.23 m/s H200 / 3.4 cm H200;
-    cells + sequential: 2.4 cm / 0.029 m/s / 6.7 cm on the H200 (over its 5 cm bound);
-    components + sequential: 0.4 cm / 0.032 m/s / 2-3 cm;
-    components + block: 0.0 cm / a 1,000-box pile still at 0.125 m/s.
-    The cpu shape (PoCL) agrees on the pyramid: cells + sequential 7.7 cm, cells + block
-    3.4 cm, components + sequential 2.3 cm. So cells (the GPU default) gets the block
-    solve and components the sequential one. Open: a few stack tops of a dropped pile keep
-    rocking under the block solve (cause not found yet), and it costs 2x the solver time on
-    the H200 and 8x on PoCL."""
+    Top motion of a 20-row pyramid in 600 steps (four runs, +-0.1 mm jitter) / dropped
+    4x4x4 grids whose max speed at step 300 is over 0.05 m/s:
+    cells + block: 1.8-2.2 cm (the unjittered test scene 2.4) / 0 of 40 (one seen in
+    a test run);
+    components + sequential: 1.8-1.9 cm (test scene 1.9) / 0 of 28;
+    components + block: 1.9-2.9 cm / 2 of 40 (a stack top keeps rocking, cause open).
+    With point friction, cells + block moved the top 3.2-5.3 cm (see `World`).
+    The cpu shape (PoCL, point friction) agreed on the pyramid: cells + sequential
+    7.7 cm, cells + block 3.4 cm, components + sequential 2.3 cm.
+    So cells (the GPU default) gets the block solve, components and slabs (the CPU
+    default) the sequential one; block costs 2x the solver time on the H200 and 8x
+    on PoCL."""
     return "block" if batching_mode == "cells" else "sequential"
 
 
@@ -97,8 +99,12 @@ class World:
     the order of its points leaves no torque; "sequential": one row after another;
     default: block with cells batching, sequential with components batching — see
     `_default_normal_solve`),
-    ``warm_start``, ``gyroscopic``, ``friction_model`` ("point": two friction
-    rows per contact point; "manifold": one pair at the centre plus twist),
+    ``warm_start``, ``gyroscopic``, ``friction_model`` ("manifold", the default:
+    one pair at the centre limited by the total normal impulse, plus twist; "point":
+    two friction rows per contact point, each limited by its own point's impulse: a
+    1-box-deep 20-row pyramid swaying out of plane loads and unloads its corners, the
+    lightly loaded ones slip, and its top creeps 3-5 cm sideways in 10 s, against
+    0.3-1.6 cm with "manifold"),
     ``broadphase`` ("grid", "sap", "sap3"),
     ``batching`` ("components": one solver launch per step, one work group
     (GPU) or work-item (CPU) per pile; "cells": 9 launches per sweep, piles
@@ -116,7 +122,7 @@ class World:
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), *, iterations: int = 10,
                  position_iterations: int = 4, relaxation: float = 1.0,
                  penetration: str = "split", warm_start: bool = True, gyroscopic: bool = True,
-                 friction_model: str = "point", normal_solve: str | None = None,
+                 friction_model: str = "manifold", normal_solve: str | None = None,
                  broadphase: str = "grid", contact_margin: float = 0.02,
                  restitution_threshold: float = 0.5, penetration_slop: float | None = None,
                  penetration_recovery: float = 0.2, linear_damping: float = 0.0,
