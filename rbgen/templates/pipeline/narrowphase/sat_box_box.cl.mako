@@ -18,6 +18,7 @@ ${cl_constants()}
 ${cl_structs("Body", "Shape", "Pair", "SatCacheEntry", "SatResult")}
 
 <%include file="/common/quaternion.cl.mako"/>
+<%include file="/common/inline_math.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 
 /* See the generic test: preferences between near-equal axes. */
@@ -26,75 +27,112 @@ ${cl_structs("Body", "Shape", "Pair", "SatCacheEntry", "SatResult")}
 #define PARALLEL_SIN2 1e-8f
 #define FIRST_EDGE_FEATURE 12u
 
-/* Two boxes in the world: axes (columns of the rotations), half extents, and
- * the offset between their centres. */
+/* Two boxes seen from the first one. Every axis is measured from the nine
+ * cosines r[i][j] = a_i . b_j (a_i, b_j: the boxes' unit axes in the world)
+ * and the offset in the first box's frame, as in Gottschalk's OBB test: a face
+ * axis costs three multiply-adds, an edge axis a_i x b_j a few more, and no
+ * world-space vector is formed until the best axis is known. */
 typedef struct {
-    float3 a[3], b[3];
-    float3 extent_a, extent_b;
-    float3 offset;  /* centre of b - centre of a */
+    float3 a[3], b[3];  /* world axes (columns of the rotations) */
+    float r[3][3];      /* a_i . b_j */
+    float abs_r[3][3];  /* |a_i . b_j| */
+    float t[3];         /* centre of b - centre of a, in a's frame */
+    float extent_a[3], extent_b[3];
 } BoxPair;
 
+/* The axes of a box in the world: the columns of its rotation. */
 inline void box_axes(float4 q, float3* axes)
 {
-    axes[0] = quat_rotate(q, (float3)(1.0f, 0.0f, 0.0f));
-    axes[1] = quat_rotate(q, (float3)(0.0f, 1.0f, 0.0f));
-    axes[2] = quat_rotate(q, (float3)(0.0f, 0.0f, 1.0f));
+    float3 r0, r1, r2;
+    quat_to_rows(q, &r0, &r1, &r2);
+    axes[0] = (float3)(r0.x, r1.x, r2.x);
+    axes[1] = (float3)(r0.y, r1.y, r2.y);
+    axes[2] = (float3)(r0.z, r1.z, r2.z);
 }
 
-/* Half width of a box along a unit axis. */
-inline float box_reach(const float3* axes, float3 extent, float3 axis)
+inline BoxPair box_pair(Body a, float3 extent_a, Body b, float3 extent_b)
 {
-    return extent.x * fabs(dot(axes[0], axis)) + extent.y * fabs(dot(axes[1], axis))
-         + extent.z * fabs(dot(axes[2], axis));
+    BoxPair g;
+    box_axes(a.orientation, g.a);
+    box_axes(b.orientation, g.b);
+    float3 offset = b.position.xyz - a.position.xyz;
+    for (uint i = 0; i < 3; ++i) {
+        g.t[i] = dot3(g.a[i], offset);
+        for (uint j = 0; j < 3; ++j) {
+            g.r[i][j] = dot3(g.a[i], g.b[j]);
+            g.abs_r[i][j] = abs1(g.r[i][j]);
+        }
+    }
+    g.extent_a[0] = extent_a.x, g.extent_a[1] = extent_a.y, g.extent_a[2] = extent_a.z;
+    g.extent_b[0] = extent_b.x, g.extent_b[1] = extent_b.y, g.extent_b[2] = extent_b.z;
+    return g;
 }
 
-inline float component(float3 v, uint i)
+/* Separation along axis i of the first box: |t_i| - its half extent - the
+ * second box's half width along a_i. */
+inline float first_face_gap(const BoxPair* g, uint i)
 {
-    return i == 0 ? v.x : (i == 1 ? v.y : v.z);
+    float reach_b = g->extent_b[0] * g->abs_r[i][0] + g->extent_b[1] * g->abs_r[i][1]
+                  + g->extent_b[2] * g->abs_r[i][2];
+    return abs1(g->t[i]) - g->extent_a[i] - reach_b;
 }
 
-/* Axis i of the first box, turned towards the second: the face facing it. */
-inline float4 first_face(const BoxPair* g, uint i, uint* feature)
+/* Offset of the centres along axis j of the second box. */
+inline float second_offset(const BoxPair* g, uint j)
 {
-    float t = dot(g->a[i], g->offset);
-    float3 axis = t >= 0.0f ? g->a[i] : -g->a[i];
-    *feature = 2u * i + (t >= 0.0f ? 0u : 1u);
-    return (float4)(axis, fabs(t) - component(g->extent_a, i) - box_reach(g->b, g->extent_b, g->a[i]));
+    return g->t[0] * g->r[0][j] + g->t[1] * g->r[1][j] + g->t[2] * g->r[2][j];
 }
 
-/* Axis j of the second box: its face that faces the first box. */
-inline float4 second_face(const BoxPair* g, uint j, uint* feature)
+inline float second_face_gap(const BoxPair* g, uint j)
 {
-    float u = dot(g->b[j], g->offset);
-    float3 axis = u >= 0.0f ? g->b[j] : -g->b[j];
-    /* the facing face of the second box has outward normal -axis */
-    *feature = 6u + 2u * j + (u >= 0.0f ? 1u : 0u);
-    return (float4)(axis, fabs(u) - component(g->extent_b, j) - box_reach(g->a, g->extent_a, g->b[j]));
+    float reach_a = g->extent_a[0] * g->abs_r[0][j] + g->extent_a[1] * g->abs_r[1][j]
+                  + g->extent_a[2] * g->abs_r[2][j];
+    return abs1(second_offset(g, j)) - g->extent_b[j] - reach_a;
 }
 
-/* Axis i of the first box crossed with axis j of the second (w = -INFINITY when parallel). */
-inline float4 edge_axis(const BoxPair* g, uint i, uint j)
+/* Separation along a_i x b_j (-INFINITY when the axes are parallel). In a's
+ * frame the axis is e_i x r_j, of length sqrt(1 - r_ij^2); its products
+ * with the boxes' axes and the offset are 2x2 minors of r and t. */
+inline float edge_gap(const BoxPair* g, uint i, uint j, float* offset_along)
 {
-    float3 axis = cross(g->a[i], g->b[j]);
-    float sin2 = dot(axis, axis);
+    uint i1 = (i + 1u) % 3u, i2 = (i + 2u) % 3u, j1 = (j + 1u) % 3u, j2 = (j + 2u) % 3u;
+    float sin2 = g->r[i1][j] * g->r[i1][j] + g->r[i2][j] * g->r[i2][j];
     if (sin2 < PARALLEL_SIN2)
-        return (float4)(axis, -INFINITY);
-    axis *= rsqrt(sin2);
-    float d = dot(axis, g->offset);
-    float gap = fabs(d) - box_reach(g->a, g->extent_a, axis) - box_reach(g->b, g->extent_b, axis);
-    return (float4)(d >= 0.0f ? axis : -axis, gap);
+        return -INFINITY;
+    float d = g->t[i2] * g->r[i1][j] - g->t[i1] * g->r[i2][j];
+    float reach = g->extent_a[i1] * g->abs_r[i2][j] + g->extent_a[i2] * g->abs_r[i1][j]
+                + g->extent_b[j1] * g->abs_r[i][j2] + g->extent_b[j2] * g->abs_r[i][j1];
+    *offset_along = d;
+    return (abs1(d) - reach) / sqrt1(sin2);
 }
 
 /* Separation along a feature code (last step's best axis). */
-inline float4 feature_separation(const BoxPair* g, uint feature)
+inline float feature_gap(const BoxPair* g, uint feature)
 {
-    uint unused;
     if (feature < 6u)
-        return first_face(g, feature / 2u, &unused);
+        return first_face_gap(g, feature / 2u);
     if (feature < FIRST_EDGE_FEATURE)
-        return second_face(g, (feature - 6u) / 2u, &unused);
+        return second_face_gap(g, (feature - 6u) / 2u);
     uint e = feature - FIRST_EDGE_FEATURE;
-    return edge_axis(g, e / 3u, e % 3u);
+    float unused;
+    return edge_gap(g, e / 3u, e % 3u, &unused);
+}
+
+/* The world axis of a feature code, turned from the first box towards the second. */
+inline float3 feature_axis(const BoxPair* g, uint feature)
+{
+    if (feature < 6u)
+        return (feature & 1u) ? -g->a[feature / 2u] : g->a[feature / 2u];
+    if (feature < FIRST_EDGE_FEATURE) {
+        float3 axis = g->b[(feature - 6u) / 2u];
+        /* the second box's facing face has outward normal -axis */
+        return (feature & 1u) ? axis : -axis;
+    }
+    uint e = feature - FIRST_EDGE_FEATURE;
+    float d;
+    edge_gap(g, e / 3u, e % 3u, &d);
+    float3 axis = normalize3(cross3(g->a[e / 3u], g->b[e % 3u]));
+    return d >= 0.0f ? axis : -axis;
 }
 
 inline void remember_axis(__global SatCacheEntry* entry, Pair pair, uint feature)
@@ -111,49 +149,52 @@ inline bool box_box_test(const BoxPair* g, Pair pair, __global SatCacheEntry* en
 {
     SatCacheEntry cached = *entry;
     if (cached.a == pair.a && cached.b == pair.b && cached.feature != (uint)RB_NO_FEATURE
-            && feature_separation(g, cached.feature).w > margin)
+            && feature_gap(g, cached.feature) > margin)
         return false;  /* last step's axis still separates: the entry stays */
 
-    float4 face_a = (float4)(0.0f, 0.0f, 0.0f, -INFINITY), face_b = face_a, edge = face_a;
+    float face_a = -INFINITY, face_b = -INFINITY, edge = -INFINITY;
     uint face_a_feature = 0, face_b_feature = 6u, edge_feature = FIRST_EDGE_FEATURE;
     for (uint i = 0; i < 3; ++i) {
-        uint feature;
-        float4 s = first_face(g, i, &feature);
-        if (s.w > margin) {
+        float gap = first_face_gap(g, i);
+        uint feature = 2u * i + (g->t[i] >= 0.0f ? 0u : 1u);
+        if (gap > margin) {
             remember_axis(entry, pair, feature);
             return false;
         }
-        if (s.w > face_a.w)
-            face_a = s, face_a_feature = feature;
+        if (gap > face_a)
+            face_a = gap, face_a_feature = feature;
     }
     for (uint j = 0; j < 3; ++j) {
-        uint feature;
-        float4 s = second_face(g, j, &feature);
-        if (s.w > margin) {
+        float gap = second_face_gap(g, j);
+        uint feature = 6u + 2u * j + (second_offset(g, j) >= 0.0f ? 1u : 0u);
+        if (gap > margin) {
             remember_axis(entry, pair, feature);
             return false;
         }
-        if (s.w > face_b.w)
-            face_b = s, face_b_feature = feature;
+        if (gap > face_b)
+            face_b = gap, face_b_feature = feature;
     }
     for (uint i = 0; i < 3; ++i) {
         for (uint j = 0; j < 3; ++j) {
-            float4 s = edge_axis(g, i, j);
+            float unused;
+            float gap = edge_gap(g, i, j, &unused);
             uint feature = FIRST_EDGE_FEATURE + 3u * i + j;
-            if (s.w > margin) {
+            if (gap > margin) {
                 remember_axis(entry, pair, feature);
                 return false;
             }
-            if (s.w > edge.w)
-                edge = s, edge_feature = feature;
+            if (gap > edge)
+                edge = gap, edge_feature = feature;
         }
     }
 
-    *best = face_a, *best_feature = face_a_feature;
-    if (face_b.w > face_a.w + FACE_TOLERANCE)
-        *best = face_b, *best_feature = face_b_feature;
-    if (edge.w > fmax(face_a.w, face_b.w) + EDGE_TOLERANCE)
-        *best = edge, *best_feature = edge_feature;
+    float gap = face_a;
+    *best_feature = face_a_feature;
+    if (face_b > face_a + FACE_TOLERANCE)
+        gap = face_b, *best_feature = face_b_feature;
+    if (edge > max1(face_a, face_b) + EDGE_TOLERANCE)
+        gap = edge, *best_feature = edge_feature;
+    *best = (float4)(feature_axis(g, *best_feature), gap);
     remember_axis(entry, pair, *best_feature);
     return true;
 }
@@ -184,12 +225,7 @@ void find_separating_axis(__global const Pair* pairs,
         entry = queues[kind * pair_capacity + slot];
         QueuedPair q = decode_queue_entry(entry, pairs);
         Body a = bodies[q.first], b = bodies[q.second];
-        BoxPair g;
-        box_axes(a.orientation, g.a);
-        box_axes(b.orientation, g.b);
-        g.extent_a = shapes[a.shape].extents.xyz;
-        g.extent_b = shapes[b.shape].extents.xyz;
-        g.offset = b.position.xyz - a.position.xyz;
+        BoxPair g = box_pair(a, shapes[a.shape].extents.xyz, b, shapes[b.shape].extents.xyz);
         touching = box_box_test(&g, pairs[q.index], &cache[q.index], margin, &axis, &feature);
     }
     uint ticket = touching ? atomic_inc(&group_count) : 0u;
