@@ -59,23 +59,28 @@ STEPS_IN_FLIGHT = 2
 MAX_REDOS = 16
 
 
-def _default_normal_solve(batching_mode: str) -> str:
-    """The normal solve that holds stacks in each batching mode (10 iterations, dt 1/60,
-    manifold friction, PoCL; H200 to be confirmed).
+def _default_normal_solve(batching_mode: str, solver_shape: str) -> str:
+    """The normal solve that holds stacks (10 iterations, dt 1/60, manifold friction):
+    block, except sequential for the cpu shape with components or slabs batching.
 
-    Top motion of a 20-row pyramid in 600 steps (four runs, +-0.1 mm jitter) / dropped
-    4x4x4 grids whose max speed at step 300 is over 0.05 m/s:
-    cells + block: 1.8-2.2 cm (the unjittered test scene 2.4) / 0 of 40 (one seen in
-    a test run);
-    components + sequential: 1.8-1.9 cm (test scene 1.9) / 0 of 28;
-    components + block: 1.9-2.9 cm / 2 of 40 (a stack top keeps rocking, cause open).
-    With point friction, cells + block moved the top 3.2-5.3 cm (see `World`).
-    The cpu shape (PoCL, point friction) agreed on the pyramid: cells + sequential
-    7.7 cm, cells + block 3.4 cm, components + sequential 2.3 cm.
-    So cells (the GPU default) gets the block solve, components and slabs (the CPU
-    default) the sequential one; block costs 2x the solver time on the H200 and 8x
-    on PoCL."""
-    return "block" if batching_mode == "cells" else "sequential"
+    H200, gpu shape: top motion of a 20-row pyramid in 600 steps / max speed of a dropped
+    8,000-box pile at step 300 / sideways drift of a 10-box column in 600 steps:
+    cells + block 1.98 cm / 0.0009 m/s / 0.00 cm; cells + sequential 6.99 cm (over the
+    5 cm bound) / 0.0052 / 0.96 cm; components + block 1.98 / 0.0005 / 0.00;
+    components + sequential 1.81 / 0.0047 / 1.36; slabs + block 2.09 / 0.0005 / 0.00;
+    slabs + sequential 3.23 / 0.0049 / 3.89 (over its 2 cm bound). The gpu shape solves a
+    batch's manifolds side by side, so a sequential solve's point-order torque is not
+    corrected by the rows solved after it, and columns lean; the block solve leaves no
+    such torque.
+    PoCL, cpu shape (one work-item walks its group in index order, Gauss-Seidel proper):
+    components + sequential 1.8-1.9 cm (pyramid), 0 of 28 dropped 4x4x4 grids still
+    moving; slabs + sequential 2.8 cm; components + block 1.9-2.9 cm but 2 of 40 grids
+    keep a stack top rocking, and block costs 8x the sequential solve there (2x on the
+    H200). Cells with the cpu shape needs block: sequential lets the 10-box column drift
+    9 cm (the colours split a column between launches)."""
+    if solver_shape == "cpu" and batching_mode in ("components", "slabs"):
+        return "sequential"
+    return "block"
 
 
 class World:
@@ -97,8 +102,8 @@ class World:
     at up to 0.8 m/s),
     ``normal_solve`` ("block": a manifold's normal rows solved together, so
     the order of its points leaves no torque; "sequential": one row after another;
-    default: block with cells batching, sequential with components batching — see
-    `_default_normal_solve`),
+    default: sequential for the cpu shape with components or slabs batching, else
+    block — see `_default_normal_solve`),
     ``warm_start``, ``gyroscopic``, ``friction_model`` ("manifold", the default:
     one pair at the centre limited by the total normal impulse, plus twist; "point":
     two friction rows per contact point, each limited by its own point's impulse: a
@@ -152,7 +157,7 @@ class World:
         self._solver = ContactSolver(rt, split_impulse=penetration == "split",
                                      max_batches=self._batcher.max_batches, friction=friction_model,
                                      normal_solve=normal_solve or _default_normal_solve(
-                                         self._batcher.mode),
+                                         self._batcher.mode, self._batcher.shape),
                                      shape=self._batcher.shape)
         self.restitution_threshold = restitution_threshold
         if penetration_slop is None:
