@@ -11,7 +11,8 @@ of it (a scan moves at least the bytes of one copy: read n, write n). Scan
 rows: the default `Scan` (tuned or heuristic; its choice in brackets), then
 uint32 with reduce-then-scan ("r-t-s") and every chained candidate explicitly
 (work-group size x elements per work-item, "lb K" when a look-back step
-polls K < work-group-size predecessors), then small scans: the kernels' own
+polls K < work-group-size predecessors, "group" when tiles follow group ids
+instead of tickets), then small scans: the kernels' own
 device time (sum of the call's launch events, start to end), the span of
 the markers around one call (that includes the host's time to enqueue it:
 the device idles until the launch arrives), host wall time per call (200
@@ -140,7 +141,8 @@ def scan_label(params):
     if params["shape"] == "chained":
         lookback = params.get("lookback", params["work_group_size"])
         return (f"chained {params['work_group_size']}x{params['items_per_thread']}"
-                + ("" if lookback == params["work_group_size"] else f" lb {lookback}"))
+                + ("" if lookback == params["work_group_size"] else f" lb {lookback}")
+                + (" group" if params.get("order") == "group" else ""))
     if params["shape"] == "gpu":
         return f"r-t-s {params['work_group_size']}x{params['items_per_thread']}"
     return f"r-t-s {params['work_items']} chunks"

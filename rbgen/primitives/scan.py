@@ -7,8 +7,9 @@ Two algorithms:
   ``work_group_size * items_per_thread`` elements and a CPU shape over a few
   long chunks. It reads the input twice (3n words moved).
 * the chained scan (``scan_chained.cl.mako``): ONE launch for any n, input
-  read once (2n words). It relies on forward progress between work groups,
-  so it runs only where its guard (`chained_scan_works`) passed, and only
+  read once (2n words). It relies on forward progress between work groups
+  (and, with ``order="group"``, on groups starting in id order), so it runs
+  only where its guard (`chained_scan_works`) passed, and only
   when asked for (``chained=True``) or chosen by the tuner (its candidates
   are part of the ``scan`` family's space). Its state persists between calls
   with a new epoch per call instead of being zeroed. A tile looks back over
@@ -82,6 +83,10 @@ CHAINED = PrimitiveTemplate(
               "a power of two from 4 to 65536"),
         Param("wavefront", (1, 32, 64),
               "segment width of the work-group scan (1: serial, CPU shape)"),
+        Param("order", ("ticket", "group"),
+              "how a work group finds its tile: ticket (atomic counter, start order: safe "
+              "in any dispatch order) or group id (no atomic or barrier before the loads; "
+              "relies on groups starting in id order, as GPUs do)"),
         Param("lookback", power_of_two(1, 1024),
               "predecessors one look-back step polls, one per work-item: a wider window "
               "reaches a tile that knows its prefix in fewer steps (1: serial, CPU shape)",
@@ -155,18 +160,18 @@ class Scan(Primitive):
         few tile sums); CPU four chunks per compute unit (load balance, tiny
         chunk-sum scan); chained tiles of 256 x 32 = 8192 on GPUs (32 elements
         in registers per work-item: eight 16-byte loads in flight each; the
-        fastest of 8-32 on the H200) looking back 256 tiles per step, and
-        16384 (L2-sized) on CPUs."""
+        fastest of 8-32 on the H200) looking back 256 tiles per step, tiles
+        by ticket (safe in any dispatch order); 16384 (L2-sized) on CPUs."""
         shape = shape or traits.kind
         if shape == "chained":
             if traits.is_gpu:
                 wf = clamp_wavefront(traits)
                 wg = max(wf, min(256, traits.max_work_group_size))
                 params = {"shape": "chained", "work_group_size": wg, "items_per_thread": 32,
-                          "wavefront": wf, "lookback": wg}
+                          "wavefront": wf, "lookback": wg, "order": "ticket"}
             else:
                 params = {"shape": "chained", "work_group_size": 1, "items_per_thread": 16384,
-                          "wavefront": 1, "lookback": 1}
+                          "wavefront": 1, "lookback": 1, "order": "ticket"}
         elif shape == "gpu":
             params = {"shape": "gpu", "work_group_size": min(256, traits.max_work_group_size),
                       "items_per_thread": 8, "wavefront": clamp_wavefront(traits)}
@@ -330,9 +335,10 @@ def chained_search_space(traits: DeviceTraits) -> list[dict]:
     """Candidates for the chained scan (family ``scan_chained``; also in `search_space`).
 
     GPU: 128-1024 work-items with 16-64 elements each in registers, looking
-    back one predecessor per work-item, and the default tile looking back a
-    wavefront at a time (the narrow window, for comparison); CPU: one
-    work-item per tile of 4096-65536 elements."""
+    back one predecessor per work-item; then the default tile looking back a
+    wavefront at a time (the narrow window, for comparison) and taking the
+    tile of its group id instead of a ticket; CPU: one work-item per tile of
+    4096-65536 elements (tickets)."""
     default = Scan.default_params(traits, "chained")
     space = [default]
     if traits.is_gpu:
@@ -340,13 +346,13 @@ def chained_search_space(traits: DeviceTraits) -> list[dict]:
         for wg, ipt in ((256, 16), (256, 64), (128, 32), (128, 64), (512, 16), (512, 32),
                         (1024, 16)):
             if wf <= wg <= traits.max_work_group_size:
-                space.append({"shape": "chained", "work_group_size": wg, "items_per_thread": ipt,
-                              "wavefront": wf, "lookback": wg})
+                space.append(dict(default, work_group_size=wg, items_per_thread=ipt,
+                                  lookback=wg))
         space.append(dict(default, lookback=wf))
+        space.append(dict(default, order="group"))
     else:
         for ipt in (4096, 65536):
-            space.append({"shape": "chained", "work_group_size": 1, "items_per_thread": ipt,
-                          "wavefront": 1, "lookback": 1})
+            space.append(dict(default, items_per_thread=ipt))
     return unique_params(space)
 
 

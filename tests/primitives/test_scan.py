@@ -122,10 +122,13 @@ def test_host_count_prefix(runtime, rng):
 def chained_points():
     """The chained scan's whole space on every device present and on the
     reference NVIDIA GPU, plus the AMD reference's default point (wavefront
-    64), each point tested on every device (PoCL compiles each in ~2 s)."""
+    64) and the CPU shape taking tiles by group id, each point tested on
+    every device (PoCL compiles a GPU-shape point in 10-20 s)."""
     traits = [DeviceTraits.of(entry.device) for entry in list_devices()] + [NVIDIA]
+    cpu = dataclasses.replace(NVIDIA, is_gpu=False)
     return unique_params([p for t in traits for p in chained_search_space(t)]
-                         + chained_search_space(AMD)[:1])
+                         + chained_search_space(AMD)[:1]
+                         + [dict(Scan.default_params(cpu, "chained"), order="group")])
 
 
 def scan_with_count(runtime, scan, x, count, capacity):
@@ -320,7 +323,7 @@ LOOK_BACK_KERNEL = """
 __kernel void run_look_back(__global const ulong* words, __global uint* failed, const uint epoch,
                             __global const uint* tiles, __global T* before)
 {
-    __local T window_values[2][LOOKBACK];
+    __local T window_values[2 * LOOKBACK];
     __local uint marks[2];
     if (get_local_id(0) == 0)
         marks[0] = marks[1] = 0;

@@ -7,17 +7,24 @@
  * with decoupled look-back (opt-in, or chosen by the tuner where its guard
  * passes; reduce-then-scan is always available).
  *
- * Work groups take tiles of TILE = WG * ITEMS elements in the order they
- * start, by drawing a ticket from an atomic counter, so every tile's
- * predecessors have already started (and the last ticket drawn resets the
- * counter for the next call). A tile sums itself and publishes its sum
+ * Tiles of TILE = WG * ITEMS elements.
+% if order == "ticket":
+ * Work groups take tiles in the order they start, by drawing a ticket from
+ * an atomic counter, so every tile's predecessors have already started (and
+ * the last ticket drawn resets the counter for the next call).
+% else:
+ * A work group takes the tile of its group id (no ticket atomic and no
+ * barrier delay its loads). This relies on work groups starting in id
+ * order, as NVIDIA and AMD GPUs do; OpenCL does not promise it (see Guard).
+% endif
+ * A tile sums itself and publishes its sum
  * (AGGREGATE), then looks back over its predecessors, LOOKBACK at a time
  * (one per work-item, read in parallel), adding their sums up to the nearest
  * one that knows its inclusive prefix (INCLUSIVE); it publishes its own
  * inclusive prefix and writes its scan. The input is read once and the
  * output written once.
  *
- * Tile words: each tile publishes one 64-bit word, so a single atomic read
+ * Tile words: each tile publishes one 64-bit word, so a single 64-bit read
  * sees a consistent status and value: the value's bits in the high half,
  * (epoch << 2) | status in the low half. The host passes a new epoch to
  * every call, so words left by earlier calls read as empty: nothing is
@@ -171,7 +178,7 @@ inline void scan_tile(__global const T* in, __global T* out, uint count, T runni
 }
 
 /* A work group (one work-item, CPU shape) is responsible for the tile whose
- * ticket it draws: it sums the tile, looks back one predecessor at a time,
+ * ticket it draws (or of its group id, ORDER group): it sums the tile, looks back one predecessor at a time,
  * then scans the tile (which is still in cache). */
 __kernel __attribute__((reqd_work_group_size(1, 1, 1)))
 void scan_chained(__global const T* src, __global T* dst, const uint capacity,
@@ -181,7 +188,11 @@ void scan_chained(__global const T* src, __global T* dst, const uint capacity,
     __global uint* counters = (__global uint*)state;  /* [0] tickets, [1] failure flag */
     __global ulong* words = state + 1;
     const uint n = element_count(capacity, device_count);
+% if order == "ticket":
     const uint tile = draw_ticket(&counters[0]);
+% else:
+    const uint tile = get_group_id(0);
+% endif
     const uint tile_start = tile * TILE;
     if (tile_start >= n) {
         if (n == 0 && tile == 0 && total)
@@ -270,10 +281,10 @@ inline T sum_window(__local const T* values, uint last)
  * nearest predecessors not yet read, work-item k the k-th nearest; the
  * INCLUSIVE ones mark themselves, and after one barrier every work-item adds
  * up the window up to the nearest mark (or the whole window, and goes on).
- * The step's two buffers alternate, so a fast work-item's next step never
- * overwrites what a slow one is still reading. */
+ * window_values holds two buffers of LOOKBACK values; they alternate, so a
+ * fast work-item's next step never overwrites what a slow one still reads. */
 inline T look_back(volatile __global const ulong* words, __global uint* failed, uint tile,
-                   uint epoch, __local T (*window_values)[LOOKBACK], __local uint* marks)
+                   uint epoch, __local T* window_values, __local uint* marks)
 {
     const uint lid = get_local_id(0);
     T before = 0;
@@ -281,11 +292,11 @@ inline T look_back(volatile __global const ulong* words, __global uint* failed, 
     uint step = 0;
     do {
         const uint w = step & 1u;
+        __local T* values = window_values + w * LOOKBACK;
         const uint width = min((uint)LOOKBACK, look_from);
         if (lid < width) {
             uint status;
-            window_values[w][lid] = wait_for_tile(words, failed, look_from - 1 - lid, epoch,
-                                                  &status);
+            values[lid] = wait_for_tile(words, failed, look_from - 1 - lid, epoch, &status);
             if (status == STATUS_INCLUSIVE)
                 atomic_max(&marks[w], inclusive_mark(step, lid));
         }
@@ -293,14 +304,15 @@ inline T look_back(volatile __global const ulong* words, __global uint* failed, 
         const uint mark = marks[w];
         const bool found = (mark >> 10) == step + 1u;
         if (width > 0)
-            before += sum_window(window_values[w], found ? 1023u - (mark & 1023u) : width - 1);
+            before += sum_window(values, found ? 1023u - (mark & 1023u) : width - 1);
         look_from = found ? 0 : look_from - width;
         ++step;
     } while (look_from > 0);
     return before;
 }
 
-/* A work group is responsible for the tile whose ticket it draws.
+/* A work group is responsible for the tile whose ticket it draws (or, with
+ * ORDER group, the tile of its group id).
  *  1. load the tile: VECTORS vectors per work-item, coalesced;
  *  2. scan the vectors' sums in local memory (vector_sums, in tile order):
  *     work-item l sums the run of VECTORS consecutive vectors l * VECTORS..,
@@ -316,19 +328,29 @@ void scan_chained(__global const T* src, __global T* dst, const uint capacity,
     __local T vector_sums[PADDED(VECTORS * WG)];
     __local T run_sums[WG];
     __local T segment_sums[SEGMENTS];
-    __local T window_values[2][LOOKBACK];
+    __local T window_values[2 * LOOKBACK];  /* two buffers of one look-back step */
     __local uint marks[2];
+% if order == "ticket":
     __local uint ticket;
+% endif
     __global uint* counters = (__global uint*)state;  /* [0] tickets, [1] failure flag */
     __global ulong* words = state + 1;
     const uint lid = get_local_id(0);
     const uint n = element_count(capacity, device_count);
+% if order == "ticket":
     if (lid == 0) {
         ticket = draw_ticket(&counters[0]);
         marks[0] = marks[1] = 0;
     }
     barrier(CLK_LOCAL_MEM_FENCE);
     const uint tile = ticket;
+% else:
+    /* tile = group id: no atomic and no barrier before the loads (the marks
+     * are made visible by the barrier after step 1) */
+    if (lid == 0)
+        marks[0] = marks[1] = 0;
+    const uint tile = get_group_id(0);
+% endif
     const uint tile_start = tile * TILE;
     if (tile_start >= n) {
         if (n == 0 && tile == 0 && lid == 0 && total)
