@@ -12,16 +12,17 @@ rows: the default `Scan` (tuned or heuristic; its choice in brackets), then
 uint32 with reduce-then-scan ("r-t-s") and every chained candidate explicitly
 (work-group size x elements per work-item, "lb K" when a look-back step
 polls K < work-group-size predecessors, "group" when tiles follow group ids
-instead of tickets), then small scans: the kernels' own
-device time (sum of the call's launch events, start to end), the span of
-the markers around one call (that includes the host's time to enqueue it:
-the device idles until the launch arrives), host wall time per call (200
-calls queued back to back) and launches per call. ``--only scan`` stops
-after those; ``--ptx DIR`` writes each chained candidate's program binary
-(PTX text on NVIDIA) there and reports whether it uses local-memory stack
-(``.local``: private arrays not kept in registers). The key-value sort is also timed (and checked) at each of
-its GPU-shape search-space points, rows "sort kv <shape> <bits>b <WG>x<ITEMS>
-[launches per sort]"; ``--only sort`` times the sorts and their baselines only.
+instead of tickets), then small scans: the kernels' own device time (sum of
+the call's launch events, start to end), the span of the markers around one
+call (that includes the host's time to enqueue it: the device idles until
+the launch arrives), host wall time per call (200 calls queued back to back)
+and launches per call. ``--only scan`` stops after those; ``--ptx DIR``
+writes each chained candidate's program binary (PTX text on NVIDIA) there
+and reports whether it uses local-memory stack (``.local``: private arrays
+not kept in registers). The key-value sort is also timed (and checked) at
+each of its GPU-shape search-space points, rows "sort kv <shape> <bits>b
+<WG>x<ITEMS> [launches per sort]"; ``--only sort`` times the sorts and their
+baselines only.
 
 Device times come from OpenCL event timestamps (markers around each run on a
 profiling queue, median of R runs); host baselines from ``perf_counter``

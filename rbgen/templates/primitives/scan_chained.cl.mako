@@ -178,8 +178,8 @@ inline void scan_tile(__global const T* in, __global T* out, uint count, T runni
 }
 
 /* A work group (one work-item, CPU shape) is responsible for the tile whose
- * ticket it draws (or of its group id, ORDER group): it sums the tile, looks back one predecessor at a time,
- * then scans the tile (which is still in cache). */
+ * ticket it draws (or of its group id, ORDER group): it sums the tile, looks
+ * back one predecessor at a time, then scans the tile (still in cache). */
 __kernel __attribute__((reqd_work_group_size(1, 1, 1)))
 void scan_chained(__global const T* src, __global T* dst, const uint capacity,
                   __global const uint* device_count, __global ulong* state, const uint epoch,
