@@ -1,6 +1,7 @@
 """Throughput of rbgen's primitives beside baselines measured in the same run.
 
     python benchmarks/primitives.py [--device D] [--n N] [--repeats R] [--only scan|sort]
+                                    [--ptx DIR]
 
 Baselines: numpy on the host always; on a GPU also pyopencl's own
 ``pyopencl.algorithm.RadixSort`` and, when importable with CUDA, ``torch.sort``
@@ -9,11 +10,19 @@ float4 copy kernel) is measured too, and the scan is reported as a fraction
 of it (a scan moves at least the bytes of one copy: read n, write n). Scan
 rows: the default `Scan` (tuned or heuristic; its choice in brackets), then
 uint32 with reduce-then-scan ("r-t-s") and every chained candidate explicitly
-(work-group size x elements per work-item), then small scans with their
-device time, host wall time per call and launches per call. ``--only scan``
-stops after those. The key-value sort is also timed (and checked) at each of
-its GPU-shape search-space points, rows "sort kv <shape> <bits>b <WG>x<ITEMS>
-[launches per sort]"; ``--only sort`` times the sorts and their baselines only.
+(work-group size x elements per work-item, "lb K" when a look-back step
+polls K < work-group-size predecessors, "group" when tiles follow group ids
+instead of tickets), then small scans: the kernels' own device time (sum of
+the call's launch events, start to end), the span of the markers around one
+call (that includes the host's time to enqueue it: the device idles until
+the launch arrives), host wall time per call (200 calls queued back to back)
+and launches per call. ``--only scan`` stops after those; ``--ptx DIR``
+writes each chained candidate's program binary (PTX text on NVIDIA) there
+and reports whether it uses local-memory stack (``.local``: private arrays
+not kept in registers). The key-value sort is also timed (and checked) at
+each of its GPU-shape search-space points, rows "sort kv <shape> <bits>b
+<WG>x<ITEMS> [launches per sort]"; ``--only sort`` times the sorts and their
+baselines only.
 
 Device times come from OpenCL event timestamps (markers around each run on a
 profiling queue, median of R runs); host baselines from ``perf_counter``
@@ -131,7 +140,10 @@ def torch_cumsum_ms(n, repeats):
 
 def scan_label(params):
     if params["shape"] == "chained":
-        return f"chained {params['work_group_size']}x{params['items_per_thread']}"
+        lookback = params.get("lookback", params["work_group_size"])
+        return (f"chained {params['work_group_size']}x{params['items_per_thread']}"
+                + ("" if lookback == params["work_group_size"] else f" lb {lookback}")
+                + (" group" if params.get("order") == "group" else ""))
     if params["shape"] == "gpu":
         return f"r-t-s {params['work_group_size']}x{params['items_per_thread']}"
     return f"r-t-s {params['work_items']} chunks"
@@ -192,13 +204,16 @@ def scan_summary(runtime, n, best_copy, scan_ms, chained_ms, repeats):
         best = min(chained_ms, key=chained_ms.get)
         line += f", {100 * best_copy / chained_ms[best]:.0f}% ({best}, fastest chained)"
     print(line)
-    print(f"{'small scans uint32':<34}{'device us':>10}{'wall us/call':>13}{'launches':>9}")
+    print(f"{'small scans uint32':<34}{'kernel us':>10}{'marker us':>10}{'wall us/call':>13}"
+          f"{'launches':>9}")
     for size in (1 << 12, 1 << 16, 1 << 20):
         src = cla.to_device(runtime.queue, np.ones(size, np.uint32))
         dst = cla.empty_like(src)
         for params in (Scan.default_params(traits), Scan.default_params(traits, "chained")):
             scan = Scan(runtime, np.uint32, params=params)
-            device = 1e3 * device_ms(runtime, lambda: scan(src, dst), repeats)
+            marker = 1e3 * device_ms(runtime, lambda: scan(src, dst), repeats)
+            kernel = 1e3 * statistics.median(launch_ms(runtime, lambda: scan(src, dst))
+                                             for _ in range(repeats))
             launches = runtime.counters["launches"]
             calls = 200
             t0 = time.perf_counter()
@@ -207,8 +222,46 @@ def scan_summary(runtime, n, best_copy, scan_ms, chained_ms, repeats):
             runtime.queue.finish()
             wall = (time.perf_counter() - t0) * 1e6 / calls
             launches = (runtime.counters["launches"] - launches) // calls
-            print(f"  n=2^{size.bit_length() - 1:<3} {scan_label(params):<24}{device:10.1f}"
-                  f"{wall:13.1f}{launches:9d}")
+            print(f"  n=2^{size.bit_length() - 1:<3} {scan_label(params):<24}{kernel:10.1f}"
+                  f"{marker:10.1f}{wall:13.1f}{launches:9d}")
+
+
+def launch_ms(runtime, fn):
+    """Device milliseconds of the kernels ``fn`` launches (each event's start
+    to end, summed): what the device itself spends, without host gaps."""
+    events = []
+    real = runtime.launch
+
+    def recording_launch(*args, **kwargs):
+        event = real(*args, **kwargs)
+        events.append(event)
+        return event
+    runtime.launch = recording_launch
+    try:
+        fn()
+    finally:
+        del runtime.launch  # back to the class's method
+    cl.wait_for_events(events)
+    return sum(e.profile.end - e.profile.start for e in events) * 1e-6
+
+
+def write_ptx(runtime, directory, n):
+    """Each chained candidate's program binary into ``directory`` (PTX text on
+    NVIDIA; other drivers' binaries are written as they come), with a line per
+    candidate saying whether the PTX declares local-memory stack."""
+    from rbgen.primitives.scan import chained_search_space
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    for params in chained_search_space(runtime.traits):
+        scan = Scan(runtime, np.uint32, inclusive=True, params=params)
+        _, compiled = scan.program(n)
+        binary = compiled.program.get_info(cl.program_info.BINARIES)[0]
+        name = scan_label(params).replace(" ", "_") + ".ptx"
+        (directory / name).write_bytes(binary)
+        text = binary.decode("latin-1")
+        stack = [line.strip() for line in text.splitlines() if ".local" in line]
+        print(f"{name:<32}{len(binary):9d} bytes  "
+              f"{'local stack: ' + '; '.join(stack[:3]) if stack else 'no .local'}")
 
 
 def main(argv=None):
@@ -220,6 +273,9 @@ def main(argv=None):
     parser.add_argument("--only", choices=("scan", "sort"), default=None,
                         help="scan: only the copy baseline and the scan variants (~30 s on a GPU); "
                              "sort: only the sorts (all variants) and their baselines")
+    parser.add_argument("--ptx", default=None, metavar="DIR",
+                        help="write the chained scan candidates' program binaries (PTX on "
+                             "NVIDIA) to DIR and report local-memory stack use")
     args = parser.parse_args(argv)
 
     runtime = rbgen.Runtime(args.device, profiling=True)
@@ -232,6 +288,8 @@ def main(argv=None):
     print(f"n = {n}, median of {repeats} runs; tuned entries: {len(tuning.describe_cache(traits))}")
 
     table = Table(n)
+    if args.ptx:
+        write_ptx(runtime, args.ptx, n)
     if args.only == "sort":
         sorts(runtime, table, n, repeats, rng)
         table.print()

@@ -7,11 +7,13 @@ Two algorithms:
   ``work_group_size * items_per_thread`` elements and a CPU shape over a few
   long chunks. It reads the input twice (3n words moved).
 * the chained scan (``scan_chained.cl.mako``): ONE launch for any n, input
-  read once (2n words). It relies on forward progress between work groups,
-  so it runs only where its guard (`chained_scan_works`) passed, and only
+  read once (2n words). It relies on forward progress between work groups
+  (and, with ``order="group"``, on groups starting in id order), so it runs
+  only where its guard (`chained_scan_works`) passed, and only
   when asked for (``chained=True``) or chosen by the tuner (its candidates
   are part of the ``scan`` family's space). Its state persists between calls
-  with a new epoch per call instead of being zeroed.
+  with a new epoch per call instead of being zeroed. A tile looks back over
+  up to ``lookback`` predecessors per step (one per work-item, GPU shape).
 
 The optional total (sum of the first n elements) is written to a device array
 so that a following step can use it without a round trip. Integer sums wrap
@@ -77,10 +79,18 @@ CHAINED = PrimitiveTemplate(
               "a power of two from 1 to 1024, at least the wavefront"),
         Param("items_per_thread", power_of_two(4, 1 << 16),
               "elements per work-item, loaded as vectors of 4 and kept in registers "
-              "(GPU shape: 8-32; CPU shape: a cache-sized tile)",
+              "(GPU shape: 16-64 hide memory latency; CPU shape: a cache-sized tile)",
               "a power of two from 4 to 65536"),
         Param("wavefront", (1, 32, 64),
-              "segment width of the work-group scan and look-back window (1: serial)"),
+              "segment width of the work-group scan (1: serial, CPU shape)"),
+        Param("order", ("ticket", "group"),
+              "how a work group finds its tile: ticket (atomic counter, start order: safe "
+              "in any dispatch order) or group id (no atomic or barrier before the loads; "
+              "relies on groups starting in id order, as GPUs do)"),
+        Param("lookback", power_of_two(1, 1024),
+              "predecessors one look-back step polls, one per work-item: a wider window "
+              "reaches a tile that knows its prefix in fewer steps (1: serial, CPU shape)",
+              "a power of two from 1 to 1024"),
     ],
     doc="Prefix sum in one launch (chained scan, decoupled look-back); opt-in with a guard.",
     # zeroed once at allocation, then carried from call to call (with a new epoch each)
@@ -90,7 +100,7 @@ CHAINED = PrimitiveTemplate(
 )
 
 #: GPU-shape chained tiles keep every element in registers: at most this many per work-item
-CHAINED_MAX_ITEMS = 32
+CHAINED_MAX_ITEMS = 64
 #: the chained scan's epochs run 1 .. EPOCHS - 1 (30 bits beside the 2-bit status)
 EPOCHS = 1 << 30
 
@@ -148,15 +158,20 @@ class Scan(Primitive):
     def default_params(cls, traits: DeviceTraits, shape: str | None = None, strip=False):
         """Heuristics: GPU tiles of 256 x 8 = 2048 elements (8 KiB of local memory,
         few tile sums); CPU four chunks per compute unit (load balance, tiny
-        chunk-sum scan); chained tiles of 256 x 16 = 4096 on GPUs (16 elements
-        in registers per work-item: four 16-byte loads in flight each),
-        16384 (L2-sized) on CPUs."""
+        chunk-sum scan); chained tiles of 256 x 32 = 8192 on GPUs (32 elements
+        in registers per work-item: eight 16-byte loads in flight each; the
+        fastest of 8-32 on the H200) looking back 256 tiles per step, tiles
+        by ticket (safe in any dispatch order); 16384 (L2-sized) on CPUs."""
         shape = shape or traits.kind
         if shape == "chained":
-            params = ({"shape": "chained", "work_group_size": 256, "items_per_thread": 16,
-                       "wavefront": clamp_wavefront(traits)} if traits.is_gpu else
-                      {"shape": "chained", "work_group_size": 1, "items_per_thread": 16384,
-                       "wavefront": 1})
+            if traits.is_gpu:
+                wf = clamp_wavefront(traits)
+                wg = max(wf, min(256, traits.max_work_group_size))
+                params = {"shape": "chained", "work_group_size": wg, "items_per_thread": 32,
+                          "wavefront": wf, "lookback": wg, "order": "ticket"}
+            else:
+                params = {"shape": "chained", "work_group_size": 1, "items_per_thread": 16384,
+                          "wavefront": 1, "lookback": 1, "order": "ticket"}
         elif shape == "gpu":
             params = {"shape": "gpu", "work_group_size": min(256, traits.max_work_group_size),
                       "items_per_thread": 8, "wavefront": clamp_wavefront(traits)}
@@ -254,11 +269,19 @@ class Scan(Primitive):
 def check_chained_params(params: dict) -> None:
     """Constraints between the chained template's parameters (each is checked
     alone by the template): the CPU shape is one serial work-item; the GPU
-    shape keeps a work-item's elements in registers."""
-    wg, ipt, wf = (params.get(k) for k in ("work_group_size", "items_per_thread", "wavefront"))
+    shape keeps a work-item's elements in registers and polls at most one
+    predecessor per work-item, at least a wavefront's worth."""
+    wg, ipt, wf, lb = (params.get(k) for k in
+                       ("work_group_size", "items_per_thread", "wavefront", "lookback"))
     if (wg == 1) != (wf == 1):
         raise RbgenError(f"params: chained scan with work_group_size={wg} and wavefront={wf}; "
                          f"wavefront 1 goes with work_group_size 1 (CPU shape) only")
+    if wg == 1 and lb != 1:
+        raise RbgenError(f"params: lookback={lb} with work_group_size 1; the serial CPU shape "
+                         f"looks back one tile at a time (lookback 1)")
+    if wg != 1 and isinstance(lb, int) and isinstance(wf, int) and not wf <= lb <= wg:
+        raise RbgenError(f"params: lookback={lb} must lie between wavefront={wf} and "
+                         f"work_group_size={wg} (one polled predecessor per work-item)")
     if wg != 1 and isinstance(ipt, int) and ipt > CHAINED_MAX_ITEMS:
         raise RbgenError(f"params: items_per_thread={ipt} is more than the "
                          f"{CHAINED_MAX_ITEMS} a chained work-item keeps in registers")
@@ -311,19 +334,25 @@ def _probe_chained(runtime, params: dict) -> tuple[bool, str]:
 def chained_search_space(traits: DeviceTraits) -> list[dict]:
     """Candidates for the chained scan (family ``scan_chained``; also in `search_space`).
 
-    GPU: 128-512 work-items with 8-32 elements each in registers; CPU: one
-    work-item per tile of 4096-65536 elements."""
-    space = [Scan.default_params(traits, "chained")]
+    GPU: 128-1024 work-items with 16-64 elements each in registers, looking
+    back one predecessor per work-item; then the default tile looking back a
+    wavefront at a time (the narrow window, for comparison) and taking the
+    tile of its group id instead of a ticket; CPU: one work-item per tile of
+    4096-65536 elements (tickets)."""
+    default = Scan.default_params(traits, "chained")
+    space = [default]
     if traits.is_gpu:
         wf = clamp_wavefront(traits)
-        for wg, ipt in ((256, 8), (256, 32), (128, 16), (128, 32), (512, 8), (512, 16)):
+        for wg, ipt in ((256, 16), (256, 64), (128, 32), (128, 64), (512, 16), (512, 32),
+                        (1024, 16)):
             if wf <= wg <= traits.max_work_group_size:
-                space.append({"shape": "chained", "work_group_size": wg, "items_per_thread": ipt,
-                              "wavefront": wf})
+                space.append(dict(default, work_group_size=wg, items_per_thread=ipt,
+                                  lookback=wg))
+        space.append(dict(default, lookback=wf))
+        space.append(dict(default, order="group"))
     else:
         for ipt in (4096, 65536):
-            space.append({"shape": "chained", "work_group_size": 1, "items_per_thread": ipt,
-                          "wavefront": 1})
+            space.append(dict(default, items_per_thread=ipt))
     return unique_params(space)
 
 

@@ -9,6 +9,8 @@ other search-space point (the device's own space and the reference GPUs' --
 see primitive_spaces) runs the reduced size list on uint32 exclusive and
 float32 inclusive (GPU-shape points on a CPU device: uint32 exclusive only).
 """
+import dataclasses
+
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
@@ -120,10 +122,13 @@ def test_host_count_prefix(runtime, rng):
 def chained_points():
     """The chained scan's whole space on every device present and on the
     reference NVIDIA GPU, plus the AMD reference's default point (wavefront
-    64), each point tested on every device (PoCL compiles each in ~2 s)."""
+    64) and the CPU shape taking tiles by group id, each point tested on
+    every device (PoCL compiles a GPU-shape point in 10-20 s)."""
     traits = [DeviceTraits.of(entry.device) for entry in list_devices()] + [NVIDIA]
+    cpu = dataclasses.replace(NVIDIA, is_gpu=False)
     return unique_params([p for t in traits for p in chained_search_space(t)]
-                         + chained_search_space(AMD)[:1])
+                         + chained_search_space(AMD)[:1]
+                         + [dict(Scan.default_params(cpu, "chained"), order="group")])
 
 
 def scan_with_count(runtime, scan, x, count, capacity):
@@ -295,14 +300,76 @@ def test_chained_scan_is_one_launch(runtime, rng, n):
 def test_chained_params_are_checked(runtime):
     """Contradictory chained parameters fail at construction, naming the parameter."""
     gpu = Scan.default_params(NVIDIA, "chained")
-    with pytest.raises(RbgenError, match="items_per_thread=64"):
-        Scan(runtime, params=dict(gpu, items_per_thread=64))
+    cpu = Scan.default_params(dataclasses.replace(NVIDIA, is_gpu=False), "chained")
+    with pytest.raises(RbgenError, match="items_per_thread=128"):
+        Scan(runtime, params=dict(gpu, items_per_thread=128))
     with pytest.raises(RbgenError, match="wavefront=1"):
         Scan(runtime, params=dict(gpu, wavefront=1))
     with pytest.raises(RbgenError, match="items_per_thread=2"):
         Scan(runtime, params=dict(gpu, items_per_thread=2))
+    with pytest.raises(RbgenError, match="lookback=16"):
+        Scan(runtime, params=dict(gpu, lookback=16))      # narrower than a wavefront
+    with pytest.raises(RbgenError, match="lookback=512"):
+        Scan(runtime, params=dict(gpu, lookback=512))     # more than one per work-item
+    with pytest.raises(RbgenError, match="lookback=32"):
+        Scan(runtime, params=dict(cpu, lookback=32))      # the serial shape polls one
+    with pytest.raises(RbgenError, match="lookback"):
+        Scan(runtime, params={k: v for k, v in gpu.items() if k != "lookback"})
     with pytest.raises(RbgenError, match="chained=True contradicts"):
         Scan(runtime, chained=True, params=Scan.default_params(runtime.traits))
+
+
+LOOK_BACK_KERNEL = """
+__kernel void run_look_back(__global const ulong* words, __global uint* failed, const uint epoch,
+                            __global const uint* tiles, __global T* before)
+{
+    __local T window_values[2 * LOOKBACK];
+    __local uint marks[2];
+    if (get_local_id(0) == 0)
+        marks[0] = marks[1] = 0;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    before[get_global_id(0)] = look_back(words, failed, tiles[get_group_id(0)], epoch,
+                                         window_values, marks);
+}
+"""
+
+
+@pytest.mark.parametrize("lookback", [32, 256])
+def test_chained_look_back_over_many_windows(runtime, rng, lookback):
+    """The GPU shape's look-back on prepared tile words (every predecessor
+    published; INCLUSIVE ones rare, so a tile may walk many windows, or back
+    to tile 0): every work-item of a group gets the sum of the predecessors
+    up to and including the nearest INCLUSIVE one."""
+    from rbgen.primitives.scan import CHAINED, EPOCHS
+    params = dict(Scan.default_params(NVIDIA, "chained", strip=True), lookback=lookback)
+    wg = params["work_group_size"]
+    if wg > runtime.traits.max_work_group_size:
+        pytest.skip("work group larger than this device allows")
+    program = cl.Program(runtime.context, CHAINED.spec(dtype="uint", inclusive=False, **params)
+                         .source + LOOK_BACK_KERNEL).build()
+    count = 3000
+    epoch = int(rng.integers(1, EPOCHS))
+    status = np.where(rng.random(count) < 0.004, 2, 1).astype(np.uint64)  # INCLUSIVE : AGGREGATE
+    values = rng.integers(0, 2**32, count, dtype=np.uint64)
+    words = (values << np.uint64(32)) | (np.uint64(epoch) << np.uint64(2)) | status
+    inclusive = np.flatnonzero(status == 2)
+    tiles = np.unique(np.concatenate([
+        [0, 1, 2, lookback - 1, lookback, lookback + 1, 2 * lookback + 3, count - 1],
+        inclusive + 1, inclusive[:5] + lookback, rng.integers(0, count, 40)])).astype(np.uint32)
+    tiles = tiles[tiles < count]
+    d_words = cla.to_device(runtime.queue, words)
+    failed = cla.zeros(runtime.queue, 1, np.uint32)
+    d_tiles = cla.to_device(runtime.queue, tiles)
+    before = cla.empty(runtime.queue, tiles.size * wg, np.uint32)
+    program.run_look_back(runtime.queue, (tiles.size * wg,), (wg,), d_words.data, failed.data,
+                          np.uint32(epoch), d_tiles.data, before.data)
+    got = before.get().reshape(tiles.size, wg)
+    for row, tile in zip(got, tiles):
+        nearest = inclusive[inclusive < tile]
+        first = nearest[-1] if nearest.size else 0
+        expected = values[first:tile].sum() % 2**32
+        assert np.all(row == expected), f"lookback={lookback} tile={tile} (from {first})"
+    assert failed.get()[0] == 0
 
 
 def test_chained_scan_guard_falls_back(runtime, rng, monkeypatch):
