@@ -1,7 +1,7 @@
 """BoxBox scene benchmark: the whole World step (broadphase to integration).
 
     python benchmarks/scenes.py [--device D] [--sizes 1000 8000 27000 111375]
-                                [--steps 100] [--warmup 10] [--batching cells|components]
+                                [--steps 100] [--warmup 10] [--batching cells|components|slabs]
 
 For each size: ms/step = wall time of ``--steps`` steps enqueued back to back
 after ``--warmup`` (one queue.finish() at the end), kernel launches and blocking reads per
@@ -28,11 +28,12 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--warmup", type=int, default=10)
     parser.add_argument("--scene", default="boxbox", choices=["boxbox", "box_pile"])
-    parser.add_argument("--batching", default=None, choices=["cells", "components"],
-                        help="level-1 batching (default: cells on GPUs, components on CPUs)")
+    parser.add_argument("--batching", default=None, choices=["cells", "components", "slabs"],
+                        help="level-1 batching (default: cells on GPUs, slabs on CPUs)")
     parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"],
-                        help="a manifold's normal rows as one block (default) or one by one")
+                        help="a manifold's normal rows as one block or one by one (default: "
+                             "block with cells batching, else one by one)")
     args = parser.parse_args(argv)
 
     options = {"iterations": args.iterations}

@@ -12,11 +12,14 @@ from the default.
 
 Winners are stored in ``cache_dir()/"tuning"/<device fingerprint>.json``
 (format `CACHE_VERSION`), one entry per family, variant, template source hash
-and size bucket. `lookup` is what primitives call: it reads the cache once per
-process and never tunes, so a first run on an untuned device simply gets the
-heuristic defaults from `DeviceTraits`. An entry whose template changed since
-it was tuned (other source hash) is stale and ignored; a missing bucket falls
-back to the nearest tuned bucket of the same family and variant.
+and size bucket (`rbgen.primitives._base.size_bucket`: the even exponent
+nearest to log2 of the element count). `lookup` is what primitives call: it
+reads the cache once per process and never tunes, so a first run on an
+untuned device simply gets the heuristic defaults from `DeviceTraits`. An
+entry whose template changed since it was tuned (other source hash) is stale
+and ignored; a missing bucket falls back to the nearest tuned bucket of the
+same family and variant (ties: the larger). `tune_all` tunes every other
+bucket from 2^12 to 2^24 on GPUs (`TUNE_SIZES`).
 """
 from __future__ import annotations
 
@@ -296,15 +299,28 @@ def _run_candidates(runtime, fam, variant, n, space, rng, repeats, progress):
     return results, spreads
 
 
-#: sizes tuned by `tune_all` (quick: the first only)
-TUNE_SIZES = (1 << 16, 1 << 22)
+#: sizes tuned by `tune_all` on GPUs: the pipeline's arrays (1k-500k elements) up to the
+#: 16M of the scan benchmark, every other size bucket (one between two tuned ones picks
+#: the nearer, see `lookup`); winners differ across this range (launch count vs bandwidth)
+TUNE_SIZES = (1 << 12, 1 << 16, 1 << 20, 1 << 22, 1 << 24)
+#: on CPUs (a 2^24 sort takes seconds per run there)
+CPU_TUNE_SIZES = (1 << 12, 1 << 16, 1 << 20)
+#: ``tune_all(quick=True)``: one size
+QUICK_SIZES = (1 << 16,)
+
+
+def tune_sizes(traits: DeviceTraits, quick: bool = False) -> tuple[int, ...]:
+    """The sizes `tune_all` tunes on a device."""
+    if quick:
+        return QUICK_SIZES
+    return TUNE_SIZES if traits.is_gpu else CPU_TUNE_SIZES
 
 
 def tune_all(runtime: Runtime, progress: bool = True, quick: bool = False) -> list[dict]:
-    """Tune every family and variant at the standard sizes; lines go to stderr."""
+    """Tune every family and variant at `tune_sizes`; lines go to stderr."""
     from . import primitives  # noqa: F401 - registers the families
     say = (lambda line: print(line, file=sys.stderr, flush=True)) if progress else None
-    sizes = TUNE_SIZES[:1] if quick else TUNE_SIZES
+    sizes = tune_sizes(runtime.traits, quick)
     jobs = [(fam, v, n) for fam in FAMILIES.values() for v in fam.variants for n in sizes]
     entries = []
     for j, (fam, variant, n) in enumerate(jobs):

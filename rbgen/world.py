@@ -5,8 +5,9 @@ a fixed sequence of enqueues with no blocking read:
 
     prepare bodies (world inverse inertia, gyroscopic term, gravity) ->
     world AABBs -> broadphase pairs -> narrowphase manifolds ->
-    contact constraints -> batching -> ``iterations`` PGS launches ->
-    (split impulse: ``position_iterations`` launches) -> integrate ->
+    contact constraints -> batching -> warm start, ``iterations`` PGS sweeps
+    and (split impulse) ``position_iterations`` push sweeps (one launch with
+    components batching, one per colour and sweep otherwise) -> integrate ->
     (split impulse: apply push velocities)
 
 Counts (pairs, manifolds, constraints, batches) stay on the device. Capacity
@@ -57,19 +58,28 @@ STEPS_IN_FLIGHT = 2
 MAX_REDOS = 16
 
 
-def _default_normal_solve(batching_mode: str) -> str:
-    """The normal solve that holds stacks in each batching mode (10 iterations, dt 1/60).
+def _default_normal_solve(batching_mode: str, solver_shape: str) -> str:
+    """The normal solve that holds stacks (10 iterations, dt 1/60, manifold friction):
+    block, except sequential for the cpu shape with components or slabs batching.
 
-    Measured (10-box column drift in 10 s / max speed at step 300 of a dropped 8,000-box
-    pile / top motion of a 20-row pyramid in 600 steps):
-    cells + block: 0.0 cm / 0.14 m/s PoCL, 0.23 m/s H200 / 3.4 cm H200;
-    cells + sequential: 2.4 cm / 0.029 m/s / 6.7 cm on the H200 (over its 5 cm bound);
-    components + sequential: 0.4 cm / 0.032 m/s / 2-3 cm;
-    components + block: 0.0 cm / a 1,000-box pile still at 0.125 m/s.
-    So cells (the GPU default) gets the block solve and components (the CPU default) the
-    sequential one. Open: a few stack tops of a dropped pile keep rocking under the block
-    solve (cause not found yet), and it costs 2x the solver time on the H200."""
-    return "block" if batching_mode == "cells" else "sequential"
+    H200, gpu shape: top motion of a 20-row pyramid in 600 steps / max speed of a dropped
+    8,000-box pile at step 300 / sideways drift of a 10-box column in 600 steps:
+    cells + block 1.98 cm / 0.0009 m/s / 0.00 cm; cells + sequential 6.99 cm (over the
+    5 cm bound) / 0.0052 / 0.96 cm; components + block 1.98 / 0.0005 / 0.00;
+    components + sequential 1.81 / 0.0047 / 1.36; slabs + block 2.09 / 0.0005 / 0.00;
+    slabs + sequential 3.23 / 0.0049 / 3.89 (over its 2 cm bound). The gpu shape solves a
+    batch's manifolds side by side, so a sequential solve's point-order torque is not
+    corrected by the rows solved after it, and columns lean; the block solve leaves no
+    such torque.
+    PoCL, cpu shape (one work-item walks its group in index order, Gauss-Seidel proper):
+    components + sequential 1.8-1.9 cm (pyramid), 0 of 28 dropped 4x4x4 grids still
+    moving; slabs + sequential 2.8 cm; components + block 1.9-2.9 cm but 2 of 40 grids
+    keep a stack top rocking, and block costs 8x the sequential solve there (2x on the
+    H200). Cells with the cpu shape needs block: sequential lets the 10-box column drift
+    9 cm (the colours split a column between launches)."""
+    if solver_shape == "cpu" and batching_mode in ("components", "slabs"):
+        return "sequential"
+    return "block"
 
 
 class World:
@@ -91,15 +101,21 @@ class World:
     at up to 0.8 m/s),
     ``normal_solve`` ("block": a manifold's normal rows solved together, so
     the order of its points leaves no torque; "sequential": one row after another;
-    default: block with cells batching, sequential with components batching — see
-    `_default_normal_solve`),
-    ``warm_start``, ``gyroscopic``, ``friction_model`` ("point": two friction
-    rows per contact point; "manifold": one pair at the centre plus twist),
+    default: sequential for the cpu shape with components or slabs batching, else
+    block — see `_default_normal_solve`),
+    ``warm_start``, ``gyroscopic``, ``friction_model`` ("manifold", the default:
+    one pair at the centre limited by the total normal impulse, plus twist; "point":
+    two friction rows per contact point, each limited by its own point's impulse: a
+    1-box-deep 20-row pyramid swaying out of plane loads and unloads its corners, the
+    lightly loaded ones slip, and its top creeps 3-5 cm sideways in 10 s, against
+    0.3-1.6 cm with "manifold"),
     ``broadphase`` ("grid", "sap", "sap3"),
-    ``batching`` ("components": one solver launch per iteration, one work group
-    per pile, the CPU default; "cells": 9 launches per iteration, piles spread
-    over the device, the GPU default), ``group_count`` (solver work groups per
-    launch), ``manifold_capacity`` and
+    ``batching`` ("components": one solver launch per step, one work group
+    (GPU) or work-item (CPU) per pile; "cells": 9 launches per sweep, piles
+    spread over the device, the GPU default; "slabs": 3 launches per sweep,
+    piles spread over a few cores in slabs across the widest horizontal axis
+    of the bodies when they were last set, the CPU default), ``group_count``
+    (solver groups per colour), ``manifold_capacity`` and
     ``pair_capacity`` (initial buffer sizes; grown on overflow).
 
     Shapes are immutable values (see `rbgen.Shape`): one shape object may be
@@ -110,7 +126,7 @@ class World:
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), *, iterations: int = 10,
                  position_iterations: int = 4, relaxation: float = 1.0,
                  penetration: str = "split", warm_start: bool = True, gyroscopic: bool = True,
-                 friction_model: str = "point", normal_solve: str | None = None,
+                 friction_model: str = "manifold", normal_solve: str | None = None,
                  broadphase: str = "grid", contact_margin: float = 0.02,
                  restitution_threshold: float = 0.5, penetration_slop: float | None = None,
                  penetration_recovery: float = 0.2, linear_damping: float = 0.0,
@@ -140,7 +156,8 @@ class World:
         self._solver = ContactSolver(rt, split_impulse=penetration == "split",
                                      max_batches=self._batcher.max_batches, friction=friction_model,
                                      normal_solve=normal_solve or _default_normal_solve(
-                                         self._batcher.mode))
+                                         self._batcher.mode, self._batcher.shape),
+                                     shape=self._batcher.shape)
         self.restitution_threshold = restitution_threshold
         if penetration_slop is None:
             # Baumgarte feeds its push into the warm-started impulse: with a 1 mm slop a
@@ -320,6 +337,7 @@ class World:
             self._stages_types = types
         self._packed = self.shapes.pack_all().to_device(queue)
         self._batcher.cell_size = self._cell_size()
+        self._batcher.slab_axis = self._slab_axis()
         self._ensure_manifolds(self._initial_manifolds or MANIFOLDS_PER_BODY * max(n, 16))
         self._device_stale = False
 
@@ -338,6 +356,17 @@ class World:
         for index in np.unique(self._host["shape"][self._host["inv_mass"] > 0]):
             radius = max(radius, bounding_radius(self.shapes.shapes[int(index)]))
         return 2.0 * radius + 2.0 * self.contact_margin + 1e-3
+
+    def _slab_axis(self) -> tuple:
+        """Batching slabs: across the coordinate axis, of the two least along gravity, on
+        which the dynamic bodies spread widest (a pile then spreads over most slabs)."""
+        positions = self._host["position"][self._host["inv_mass"] > 0, :3]
+        candidates = np.argsort(np.abs(self.gravity))[:2]
+        if len(positions) == 0:
+            return tuple(float(i == candidates[0]) for i in range(3))
+        spread = positions.max(axis=0) - positions.min(axis=0)
+        best = max(candidates, key=lambda axis: spread[axis])
+        return tuple(float(i == best) for i in range(3))
 
     # ------------------------------------------------------------- stepping
     def step(self, dt: float, substeps: int = 1) -> None:
@@ -378,14 +407,11 @@ class World:
                           capacity, h)
         constraints = self._constraints.constraints
         self._batcher(constraints, self._constraints.count, self._bodies, n, capacity)
-        self._solver.solve_velocities(constraints, self._batcher, self._bodies, self._inertia,
-                                      iterations=self.iterations, relaxation=self.relaxation,
-                                      warm_start=self.warm_start)
         split = self._solver.split_impulse and self.position_iterations > 0
-        if split:
-            self._solver.solve_positions(constraints, self._batcher, self._bodies, self._inertia, n,
-                                         iterations=self.position_iterations,
-                                         relaxation=self.relaxation)
+        self._solver.solve(constraints, self._batcher, self._bodies, self._inertia, n,
+                           iterations=self.iterations,
+                           position_iterations=self.position_iterations if split else 0,
+                           relaxation=self.relaxation, warm_start=self.warm_start)
         self._integrate(self._bodies, n, h, linear_damping=self.linear_damping,
                         angular_damping=self.angular_damping)
         if split:

@@ -65,8 +65,43 @@ def test_lookup_nearest_bucket(cache_root):
     assert tuning.lookup(GPU, "scan", "uint", 20) == e["scan[uint]@2^22"]["params"]   # 2 vs 4 away
     assert tuning.lookup(GPU, "scan", "uint", 18) == e["scan[uint]@2^16"]["params"]   # 2 vs 4 away
     assert tuning.lookup(GPU, "scan", "uint", 19) == e["scan[uint]@2^22"]["params"]   # tie: larger
-    assert tuning.lookup(GPU, "scan", "uint", 10) == e["scan[uint]@2^16"]["params"]
+    assert tuning.lookup(GPU, "scan", "uint", 10) == e["scan[uint]@2^12"]["params"]
+    assert tuning.lookup(GPU, "scan", "uint", 26) == e["scan[uint]@2^24"]["params"]
     assert tuning.lookup(GPU, "scan", "float", 12) == e["scan[float]@2^22"]["params"]
+
+
+def test_size_bucket_is_the_nearest_even_exponent():
+    """Bucket b serves 2^(b-1) <= n < 2^(b+1) (log scale), clamped to 10..26."""
+    cases = {0: 10, 1: 10, 2**11 - 1: 10, 2**11: 12, 3000: 12, 2**16: 16, 2**17 - 1: 16,
+             2**17: 18, 2**22: 22, 2**22 + 1: 22, 2**23 - 1: 22, 2**23: 24,
+             12_000_000: 24, 2**24: 24, 2**25: 26, 2**31: 26}
+    assert {n: size_bucket(n) for n in cases} == cases
+
+
+def test_sizes_between_tuned_buckets(cache_root):
+    """A count picks the tuned size nearest on a log scale: just over 4M takes
+    the 2^22 winner (not 2^24's), 12M the 2^24 one, beyond 2^24 the 2^24 one."""
+    data = install_fixture(GPU)
+    e = data["entries"]
+
+    def params_for(n):
+        return tuning.lookup(GPU, "scan", "uint", size_bucket(n))
+    assert params_for(2**22 + 1) == e["scan[uint]@2^22"]["params"]
+    assert params_for(2**23 - 1) == e["scan[uint]@2^22"]["params"]
+    assert params_for(12_000_000) == e["scan[uint]@2^24"]["params"]
+    assert params_for(2**26) == e["scan[uint]@2^24"]["params"]
+    assert params_for(3000) == e["scan[uint]@2^12"]["params"]
+    assert params_for(2**14) == e["scan[uint]@2^16"]["params"]   # 2^14: tie 12/16, the larger
+    assert tuning.lookup(GPU, "scan_chained", "uint", size_bucket(2**20)) == \
+        e["scan_chained[uint]@2^24"]["params"]                   # its only tuned bucket
+
+
+def test_tune_sizes_cover_every_other_bucket_to_2_24():
+    sizes = tuning.tune_sizes(GPU)
+    assert max(sizes) == 2**24 and [size_bucket(n) for n in sizes] == [12, 16, 20, 22, 24]
+    cpu = dataclasses.replace(GPU, is_gpu=False)
+    assert max(tuning.tune_sizes(cpu)) < 2**22
+    assert tuning.tune_sizes(GPU, quick=True) == tuning.tune_sizes(cpu, quick=True) == (2**16,)
 
 
 def test_lookup_misses(cache_root):
@@ -133,6 +168,30 @@ def test_primitive_uses_tuned_params(cache_root, runtime, rng):
     assert np.array_equal(dst.get(), np.cumsum(x))
     fallback = Scan(runtime, np.uint32)
     assert fallback.program(1000)[0] == Scan.default_params(runtime.traits)
+
+
+def test_tuned_chained_scan_is_used(cache_root, runtime, rng, monkeypatch):
+    """A chained winner of family "scan" is used by a plain Scan (the tuner
+    opted in); if its guard fails on this device the scan falls back."""
+    from rbgen.primitives import scan as scan_module
+    tuned = Scan.default_params(runtime.traits, "chained")
+    entry = {"family": "scan", "variant": "uint", "bucket": 16, "params": tuned,
+             "source_hash": tuning.FAMILIES["scan"].template_hash("chained"),
+             "median_ms": 0.01, "candidates": 9}
+    tuning.save_cache(runtime.traits, {"version": tuning.CACHE_VERSION,
+                                       "fingerprint": runtime.traits.fingerprint,
+                                       "entries": {"scan[uint]@2^16": entry}})
+    tuning.forget_loaded()
+    x = rng.integers(0, 100, 70_001).astype(np.uint32)
+    src, dst = cla.to_device(runtime.queue, x), cla.empty(runtime.queue, x.size, np.uint32)
+    scan = Scan(runtime, np.uint32)
+    assert scan.program(x.size)[0] == tuned
+    launches = runtime.counters["launches"]
+    scan(src, dst)
+    assert runtime.counters["launches"] == launches + 1
+    assert np.array_equal(dst.get(), np.concatenate([[0], np.cumsum(x)[:-1]]))
+    monkeypatch.setattr(scan_module, "chained_scan_works", lambda rt, params: False)
+    assert Scan(runtime, np.uint32).program(x.size)[0] == Scan.default_params(runtime.traits)
 
 
 def test_tune_stores_a_correct_winner(cache_root, runtime):

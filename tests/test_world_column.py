@@ -7,7 +7,7 @@ import pytest
 import rbgen
 
 
-@pytest.mark.parametrize("batching", ["components", "cells"])
+@pytest.mark.parametrize("batching", ["components", "cells", "slabs"])
 def test_ten_box_column_stands(batching):
     """Closed form: at rest box k's centre is at 0.5 + k (half extent 0.5, ground top y = 0).
     Over 600 steps no box may drift sideways more than 2 cm or sink more than 2 cm (10 contacts
@@ -24,7 +24,7 @@ def test_ten_box_column_stands(batching):
     assert np.linalg.norm(world.linear_velocities[ids], axis=1).max() < 0.05
 
 
-@pytest.mark.parametrize("batching", ["components", "cells"])
+@pytest.mark.parametrize("batching", ["components", "cells", "slabs"])
 def test_symmetric_column_gets_no_sideways_motion(batching):
     """Closed form: three boxes stacked exactly on each other (no warm start, so every
     step is solved from scratch) are symmetric under x -> -x and z -> -z, so no box may

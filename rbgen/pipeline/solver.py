@@ -1,23 +1,35 @@
-"""Projected Gauss-Seidel contact solver: one launch per iteration.
+"""Projected Gauss-Seidel contact solver over a `ConstraintBatcher`'s groups.
 
-Each work group owns one level-1 group of `ConstraintBatcher` (no dynamic
-body shared with any other group of the same launch) and walks its batches
-with a barrier between them, so an iteration needs no synchronisation between
-work groups and no host round trip: with the batcher's ``components`` mode,
-ONE launch of `solve_contacts` per iteration (the warm start fused into the
-first); with ``cells``, one per cell colour plus one for the leftovers (and
-one warm-start sweep before the iterations). Split impulse adds
-``position_iterations`` sweeps of `solve_penetration` and one
-`apply_split_velocities` after integration.
+Two shapes (template parameter ``shape``, chosen by the device kind):
+
+* ``gpu``: a work group per level-1 group walks its level-2 batches with a
+  barrier between them, its lanes solving the constraints of a batch at once;
+* ``cpu``: a work-item per level-1 group solves the group's constraints one
+  after another (plain Gauss-Seidel, no barriers); its batcher skips the
+  level-2 colouring. A CPU runs many small groups well (PoCL schedules work
+  groups over its threads), so the cells batching mode keeps every core busy
+  even when the scene is one pile.
+
+Launches: `solve` runs the warm start, the ``iterations`` velocity sweeps
+and the ``position_iterations`` split-impulse sweeps. With the batcher's
+``components`` mode no dynamic body is shared between groups, so ONE launch
+of `solve_groups` does them all (each work group loops over the sweeps
+itself). With ``cells``, a sweep is one launch per cell colour plus one for
+the leftovers, and the warm start is a sweep of its own; position sweep k
+rides in the launches of velocity sweep k (it only touches push velocities).
+Odd velocity sweeps visit each manifold's points backwards.
+`apply_split_velocities` moves the bodies by their push velocities after
+integration.
 
 Relaxation (successive over-relaxation factor, 1 = plain Gauss-Seidel) and
 the iteration counts are World settings, passed per call.
 
-Host cost: a launch sets no argument. Each distinct (first group, passes)
-of the launch plan has its own kernel object (`rbgen.launch.instance`) with
-those scalars set once; the buffers and ``relaxation`` are bound once per
-call through `rbgen.launch.BoundKernel` (the driver sees only the changed
-ones: this step's constraint buffer, a grown buffer, a new relaxation).
+Host cost: a launch sets no argument. Each distinct set of trailing scalars
+(first group, passes, sweeps) of the launch schedule has its own kernel object
+(`rbgen.launch.instance`) with those scalars set once; the buffers and
+``relaxation`` are bound once per call through `rbgen.launch.BoundKernel` (the
+driver sees only the changed ones: this step's constraint buffer, a grown
+buffer, a new relaxation).
 """
 from __future__ import annotations
 
@@ -34,17 +46,23 @@ from ..launch import instance
 FRICTION_MODELS = ("point", "manifold")
 #: how a manifold's normal rows are solved (see the template parameter "normal_solve")
 NORMAL_SOLVES = ("block", "sequential")
+#: kernel shapes (see the template parameter "shape")
+SHAPES = ("gpu", "cpu")
 
 TEMPLATE = KernelTemplate(
     "pipeline/solver.cl.mako",
     [
-        work_group_size_param("lanes solving one batch at a time; a batch of a dense pile holds "
-                              "a few hundred constraints"),
+        work_group_size_param("gpu shape: lanes solving one batch at a time (a batch of a dense "
+                              "pile holds a few hundred constraints); cpu shape: groups per "
+                              "work group, each solved by its own work-item"),
         Param("max_batches", power_of_two(2, 4096),
               "must equal the batcher's max_batches (the layout of group_batches)",
               "a power of two from 2 to 4096"),
+        Param("shape", SHAPES,
+              "gpu: a work group per level-1 group, lanes over level-2 batches with barriers; "
+              "cpu: a work-item per level-1 group, its constraints one after another"),
         Param("split_impulse", (True, False),
-              "emit the position pass and the push-velocity kernels"),
+              "emit the position sweeps and the push-velocity kernel"),
         Param("normal_solve", NORMAL_SOLVES,
               "block: a manifold's normal rows solved together (no point-order bias, so "
               "symmetric stacks stay upright); sequential: one row after another (cheaper, "
@@ -53,47 +71,58 @@ TEMPLATE = KernelTemplate(
               "point: two tangent rows per contact point; manifold: one tangent pair at the "
               "points' centre plus a twist row (fewer rows, Bullet3's GPU choice)"),
     ],
-    doc="PGS velocity iterations (and split-impulse position iterations) over batched contacts.",
+    doc="PGS velocity sweeps (and split-impulse position sweeps) over batched contacts.",
     roles={"constraints": "inout", "bodies": "inout", "split": "inout"},
     defaults=lambda traits: {"friction": "point", "work_group_size": default_work_group_size(traits),
-                             "max_batches": 128, "split_impulse": True,
+                             "max_batches": 128, "shape": traits.kind, "split_impulse": True,
                              "normal_solve": "block"},
 )
 
 
-def default_work_group_size(traits: DeviceTraits) -> int:
-    """64 on GPUs (two warps / one wavefront per batch step); 8 on CPUs."""
-    return min(64 if traits.is_gpu else 8, traits.max_work_group_size)
+def default_work_group_size(traits: DeviceTraits, shape: str | None = None) -> int:
+    """gpu shape: 64 (two warps / one wavefront per batch step); cpu shape: 1 (one group
+    per work group, so that PoCL hands groups to its threads one at a time)."""
+    if (shape or traits.kind) == "cpu":
+        return 1
+    return min(64, traits.max_work_group_size)
 
 
-#: bit flags of one `solve_contacts` launch (as in the template)
-WARM_START_PASS, SOLVE_PASS, REVERSE_PASS = 1, 2, 4
+#: bodies per work group of apply_split_velocities: enough to amortise a work group's
+#: start on a CPU, two warps on a GPU
+APPLY_WORK_GROUP_SIZE = 64
+
+#: bit flags of a `solve_groups` launch's ``passes`` argument (as in the template)
+WARM_START_PASS, FIRST_REVERSED = 1, 2
 
 
 class ContactSolver:
-    """Launches the PGS iterations over a `ConstraintBatcher`'s batches."""
+    """Launches the PGS sweeps over a `ConstraintBatcher`'s groups."""
 
     def __init__(self, runtime: Runtime, *, split_impulse: bool = True, max_batches: int = 128,
                  friction: str = "point", work_group_size: int | None = None,
-                 normal_solve: str = "block"):
+                 normal_solve: str = "block", shape: str | None = None):
         self.runtime = runtime
         self.split_impulse = bool(split_impulse)
-        self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
+        self.shape = shape or runtime.traits.kind
+        if self.shape not in SHAPES:
+            raise RbgenError(f"shape must be one of {SHAPES}, got {shape!r}")
+        self.work_group_size = work_group_size or default_work_group_size(runtime.traits,
+                                                                          self.shape)
         if friction not in FRICTION_MODELS:
             raise RbgenError(f"friction must be one of {FRICTION_MODELS}, got {friction!r}")
         if normal_solve not in NORMAL_SOLVES:
             raise RbgenError(f"normal_solve must be one of {NORMAL_SOLVES}, got {normal_solve!r}")
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, max_batches=int(max_batches),
-                                  split_impulse=self.split_impulse, friction=friction,
-                                  normal_solve=normal_solve)
+                                  shape=self.shape, split_impulse=self.split_impulse,
+                                  friction=friction, normal_solve=normal_solve)
         self._program = program = compile_spec(runtime, self.spec)
         if self.split_impulse:
             self.apply_kernel = runtime.bound(program.kernel("apply_split_velocities"))
         self.max_batches = int(max_batches)
         self._split = None
-        #: (kernel name, first group, passes) -> kernel object with those scalars set
+        #: trailing scalars -> kernel object with those scalars set
         self._instances: dict = {}
-        #: (kernel name, plan, iterations, warm start) -> ([(kernel, global size)], kernels)
+        #: (plan, sweeps, warm start) -> ([(kernel, global size)], distinct kernels)
         self._schedules: dict = {}
 
     def split_velocities(self, body_capacity: int):
@@ -107,90 +136,105 @@ class ContactSolver:
         if batcher.max_batches != self.max_batches:
             raise RbgenError(f"batcher max_batches={batcher.max_batches} differs from the "
                              f"solver's {self.max_batches}")
+        if self.shape == "gpu" and not batcher.batches:
+            raise RbgenError("the gpu-shaped solver needs level-2 batches: build the "
+                             "ConstraintBatcher with shape='gpu'")
 
-    def solve_velocities(self, constraints, batcher, bodies, inertia, *, iterations: int,
-                         relaxation: float = 1.0, warm_start: bool = True) -> None:
-        """Warm start (every constraint's old impulses, before any sweep), then
-        ``iterations`` PGS sweeps; one launch per entry of the batcher's launch plan.
+    def solve(self, constraints, batcher, bodies, inertia, body_capacity: int = 0, *,
+              iterations: int, position_iterations: int = 0, relaxation: float = 1.0,
+              warm_start: bool = True) -> None:
+        """Warm start (every constraint's old impulses, before any sweep), ``iterations``
+        velocity sweeps and ``position_iterations`` split-impulse sweeps (needs
+        split_impulse=True and ``body_capacity``), launched as the module docstring says.
 
         Odd sweeps visit each manifold's points backwards (symmetric Gauss-Seidel):
         a 5-box column then comes to rest at 10 iterations instead of wobbling for
         ever; the price is slower convergence of redundant contacts between free
         bodies (their residual halves more slowly)."""
         self._check(batcher)
-        if iterations < 0 or not 0.0 < relaxation < 2.0:
-            raise RbgenError(f"need iterations >= 0 and 0 < relaxation < 2, got "
-                             f"iterations={iterations!r}, relaxation={relaxation!r}")
-        launches, kernels = self._schedule("solve_contacts", batcher.launch_plan, int(iterations),
-                                           bool(warm_start))
-        shared = (constraints, batcher.order, batcher.group_batches,
-                  batcher.group_batch_count, bodies, inertia, np.float32(relaxation))
+        if iterations < 0 or position_iterations < 0 or not 0.0 < relaxation < 2.0:
+            raise RbgenError(f"need iterations >= 0, position_iterations >= 0 and "
+                             f"0 < relaxation < 2, got iterations={iterations!r}, "
+                             f"position_iterations={position_iterations!r}, "
+                             f"relaxation={relaxation!r}")
+        if position_iterations and not self.split_impulse:
+            raise RbgenError("position_iterations need a ContactSolver built with "
+                             "split_impulse=True")
+        launches, kernels = self._schedule(batcher.launch_plan, int(iterations),
+                                           int(position_iterations), bool(warm_start))
+        if not launches:
+            return
+        shared = [constraints, batcher.order, batcher.group_batches, batcher.group_batch_count,
+                  bodies, inertia]
+        if self.split_impulse:
+            shared.append(self.split_velocities(max(1, int(body_capacity))))
+        shared.append(np.float32(relaxation))
         for kernel in kernels:
             kernel.bind_first(*shared)
         wg = self.work_group_size
         for kernel, size in launches:
             kernel.launch(size, wg)
 
-    def _schedule(self, name: str, plan, iterations: int, warm_start: bool = False):
+    def solve_velocities(self, constraints, batcher, bodies, inertia, *, iterations: int,
+                         relaxation: float = 1.0, warm_start: bool = True) -> None:
+        """Warm start and ``iterations`` velocity sweeps (see `solve`)."""
+        self.solve(constraints, batcher, bodies, inertia, iterations=iterations,
+                   relaxation=relaxation, warm_start=warm_start)
+
+    def solve_positions(self, constraints, batcher, bodies, inertia, body_capacity: int, *,
+                        iterations: int, relaxation: float = 1.0) -> None:
+        """Split-impulse sweeps on push velocities only (needs split_impulse=True)."""
+        if not self.split_impulse:
+            raise RbgenError("this ContactSolver was built with split_impulse=False")
+        self.solve(constraints, batcher, bodies, inertia, body_capacity, iterations=0,
+                   position_iterations=iterations, relaxation=relaxation, warm_start=False)
+
+    def _schedule(self, plan, iterations: int, position_iterations: int, warm_start: bool):
         """Every launch of one call (kernel object, global size) and the distinct
         kernel objects, computed once per plan and settings."""
-        key = (name, tuple(plan), iterations, warm_start)
+        key = (tuple(plan), iterations, position_iterations, warm_start)
         schedule = self._schedules.get(key)
         if schedule is not None:
             return schedule
-        if name == "solve_contacts":
-            passes = []
-            if warm_start and len(plan) > 1:
-                passes.append(WARM_START_PASS)
-            elif warm_start and iterations > 0:
-                passes.append(WARM_START_PASS | SOLVE_PASS)  # fused into the first sweep
-                iterations -= 1
-            elif warm_start:
-                passes.append(WARM_START_PASS)
-            passes += [SOLVE_PASS] * iterations
-            passes = [(flags | (REVERSE_PASS if i % 2 else 0),) for i, flags in enumerate(passes)]
-        else:
-            passes = [()] * iterations  # solve_penetration has no pass flags
-        wg = self.work_group_size
-        launches = [(self._instance(name, first, flags), count * wg)
-                    for flags in passes for first, count in plan]
+        warm = WARM_START_PASS if warm_start else 0
+        if len(plan) == 1:  # groups share no body: every sweep in one launch
+            passes = [(warm, iterations, position_iterations)]
+        else:  # one launch per colour and sweep; the warm start is a sweep of its own
+            passes = [(warm, 0, 0)] if warm else []
+            passes += [(FIRST_REVERSED if s % 2 else 0, int(s < iterations),
+                        int(s < position_iterations))
+                       for s in range(max(iterations, position_iterations))]
+        passes = [p for p in passes if p != (0, 0, 0)]
+        launches = [self._launch(first, count, *p) for p in passes for first, count in plan]
         kernels = list({id(k): k for k, _ in launches}.values())
         schedule = self._schedules[key] = (launches, kernels)
         return schedule
 
-    def _instance(self, name: str, first: int, flags: tuple):
-        """The kernel object of ``name`` whose trailing scalars are (first group, *flags)."""
-        key = (name, first, flags)
+    def _launch(self, first: int, count: int, passes: int, velocity_sweeps: int,
+                position_sweeps: int):
+        """(kernel object, global size) of one launch over groups first .. first + count - 1."""
+        wg = self.work_group_size
+        scalars = [first]
+        if self.shape == "cpu":  # a work-item per group, the last work group partly idle
+            scalars.append(first + count)
+            size = -(-count // wg) * wg
+        else:
+            size = count * wg
+        scalars += [passes, velocity_sweeps]
+        if self.split_impulse:
+            scalars.append(position_sweeps)
+        key = tuple(scalars)
         kernel = self._instances.get(key)
         if kernel is None:
-            kernel = self._instances[key] = instance(self.runtime, self._program, name)
-            kernel.bind_last(np.uint32(first), *(np.uint32(f) for f in flags))
-        return kernel
-
-    def solve_positions(self, constraints, batcher, bodies, inertia, body_capacity: int, *,
-                        iterations: int, relaxation: float = 1.0) -> None:
-        """Split-impulse sweeps on push velocities (needs split_impulse=True)."""
-        if not self.split_impulse:
-            raise RbgenError("this ContactSolver was built with split_impulse=False")
-        self._check(batcher)
-        split = self.split_velocities(body_capacity)
-        launches, kernels = self._schedule("solve_penetration", batcher.launch_plan,
-                                           int(iterations))
-        shared = (constraints, batcher.order, batcher.group_batches,
-                  batcher.group_batch_count, split, bodies, inertia,
-                  np.float32(relaxation))
-        for kernel in kernels:
-            kernel.bind_first(*shared)
-        wg = self.work_group_size
-        for kernel, size in launches:
-            kernel.launch(size, wg)
+            kernel = self._instances[key] = instance(self.runtime, self._program, "solve_groups")
+            kernel.bind_last(*(np.uint32(v) for v in scalars))
+        return kernel, size
 
     def apply_split(self, bodies, body_count: int, dt: float) -> None:
         """Move bodies by their push velocities (after integration) and clear them."""
         if body_count == 0:
             return
         split = self.split_velocities(body_count)
-        wg = self.work_group_size
+        wg = min(APPLY_WORK_GROUP_SIZE, self.runtime.traits.max_work_group_size)
         self.apply_kernel.over(body_count, wg, bodies, split, np.uint32(body_count),
                                np.float32(dt))
-

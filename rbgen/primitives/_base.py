@@ -102,9 +102,11 @@ def resolve_count(runtime: Runtime, n, capacity: int, name: str = "n"):
 
 
 def size_bucket(capacity: int) -> int:
-    """The tuning size bucket of an element count: log2 rounded up to even, 10..26."""
-    k = math.ceil(math.log2(max(capacity, 1)))
-    return min(max(k + (k & 1), 10), 26)
+    """The tuning size bucket of an element count: the even exponent nearest
+    to log2(capacity), 10..26. Bucket b is tuned at 2^b elements and serves
+    the counts nearest to it on a log scale, 2^(b-1) up to (not including) 2^(b+1)."""
+    k = 2 * math.floor(math.log2(max(capacity, 1)) / 2 + 0.5)
+    return min(max(k, 10), 26)
 
 
 def clamp_wavefront(traits: DeviceTraits) -> int:

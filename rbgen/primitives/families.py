@@ -96,20 +96,20 @@ def _bench_bound_search(runtime, prim: BoundSearch, n, rng):
     return (lambda: prim(d_keys, d_queries, out)), (lambda: np.array_equal(out.get(), expected))
 
 
-def _build_chained(runtime, variant, params):
-    """A chained-scan candidate; one that fails its guard is rejected, not timed
-    as the reduce-then-scan it would fall back to."""
-    prim = Scan(runtime, _NP[variant], inclusive=False, chained=True, params=params)
-    if not scan.chained_scan_works(runtime, params):
+def _build_scan(runtime, variant, params, chained=False):
+    """A scan candidate; a chained one that fails its guard is rejected, not
+    timed as the reduce-then-scan it would fall back to."""
+    prim = Scan(runtime, _NP[variant], inclusive=False, chained=chained, params=params)
+    if params["shape"] == "chained" and not scan.chained_scan_works(runtime, params):
         raise RuntimeError("the chained scan failed its guard on this device")
     return prim
 
 
 FAMILIES = [
-    tuning.Family("scan", ("uint", "float"), scan.search_space,
-                  lambda rt, v, p: Scan(rt, _NP[v], inclusive=False, params=p), _bench_scan,
+    tuning.Family("scan", ("uint", "float"), scan.search_space, _build_scan, _bench_scan,
                   lambda: Scan.TEMPLATES),
-    tuning.Family("scan_chained", ("uint",), scan.chained_search_space, _build_chained,
+    tuning.Family("scan_chained", ("uint",), scan.chained_search_space,
+                  lambda rt, v, p: _build_scan(rt, v, p, chained=True),
                   _bench_scan, lambda: {"chained": Scan.TEMPLATES["chained"]}),
     tuning.Family("radix_sort", ("kv", "keys"), radix_sort.search_space,
                   lambda rt, v, p: RadixSort(rt, 32, with_values=(v == "kv"), params=p),

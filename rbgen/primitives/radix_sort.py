@@ -1,14 +1,31 @@
 """Stable LSD radix sort of uint32 keys, optionally carrying uint32 values.
 
 One pass per digit of ``radix_bits`` bits over the low ``key_bits`` bits of
-the keys (bits above are ignored): count digits per tile (GPU shape) or per
-chunk (CPU shape) into a digit-major table, scan the table with `Scan`, then
-scatter each tile/chunk stably. Passes ping-pong between the caller's arrays
-and scratch arrays owned by the sorter; after an odd number of passes a copy
-brings the result back, so the sort is in place. Only the first n elements
-are read or written. Float keys sort through `float_to_sortable_uint`.
+the keys (bits above are ignored). Four shapes:
+
+- ``"cpu"`` (radix_sort_chunked), ``"gpu"`` (radix_sort_tiled) and ``"split"``
+  (radix_sort_split) share one loop per pass: count digits per chunk or tile
+  into a digit-major table, scan the table with `Scan`, scatter each chunk or
+  tile stably. They differ in the ranking: "cpu" walks long chunks serially;
+  "gpu" keeps RADIX counters per work-item, cheap for 4-bit digits only;
+  "split" sorts the tile in local memory by one or two 4-bit splits with
+  packed counters, so 8-bit digits (half the passes and launches) need little
+  local memory.
+- ``"onesweep"`` (radix_sort_onesweep) counts every pass's digits once, then
+  launches once per pass: tiles rank like "split" and find their output
+  offsets by decoupled look-back over earlier tiles' counts. The look-back
+  needs forward progress of started work groups, so it is checked once per
+  device and parameters (`onesweep_works`); where the check fails, and for
+  ``ONESWEEP_MAX_KEYS`` keys or more, the sort uses "split".
+
+GPUs default to `GPU_DEFAULT_SHAPE`. Passes ping-pong between the caller's
+arrays and scratch arrays owned by the sorter; after an odd number of passes
+a copy brings the result back, so the sort is in place. Only the first n
+elements are read or written. Float keys sort through `float_to_sortable_uint`.
 """
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 import pyopencl as cl
@@ -18,12 +35,25 @@ from ..codegen import compile_spec, Param, power_of_two, work_group_size_param
 from ..device import DeviceTraits
 from ..errors import RbgenError
 from ._base import (PrimitiveTemplate, Primitive, ceil_div, check_array, clamp_wavefront,
-                    default_work_items, resolve_count)
+                    resolve_count, unique_params)
 from .scan import Scan
 
-_WITH_VALUES = Param("with_values", (True, False), "move a uint value with every key")
+#: the shape GPUs get by default, one place to flip it: "split" (8-bit digits
+#: ranked by two 4-bit splits, half the passes of "gpu"'s 4-bit digits);
+#: "onesweep" has fewer launches but its guard costs a blocking probe at first use
+GPU_DEFAULT_SHAPE = "split"
 
-TILED = PrimitiveTemplate(
+_WITH_VALUES = Param("with_values", (True, False), "move a uint value with every key")
+_WAVEFRONT = Param("wavefront", (32, 64), "segment width of the work-group scan")
+
+
+class _TileTemplate(PrimitiveTemplate):
+    """The tile shapes also include the kernels they share."""
+
+    INCLUDES = PrimitiveTemplate.INCLUDES + ("primitives/radix_sort_tiles.cl.mako",)
+
+
+TILED = _TileTemplate(
     "primitives/radix_sort_tiled.cl.mako",
     [
         _WITH_VALUES,
@@ -34,13 +64,48 @@ TILED = PrimitiveTemplate(
               "a power of two from 32 to 1024, at least the wavefront"),
         Param("items_per_thread", (1, 2, 4, 8, 16, 32),
               "consecutive keys ranked serially by each work-item"),
-        Param("wavefront", (32, 64), "segment width of the work-group scan"),
+        _WAVEFRONT,
         Param("counter_type", ("uint", "ushort"),
               "local rank counters: ushort halves their local memory (tiles < 65536 keys)"),
     ],
     doc="Radix sort pass kernels, GPU shape: tile histograms and stable tile scatter.",
     roles={"keys": "inout"},
     defaults=lambda traits: _template_defaults(traits, "gpu"),
+)
+
+SPLIT = _TileTemplate(
+    "primitives/radix_sort_split.cl.mako",
+    [
+        _WITH_VALUES,
+        Param("radix_bits", (4, 8),
+              "bits per pass, ranked by one or two 4-bit splits of the tile: 8 halves the passes"),
+        Param("work_group_size", power_of_two(32, 1024),
+              "work-items per tile; 8 packed counters each, plus the tile, in local memory",
+              "a power of two from 32 to 1024, at least the wavefront"),
+        Param("items_per_thread", (1, 2, 4, 8, 16, 32),
+              "consecutive keys ranked serially by each work-item: amortises the scans"),
+        _WAVEFRONT,
+    ],
+    doc="Radix sort pass kernels, GPU shape: tile histograms, tile sorted by 4-bit splits.",
+    roles={"keys": "inout"},
+    defaults=lambda traits: _template_defaults(traits, "split"),
+)
+
+ONESWEEP = _TileTemplate(
+    "primitives/radix_sort_onesweep.cl.mako",
+    [
+        _WITH_VALUES,
+        Param("radix_bits", (4, 8), "bits per pass, ranked by one or two 4-bit splits of the tile"),
+        Param("work_group_size", power_of_two(32, 1024),
+              "work-items per tile, at least one per digit (each looks back for its digit)",
+              "a power of two from 32 to 1024, at least the wavefront and 2^radix_bits"),
+        Param("items_per_thread", (1, 2, 4, 8, 16, 32),
+              "consecutive keys ranked serially by each work-item: amortises scans and look-back"),
+        _WAVEFRONT,
+    ],
+    doc="Radix sort, one launch per pass: digit totals once, tile look-back for tile offsets.",
+    roles={"keys": "inout"},
+    defaults=lambda traits: _template_defaults(traits, "onesweep"),
 )
 
 CHUNKED = PrimitiveTemplate(
@@ -67,7 +132,7 @@ class RadixSort(Primitive):
     """
 
     family = "radix_sort"
-    TEMPLATES = {"gpu": TILED, "cpu": CHUNKED}
+    TEMPLATES = {"gpu": TILED, "split": SPLIT, "onesweep": ONESWEEP, "cpu": CHUNKED}
 
     def __init__(self, runtime, key_bits: int = 32, with_values: bool = True, *, params=None):
         if isinstance(key_bits, bool) or not isinstance(key_bits, (int, np.integer)) \
@@ -87,7 +152,20 @@ class RadixSort(Primitive):
         return {"with_values": self.with_values}
 
     def _spec_for(self, params):
-        return super()._spec_for(self.template_params(params))
+        params = self.template_params(params)
+        shape = params.get("shape")
+        if shape not in ("split", "onesweep"):
+            return super()._spec_for(params)
+        # shapes of this primitive only (the shared check knows gpu and cpu)
+        values = {k: v for k, v in params.items() if k != "shape"}
+        wg = values.get("work_group_size", 0)
+        if wg < values.get("wavefront", 0):
+            raise RbgenError(f"params: work_group_size={wg} is smaller than "
+                             f"wavefront={values['wavefront']}")
+        if shape == "onesweep" and wg < 1 << values.get("radix_bits", 0):
+            raise RbgenError(f"params: work_group_size={wg} is smaller than the "
+                             f"{1 << values['radix_bits']} digits of a onesweep pass")
+        return self.TEMPLATES[shape].spec(**values, **self.template_values())
 
     @staticmethod
     def template_params(params: dict) -> dict:
@@ -102,13 +180,27 @@ class RadixSort(Primitive):
 
     @classmethod
     def default_params(cls, traits: DeviceTraits, shape: str | None = None):
-        """Heuristics: GPU 4-bit digits over tiles of 256 x 8 keys (16 KiB of rank
-        counters plus the 17 KiB tile fit 48 KiB of local memory); CPU 8-bit
-        digits (four passes, a 1 KiB private histogram) in one chunk per CU."""
-        if (shape or traits.kind) == "gpu":
-            wg = max(clamp_wavefront(traits), min(256, traits.max_work_group_size))
+        """Heuristics. GPUs get `GPU_DEFAULT_SHAPE`: "split" sorts 8-bit digits
+        (four passes over 32-bit keys) in tiles of 256 x 8 keys (H200, 16M
+        key-value pairs: 1.28 ms, against 1.87 ms for 256 x 16, whose 45 KiB of
+        local memory leaves one work group per SM); "onesweep" tiles of 256 x 16
+        where they fit in local memory, else 256 x 8 (its
+        look-back needs a work-item per digit: 4-bit digits on devices whose
+        work groups hold fewer than 256); "gpu" 4-bit digits over tiles of
+        256 x 8 keys (16 KiB of rank counters plus the 17 KiB tile). CPUs:
+        8-bit digits (four passes, a 1 KiB private histogram) in one chunk per CU."""
+        shape = shape or (GPU_DEFAULT_SHAPE if traits.is_gpu else "cpu")
+        wf = clamp_wavefront(traits)
+        wg = max(wf, min(256, traits.max_work_group_size))
+        if shape in ("split", "onesweep"):
+            bits = 4 if shape == "onesweep" and wg < 256 else 8
+            items = 16 if (shape == "onesweep"
+                           and tile_local_bytes(shape, wg, 16, bits) <= _usable_local(traits)) else 8
+            return {"shape": shape, "radix_bits": bits, "work_group_size": wg,
+                    "items_per_thread": items, "wavefront": wf}
+        if shape == "gpu":
             return {"shape": "gpu", "radix_bits": 4, "work_group_size": wg,
-                    "items_per_thread": 8, "wavefront": clamp_wavefront(traits)}
+                    "items_per_thread": 8, "wavefront": wf}
         # one chunk per compute unit: each chunk scatters to RADIX output streams,
         # and more streams than the caches hold slow the scatter down
         return {"shape": "cpu", "radix_bits": 8, "work_items": max(1, traits.compute_units)}
@@ -136,43 +228,86 @@ class RadixSort(Primitive):
         capacity, device_count = resolve_count(self.runtime, n, keys.size)
         return self.enqueue(buf_keys, buf_values, capacity, device_count)
 
+    def program(self, capacity: int):
+        """As `Primitive.program`; a onesweep sort must first pass its guard
+        (else this sorter uses the split shape's defaults)."""
+        params, program = super().program(capacity)
+        if params["shape"] == "onesweep" and (capacity >= ONESWEEP_MAX_KEYS
+                                              or not onesweep_works(self.runtime, params)):
+            fallback = self.default_params(self.runtime.traits, "split")
+            return fallback, compile_spec(self.runtime, self._spec_for(fallback))
+        return params, program
+
     def enqueue(self, keys, values, capacity: int, device_count):
         """Sort raw buffers (arguments already checked)."""
         if capacity == 0:
             return None
         params, program = self.program(capacity)
-        rt, cap = self.runtime, np.uint32(capacity)
-        bits = params["radix_bits"]
-        if params["shape"] == "gpu":
+        if params["shape"] == "cpu":
+            groups = params["work_items"]
+            global_size, local_size = groups, 1
+        else:
             wg = params["work_group_size"]
             groups = ceil_div(capacity, wg * params["items_per_thread"])
             global_size, local_size = groups * wg, wg
-        else:
-            groups = params["work_items"]
-            global_size, local_size = groups, 1
-        table = self._buffer("table", groups << bits)
         pair = [(keys, values), (self._buffer("keys", capacity),
                                  self._buffer("values", capacity) if values is not None else None)]
-        count, scatter, copy = (program.kernel(k) for k in
-                                ("count_digits", "scatter_digits", "copy_back"))
-        passes = ceil_div(self.key_bits, bits)
+        passes = ceil_div(self.key_bits, params["radix_bits"])
+        if params["shape"] == "onesweep":
+            event = self._onesweep_passes(program, params, pair, capacity, device_count, groups)
+        else:
+            event = self._table_passes(program, params, pair, capacity, device_count, groups,
+                                       global_size, local_size)
+        if passes % 2:
+            (k_in, v_in), (k_out, v_out) = pair[1], pair[0]
+            vals = (v_in, v_out) if values is not None else ()
+            copy = program.kernel("copy_back")
+            self.runtime.bound(copy).bind(k_in, k_out, *vals, np.uint32(capacity), device_count)
+            event = self.runtime.launch(copy, global_size, local_size)
+        return event
+
+    def _table_passes(self, program, params, pair, capacity, device_count, groups,
+                      global_size, local_size):
+        """Per pass: count digits per tile/chunk, scan the digit table, scatter."""
+        rt, cap, bits = self.runtime, np.uint32(capacity), params["radix_bits"]
+        table = self._buffer("table", groups << bits)
+        count, scatter = program.kernel("count_digits"), program.kernel("scatter_digits")
         event = None
-        for p in range(passes):
+        for p in range(ceil_div(self.key_bits, bits)):
             shift = p * bits
             mask = np.uint32((1 << min(bits, self.key_bits - shift)) - 1)
             (k_in, v_in), (k_out, v_out) = pair[p % 2], pair[1 - p % 2]
             rt.bound(count).bind(k_in, cap, device_count, np.uint32(shift), mask, table)
             rt.launch(count, global_size, local_size)
             self.scan.enqueue(table, table, groups << bits, None, None)
-            vals = (v_in, v_out) if values is not None else ()
+            vals = (v_in, v_out) if v_in is not None else ()
             rt.bound(scatter).bind(k_in, k_out, *vals, cap, device_count, np.uint32(shift), mask,
                                    table)
             event = rt.launch(scatter, global_size, local_size)
-        if passes % 2:
-            (k_in, v_in), (k_out, v_out) = pair[1], pair[0]
-            vals = (v_in, v_out) if values is not None else ()
-            rt.bound(copy).bind(k_in, k_out, *vals, cap, device_count)
-            event = rt.launch(copy, global_size, local_size)
+        return event
+
+    def _onesweep_passes(self, program, params, pair, capacity, device_count, tiles):
+        """Zero the look-back state, count every pass's digits once, then one
+        launch per pass (see radix_sort_onesweep.cl.mako for the state's layout)."""
+        rt, cap, bits = self.runtime, np.uint32(capacity), params["radix_bits"]
+        wg = params["work_group_size"]
+        passes = ceil_div(self.key_bits, bits)
+        max_passes = ceil_div(32, bits)
+        words = 1 + max_passes + (max_passes << bits) + passes * (tiles << bits)
+        state = self._buffer("state", words)
+        cl.enqueue_fill_buffer(rt.queue, state, np.uint32(0), 0, 4 * words)
+        key_bits = np.uint32(self.key_bits)
+        count = program.kernel("count_all_digits")
+        rt.bound(count).bind(pair[0][0], cap, device_count, key_bits, state)
+        rt.launch(count, min(tiles, 4 * max(1, rt.traits.compute_units)) * wg, wg)
+        sort_pass = program.kernel("sort_pass")
+        event = None
+        for p in range(passes):
+            (k_in, v_in), (k_out, v_out) = pair[p % 2], pair[1 - p % 2]
+            vals = (v_in, v_out) if v_in is not None else ()
+            rt.bound(sort_pass).bind(k_in, k_out, *vals, cap, device_count, key_bits,
+                                     np.uint32(p), state)
+            event = rt.launch(sort_pass, tiles * wg, wg)
         return event
 
 
@@ -234,12 +369,72 @@ def _flip_on_device(runtime, array, dtype, kernel_name, out_dtype):
     return out
 
 
+def tile_local_bytes(shape: str, work_group_size: int, items_per_thread: int,
+                     radix_bits: int = 8, with_values: bool = True) -> int:
+    """Local memory of the split or onesweep shape's tile kernel: the padded tile
+    (keys and values), 8 packed counters per work-item, per-digit bases (and
+    for onesweep the tile's histogram and ticket), scan scratch."""
+    padded = lambda words: words + words // 32  # noqa: E731
+    tile = padded(work_group_size * items_per_thread) * (2 if with_values else 1)
+    digits = (2 if shape == "onesweep" else 1) << radix_bits
+    return 4 * (tile + padded(8 * work_group_size) + digits + 2 * work_group_size
+                + work_group_size // 32 + 2)
+
+
+#: onesweep status words count keys in 30 bits; larger sorts use the split shape
+ONESWEEP_MAX_KEYS = 1 << 30
+
+_GUARD: dict[tuple, bool] = {}
+
+
+def onesweep_works(runtime, params: dict) -> bool:
+    """The onesweep shape's guard: sort a many-tile input with duplicates once per
+    device and parameters and compare with numpy; a failure (wrong result or the
+    device-side spin limit hit) warns and makes callers use the split shape."""
+    key = (id(runtime.context), tuple(sorted(params.items())))
+    if key not in _GUARD:
+        _GUARD[key] = True  # the probe itself must use onesweep
+        tile = params["work_group_size"] * params["items_per_thread"]
+        n = 24 * tile + 5
+        keys = np.random.default_rng(12345).integers(0, n // 3, n, dtype=np.uint32) * 2654435761
+        keys = keys.astype(np.uint32)
+        probe = RadixSort(runtime, 32, with_values=True, params=params)
+        d_keys = cla.to_device(runtime.queue, keys)
+        d_values = cla.to_device(runtime.queue, np.arange(n, dtype=np.uint32))
+        probe(d_keys, d_values)
+        flag = np.empty(1, np.uint32)
+        cl.enqueue_copy(runtime.queue, flag, probe._scratch["state"], is_blocking=True)
+        order = np.argsort(keys, kind="stable")
+        ok = bool(flag[0] == 0 and np.array_equal(d_keys.get(), keys[order])
+                  and np.array_equal(d_values.get(), order.astype(np.uint32)))
+        if not ok:
+            warnings.warn(f"onesweep radix sort with {params} failed its check on "
+                          f"{runtime.traits.device_name}; using the split shape instead",
+                          RuntimeWarning, stacklevel=3)
+        _GUARD[key] = ok
+    return _GUARD[key]
+
+
+def _usable_local(traits: DeviceTraits) -> int:
+    """Local memory a sort kernel may plan for (a little left to the compiler)."""
+    return traits.local_mem_size - 1024
+
+
 def search_space(traits: DeviceTraits) -> list[dict]:
     """Candidate parameters the tuner tries on a device (heuristic default first)."""
     space = [RadixSort.default_params(traits)]
     cu = max(1, traits.compute_units)
     if traits.is_gpu:
         wf = clamp_wavefront(traits)
+        for shape, bits, wg, ipt in (
+                ("split", 8, 128, 16), ("split", 8, 256, 8), ("split", 8, 256, 16),
+                ("split", 8, 512, 4), ("split", 8, 512, 8), ("split", 8, 1024, 4),
+                ("split", 4, 256, 16), ("onesweep", 8, 256, 16), ("onesweep", 8, 256, 8),
+                ("onesweep", 8, 512, 8)):
+            if wf <= wg <= traits.max_work_group_size \
+                    and tile_local_bytes(shape, wg, ipt, bits) <= _usable_local(traits):
+                space.append({"shape": shape, "radix_bits": bits, "work_group_size": wg,
+                              "items_per_thread": ipt, "wavefront": wf})
         for bits, wg, ipt in ((4, 128, 8), (4, 128, 16), (4, 256, 4), (4, 256, 8), (4, 512, 4),
                               (8, 64, 8), (8, 64, 16), (8, 128, 4)):
             # rank counters + the tile's keys and values (padded 1/32) + scan scratch
@@ -251,8 +446,4 @@ def search_space(traits: DeviceTraits) -> list[dict]:
         for bits in (8, 11):
             for k in (1, 2, 4, 8):
                 space.append({"shape": "cpu", "radix_bits": bits, "work_items": k * cu})
-    unique = []
-    for p in space:
-        if p not in unique:
-            unique.append(p)
-    return unique
+    return unique_params(space)

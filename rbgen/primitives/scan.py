@@ -1,10 +1,23 @@
 """Prefix sums (inclusive or exclusive) of uint32, int32 or float32 arrays.
 
-Reduce-then-scan in three launches, in either shape (see `_base`): a GPU
-shape over tiles of ``work_group_size * items_per_thread`` elements and a CPU
-shape over a few long chunks. The optional total (sum of the first n
-elements) is written to a device array so that a following step can use it
-without a round trip. Integer sums wrap modulo 2^32 like C.
+Two algorithms:
+
+* reduce-then-scan, always available and the heuristic default: three
+  launches, in either shape (see `_base`): a GPU shape over tiles of
+  ``work_group_size * items_per_thread`` elements and a CPU shape over a few
+  long chunks. It reads the input twice (3n words moved).
+* the chained scan (``scan_chained.cl.mako``): ONE launch for any n, input
+  read once (2n words). It relies on forward progress between work groups
+  (and, with ``order="group"``, on groups starting in id order), so it runs
+  only where its guard (`chained_scan_works`) passed, and only
+  when asked for (``chained=True``) or chosen by the tuner (its candidates
+  are part of the ``scan`` family's space). Its state persists between calls
+  with a new epoch per call instead of being zeroed. A tile looks back over
+  up to ``lookback`` predecessors per step (one per work-item, GPU shape).
+
+The optional total (sum of the first n elements) is written to a device array
+so that a following step can use it without a round trip. Integer sums wrap
+modulo 2^32 like C.
 """
 from __future__ import annotations
 
@@ -64,15 +77,32 @@ CHAINED = PrimitiveTemplate(
         Param("work_group_size", power_of_two(1, 1024),
               "work-items per tile (1 on CPUs: one work-item walks a whole tile)",
               "a power of two from 1 to 1024, at least the wavefront"),
-        Param("items_per_thread", power_of_two(1, 1 << 16),
-              "elements per work-item; the tile stays in local memory between sum and scan",
-              "a power of two from 1 to 65536"),
-        Param("wavefront", (1, 32, 64), "segment width of the work-group scan (1: serial)"),
+        Param("items_per_thread", power_of_two(4, 1 << 16),
+              "elements per work-item, loaded as vectors of 4 and kept in registers "
+              "(GPU shape: 16-64 hide memory latency; CPU shape: a cache-sized tile)",
+              "a power of two from 4 to 65536"),
+        Param("wavefront", (1, 32, 64),
+              "segment width of the work-group scan (1: serial, CPU shape)"),
+        Param("order", ("ticket", "group"),
+              "how a work group finds its tile: ticket (atomic counter, start order: safe "
+              "in any dispatch order) or group id (no atomic or barrier before the loads; "
+              "relies on groups starting in id order, as GPUs do)"),
+        Param("lookback", power_of_two(1, 1024),
+              "predecessors one look-back step polls, one per work-item: a wider window "
+              "reaches a tile that knows its prefix in fewer steps (1: serial, CPU shape)",
+              "a power of two from 1 to 1024"),
     ],
-    doc="Prefix sum in one pass (chained scan, decoupled look-back); opt-in with a guard.",
+    doc="Prefix sum in one launch (chained scan, decoupled look-back); opt-in with a guard.",
+    # zeroed once at allocation, then carried from call to call (with a new epoch each)
+    roles={"state": "inout"},
     defaults=lambda traits: {"dtype": "uint", "inclusive": False,
                              **Scan.default_params(traits, shape="chained", strip=True)},
 )
+
+#: GPU-shape chained tiles keep every element in registers: at most this many per work-item
+CHAINED_MAX_ITEMS = 64
+#: the chained scan's epochs run 1 .. EPOCHS - 1 (30 bits beside the 2-bit status)
+EPOCHS = 1 << 30
 
 
 class Scan(Primitive):
@@ -81,9 +111,14 @@ class Scan(Primitive):
     ``src`` and ``dst`` are pyopencl arrays of ``dtype`` (may be the same);
     ``n`` is None (all of src), a host int or a device uint32 count; ``total``
     an optional device array that receives the sum of the n elements.
-    ``chained=True`` opts in to the single-pass chained scan (tuned as family
-    ``scan_chained``); it is checked once per device by `chained_scan_works`
-    and falls back to reduce-then-scan when that check fails.
+
+    Which algorithm runs: explicit ``params``, else the tuned winner of family
+    ``scan`` (which may be the chained scan where its guard passed), else the
+    reduce-then-scan heuristic. ``chained=True`` opts in to the single-pass
+    chained scan: tuned as family ``scan_chained``, else its heuristic. Any
+    chained choice is checked once per device by `chained_scan_works` and falls
+    back to reduce-then-scan when that check fails. Calls of one Scan share
+    the chained scan's state, so they must run in order (one in-order queue).
     """
 
     TEMPLATES = {"gpu": TILED, "cpu": CHUNKED, "chained": CHAINED}
@@ -95,10 +130,13 @@ class Scan(Primitive):
         self.inclusive = bool(inclusive)
         #: opt-in single-pass scan; see scan_chained.cl.mako for its guard
         self.chained = bool(chained)
-        if params is not None and (params.get("shape") == "chained") != self.chained:
-            raise RbgenError("params['shape'] == 'chained' if and only if chained=True")
+        if params is not None and self.chained and params.get("shape") != "chained":
+            raise RbgenError(f"chained=True contradicts params['shape']={params.get('shape')!r}")
         super().__init__(runtime, params)
         self._sums = None
+        #: the chained scan's tile words and the epoch of its last call
+        self._state = None
+        self._epoch = 0
 
     @property
     def family(self) -> str:
@@ -111,17 +149,29 @@ class Scan(Primitive):
     def template_values(self):
         return {"dtype": self.type_name, "inclusive": self.inclusive}
 
+    def _spec_for(self, params: dict):
+        if params.get("shape") == "chained":
+            check_chained_params(params)
+        return super()._spec_for(params)
+
     @classmethod
     def default_params(cls, traits: DeviceTraits, shape: str | None = None, strip=False):
         """Heuristics: GPU tiles of 256 x 8 = 2048 elements (8 KiB of local memory,
         few tile sums); CPU four chunks per compute unit (load balance, tiny
-        chunk-sum scan); chained tiles of 4096 on GPUs, 16384 (L2-sized) on CPUs."""
+        chunk-sum scan); chained tiles of 256 x 32 = 8192 on GPUs (32 elements
+        in registers per work-item: eight 16-byte loads in flight each; the
+        fastest of 8-32 on the H200) looking back 256 tiles per step, tiles
+        by ticket (safe in any dispatch order); 16384 (L2-sized) on CPUs."""
         shape = shape or traits.kind
         if shape == "chained":
-            params = ({"shape": "chained", "work_group_size": 256, "items_per_thread": 16,
-                       "wavefront": clamp_wavefront(traits)} if traits.is_gpu else
-                      {"shape": "chained", "work_group_size": 1, "items_per_thread": 16384,
-                       "wavefront": 1})
+            if traits.is_gpu:
+                wf = clamp_wavefront(traits)
+                wg = max(wf, min(256, traits.max_work_group_size))
+                params = {"shape": "chained", "work_group_size": wg, "items_per_thread": 32,
+                          "wavefront": wf, "lookback": wg, "order": "ticket"}
+            else:
+                params = {"shape": "chained", "work_group_size": 1, "items_per_thread": 16384,
+                          "wavefront": 1, "lookback": 1, "order": "ticket"}
         elif shape == "gpu":
             params = {"shape": "gpu", "work_group_size": min(256, traits.max_work_group_size),
                       "items_per_thread": 8, "wavefront": clamp_wavefront(traits)}
@@ -138,6 +188,22 @@ class Scan(Primitive):
             self._sums = cl.Buffer(self.runtime.context, cl.mem_flags.READ_WRITE,
                                    4 * max(count, 1))
         return self._sums
+
+    def _chained_state(self, tiles: int):
+        """The chained scan's state for ``tiles`` tiles and this call's epoch.
+
+        Zeroed only when (re)allocated and when the epoch wraps: every call
+        gets a new epoch, which makes the words of earlier calls read as empty."""
+        size = 8 * (1 + tiles)
+        if self._state is None or self._state.size < size:
+            self._state = cl.Buffer(self.runtime.context, cl.mem_flags.READ_WRITE, size)
+            self._epoch = EPOCHS - 1  # forces the zeroing below
+        self._epoch += 1
+        if self._epoch >= EPOCHS:
+            cl.enqueue_fill_buffer(self.runtime.queue, self._state, np.uint32(0), 0,
+                                   self._state.size)
+            self._epoch = 1
+        return self._state, np.uint32(self._epoch)
 
     def __call__(self, src, dst, n=None, total=None):
         buf_src = check_array(self.runtime, src, "src", self.dtype)
@@ -169,13 +235,12 @@ class Scan(Primitive):
         """Launch on raw buffers (arguments already checked); used by other primitives."""
         params, program = self.program(capacity)
         rt, cap = self.runtime, np.uint32(capacity)
-        if params["shape"] == "chained":
-            tiles = max(1, ceil_div(capacity, params["work_group_size"] * params["items_per_thread"]))
-            state = self._scratch(2 + 3 * tiles)
-            cl.enqueue_fill_buffer(rt.queue, state, np.uint32(0), 0, 4 * (2 + tiles))
-            kernel = program.kernel("scan_chained")
-            rt.bound(kernel).bind(src, dst, cap, device_count, state, total)
+        if params["shape"] == "chained":  # one launch
             wg = params["work_group_size"]
+            tiles = max(1, ceil_div(capacity, wg * params["items_per_thread"]))
+            state, epoch = self._chained_state(tiles)
+            kernel = program.kernel("scan_chained")
+            rt.bound(kernel).bind(src, dst, cap, device_count, state, epoch, total)
             return rt.launch(kernel, tiles * wg, wg)
         if params["shape"] == "gpu":
             wg = params["work_group_size"]
@@ -201,51 +266,99 @@ class Scan(Primitive):
         return rt.launch(k_scan, chunks, 1)
 
 
+def check_chained_params(params: dict) -> None:
+    """Constraints between the chained template's parameters (each is checked
+    alone by the template): the CPU shape is one serial work-item; the GPU
+    shape keeps a work-item's elements in registers and polls at most one
+    predecessor per work-item, at least a wavefront's worth."""
+    wg, ipt, wf, lb = (params.get(k) for k in
+                       ("work_group_size", "items_per_thread", "wavefront", "lookback"))
+    if (wg == 1) != (wf == 1):
+        raise RbgenError(f"params: chained scan with work_group_size={wg} and wavefront={wf}; "
+                         f"wavefront 1 goes with work_group_size 1 (CPU shape) only")
+    if wg == 1 and lb != 1:
+        raise RbgenError(f"params: lookback={lb} with work_group_size 1; the serial CPU shape "
+                         f"looks back one tile at a time (lookback 1)")
+    if wg != 1 and isinstance(lb, int) and isinstance(wf, int) and not wf <= lb <= wg:
+        raise RbgenError(f"params: lookback={lb} must lie between wavefront={wf} and "
+                         f"work_group_size={wg} (one polled predecessor per work-item)")
+    if wg != 1 and isinstance(ipt, int) and ipt > CHAINED_MAX_ITEMS:
+        raise RbgenError(f"params: items_per_thread={ipt} is more than the "
+                         f"{CHAINED_MAX_ITEMS} a chained work-item keeps in registers")
+
+
 _GUARD: dict[tuple, bool] = {}
+#: the extension the chained scan's 64-bit tile words need
+CHAINED_EXTENSION = "cl_khr_int64_base_atomics"
 
 
 def chained_scan_works(runtime, params: dict) -> bool:
-    """The chained scan's guard: run it once per device and parameters on a
-    many-tile input and compare with numpy; a failure (wrong result or the
-    device-side spin limit hit) warns and makes callers fall back."""
+    """The chained scan's guard, run once per device and parameters: the device
+    must offer 64-bit atomics, and two scans in a row (the second shorter, so
+    that the first one's words are stale) on many-tile inputs must match numpy
+    without hitting the spin limit. A failure warns and makes callers fall back."""
     key = (id(runtime.context), tuple(sorted(params.items())))
     if key not in _GUARD:
         _GUARD[key] = True  # the probe itself must use the chained kernel
-        tile = params["work_group_size"] * params["items_per_thread"]
-        n = 6 * tile + 3
-        x = np.random.default_rng(12345).integers(0, 8, n).astype(np.uint32)
-        probe = Scan(runtime, np.uint32, inclusive=False, chained=True, params=params)
-        src = cla.to_device(runtime.queue, x)
-        dst = cla.empty_like(src)
-        probe(src, dst)
-        state = np.empty(2, np.uint32)
-        cl.enqueue_copy(runtime.queue, state, probe._sums, is_blocking=True)
-        expected = np.concatenate([[0], np.cumsum(x, dtype=np.uint32)[:-1]])
-        ok = bool(state[1] == 0 and np.array_equal(dst.get(), expected))
+        ok, why = _probe_chained(runtime, params)
         if not ok:
             warnings.warn(f"chained scan with {params} failed its check on "
-                          f"{runtime.traits.device_name}; using reduce-then-scan instead",
+                          f"{runtime.traits.device_name} ({why}); using reduce-then-scan instead",
                           RuntimeWarning, stacklevel=3)
         _GUARD[key] = ok
     return _GUARD[key]
 
 
+def _probe_chained(runtime, params: dict) -> tuple[bool, str]:
+    if CHAINED_EXTENSION not in runtime.device.extensions.split():
+        return False, f"no {CHAINED_EXTENSION}"
+    tile = params["work_group_size"] * params["items_per_thread"]
+    rng = np.random.default_rng(12345)
+    probe = Scan(runtime, np.uint32, inclusive=False, params=params)
+    try:
+        for n in (6 * tile + 3, 4 * tile + 1):
+            x = rng.integers(0, 8, n).astype(np.uint32)
+            src = cla.to_device(runtime.queue, x)
+            dst = cla.empty_like(src)
+            probe(src, dst)
+            expected = np.concatenate([[0], np.cumsum(x, dtype=np.uint32)[:-1]])
+            if not np.array_equal(dst.get(), expected):
+                return False, f"wrong result at n={n}"
+    except (cl.Error, RbgenError) as err:  # a build or launch failure: fall back too
+        return False, f"{type(err).__name__}: {err}"[:300]
+    flags = np.empty(2, np.uint32)
+    cl.enqueue_copy(runtime.queue, flags, probe._state, is_blocking=True)
+    return (flags[1] == 0, "spin limit hit")
+
+
 def chained_search_space(traits: DeviceTraits) -> list[dict]:
-    """Candidates for the opt-in chained scan (tuned as family ``scan_chained``)."""
-    space = [Scan.default_params(traits, "chained")]
+    """Candidates for the chained scan (family ``scan_chained``; also in `search_space`).
+
+    GPU: 128-1024 work-items with 16-64 elements each in registers, looking
+    back one predecessor per work-item; then the default tile looking back a
+    wavefront at a time (the narrow window, for comparison) and taking the
+    tile of its group id instead of a ticket; CPU: one work-item per tile of
+    4096-65536 elements (tickets)."""
+    default = Scan.default_params(traits, "chained")
+    space = [default]
     if traits.is_gpu:
         wf = clamp_wavefront(traits)
-        for wg, ipt in ((128, 16), (256, 8), (256, 16), (512, 8)):
-            if wg <= traits.max_work_group_size:
-                space.append({"shape": "chained", "work_group_size": wg, "items_per_thread": ipt,
-                              "wavefront": wf})
+        for wg, ipt in ((256, 16), (256, 64), (128, 32), (128, 64), (512, 16), (512, 32),
+                        (1024, 16)):
+            if wf <= wg <= traits.max_work_group_size:
+                space.append(dict(default, work_group_size=wg, items_per_thread=ipt,
+                                  lookback=wg))
+        space.append(dict(default, lookback=wf))
+        space.append(dict(default, order="group"))
     else:
-        for ipt in (4096, 16384, 65536):
-            space.append({"shape": "chained", "work_group_size": 1, "items_per_thread": ipt,
-                          "wavefront": 1})
+        for ipt in (4096, 65536):
+            space.append(dict(default, items_per_thread=ipt))
     return unique_params(space)
 
 
 def search_space(traits: DeviceTraits) -> list[dict]:
-    """Candidate parameters the tuner tries on a device (heuristic default first)."""
-    return tiled_or_chunked_space(Scan.default_params(traits), traits)
+    """Candidate parameters the tuner tries on a device (heuristic default first):
+    reduce-then-scan in the device's shape, then the chained scan's candidates
+    (the tuner rejects those where the guard fails)."""
+    return tiled_or_chunked_space(Scan.default_params(traits), traits) + \
+        chained_search_space(traits)

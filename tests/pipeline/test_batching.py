@@ -1,10 +1,11 @@
 """Constraint batching: invariants of the device batches against the host reference.
 
-Invariants (checked on random constraint graphs, both level-1 modes): every
-constraint appears exactly once in ``order``; no dynamic body appears twice in
-one batch (except the serial last batch); no dynamic body is touched by two
-groups that run in the same solver launch (work groups never synchronise);
-static bodies are ignored.
+Invariants (checked on random constraint graphs, both level-1 modes, both
+shapes): every constraint appears exactly once in ``order``; no dynamic body is
+touched by two groups that run in the same solver launch (work groups never
+synchronise); static bodies are ignored. GPU shape: no dynamic body appears
+twice in one batch (except the serial last batch). CPU shape: a group is one
+batch (none when empty) listing its constraints in increasing index order.
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import pyopencl.array as cl_array
 import pytest
 
 from rbgen import layouts
+from rbgen.errors import RbgenError
 from rbgen.pipeline.batching import ConstraintBatcher, batch_host
 
 
@@ -40,7 +42,7 @@ def run_device(runtime, a, b, dynamic, rng=None, **kwargs):
     cons = layouts.CONTACT_CONSTRAINT.zeros(max(1, len(a)))
     cons["body_a"][: len(a)], cons["body_b"][: len(a)] = a, b
     cons["r_b"][:, 0, :3] = rng.uniform(-0.3, 0.3, (len(cons), 3))
-    if kwargs.get("mode") == "cells":
+    if kwargs.get("mode") in ("cells", "slabs"):
         kwargs.setdefault("cell_size", 1.5)
     capacity = len(a) + 7  # launches over capacity, count on the device
     d_cons = cl_array.to_device(queue, np.resize(cons, capacity) if len(a) else cons)
@@ -66,11 +68,16 @@ def check_invariants(batcher, a, b, dynamic, order, offsets, batch_counts, group
     for g in range(batcher.group_count):
         nb = int(batch_counts[g])
         assert nb <= batcher.max_batches
+        if not batcher.batches:  # one batch in index order, or none
+            members = order[offsets[g, 0]: offsets[g, 1]]
+            assert nb == (len(members) > 0)
+            assert np.all(np.diff(members.astype(np.int64)) > 0)
+            assert np.array_equal(members, np.flatnonzero(groups == g))
         for k in range(nb):
             members = order[offsets[g, k] - 0: offsets[g, k + 1]]
             assert np.all(groups[members] == g)
             total += len(members)
-            if k == batcher.max_batches - 1:
+            if k == batcher.max_batches - 1 or not batcher.batches:
                 continue  # the remainder slot is solved by one lane
             seen = set()
             for i in members:
@@ -81,13 +88,17 @@ def check_invariants(batcher, a, b, dynamic, order, offsets, batch_counts, group
     assert total == n
 
 
-@pytest.mark.parametrize("mode", ["components", "cells"])
+@pytest.mark.parametrize("shape", ["gpu", "cpu"])
+@pytest.mark.parametrize("mode", ["components", "cells", "slabs"])
 @pytest.mark.parametrize("n_bodies,n_constraints", [(1, 0), (2, 1), (9, 31), (100, 333),
                                                    (2000, 5003)])
-def test_batches_are_independent(runtime, rng, n_bodies, n_constraints, mode):
+def test_batches_are_independent(runtime, rng, n_bodies, n_constraints, mode, shape):
     a, b, dynamic = random_graph(rng, n_bodies, n_constraints)
-    batcher, *result = run_device(runtime, a, b, dynamic, rng, group_count=5, mode=mode)
+    batcher, *result = run_device(runtime, a, b, dynamic, rng, group_count=5, mode=mode,
+                                  shape=shape)
     check_invariants(batcher, a, b, dynamic, *result)
+    if shape == "cpu":
+        return
     # The device's maximal sets stay close to the greedy reference's colour count.
     host = batch_host(a, b, dynamic)
     device_batches = int(result[2].max()) if n_constraints else 0
@@ -101,7 +112,8 @@ def test_chain_and_tiny_batch_limit(runtime, rng, work_group_size):
     a, b, dynamic = random_graph(rng, 301, 300, static_fraction=0.0, chain=True)
     dynamic[:] = True
     batcher, *result = run_device(runtime, a, b, dynamic, group_count=3, max_batches=4,
-                                  work_group_size=work_group_size, mode="components")
+                                  work_group_size=work_group_size, mode="components",
+                                  shape="gpu")
     check_invariants(batcher, a, b, dynamic, *result)
     assert len(set(result[3].tolist())) == 1  # one component: one group
     # A star (every constraint on body 1) needs one batch per constraint: 3 + the remainder.
@@ -109,7 +121,7 @@ def test_chain_and_tiny_batch_limit(runtime, rng, work_group_size):
     star_a = np.ones_like(star_b)
     batcher, *result = run_device(runtime, star_a, star_b, np.ones(40, bool), group_count=3,
                                   max_batches=4, work_group_size=work_group_size,
-                                  mode="components")
+                                  mode="components", shape="gpu")
     check_invariants(batcher, star_a, star_b, np.ones(40, bool), *result)
     assert int(result[2].max()) == 4
 
@@ -123,7 +135,8 @@ def test_host_reference_colours_properly(rng):
         assert len(bodies) == len(set(bodies))
 
 
-def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rng):
+@pytest.mark.parametrize("shape", ["gpu", "cpu"])
+def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rng, shape):
     """Cells mode: a dense 2-D lattice of bodies with contacts to their neighbours (one
     connected pile) spreads over many groups; bodies scattered 10x the cell size apart
     on an oversized body's contacts land in the leftover group, never in two
@@ -147,7 +160,7 @@ def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rn
     extra["body_a"], extra["body_b"] = 0, far
     extra["r_b"][:, 0, :3] = -bodies["position"][far, :3] / 2
     cons = np.concatenate([cons, extra]).astype(cons.dtype)
-    batcher = ConstraintBatcher(runtime, mode="cells", group_count=7, cell_size=1.5)
+    batcher = ConstraintBatcher(runtime, mode="cells", group_count=7, cell_size=1.5, shape=shape)
     d_cons = cl_array.to_device(queue, cons)
     count = cl_array.to_device(queue, np.array([len(cons)], np.uint32))
     batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
@@ -161,3 +174,67 @@ def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rn
     # body 0's far contacts lie in cells of other groups; only the first to claim body 0
     # in each of the 8 colours keeps its group, the others are leftovers
     assert np.count_nonzero(groups == leftover) >= 25 - 8
+
+
+@pytest.mark.parametrize("mode", ["components", "cells", "slabs"])
+def test_cpu_shape_lists_each_group_once_in_index_order_twice_running(runtime, rng, mode):
+    """CPU shape: each group's constraints are listed in index order (one work-item lists
+    them, no atomics decide the order), and the count on the device may be below the
+    capacity the launches are sized for. On a CPU the same input batched twice gives the
+    same result; on a GPU the per-colour body claims of cells and slabs race (the first
+    claim wins), so only the order inside each group is fixed there."""
+    a, b, dynamic = random_graph(rng, 500, 1777)
+    first = run_device(runtime, a, b, dynamic, np.random.default_rng(1), group_count=6,
+                       mode=mode, shape="cpu")
+    second = run_device(runtime, a, b, dynamic, np.random.default_rng(1), group_count=6,
+                        mode=mode, shape="cpu")
+    for batcher, order, offsets, batch_counts, groups in (first, second):
+        check_invariants(batcher, a, b, dynamic, order, offsets, batch_counts, groups)
+        listed_groups = groups[order]
+        assert np.all(np.diff(listed_groups.astype(np.int64)) >= 0), "grouped"
+        same_group = listed_groups[1:] == listed_groups[:-1]
+        assert np.all(np.diff(order.astype(np.int64))[same_group] > 0), "index order in a group"
+    if not runtime.traits.is_gpu or mode == "components":
+        assert np.array_equal(first[1], second[1])
+        assert np.array_equal(first[3], second[3])
+        assert first[0].launch_plan == second[0].launch_plan
+
+
+def test_unknown_shape_is_refused(runtime):
+    with pytest.raises(RbgenError, match="shape"):
+        ConstraintBatcher(runtime, shape="tpu")
+
+
+@pytest.mark.parametrize("shape", ["gpu", "cpu"])
+def test_slabs_spread_a_pile_over_consecutive_groups(runtime, rng, shape):
+    """Slabs across a tilted axis: a dense lattice (one connected pile) of 40 x 40 bodies at
+    unit pitch in slabs 1.5 m wide gives 33 slabs, 16-17 per colour: with 8 groups per colour
+    every group of both colours is used, and no body is in two concurrent groups."""
+    side = 40
+    ids = np.arange(side * side).reshape(side, side)
+    a = np.r_[ids[:-1, :].ravel(), ids[:, :-1].ravel()].astype(np.uint32)
+    b = np.r_[ids[1:, :].ravel(), ids[:, 1:].ravel()].astype(np.uint32)
+    queue = runtime.queue
+    bodies = layouts.BODY.zeros(side * side)
+    bodies["inv_mass"] = 1.0
+    gx, gz = np.meshgrid(np.arange(side), np.arange(side), indexing="ij")
+    bodies["position"][:, 0], bodies["position"][:, 2] = gx.ravel(), gz.ravel()
+    cons = layouts.CONTACT_CONSTRAINT.zeros(len(a))
+    cons["body_a"], cons["body_b"] = a, b
+    cons["r_b"][:, 0, :3] = (bodies["position"][a, :3] - bodies["position"][b, :3]) / 2
+    order = rng.permutation(len(a))
+    cons = cons[order]
+    batcher = ConstraintBatcher(runtime, mode="slabs", group_count=8, cell_size=1.5, shape=shape)
+    batcher.slab_axis = (0.96, 0.0, 0.28)
+    d_cons = cl_array.to_device(queue, cons)
+    count = cl_array.to_device(queue, np.array([len(cons)], np.uint32))
+    batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
+    order, offsets, batch_counts = batcher.read_batches()
+    groups = d_cons.get()["group"]
+    check_invariants(batcher, cons["body_a"], cons["body_b"], np.ones(len(bodies), bool),
+                     order[: len(cons)], offsets, batch_counts, groups)
+    assert len(batcher.launch_plan) == 3
+    assert set(np.unique(groups).tolist()) == set(range(16))  # no leftovers
+    with pytest.raises(RbgenError, match="slab_axis"):
+        batcher.slab_axis = (0.0, 0.0, 0.0)
+        batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))

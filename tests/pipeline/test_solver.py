@@ -11,6 +11,9 @@
   changing its velocity; Baumgarte gives it the velocity beta / dt (d - slop).
 * The implicit gyroscopic term conserves the angular momentum of an
   asymmetric free spinning body.
+
+Both kernel shapes (gpu: lanes over level-2 batches; cpu: one work-item per
+group) run on every device present.
 """
 from __future__ import annotations
 
@@ -19,15 +22,34 @@ import pyopencl.array as cl_array
 import pytest
 
 from rbgen import layouts
+from rbgen.errors import RbgenError
+from rbgen.pipeline.batching import ConstraintBatcher
 from rbgen.pipeline.gyroscopic import BodyPreparation, inertia_records
 from rbgen.pipeline.integrate import Integrator
+from rbgen.pipeline.solver import ContactSolver
 from tests.pipeline.test_constraints import ContactRig, make_bodies, make_manifold
 
 SQUARE = np.array([[0.5, 0, 0.5], [-0.5, 0, 0.5], [0.5, 0, -0.5], [-0.5, 0, -0.5]])
+SHAPES = ["gpu", "cpu"]
 
 
+def shaped_rig(runtime, bodies, inv_inertia, shape, *, penetration="split", warm_start=True,
+               group_count=3, work_group_size=None, batching="components", friction="point"):
+    """A ContactRig whose batcher and solver have the given kernel shape."""
+    rig = ContactRig(runtime, bodies, inv_inertia, penetration=penetration,
+                     warm_start=warm_start, group_count=group_count, batching=batching,
+                     friction=friction)
+    rig.batcher = ConstraintBatcher(runtime, group_count=group_count, mode=batching,
+                                    cell_size=2.5, shape=shape)
+    rig.solver = ContactSolver(runtime, split_impulse=penetration == "split",
+                               work_group_size=work_group_size, friction=friction,
+                               normal_solve=rig.solver.spec.values["normal_solve"], shape=shape)
+    return rig
+
+
+@pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize("restitution,speed", [(0.0, 3.0), (0.5, 3.0), (1.0, 2.0), (0.8, 0.2)])
-def test_bounce_off_static_plane(runtime, rng, restitution, speed):
+def test_bounce_off_static_plane(runtime, rng, restitution, speed, shape):
     """Four symmetric points under a box: v_out = e v (v above the 0.5 m/s threshold, else 0)."""
     n_boxes = 33
     positions = np.c_[np.arange(n_boxes) * 2.0, np.full(n_boxes, 0.5), np.zeros(n_boxes)]
@@ -35,7 +57,7 @@ def test_bounce_off_static_plane(runtime, rng, restitution, speed):
     bodies = make_bodies(positions, np.r_[0.0, rng.uniform(0.2, 2.0, n_boxes)],
                          velocities=np.r_[[[0, 0, 0]], np.tile([0, -speed, 0], (n_boxes, 1))])
     inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(0.5, 3.0, (n_boxes, 3))]
-    rig = ContactRig(runtime, bodies, inv_inertia, warm_start=False)
+    rig = shaped_rig(runtime, bodies, inv_inertia, shape, warm_start=False)
     manifolds = np.array([make_manifold(0, i + 1, [0, 1, 0], positions[i + 1] + SQUARE - [0, 0.5, 0],
                                         [0.0] * 4, restitution=restitution)
                           for i in range(n_boxes)])
@@ -46,9 +68,10 @@ def test_bounce_off_static_plane(runtime, rng, restitution, speed):
     assert np.all(out["linear_velocity"][0] == 0)  # the static body is never written
 
 
+@pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize("mu,model", [(0.1, "point"), (0.3, "point"), (2.0, "point"),
                                       (0.3, "manifold"), (2.0, "manifold")])
-def test_friction_clamped_by_normal_impulse(runtime, rng, mu, model):
+def test_friction_clamped_by_normal_impulse(runtime, rng, mu, model, shape):
     """Translation-only body: tangential speed u becomes max(u - mu v, 0) along its direction
     (per point or per manifold friction)."""
     u = rng.uniform(1.0, 2.0)
@@ -57,7 +80,7 @@ def test_friction_clamped_by_normal_impulse(runtime, rng, mu, model):
     v = 2.0
     velocity = [u * direction[0], -v, u * direction[1]]
     bodies = make_bodies([[0, 0, 0], [0, 0.5, 0]], [0.0, 0.7], velocities=[[0, 0, 0], velocity])
-    rig = ContactRig(runtime, bodies, np.zeros((2, 3)), warm_start=False, friction=model)
+    rig = shaped_rig(runtime, bodies, np.zeros((2, 3)), shape, warm_start=False, friction=model)
     m = make_manifold(0, 1, [0, 1, 0], SQUARE, [0.0] * 4, friction=mu)
     out, cons = rig.solve(np.array([m]), iterations=60)
     vel = out["linear_velocity"][1, :3]
@@ -71,7 +94,8 @@ def test_friction_clamped_by_normal_impulse(runtime, rng, mu, model):
         assert friction[0] <= mu * cons[0]["normal_impulse"].sum() * (1 + 1e-5) + 1e-7
 
 
-def test_two_free_bodies_conserve_momentum(runtime, rng):
+@pytest.mark.parametrize("shape", SHAPES)
+def test_two_free_bodies_conserve_momentum(runtime, rng, shape):
     """Random masses, inertias, normal and 1-4 points: P and L conserved within 1e-4 relative
     (the issue's bound; 1000 float32 iterations of round-off); no point of a 1- or 2-point
     manifold approaching faster than its target allows."""
@@ -96,7 +120,7 @@ def test_two_free_bodies_conserve_momentum(runtime, rng):
                                        friction=rng.uniform(0, 1), restitution=rng.uniform(0, 1)))
     bodies = make_bodies(np.array(positions), np.array(inv_mass), np.array(velocities),
                          np.array(angular))
-    rig = ContactRig(runtime, bodies, np.array(inv_inertia), penetration="baumgarte",
+    rig = shaped_rig(runtime, bodies, np.array(inv_inertia), shape, penetration="baumgarte",
                      warm_start=False)
     out, cons = rig.solve(np.array(manifolds), iterations=1000)
 
@@ -125,13 +149,14 @@ def test_two_free_bodies_conserve_momentum(runtime, rng):
             assert dv @ c["normal"][:3] >= target - 1e-2 * max(1.0, abs(target))
 
 
+@pytest.mark.parametrize("shape", SHAPES)
 @pytest.mark.parametrize("penetration", ["split", "baumgarte"])
-def test_penetration_recovery(runtime, penetration):
+def test_penetration_recovery(runtime, penetration, shape):
     """Resting box 5 cm deep: split moves it up beta (d - slop), Baumgarte sets v = beta/dt (d - slop)."""
     depth, dt = 0.05, 1 / 60
     bodies = make_bodies([[0, 0, 0], [0, 0.45, 0]], [0.0, 1.0])
-    rig = ContactRig(runtime, bodies, np.array([[0, 0, 0], [1, 1, 1.0]]), penetration=penetration,
-                     warm_start=False)
+    rig = shaped_rig(runtime, bodies, np.array([[0, 0, 0], [1, 1, 1.0]]), shape,
+                     penetration=penetration, warm_start=False)
     m = make_manifold(0, 1, [0, 1, 0], SQUARE + [0, -0.05, 0], [-depth] * 4)
     out, _ = rig.solve(np.array([m]), dt=dt, iterations=30,
                        position_iterations=30 if penetration == "split" else 0)
@@ -143,12 +168,15 @@ def test_penetration_recovery(runtime, penetration):
         assert out["linear_velocity"][1, 1] == pytest.approx(push / dt, rel=1e-3)
 
 
-@pytest.mark.parametrize("work_group_size,batching", [(1, "components"), (32, "components"),
-                                                     (64, "cells"), (1, "cells")])
-def test_stacked_columns_end_resting(runtime, rng, work_group_size, batching):
+@pytest.mark.parametrize("shape,work_group_size,batching", [
+    ("gpu", 1, "components"), ("gpu", 32, "components"), ("gpu", 64, "cells"), ("gpu", 1, "cells"),
+    ("gpu", 32, "slabs"), ("cpu", 1, "components"), ("cpu", 1, "cells"), ("cpu", 2, "cells"),
+    ("cpu", 1, "slabs")])
+def test_stacked_columns_end_resting(runtime, rng, shape, work_group_size, batching):
     """Columns of 6 boxes falling onto each other (one pile per column, batched):
     after the solve every box's vertical speed is ~0 (inelastic), in both batching modes
-    (in cells mode each column spans several cells and colours); PGS converges slowly on
+    (in cells mode each column spans several cells and colours) and both shapes (cpu with
+    2 groups per work group: the leftover launch has one idle); PGS converges slowly on
     the lateral drift its point ordering creates, which friction removes (< 10% of v)."""
     columns, height, speed = 17, 6, 1.0
     positions = [[0, 0, 0]]
@@ -165,8 +193,8 @@ def test_stacked_columns_end_resting(runtime, rng, work_group_size, batching):
     velocities = np.tile([0, -speed, 0], (n, 1))
     velocities[0] = 0
     bodies = make_bodies(positions, np.r_[0.0, np.ones(n - 1)], velocities=velocities)
-    rig = ContactRig(runtime, bodies, np.r_[[[0, 0, 0]], np.full((n - 1, 3), 6.0)],
-                     warm_start=False, group_count=4, solver_work_group_size=work_group_size,
+    rig = shaped_rig(runtime, bodies, np.r_[[[0, 0, 0]], np.full((n - 1, 3), 6.0)], shape,
+                     warm_start=False, group_count=4, work_group_size=work_group_size,
                      batching=batching)
     manifolds = np.array(manifolds)[rng.permutation(len(manifolds))]
     out, _ = rig.solve(manifolds, iterations=200)
@@ -206,3 +234,28 @@ def test_gyroscopic_term_conserves_angular_momentum(runtime):
     l1 = momentum(d_bodies.get())
     assert np.linalg.norm(l1 - l0) < 0.01 * np.linalg.norm(l0)
     assert largest_change > 0.5 * np.linalg.norm(w0)
+
+
+@pytest.mark.parametrize("batching", ["components", "cells", "slabs"])
+def test_launch_schedule(runtime, batching):
+    """components: the warm start and every sweep in ONE launch; cells: a warm-start sweep,
+    then one launch per colour and velocity sweep, the position sweeps riding along."""
+    batcher = ConstraintBatcher(runtime, group_count=3, mode=batching, cell_size=2.5)
+    solver = ContactSolver(runtime, split_impulse=True)
+    launches, _ = solver._schedule(batcher.launch_plan, 10, 4, True)
+    colours = len(batcher.launch_plan)
+    assert len(launches) == (1 if batching == "components" else colours * 11)
+    assert len(solver._schedule(batcher.launch_plan, 3, 5, False)[0]) == \
+        (1 if batching == "components" else colours * 5)
+    assert solver._schedule(batcher.launch_plan, 0, 0, False)[0] == []
+
+
+def test_gpu_solver_refuses_unbatched_groups(runtime):
+    """The gpu shape needs level-2 batches: a cpu-shaped batcher is refused, naming it."""
+    batcher = ConstraintBatcher(runtime, group_count=3, shape="cpu")
+    solver = ContactSolver(runtime, shape="gpu")
+    bodies = cl_array.to_device(runtime.queue, make_bodies([[0, 0, 0]], [1.0]))
+    with pytest.raises(RbgenError, match="shape"):
+        solver.solve(None, batcher, bodies, None, 1, iterations=1)
+    with pytest.raises(RbgenError, match="shape"):
+        ContactSolver(runtime, shape="tpu")

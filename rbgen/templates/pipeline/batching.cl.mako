@@ -6,7 +6,7 @@
  * connected components over dynamic bodies are found with a lock-free
  * union-find (static bodies join nothing), and each component goes whole to
  * the group its root hashes to. The solver then needs no synchronisation
- * between work groups: one launch per iteration. A single pile is one group.
+ * between work groups: one launch per step. A single pile is one group.
 % else:
  * Level 1 splits space into cells of at least the largest dynamic body's
  * size; a constraint belongs to the cell of its first contact point. Cells
@@ -17,8 +17,17 @@
  * that loses a claim (a body wider than a cell) goes to the leftover group,
  * solved alone after the 8 colours, so correctness never depends on sizes.
  * The solver launches once per colour and once for the leftovers.
+% if mode == "slabs":
+ *
+ * Slabs: the cells are slabs across slab_axis (infinite along the other
+ * two axes), coloured by the parity of their index (2 colours); consecutive
+ * slabs of a colour go to consecutive groups. A slab holds whole stacks,
+ * whose constraints one work-item then solves in index order (for piles
+ * built bottom-up, from the ground up), which cells split over colours.
+% endif
 % endif
  *
+% if shape == "gpu":
  * Level 2 colours each group's constraints into batches inside one work group
  * (batch_groups): a batch is a maximal set of constraints that share no dynamic
  * body, grown by rounds of "local minimum priority wins" (Luby) with barriers
@@ -26,6 +35,12 @@
  * left and is flagged to be solved by a single lane, so nothing is ever
  * dropped. Bodies are marked in per-colour copies of the stamp arrays, since
  * one body may be in a group of every colour.
+% else:
+ * CPU shape: no level 2. The solver solves a group's constraints one after
+ * another in one work-item, so a group is one batch: list_groups (a single
+ * work-item, a few passes over a compact array) writes each group's
+ * constraints in index order, which keeps the solve deterministic.
+% endif
  *
  * Counts stay on the device: kernels read the constraint count from
  * constraint_count[0] and exit past it.
@@ -35,12 +50,18 @@ ${cl_constants()}
 ${cl_structs("ContactConstraint", "Body")}
 
 #define MAX_BATCHES ${max_batches}
-% if mode == "components":
-/* one set of batching marks: groups never share a dynamic body */
-#define BATCH_COLOURS 1
-% else:
-/* cell colours (parity of the cell coordinates) and the leftover group */
+% if mode == "cells":
+/* cell colours (parity of the cell coordinates) */
 #define CELL_COLOURS 8
+% elif mode == "slabs":
+/* slab colours (parity of the slab index) */
+#define CELL_COLOURS 2
+% endif
+% if shape == "gpu" and mode == "components":
+/* one set of level-2 batching marks: groups never share a dynamic body */
+#define BATCH_COLOURS 1
+% elif shape == "gpu":
+/* a set of level-2 batching marks per cell colour and one for the leftover group */
 #define BATCH_COLOURS (CELL_COLOURS + 1)
 % endif
 
@@ -61,12 +82,14 @@ inline bool is_dynamic(__global const Body* bodies, uint body)
     return bodies[body].inv_mass > 0.0f;
 }
 
-/* One work-item per body mark (and per group counter): batching marks of
- * every colour cleared, ${"every body its own component" if mode == "components" else "cell claims released"}. A work group is
+/* One work-item per body mark (and per group counter): ${"batching marks of every colour cleared, " if shape == "gpu" else ""}${"every body its own component" if mode == "components" else "cell claims released"}. A work group is
  * responsible for ${work_group_size} consecutive marks. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void reset_batching(__global uint* body_stamp,
+void reset_batching(
+% if shape == "gpu":
+                    __global uint* body_stamp,
                     __global uint* body_taken,
+% endif
 % if mode == "components":
                     __global uint* parent,
 % else:
@@ -79,10 +102,12 @@ void reset_batching(__global uint* body_stamp,
     uint i = get_global_id(0);
     if (i < group_count)
         group_counts[i] = 0;
+% if shape == "gpu":
     if (i < BATCH_COLOURS * body_count) {
         body_stamp[i] = RB_SOLVER_NONE;
         body_taken[i] = RB_SOLVER_NONE;
     }
+% endif
 % if mode == "components":
     if (i < body_count)
         parent[i] = i;
@@ -92,6 +117,22 @@ void reset_batching(__global uint* body_stamp,
 % endif
 }
 
+<%def name="group_outputs(indent)">\
+% if shape == "gpu":
+${indent}volatile __global uint* group_counts,
+${indent}__global uint* constraint_slot,
+% else:
+${indent}__global uint* constraint_group,
+% endif
+</%def>
+<%def name="note_group()">\
+    constraints[i].group = group;
+% if shape == "gpu":
+    constraint_slot[i] = atomic_inc(&group_counts[group]);
+% else:
+    constraint_group[i] = group;
+% endif
+</%def>
 % if mode == "components":
 /* Root of x's component; parents only ever point to smaller indices, and the
  * path-halving stores are benign races (ECL-CC). */
@@ -139,15 +180,14 @@ void link_bodies(__global const ContactConstraint* constraints,
 }
 
 /* One work-item per constraint: its group is the hash of its component's
- * root; it takes a slot in that group's list. A work group is responsible for
+ * root; ${"it takes a slot in that group's list" if shape == "gpu" else "it is noted in a compact array for list_groups"}. A work group is responsible for
  * ${work_group_size} consecutive constraints. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void assign_groups(__global ContactConstraint* constraints,
                    __global const uint* constraint_count,
                    __global const Body* bodies,
                    volatile __global uint* parent,
-                   volatile __global uint* group_counts,
-                   __global uint* constraint_slot,
+${group_outputs(" " * 19)}
                    const uint group_count)
 {
     uint i = get_global_id(0);
@@ -156,11 +196,11 @@ void assign_groups(__global ContactConstraint* constraints,
     uint a = constraints[i].body_a, b = constraints[i].body_b;
     uint owner = is_dynamic(bodies, a) ? a : b;
     uint group = mix32(find_root(parent, owner)) % group_count;
-    constraints[i].group = group;
-    constraint_slot[i] = atomic_inc(&group_counts[group]);
+${note_group()}
 }
 
 % else:
+% if mode == "cells":
 /* Cell of a point, and its colour (parity of the coordinates). */
 inline int4 cell_of(float3 p, float inv_cell_size)
 {
@@ -172,6 +212,7 @@ inline uint cell_colour(int4 cell)
 {
     return (uint)(cell.x & 1) | ((uint)(cell.y & 1) << 1) | ((uint)(cell.z & 1) << 2);
 }
+% endif
 
 /* Claim a dynamic body for a group within one colour; false when another
  * group of that colour holds it. */
@@ -182,7 +223,7 @@ inline bool claim_body(volatile __global uint* body_owner, uint colour, uint bod
     return held == RB_SOLVER_NONE || held == group;
 }
 
-/* One work-item per constraint: its cell (from its first contact point)
+/* One work-item per constraint: its ${"cell" if mode == "cells" else "slab"} (from its first contact point)
  * gives a colour and a group; if another group of that colour already holds
  * one of its dynamic bodies it goes to the leftover group. A work group is
  * responsible for ${work_group_size} consecutive constraints. */
@@ -191,10 +232,12 @@ void assign_cells(__global ContactConstraint* constraints,
                   __global const uint* constraint_count,
                   __global const Body* bodies,
                   volatile __global uint* body_owner,
-                  volatile __global uint* group_counts,
-                  __global uint* constraint_slot,
+${group_outputs(" " * 18)}
                   const uint body_count,
                   const uint groups_per_colour,
+% if mode == "slabs":
+                  const float4 slab_axis,
+% endif
                   const float inv_cell_size)
 {
     uint i = get_global_id(0);
@@ -202,10 +245,16 @@ void assign_cells(__global ContactConstraint* constraints,
         return;
     uint a = constraints[i].body_a, b = constraints[i].body_b;
     float3 point = bodies[b].position.xyz + constraints[i].r_b[0].xyz;
+% if mode == "cells":
     int4 cell = cell_of(point, inv_cell_size);
     uint colour = cell_colour(cell);
     uint hash = mix32((uint)cell.x * 73856093u ^ (uint)cell.y * 19349663u ^ (uint)cell.z * 83492791u);
     uint group = colour * groups_per_colour + hash % groups_per_colour;
+% else:
+    int slab = (int)floor(dot(point, slab_axis.xyz) * inv_cell_size);
+    uint colour = (uint)slab & 1u;
+    uint group = colour * groups_per_colour + (uint)(slab >> 1) % groups_per_colour;
+% endif
     bool owned = true;
     if (is_dynamic(bodies, a))
         owned = claim_body(body_owner, colour, body_count, a, group);
@@ -213,12 +262,12 @@ void assign_cells(__global ContactConstraint* constraints,
         owned = claim_body(body_owner, colour, body_count, b, group) && owned;
     if (!owned)
         group = CELL_COLOURS * groups_per_colour;  /* the leftover group */
-    constraints[i].group = group;
-    constraint_slot[i] = atomic_inc(&group_counts[group]);
+${note_group()}
 }
 
 % endif
 
+% if shape == "gpu":
 /* A single work-item turns the group counts into offsets (exclusive scan);
  * group_count is a few hundred at most. */
 __kernel void scan_groups(__global const uint* group_counts,
@@ -393,3 +442,35 @@ void batch_groups(__global const ContactConstraint* constraints,
         order[begin + atomic_inc(&batch_offsets[constraint_batch[c]])] = c;
     }
 }
+% else:
+/* A single work-item lists every group's constraints in index order (count,
+ * exclusive scan, scatter: three passes over the compact group array, cheap
+ * on a CPU) and describes each group as one batch of the solver. */
+__kernel void list_groups(__global const uint* constraint_count,
+                          __global const uint* constraint_group,
+                          __global uint* group_counts,
+                          __global uint* group_offsets,
+                          __global uint* order,
+                          __global uint* group_batches,
+                          __global uint* group_batch_count,
+                          const uint constraint_capacity,
+                          const uint group_count)
+{
+    const uint n = min(constraint_count[0], constraint_capacity);
+    for (uint i = 0; i < n; ++i)
+        group_counts[constraint_group[i]] += 1;
+    uint total = 0;
+    for (uint g = 0; g < group_count; ++g) {
+        uint size = group_counts[g];
+        __global uint* offsets = group_batches + g * (MAX_BATCHES + 1);
+        group_offsets[g] = offsets[0] = total;
+        group_counts[g] = total;  /* now the group's write cursor */
+        total += size;
+        offsets[1] = total;
+        group_batch_count[g] = size > 0 ? 1 : 0;
+    }
+    group_offsets[group_count] = total;
+    for (uint i = 0; i < n; ++i)
+        order[group_counts[constraint_group[i]]++] = i;
+}
+% endif

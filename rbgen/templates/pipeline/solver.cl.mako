@@ -1,11 +1,21 @@
 /* Projected Gauss-Seidel over batched contact constraints.
  *
- * One launch per iteration (per cell colour in the cells batching mode): a
- * work group is responsible for one level-1 group (no dynamic body is shared
- * with a group of the same launch) and walks its batches in order,
- * with a barrier between batches; the lanes of a batch solve constraints that
- * share no dynamic body, so they may write body velocities without atomics.
- * The last batch slot (${max_batches - 1}) holds any remainder and is solved by lane 0 alone.
+% if shape == "gpu":
+ * GPU shape: a work group is responsible for one level-1 group (no dynamic
+ * body is shared with a group of the same launch) and walks its level-2
+ * batches in order, with a barrier between batches; the lanes of a batch
+ * solve constraints that share no dynamic body, so they may write body
+ * velocities without atomics. The last batch slot (${max_batches - 1}) holds any
+ * remainder and is solved by lane 0 alone.
+% else:
+ * CPU shape: a work-item is responsible for one level-1 group (no dynamic
+ * body is shared with a group of the same launch) and solves its
+ * constraints one after another (plain Gauss-Seidel: no batches, no
+ * barriers, every row sees every earlier row's result).
+% endif
+ * One launch runs the warm start and any number of sweeps over the groups
+ * it is given: all sweeps of a step when the groups are whole contact-graph
+ * components, one sweep per cell colour otherwise.
  *
  * Rows: per contact point a normal row (impulse >= 0, drives the normal
  * velocity to its target),
@@ -28,12 +38,20 @@
  * |f| <= mu * the total normal impulse, and a twist row about the normal.
 % endif
  * Impulses are accumulated, so warm starting applies last step's
- * totals once, for every constraint, before the first iteration's sweep.
+ * totals once, for every constraint, before the first sweep.
 % if split_impulse:
- * The split-impulse position pass solves the same normal rows on separate
+ * The split-impulse position sweeps solve the same normal rows on separate
  * push velocities, which apply_split_velocities turns into a displacement
  * after integration and then forgets.
 % endif
+ *
+ * A row's Jacobian terms (lever arm x direction, and the angular velocity
+ * change per unit impulse) do not depend on the velocities, so they are
+ * computed before the row reads any velocity: Gauss-Seidel is a chain of
+ * dependent row updates, and only the dot products and the update itself
+ * stay on it. Loops over a manifold's points run to the constant
+ * RB_MAX_MANIFOLD_POINTS and test the count inside, so that compilers unroll
+ * them and keep the per-point arrays in registers.
  */
 ${cl_constants()}
 
@@ -44,15 +62,34 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
 % endif
 
 #define MAX_BATCHES ${max_batches}
+% if shape == "gpu":
 #define SERIAL_BATCH (MAX_BATCHES - 1)
-/* what one solve_contacts launch does (bit flags of its `passes` argument) */
+% endif
+/* what one solve_groups launch does before its sweeps (bit flags of `passes`) */
 #define WARM_START_PASS 1u
-#define SOLVE_PASS 2u
-#define REVERSE_PASS 4u
+#define FIRST_REVERSED 2u
+
+/* dot and cross of float3 written out: PoCL calls its builtins out of line,
+ * which spills every live vector around each call */
+inline float dot3(float3 a, float3 b)
+{
+    float3 p = a * b;
+    return p.x + p.y + p.z;
+}
+
+inline float3 cross3(float3 a, float3 b)
+{
+    return a.yzx * b.zxy - a.zxy * b.yzx;
+}
+
+inline float positive_part(float x)
+{
+    return x > 0.0f ? x : 0.0f;
+}
 
 inline float3 mul_rows(const float3 row[3], float3 v)
 {
-    return (float3)(dot(row[0], v), dot(row[1], v), dot(row[2], v));
+    return (float3)(dot3(row[0], v), dot3(row[1], v), dot3(row[2], v));
 }
 
 inline void load_inertia(__global const BodyInertia* inertia, uint body, float3 rows[3])
@@ -61,20 +98,9 @@ inline void load_inertia(__global const BodyInertia* inertia, uint body, float3 
         rows[r] = inertia[body].inv_inertia_world[r].xyz;
 }
 
-/* Impulse p at lever arms ra (on A, as -p) and rb (on B, as +p). */
-inline void apply_impulse(float3 p, float3 ra, float3 rb,
-                          float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
-                          float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb)
-{
-    *va -= p * inv_mass_a;
-    *wa -= mul_rows(inv_inertia_a, cross(ra, p));
-    *vb += p * inv_mass_b;
-    *wb += mul_rows(inv_inertia_b, cross(rb, p));
-}
-
 inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, float3 vb, float3 wb)
 {
-    return vb + cross(wb, rb) - va - cross(wa, ra);
+    return vb + cross3(wb, rb) - va - cross3(wa, ra);
 }
 
 % if normal_solve == "block":
@@ -212,50 +238,171 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
 }
 
 % endif
+/* The two bodies of one constraint as the solver sees them: inverse masses
+ * and world inverse inertias, and the (push) velocities being solved for.
+ * Functions take it as `__private ContactBodies*`: NVIDIA's compiler treats an
+ * unqualified pointer as generic and refuses to pass its inertia arrays on to
+ * array parameters (private). */
+typedef struct {
+    float inv_mass_a, inv_mass_b;
+    float3 inv_inertia_a[3], inv_inertia_b[3];
+    float3 va, wa, vb, wb;
+} ContactBodies;
+
+inline void load_bodies(__private ContactBodies* p, __global const Body* bodies,
+                        __global const BodyInertia* inertia, uint a, uint b)
+{
+    p->inv_mass_a = bodies[a].inv_mass;
+    p->inv_mass_b = bodies[b].inv_mass;
+    load_inertia(inertia, a, p->inv_inertia_a);
+    load_inertia(inertia, b, p->inv_inertia_b);
+}
+
+/* Impulse p at lever arms ra (on A, as -p) and rb (on B, as +p). */
+inline void apply_impulse(float3 p, float3 ra, float3 rb, __private ContactBodies* q)
+{
+    q->va -= p * q->inv_mass_a;
+    q->wa -= mul_rows(q->inv_inertia_a, cross3(ra, p));
+    q->vb += p * q->inv_mass_b;
+    q->wb += mul_rows(q->inv_inertia_b, cross3(rb, p));
+}
+
+/* One row: impulse along `direction` at lever arms ra, rb (or a pure torque
+ * about `direction` when `linear` is 0). arm_*: lever arm x direction;
+ * turn_*: angular velocity change per unit impulse. */
+typedef struct {
+    float3 linear, arm_a, arm_b, turn_a, turn_b;
+} Row;
+
+inline Row point_row(float3 direction, float3 ra, float3 rb, const __private ContactBodies* p)
+{
+    Row row;
+    row.linear = direction;
+    row.arm_a = cross3(ra, direction);
+    row.arm_b = cross3(rb, direction);
+    row.turn_a = mul_rows(p->inv_inertia_a, row.arm_a);
+    row.turn_b = mul_rows(p->inv_inertia_b, row.arm_b);
+    return row;
+}
+
+inline Row twist_row(float3 axis, const __private ContactBodies* p)
+{
+    Row row;
+    row.linear = (float3)(0.0f);
+    row.arm_a = row.arm_b = axis;
+    row.turn_a = mul_rows(p->inv_inertia_a, axis);
+    row.turn_b = mul_rows(p->inv_inertia_b, axis);
+    return row;
+}
+
+/* velocity of B relative to A along the row */
+inline float row_speed(const Row* row, const __private ContactBodies* p)
+{
+    float3 s = row->linear * (p->vb - p->va) + row->arm_b * p->wb - row->arm_a * p->wa;
+    return s.x + s.y + s.z;
+}
+
+inline void apply_row(const Row* row, float impulse, __private ContactBodies* p)
+{
+    p->va -= row->linear * (impulse * p->inv_mass_a);
+    p->wa -= row->turn_a * impulse;
+    p->vb += row->linear * (impulse * p->inv_mass_b);
+    p->wb += row->turn_b * impulse;
+}
+
+/* A normal row: the accumulated impulse stays >= 0. */
+inline void solve_normal_row(float3 n, float3 ra, float3 rb, float mass, float target,
+                             float relaxation, float* impulse, __private ContactBodies* p)
+{
+    Row row = point_row(n, ra, rb, p);
+    float total = positive_part(*impulse + relaxation * mass * (target - row_speed(&row, p)));
+    apply_row(&row, total - *impulse, p);
+    *impulse = total;
+}
+
+/* A friction pair at lever arms ra, rb: the accumulated (f1, f2) is clamped
+ * to the disc |f| <= limit. Always inlined: as a call (PoCL declines to
+ * inline it) the bodies' state would go through memory. */
+__attribute__((always_inline))
+inline void solve_friction_pair(float3 t1, float3 t2, float3 ra, float3 rb, float mass1,
+                                float mass2, float limit, float relaxation, float* impulse1,
+                                float* impulse2, __private ContactBodies* p)
+{
+    Row row1 = point_row(t1, ra, rb, p), row2 = point_row(t2, ra, rb, p);
+    float f1 = *impulse1 - relaxation * mass1 * row_speed(&row1, p);
+    float f2 = *impulse2 - relaxation * mass2 * row_speed(&row2, p);
+    float length_sq = f1 * f1 + f2 * f2;
+    if (length_sq > limit * limit) {
+        float scale = limit * rsqrt(length_sq);
+        f1 *= scale;
+        f2 *= scale;
+    }
+    apply_row(&row1, f1 - *impulse1, p);
+    apply_row(&row2, f2 - *impulse2, p);
+    *impulse1 = f1;
+    *impulse2 = f2;
+}
+
+inline void unpack4(float4 v, float out[4])
+{
+    out[0] = v.x, out[1] = v.y, out[2] = v.z, out[3] = v.w;
+}
+
+inline float4 pack4(const float in[4])
+{
+    return (float4)(in[0], in[1], in[2], in[3]);
+}
+
+inline void load_velocities(__private ContactBodies* p, __global const Body* bodies, uint a, uint b)
+{
+    p->va = bodies[a].linear_velocity.xyz, p->wa = bodies[a].angular_velocity.xyz;
+    p->vb = bodies[b].linear_velocity.xyz, p->wb = bodies[b].angular_velocity.xyz;
+}
+
+/* write back the velocities of the dynamic bodies (a static body is never written) */
+inline void store_velocities(const __private ContactBodies* p, __global Body* bodies, uint a, uint b)
+{
+    if (p->inv_mass_a > 0.0f) {
+        bodies[a].linear_velocity.xyz = p->va;
+        bodies[a].angular_velocity.xyz = p->wa;
+    }
+    if (p->inv_mass_b > 0.0f) {
+        bodies[b].linear_velocity.xyz = p->vb;
+        bodies[b].angular_velocity.xyz = p->wb;
+    }
+}
+
 /* Apply last step's accumulated impulses of one constraint (warm start). */
 void warm_start_contact(__global const ContactConstraint* c, __global Body* bodies,
                         __global const BodyInertia* inertia)
 {
-    uint a = c->body_a, b = c->body_b;
-    float inv_mass_a = bodies[a].inv_mass, inv_mass_b = bodies[b].inv_mass;
-    float3 va = bodies[a].linear_velocity.xyz, wa = bodies[a].angular_velocity.xyz;
-    float3 vb = bodies[b].linear_velocity.xyz, wb = bodies[b].angular_velocity.xyz;
-    float3 inv_inertia_a[3], inv_inertia_b[3];
-    load_inertia(inertia, a, inv_inertia_a);
-    load_inertia(inertia, b, inv_inertia_b);
+    uint a = c->body_a, b = c->body_b, count = c->point_count;
+    ContactBodies p;
+    load_bodies(&p, bodies, inertia, a, b);
+    load_velocities(&p, bodies, a, b);
+    float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
     float normal_impulse[4], tangent1_impulse[4], tangent2_impulse[4];
-    vstore4(c->normal_impulse, 0, normal_impulse);
-    vstore4(c->tangent1_impulse, 0, tangent1_impulse);
-    vstore4(c->tangent2_impulse, 0, tangent2_impulse);
+    unpack4(c->normal_impulse, normal_impulse);
+    unpack4(c->tangent1_impulse, tangent1_impulse);
+    unpack4(c->tangent2_impulse, tangent2_impulse);
 % if friction == "point":
-    for (uint k = 0; k < c->point_count; ++k) {
-        float3 p = c->normal.xyz * normal_impulse[k] + c->tangent1.xyz * tangent1_impulse[k]
-                 + c->tangent2.xyz * tangent2_impulse[k];
-        apply_impulse(p, c->r_a[k].xyz, c->r_b[k].xyz, inv_mass_a, inv_inertia_a, &va, &wa,
-                      inv_mass_b, inv_inertia_b, &vb, &wb);
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+        float3 impulse = n * normal_impulse[k] + t1 * tangent1_impulse[k]
+                       + t2 * tangent2_impulse[k];
+        apply_impulse(impulse, c->r_a[k].xyz, c->r_b[k].xyz, &p);
     }
 % else:
     float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
-    for (uint k = 0; k < c->point_count; ++k) {
-        apply_impulse(c->normal.xyz * normal_impulse[k], c->r_a[k].xyz, c->r_b[k].xyz,
-                      inv_mass_a, inv_inertia_a, &va, &wa, inv_mass_b, inv_inertia_b, &vb, &wb);
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+        apply_impulse(n * normal_impulse[k], c->r_a[k].xyz, c->r_b[k].xyz, &p);
         ra += c->r_a[k].xyz, rb += c->r_b[k].xyz;
     }
-    float share = c->point_count > 0 ? 1.0f / (float)c->point_count : 0.0f;
-    float3 p = c->tangent1.xyz * tangent1_impulse[0] + c->tangent2.xyz * tangent2_impulse[0];
-    apply_impulse(p, ra * share, rb * share, inv_mass_a, inv_inertia_a, &va, &wa,
-                  inv_mass_b, inv_inertia_b, &vb, &wb);
-    wa -= mul_rows(inv_inertia_a, c->normal.xyz * tangent1_impulse[1]);
-    wb += mul_rows(inv_inertia_b, c->normal.xyz * tangent1_impulse[1]);
+    float share = count > 0 ? 1.0f / (float)count : 0.0f;
+    apply_impulse(t1 * tangent1_impulse[0] + t2 * tangent2_impulse[0], ra * share, rb * share, &p);
+    Row twist = twist_row(n, &p);
+    apply_row(&twist, tangent1_impulse[1], &p);
 % endif
-    if (inv_mass_a > 0.0f) {
-        bodies[a].linear_velocity.xyz = va;
-        bodies[a].angular_velocity.xyz = wa;
-    }
-    if (inv_mass_b > 0.0f) {
-        bodies[b].linear_velocity.xyz = vb;
-        bodies[b].angular_velocity.xyz = wb;
-    }
+    store_velocities(&p, bodies, a, b);
 }
 
 /* Solve all rows of one constraint and write back its impulses and the
@@ -265,150 +412,71 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
                    const bool reverse)
 {
     uint a = c->body_a, b = c->body_b, count = c->point_count;
-    float inv_mass_a = bodies[a].inv_mass, inv_mass_b = bodies[b].inv_mass;
-    float3 va = bodies[a].linear_velocity.xyz, wa = bodies[a].angular_velocity.xyz;
-    float3 vb = bodies[b].linear_velocity.xyz, wb = bodies[b].angular_velocity.xyz;
-    float3 inv_inertia_a[3], inv_inertia_b[3];
-    load_inertia(inertia, a, inv_inertia_a);
-    load_inertia(inertia, b, inv_inertia_b);
+    ContactBodies p;
+    load_bodies(&p, bodies, inertia, a, b);
+    load_velocities(&p, bodies, a, b);
     float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
     float friction = c->normal.w;
     float normal_impulse[4], tangent1_impulse[4], tangent2_impulse[4];
     float normal_mass[4], tangent1_mass[4], tangent2_mass[4], target[4];
-    vstore4(c->normal_impulse, 0, normal_impulse);
-    vstore4(c->tangent1_impulse, 0, tangent1_impulse);
-    vstore4(c->tangent2_impulse, 0, tangent2_impulse);
-    vstore4(c->normal_mass, 0, normal_mass);
-    vstore4(c->tangent1_mass, 0, tangent1_mass);
-    vstore4(c->tangent2_mass, 0, tangent2_mass);
-    vstore4(c->velocity_target, 0, target);
+    unpack4(c->normal_impulse, normal_impulse);
+    unpack4(c->tangent1_impulse, tangent1_impulse);
+    unpack4(c->tangent2_impulse, tangent2_impulse);
+    unpack4(c->normal_mass, normal_mass);
+    unpack4(c->tangent1_mass, tangent1_mass);
+    unpack4(c->tangent2_mass, tangent2_mass);
+    unpack4(c->velocity_target, target);
 
 % if normal_solve == "block":
-    solve_normal_block(count, n, c->r_a, c->r_b, relaxation, inv_mass_a, inv_inertia_a, &va, &wa,
-                       inv_mass_b, inv_inertia_b, &vb, &wb, target, normal_impulse);
+    solve_normal_block(count, n, c->r_a, c->r_b, relaxation, p.inv_mass_a, p.inv_inertia_a,
+                       &p.va, &p.wa, p.inv_mass_b, p.inv_inertia_b, &p.vb, &p.wb, target,
+                       normal_impulse);
     /* then the rows one after another: no change where the block was exact;
      * completes a point the block released while it still approaches */
 % endif
-    for (uint step = 0; step < count; ++step) {
-        /* alternate the point order between sweeps, so that no point is always first */
-        uint k = reverse ? count - 1 - step : step;
-        float3 ra = c->r_a[k].xyz, rb = c->r_b[k].xyz;
-        /* normal row: impulse >= 0 */
-        float vn = dot(relative_velocity(ra, rb, va, wa, vb, wb), n);
-        float total = fmax(normal_impulse[k] + relaxation * normal_mass[k] * (target[k] - vn), 0.0f);
-        float delta = total - normal_impulse[k];
-        normal_impulse[k] = total;
-        apply_impulse(n * delta, ra, rb, inv_mass_a, inv_inertia_a, &va, &wa,
-                      inv_mass_b, inv_inertia_b, &vb, &wb);
+    /* alternate the point order between sweeps, so that no point is always first */
+    for (uint step = 0; step < RB_MAX_MANIFOLD_POINTS; ++step) {
+        uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - step : step;
+        if (k < count)
+            solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[k], target[k],
+                             relaxation, &normal_impulse[k], &p);
     }
 % if friction == "point":
-    for (uint step = 0; step < count; ++step) {
-        /* friction pair: |(f1, f2)| <= mu * normal impulse (same point order) */
-        uint k = reverse ? count - 1 - step : step;
-        float3 ra = c->r_a[k].xyz, rb = c->r_b[k].xyz;
-        float3 dv = relative_velocity(ra, rb, va, wa, vb, wb);
-        float f1 = tangent1_impulse[k] - relaxation * tangent1_mass[k] * dot(dv, t1);
-        float f2 = tangent2_impulse[k] - relaxation * tangent2_mass[k] * dot(dv, t2);
-        float limit = friction * normal_impulse[k];
-        float length_sq = f1 * f1 + f2 * f2;
-        if (length_sq > limit * limit) {
-            float scale = limit * rsqrt(length_sq);
-            f1 *= scale;
-            f2 *= scale;
-        }
-        float3 p = t1 * (f1 - tangent1_impulse[k]) + t2 * (f2 - tangent2_impulse[k]);
-        tangent1_impulse[k] = f1;
-        tangent2_impulse[k] = f2;
-        apply_impulse(p, ra, rb, inv_mass_a, inv_inertia_a, &va, &wa,
-                      inv_mass_b, inv_inertia_b, &vb, &wb);
+    /* friction pairs: |(f1, f2)| <= mu * normal impulse (same point order) */
+    for (uint step = 0; step < RB_MAX_MANIFOLD_POINTS; ++step) {
+        uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - step : step;
+        if (k < count)
+            solve_friction_pair(t1, t2, c->r_a[k].xyz, c->r_b[k].xyz, tangent1_mass[k],
+                                tangent2_mass[k], friction * normal_impulse[k], relaxation,
+                                &tangent1_impulse[k], &tangent2_impulse[k], &p);
     }
 % else:
     /* one friction pair at the centre of the points: |(f1, f2)| <= mu * total normal
      * impulse, and a twist row about n: |f| <= mu * total * mean point distance */
     float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
     float total = 0.0f;
-    for (uint k = 0; k < count; ++k)
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         ra += c->r_a[k].xyz, rb += c->r_b[k].xyz, total += normal_impulse[k];
     float share = count > 0 ? 1.0f / (float)count : 0.0f;
     ra *= share;
     rb *= share;
-    float3 dv = relative_velocity(ra, rb, va, wa, vb, wb);
-    float f1 = tangent1_impulse[0] - relaxation * tangent1_mass[0] * dot(dv, t1);
-    float f2 = tangent2_impulse[0] - relaxation * tangent2_mass[0] * dot(dv, t2);
     float limit = friction * total;
-    float length_sq = f1 * f1 + f2 * f2;
-    if (length_sq > limit * limit) {
-        float scale = limit * rsqrt(length_sq);
-        f1 *= scale;
-        f2 *= scale;
-    }
-    float3 p = t1 * (f1 - tangent1_impulse[0]) + t2 * (f2 - tangent2_impulse[0]);
-    tangent1_impulse[0] = f1;
-    tangent2_impulse[0] = f2;
-    apply_impulse(p, ra, rb, inv_mass_a, inv_inertia_a, &va, &wa, inv_mass_b, inv_inertia_b,
-                  &vb, &wb);
+    solve_friction_pair(t1, t2, ra, rb, tangent1_mass[0], tangent2_mass[0], limit, relaxation,
+                        &tangent1_impulse[0], &tangent2_impulse[0], &p);
     float radius = 0.0f;
-    for (uint k = 0; k < count; ++k)
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         radius += length(c->r_b[k].xyz - rb);
     float twist_limit = limit * radius * share;
-    float twist = clamp(tangent1_impulse[1] - relaxation * tangent1_mass[1] * dot(wb - wa, n),
-                        -twist_limit, twist_limit);
-    float twist_delta = twist - tangent1_impulse[1];
-    tangent1_impulse[1] = twist;
-    wa -= mul_rows(inv_inertia_a, n * twist_delta);
-    wb += mul_rows(inv_inertia_b, n * twist_delta);
+    Row twist = twist_row(n, &p);
+    float twist_total = clamp(tangent1_impulse[1] - relaxation * tangent1_mass[1] * row_speed(&twist, &p),
+                              -twist_limit, twist_limit);
+    apply_row(&twist, twist_total - tangent1_impulse[1], &p);
+    tangent1_impulse[1] = twist_total;
 % endif
-    c->normal_impulse = vload4(0, normal_impulse);
-    c->tangent1_impulse = vload4(0, tangent1_impulse);
-    c->tangent2_impulse = vload4(0, tangent2_impulse);
-    if (inv_mass_a > 0.0f) {
-        bodies[a].linear_velocity.xyz = va;
-        bodies[a].angular_velocity.xyz = wa;
-    }
-    if (inv_mass_b > 0.0f) {
-        bodies[b].linear_velocity.xyz = vb;
-        bodies[b].angular_velocity.xyz = wb;
-    }
-}
-
-/* One velocity iteration over the groups that may run concurrently (all of
- * them, or one cell colour). A work group is responsible for one level-1
- * group (group_offset + its id): its batches in order, a barrier after each. */
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void solve_contacts(__global ContactConstraint* constraints,
-                    __global const uint* order,
-                    __global const uint* group_batches,
-                    __global const uint* group_batch_count,
-                    __global Body* bodies,
-                    __global const BodyInertia* inertia,
-                    const float relaxation,
-                    const uint group_offset,
-                    const uint passes)
-{
-    const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
-    const bool apply_warm_start = passes & WARM_START_PASS, solve = passes & SOLVE_PASS;
-    const bool reverse = passes & REVERSE_PASS;
-    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
-    const uint batch_count = group_batch_count[group];
-    /* warm start (before the first sweep): old impulses, batch by batch */
-    for (uint batch = 0; apply_warm_start && batch < batch_count; ++batch) {
-        uint begin = offsets[batch], end = offsets[batch + 1];
-        uint stride = ${work_group_size};
-        if (batch == SERIAL_BATCH)
-            stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
-        for (uint i = begin + lane; i < end; i += stride)
-            warm_start_contact(&constraints[order[i]], bodies, inertia);
-        barrier(CLK_GLOBAL_MEM_FENCE);
-    }
-    for (uint batch = 0; solve && batch < batch_count; ++batch) {
-        uint begin = offsets[batch], end = offsets[batch + 1];
-        uint stride = ${work_group_size};
-        if (batch == SERIAL_BATCH)
-            stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
-        for (uint i = begin + lane; i < end; i += stride)
-            solve_contact(&constraints[order[i]], bodies, inertia, relaxation, reverse);
-        barrier(CLK_GLOBAL_MEM_FENCE);
-    }
+    c->normal_impulse = pack4(normal_impulse);
+    c->tangent1_impulse = pack4(tangent1_impulse);
+    c->tangent2_impulse = pack4(tangent2_impulse);
+    store_velocities(&p, bodies, a, b);
 }
 % if split_impulse:
 
@@ -418,74 +486,116 @@ void solve_push(__global ContactConstraint* c, __global SplitVelocity* split,
                 const float relaxation)
 {
     uint a = c->body_a, b = c->body_b, count = c->point_count;
-    float inv_mass_a = bodies[a].inv_mass, inv_mass_b = bodies[b].inv_mass;
-    float3 va = split[a].linear.xyz, wa = split[a].angular.xyz;
-    float3 vb = split[b].linear.xyz, wb = split[b].angular.xyz;
-    float3 inv_inertia_a[3], inv_inertia_b[3];
-    load_inertia(inertia, a, inv_inertia_a);
-    load_inertia(inertia, b, inv_inertia_b);
+    ContactBodies p;
+    load_bodies(&p, bodies, inertia, a, b);
+    p.va = split[a].linear.xyz, p.wa = split[a].angular.xyz;
+    p.vb = split[b].linear.xyz, p.wb = split[b].angular.xyz;
     float3 n = c->normal.xyz;
     float push_impulse[4], normal_mass[4], target[4];
-    vstore4(c->push_impulse, 0, push_impulse);
-    vstore4(c->normal_mass, 0, normal_mass);
-    vstore4(c->position_target, 0, target);
+    unpack4(c->push_impulse, push_impulse);
+    unpack4(c->normal_mass, normal_mass);
+    unpack4(c->position_target, target);
 % if normal_solve == "block":
-    solve_normal_block(count, n, c->r_a, c->r_b, relaxation, inv_mass_a, inv_inertia_a, &va, &wa,
-                       inv_mass_b, inv_inertia_b, &vb, &wb, target, push_impulse);
+    solve_normal_block(count, n, c->r_a, c->r_b, relaxation, p.inv_mass_a, p.inv_inertia_a,
+                       &p.va, &p.wa, p.inv_mass_b, p.inv_inertia_b, &p.vb, &p.wb, target,
+                       push_impulse);
 % else:
-    for (uint k = 0; k < count; ++k) {
-        float3 ra = c->r_a[k].xyz, rb = c->r_b[k].xyz;
-        float vn = dot(relative_velocity(ra, rb, va, wa, vb, wb), n);
-        float total = fmax(push_impulse[k] + relaxation * normal_mass[k] * (target[k] - vn), 0.0f);
-        float delta = total - push_impulse[k];
-        push_impulse[k] = total;
-        apply_impulse(n * delta, ra, rb, inv_mass_a, inv_inertia_a, &va, &wa,
-                      inv_mass_b, inv_inertia_b, &vb, &wb);
-    }
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[k], target[k],
+                         relaxation, &push_impulse[k], &p);
 % endif
-    c->push_impulse = vload4(0, push_impulse);
-    if (inv_mass_a > 0.0f) {
-        split[a].linear.xyz = va;
-        split[a].angular.xyz = wa;
+    c->push_impulse = pack4(push_impulse);
+    if (p.inv_mass_a > 0.0f) {
+        split[a].linear.xyz = p.va;
+        split[a].angular.xyz = p.wa;
     }
-    if (inv_mass_b > 0.0f) {
-        split[b].linear.xyz = vb;
-        split[b].angular.xyz = wb;
+    if (p.inv_mass_b > 0.0f) {
+        split[b].linear.xyz = p.vb;
+        split[b].angular.xyz = p.wb;
     }
 }
+% endif
+<%def name="each_constraint(call)">\
+% if shape == "gpu":
+        for (uint batch = 0; batch < batch_count; ++batch) {
+            uint begin = offsets[batch], end = offsets[batch + 1];
+            uint stride = ${work_group_size};
+            if (batch == SERIAL_BATCH)  /* the remainder: lane 0 alone, in order */
+                stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
+            for (uint i = begin + lane; i < end; i += stride)
+                ${call};
+            barrier(CLK_GLOBAL_MEM_FENCE);
+        }
+% else:
+        for (uint i = begin; i < end; ++i)
+            ${call};
+% endif
+</%def>
 
-/* One position (split-impulse) iteration. A work group is responsible for
- * one level-1 group: its batches in order, a barrier after each. */
+% if shape == "gpu":
+/* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
+ * the groups group_offset + 0, 1, ... (one launch). A work group is
+ * responsible for one level-1 group: its batches in order, a barrier after
+ * each. */
+% else:
+/* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
+ * the groups group_offset .. group_end - 1 (one launch). A work-item is
+ * responsible for one level-1 group: its constraints one after another. */
+% endif
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void solve_penetration(__global ContactConstraint* constraints,
-                       __global const uint* order,
-                       __global const uint* group_batches,
-                       __global const uint* group_batch_count,
-                       __global SplitVelocity* split,
-                       __global const Body* bodies,
-                       __global const BodyInertia* inertia,
-                       const float relaxation,
-                       const uint group_offset)
+void solve_groups(__global ContactConstraint* constraints,
+                  __global const uint* order,
+                  __global const uint* group_batches,
+                  __global const uint* group_batch_count,
+                  __global Body* bodies,
+                  __global const BodyInertia* inertia,
+% if split_impulse:
+                  __global SplitVelocity* split,
+% endif
+                  const float relaxation,
+                  const uint group_offset,
+% if shape == "cpu":
+                  const uint group_end,
+% endif
+                  const uint passes,
+% if split_impulse:
+                  const uint velocity_sweeps,
+                  const uint position_sweeps)
+% else:
+                  const uint velocity_sweeps)
+% endif
 {
+% if shape == "gpu":
     const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint batch_count = group_batch_count[group];
-    for (uint batch = 0; batch < batch_count; ++batch) {
-        uint begin = offsets[batch], end = offsets[batch + 1];
-        uint stride = ${work_group_size};
-        if (batch == SERIAL_BATCH)
-            stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
-        for (uint i = begin + lane; i < end; i += stride)
-            solve_push(&constraints[order[i]], split, bodies, inertia, relaxation);
-        barrier(CLK_GLOBAL_MEM_FENCE);
+% else:
+    const uint group = group_offset + get_global_id(0);
+    if (group >= group_end)
+        return;
+    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
+    const uint begin = offsets[0], end = offsets[group_batch_count[group]];
+% endif
+    if (passes & WARM_START_PASS) {
+${each_constraint("warm_start_contact(&constraints[order[i]], bodies, inertia)")}\
     }
+    for (uint sweep = 0; sweep < velocity_sweeps; ++sweep) {
+        const bool reverse = ((passes & FIRST_REVERSED) != 0) != ((sweep & 1) != 0);
+${each_constraint("solve_contact(&constraints[order[i]], bodies, inertia, relaxation, reverse)")}\
+    }
+% if split_impulse:
+    for (uint sweep = 0; sweep < position_sweeps; ++sweep) {
+${each_constraint("solve_push(&constraints[order[i]], split, bodies, inertia, relaxation)")}\
+    }
+% endif
 }
+% if split_impulse:
 
 /* One work-item per body: move it by its push velocity over dt, then clear
- * the push. A work group is responsible for ${work_group_size} consecutive bodies. */
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void apply_split_velocities(__global Body* bodies, __global SplitVelocity* split,
-                            const uint body_count, const float dt)
+ * the push. A work group is responsible for consecutive bodies (as many as
+ * the host's launch asks: the solver's work-group size does not fit here). */
+__kernel void apply_split_velocities(__global Body* bodies, __global SplitVelocity* split,
+                                     const uint body_count, const float dt)
 {
     uint i = get_global_id(0);
     if (i >= body_count || bodies[i].inv_mass == 0.0f)
@@ -494,7 +604,7 @@ void apply_split_velocities(__global Body* bodies, __global SplitVelocity* split
     bodies[i].position.xyz += v * dt;
     float4 q = bodies[i].orientation;
     float3 h = 0.5f * dt * w;  /* q += (h, 0) q: first order, renormalised */
-    float4 dq = (float4)(q.w * h + cross(h, q.xyz), -dot(h, q.xyz));
+    float4 dq = (float4)(q.w * h + cross3(h, q.xyz), -dot3(h, q.xyz));
     bodies[i].orientation = normalize(q + dq);
     split[i].linear = (float4)(0.0f);
     split[i].angular = (float4)(0.0f);
