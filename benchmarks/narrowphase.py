@@ -2,6 +2,7 @@
 
     python benchmarks/narrowphase.py [--device D] [--sizes 27000 111375]
                                      [--ground box|plane] [--box-path box_box box hull gauss]
+                                     [--clip fused separate] [--placement-tile 256 1024]
                                      [--hulls]
 
 Scene: rbgen.scenes.boxbox_scene (cubes of half extent 1 on a ground whose top
@@ -102,16 +103,17 @@ def event_ms(event) -> float:
 
 
 def run(runtime: Runtime, scene, count: int, ground: str, box_path: str, margin: float,
-        repeat: int) -> dict:
+        repeat: int, shapes: dict | None = None) -> dict:
     table, bodies, pairs = scene
     q = runtime.queue
     # "box_box": the closed-form 15-axis kernel; "box": the generic test with closed-form
     # box projection and 3 x 3 edge directions; "hull": boxes as hulls (vertex projection),
     # same directions; "gauss": boxes as hulls, Gauss-map edge pairs
     if box_path == "box_box":
-        narrowphase = Narrowphase(runtime, table, box_path="box_box")
+        narrowphase = Narrowphase(runtime, table, box_path="box_box", **(shapes or {}))
     else:
         narrowphase = Narrowphase(runtime, table, box_path="box" if box_path == "box" else "hull",
+                                  **(shapes or {}),
                                   edge_axes={"box_box": "gauss_map" if box_path == "gauss"
                                              else "directions"})
     packed = table.pack_all().to_device(q)
@@ -202,6 +204,11 @@ def main(argv=None):
     parser.add_argument("--device", default=None, help="device choice for rbgen.Runtime")
     parser.add_argument("--sizes", type=int, nargs="+", default=[27_000, 111_375])
     parser.add_argument("--ground", choices=("box", "plane"), default="box")
+    parser.add_argument("--clip", nargs="+", choices=("fused", "separate"), default=["fused"],
+                        help="fused: clip_incident_face reduces and stores (one launch); "
+                             "separate: reduce_contacts does (two smaller kernels)")
+    parser.add_argument("--placement-tile", type=int, nargs="+", default=[None],
+                        help="pairs per scatter_manifolds work group (default: per device)")
     parser.add_argument("--box-path", nargs="+", choices=("box_box", "box", "hull", "gauss"),
                         default=["box_box", "box", "hull", "gauss"],
                         help="box_box: closed-form 15-axis kernel; box: generic test, closed-form "
@@ -221,13 +228,19 @@ def main(argv=None):
     for count in args.sizes:
         scene = build(count, args.ground, args.sink, args.margin)
         for box_path in args.box_path:
-            rows.append(run(runtime, scene, count, args.ground, box_path, args.margin, args.repeat))
+            for clip in args.clip:
+                for tile in args.placement_tile:
+                    shapes = {"reduce_in_clip": clip == "fused", "placement_tile": tile}
+                    row = run(runtime, scene, count, args.ground, box_path, args.margin, args.repeat,
+                              shapes)
+                    row["box_path"] = (f"{box_path}/{clip}" + (f"/{tile}" if tile else ""))
+                    rows.append(row)
     stage_names = list(dict.fromkeys(k for r in rows for k in r["stages"]))
-    header = (f"{'boxes':>7} {'path':>7} {'pairs':>7} {'manif':>7} {'points':>7} {'total':>8} "
+    header = (f"{'boxes':>7} {'path':>18} {'pairs':>7} {'manif':>7} {'points':>7} {'total':>8} "
               f"{'launch':>6} " + " ".join(f"{s[:12]:>12}" for s in stage_names))
     print(header)
     for r in rows:
-        print(f"{r['count']:>7} {r['box_path']:>7} {r['pairs']:>7} {r['manifolds']:>7} "
+        print(f"{r['count']:>7} {r['box_path']:>18} {r['pairs']:>7} {r['manifolds']:>7} "
               f"{r['points']:>7} {r['total_ms']:>8.3f} {r['launches']:>6} "
               + " ".join(f"{r['stages'].get(s, float('nan')):>12.3f}" for s in stage_names))
     if args.hulls:
