@@ -8,7 +8,7 @@
  *   (gravity is applied before the solver by apply_gravity, not here)
 % endif
 % if damping:
- *   v  *= linear_factor,  w *= angular_factor
+ *   v  *= linear_damping_factor,  w *= angular_damping_factor
  *         (the factors (1 - damping)^dt are the same for every body: the host
  *         computes them once)
 % endif
@@ -55,8 +55,8 @@ void integrate_bodies(__global Body* bodies,
                       const float4 gravity,
 % endif
 % if damping:
-                      const float linear_factor,
-                      const float angular_factor,
+                      const float linear_damping_factor,
+                      const float angular_damping_factor,
 % endif
                       const float max_angular_step)
 {
@@ -74,8 +74,8 @@ void integrate_bodies(__global Body* bodies,
 % endif
     float3 w = body->angular_velocity.xyz;
 % if damping:
-    v *= linear_factor;
-    w *= angular_factor;
+    v *= linear_damping_factor;
+    w *= angular_damping_factor;
 % endif
     body->linear_velocity.xyz = v;
     body->angular_velocity.xyz = w;
