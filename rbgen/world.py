@@ -412,10 +412,9 @@ class World:
                            iterations=self.iterations,
                            position_iterations=self.position_iterations if split else 0,
                            relaxation=self.relaxation, warm_start=self.warm_start)
-        self._integrate(self._bodies, n, h, linear_damping=self.linear_damping,
-                        angular_damping=self.angular_damping)
-        if split:
-            self._solver.apply_split(self._bodies, n, h)
+        self._integrate(self._bodies, n, h, linear_damping=self.linear_damping,  # push fused in
+                        angular_damping=self.angular_damping,
+                        split=self._solver.split_velocities(n) if split else None)
         self._in_flight.append(_InFlight.start(self, h, slot))
 
     def _finish_pending(self) -> None:

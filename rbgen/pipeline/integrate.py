@@ -1,4 +1,9 @@
-"""Integrate stage: gravity, damping, positions and orientations of dynamic bodies."""
+"""Integrate stage: gravity, damping, positions and orientations of dynamic bodies.
+
+Given the solver's split-impulse push velocities, the same launch also moves
+the bodies by them and clears them (what the solver's apply_split_velocities
+does in a launch of its own).
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -18,11 +23,14 @@ TEMPLATE = KernelTemplate(
         Param("gravity", (True, False),
               "True: integrate_bodies adds g dt itself (standalone use); False: a separate "
               "apply_gravity kernel runs before the solver so contacts cancel gravity in the same step"),
+        Param("split", (True, False),
+              "also apply (and clear) the split-impulse push velocities, saving the World the "
+              "solver's apply_split_velocities launch"),
     ],
     doc="Semi-implicit Euler step of body velocities and transforms.",
     roles={"bodies": "inout"},
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "damping": False,
-                              "gravity": True},
+                              "gravity": True, "split": False},
 )
 
 #: Bullet's default clamp: at most a quarter turn per step keeps the
@@ -36,18 +44,33 @@ def default_work_group_size(traits: DeviceTraits) -> int:
 
 
 class Integrator:
-    """Launches `integrate_bodies` over a device array of `Body` records."""
+    """Launches `integrate_bodies` over a device array of `Body` records.
+
+    A call given ``split`` (the solver's `SplitVelocity` array) runs the
+    variant that also applies and clears the push velocities (built at its
+    first use).
+    """
 
     def __init__(self, runtime: Runtime, *, damping: bool = False, gravity: bool = True,
                  work_group_size: int | None = None):
         self.runtime = runtime
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, damping=bool(damping),
-                                  gravity=bool(gravity))
+                                  gravity=bool(gravity), split=False)
         self.damping, self.gravity = bool(damping), bool(gravity)
         program = compile_spec(runtime, self.spec)
         self.kernel = runtime.bound(program.kernel("integrate_bodies"))
         self.gravity_kernel = None if gravity else runtime.bound(program.kernel("apply_gravity"))
+        self._split_kernel = None
+
+    def _kernel_for(self, split: bool):
+        if not split:
+            return self.kernel
+        if self._split_kernel is None:
+            spec = TEMPLATE.spec(**{**self.spec.values, "split": True})
+            program = compile_spec(self.runtime, spec)
+            self._split_kernel = self.runtime.bound(program.kernel("integrate_bodies"))
+        return self._split_kernel
 
     def apply_gravity(self, bodies, body_count: int, dt: float, gravity=(0.0, -9.81, 0.0)):
         """v += g dt on dynamic bodies (only for an Integrator built with gravity=False)."""
@@ -62,7 +85,9 @@ class Integrator:
 
     def __call__(self, bodies, body_count: int, dt: float, gravity=(0.0, -9.81, 0.0),
                  linear_damping: float = 0.0, angular_damping: float = 0.0,
-                 max_angular_step: float = DEFAULT_MAX_ANGULAR_STEP):
+                 max_angular_step: float = DEFAULT_MAX_ANGULAR_STEP, split=None):
+        """One step of ``body_count`` bodies; ``split``: push velocities to apply and clear
+        (at least ``body_count`` `SplitVelocity` records), or None."""
         if not (np.isfinite(dt) and dt > 0):
             raise RbgenError(f"dt must be a positive finite number, got {dt!r}")
         if (linear_damping or angular_damping) and not self.damping:
@@ -71,6 +96,8 @@ class Integrator:
         for name, value in (("linear_damping", linear_damping), ("angular_damping", angular_damping)):
             if not 0.0 <= value < 1.0:
                 raise RbgenError(f"{name} must be in [0, 1), got {value!r}")
+        if split is not None and len(split) < body_count:
+            raise RbgenError(f"split has {len(split)} records for {body_count} bodies")
         if body_count == 0:
             return None
         args = [bodies, np.uint32(body_count), np.float32(dt)]
@@ -79,5 +106,7 @@ class Integrator:
         if self.damping:
             # (1 - damping)^dt is the same for every body
             args += [np.float32((1.0 - linear_damping) ** dt), np.float32((1.0 - angular_damping) ** dt)]
+        if split is not None:
+            args.append(split)
         args.append(np.float32(max_angular_step))
-        return self.kernel.over(body_count, self.work_group_size, *args)
+        return self._kernel_for(split is not None).over(body_count, self.work_group_size, *args)

@@ -152,3 +152,35 @@ def test_bad_input(runtime):
         integrate(d, 1, 0.1, linear_damping=0.1)
     with pytest.raises(RbgenError, match="gravity"):
         integrate.apply_gravity(d, 1, 0.1)
+
+
+@pytest.mark.parametrize("n", [0, 1, 67, 1000])
+def test_split_push_fused(runtime, rng, n):
+    """With the solver's push velocities, integrate_bodies first integrates (as without),
+    then moves each dynamic body by the push over dt (x += v_push dt; q += (w_push dt/2, 0) q,
+    renormalised: the solver's first-order update, in float64 here) and clears the pushes."""
+    bodies = random_bodies(rng, max(n, 1))
+    split = layouts.SPLIT_VELOCITY.zeros(max(n, 1))
+    split["linear"][:, :3] = rng.normal(0, 0.5, (len(split), 3))
+    split["angular"][:, :3] = rng.normal(0, 0.5, (len(split), 3))
+    dt = 1 / 60
+    q = runtime.queue
+    d_bodies, d_split = cla.to_device(q, bodies), cla.to_device(q, split)
+    Integrator(runtime, gravity=False)(d_bodies, n, dt, split=d_split)
+    got, pushes = d_bodies.get()[:n], d_split.get()[:n]
+    expected = reference_step(bodies[:n], dt, (0.0, 0.0, 0.0))
+    dynamic = bodies["inv_mass"][:n] != 0
+    v, w = split["linear"][:n, :3].astype(np.float64), split["angular"][:n, :3].astype(np.float64)
+    position = expected["position"][:, :3].astype(np.float64) + v * dt
+    orientation = expected["orientation"].astype(np.float64)
+    half = 0.5 * dt * w
+    turned = orientation + quat_mul(np.concatenate([half, np.zeros((n, 1))], axis=1), orientation)
+    turned /= np.linalg.norm(turned, axis=1, keepdims=True)
+    np.testing.assert_allclose(got["position"][dynamic, :3], position[dynamic], rtol=1e-5, atol=1e-4)
+    np.testing.assert_array_equal(got["position"][~dynamic], bodies["position"][:n][~dynamic])
+    assert np.all(rotation_angle_between(got["orientation"][dynamic], turned[dynamic]) < 1e-5)
+    np.testing.assert_array_equal(got["linear_velocity"][dynamic, :3],
+                                  expected["linear_velocity"][dynamic, :3].astype(np.float32))
+    assert not np.any(pushes["linear"][dynamic]) and not np.any(pushes["angular"][dynamic])
+    with pytest.raises(RbgenError, match="split"):
+        Integrator(runtime)(d_bodies, n + 5, dt, split=d_split[:n] if n else d_split[:0])

@@ -17,16 +17,27 @@
  *         the rotation w dt; sin(a/2)/a uses its Taylor series for small a so
  *         that slow spins keep full precision. The rotation per step is
  *         clamped to max_angular_step radians (the stored w is not changed).
+% if split:
+ *   then the split-impulse push (the solver's position sweeps' velocities),
+ *   which moves the body and is cleared:
+ *   x  += v_push dt,  q += (w_push dt / 2, 0) q (first order), renormalised
+ *   (the solver's apply_split_velocities, fused here: one launch less).
+% endif
  */
 ${cl_constants()}
 
-${cl_structs("Body")}
+${cl_structs("Body", *(("SplitVelocity",) if split else ()))}
 
 <%include file="/common/quaternion.cl.mako"/>
 
 /* Below this angular speed * dt, sin(a/2)/a and cos(a/2) are replaced by their
  * series (the next terms are below float precision). */
 #define SMALL_ROTATION 0.001f
+
+inline float4 quat_normalized(float4 q)
+{
+    return q * (1.0f / sqrt1(dot3(q.xyz, q.xyz) + q.w * q.w));
+}
 
 inline float4 rotate_by_angular_velocity(float4 q, float3 w, float dt, float max_angular_step)
 {
@@ -44,7 +55,7 @@ inline float4 rotate_by_angular_velocity(float4 q, float3 w, float dt, float max
         dq.w = cos(half_angle);
     }
     float4 turned = quat_mul(dq, q);
-    return turned * (1.0f / sqrt1(dot3(turned.xyz, turned.xyz) + turned.w * turned.w));
+    return quat_normalized(turned);
 }
 
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
@@ -57,6 +68,9 @@ void integrate_bodies(__global Body* bodies,
 % if damping:
                       const float linear_damping_factor,
                       const float angular_damping_factor,
+% endif
+% if split:
+                      __global SplitVelocity* split,
 % endif
                       const float max_angular_step)
 {
@@ -81,6 +95,18 @@ void integrate_bodies(__global Body* bodies,
     body->angular_velocity.xyz = w;
     body->position.xyz += v * dt;
     body->orientation = rotate_by_angular_velocity(body->orientation, w, dt, max_angular_step);
+% if split:
+    /* the arithmetic of the solver's apply_split_velocities, term for term (the same
+     * roundings: a World steps exactly as with that kernel) */
+    float3 push = split[i].linear.xyz, h = 0.5f * dt * split[i].angular.xyz;
+    body->position.xyz += push * dt;
+    float4 q = body->orientation;
+    float3 hq = h * q.xyz;
+    float4 dq = (float4)(q.w * h + (h.yzx * q.zxy - h.zxy * q.yzx), -(hq.x + hq.y + hq.z));
+    body->orientation = normalize(q + dq);
+    split[i].linear = (float4)(0.0f);
+    split[i].angular = (float4)(0.0f);
+% endif
 }
 % if not gravity:
 
