@@ -91,8 +91,11 @@ inline float second_face_gap(const BoxPair* g, uint j)
 
 /* Separation along a_i x b_j (-INFINITY when the axes are parallel). In a's
  * frame the axis is e_i x r_j, of length sqrt(1 - r_ij^2); its products
- * with the boxes' axes and the offset are 2x2 minors of r and t. */
-inline float edge_gap(const BoxPair* g, uint i, uint j, float* offset_along)
+ * with the boxes' axes and the offset are 2x2 minors of r and t. The gap is
+ * the unnormalised one over that length (<= 1), so a negative unnormalised
+ * gap at most `at_most` bounds the gap by it: then -INFINITY is returned
+ * without the square root and division (the axis cannot win). */
+inline float edge_gap(const BoxPair* g, uint i, uint j, float at_most, float* offset_along)
 {
     uint i1 = (i + 1u) % 3u, i2 = (i + 2u) % 3u, j1 = (j + 1u) % 3u, j2 = (j + 2u) % 3u;
     float sin2 = g->r[i1][j] * g->r[i1][j] + g->r[i2][j] * g->r[i2][j];
@@ -102,7 +105,10 @@ inline float edge_gap(const BoxPair* g, uint i, uint j, float* offset_along)
     float reach = g->extent_a[i1] * g->abs_r[i2][j] + g->extent_a[i2] * g->abs_r[i1][j]
                 + g->extent_b[j1] * g->abs_r[i][j2] + g->extent_b[j2] * g->abs_r[i][j1];
     *offset_along = d;
-    return (abs1(d) - reach) / sqrt1(sin2);
+    float unnormalised = abs1(d) - reach;
+    if (unnormalised <= 0.0f && unnormalised <= at_most)
+        return -INFINITY;
+    return unnormalised / sqrt1(sin2);
 }
 
 /* Separation along a feature code (last step's best axis). */
@@ -114,7 +120,7 @@ inline float feature_gap(const BoxPair* g, uint feature)
         return second_face_gap(g, (feature - 6u) / 2u);
     uint e = feature - FIRST_EDGE_FEATURE;
     float unused;
-    return edge_gap(g, e / 3u, e % 3u, &unused);
+    return edge_gap(g, e / 3u, e % 3u, -INFINITY, &unused);
 }
 
 /* The world axis of a feature code, turned from the first box towards the second. */
@@ -129,7 +135,7 @@ inline float3 feature_axis(const BoxPair* g, uint feature)
     }
     uint e = feature - FIRST_EDGE_FEATURE;
     float d;
-    edge_gap(g, e / 3u, e % 3u, &d);
+    edge_gap(g, e / 3u, e % 3u, -INFINITY, &d);
     float3 axis = normalize3(cross3(g->a[e / 3u], g->b[e % 3u]));
     return d >= 0.0f ? axis : -axis;
 }
@@ -173,10 +179,12 @@ inline bool box_box_test(const BoxPair* g, Pair pair, __global SatCacheEntry* en
         if (gap > face_b)
             face_b = gap, face_b_feature = feature;
     }
+    /* an edge axis must beat both faces by EDGE_TOLERANCE to be chosen */
+    float edge_floor = max1(face_a, face_b) + EDGE_TOLERANCE;
     for (uint i = 0; i < 3; ++i) {
         for (uint j = 0; j < 3; ++j) {
             float unused;
-            float gap = edge_gap(g, i, j, &unused);
+            float gap = edge_gap(g, i, j, edge_floor, &unused);
             uint feature = FIRST_EDGE_FEATURE + 3u * i + j;
             if (gap > margin) {
                 remember_axis(entry, pair, feature);
@@ -191,7 +199,7 @@ inline bool box_box_test(const BoxPair* g, Pair pair, __global SatCacheEntry* en
     *best_feature = face_a_feature;
     if (face_b > face_a + FACE_TOLERANCE)
         gap = face_b, *best_feature = face_b_feature;
-    if (edge > max1(face_a, face_b) + EDGE_TOLERANCE)
+    if (edge > edge_floor)
         gap = edge, *best_feature = edge_feature;
     *best = (float4)(feature_axis(g, *best_feature), gap);
     remember_axis(entry, pair, *best_feature);
