@@ -1,4 +1,9 @@
-"""World AABB stage: one box per body from its shape and transform."""
+"""World AABB stage: one box per body from its shape and transform.
+
+The per-body code lives in ``templates/pipeline/world_aabb.cl.mako``; a World
+runs it inside `gyroscopic.BodyPreparation` (one launch for both), and
+`WorldAabbs` launches it on its own for other callers.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -56,8 +56,8 @@ inline void write_world_aabb(Body body, Shape shape, float3 r0, float3 r1, float
         for (uint v = 0; v < shape.vertex_count; ++v) {
             float3 p = hull_vertices[shape.vertex_offset + v].xyz;
             float3 world = (float3)(dot3(r0, p), dot3(r1, p), dot3(r2, p));
-            lower = fmin(lower, world);
-            upper = fmax(upper, world);
+            lower = (float3)(min1(lower.x, world.x), min1(lower.y, world.y), min1(lower.z, world.z));
+            upper = (float3)(max1(upper.x, world.x), max1(upper.y, world.y), max1(upper.z, world.z));
         }
         lower += centre;
         upper += centre;
