@@ -300,7 +300,7 @@ class Narrowphase:
                     size, wg, pairs, self.sat_results, result_count, *scratch, *out)
         events["scatter"] = self.k_scatter.over(
             self.tile_count * wg, wg, self.slots, self.contact_flags, self.tile_counts, pair_count,
-            np.uint32(size), bodies, manifolds, np.uint32(manifolds.size), manifold_count, overflow,
+            np.uint32(pair_capacity), bodies, manifolds, np.uint32(manifolds.size), manifold_count, overflow,
             self.queue_counts)
         self._counters_clear = True
         return events
