@@ -66,8 +66,9 @@ def test_gravity_argument_must_match_the_build(runtime):
         BodyPreparation(runtime, gravity=False)(bodies, inertia, 1, 0.1, (0, -9.81, 0))
 
 
+@pytest.mark.parametrize("work_group_size", [None, 128])  # the device's default, the GPU one
 @pytest.mark.parametrize("n", [0, 1, 67, 1000])
-def test_fused_world_aabbs(runtime, rng, n):
+def test_fused_world_aabbs(runtime, rng, n, work_group_size):
     """Built with shape types, prepare_bodies also writes every body's world AABB: each
     holds the float64 bounds of the rotated shape (grown by the margin, within 1e-5), and
     velocities and inertia tensors are those of the pass without AABBs, bit for bit."""
@@ -88,7 +89,8 @@ def test_fused_world_aabbs(runtime, rng, n):
     for shape_types in ((), table.type_names()):
         d_bodies = cl_array.to_device(queue, bodies)
         d_inertia = cl_array.to_device(queue, inertia_records(diag))
-        prepare = BodyPreparation(runtime, gyroscopic=True, gravity=True, shape_types=shape_types)
+        prepare = BodyPreparation(runtime, gyroscopic=True, gravity=True, shape_types=shape_types,
+                                  work_group_size=work_group_size)
         aabbs = cl_array.empty(queue, max(n, 1), layouts.AABB.dtype)
         inputs = (cl_array.to_device(queue, shapes), cl_array.to_device(queue, vertices), aabbs,
                   margin) if shape_types else None

@@ -154,8 +154,9 @@ def test_bad_input(runtime):
         integrate.apply_gravity(d, 1, 0.1)
 
 
+@pytest.mark.parametrize("work_group_size", [None, 128])  # the device's default, the GPU one
 @pytest.mark.parametrize("n", [0, 1, 67, 1000])
-def test_split_push_fused(runtime, rng, n):
+def test_split_push_fused(runtime, rng, n, work_group_size):
     """With the solver's push velocities, integrate_bodies first integrates (as without),
     then moves each dynamic body by the push over dt (x += v_push dt; q += (w_push dt/2, 0) q,
     renormalised: the solver's first-order update, in float64 here) and clears the pushes."""
@@ -166,7 +167,8 @@ def test_split_push_fused(runtime, rng, n):
     dt = 1 / 60
     q = runtime.queue
     d_bodies, d_split = cla.to_device(q, bodies), cla.to_device(q, split)
-    Integrator(runtime, gravity=False)(d_bodies, n, dt, split=d_split)
+    Integrator(runtime, gravity=False, work_group_size=work_group_size)(d_bodies, n, dt,
+                                                                       split=d_split)
     got, pushes = d_bodies.get()[:n], d_split.get()[:n]
     expected = reference_step(bodies[:n], dt, (0.0, 0.0, 0.0))
     dynamic = bodies["inv_mass"][:n] != 0
