@@ -160,15 +160,16 @@ class Scan(Primitive):
         few tile sums); CPU four chunks per compute unit (load balance, tiny
         chunk-sum scan); chained tiles of 256 x 32 = 8192 on GPUs (32 elements
         in registers per work-item: eight 16-byte loads in flight each; the
-        fastest of 8-32 on the H200) looking back 256 tiles per step, tiles
-        by ticket (safe in any dispatch order); 16384 (L2-sized) on CPUs."""
+        fastest of 8-32 on the H200) looking back a wavefront of tiles per step
+        (H200, 16M: 0.067 ms = 73% of copy, against 0.076 ms looking back 256),
+        tiles by ticket (safe in any dispatch order); 16384 (L2-sized) on CPUs."""
         shape = shape or traits.kind
         if shape == "chained":
             if traits.is_gpu:
                 wf = clamp_wavefront(traits)
                 wg = max(wf, min(256, traits.max_work_group_size))
                 params = {"shape": "chained", "work_group_size": wg, "items_per_thread": 32,
-                          "wavefront": wf, "lookback": wg, "order": "ticket"}
+                          "wavefront": wf, "lookback": wf, "order": "ticket"}
             else:
                 params = {"shape": "chained", "work_group_size": 1, "items_per_thread": 16384,
                           "wavefront": 1, "lookback": 1, "order": "ticket"}
@@ -336,7 +337,7 @@ def chained_search_space(traits: DeviceTraits) -> list[dict]:
 
     GPU: 128-1024 work-items with 16-64 elements each in registers, looking
     back one predecessor per work-item; then the default tile looking back a
-    wavefront at a time (the narrow window, for comparison) and taking the
+    whole work group of tiles at a time (the wide window, for comparison) and taking the
     tile of its group id instead of a ticket; CPU: one work-item per tile of
     4096-65536 elements (tickets)."""
     default = Scan.default_params(traits, "chained")
@@ -348,7 +349,7 @@ def chained_search_space(traits: DeviceTraits) -> list[dict]:
             if wf <= wg <= traits.max_work_group_size:
                 space.append(dict(default, work_group_size=wg, items_per_thread=ipt,
                                   lookback=wg))
-        space.append(dict(default, lookback=wf))
+        space.append(dict(default, lookback=default["work_group_size"]))
         space.append(dict(default, order="group"))
     else:
         for ipt in (4096, 65536):
