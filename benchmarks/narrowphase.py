@@ -20,16 +20,20 @@ Gauss map), which cooks hulls with qhull.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
-import numpy as np
-import pyopencl as cl
-import pyopencl.array as cla
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
-from rbgen import Runtime, layouts
-from rbgen.pipeline.narrowphase import Narrowphase
-from rbgen.scenes import standard_boxbox_scene
-from rbgen.shapes import Box, Plane, ShapeTable
+import numpy as np  # noqa: E402
+import pyopencl as cl  # noqa: E402
+import pyopencl.array as cla  # noqa: E402
+
+from rbgen import Runtime, layouts  # noqa: E402
+from rbgen.pipeline.narrowphase import Narrowphase  # noqa: E402
+from rbgen.scenes import standard_boxbox_scene  # noqa: E402
+from rbgen.shapes import Box, Plane, ShapeTable  # noqa: E402
 
 
 def grid_pairs(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
