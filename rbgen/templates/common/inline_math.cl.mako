@@ -8,6 +8,8 @@
  * across work-items. GPU compilers turn these helpers into the same
  * instructions as the builtins, with the same rounding (IEEE sqrt; dot as
  * multiply-adds).
+ * common/quaternion.cl.mako includes this file: a template that includes
+ * both must include only the quaternion helpers.
  */
 inline float dot3(float3 a, float3 b)
 {
