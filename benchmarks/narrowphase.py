@@ -3,6 +3,7 @@
     python benchmarks/narrowphase.py [--device D] [--sizes 27000 111375]
                                      [--ground box|plane] [--box-path box_box box hull gauss]
                                      [--clip fused separate] [--placement-tile 256 1024]
+                                     [--routing auto queues]
                                      [--hulls]
 
 Scene: rbgen.scenes.boxbox_scene (cubes of half extent 1 on a ground whose top
@@ -20,6 +21,7 @@ Gauss map), which cooks hulls with qhull.
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 import time
 from pathlib import Path
@@ -211,6 +213,8 @@ def main(argv=None):
     parser.add_argument("--clip", nargs="+", choices=("fused", "separate"), default=["fused"],
                         help="fused: clip_incident_face reduces and stores (one launch); "
                              "separate: reduce_contacts does (two smaller kernels)")
+    parser.add_argument("--routing", nargs="+", choices=("auto", "queues"), default=["auto"],
+                        help="auto: box-only worlds skip classify_pairs; queues: always classify")
     parser.add_argument("--placement-tile", type=int, nargs="+", default=[None],
                         help="pairs per scatter_manifolds work group (default: per device)")
     parser.add_argument("--box-path", nargs="+", choices=("box_box", "box", "hull", "gauss"),
@@ -232,19 +236,20 @@ def main(argv=None):
     for count in args.sizes:
         scene = build(count, args.ground, args.sink, args.margin)
         for box_path in args.box_path:
-            for clip in args.clip:
-                for tile in args.placement_tile:
-                    shapes = {"reduce_in_clip": clip == "fused", "placement_tile": tile}
-                    row = run(runtime, scene, count, args.ground, box_path, args.margin, args.repeat,
-                              shapes)
-                    row["box_path"] = (f"{box_path}/{clip}" + (f"/{tile}" if tile else ""))
-                    rows.append(row)
+            for clip, tile, routing in itertools.product(args.clip, args.placement_tile,
+                                                         args.routing):
+                shapes = {"reduce_in_clip": clip == "fused", "placement_tile": tile,
+                          "routing": routing}
+                row = run(runtime, scene, count, args.ground, box_path, args.margin, args.repeat,
+                          shapes)
+                row["box_path"] = "/".join(str(v) for v in (box_path, clip, tile, routing) if v)
+                rows.append(row)
     stage_names = list(dict.fromkeys(k for r in rows for k in r["stages"]))
-    header = (f"{'boxes':>7} {'path':>18} {'pairs':>7} {'manif':>7} {'points':>7} {'total':>8} "
+    header = (f"{'boxes':>7} {'path':>26} {'pairs':>7} {'manif':>7} {'points':>7} {'total':>8} "
               f"{'launch':>6} " + " ".join(f"{s[:12]:>12}" for s in stage_names))
     print(header)
     for r in rows:
-        print(f"{r['count']:>7} {r['box_path']:>18} {r['pairs']:>7} {r['manifolds']:>7} "
+        print(f"{r['count']:>7} {r['box_path']:>26} {r['pairs']:>7} {r['manifolds']:>7} "
               f"{r['points']:>7} {r['total_ms']:>8.3f} {r['launches']:>6} "
               + " ".join(f"{r['stages'].get(s, float('nan')):>12.3f}" for s in stage_names))
     if args.hulls:

@@ -3,7 +3,9 @@
 A step enqueues a fixed sequence of launches with no blocking read:
 
 1. ``classify_pairs`` routes every pair to the queue of its shape-type pair
-   ("kind", see `templates.ALL_KINDS`) and clears its contact flag;
+   ("kind", see `templates.ALL_KINDS`) and clears its contact flag (a world
+   whose only kind is a convex one, e.g. boxes only, skips it: that kind's
+   separating-axis kernel reads the pair list directly, ``routing="auto"``);
 2. one kernel per primitive kind (sphere-sphere, sphere-plane, sphere-convex,
    sphere-capsule, capsule-capsule, capsule-plane, capsule-convex,
    convex-plane) writes the pair's manifold slot;
@@ -20,7 +22,7 @@ A step enqueues a fixed sequence of launches with no blocking read:
    prefix-sum launches of its own.
 
 Counts stay on the device: the pair count, the queue lengths, the manifold
-count. Non-blocking contract for a step: the manifold buffer has a capacity;
+count. The clipping queue's length of the last call stays in ``sat_count[1]``. Non-blocking contract for a step: the manifold buffer has a capacity;
 when more manifolds exist, ``overflow[0]`` receives the number needed (else
 0, so nobody clears it) and ``manifold_count[0]`` the true count (consumers
 use min(count, capacity)).
@@ -57,6 +59,8 @@ SUPPORTED_TYPES = ("box", "capsule", "hull", "plane", "sphere")
 #: box_box: box pairs get the closed-form 15-axis kernel; box: the generic test with
 #: boxes projected in closed form; hull: boxes treated as hulls (benchmarks compare them)
 BOX_PATHS = ("box_box", "box", "hull")
+#: auto: a world with one convex kind reads its pair list directly; queues: always classify
+ROUTINGS = ("auto", "queues")
 
 
 def kinds_for(shape_types) -> tuple[str, ...]:
@@ -111,14 +115,16 @@ class Narrowphase:
     with a box the box's three directions. A world whose shapes cannot touch
     each other (only planes) gets a narrowphase that reports no contacts.
     ``placement_tile`` (pairs per scatter work group, a multiple of the work-group
-    size; default per device) and ``reduce_in_clip`` (False: a separate
-    reduce_contacts launch) choose kernel shapes; results are the same.
+    size; default per device), ``reduce_in_clip`` (False: a separate
+    reduce_contacts launch) and ``routing`` ("queues": always classify_pairs;
+    "auto": the pair list read directly when the only kind is convex) choose
+    kernel shapes; results are the same.
     """
 
     def __init__(self, runtime: Runtime, shapes, *, max_face_vertices: int | None = None,
                  box_path: str = "box_box", work_group_size: int | None = None,
                  edge_axes: dict | None = None, placement_tile: int | None = None,
-                 reduce_in_clip: bool = True):
+                 reduce_in_clip: bool = True, routing: str = "auto"):
         #: a table given here is watched: when shapes with larger faces are added later,
         #: the clipping kernel is rebuilt for them before the next launch
         self.table = shapes if isinstance(shapes, ShapeTable) else None
@@ -138,6 +144,12 @@ class Narrowphase:
         self.runtime = runtime
         self.kinds = kinds_for(types)
         self.kind_index = {k: i for i, k in enumerate(self.kinds)}
+        if routing not in ROUTINGS:
+            raise RbgenError(f"routing must be one of {ROUTINGS}, got {routing!r}")
+        #: one convex kind (same shape type on both sides): its separating-axis kernel
+        #: reads the pair list itself and no classify_pairs runs
+        self.direct = (routing == "auto" and len(self.kinds) == 1
+                       and self.kinds[0] in CONVEX_KINDS)
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
         wg = self.work_group_size
         self.placement_tile = tile = placement_tile or default_placement_tile(runtime.traits, wg)
@@ -163,7 +175,8 @@ class Narrowphase:
         self.sat_kernels, self.sat_edge_axes = {}, {}
         for kind in (k for k in self.kinds if k in CONVEX_KINDS):
             if kind == "box_box" and box_path == "box_box" and "box_box" not in edge_axes_for:
-                prog = compile_spec(runtime, SAT_BOX_BOX.spec(work_group_size=wg))
+                prog = compile_spec(runtime, SAT_BOX_BOX.spec(work_group_size=wg,
+                                                              direct=self.direct))
                 self.sat_kernels[kind] = runtime.bound(prog.kernel("find_separating_axis"))
                 self.sat_edge_axes[kind] = "closed_form"
                 continue
@@ -175,7 +188,7 @@ class Narrowphase:
             edge_axes = edge_axes_for.get(kind) or ("gauss_map" if (first, second) == ("hull", "hull")
                                                     else "directions")
             prog = compile_spec(runtime, SAT.spec(work_group_size=wg, first=first, second=second,
-                                                  edge_axes=edge_axes))
+                                                  edge_axes=edge_axes, direct=self.direct))
             self.sat_kernels[kind] = runtime.bound(prog.kernel("find_separating_axis"))
             self.sat_edge_axes[kind] = edge_axes
         self.reduce_in_clip = bool(reduce_in_clip)
@@ -225,7 +238,7 @@ class Narrowphase:
         self.slots = cla.zeros(q, cap, layouts.CONTACT_MANIFOLD.dtype)
         self.queues = cla.zeros(q, cap * len(self.kinds), np.uint32)
         self.queue_counts = cla.zeros(q, len(self.kinds), np.uint32)
-        self.sat_count = cla.zeros(q, 1, np.uint32)
+        self.sat_count = cla.zeros(q, 2, np.uint32)  # [running count, last call's count]
         self.sat_cache = cla.zeros(q, cap, layouts.SAT_CACHE_ENTRY.dtype)
         self.sat_results = cla.zeros(q, cap if self.sat_kernels else 1, layouts.SAT_RESULT.dtype)
         self.clip_points = cla.zeros(q, (clip_cap, 4), np.float32)
@@ -259,17 +272,22 @@ class Narrowphase:
         margin = np.float32(margin)
         events = {}
         if not self._counters_clear:  # a call that stopped before its scatter_manifolds
-            cl.enqueue_fill_buffer(rt.queue, self.queue_counts.data, np.uint32(0), 0,
-                                   self.queue_counts.nbytes)
+            for counters in (self.queue_counts, self.sat_count):
+                cl.enqueue_fill_buffer(rt.queue, counters.data, np.uint32(0), 0, counters.nbytes)
         self._counters_clear = False
         common = (pairs, bodies, shapes.shapes)
-        events["classify"] = self.k_classify.over(
-            size, wg, pairs, pair_count, bodies, shapes.shapes, self.contact_flags, self.queues,
-            self.queue_counts, cap, self.sat_count, self.tile_counts, np.uint32(self.tile_count))
-        queue_args = (self.queues, self.queue_counts, cap)
+        tiles = (self.tile_counts, np.uint32(self.tile_count))
+        if self.direct:  # the separating-axis kernel reads the pairs and clears for classify
+            queue_args = (pair_count, self.contact_flags, *tiles)
+        else:
+            events["classify"] = self.k_classify.over(
+                size, wg, pairs, pair_count, bodies, shapes.shapes, self.contact_flags,
+                self.queues, self.queue_counts, cap, *tiles)
+            queue_args = (self.queues, self.queue_counts, cap)
         out_args = (self.slots, self.contact_flags, self.tile_counts, margin)
         for kind, kernel in self.primitive_kernels.items():
-            args = [*common, *queue_args, np.uint32(self.kind_index[kind]), *out_args]
+            args = [*common, self.queues, self.queue_counts, cap, np.uint32(self.kind_index[kind]),
+                    *out_args]
             if kind == "sphere_convex":
                 args += [shapes.vertices, shapes.faces, shapes.face_indices]
             elif kind == CAPSULE_CONVEX_KIND:
@@ -285,8 +303,9 @@ class Narrowphase:
                 if edge_axes != "closed_form":
                     edges = shapes.edges if edge_axes == "directions" else shapes.adjacency
                     hull_args = [shapes.vertices, shapes.faces, edges]
+                kind_arg = () if self.direct else (np.uint32(self.kind_index[kind]),)
                 events["sat_" + kind] = kernel.over(
-                    size, wg, *common, *hull_args, *queue_args, np.uint32(self.kind_index[kind]),
+                    size, wg, *common, *hull_args, *queue_args, *kind_arg,
                     self.sat_cache, self.sat_results, result_count, margin)
             hulls = (shapes.vertices, shapes.faces, shapes.face_indices, shapes.edges,
                      shapes.adjacency)
@@ -300,8 +319,8 @@ class Narrowphase:
                     size, wg, pairs, self.sat_results, result_count, *scratch, *out)
         events["scatter"] = self.k_scatter.over(
             self.tile_count * wg, wg, self.slots, self.contact_flags, self.tile_counts, pair_count,
-            np.uint32(pair_capacity), bodies, manifolds, np.uint32(manifolds.size), manifold_count, overflow,
-            self.queue_counts)
+            np.uint32(pair_capacity), bodies, manifolds, np.uint32(manifolds.size), manifold_count,
+            overflow, self.queue_counts, self.sat_count)
         self._counters_clear = True
         return events
 

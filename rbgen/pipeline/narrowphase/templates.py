@@ -43,6 +43,10 @@ def _sizes(traits: DeviceTraits) -> dict:
 
 
 _WORK_GROUP = work_group_size_param("queue entries per work group")
+_DIRECT = Param(
+    "direct", (True, False),
+    "True: the world's only kind reads the pair list itself and clears what classify_pairs "
+    "would (one launch less); False: its queue, filled by classify_pairs")
 _PLACEMENT_TILE = Param(
     "placement_tile", lambda v: isinstance(v, int) and 1 <= v <= 1 << 16 and v & (v - 1) == 0,
     "pairs whose manifolds one scatter_manifolds work group places: kernels that store a "
@@ -75,7 +79,7 @@ CAPSULE_CONVEX = KernelTemplate(
 
 SAT = KernelTemplate(
     "pipeline/narrowphase/sat.cl.mako",
-    [_WORK_GROUP,
+    [_WORK_GROUP, _DIRECT,
      Param("first", ("box", "hull"), "box: closed-form projection; hull: loop over the vertices"),
      Param("second", ("box", "hull"), "as first, for the second shape of the kind"),
      Param("edge_axes", ("directions", "gauss_map"),
@@ -84,16 +88,16 @@ SAT = KernelTemplate(
            "measured between the edges (scales to large hulls)")],
     doc="Separating-axis test of convex pairs with a per-pair best-axis cache.",
     roles={"cache": "inout", "result_count": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "direct": False,
                              "first": "box", "second": "box", "edge_axes": "directions"},
 )
 
 SAT_BOX_BOX = KernelTemplate(
     "pipeline/narrowphase/sat_box_box.cl.mako",
-    [_WORK_GROUP],
+    [_WORK_GROUP, _DIRECT],
     doc="Separating-axis test of box pairs in closed form (15 axes, no array reads).",
     roles={"cache": "inout", "result_count": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "direct": False},
 )
 
 CLIP = KernelTemplate(

@@ -324,9 +324,14 @@ def test_no_pairs_give_no_manifolds(runtime):
     assert count.get()[0] == 0 and overflow.get()[0] == 0
 
 
-def test_placement_tile_must_hold_whole_work_groups(runtime):
+def test_placement_tile_and_routing_are_checked(runtime):
     with pytest.raises(RbgenError, match="placement_tile"):
         Narrowphase(runtime, ("box",), work_group_size=64, placement_tile=32)
+    with pytest.raises(RbgenError, match="routing"):
+        Narrowphase(runtime, ("box",), routing="direct")
+    assert Narrowphase(runtime, ("box",)).direct
+    assert not Narrowphase(runtime, ("box", "plane")).direct  # two kinds: queues
+    assert not Narrowphase(runtime, ("sphere",)).direct  # a primitive kind stores at once
 
 
 def test_cached_axis_follows_the_bodies(runtime):
@@ -348,14 +353,16 @@ def test_cached_axis_follows_the_bodies(runtime):
             np.testing.assert_allclose(m[0]["points"][:4, 3], gap, atol=1e-5)
 
 
-def test_enqueue_never_blocks_and_features_persist(runtime):
-    """`enqueue` issues a fixed number of launches (box pairs: classify, separating axis,
-    clip with reduction, scatter with placement) and no blocking read; a box resting on a
-    box that moves by 1e-3 keeps its four feature ids (warm-starting keys)."""
+@pytest.mark.parametrize("routing,expected_launches", [("auto", 3), ("queues", 4)])
+def test_enqueue_never_blocks_and_features_persist(runtime, routing, expected_launches):
+    """`enqueue` issues a fixed number of launches (box pairs only: separating axis straight
+    from the pair list, clip with reduction, scatter with placement; classify_pairs first
+    with routing="queues") and no blocking read; a box resting on a box that moves by 1e-3
+    keeps its four feature ids (warm-starting keys)."""
     import pyopencl.array as cla
     table = ShapeTable()
     wide, cube = table.add(Box((2, 0.5, 2))), table.add(Box((0.5, 0.5, 0.5)))
-    narrowphase = Narrowphase(runtime, table)
+    narrowphase = Narrowphase(runtime, table, routing=routing)
     q = runtime.queue
     packed = table.pack_all().to_device(q)
     pairs = cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype))
@@ -373,7 +380,7 @@ def test_enqueue_never_blocks_and_features_persist(runtime):
         m = manifolds.get()[: count.get()[0]]
         assert len(m) == 1 and m[0]["point_count"] == 4
         features.append(sorted(m[0]["features"].tolist()))
-    assert launches == 4
+    assert launches == expected_launches
     assert features[0] == features[1]
 
 

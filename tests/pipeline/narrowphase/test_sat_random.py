@@ -74,7 +74,7 @@ def test_sat_matches_reference(runtime, rng, kind, n, box_path, edge_axes):
     packed = table.pack_all().to_device(q)
     d_bodies, d_pairs = cla.to_device(q, bodies), cla.to_device(q, pairs)
     manifolds = narrowphase.find_contacts(d_bodies, packed, d_pairs, n)
-    count = int(narrowphase.sat_count.get()[0])
+    count = int(narrowphase.sat_count.get()[1])
     results = narrowphase.sat_results.get()[:count]
     swapped = (results["pair"] & layouts.PAIR_SWAPPED) != 0
     index = results["pair"] & ~np.uint32(layouts.PAIR_SWAPPED)
@@ -122,3 +122,28 @@ def test_sat_matches_reference(runtime, rng, kind, n, box_path, edge_axes):
     again = narrowphase.find_contacts(d_bodies, packed, d_pairs, n)
     np.testing.assert_array_equal(again["body_a"], manifolds["body_a"])
     np.testing.assert_allclose(again["normal"], manifolds["normal"], atol=1e-6)
+
+
+@pytest.mark.parametrize("box_path", ["box_box", "hull"])
+@pytest.mark.parametrize("work_group_size,placement_tile", [(None, None), (64, 256), (1, 1)])
+def test_boxes_only_read_the_pair_list_directly(runtime, rng, box_path, work_group_size,
+                                                placement_tile):
+    """A world of boxes only has one kind: its separating-axis kernel reads the pair list
+    and clears the flags itself (no classify_pairs). Same manifolds, in the same order, as
+    through the queues, on 1001 random pairs (about half touching), called twice (the
+    second call finds flags, counters and the axis cache left by the first)."""
+    table, bodies, pairs = random_world(rng, "box_box", 1001)
+    q = runtime.queue
+    packed = table.pack_all().to_device(q)
+    d_bodies, d_pairs = cla.to_device(q, bodies), cla.to_device(q, pairs)
+    results = {}
+    for routing in ("auto", "queues"):
+        narrowphase = Narrowphase(runtime, table, box_path=box_path, routing=routing,
+                                  work_group_size=work_group_size, placement_tile=placement_tile)
+        assert narrowphase.direct == (routing == "auto")
+        first = narrowphase.find_contacts(d_bodies, packed, d_pairs, len(pairs))
+        second = narrowphase.find_contacts(d_bodies, packed, d_pairs, len(pairs))
+        np.testing.assert_array_equal(second, first)
+        results[routing] = first
+    assert 200 < len(results["auto"]) < 900
+    np.testing.assert_array_equal(results["auto"], results["queues"])

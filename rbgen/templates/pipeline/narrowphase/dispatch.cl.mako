@@ -14,8 +14,8 @@
  *
  * classify_pairs: one work-item per broadphase pair; a work group is
  * responsible for ${work_group_size} consecutive pairs. It clears the pair's
- * contact flag (work-item 0: the clipping queue's count too; the first
- * work-items: the placement tiles' manifold counts) and appends the pair to
+ * contact flag (the first work-items: the placement tiles' manifold counts
+ * too) and appends the pair to
  * the queue of its shape-type pair, so that each pair kernel runs over a
  * homogeneous queue. Appends are aggregated per work group (one global atomic
  * per kind and group).
@@ -31,7 +31,8 @@
  * adds the combined material coefficients (friction sqrt(fa fb), restitution
  * max(ra, rb)); the last group writes the manifold count and the overflow
  * word (the count needed, or 0: the caller need not clear it); work-item 0
- * clears the queue counters for the next call.
+ * clears the queue counters and the clipping queue's count for the next call
+ * (keeping that count in sat_count[1] for inspection).
  */
 ${cl_constants()}
 
@@ -75,15 +76,12 @@ void classify_pairs(__global const Pair* pairs,
                     __global uint* queues,
                     __global uint* queue_counts,
                     const uint pair_capacity,
-                    __global uint* sat_count,
                     __global uint* tile_counts,
                     const uint tile_count)
 {
     __local uint group_counts[KIND_COUNT];
     __local uint group_bases[KIND_COUNT];
     uint i = get_global_id(0);
-    if (i == 0)  /* the clipping queue is filled by later kernels (no fill command) */
-        sat_count[0] = 0u;
     if (i < tile_count)  /* counted by the pair kernels that store manifolds */
         tile_counts[i] = 0u;
     if (get_local_id(0) == 0)
@@ -122,18 +120,22 @@ void scatter_manifolds(__global const ContactManifold* slots,
                        const uint manifold_capacity,
                        __global uint* manifold_count,
                        __global uint* overflow,
-                       __global uint* queue_counts)
+                       __global uint* queue_counts,
+                       __global uint* sat_count)
 {
     __local uint earlier[WORK_GROUP_SIZE];  /* manifolds of earlier tiles, partial sums */
     __local uint running[WORK_GROUP_SIZE];  /* manifolds of this tile, per work-item */
     uint l = get_local_id(0), tile = get_group_id(0);
     uint n = min(pair_count[0], pair_list_size);  /* a count past the list: overflowed */
     uint first = tile * PLACEMENT_TILE + l * PAIRS_PER_ITEM;
-    if (get_global_id(0) == 0)
-        /* every reader of the queue counters ran before this kernel: clear them for
-         * the next call's classify_pairs (instead of a fill command before it) */
+    if (get_global_id(0) == 0) {
+        /* every reader of these counters ran before this kernel: clear them for the
+         * next call (instead of fill commands before it) */
         for (uint k = 0; k < KIND_COUNT; ++k)
             queue_counts[k] = 0u;
+        sat_count[1] = sat_count[0];
+        sat_count[0] = 0u;
+    }
 
     uint before = 0, mine = 0;
     for (uint t = l; t < tile; t += WORK_GROUP_SIZE)

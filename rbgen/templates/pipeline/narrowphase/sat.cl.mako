@@ -6,7 +6,7 @@
 %>/* Separating-axis test between convex shapes: ${first} (first) against ${second} (second).
  *
  * One work-item per queued pair; a work group is responsible for
- * ${work_group_size} consecutive entries of the kind's queue. Candidate axes
+ * ${work_group_size} consecutive entries of the kind's queue${" (the pair list: the world's only kind)" if direct else ""}. Candidate axes
  * are the first shape's outward face normals, the second's (negated), and
 % if edge_axes == "directions":
  * the cross products of their unique edge directions (oriented whichever way
@@ -318,10 +318,17 @@ void find_separating_axis(__global const Pair* pairs,
                           __global const float4* hull_vertices,
                           __global const HullFace* hull_faces,
                           ${edges_decl},
+% if direct:
+                          __global const uint* pair_count,
+                          __global uint* contact_flags,
+                          __global uint* tile_counts,
+                          const uint tile_count,
+% else:
                           __global const uint* queues,
                           __global const uint* queue_counts,
                           const uint pair_capacity,
                           const uint kind,
+% endif
                           __global SatCacheEntry* cache,
                           __global SatResult* results,
                           __global uint* result_count,
@@ -329,6 +336,17 @@ void find_separating_axis(__global const Pair* pairs,
 {
     __local uint group_count, group_base;
     uint slot = get_global_id(0);
+% if direct:
+    /* the world's only kind: its queue is the pair list itself, and this kernel,
+     * the stage's first, clears the pairs' contact flags and the placement counts */
+    uint queued = pair_count[0];
+    if (slot < queued)
+        contact_flags[slot] = 0u;
+    if (slot < tile_count)
+        tile_counts[slot] = 0u;
+% else:
+    uint queued = queue_counts[kind];
+% endif
     if (get_local_id(0) == 0)
         group_count = 0;
     barrier(CLK_LOCAL_MEM_FENCE);
@@ -336,8 +354,8 @@ void find_separating_axis(__global const Pair* pairs,
     bool touching = false;
     float4 axis = (float4)(0.0f);
     uint feature = 0, entry = 0;
-    if (slot < queue_counts[kind]) {
-        entry = queues[kind * pair_capacity + slot];
+    if (slot < queued) {
+        entry = ${"slot" if direct else "queues[kind * pair_capacity + slot]"};
         QueuedPair q = decode_queue_entry(entry, pairs);
         Body a = bodies[q.first], b = bodies[q.second];
         ConvexPair g;

@@ -1,7 +1,7 @@
 /* Separating-axis test between two boxes, in closed form.
  *
  * One work-item per queued box-box pair; a work group is responsible for
- * ${work_group_size} consecutive entries of the kind's queue. The 15 axes of
+ * ${work_group_size} consecutive entries of the kind's queue${" (the pair list: the world's only kind)" if direct else ""}. The 15 axes of
  * two boxes (3 face normals of each, 9 cross products of their axes) are
  * measured from the boxes' axes and half extents alone: no vertex or face
  * array is read. Feature codes are those of the generic test on the boxes'
@@ -210,10 +210,17 @@ __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void find_separating_axis(__global const Pair* pairs,
                           __global const Body* bodies,
                           __global const Shape* shapes,
+% if direct:
+                          __global const uint* pair_count,
+                          __global uint* contact_flags,
+                          __global uint* tile_counts,
+                          const uint tile_count,
+% else:
                           __global const uint* queues,
                           __global const uint* queue_counts,
                           const uint pair_capacity,
                           const uint kind,
+% endif
                           __global SatCacheEntry* cache,
                           __global SatResult* results,
                           __global uint* result_count,
@@ -221,6 +228,17 @@ void find_separating_axis(__global const Pair* pairs,
 {
     __local uint group_count, group_base;
     uint slot = get_global_id(0);
+% if direct:
+    /* the world's only kind: its queue is the pair list itself, and this kernel,
+     * the stage's first, clears the pairs' contact flags and the placement counts */
+    uint queued = pair_count[0];
+    if (slot < queued)
+        contact_flags[slot] = 0u;
+    if (slot < tile_count)
+        tile_counts[slot] = 0u;
+% else:
+    uint queued = queue_counts[kind];
+% endif
     if (get_local_id(0) == 0)
         group_count = 0;
     barrier(CLK_LOCAL_MEM_FENCE);
@@ -228,8 +246,8 @@ void find_separating_axis(__global const Pair* pairs,
     bool touching = false;
     float4 axis = (float4)(0.0f);
     uint feature = 0, entry = 0;
-    if (slot < queue_counts[kind]) {
-        entry = queues[kind * pair_capacity + slot];
+    if (slot < queued) {
+        entry = ${"slot" if direct else "queues[kind * pair_capacity + slot]"};
         QueuedPair q = decode_queue_entry(entry, pairs);
         Body a = bodies[q.first], b = bodies[q.second];
         BoxPair g = box_pair(a, shapes[a.shape].extents.xyz, b, shapes[b.shape].extents.xyz);
