@@ -126,7 +126,7 @@ void scatter_manifolds(__global const ContactManifold* slots,
     __local uint earlier[WORK_GROUP_SIZE];  /* manifolds of earlier tiles, partial sums */
     __local uint running[WORK_GROUP_SIZE];  /* manifolds of this tile, per work-item */
     uint l = get_local_id(0), tile = get_group_id(0);
-    uint n = min(pair_count[0], pair_list_size);  /* a count past the list: overflowed */
+    uint n = min(pair_count[0], pair_list_size);  /* no count reaches past the list */
     uint first = tile * PLACEMENT_TILE + l * PAIRS_PER_ITEM;
     if (get_global_id(0) == 0) {
         /* every reader of these counters ran before this kernel: clear them for the
