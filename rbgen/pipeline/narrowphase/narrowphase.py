@@ -9,12 +9,13 @@ A step enqueues a fixed sequence of launches with no blocking read:
 2. one kernel per primitive kind (sphere-sphere, sphere-plane, sphere-convex,
    sphere-capsule, capsule-capsule, capsule-plane, capsule-convex,
    convex-plane) writes the pair's manifold slot;
-3. convex pairs (box-box, box-hull, hull-hull) go through three small kernels
-   instead of one large one (which would spill registers and diverge on
-   GPUs): ``find_separating_axis`` (one launch per convex kind) appends the
-   touching pairs to a clipping queue; ``clip_incident_face`` runs over that
-   queue and reduces each pair's points to at most four itself (by default,
-   ``reduce_in_clip``), or leaves that to ``reduce_contacts``;
+3. convex pairs (box-box, box-hull, hull-hull) go through two kernels
+   instead of one large one (which would diverge on GPUs: most pairs stop
+   at a separating axis): ``find_separating_axis`` (one launch per convex
+   kind) appends the touching pairs to a clipping queue;
+   ``clip_incident_face`` runs over that queue and reduces each pair's
+   points to at most four itself (by default, ``reduce_in_clip``), or leaves
+   that to a third kernel, ``reduce_contacts``;
 4. ``scatter_manifolds`` writes the manifolds in pair order (deterministic):
    every kernel that stores a manifold also counts it in its placement tile
    (a fixed run of pairs, one atomic increment), so each work group of the
@@ -22,10 +23,11 @@ A step enqueues a fixed sequence of launches with no blocking read:
    prefix-sum launches of its own.
 
 Counts stay on the device: the pair count, the queue lengths, the manifold
-count. The clipping queue's length of the last call stays in ``sat_count[1]``. Non-blocking contract for a step: the manifold buffer has a capacity;
-when more manifolds exist, ``overflow[0]`` receives the number needed (else
-0, so nobody clears it) and ``manifold_count[0]`` the true count (consumers
-use min(count, capacity)).
+count (the clipping queue's length of the last call stays in
+``sat_count[1]``). Non-blocking contract for a step: the manifold buffer has a
+capacity; when more manifolds exist, ``overflow[0]`` receives the number
+needed (else 0, so nobody clears it) and ``manifold_count[0]`` the true count
+(consumers use min(count, capacity)).
 The host reads ``overflow`` without stalling (e.g. a non-blocking copy
 checked at the start of the next step), then grows the buffer and redoes the
 step; nothing is dropped silently. `find_contacts` does this synchronously.
