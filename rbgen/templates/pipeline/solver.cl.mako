@@ -69,18 +69,7 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
 #define WARM_START_PASS 1u
 #define FIRST_REVERSED 2u
 
-/* dot and cross of float3 written out: PoCL calls its builtins out of line,
- * which spills every live vector around each call */
-inline float dot3(float3 a, float3 b)
-{
-    float3 p = a * b;
-    return p.x + p.y + p.z;
-}
-
-inline float3 cross3(float3 a, float3 b)
-{
-    return a.yzx * b.zxy - a.zxy * b.yzx;
-}
+<%include file="/common/inline_math.cl.mako"/>
 
 inline float positive_part(float x)
 {
@@ -145,16 +134,16 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
     float largest = 0.0f;
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         float3 ra = r_a[k].xyz, rb = r_b[k].xyz;
-        arm_a[k] = cross(ra, n);
-        arm_b[k] = cross(rb, n);
-        residual[k] = target[k] - dot(relative_velocity(ra, rb, *va, *wa, *vb, *wb), n);
+        arm_a[k] = cross3(ra, n);
+        arm_b[k] = cross3(rb, n);
+        residual[k] = target[k] - dot3(relative_velocity(ra, rb, *va, *wa, *vb, *wb), n);
     }
     for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count)
         for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
             k_matrix[j][k] = inv_mass_a + inv_mass_b
-                           + dot(arm_a[j], mul_rows(inv_inertia_a, arm_a[k]))
-                           + dot(arm_b[j], mul_rows(inv_inertia_b, arm_b[k]));
-            largest = fmax(largest, k_matrix[j][k]);
+                           + dot3(arm_a[j], mul_rows(inv_inertia_a, arm_a[k]))
+                           + dot3(arm_b[j], mul_rows(inv_inertia_b, arm_b[k]));
+            largest = max1(largest, k_matrix[j][k]);
         }
     bool active[4];
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
@@ -165,7 +154,7 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
         rhs[j] = residual[j];
         for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
             rhs[j] += k_matrix[j][k] * lambda[k];
-        tolerance = fmax(tolerance, OVERSHOOT_TOLERANCE * fabs(rhs[j]));
+        tolerance = max1(tolerance, OVERSHOOT_TOLERANCE * abs1(rhs[j]));
     }
     for (uint attempt = 0; attempt < RB_MAX_MANIFOLD_POINTS; ++attempt) if (attempt < count) {
         /* new totals: 0 for released points; for the others, four points
@@ -227,8 +216,8 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
     }
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         /* a point released in the last round keeps no impulse */
-        float change = fmax(lambda[k] + relaxation * ((active[k] ? total[k] : 0.0f) - lambda[k]),
-                            0.0f) - lambda[k];
+        float change = positive_part(lambda[k] + relaxation * ((active[k] ? total[k] : 0.0f)
+                                                               - lambda[k])) - lambda[k];
         lambda[k] += change;
         *va -= n * (change * inv_mass_a);
         *wa -= mul_rows(inv_inertia_a, arm_a[k] * change);
@@ -333,7 +322,7 @@ inline void solve_friction_pair(float3 t1, float3 t2, float3 ra, float3 rb, floa
     float f2 = *impulse2 - relaxation * mass2 * row_speed(&row2, p);
     float length_sq = f1 * f1 + f2 * f2;
     if (length_sq > limit * limit) {
-        float scale = limit * rsqrt(length_sq);
+        float scale = limit / sqrt1(length_sq);
         f1 *= scale;
         f2 *= scale;
     }
@@ -465,11 +454,11 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
                         &tangent1_impulse[0], &tangent2_impulse[0], &p);
     float radius = 0.0f;
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-        radius += length(c->r_b[k].xyz - rb);
+        radius += length3(c->r_b[k].xyz - rb);
     float twist_limit = limit * radius * share;
     Row twist = twist_row(n, &p);
-    float twist_total = clamp(tangent1_impulse[1] - relaxation * tangent1_mass[1] * row_speed(&twist, &p),
-                              -twist_limit, twist_limit);
+    float twist_total = tangent1_impulse[1] - relaxation * tangent1_mass[1] * row_speed(&twist, &p);
+    twist_total = min1(max1(twist_total, -twist_limit), twist_limit);
     apply_row(&twist, twist_total - tangent1_impulse[1], &p);
     tangent1_impulse[1] = twist_total;
 % endif
@@ -605,7 +594,8 @@ __kernel void apply_split_velocities(__global Body* bodies, __global SplitVeloci
     float4 q = bodies[i].orientation;
     float3 h = 0.5f * dt * w;  /* q += (h, 0) q: first order, renormalised */
     float4 dq = (float4)(q.w * h + cross3(h, q.xyz), -dot3(h, q.xyz));
-    bodies[i].orientation = normalize(q + dq);
+    q += dq;
+    bodies[i].orientation = q * (1.0f / sqrt1(dot3(q.xyz, q.xyz) + q.w * q.w));
     split[i].linear = (float4)(0.0f);
     split[i].angular = (float4)(0.0f);
 }
