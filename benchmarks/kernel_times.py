@@ -1,6 +1,10 @@
 """Device time per kernel of a World step (OpenCL profiling events), largest first.
 
 usage: python benchmarks/kernel_times.py [--device D] [--scene boxbox] [--n 8000] [--steps 10]
+                                         [--batching M] [--normal-solve S]
+
+Per kernel: the median over the timed steps of its time in one step (robust to
+a step slowed by other processes on a shared CPU), and its launches per step.
 """
 from __future__ import annotations
 
@@ -11,6 +15,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
+import numpy as np  # noqa: E402
 import pyopencl as cl  # noqa: E402
 
 
@@ -41,23 +46,24 @@ def main() -> None:
 
     def recording(queue, kernel, *rest, **kw):
         event = original(queue, kernel, *rest, **kw)
-        events.append((kernel.function_name, event))
+        events.append((step, kernel.function_name, event))
         return event
 
     cl.enqueue_nd_range_kernel = recording
     try:
-        for _ in range(args.steps):
+        for step in range(args.steps):
             world.step(1 / 60)
         runtime.queue.finish()
     finally:
         cl.enqueue_nd_range_kernel = original
-    totals, counts = defaultdict(float), defaultdict(int)
-    for name, event in events:
-        totals[name] += 1e-6 * (event.profile.end - event.profile.start) / args.steps
+    per_step, counts = defaultdict(lambda: np.zeros(args.steps)), defaultdict(int)
+    for step, name, event in events:
+        per_step[name][step] += 1e-6 * (event.profile.end - event.profile.start)
         counts[name] += 1
-    total = sum(totals.values())
-    print(f"{args.scene} n={args.n} on {runtime.traits.device_name}: kernel time {total:.3f} ms/step, "
-          f"{len(events) / args.steps:.0f} launches/step")
+    totals = {name: float(np.median(ms)) for name, ms in per_step.items()}
+    total = float(np.median(sum(per_step.values())))
+    print(f"{args.scene} n={args.n} on {runtime.traits.device_name}: kernel time {total:.3f} ms/step "
+          f"(medians over {args.steps} steps), {len(events) / args.steps:.0f} launches/step")
     for name, ms in sorted(totals.items(), key=lambda kv: -kv[1])[:args.top]:
         print(f"  {ms:9.3f} ms  {counts[name] / args.steps:5.1f}x  {name}")
 

@@ -180,9 +180,10 @@ def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rn
 def test_cpu_shape_lists_each_group_once_in_index_order_twice_running(runtime, rng, mode):
     """CPU shape: each group's constraints are listed in index order (one work-item lists
     them, no atomics decide the order), and the count on the device may be below the
-    capacity the launches are sized for. On a CPU the same input batched twice gives the
-    same result; on a GPU the per-colour body claims of cells and slabs race (the first
-    claim wins), so only the order inside each group is fixed there."""
+    capacity the launches are sized for. With components the same input batched twice
+    gives the same result; with cells and slabs the per-colour body claims race (the first
+    claim wins) wherever work groups run concurrently (a GPU, or PoCL's threads: about one
+    run in ten differed here), so only the order inside each group is fixed there."""
     a, b, dynamic = random_graph(rng, 500, 1777)
     first = run_device(runtime, a, b, dynamic, np.random.default_rng(1), group_count=6,
                        mode=mode, shape="cpu")
@@ -194,7 +195,7 @@ def test_cpu_shape_lists_each_group_once_in_index_order_twice_running(runtime, r
         assert np.all(np.diff(listed_groups.astype(np.int64)) >= 0), "grouped"
         same_group = listed_groups[1:] == listed_groups[:-1]
         assert np.all(np.diff(order.astype(np.int64))[same_group] > 0), "index order in a group"
-    if not runtime.traits.is_gpu or mode == "components":
+    if mode == "components":
         assert np.array_equal(first[1], second[1])
         assert np.array_equal(first[3], second[3])
         assert first[0].launch_plan == second[0].launch_plan

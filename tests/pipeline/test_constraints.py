@@ -5,7 +5,10 @@ world inertia I at lever arm r, the normal row's effective mass is
 1 / (m + (r x n) . I (r x n)); an approaching body (normal speed v above the
 threshold) gets the target -e v; a penetration d gets the Baumgarte push
 beta / dt * (d - slop). Warm starting copies the impulses of the previous
-step's point with the same body pair and feature id.
+step's point with the same body pair and feature id. Every field of the setup
+is also checked against a float64 numpy reference on random manifolds (random
+normals, 1-4 points, full inertia tensors) for both friction models and both
+penetration modes, over boundary sizes including 0.
 """
 from __future__ import annotations
 
@@ -121,6 +124,124 @@ def test_effective_masses_and_targets(runtime, rng):
     t1, t2 = c["tangent1"][:3], c["tangent2"][:3]
     assert abs(t1 @ n) < 1e-6 and abs(t2 @ n) < 1e-6 and abs(t1 @ t2) < 1e-6
     assert np.linalg.norm(t1) == pytest.approx(1, abs=1e-6)
+
+
+def tangent_basis_reference(n):
+    """The kernel's friction frame: chosen from n alone (see constraints.cl.mako)."""
+    t1 = [n[1], -n[0], 0.0] if abs(n[0]) > 0.57735 else [0.0, n[2], -n[1]]
+    t1 = np.array(t1) / np.linalg.norm(t1)
+    return t1, np.cross(n, t1)
+
+
+def setup_reference(manifold, bodies, inv_inertia, dt, setup, friction, penetration):
+    """float64 constraint of one manifold: masses, targets (see the module docstring)."""
+    a, b = int(manifold["body_a"]), int(manifold["body_b"])
+    count = min(int(manifold["point_count"]), 4)
+    x = bodies["position"][:, :3].astype(float)
+    v, w = (bodies[f][:, :3].astype(float) for f in ("linear_velocity", "angular_velocity"))
+    inv_mass = bodies["inv_mass"].astype(float)
+    n = manifold["normal"][:3].astype(float)
+    t1, t2 = tangent_basis_reference(n)
+
+    def row_mass(d, ra, rb):
+        ca, cb = np.cross(ra, d), np.cross(rb, d)
+        k = inv_mass[a] + inv_mass[b] + ca @ inv_inertia[a] @ ca + cb @ inv_inertia[b] @ cb
+        return 1 / k if k > 0 else 0.0
+
+    out = {f: np.zeros(4) for f in ("normal_mass", "tangent1_mass", "tangent2_mass",
+                                    "velocity_target", "position_target")}
+    out["tangent1"], out["tangent2"] = t1, t2
+    ras, rbs = [], []
+    beta, slop = setup.penetration_recovery, setup.penetration_slop
+    for k in range(count):
+        p, separation = manifold["points"][k, :3].astype(float), float(manifold["points"][k, 3])
+        ra, rb = p - x[a], p - x[b]
+        ras.append(ra), rbs.append(rb)
+        out["normal_mass"][k] = row_mass(n, ra, rb)
+        if friction == "point":
+            out["tangent1_mass"][k] = row_mass(t1, ra, rb)
+            out["tangent2_mass"][k] = row_mass(t2, ra, rb)
+        approach = (v[b] + np.cross(w[b], rb) - v[a] - np.cross(w[a], ra)) @ n
+        bounce = -manifold["restitution"] * approach if approach < -setup.restitution_threshold \
+            else 0.0
+        if separation > 0:
+            target = bounce if bounce > 0 and approach * dt < -separation else -separation / dt
+        else:
+            target = bounce
+        push = beta / dt * max(-separation - slop, 0.0)
+        if penetration == "baumgarte":
+            out["velocity_target"][k] = max(target, push) if push > 0 else target
+        else:
+            out["velocity_target"][k] = target
+            out["position_target"][k] = -beta / dt * separation if separation > 0 else push
+    if friction == "manifold" and count:
+        centre_a, centre_b = np.mean(ras, axis=0), np.mean(rbs, axis=0)
+        out["tangent1_mass"][0] = row_mass(t1, centre_a, centre_b)
+        out["tangent2_mass"][0] = row_mass(t2, centre_a, centre_b)
+        twist = n @ inv_inertia[a] @ n + n @ inv_inertia[b] @ n
+        out["tangent1_mass"][1] = 1 / twist if twist > 0 else 0.0
+    out["r_a"], out["r_b"] = np.zeros((4, 3)), np.zeros((4, 3))
+    out["r_a"][:count], out["r_b"][:count] = ras, rbs
+    return out
+
+
+def random_manifolds(rng, n_manifolds, n_bodies, static):
+    """Random pairs (B dynamic), unit normals of every direction, 1-4 points near B."""
+    manifolds = layouts.CONTACT_MANIFOLD.zeros(n_manifolds)
+    dynamic = np.flatnonzero(~static)
+    for i in range(n_manifolds):
+        b = int(rng.choice(dynamic))
+        a = int(rng.choice(np.delete(np.arange(n_bodies), b)))
+        normal = rng.normal(size=3)
+        count = int(rng.integers(1, 5))
+        manifolds[i] = make_manifold(a, b, normal / np.linalg.norm(normal),
+                                     rng.uniform(-1, 1, (count, 3)),
+                                     rng.uniform(-0.05, 0.03, count),
+                                     features=rng.integers(0, 100, count),
+                                     friction=rng.uniform(0, 1), restitution=rng.uniform(0, 1))
+    return manifolds
+
+
+@pytest.mark.parametrize("friction", ["point", "manifold"])
+@pytest.mark.parametrize("penetration", ["split", "baumgarte"])
+@pytest.mark.parametrize("n_manifolds", [0, 1, 17, 130])
+def test_setup_matches_float64_reference(runtime, rng, friction, penetration, n_manifolds):
+    """Every field of every constraint against `setup_reference` (random bodies, some static,
+    random orientations so that the world inverse inertia is a full matrix)."""
+    n_bodies = 23
+    static = np.arange(n_bodies) < 3
+    quaternions = rng.normal(size=(n_bodies, 4))
+    bodies = make_bodies(rng.uniform(-3, 3, (n_bodies, 3)),
+                         np.where(static, 0.0, rng.uniform(0.2, 2.0, n_bodies)),
+                         velocities=rng.uniform(-3, 3, (n_bodies, 3)),
+                         angular=rng.uniform(-3, 3, (n_bodies, 3)))
+    bodies["orientation"] = quaternions / np.linalg.norm(quaternions, axis=1)[:, None]
+    inv_inertia_diag = np.where(static[:, None], 0.0, rng.uniform(0.5, 3.0, (n_bodies, 3)))
+    rig = ContactRig(runtime, bodies, inv_inertia_diag, penetration=penetration,
+                     warm_start=False, friction=friction)
+    manifolds = random_manifolds(rng, n_manifolds, n_bodies, static)
+    dt = 1 / 60
+    got = rig.constraints(manifolds, dt)
+    assert int(rig.setup.count.get()[0]) == n_manifolds
+    prepared = rig.bodies.get()  # the velocities and inertias the setup read
+    inv_inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
+    for m, c in zip(manifolds, got):
+        expected = setup_reference(m, prepared, inv_inertia, dt, rig.setup, friction,
+                                   penetration)
+        count = int(m["point_count"])
+        assert (c["body_a"], c["body_b"], c["point_count"]) == (m["body_a"], m["body_b"], count)
+        assert list(c["features"][:count]) == list(m["features"][:count])
+        np.testing.assert_allclose(c["normal"], [*m["normal"][:3], m["friction"]], rtol=1e-6)
+        for field in ("tangent1", "tangent2"):
+            np.testing.assert_allclose(c[field][:3], expected[field], atol=1e-6)
+        for field in ("r_a", "r_b"):
+            np.testing.assert_allclose(c[field][:, :3], expected[field], atol=1e-5)
+        for field in ("normal_mass", "tangent1_mass", "tangent2_mass", "velocity_target",
+                      "position_target"):
+            np.testing.assert_allclose(c[field], expected[field], rtol=1e-4, atol=1e-5,
+                                       err_msg=field)
+        for field in ("normal_impulse", "tangent1_impulse", "tangent2_impulse", "push_impulse"):
+            assert not c[field].any()
 
 
 def test_slow_speculative_contact_only_closes_the_gap(runtime):

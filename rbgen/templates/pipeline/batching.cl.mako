@@ -15,8 +15,9 @@
  * a whole cell apart, so their constraints share no body. Each dynamic body
  * is claimed, per colour, by the first group that touches it; a constraint
  * that loses a claim (a body wider than a cell) goes to the leftover group,
- * solved alone after the 8 colours, so correctness never depends on sizes.
- * The solver launches once per colour and once for the leftovers.
+ * solved alone after the colours, so correctness never depends on sizes.
+ * The solver launches once per colour; the leftover group rides in the last
+ * colour's launch (solved after every other group of it).
 % if mode == "slabs":
  *
  * Slabs: the cells are slabs across slab_axis (infinite along the other
@@ -48,6 +49,8 @@
 ${cl_constants()}
 
 ${cl_structs("ContactConstraint", "Body")}
+
+<%include file="/common/inline_math.cl.mako"/>
 
 #define MAX_BATCHES ${max_batches}
 % if mode == "cells":
@@ -167,7 +170,7 @@ void link_bodies(__global const ContactConstraint* constraints,
         return;
     uint root_a = find_root(parent, a), root_b = find_root(parent, b);
     while (root_a != root_b) {
-        uint high = max(root_a, root_b), low = min(root_a, root_b);
+        uint high = root_a > root_b ? root_a : root_b, low = root_a ^ root_b ^ high;
         uint seen = atomic_cmpxchg(&parent[high], high, low);
         if (seen == high)
             break;
@@ -200,12 +203,20 @@ ${note_group()}
 }
 
 % else:
+/* floor(x) as an int (|x| < 2^31), without PoCL's out-of-line floor call:
+ * truncate, then step down where truncation went up (negative x). */
+inline int floor_to_int(float x)
+{
+    int t = (int)x;
+    return (float)t > x ? t - 1 : t;
+}
 % if mode == "cells":
+
 /* Cell of a point, and its colour (parity of the coordinates). */
 inline int4 cell_of(float3 p, float inv_cell_size)
 {
-    float3 c = floor(p * inv_cell_size);
-    return (int4)((int)c.x, (int)c.y, (int)c.z, 0);
+    float3 c = p * inv_cell_size;
+    return (int4)(floor_to_int(c.x), floor_to_int(c.y), floor_to_int(c.z), 0);
 }
 
 inline uint cell_colour(int4 cell)
@@ -251,7 +262,7 @@ ${group_outputs(" " * 18)}
     uint hash = mix32((uint)cell.x * 73856093u ^ (uint)cell.y * 19349663u ^ (uint)cell.z * 83492791u);
     uint group = colour * groups_per_colour + hash % groups_per_colour;
 % else:
-    int slab = (int)floor(dot(point, slab_axis.xyz) * inv_cell_size);
+    int slab = floor_to_int(dot3(point, slab_axis.xyz) * inv_cell_size);
     uint colour = (uint)slab & 1u;
     uint group = colour * groups_per_colour + (uint)(slab >> 1) % groups_per_colour;
 % endif
@@ -456,7 +467,8 @@ __kernel void list_groups(__global const uint* constraint_count,
                           const uint constraint_capacity,
                           const uint group_count)
 {
-    const uint n = min(constraint_count[0], constraint_capacity);
+    const uint n = constraint_count[0] < constraint_capacity ? constraint_count[0]
+                                                             : constraint_capacity;
     for (uint i = 0; i < n; ++i)
         group_counts[constraint_group[i]] += 1;
     uint total = 0;

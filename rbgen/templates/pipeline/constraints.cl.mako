@@ -31,6 +31,8 @@ ${cl_constants()}
 
 ${cl_structs("Body", "BodyInertia", "ContactManifold", "ContactConstraint")}
 
+<%include file="/common/inline_math.cl.mako"/>
+
 /* Slot of a body pair in the warm-starting table (linear probing from here). */
 inline uint pair_slot(uint a, uint b, uint mask)
 {
@@ -45,25 +47,25 @@ inline uint pair_slot(uint a, uint b, uint mask)
  * persistent contact keeps the same friction frame from step to step. */
 inline void tangent_basis(float3 n, float3* t1, float3* t2)
 {
-    if (fabs(n.x) > 0.57735f)
-        *t1 = normalize((float3)(n.y, -n.x, 0.0f));
+    if (abs1(n.x) > 0.57735f)
+        *t1 = normalize3((float3)(n.y, -n.x, 0.0f));
     else
-        *t1 = normalize((float3)(0.0f, n.z, -n.y));
-    *t2 = cross(n, *t1);
+        *t1 = normalize3((float3)(0.0f, n.z, -n.y));
+    *t2 = cross3(n, *t1);
 }
 
 inline float3 mul_rows(const float3 row[3], float3 v)
 {
-    return (float3)(dot(row[0], v), dot(row[1], v), dot(row[2], v));
+    return (float3)(dot3(row[0], v), dot3(row[1], v), dot3(row[2], v));
 }
 
 /* 1 / (J M^-1 J^T) for a row with direction d at lever arms ra, rb. */
 inline float row_mass(float3 d, float3 ra, float3 rb, float inv_mass_a, float inv_mass_b,
                       const float3 inv_inertia_a[3], const float3 inv_inertia_b[3])
 {
-    float3 ca = cross(ra, d), cb = cross(rb, d);
-    float k = inv_mass_a + inv_mass_b + dot(ca, mul_rows(inv_inertia_a, ca))
-            + dot(cb, mul_rows(inv_inertia_b, cb));
+    float3 ca = cross3(ra, d), cb = cross3(rb, d);
+    float k = inv_mass_a + inv_mass_b + dot3(ca, mul_rows(inv_inertia_a, ca))
+            + dot3(cb, mul_rows(inv_inertia_b, cb));
     return k > 0.0f ? 1.0f / k : 0.0f;
 }
 
@@ -105,8 +107,9 @@ inline void warm_start_from(__global const ContactConstraint* previous,
                     break;
                 }
                 float3 d = old->r_b[m].xyz - c->r_b[k].xyz;
-                if (dot(d, d) < nearest)
-                    nearest = dot(d, d), match = m;
+                float distance_sq = dot3(d, d);
+                if (distance_sq < nearest)
+                    nearest = distance_sq, match = m;
             }
             if (match == RB_SOLVER_NONE)
                 continue;
@@ -114,16 +117,16 @@ inline void warm_start_from(__global const ContactConstraint* previous,
 % if friction == "point":
             float3 friction = old->tangent1.xyz * ((__global const float*)&old->tangent1_impulse)[match]
                             + old->tangent2.xyz * ((__global const float*)&old->tangent2_impulse)[match];
-            ((float*)&c->tangent1_impulse)[k] = dot(friction, c->tangent1.xyz);
-            ((float*)&c->tangent2_impulse)[k] = dot(friction, c->tangent2.xyz);
+            ((float*)&c->tangent1_impulse)[k] = dot3(friction, c->tangent1.xyz);
+            ((float*)&c->tangent2_impulse)[k] = dot3(friction, c->tangent2.xyz);
 % endif
         }
 % if friction == "manifold":
         /* the manifold's friction pair (slot 0) and twist (tangent1 slot 1) */
         float3 friction = old->tangent1.xyz * old->tangent1_impulse.x
                         + old->tangent2.xyz * old->tangent2_impulse.x;
-        c->tangent1_impulse.x = dot(friction, c->tangent1.xyz);
-        c->tangent2_impulse.x = dot(friction, c->tangent2.xyz);
+        c->tangent1_impulse.x = dot3(friction, c->tangent1.xyz);
+        c->tangent2_impulse.x = dot3(friction, c->tangent2.xyz);
         c->tangent1_impulse.y = old->tangent1_impulse.y;
 % endif
     }
@@ -165,7 +168,8 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
 {
     /* the narrowphase reports its true count, which may exceed our capacity
      * (the World then grows the buffers and redoes the step) */
-    uint i = get_global_id(0), count = min(manifold_count[0], capacity);
+    uint i = get_global_id(0), count = manifold_count[0];
+    count = count < capacity ? count : capacity;
     if (i == 0)
         constraint_count[0] = count;
     if (i >= count)
@@ -190,7 +194,8 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     c.tangent2 = (float4)(t2, 0.0f);
     c.body_a = a;
     c.body_b = b;
-    c.point_count = min(m->point_count, (uint)RB_MAX_MANIFOLD_POINTS);
+    uint point_count = m->point_count;
+    c.point_count = point_count < RB_MAX_MANIFOLD_POINTS ? point_count : RB_MAX_MANIFOLD_POINTS;
     c.group = 0;
     c.features = (uint4)(m->features[0], m->features[1], m->features[2], m->features[3]);
     c.normal_impulse = c.tangent1_impulse = c.tangent2_impulse = c.push_impulse = (float4)(0.0f);
@@ -212,7 +217,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
 % endif
 
         /* normal velocity of B relative to A (> 0: separating) */
-        float approach = dot(vb + cross(wb, rb) - va - cross(wa, ra), n);
+        float approach = dot3(vb + cross3(wb, rb) - va - cross3(wa, ra), n);
         float bounce = approach < -restitution_threshold ? -m->restitution * approach : 0.0f;
         float target;
         if (separation > 0.0f)
@@ -220,11 +225,11 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
             target = (bounce > 0.0f && approach * dt < -separation) ? bounce : -separation / dt;
         else
             target = bounce;
-        float push = penetration_recovery / dt * fmax(-separation - penetration_slop, 0.0f);
+        float push = penetration_recovery / dt * max1(-separation - penetration_slop, 0.0f);
 % if penetration == "baumgarte":
         /* push > 0 only when penetrating beyond the slop; a speculative
          * (negative) target of a contact still apart must survive as is */
-        velocity_target[k] = push > 0.0f ? fmax(target, push) : target;
+        velocity_target[k] = push > 0.0f ? max1(target, push) : target;
 % else:
         velocity_target[k] = target;
         /* a point still apart may close (part of) its gap while the others
@@ -245,14 +250,14 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
                                 inv_inertia_b);
     tangent2_mass[0] = row_mass(t2, centre_a, centre_b, inv_mass_a, inv_mass_b, inv_inertia_a,
                                 inv_inertia_b);
-    float twist = dot(n, mul_rows(inv_inertia_a, n)) + dot(n, mul_rows(inv_inertia_b, n));
+    float twist = dot3(n, mul_rows(inv_inertia_a, n)) + dot3(n, mul_rows(inv_inertia_b, n));
     tangent1_mass[1] = twist > 0.0f ? 1.0f / twist : 0.0f;
 % endif
-    c.normal_mass = vload4(0, normal_mass);
-    c.tangent1_mass = vload4(0, tangent1_mass);
-    c.tangent2_mass = vload4(0, tangent2_mass);
-    c.velocity_target = vload4(0, velocity_target);
-    c.position_target = vload4(0, position_target);
+    c.normal_mass = (float4)(normal_mass[0], normal_mass[1], normal_mass[2], normal_mass[3]);
+    c.tangent1_mass = (float4)(tangent1_mass[0], tangent1_mass[1], tangent1_mass[2], tangent1_mass[3]);
+    c.tangent2_mass = (float4)(tangent2_mass[0], tangent2_mass[1], tangent2_mass[2], tangent2_mass[3]);
+    c.velocity_target = (float4)(velocity_target[0], velocity_target[1], velocity_target[2], velocity_target[3]);
+    c.position_target = (float4)(position_target[0], position_target[1], position_target[2], position_target[3]);
 % if warm_start:
     warm_start_from(previous, previous_table, previous_mask, match_distance, &c);
     c.normal_impulse *= warm_start_factor;

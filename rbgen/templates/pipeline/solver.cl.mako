@@ -65,22 +65,13 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
 % if shape == "gpu":
 #define SERIAL_BATCH (MAX_BATCHES - 1)
 % endif
-/* what one solve_groups launch does before its sweeps (bit flags of `passes`) */
+/* what one solve_groups launch does besides its sweeps (bit flags of `passes`):
+ * the warm start first, the first sweep backwards, the next group afterwards */
 #define WARM_START_PASS 1u
 #define FIRST_REVERSED 2u
+#define FOLD_NEXT_GROUP 4u
 
-/* dot and cross of float3 written out: PoCL calls its builtins out of line,
- * which spills every live vector around each call */
-inline float dot3(float3 a, float3 b)
-{
-    float3 p = a * b;
-    return p.x + p.y + p.z;
-}
-
-inline float3 cross3(float3 a, float3 b)
-{
-    return a.yzx * b.zxy - a.zxy * b.yzx;
-}
+<%include file="/common/inline_math.cl.mako"/>
 
 inline float positive_part(float x)
 {
@@ -145,16 +136,16 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
     float largest = 0.0f;
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         float3 ra = r_a[k].xyz, rb = r_b[k].xyz;
-        arm_a[k] = cross(ra, n);
-        arm_b[k] = cross(rb, n);
-        residual[k] = target[k] - dot(relative_velocity(ra, rb, *va, *wa, *vb, *wb), n);
+        arm_a[k] = cross3(ra, n);
+        arm_b[k] = cross3(rb, n);
+        residual[k] = target[k] - dot3(relative_velocity(ra, rb, *va, *wa, *vb, *wb), n);
     }
     for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count)
         for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
             k_matrix[j][k] = inv_mass_a + inv_mass_b
-                           + dot(arm_a[j], mul_rows(inv_inertia_a, arm_a[k]))
-                           + dot(arm_b[j], mul_rows(inv_inertia_b, arm_b[k]));
-            largest = fmax(largest, k_matrix[j][k]);
+                           + dot3(arm_a[j], mul_rows(inv_inertia_a, arm_a[k]))
+                           + dot3(arm_b[j], mul_rows(inv_inertia_b, arm_b[k]));
+            largest = max1(largest, k_matrix[j][k]);
         }
     bool active[4];
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
@@ -165,7 +156,7 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
         rhs[j] = residual[j];
         for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
             rhs[j] += k_matrix[j][k] * lambda[k];
-        tolerance = fmax(tolerance, OVERSHOOT_TOLERANCE * fabs(rhs[j]));
+        tolerance = max1(tolerance, OVERSHOOT_TOLERANCE * abs1(rhs[j]));
     }
     for (uint attempt = 0; attempt < RB_MAX_MANIFOLD_POINTS; ++attempt) if (attempt < count) {
         /* new totals: 0 for released points; for the others, four points
@@ -227,8 +218,8 @@ void solve_normal_block(const uint count, const float3 n, __global const float4*
     }
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         /* a point released in the last round keeps no impulse */
-        float change = fmax(lambda[k] + relaxation * ((active[k] ? total[k] : 0.0f) - lambda[k]),
-                            0.0f) - lambda[k];
+        float change = positive_part(lambda[k] + relaxation * ((active[k] ? total[k] : 0.0f)
+                                                               - lambda[k])) - lambda[k];
         lambda[k] += change;
         *va -= n * (change * inv_mass_a);
         *wa -= mul_rows(inv_inertia_a, arm_a[k] * change);
@@ -333,7 +324,7 @@ inline void solve_friction_pair(float3 t1, float3 t2, float3 ra, float3 rb, floa
     float f2 = *impulse2 - relaxation * mass2 * row_speed(&row2, p);
     float length_sq = f1 * f1 + f2 * f2;
     if (length_sq > limit * limit) {
-        float scale = limit * rsqrt(length_sq);
+        float scale = limit / sqrt1(length_sq);
         f1 *= scale;
         f2 *= scale;
     }
@@ -465,11 +456,11 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
                         &tangent1_impulse[0], &tangent2_impulse[0], &p);
     float radius = 0.0f;
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-        radius += length(c->r_b[k].xyz - rb);
+        radius += length3(c->r_b[k].xyz - rb);
     float twist_limit = limit * radius * share;
     Row twist = twist_row(n, &p);
-    float twist_total = clamp(tangent1_impulse[1] - relaxation * tangent1_mass[1] * row_speed(&twist, &p),
-                              -twist_limit, twist_limit);
+    float twist_total = tangent1_impulse[1] - relaxation * tangent1_mass[1] * row_speed(&twist, &p);
+    twist_total = min1(max1(twist_total, -twist_limit), twist_limit);
     apply_row(&twist, twist_total - tangent1_impulse[1], &p);
     tangent1_impulse[1] = twist_total;
 % endif
@@ -531,49 +522,36 @@ void solve_push(__global ContactConstraint* c, __global SplitVelocity* split,
             ${call};
 % endif
 </%def>
-
+<%def name="group_arguments(indent)">\
+__global ContactConstraint* constraints,
+${indent}__global const uint* order,
+${indent}__global const uint* group_batches,
+${indent}__global const uint* group_batch_count,
+${indent}__global Body* bodies,
+${indent}__global const BodyInertia* inertia,
+% if split_impulse:
+${indent}__global SplitVelocity* split,
+% endif
+${indent}const float relaxation\
+</%def>
+<%def name="pass_group_arguments()">\
+constraints, order, group_batches, group_batch_count, bodies, inertia,${" split," if split_impulse else ""} relaxation\
+</%def>
 % if shape == "gpu":
 /* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
- * the groups group_offset + 0, 1, ... (one launch). A work group is
- * responsible for one level-1 group: its batches in order, a barrier after
- * each. */
+ * one level-1 group, by the whole work group: its batches in order, a
+ * barrier after each. */
 % else:
 /* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
- * the groups group_offset .. group_end - 1 (one launch). A work-item is
- * responsible for one level-1 group: its constraints one after another. */
+ * one level-1 group, by one work-item: its constraints one after another. */
 % endif
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void solve_groups(__global ContactConstraint* constraints,
-                  __global const uint* order,
-                  __global const uint* group_batches,
-                  __global const uint* group_batch_count,
-                  __global Body* bodies,
-                  __global const BodyInertia* inertia,
-% if split_impulse:
-                  __global SplitVelocity* split,
-% endif
-                  const float relaxation,
-                  const uint group_offset,
-% if shape == "cpu":
-                  const uint group_end,
-% endif
-                  const uint passes,
-% if split_impulse:
-                  const uint velocity_sweeps,
-                  const uint position_sweeps)
-% else:
-                  const uint velocity_sweeps)
-% endif
+void solve_group(const uint group, const uint passes, const uint velocity_sweeps,
+                 const uint position_sweeps, ${group_arguments(" " * 17)})
 {
+    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
 % if shape == "gpu":
-    const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
-    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
-    const uint batch_count = group_batch_count[group];
+    const uint lane = get_local_id(0), batch_count = group_batch_count[group];
 % else:
-    const uint group = group_offset + get_global_id(0);
-    if (group >= group_end)
-        return;
-    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint begin = offsets[0], end = offsets[group_batch_count[group]];
 % endif
     if (passes & WARM_START_PASS) {
@@ -586,6 +564,103 @@ ${each_constraint("solve_contact(&constraints[order[i]], bodies, inertia, relaxa
 % if split_impulse:
     for (uint sweep = 0; sweep < position_sweeps; ++sweep) {
 ${each_constraint("solve_push(&constraints[order[i]], split, bodies, inertia, relaxation)")}\
+    }
+% endif
+}
+
+% if shape == "gpu":
+/* True, in every lane, in the one work group of this launch that finishes its
+ * group last (`finished` counts the work groups that are done; the last
+ * resets it for the next launch). Nobody waits: the last to arrive sees the
+ * others done, as it needs for a group that shares bodies with all of them.
+ * The fences order each work group's velocity writes before its count, and
+ * the last one's reads after it. */
+inline bool finished_last(volatile __global uint* finished, const uint work_groups,
+                          __local uint* is_last)
+{
+    barrier(CLK_GLOBAL_MEM_FENCE);
+    if (get_local_id(0) == 0) {
+        mem_fence(CLK_GLOBAL_MEM_FENCE);
+        *is_last = atomic_inc(finished) == work_groups - 1;
+        if (*is_last)
+            atomic_xchg(finished, 0);
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const bool last = *is_last;
+    if (last)
+        mem_fence(CLK_GLOBAL_MEM_FENCE);
+    return last;
+}
+% else:
+/* True in the one work-item of this launch that finishes its group last
+ * (`finished` counts the work-items that are done; the last resets it for
+ * the next launch). Nobody waits: the last to arrive sees the others done,
+ * as it needs for a group that shares bodies with all of them. The fences
+ * order each work-item's velocity writes before its count, and the last
+ * one's reads after it. */
+inline bool finished_last(volatile __global uint* finished, const uint work_items)
+{
+    mem_fence(CLK_GLOBAL_MEM_FENCE);
+    if (atomic_inc(finished) != work_items - 1)
+        return false;
+    atomic_xchg(finished, 0);
+    mem_fence(CLK_GLOBAL_MEM_FENCE);
+    return true;
+}
+% endif
+
+% if shape == "gpu":
+/* One launch: the passes (warm start, sweeps) over the groups
+ * group_offset + 0, 1, ..., a work group for each; with FOLD_NEXT_GROUP, the
+ * work group that finishes last then does the same for the group after them
+ * (the leftover group of the cells, which shares bodies with every colour). */
+% else:
+/* One launch: the passes (warm start, sweeps) over the groups group_offset ..
+ * group_end - 1, a work-item for each; with FOLD_NEXT_GROUP, the work-item
+ * that finishes last then does the same for group group_end (the leftover
+ * group of the cells, which shares bodies with every colour). */
+% endif
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void solve_groups(${group_arguments(" " * 18)},
+                  volatile __global uint* finished,
+                  const uint group_offset,
+% if shape == "cpu":
+                  const uint group_end,
+% endif
+                  const uint passes,
+% if split_impulse:
+                  const uint velocity_sweeps,
+                  const uint position_sweeps)
+% else:
+                  const uint velocity_sweeps)
+% endif
+{
+% if not split_impulse:
+    const uint position_sweeps = 0;
+% endif
+% if shape == "gpu":
+    __local uint is_last;
+    const uint next_group = group_offset + get_num_groups(0);
+    /* its own group, then (the last to finish, when folding) the next one: one loop,
+     * so that solve_group is inlined once */
+    for (uint group = group_offset + get_group_id(0); ; group = next_group) {
+        solve_group(group, passes, velocity_sweeps, position_sweeps,
+                    ${pass_group_arguments()});
+        if (group == next_group || !(passes & FOLD_NEXT_GROUP)
+            || !finished_last(finished, get_num_groups(0), &is_last))
+            break;
+    }
+% else:
+    if (group_offset + get_global_id(0) >= group_end)
+        return;
+    /* its own group, then (the last to finish, when folding) group group_end: one loop,
+     * so that solve_group is inlined once */
+    for (uint group = group_offset + get_global_id(0); ; group = group_end) {
+        solve_group(group, passes, velocity_sweeps, position_sweeps,
+                    ${pass_group_arguments()});
+        if (group == group_end || !(passes & FOLD_NEXT_GROUP)
+            || !finished_last(finished, group_end - group_offset))
+            break;
     }
 % endif
 }
@@ -605,7 +680,8 @@ __kernel void apply_split_velocities(__global Body* bodies, __global SplitVeloci
     float4 q = bodies[i].orientation;
     float3 h = 0.5f * dt * w;  /* q += (h, 0) q: first order, renormalised */
     float4 dq = (float4)(q.w * h + cross3(h, q.xyz), -dot3(h, q.xyz));
-    bodies[i].orientation = normalize(q + dq);
+    q += dq;
+    bodies[i].orientation = q * (1.0f / sqrt1(dot3(q.xyz, q.xyz) + q.w * q.w));
     split[i].linear = (float4)(0.0f);
     split[i].angular = (float4)(0.0f);
 }
