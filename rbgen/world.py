@@ -111,8 +111,8 @@ class World:
     0.3-1.6 cm with "manifold"),
     ``broadphase`` ("grid", "sap", "sap3"),
     ``batching`` ("components": one solver launch per step, one work group
-    (GPU) or work-item (CPU) per pile; "cells": 8 launches per sweep, piles
-    spread over the device, the GPU default; "slabs": 2 launches per sweep,
+    (GPU) or work-item (CPU) per pile; "cells": 9 launches per sweep, piles
+    spread over the device, the GPU default; "slabs": 3 launches per sweep,
     piles spread over a few cores in slabs across the widest horizontal axis
     of the bodies when they were last set, the CPU default), ``group_count``
     (solver groups per colour), ``manifold_capacity`` and

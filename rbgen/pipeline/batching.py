@@ -18,11 +18,10 @@ Two levels, after Harada's two-level solver:
      cells of one colour share no body (cell size >= body size), so a colour
      runs as one launch over many work groups; bodies are claimed per colour
      and a constraint losing a claim (oversized body) goes to a leftover
-     group run alone. 8 solver launches per sweep (the leftover group
-     rides in the last one, see `rbgen.pipeline.solver`), and any pile
-     spreads over the whole device.
+     group run alone. 9 launches per sweep, and any pile spreads over
+     the whole device.
    * ``slabs`` (the CPU default): the cells are slabs across one horizontal
-     axis (``slab_axis``), 2 colours: 2 launches per sweep, a pile spreads
+     axis (``slab_axis``), 2 colours: 3 launches per sweep, a pile spreads
      over a few cores, and a slab holds whole stacks, solved in index order
      by one work-item (measured on PoCL, 20-row pyramid, 600 steps: its top
      moves 2.8 cm with slabs, 2.3 with components, 7.7 with cells, all
@@ -61,9 +60,9 @@ TEMPLATE = KernelTemplate(
               "so this bounds local memory, not correctness", "a power of two from 2 to 4096"),
         Param("mode", MODES,
               "level 1: components (one solver launch per step, one group per pile), "
-              "cells (8 colour launches per sweep, the leftovers riding in the last; piles "
-              "spread over the device) or slabs (2 colour launches per sweep; piles spread "
-              "over a few CPU cores)"),
+              "cells (8 colour launches + leftovers per sweep, piles spread over the device) "
+              "or slabs (2 colour launches + leftovers per sweep, piles spread over a few "
+              "CPU cores)"),
         Param("shape", SHAPES,
               "gpu: level-2 batches for a work group's lanes; cpu: none (a group is solved by "
               "one work-item), groups listed by a single work-item"),

@@ -14,17 +14,9 @@ Launches: `solve` runs the warm start, the ``iterations`` velocity sweeps
 and the ``position_iterations`` split-impulse sweeps. With the batcher's
 ``components`` mode no dynamic body is shared between groups, so ONE launch
 of `solve_groups` does them all (each work group loops over the sweeps
-itself). With ``cells`` (and ``slabs``), a sweep is one launch per colour;
-the leftover group (which shares bodies with every colour) rides in the last
-colour's launch, solved by the work group (cpu shape: work-item) that
-finishes last, seen through an atomic counter, so nobody waits; position
-sweep k rides in the launches of velocity sweep k (it only touches push
-velocities). The warm start stays a sweep of its own (one launch per colour):
-folded into the first sweep, a colour's constraints would be warm-started
-and solved while their neighbours in later colours are not warm-started yet,
-so each would see its bodies pushed apart by its own old impulse alone and
-solve it back to about zero (measured on PoCL, gpu shape: a 20-row pyramid
-collapsed).
+itself). With ``cells``, a sweep is one launch per cell colour plus one for
+the leftovers, and the warm start is a sweep of its own; position sweep k
+rides in the launches of velocity sweep k (it only touches push velocities).
 Odd velocity sweeps visit each manifold's points backwards.
 `apply_split_velocities` moves the bodies by their push velocities after
 integration.
@@ -100,7 +92,7 @@ def default_work_group_size(traits: DeviceTraits, shape: str | None = None) -> i
 APPLY_WORK_GROUP_SIZE = 64
 
 #: bit flags of a `solve_groups` launch's ``passes`` argument (as in the template)
-WARM_START_PASS, FIRST_REVERSED, FOLD_NEXT_GROUP = 1, 2, 4
+WARM_START_PASS, FIRST_REVERSED = 1, 2
 
 
 class ContactSolver:
@@ -128,13 +120,6 @@ class ContactSolver:
             self.apply_kernel = runtime.bound(program.kernel("apply_split_velocities"))
         self.max_batches = int(max_batches)
         self._split = None
-        #: work groups (gpu shape) or work-items (cpu) done in a FOLD_NEXT_GROUP launch;
-        #: zero between launches (the last to finish resets it)
-        self._finished = cl_array.zeros(runtime.queue, 1, np.uint32)
-        #: a single group after the last colour (cells' leftovers) rides in that colour's
-        #: launch, solved by the work group (cpu: work-item) that finishes last; False
-        #: gives it a launch of its own (the same result: kept for comparison)
-        self.fold_next_group = True
         #: trailing scalars -> kernel object with those scalars set
         self._instances: dict = {}
         #: (plan, sweeps, warm start) -> ([(kernel, global size)], distinct kernels)
@@ -183,7 +168,7 @@ class ContactSolver:
                   bodies, inertia]
         if self.split_impulse:
             shared.append(self.split_velocities(max(1, int(body_capacity))))
-        shared += [np.float32(relaxation), self._finished]
+        shared.append(np.float32(relaxation))
         for kernel in kernels:
             kernel.bind_first(*shared)
         wg = self.work_group_size
@@ -207,7 +192,7 @@ class ContactSolver:
     def _schedule(self, plan, iterations: int, position_iterations: int, warm_start: bool):
         """Every launch of one call (kernel object, global size) and the distinct
         kernel objects, computed once per plan and settings."""
-        key = (tuple(plan), iterations, position_iterations, warm_start, self.fold_next_group)
+        key = (tuple(plan), iterations, position_iterations, warm_start)
         schedule = self._schedules.get(key)
         if schedule is not None:
             return schedule
@@ -220,15 +205,7 @@ class ContactSolver:
                         int(s < position_iterations))
                        for s in range(max(iterations, position_iterations))]
         passes = [p for p in passes if p != (0, 0, 0)]
-        plan = list(plan)
-        fold = self.fold_next_group and len(plan) > 1 and plan[-1] == (sum(plan[-2]), 1)
-        if fold:  # the single group after the last colour rides in that colour's launch
-            plan.pop()
-        launches = []
-        for flags, velocity, position in passes:
-            for i, (first, count) in enumerate(plan):
-                folded = FOLD_NEXT_GROUP if fold and i == len(plan) - 1 else 0
-                launches.append(self._launch(first, count, flags | folded, velocity, position))
+        launches = [self._launch(first, count, *p) for p in passes for first, count in plan]
         kernels = list({id(k): k for k, _ in launches}.values())
         schedule = self._schedules[key] = (launches, kernels)
         return schedule

@@ -202,44 +202,6 @@ def test_stacked_columns_end_resting(runtime, rng, shape, work_group_size, batch
     assert np.abs(out["linear_velocity"][1:, :3]).max() < 0.1 * speed
 
 
-@pytest.mark.parametrize("shape", SHAPES)
-def test_leftover_group_folded_into_the_last_colour_launch(runtime, rng, shape):
-    """Cells mode: boxes resting on one long dynamic plank on the ground put the plank in
-    constraints of many cells of each colour; all but one per colour go to the leftover
-    group. Solved by whichever work group (cpu: work-item) of the last colour's launch
-    finishes last, the leftovers give bit for bit the velocities and impulses of a launch
-    of their own, and the pile ends at rest (every vertical speed ~0)."""
-    boxes = 41
-    x = np.arange(boxes) * 1.5 - 30.0
-    positions = np.r_[[[0, -1, 0], [0, 0.25, 0]], np.c_[x, np.full(boxes, 1.0), np.zeros(boxes)]]
-    n = len(positions)
-    velocities = np.zeros((n, 3))
-    velocities[1:, 1] = -rng.uniform(0.5, 1.5, n - 1)
-    bodies = make_bodies(positions, np.r_[0.0, 0.05, np.ones(boxes)], velocities=velocities)
-    inv_inertia = np.r_[[[0, 0, 0], [0.002, 0.002, 0.002]], np.full((boxes, 3), 6.0)]
-    plank = np.array([[31, 0, 0.5], [-31, 0, 0.5], [31, 0, -0.5], [-31, 0, -0.5]])
-    manifolds = [make_manifold(0, 1, [0, 1, 0], plank, [0.0] * 4)]
-    manifolds += [make_manifold(1, i + 2, [0, 1, 0], positions[i + 2] + SQUARE - [0, 0.5, 0],
-                                [0.0] * 4) for i in range(boxes)]
-    manifolds = np.array(manifolds)[rng.permutation(len(manifolds))]
-    results = []
-    for fold in (True, False):
-        rig = shaped_rig(runtime, bodies, inv_inertia, shape, group_count=5, batching="cells",
-                         friction="manifold")
-        rig.solver.fold_next_group = fold
-        launches, _ = rig.solver._schedule(rig.batcher.launch_plan, 60, 0, True)
-        assert len(launches) == 8 * 61 + (0 if fold else 61)
-        out, cons = rig.solve(manifolds, iterations=60)
-        groups = cons["group"]
-        assert np.count_nonzero(groups == rig.batcher.launch_plan[-1][0]) >= boxes // 2
-        results.append((out, cons))
-    (folded, folded_cons), (alone, alone_cons) = results
-    for field in ("linear_velocity", "angular_velocity"):
-        np.testing.assert_array_equal(folded[field], alone[field])
-    np.testing.assert_array_equal(folded_cons["normal_impulse"], alone_cons["normal_impulse"])
-    assert np.abs(folded["linear_velocity"][1:, 1]).max() < 1e-2
-
-
 def test_gyroscopic_term_conserves_angular_momentum(runtime):
     """A free asymmetric box (I = 1, 2, 3) spun at 5 rad/s near its unstable middle axis:
     world L = R I R^T w stays within 1% over 600 steps at dt = 1/60, while w itself
@@ -276,13 +238,12 @@ def test_gyroscopic_term_conserves_angular_momentum(runtime):
 
 @pytest.mark.parametrize("batching", ["components", "cells", "slabs"])
 def test_launch_schedule(runtime, batching):
-    """components: the warm start and every sweep in ONE launch; cells and slabs: a
-    warm-start sweep, then one launch per colour and velocity sweep, the position sweeps
-    riding along, and the leftover group in the last colour's launch."""
+    """components: the warm start and every sweep in ONE launch; cells: a warm-start sweep,
+    then one launch per colour and velocity sweep, the position sweeps riding along."""
     batcher = ConstraintBatcher(runtime, group_count=3, mode=batching, cell_size=2.5)
     solver = ContactSolver(runtime, split_impulse=True)
     launches, _ = solver._schedule(batcher.launch_plan, 10, 4, True)
-    colours = batcher.cell_colours
+    colours = len(batcher.launch_plan)
     assert len(launches) == (1 if batching == "components" else colours * 11)
     assert len(solver._schedule(batcher.launch_plan, 3, 5, False)[0]) == \
         (1 if batching == "components" else colours * 5)

@@ -15,9 +15,8 @@
  * a whole cell apart, so their constraints share no body. Each dynamic body
  * is claimed, per colour, by the first group that touches it; a constraint
  * that loses a claim (a body wider than a cell) goes to the leftover group,
- * solved alone after the colours, so correctness never depends on sizes.
- * The solver launches once per colour; the leftover group rides in the last
- * colour's launch (solved after every other group of it).
+ * solved alone after the 8 colours, so correctness never depends on sizes.
+ * The solver launches once per colour and once for the leftovers.
 % if mode == "slabs":
  *
  * Slabs: the cells are slabs across slab_axis (infinite along the other

@@ -65,11 +65,9 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
 % if shape == "gpu":
 #define SERIAL_BATCH (MAX_BATCHES - 1)
 % endif
-/* what one solve_groups launch does besides its sweeps (bit flags of `passes`):
- * the warm start first, the first sweep backwards, the next group afterwards */
+/* what one solve_groups launch does before its sweeps (bit flags of `passes`) */
 #define WARM_START_PASS 1u
 #define FIRST_REVERSED 2u
-#define FOLD_NEXT_GROUP 4u
 
 <%include file="/common/inline_math.cl.mako"/>
 
@@ -522,107 +520,28 @@ void solve_push(__global ContactConstraint* c, __global SplitVelocity* split,
             ${call};
 % endif
 </%def>
-<%def name="group_arguments(indent)">\
-__global ContactConstraint* constraints,
-${indent}__global const uint* order,
-${indent}__global const uint* group_batches,
-${indent}__global const uint* group_batch_count,
-${indent}__global Body* bodies,
-${indent}__global const BodyInertia* inertia,
-% if split_impulse:
-${indent}__global SplitVelocity* split,
-% endif
-${indent}const float relaxation\
-</%def>
-<%def name="pass_group_arguments()">\
-constraints, order, group_batches, group_batch_count, bodies, inertia,${" split," if split_impulse else ""} relaxation\
-</%def>
-% if shape == "gpu":
-/* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
- * one level-1 group, by the whole work group: its batches in order, a
- * barrier after each. */
-% else:
-/* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
- * one level-1 group, by one work-item: its constraints one after another. */
-% endif
-void solve_group(const uint group, const uint passes, const uint velocity_sweeps,
-                 const uint position_sweeps, ${group_arguments(" " * 17)})
-{
-    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
-% if shape == "gpu":
-    const uint lane = get_local_id(0), batch_count = group_batch_count[group];
-% else:
-    const uint begin = offsets[0], end = offsets[group_batch_count[group]];
-% endif
-    if (passes & WARM_START_PASS) {
-${each_constraint("warm_start_contact(&constraints[order[i]], bodies, inertia)")}\
-    }
-    for (uint sweep = 0; sweep < velocity_sweeps; ++sweep) {
-        const bool reverse = ((passes & FIRST_REVERSED) != 0) != ((sweep & 1) != 0);
-${each_constraint("solve_contact(&constraints[order[i]], bodies, inertia, relaxation, reverse)")}\
-    }
-% if split_impulse:
-    for (uint sweep = 0; sweep < position_sweeps; ++sweep) {
-${each_constraint("solve_push(&constraints[order[i]], split, bodies, inertia, relaxation)")}\
-    }
-% endif
-}
 
 % if shape == "gpu":
-/* True, in every lane, in the one work group of this launch that finishes its
- * group last (`finished` counts the work groups that are done; the last
- * resets it for the next launch). Nobody waits: the last to arrive sees the
- * others done, as it needs for a group that shares bodies with all of them.
- * The fences order each work group's velocity writes before its count, and
- * the last one's reads after it. */
-inline bool finished_last(volatile __global uint* finished, const uint work_groups,
-                          __local uint* is_last)
-{
-    barrier(CLK_GLOBAL_MEM_FENCE);
-    if (get_local_id(0) == 0) {
-        mem_fence(CLK_GLOBAL_MEM_FENCE);
-        *is_last = atomic_inc(finished) == work_groups - 1;
-        if (*is_last)
-            atomic_xchg(finished, 0);
-    }
-    barrier(CLK_LOCAL_MEM_FENCE);
-    const bool last = *is_last;
-    if (last)
-        mem_fence(CLK_GLOBAL_MEM_FENCE);
-    return last;
-}
+/* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
+ * the groups group_offset + 0, 1, ... (one launch). A work group is
+ * responsible for one level-1 group: its batches in order, a barrier after
+ * each. */
 % else:
-/* True in the one work-item of this launch that finishes its group last
- * (`finished` counts the work-items that are done; the last resets it for
- * the next launch). Nobody waits: the last to arrive sees the others done,
- * as it needs for a group that shares bodies with all of them. The fences
- * order each work-item's velocity writes before its count, and the last
- * one's reads after it. */
-inline bool finished_last(volatile __global uint* finished, const uint work_items)
-{
-    mem_fence(CLK_GLOBAL_MEM_FENCE);
-    if (atomic_inc(finished) != work_items - 1)
-        return false;
-    atomic_xchg(finished, 0);
-    mem_fence(CLK_GLOBAL_MEM_FENCE);
-    return true;
-}
-% endif
-
-% if shape == "gpu":
-/* One launch: the passes (warm start, sweeps) over the groups
- * group_offset + 0, 1, ..., a work group for each; with FOLD_NEXT_GROUP, the
- * work group that finishes last then does the same for the group after them
- * (the leftover group of the cells, which shares bodies with every colour). */
-% else:
-/* One launch: the passes (warm start, sweeps) over the groups group_offset ..
- * group_end - 1, a work-item for each; with FOLD_NEXT_GROUP, the work-item
- * that finishes last then does the same for group group_end (the leftover
- * group of the cells, which shares bodies with every colour). */
+/* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
+ * the groups group_offset .. group_end - 1 (one launch). A work-item is
+ * responsible for one level-1 group: its constraints one after another. */
 % endif
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void solve_groups(${group_arguments(" " * 18)},
-                  volatile __global uint* finished,
+void solve_groups(__global ContactConstraint* constraints,
+                  __global const uint* order,
+                  __global const uint* group_batches,
+                  __global const uint* group_batch_count,
+                  __global Body* bodies,
+                  __global const BodyInertia* inertia,
+% if split_impulse:
+                  __global SplitVelocity* split,
+% endif
+                  const float relaxation,
                   const uint group_offset,
 % if shape == "cpu":
                   const uint group_end,
@@ -635,32 +554,27 @@ void solve_groups(${group_arguments(" " * 18)},
                   const uint velocity_sweeps)
 % endif
 {
-% if not split_impulse:
-    const uint position_sweeps = 0;
-% endif
 % if shape == "gpu":
-    __local uint is_last;
-    const uint next_group = group_offset + get_num_groups(0);
-    /* its own group, then (the last to finish, when folding) the next one: one loop,
-     * so that solve_group is inlined once */
-    for (uint group = group_offset + get_group_id(0); ; group = next_group) {
-        solve_group(group, passes, velocity_sweeps, position_sweeps,
-                    ${pass_group_arguments()});
-        if (group == next_group || !(passes & FOLD_NEXT_GROUP)
-            || !finished_last(finished, get_num_groups(0), &is_last))
-            break;
-    }
+    const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
+    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
+    const uint batch_count = group_batch_count[group];
 % else:
-    if (group_offset + get_global_id(0) >= group_end)
+    const uint group = group_offset + get_global_id(0);
+    if (group >= group_end)
         return;
-    /* its own group, then (the last to finish, when folding) group group_end: one loop,
-     * so that solve_group is inlined once */
-    for (uint group = group_offset + get_global_id(0); ; group = group_end) {
-        solve_group(group, passes, velocity_sweeps, position_sweeps,
-                    ${pass_group_arguments()});
-        if (group == group_end || !(passes & FOLD_NEXT_GROUP)
-            || !finished_last(finished, group_end - group_offset))
-            break;
+    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
+    const uint begin = offsets[0], end = offsets[group_batch_count[group]];
+% endif
+    if (passes & WARM_START_PASS) {
+${each_constraint("warm_start_contact(&constraints[order[i]], bodies, inertia)")}\
+    }
+    for (uint sweep = 0; sweep < velocity_sweeps; ++sweep) {
+        const bool reverse = ((passes & FIRST_REVERSED) != 0) != ((sweep & 1) != 0);
+${each_constraint("solve_contact(&constraints[order[i]], bodies, inertia, relaxation, reverse)")}\
+    }
+% if split_impulse:
+    for (uint sweep = 0; sweep < position_sweeps; ++sweep) {
+${each_constraint("solve_push(&constraints[order[i]], split, bodies, inertia, relaxation)")}\
     }
 % endif
 }
