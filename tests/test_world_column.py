@@ -44,8 +44,8 @@ def test_symmetric_column_gets_no_sideways_motion(batching):
     "components",
     pytest.param("cells", marks=pytest.mark.xfail(
         strict=False, reason="open (issue #6): in cells batching the rocking decays or not "
-        "with rounding-level changes (H200: 0.13 m/s late; PoCL passed before the leftover "
-        "group joined the last colour's launch, 0.11 after)")),
+        "with rounding-level changes (H200: 0.13 m/s late; PoCL 0.006-0.11 across solver "
+        "revisions)")),
 ])
 def test_tipped_column_stops_rocking(batching):
     """A column of five unit boxes (1 m wide, 5 m tall) set rocking about a base edge at
