@@ -8,7 +8,10 @@ impulses, i.e. v_y = 0 and w_x = w_z = 0 (the block is exact), while solving
 the corners one after another leaves a residual (checked, so that the test
 can fail). With three corners, or two corners separating fast, the result
 is the exact contact solution: a point pushes and stops, or has impulse 0
-and separates.
+and separates. Three or four pushing points of random tilted faces between two free
+bodies with full inertia tensors get the smallest impulses that stop every
+point, K total = target - v (float64 pseudo-inverse reference); when one of
+four corners would pull, it is released and the other three stop the face.
 """
 from __future__ import annotations
 
@@ -16,6 +19,7 @@ import numpy as np
 import pytest
 
 from rbgen.pipeline.solver import ContactSolver
+from tests.pipeline.test_solver import shaped_rig
 from tests.pipeline.test_constraints import ContactRig, make_bodies, make_manifold
 
 CORNERS = np.array([[0.5, -0.5, 0.5], [-0.5, -0.5, 0.5], [-0.5, -0.5, -0.5], [0.5, -0.5, -0.5]])
@@ -73,6 +77,23 @@ def test_block_releases_separating_points(runtime):
     assert np.all(impulses[~pushing] == 0) and np.all(impulses[pushing] > 0)
 
 
+def test_block_releases_the_one_pulling_corner(runtime, rng):
+    """Falling at 1 m/s while turning at w (1.7-2.3 rad/s) about (1, 0, 1): the corners'
+    normal speeds are -1, -1 - w, -1, -1 + w, so the smallest impulses that stop all four
+    would pull at the last corner. The contact solution releases it (impulse 0) and stops
+    the other three, which stops the whole face: p0 + p1 + p2 = 1 (mass 1) and the moments
+    that cancel w with inverse inertia 6, sum r_z p = w / 6 and sum r_x p = -w / 6."""
+    spin = rng.uniform(1.7, 2.3)
+    normal_speed, impulses, v, w = solve_one_iteration(runtime, "block", [0, -1.0, 0],
+                                                       [spin, 0, spin])
+    rows = np.array([np.ones(3), CORNERS[:3, 2], CORNERS[:3, 0]])
+    expected = np.linalg.solve(rows, [1.0, spin / 6, -spin / 6])
+    assert expected.min() > 0
+    np.testing.assert_allclose(impulses[:3], expected, rtol=1e-4)
+    assert abs(impulses[3]) < 1e-6
+    assert np.abs(normal_speed).max() < 1e-4 and np.abs(w).max() < 1e-4
+
+
 def test_block_leaves_a_corner_that_is_apart(runtime, rng):
     """Closed form: a box falling at speed v onto static ground with three corners touching
     and the fourth still 1-3 mm apart (target: approach at most gap/dt) is stopped flat by
@@ -93,3 +114,75 @@ def test_block_leaves_a_corner_that_is_apart(runtime, rng):
     assert abs(v[1]) < 1e-4 and np.abs(w).max() < 1e-4
     impulses = cons[0]["normal_impulse"][:4]
     assert impulses[apart] == 0.0 and impulses.min() >= 0.0
+
+
+@pytest.mark.parametrize("shape", ["gpu", "cpu"])
+@pytest.mark.parametrize("count", [3, 4])
+def test_pushing_points_get_the_smallest_exact_impulses(runtime, rng, shape, count):
+    """Reference (float64): K[j][k] = m_a + m_b + (r_aj x n).I_a (r_ak x n) + (r_bj x n).I_b
+    (r_bk x n) (singular for four points: three independent motions); the block's totals are
+    pinv(K) (target - v_n), the smallest ones, all positive here (the bodies approach fast
+    and turn slowly), and the velocities change by them. Random normals, points off the
+    contact plane by a few mm (the lever arms' part along n does not matter), random
+    orientations (full world inertias) and restitution (targets -e v_n, one rigid motion)."""
+    pairs = 7
+    positions, manifolds = [], []
+    for i in range(pairs):
+        normal = rng.normal(size=3)
+        normal /= np.linalg.norm(normal)
+        t1 = np.cross(normal, rng.normal(size=3))
+        t1 /= np.linalg.norm(t1)
+        t2 = np.cross(normal, t1)
+        centre = np.array([5.0 * i, 0.0, 0.0])
+        a, b = centre - 0.5 * normal, centre + 0.5 * normal
+        if count == 4:  # a rectangle about the line of centres
+            corners = rng.uniform(0.3, 0.6, 2) * np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]])
+        else:  # a triangle around it
+            angles = np.radians([90, 210, 330]) + rng.uniform(0, 2 * np.pi)
+            corners = rng.uniform(0.4, 0.6, (3, 1)) * np.c_[np.cos(angles), np.sin(angles)]
+        corners = corners + rng.uniform(-0.05, 0.05, (count, 2))
+        points = centre + corners[:, :1] * t1 + corners[:, 1:] * t2 \
+            + rng.uniform(-0.003, 0.003, (count, 1)) * normal
+        positions += [a, b]
+        manifolds.append(make_manifold(2 * i, 2 * i + 1, normal, points, [0.0] * count,
+                                       friction=0.0, restitution=rng.uniform(0.0, 0.8)))
+    n_bodies = 2 * pairs
+    normals = np.array([m["normal"][:3] for m in manifolds])
+    velocities = np.repeat(normals, 2, axis=0) * np.tile([1.0, -1.0], pairs)[:, None] \
+        * rng.uniform(1.0, 2.0, (n_bodies, 1)) + rng.uniform(-0.2, 0.2, (n_bodies, 3))
+    bodies = make_bodies(positions, rng.uniform(0.5, 2.0, n_bodies), velocities=velocities,
+                         angular=rng.uniform(-0.2, 0.2, (n_bodies, 3)))
+    quaternions = rng.normal(size=(n_bodies, 4))
+    bodies["orientation"] = quaternions / np.linalg.norm(quaternions, axis=1)[:, None]
+    rig = shaped_rig(runtime, bodies, rng.uniform(1.0, 6.0, (n_bodies, 3)), shape,
+                     warm_start=False, friction="manifold")
+    rig.solver = ContactSolver(runtime, split_impulse=True, normal_solve="block", shape=shape,
+                               friction="manifold")
+    manifolds = np.array(manifolds)
+    cons = rig.constraints(manifolds)
+    before = rig.bodies.get()
+    inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
+    out, solved = rig.solve(manifolds, iterations=1)
+    for m, c, s in zip(manifolds, cons, solved):
+        a, b = int(m["body_a"]), int(m["body_b"])
+        n = m["normal"][:3].astype(float)
+        ra, rb = c["r_a"][:count, :3].astype(float), c["r_b"][:count, :3].astype(float)
+        arm_a, arm_b = np.cross(ra, n), np.cross(rb, n)
+        inv_mass = before["inv_mass"].astype(float)
+        k_matrix = inv_mass[a] + inv_mass[b] + arm_a @ inertia[a] @ arm_a.T \
+            + arm_b @ inertia[b] @ arm_b.T
+        v, w = (before[f][:, :3].astype(float) for f in ("linear_velocity", "angular_velocity"))
+        normal_speed = (v[b] - v[a]) @ n + arm_b @ w[b] - arm_a @ w[a]
+        total = np.linalg.pinv(k_matrix, rcond=1e-6) @ (c["velocity_target"][:count]
+                                                        - normal_speed)
+        assert total.min() > 0.05 * total.max()
+        np.testing.assert_allclose(s["normal_impulse"][:count], total, rtol=2e-3,
+                                   atol=1e-4 * total.max())
+        impulse = total.sum() * n
+        expected = {a: (v[a] - inv_mass[a] * impulse, w[a] - inertia[a] @ (arm_a.T @ total)),
+                    b: (v[b] + inv_mass[b] * impulse, w[b] + inertia[b] @ (arm_b.T @ total))}
+        for body, (linear, angular) in expected.items():
+            scale = np.abs(v[body]).max()
+            np.testing.assert_allclose(out["linear_velocity"][body, :3], linear, atol=1e-4 * scale)
+            np.testing.assert_allclose(out["angular_velocity"][body, :3], angular,
+                                       atol=1e-4 * scale)

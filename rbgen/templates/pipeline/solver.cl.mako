@@ -96,6 +96,156 @@ inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, floa
 /* a pushing point counts as separating beyond its target above this fraction of the
  * largest right-hand side (float32 round-off of an exact solve stays far below) */
 #define OVERSHOOT_TOLERANCE 1e-4f
+/* below these ratios (det / product of the diagonal) the closed form leaves a
+ * manifold to conjugate gradients: its points nearly on one line, or bodies
+ * (almost) without rotational freedom */
+#define FLAT_SPREAD_RATIO 1e-3f
+#define FLAT_MOBILITY_RATIO 1e-4f
+
+/* The common case of solve_normal_block in closed form: three or four points
+ * of one face, all pushing. A normal row's Jacobian is affine in its point's
+ * coordinates (u, v) in the contact plane about the points' centre (the
+ * lever arm's part along n drops out of r x n): arm_a[k] = A0 + u_k A1 +
+ * v_k A2, likewise for B, so K = G Q G^T with the rows g_k = (1, u_k, v_k)
+ * of G and the 3x3 mobility Q of the face (force and two moments). The
+ * smallest totals with K total = rhs (what conjugate gradients from zero
+ * converge to) are total = G M^-1 Q^-1 M^-1 G^T rhs with M = G^T G (for
+ * three points, G^-T Q^-1 G^-1 rhs: the one solution), and the velocity they
+ * leave misses each target by the residual of the affine least-squares fit
+ * of the targets (0 for three points). Returns false, changing nothing,
+ * unless no point overshoots its target (the targets fit one rigid motion)
+ * and every new impulse stays >= 0, or but one of four would pull (see
+ * below); and when the points lie nearly on one line or Q is nearly
+ * singular: then the general solve decides. */
+bool solve_flat_points(const uint count, const float3 n, const float3 t1, const float3 t2,
+                       __global const float4* r_a, __global const float4* r_b,
+                       const float relaxation,
+                       float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
+                       float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
+                       const float target[4], float lambda[4])
+{
+    const float share = 1.0f / (float)count;
+    float3 centre_a = (float3)(0.0f), centre_b = (float3)(0.0f);
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        centre_a += r_a[k].xyz, centre_b += r_b[k].xyz;
+    centre_a *= share;
+    centre_b *= share;
+    /* M = G^T G = diag(count, spread): the points' second moments in the plane */
+    float u[4], v[4], suu = 0.0f, suv = 0.0f, svv = 0.0f;
+    float target_mean = 0.0f, target_u = 0.0f, target_v = 0.0f;
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+        float3 d = r_a[k].xyz - centre_a;
+        u[k] = dot3(d, t1);
+        v[k] = dot3(d, t2);
+        suu += u[k] * u[k], suv += u[k] * v[k], svv += v[k] * v[k];
+        target_mean += share * target[k], target_u += u[k] * target[k], target_v += v[k] * target[k];
+    }
+    float spread_det = suu * svv - suv * suv;
+    if (!(spread_det > FLAT_SPREAD_RATIO * suu * svv))
+        return false;
+    float inv_spread = 1.0f / spread_det;
+    /* the targets' affine fit (mean, slope along u, slope along v) */
+    float fit_u = (svv * target_u - suv * target_v) * inv_spread;
+    float fit_v = (suu * target_v - suv * target_u) * inv_spread;
+
+    /* Q[i][j]: normal velocity change of motion i per unit of wrench j (rows
+     * of G: force, moment along u, moment along v) */
+    float3 arm_a[3] = {cross3(centre_a, n), cross3(t1, n), cross3(t2, n)};
+    float3 arm_b[3] = {cross3(centre_b, n), arm_a[1], arm_a[2]};
+    float3 turn_a[3], turn_b[3];
+    for (uint i = 0; i < 3; ++i) {
+        turn_a[i] = mul_rows(inv_inertia_a, arm_a[i]);
+        turn_b[i] = mul_rows(inv_inertia_b, arm_b[i]);
+    }
+    float q[3][3];
+    for (uint i = 0; i < 3; ++i)
+        for (uint j = i; j < 3; ++j)
+            q[i][j] = q[j][i] = dot3(arm_a[i], turn_a[j]) + dot3(arm_b[i], turn_b[j]);
+    q[0][0] += inv_mass_a + inv_mass_b;
+    /* Q^-1 by cofactors */
+    float c00 = q[1][1] * q[2][2] - q[1][2] * q[1][2];
+    float c01 = q[0][2] * q[1][2] - q[0][1] * q[2][2];
+    float c02 = q[0][1] * q[1][2] - q[0][2] * q[1][1];
+    float c11 = q[0][0] * q[2][2] - q[0][2] * q[0][2];
+    float c12 = q[0][1] * q[0][2] - q[0][0] * q[1][2];
+    float c22 = q[0][0] * q[1][1] - q[0][1] * q[0][1];
+    float q_det = q[0][0] * c00 + q[0][1] * c01 + q[0][2] * c02;
+    if (!(q_det > FLAT_MOBILITY_RATIO * q[0][0] * q[1][1] * q[2][2]))
+        return false;
+
+    /* the normal velocity (affine in u, v) and the wrench of the current impulses */
+    float3 dw = *wb - *wa;
+    float speed[3] = {dot3(n, *vb - *va) + dot3(*wb, arm_b[0]) - dot3(*wa, arm_a[0]),
+                      dot3(dw, arm_a[1]), dot3(dw, arm_a[2])};
+    float wrench[3] = {0.0f, 0.0f, 0.0f};
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        wrench[0] += lambda[k], wrench[1] += u[k] * lambda[k], wrench[2] += v[k] * lambda[k];
+    /* y = M^-1 G^T rhs, rhs = target - velocity + K lambda: the motion to reach */
+    float y[3], tolerance = 0.0f;
+    for (uint i = 0; i < 3; ++i)
+        y[i] = q[i][0] * wrench[0] + q[i][1] * wrench[1] + q[i][2] * wrench[2] - speed[i];
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        tolerance = max1(tolerance, OVERSHOOT_TOLERANCE
+                                    * abs1(target[k] + y[0] + u[k] * y[1] + v[k] * y[2]));
+    y[0] += target_mean, y[1] += fit_u, y[2] += fit_v;
+    /* z = Q^-1 y, then x = M^-1 z: total_k = x0 + u_k x1 + v_k x2 */
+    float inv_q_det = 1.0f / q_det;
+    float z0 = (c00 * y[0] + c01 * y[1] + c02 * y[2]) * inv_q_det;
+    float z1 = (c01 * y[0] + c11 * y[1] + c12 * y[2]) * inv_q_det;
+    float z2 = (c02 * y[0] + c12 * y[1] + c22 * y[2]) * inv_q_det;
+    float x0 = share * z0;
+    float x1 = (svv * z1 - suv * z2) * inv_spread;
+    float x2 = (suu * z2 - suv * z1) * inv_spread;
+    float total[4];
+    uint pulls = 0, pulling = 0;
+    bool overshoot = false;
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+        total[k] = x0 + u[k] * x1 + v[k] * x2;
+        overshoot = overshoot || target[k] - (target_mean + u[k] * fit_u + v[k] * fit_v) < -tolerance;
+        if (lambda[k] + relaxation * (total[k] - lambda[k]) < 0.0f)
+            ++pulls, pulling = k;
+    }
+    if (pulls > 0) {
+        /* One of four points would pull, the targets fitting one rigid motion:
+         * the contact releases it, and the other three, solved exactly, reach
+         * the same targets, on the line of solutions total + t eta (K eta = 0:
+         * eta_k = +-det of the other three rows of G) where total_pulling = 0.
+         * Anything else is left to the general solve. */
+        if (pulls > 1 || count < 4 || overshoot)
+            return false;
+        float eta[4];
+        for (uint k = 0; k < 4; ++k) {
+            uint i = k == 0 ? 1 : 0, j = k <= 1 ? 2 : 1, l = k <= 2 ? 3 : 2;
+            float area = (u[j] - u[i]) * (v[l] - v[i]) - (u[l] - u[i]) * (v[j] - v[i]);
+            eta[k] = (k & 1) ? -area : area;
+        }
+        if (!(abs1(eta[pulling]) > FLAT_SPREAD_RATIO * (suu + svv)))
+            return false;
+        float t = -total[pulling] / eta[pulling];
+        for (uint k = 0; k < 4; ++k) {
+            total[k] = k == pulling ? 0.0f : total[k] + t * eta[k];
+            if (lambda[k] + relaxation * (total[k] - lambda[k]) < 0.0f && k != pulling)
+                return false;
+        }
+    } else if (overshoot) {
+        return false;
+    }
+    float change[4];
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        change[k] = positive_part(lambda[k] + relaxation * (total[k] - lambda[k])) - lambda[k];
+    /* apply: the summed impulse and its moments */
+    float applied[3] = {0.0f, 0.0f, 0.0f};
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+        lambda[k] += change[k];
+        applied[0] += change[k], applied[1] += u[k] * change[k], applied[2] += v[k] * change[k];
+    }
+    *va -= n * (applied[0] * inv_mass_a);
+    *vb += n * (applied[0] * inv_mass_b);
+    *wa -= turn_a[0] * applied[0] + turn_a[1] * applied[1] + turn_a[2] * applied[2];
+    *wb += turn_b[0] * applied[0] + turn_b[1] * applied[1] + turn_b[2] * applied[2];
+    return true;
+}
+
 /* The normal rows of one manifold as a block: the accumulated impulses
  * lambda[k] (>= 0) of its `count` points are replaced by totals with which
  * every point that keeps a positive impulse reaches its normal velocity
@@ -117,14 +267,20 @@ inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, floa
  * dropped pile rocking for ever. Such a compromise shows as a pushing point
  * that would separate faster than its target (complementarity violated): the
  * one of those with the lowest target (farthest apart) is released and the
- * rest solved exactly, as the contact problem demands. Updates the
- * velocities in place. */
-void solve_normal_block(const uint count, const float3 n, __global const float4* r_a,
-                        __global const float4* r_b, const float relaxation,
+ * rest solved exactly, as the contact problem demands. Three or four
+ * points that all keep pushing (a face resting on a face) are solved in
+ * closed form first (solve_flat_points). Updates the velocities in place. */
+void solve_normal_block(const uint count, const float3 n, const float3 t1, const float3 t2,
+                        __global const float4* r_a, __global const float4* r_b,
+                        const float relaxation,
                         float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
                         float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
                         const float target[4], float lambda[4])
 {
+    if (count >= 3 && solve_flat_points(count, n, t1, t2, r_a, r_b, relaxation, inv_mass_a,
+                                        inv_inertia_a, va, wa, inv_mass_b, inv_inertia_b, vb,
+                                        wb, target, lambda))
+        return;
     /* Loops run to the constant RB_MAX_MANIFOLD_POINTS and test `count` inside, so
      * that compilers unroll them and keep these small arrays in registers (with a
      * runtime trip count NVIDIA's compiler put them in slow private memory). */
@@ -417,8 +573,9 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
     unpack4(c->velocity_target, target);
 
 % if normal_solve == "block":
-    solve_normal_block(count, n, c->r_a, c->r_b, relaxation, p.inv_mass_a, p.inv_inertia_a,
-                       &p.va, &p.wa, p.inv_mass_b, p.inv_inertia_b, &p.vb, &p.wb, target,
+    solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a, c->r_b, relaxation,
+                       p.inv_mass_a, p.inv_inertia_a, &p.va, &p.wa, p.inv_mass_b,
+                       p.inv_inertia_b, &p.vb, &p.wb, target,
                        normal_impulse);
     /* then the rows one after another: no change where the block was exact;
      * completes a point the block released while it still approaches */
@@ -485,8 +642,9 @@ void solve_push(__global ContactConstraint* c, __global SplitVelocity* split,
     unpack4(c->normal_mass, normal_mass);
     unpack4(c->position_target, target);
 % if normal_solve == "block":
-    solve_normal_block(count, n, c->r_a, c->r_b, relaxation, p.inv_mass_a, p.inv_inertia_a,
-                       &p.va, &p.wa, p.inv_mass_b, p.inv_inertia_b, &p.vb, &p.wb, target,
+    solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a, c->r_b, relaxation,
+                       p.inv_mass_a, p.inv_inertia_a, &p.va, &p.wa, p.inv_mass_b,
+                       p.inv_inertia_b, &p.vb, &p.wb, target,
                        push_impulse);
 % else:
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
