@@ -9,11 +9,13 @@ velocity solved after the velocity iterations and thrown away after moving
 the bodies: no bounce from recovery).
 
 Warm starting: each step's constraints are recorded in a hash table keyed by
-body pair; the next step looks its pair up there and copies, point by point,
-the impulses of the old point with the same feature id, else of the nearest
-old point within ``match_distance`` (the narrowphase's feature ids change
-when it swaps the reference face of a flat face-face contact, which happens
-all the time on stacked boxes). Constraint buffers and tables rotate in a
+body pair; the next step looks its pair up first at its own index (the
+narrowphase lists pairs in a stable order, so a scene at rest finds them
+there, reading the old constraints in order), else in the table, and copies,
+point by point, the impulses of the old point with the same feature id, else
+of the nearest old point within ``match_distance`` (the narrowphase's feature
+ids change when it swaps the reference face of a flat face-face contact,
+which happens all the time on stacked boxes). Constraint buffers and tables rotate in a
 ring of three, so nothing is copied back to the host and a step redone after
 an overflow still finds the generation it warm-started from.
 """
@@ -68,6 +70,8 @@ class _Buffers:
         table_size = 1 << max(4, int(2 * max(1, self.capacity) - 1).bit_length())
         self.table = cl_array.to_device(queue, np.full(table_size, layouts.SOLVER_NONE, np.uint32))
         self.mask = table_size - 1
+        #: device uint32 array(1): constraints of this generation
+        self.count = cl_array.zeros(queue, 1, np.uint32)
 
 
 class ContactConstraints:
@@ -123,6 +127,7 @@ class ContactConstraints:
         for gen in self._generations:
             if gen is not None:
                 gen.table.fill(np.uint32(layouts.SOLVER_NONE), queue=self.runtime.queue)
+                gen.count.fill(np.uint32(0), queue=self.runtime.queue)
 
     def undo(self, calls: int = 1) -> None:
         """Forget the last ``calls`` calls (their steps are being redone): the generation
@@ -150,7 +155,8 @@ class ContactConstraints:
         args = [manifolds, manifold_count, bodies, inertia, np.uint32(capacity),
                 gen.constraints, self.count, gen.table, np.uint32(gen.mask)]
         if self.warm_start:
-            args += [previous.constraints, previous.table, np.uint32(previous.mask),
+            args += [gen.count, previous.constraints, previous.count, previous.table,
+                     np.uint32(previous.mask),
                      np.float32(self.warm_start_factor), np.float32(self.match_distance)]
         args += [np.float32(dt), np.float32(self.restitution_threshold),
                  np.float32(self.penetration_slop), np.float32(self.penetration_recovery)]

@@ -254,9 +254,12 @@ def test_slow_speculative_contact_only_closes_the_gap(runtime):
 
 
 @pytest.mark.parametrize("warm_start", [True, False])
-def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start):
+@pytest.mark.parametrize("reorder", [True, False])
+def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start, reorder):
     """Impulses carry over for the same body pair, per point: from the old point with the
-    same feature id, else from an old point within match_distance (relative to B), else 0."""
+    same feature id, else from an old point within match_distance (relative to B), else 0;
+    whether the pairs come in the same order (found at their own index) or another (found
+    through the table)."""
     n_pairs = 37
     positions = np.zeros((n_pairs + 1, 3))
     positions[1:, 0] = np.arange(n_pairs) * 3.0
@@ -281,7 +284,7 @@ def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start):
         changed[i]["features"][1:3] = [100 + i, 200 + i]
         changed[i]["points"][0, 0] += 0.05
         changed[i]["points"][2, 0] += 0.05
-    second = rig.constraints(changed[rng.permutation(n_pairs)])
+    second = rig.constraints(changed[rng.permutation(n_pairs) if reorder else order])
     assert rig.setup.match_distance < 0.05
     for c in second:
         old = first_by_body[int(c["body_b"])]
@@ -295,6 +298,8 @@ def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start):
             got = (c["normal_impulse"][k], c["tangent1_impulse"][k], c["tangent2_impulse"][k])
             np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-7)
     assert not warm_start or np.all(second["normal_impulse"][:, [0, 1, 3]] > 0)
+    rig.setup.reset()  # forgets the previous step, found at its index or through the table
+    assert not rig.constraints(changed[order])["normal_impulse"].any()
 
 
 def test_overflowing_manifold_count_is_clamped_to_capacity(runtime):

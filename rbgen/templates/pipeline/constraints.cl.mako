@@ -80,56 +80,65 @@ void clear_pair_table(__global uint* table, const uint table_size)
 }
 % if warm_start:
 
-/* Copy the impulses of the previous step's constraint with the same body
- * pair: per point, those of the old point with the same feature id, else of
- * the nearest old point (relative to B) within match_distance (feature ids
- * change when the narrowphase swaps its reference face on a flat contact). */
-inline void warm_start_from(__global const ContactConstraint* previous,
-                            __global const uint* previous_table, const uint previous_mask,
-                            const float match_distance, ContactConstraint* c)
+/* Index of the previous step's constraint of body pair (a, b), or
+ * RB_SOLVER_NONE: first at this constraint's own index i (the narrowphase
+ * lists its pairs in a stable order, so a scene at rest finds them there,
+ * reading the previous constraints in order), else through the table. */
+inline uint find_previous(__global const ContactConstraint* previous, const uint previous_count,
+                          __global const uint* previous_table, const uint previous_mask,
+                          uint i, uint a, uint b)
 {
-    uint slot = pair_slot(c->body_a, c->body_b, previous_mask);
+    if (i < previous_count && previous[i].body_a == a && previous[i].body_b == b)
+        return i;
+    uint slot = pair_slot(a, b, previous_mask);
     for (uint probe = 0; probe <= previous_mask; ++probe, slot = (slot + 1) & previous_mask) {
         uint j = previous_table[slot];
-        if (j == RB_SOLVER_NONE)
-            return;
-        __global const ContactConstraint* old = &previous[j];
-        if (old->body_a != c->body_a || old->body_b != c->body_b)
-            continue;
-        uint4 old_features = old->features;
-        for (uint k = 0; k < c->point_count; ++k) {
-            uint feature = ((uint*)&c->features)[k];
-            uint match = RB_SOLVER_NONE;
-            float nearest = match_distance * match_distance;
-            for (uint m = 0; m < old->point_count; ++m) {
-                if (((uint*)&old_features)[m] == feature) {
-                    match = m;
-                    break;
-                }
-                float3 d = old->r_b[m].xyz - c->r_b[k].xyz;
-                float distance_sq = dot3(d, d);
-                if (distance_sq < nearest)
-                    nearest = distance_sq, match = m;
+        if (j == RB_SOLVER_NONE || (previous[j].body_a == a && previous[j].body_b == b))
+            return j;
+    }
+    return RB_SOLVER_NONE;
+}
+
+/* Copy the impulses of the previous step's constraint j (same body pair): per
+ * point, those of the old point with the same feature id, else of the
+ * nearest old point (relative to B) within match_distance (feature ids change
+ * when the narrowphase swaps its reference face on a flat contact). */
+inline void warm_start_from(__global const ContactConstraint* old, const float match_distance,
+                            ContactConstraint* c)
+{
+    uint4 old_features = old->features;
+    for (uint k = 0; k < c->point_count; ++k) {
+        uint feature = ((uint*)&c->features)[k];
+        uint match = RB_SOLVER_NONE;
+        float nearest = match_distance * match_distance;
+        for (uint m = 0; m < old->point_count; ++m) {
+            if (((uint*)&old_features)[m] == feature) {
+                match = m;
+                break;
             }
-            if (match == RB_SOLVER_NONE)
-                continue;
-            ((float*)&c->normal_impulse)[k] = ((__global const float*)&old->normal_impulse)[match];
-% if friction == "point":
-            float3 friction = old->tangent1.xyz * ((__global const float*)&old->tangent1_impulse)[match]
-                            + old->tangent2.xyz * ((__global const float*)&old->tangent2_impulse)[match];
-            ((float*)&c->tangent1_impulse)[k] = dot3(friction, c->tangent1.xyz);
-            ((float*)&c->tangent2_impulse)[k] = dot3(friction, c->tangent2.xyz);
-% endif
+            float3 d = old->r_b[m].xyz - c->r_b[k].xyz;
+            float distance_sq = dot3(d, d);
+            if (distance_sq < nearest)
+                nearest = distance_sq, match = m;
         }
-% if friction == "manifold":
-        /* the manifold's friction pair (slot 0) and twist (tangent1 slot 1) */
-        float3 friction = old->tangent1.xyz * old->tangent1_impulse.x
-                        + old->tangent2.xyz * old->tangent2_impulse.x;
-        c->tangent1_impulse.x = dot3(friction, c->tangent1.xyz);
-        c->tangent2_impulse.x = dot3(friction, c->tangent2.xyz);
-        c->tangent1_impulse.y = old->tangent1_impulse.y;
+        if (match == RB_SOLVER_NONE)
+            continue;
+        ((float*)&c->normal_impulse)[k] = ((__global const float*)&old->normal_impulse)[match];
+% if friction == "point":
+        float3 friction = old->tangent1.xyz * ((__global const float*)&old->tangent1_impulse)[match]
+                        + old->tangent2.xyz * ((__global const float*)&old->tangent2_impulse)[match];
+        ((float*)&c->tangent1_impulse)[k] = dot3(friction, c->tangent1.xyz);
+        ((float*)&c->tangent2_impulse)[k] = dot3(friction, c->tangent2.xyz);
 % endif
     }
+% if friction == "manifold":
+    /* the manifold's friction pair (slot 0) and twist (tangent1 slot 1) */
+    float3 friction = old->tangent1.xyz * old->tangent1_impulse.x
+                    + old->tangent2.xyz * old->tangent2_impulse.x;
+    c->tangent1_impulse.x = dot3(friction, c->tangent1.xyz);
+    c->tangent2_impulse.x = dot3(friction, c->tangent2.xyz);
+    c->tangent1_impulse.y = old->tangent1_impulse.y;
+% endif
 }
 % endif
 
@@ -155,7 +164,9 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
                                __global uint* table,
                                const uint table_mask,
 % if warm_start:
+                               __global uint* kept_count,
                                __global const ContactConstraint* previous,
+                               __global const uint* previous_count,
                                __global const uint* previous_table,
                                const uint previous_mask,
                                const float warm_start_factor,
@@ -172,6 +183,10 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     count = count < capacity ? count : capacity;
     if (i == 0)
         constraint_count[0] = count;
+% if warm_start:
+    if (i == 0)
+        kept_count[0] = count;  /* for the next step's warm start */
+% endif
     if (i >= count)
         return;
     __global const ContactManifold* m = &manifolds[i];
@@ -259,7 +274,9 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     c.velocity_target = (float4)(velocity_target[0], velocity_target[1], velocity_target[2], velocity_target[3]);
     c.position_target = (float4)(position_target[0], position_target[1], position_target[2], position_target[3]);
 % if warm_start:
-    warm_start_from(previous, previous_table, previous_mask, match_distance, &c);
+    uint old = find_previous(previous, previous_count[0], previous_table, previous_mask, i, a, b);
+    if (old != RB_SOLVER_NONE)
+        warm_start_from(&previous[old], match_distance, &c);
     c.normal_impulse *= warm_start_factor;
     c.tangent1_impulse *= warm_start_factor;
     c.tangent2_impulse *= warm_start_factor;

@@ -213,15 +213,18 @@ bool solve_flat_points(const uint count, const float3 n, const float3 t1, const 
          * Anything else is left to the general solve. */
         if (pulls > 1 || count < 4 || overshoot)
             return false;
-        float eta[4];
+        /* (indices picked by compare, not array subscripts: registers on GPUs) */
+        float eta[4], eta_pulling = 0.0f, total_pulling = 0.0f;
         for (uint k = 0; k < 4; ++k) {
             uint i = k == 0 ? 1 : 0, j = k <= 1 ? 2 : 1, l = k <= 2 ? 3 : 2;
             float area = (u[j] - u[i]) * (v[l] - v[i]) - (u[l] - u[i]) * (v[j] - v[i]);
             eta[k] = (k & 1) ? -area : area;
+            if (k == pulling)
+                eta_pulling = eta[k], total_pulling = total[k];
         }
-        if (!(abs1(eta[pulling]) > FLAT_SPREAD_RATIO * (suu + svv)))
+        if (!(abs1(eta_pulling) > FLAT_SPREAD_RATIO * (suu + svv)))
             return false;
-        float t = -total[pulling] / eta[pulling];
+        float t = -total_pulling / eta_pulling;
         for (uint k = 0; k < 4; ++k) {
             total[k] = k == pulling ? 0.0f : total[k] + t * eta[k];
             if (lambda[k] + relaxation * (total[k] - lambda[k]) < 0.0f && k != pulling)
@@ -498,6 +501,14 @@ inline float4 pack4(const float in[4])
     return (float4)(in[0], in[1], in[2], in[3]);
 }
 
+inline void reverse4(float a[4])
+{
+    float t = a[0];
+    a[0] = a[3], a[3] = t;
+    t = a[1];
+    a[1] = a[2], a[2] = t;
+}
+
 inline void load_velocities(__private ContactBodies* p, __global const Body* bodies, uint a, uint b)
 {
     p->va = bodies[a].linear_velocity.xyz, p->wa = bodies[a].angular_velocity.xyz;
@@ -580,23 +591,38 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
     /* then the rows one after another: no change where the block was exact;
      * completes a point the block released while it still approaches */
 % endif
-    /* alternate the point order between sweeps, so that no point is always first */
-    for (uint step = 0; step < RB_MAX_MANIFOLD_POINTS; ++step) {
-        uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - step : step;
+    /* alternate the point order between sweeps, so that no point is always first:
+     * slot s visits point k = reverse ? 3 - s : s, with the per-point arrays
+     * reversed to match rather than indexed by k (subscripts that stay constants
+     * keep the arrays in registers, on PoCL and on GPUs alike) */
+    if (reverse) {
+        reverse4(normal_impulse), reverse4(normal_mass), reverse4(target);
+% if friction == "point":
+        reverse4(tangent1_impulse), reverse4(tangent2_impulse);
+        reverse4(tangent1_mass), reverse4(tangent2_mass);
+% endif
+    }
+    for (uint slot = 0; slot < RB_MAX_MANIFOLD_POINTS; ++slot) {
+        uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - slot : slot;
         if (k < count)
-            solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[k], target[k],
-                             relaxation, &normal_impulse[k], &p);
+            solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[slot], target[slot],
+                             relaxation, &normal_impulse[slot], &p);
     }
 % if friction == "point":
     /* friction pairs: |(f1, f2)| <= mu * normal impulse (same point order) */
-    for (uint step = 0; step < RB_MAX_MANIFOLD_POINTS; ++step) {
-        uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - step : step;
+    for (uint slot = 0; slot < RB_MAX_MANIFOLD_POINTS; ++slot) {
+        uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - slot : slot;
         if (k < count)
-            solve_friction_pair(t1, t2, c->r_a[k].xyz, c->r_b[k].xyz, tangent1_mass[k],
-                                tangent2_mass[k], friction * normal_impulse[k], relaxation,
-                                &tangent1_impulse[k], &tangent2_impulse[k], &p);
+            solve_friction_pair(t1, t2, c->r_a[k].xyz, c->r_b[k].xyz, tangent1_mass[slot],
+                                tangent2_mass[slot], friction * normal_impulse[slot],
+                                relaxation, &tangent1_impulse[slot], &tangent2_impulse[slot],
+                                &p);
     }
+    if (reverse)
+        reverse4(normal_impulse), reverse4(tangent1_impulse), reverse4(tangent2_impulse);
 % else:
+    if (reverse)
+        reverse4(normal_impulse);
     /* one friction pair at the centre of the points: |(f1, f2)| <= mu * total normal
      * impulse, and a twist row about n: |f| <= mu * total * mean point distance */
     float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
