@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import warnings
 from typing import Any
 
 import numpy as np
@@ -174,18 +175,27 @@ class Primitive:
         """Explicit params, else the tuned winner for this size bucket, else the heuristic."""
         if self.params_override is not None:
             return dict(self.params_override)
-        from .. import tuning
-        tuned = tuning.lookup(self.runtime.traits, self.family, self.variant,
-                              size_bucket(capacity))
+        tuned = self._tuned_params(capacity)
         return tuned if tuned is not None else self.default_params(self.runtime.traits)
 
+    def _tuned_params(self, capacity: int) -> dict[str, Any] | None:
+        from .. import tuning
+        return tuning.lookup(self.runtime.traits, self.family, self.variant,
+                             size_bucket(capacity))
+
+    def _checked(self, params: dict, capacity: int) -> dict:
+        """Hook: ``params``, or a fallback where they name an opt-in shape that
+        failed its `device_check` on this device (or cannot take ``capacity``)."""
+        return params
+
     def program(self, capacity: int):
-        """``(params, Compiled)`` for arrays of ``capacity`` elements."""
+        """``(params, Compiled)`` for arrays of ``capacity`` elements, built once
+        per size bucket (a fallback chosen by `_checked` included)."""
         bucket = size_bucket(capacity)
         key = (tuple(sorted(self.template_values().items())), bucket)
         entry = self._programs.get(key)
         if entry is None:
-            params = self.params_for(capacity)
+            params = self._checked(self.params_for(capacity), capacity)
             try:
                 spec = self._spec_for(params)
             except RbgenError:
@@ -194,6 +204,29 @@ class Primitive:
                 spec = self._spec_for(params)
             entry = self._programs[key] = (params, compile_spec(self.runtime, spec))
         return entry
+
+
+#: outcomes of `device_check`, per (context, check, params)
+DEVICE_CHECKS: dict[tuple, bool] = {}
+
+
+def device_check(runtime: Runtime, name: str, params: dict, probe, fallback: str) -> bool:
+    """Whether an opt-in shape (one that relies on behaviour OpenCL does not
+    promise, such as forward progress between work groups) works on this
+    device: ``probe(runtime, params) -> (ok, why)`` runs once per context,
+    check and parameters (it may read results back: call it at set-up or from
+    a first call, never inside a step). A failure warns, naming the device,
+    the reason and ``fallback`` (what callers use instead)."""
+    key = (id(runtime.context), name, tuple(sorted(params.items())))
+    if key not in DEVICE_CHECKS:
+        DEVICE_CHECKS[key] = True  # the probe itself runs the shape it checks
+        ok, why = probe(runtime, params)
+        if not ok:
+            warnings.warn(f"{name} with {params} failed its check on "
+                          f"{runtime.traits.device_name} ({why}); using {fallback} instead",
+                          RuntimeWarning, stacklevel=4)
+        DEVICE_CHECKS[key] = bool(ok)
+    return DEVICE_CHECKS[key]
 
 
 def ceil_div(a: int, b: int) -> int:

@@ -108,14 +108,22 @@ def _build_scan(runtime, variant, params, chained=False):
     return prim
 
 
+def _build_sort(runtime, variant, params):
+    """A sort candidate; a onesweep one that fails its guard is rejected, not
+    timed as the split sort it would fall back to."""
+    prim = RadixSort(runtime, 32, with_values=(variant == "kv"), params=params)
+    if params["shape"] == "onesweep" and not radix_sort.onesweep_works(runtime, params):
+        raise RuntimeError("the onesweep sort failed its guard on this device")
+    return prim
+
+
 FAMILIES = [
     tuning.Family("scan", ("uint", "float"), scan.search_space, _build_scan, _bench_scan,
                   lambda: Scan.TEMPLATES),
     tuning.Family("scan_chained", ("uint",), scan.chained_search_space,
                   lambda rt, v, p: _build_scan(rt, v, p, chained=True),
                   _bench_scan, lambda: {"chained": Scan.TEMPLATES["chained"]}),
-    tuning.Family("radix_sort", ("kv", "keys"), radix_sort.search_space,
-                  lambda rt, v, p: RadixSort(rt, 32, with_values=(v == "kv"), params=p),
+    tuning.Family("radix_sort", ("kv", "keys"), radix_sort.search_space, _build_sort,
                   _bench_sort, lambda: RadixSort.TEMPLATES),
     tuning.Family("reduce", ("sum-float",), reduce.search_space,
                   lambda rt, v, p: Reduce(rt, _NP[v.split("-")[1]], v.split("-")[0], params=p),

@@ -25,8 +25,6 @@ elements are read or written. Float keys sort through `float_to_sortable_uint`.
 """
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
@@ -35,7 +33,7 @@ from ..codegen import compile_spec, Param, power_of_two, work_group_size_param
 from ..device import DeviceTraits
 from ..errors import RbgenError
 from ._base import (PrimitiveTemplate, Primitive, ceil_div, check_array, clamp_wavefront,
-                    resolve_count, unique_params)
+                    device_check, resolve_count, unique_params)
 from .scan import Scan
 
 #: the shape GPUs get by default, one place to flip it: "split" (8-bit digits
@@ -228,15 +226,13 @@ class RadixSort(Primitive):
         capacity, device_count = resolve_count(self.runtime, n, keys.size)
         return self.enqueue(buf_keys, buf_values, capacity, device_count)
 
-    def program(self, capacity: int):
-        """As `Primitive.program`; a onesweep sort must first pass its guard
-        (else this sorter uses the split shape's defaults)."""
-        params, program = super().program(capacity)
+    def _checked(self, params: dict, capacity: int) -> dict:
+        """A onesweep sort must fit its 30-bit status words and pass its guard,
+        else this sorter uses the split shape's defaults."""
         if params["shape"] == "onesweep" and (capacity >= ONESWEEP_MAX_KEYS
                                               or not onesweep_works(self.runtime, params)):
-            fallback = self.default_params(self.runtime.traits, "split")
-            return fallback, compile_spec(self.runtime, self._spec_for(fallback))
-        return params, program
+            return self.default_params(self.runtime.traits, "split")
+        return params
 
     def enqueue(self, keys, values, capacity: int, device_count):
         """Sort raw buffers (arguments already checked)."""
@@ -384,35 +380,30 @@ def tile_local_bytes(shape: str, work_group_size: int, items_per_thread: int,
 #: onesweep status words count keys in 30 bits; larger sorts use the split shape
 ONESWEEP_MAX_KEYS = 1 << 30
 
-_GUARD: dict[tuple, bool] = {}
-
-
 def onesweep_works(runtime, params: dict) -> bool:
-    """The onesweep shape's guard: sort a many-tile input with duplicates once per
-    device and parameters and compare with numpy; a failure (wrong result or the
+    """The onesweep shape's guard (a `device_check`): sort a many-tile input with
+    duplicates and compare with numpy; a failure (wrong result or the
     device-side spin limit hit) warns and makes callers use the split shape."""
-    key = (id(runtime.context), tuple(sorted(params.items())))
-    if key not in _GUARD:
-        _GUARD[key] = True  # the probe itself must use onesweep
-        tile = params["work_group_size"] * params["items_per_thread"]
-        n = 24 * tile + 5
-        keys = np.random.default_rng(12345).integers(0, n // 3, n, dtype=np.uint32) * 2654435761
-        keys = keys.astype(np.uint32)
-        probe = RadixSort(runtime, 32, with_values=True, params=params)
-        d_keys = cla.to_device(runtime.queue, keys)
-        d_values = cla.to_device(runtime.queue, np.arange(n, dtype=np.uint32))
-        probe(d_keys, d_values)
-        flag = np.empty(1, np.uint32)
-        cl.enqueue_copy(runtime.queue, flag, probe._scratch["state"], is_blocking=True)
-        order = np.argsort(keys, kind="stable")
-        ok = bool(flag[0] == 0 and np.array_equal(d_keys.get(), keys[order])
-                  and np.array_equal(d_values.get(), order.astype(np.uint32)))
-        if not ok:
-            warnings.warn(f"onesweep radix sort with {params} failed its check on "
-                          f"{runtime.traits.device_name}; using the split shape instead",
-                          RuntimeWarning, stacklevel=3)
-        _GUARD[key] = ok
-    return _GUARD[key]
+    return device_check(runtime, "onesweep radix sort", params, _probe_onesweep, "the split shape")
+
+
+def _probe_onesweep(runtime, params: dict) -> tuple[bool, str]:
+    tile = params["work_group_size"] * params["items_per_thread"]
+    n = 24 * tile + 5
+    keys = np.random.default_rng(12345).integers(0, n // 3, n, dtype=np.uint32) * 2654435761
+    keys = keys.astype(np.uint32)
+    probe = RadixSort(runtime, 32, with_values=True, params=params)
+    d_keys = cla.to_device(runtime.queue, keys)
+    d_values = cla.to_device(runtime.queue, np.arange(n, dtype=np.uint32))
+    probe(d_keys, d_values)
+    flag = np.empty(1, np.uint32)
+    cl.enqueue_copy(runtime.queue, flag, probe._scratch["state"], is_blocking=True)
+    if flag[0] != 0:
+        return False, "spin limit hit"
+    order = np.argsort(keys, kind="stable")
+    ok = (np.array_equal(d_keys.get(), keys[order])
+          and np.array_equal(d_values.get(), order.astype(np.uint32)))
+    return ok, "wrong result"
 
 
 def _usable_local(traits: DeviceTraits) -> int:

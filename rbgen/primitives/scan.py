@@ -21,17 +21,15 @@ modulo 2^32 like C.
 """
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from ..codegen import Param, compile_spec, power_of_two
+from ..codegen import Param, power_of_two
 from ..device import DeviceTraits
 from ..errors import RbgenError
 from ._base import (ceil_div, check_array, cl_type, clamp_wavefront, default_work_items,
-                    Primitive, PrimitiveTemplate, resolve_count, size_bucket,
+                    device_check, Primitive, PrimitiveTemplate, resolve_count,
                     tiled_or_chunked_space, unique_params)
 
 DTYPES = ("uint", "int", "float")
@@ -222,15 +220,11 @@ class Scan(Primitive):
             params = self.default_params(self.runtime.traits, "chained")
         return params
 
-    def program(self, capacity: int):
-        """As `Primitive.program`, but a chained scan must first pass its guard."""
-        params, program = super().program(capacity)
+    def _checked(self, params: dict, capacity: int) -> dict:
+        """A chained scan must pass its guard, else reduce-then-scan."""
         if params["shape"] == "chained" and not chained_scan_works(self.runtime, params):
-            key = (tuple(sorted(self.template_values().items())), size_bucket(capacity))
-            fallback = self.default_params(self.runtime.traits)
-            self._programs[key] = (fallback, compile_spec(self.runtime, self._spec_for(fallback)))
-            return self._programs[key]
-        return params, program
+            return self.default_params(self.runtime.traits)
+        return params
 
     def enqueue(self, src, dst, capacity: int, device_count, total):
         """Launch on raw buffers (arguments already checked); used by other primitives."""
@@ -288,26 +282,16 @@ def check_chained_params(params: dict) -> None:
                          f"{CHAINED_MAX_ITEMS} a chained work-item keeps in registers")
 
 
-_GUARD: dict[tuple, bool] = {}
 #: the extension the chained scan's 64-bit tile words need
 CHAINED_EXTENSION = "cl_khr_int64_base_atomics"
 
 
 def chained_scan_works(runtime, params: dict) -> bool:
-    """The chained scan's guard, run once per device and parameters: the device
-    must offer 64-bit atomics, and two scans in a row (the second shorter, so
-    that the first one's words are stale) on many-tile inputs must match numpy
-    without hitting the spin limit. A failure warns and makes callers fall back."""
-    key = (id(runtime.context), tuple(sorted(params.items())))
-    if key not in _GUARD:
-        _GUARD[key] = True  # the probe itself must use the chained kernel
-        ok, why = _probe_chained(runtime, params)
-        if not ok:
-            warnings.warn(f"chained scan with {params} failed its check on "
-                          f"{runtime.traits.device_name} ({why}); using reduce-then-scan instead",
-                          RuntimeWarning, stacklevel=3)
-        _GUARD[key] = ok
-    return _GUARD[key]
+    """The chained scan's guard (a `device_check`): the device must offer 64-bit
+    atomics, and two scans in a row (the second shorter, so that the first
+    one's words are stale) on many-tile inputs must match numpy without
+    hitting the spin limit. A failure warns and makes callers fall back."""
+    return device_check(runtime, "chained scan", params, _probe_chained, "reduce-then-scan")
 
 
 def _probe_chained(runtime, params: dict) -> tuple[bool, str]:

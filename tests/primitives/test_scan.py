@@ -386,9 +386,9 @@ def test_chained_scan_guard_falls_back(runtime, rng, monkeypatch):
 
 def test_chained_guard_needs_64_bit_atomics(runtime, monkeypatch):
     """A device without the extension fails the guard with a warning naming it."""
-    from rbgen.primitives import scan as scan_module
+    from rbgen.primitives import _base, scan as scan_module
     monkeypatch.setattr(scan_module, "CHAINED_EXTENSION", "cl_khr_not_a_real_extension")
-    monkeypatch.setattr(scan_module, "_GUARD", {})
+    monkeypatch.setattr(_base, "DEVICE_CHECKS", {})
     params = Scan.default_params(runtime.traits, "chained")
     with pytest.warns(RuntimeWarning, match="cl_khr_not_a_real_extension"):
         assert not scan_module.chained_scan_works(runtime, params)
