@@ -55,6 +55,23 @@ def run_device(runtime, a, b, dynamic, rng=None, **kwargs):
     return batcher, order[: len(a)], offsets, batch_counts, groups
 
 
+def lattice(side: int):
+    """A dense side x side lattice of unit-pitch dynamic bodies in the x-z plane, one
+    contact per pair of grid neighbours (one connected pile), contact point halfway:
+    (body_a, body_b, Body records, ContactConstraint records)."""
+    ids = np.arange(side * side).reshape(side, side)
+    a = np.r_[ids[:-1, :].ravel(), ids[:, :-1].ravel()].astype(np.uint32)
+    b = np.r_[ids[1:, :].ravel(), ids[:, 1:].ravel()].astype(np.uint32)
+    bodies = layouts.BODY.zeros(side * side)
+    bodies["inv_mass"] = 1.0
+    gx, gz = np.meshgrid(np.arange(side), np.arange(side), indexing="ij")
+    bodies["position"][:, 0], bodies["position"][:, 2] = gx.ravel(), gz.ravel()
+    cons = layouts.CONTACT_CONSTRAINT.zeros(len(a))
+    cons["body_a"], cons["body_b"] = a, b
+    cons["r_b"][:, 0, :3] = (bodies["position"][a, :3] - bodies["position"][b, :3]) / 2
+    return a, b, bodies, cons
+
+
 def check_invariants(batcher, a, b, dynamic, order, offsets, batch_counts, groups):
     n = len(a)
     assert sorted(order.tolist()) == list(range(n)), "every constraint exactly once"
@@ -142,18 +159,9 @@ def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rn
     on an oversized body's contacts land in the leftover group, never in two
     concurrent groups."""
     side = 30
-    ids = np.arange(side * side).reshape(side, side)
-    a = np.r_[ids[:-1, :].ravel(), ids[:, :-1].ravel()]
-    b = np.r_[ids[1:, :].ravel(), ids[:, 1:].ravel()]
+    a, b, bodies, cons = lattice(side)
     dynamic = np.ones(side * side, bool)
     queue = runtime.queue
-    bodies = layouts.BODY.zeros(side * side)
-    bodies["inv_mass"] = 1.0
-    gx, gz = np.meshgrid(np.arange(side), np.arange(side), indexing="ij")
-    bodies["position"][:, 0], bodies["position"][:, 2] = gx.ravel(), gz.ravel()
-    cons = layouts.CONTACT_CONSTRAINT.zeros(len(a))
-    cons["body_a"], cons["body_b"] = a, b
-    cons["r_b"][:, 0, :3] = (bodies["position"][a, :3] - bodies["position"][b, :3]) / 2
     # body 0 is "huge": it also touches bodies far away
     far = rng.choice(np.arange(1, side * side), 25, replace=False)
     extra = layouts.CONTACT_CONSTRAINT.zeros(25)
@@ -212,17 +220,8 @@ def test_slabs_spread_a_pile_over_consecutive_groups(runtime, rng, shape):
     unit pitch in slabs 1.5 m wide gives 33 slabs, 16-17 per colour: with 8 groups per colour
     every group of both colours is used, and no body is in two concurrent groups."""
     side = 40
-    ids = np.arange(side * side).reshape(side, side)
-    a = np.r_[ids[:-1, :].ravel(), ids[:, :-1].ravel()].astype(np.uint32)
-    b = np.r_[ids[1:, :].ravel(), ids[:, 1:].ravel()].astype(np.uint32)
+    a, b, bodies, cons = lattice(side)
     queue = runtime.queue
-    bodies = layouts.BODY.zeros(side * side)
-    bodies["inv_mass"] = 1.0
-    gx, gz = np.meshgrid(np.arange(side), np.arange(side), indexing="ij")
-    bodies["position"][:, 0], bodies["position"][:, 2] = gx.ravel(), gz.ravel()
-    cons = layouts.CONTACT_CONSTRAINT.zeros(len(a))
-    cons["body_a"], cons["body_b"] = a, b
-    cons["r_b"][:, 0, :3] = (bodies["position"][a, :3] - bodies["position"][b, :3]) / 2
     order = rng.permutation(len(a))
     cons = cons[order]
     batcher = ConstraintBatcher(runtime, mode="slabs", group_count=8, cell_size=1.5, shape=shape)
