@@ -21,6 +21,12 @@ inline float3 cross3(float3 a, float3 b)
     return (float3)(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
 }
 
+/* A 3x3 matrix given by its rows times v (world inverse inertias). */
+inline float3 mul_rows(const float3 row[3], float3 v)
+{
+    return (float3)(dot3(row[0], v), dot3(row[1], v), dot3(row[2], v));
+}
+
 /* |x| by clearing the sign bit (what fabs compiles to). */
 inline float abs1(float x)
 {

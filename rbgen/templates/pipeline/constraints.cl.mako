@@ -54,11 +54,6 @@ inline void tangent_basis(float3 n, float3* t1, float3* t2)
     *t2 = cross3(n, *t1);
 }
 
-inline float3 mul_rows(const float3 row[3], float3 v)
-{
-    return (float3)(dot3(row[0], v), dot3(row[1], v), dot3(row[2], v));
-}
-
 /* 1 / (J M^-1 J^T) for a row with direction d at lever arms ra, rb. */
 inline float row_mass(float3 d, float3 ra, float3 rb, float inv_mass_a, float inv_mass_b,
                       const float3 inv_inertia_a[3], const float3 inv_inertia_b[3])

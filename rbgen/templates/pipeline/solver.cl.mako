@@ -76,11 +76,6 @@ inline float positive_part(float x)
     return x > 0.0f ? x : 0.0f;
 }
 
-inline float3 mul_rows(const float3 row[3], float3 v)
-{
-    return (float3)(dot3(row[0], v), dot3(row[1], v), dot3(row[2], v));
-}
-
 inline void load_inertia(__global const BodyInertia* inertia, uint body, float3 rows[3])
 {
     for (int r = 0; r < 3; ++r)
