@@ -41,11 +41,11 @@ import pyopencl.array as cla
 from . import layouts
 from .device import Runtime, coerce_runtime
 from .errors import CapacityOverflowError, RbgenError
-from .pipeline.batching import ConstraintBatcher
+from .pipeline.batching import MODES as BATCHING_MODES, ConstraintBatcher, default_mode
 from .pipeline.constraints import ContactConstraints
 from .pipeline.gyroscopic import BodyPreparation, inertia_records
 from .pipeline.integrate import Integrator
-from .pipeline.solver import ContactSolver
+from .pipeline.solver import ContactSolver, resident_capacity
 from .shapes import Box, Capsule, ConvexHull, Plane, Shape, ShapeTable, Sphere
 
 #: manifolds reserved per body before the first overflow (grown on demand)
@@ -110,11 +110,15 @@ class World:
     lightly loaded ones slip, and its top creeps 3-5 cm sideways in 10 s, against
     0.3-1.6 cm with "manifold"),
     ``broadphase`` ("grid", "sap", "sap3"),
-    ``batching`` ("components": one solver launch per step, one work group
-    (GPU) or work-item (CPU) per pile; "cells": 9 launches per sweep, piles
-    spread over the device, the GPU default; "slabs": 3 launches per sweep,
-    piles spread over a few cores in slabs across the widest horizontal axis
-    of the bodies when they were last set, the CPU default), ``group_count``
+    ``batching`` (None, the default: "single" on GPUs while every body fits
+    its local memory (1,984 bodies in 48 KiB), else "cells" on GPUs and "slabs"
+    on CPUs, chosen again whenever bodies are added; "single": one work group
+    colours every constraint and one solves them all with the velocities in
+    local memory, one launch each a step; "components": one solver launch per
+    step, one work group (GPU) or work-item (CPU) per pile; "cells": 9
+    launches per sweep, piles spread over the device; "slabs": 3 launches per
+    sweep, piles spread over a few cores in slabs across the widest horizontal
+    axis of the bodies when they were last set), ``group_count``
     (solver groups per colour), ``manifold_capacity`` and
     ``pair_capacity`` (initial buffer sizes; grown on overflow).
 
@@ -151,13 +155,20 @@ class World:
         self._integrate = Integrator(rt, gravity=False, damping=True)
         self._constraints = ContactConstraints(rt, penetration=penetration, warm_start=warm_start,
                                                friction=friction_model)
-        self._batcher = ConstraintBatcher(rt, mode=batching, group_count=group_count)
+        if batching is not None and batching not in BATCHING_MODES:
+            raise RbgenError(f"batching must be one of {BATCHING_MODES} or None (automatic), "
+                             f"got {batching!r}")
+        self._batching = batching       # None: chosen from the body count at each upload
+        self._solver_options = {"split_impulse": penetration == "split",
+                                "friction": friction_model, "normal_solve": normal_solve,
+                                "group_count": group_count}
+        #: batching mode -> (ConstraintBatcher, ContactSolver), built when first used
+        self._solvers: dict = {}
+        if group_count is not None and int(group_count) < 1:
+            raise RbgenError(f"group_count must be >= 1, got {group_count!r}")
+        # an explicit mode is built now (its errors surface here); automatic at the upload
+        self._batcher, self._solver = self._solver_for(batching) if batching else (None, None)
         self.relaxation = float(relaxation)
-        self._solver = ContactSolver(rt, split_impulse=penetration == "split",
-                                     max_batches=self._batcher.max_batches, friction=friction_model,
-                                     normal_solve=normal_solve or _default_normal_solve(
-                                         self._batcher.mode, self._batcher.shape),
-                                     shape=self._batcher.shape)
         self.restitution_threshold = restitution_threshold
         if penetration_slop is None:
             # Baumgarte feeds its push into the warm-started impulse: with a 1 mm slop a
@@ -336,10 +347,42 @@ class World:
             self._broadphase = make_broadphase(self.runtime, self.broadphase_name, **options)
             self._stages_types = types
         self._packed = self.shapes.pack_all().to_device(queue)
+        self._batcher, self._solver = self._solver_for(self._batching or
+                                                       self._automatic_batching(n))
         self._batcher.cell_size = self._cell_size()
         self._batcher.slab_axis = self._slab_axis()
         self._ensure_manifolds(self._initial_manifolds or MANIFOLDS_PER_BODY * max(n, 16))
         self._device_stale = False
+
+    def _automatic_batching(self, body_count: int) -> str:
+        """``single`` on GPUs while every body fits a resident solve (one colouring and one
+        solver launch a step, velocities in local memory), else the device's default
+        (cells on GPUs, slabs on CPUs)."""
+        traits = self.runtime.traits
+        if traits.is_gpu and body_count <= resident_capacity(traits):
+            return "single"
+        return default_mode(traits)
+
+    def _solver_for(self, mode: str):
+        """The (batcher, solver) pair of a batching mode, built once per World."""
+        pair = self._solvers.get(mode)
+        if pair is None:
+            rt, options = self.runtime, self._solver_options
+            if mode == "single":
+                capacity = resident_capacity(rt.traits)
+                if capacity == 0:
+                    raise RbgenError("batching 'single' needs local memory this device lacks")
+                batcher = ConstraintBatcher(rt, mode=mode, shape="gpu", max_bodies=capacity)
+            else:
+                batcher = ConstraintBatcher(rt, mode=mode, group_count=options["group_count"])
+                capacity = 0
+            normal_solve = options["normal_solve"] or _default_normal_solve(mode, batcher.shape)
+            solver = ContactSolver(rt, split_impulse=options["split_impulse"],
+                                   max_batches=batcher.max_batches, friction=options["friction"],
+                                   normal_solve=normal_solve, shape=batcher.shape,
+                                   resident_bodies=capacity)
+            pair = self._solvers[mode] = (batcher, solver)
+        return pair
 
     def _ensure_manifolds(self, capacity: int) -> None:
         if capacity <= self._manifold_capacity:

@@ -20,6 +20,12 @@ Two levels, after Harada's two-level solver:
      and a constraint losing a claim (oversized body) goes to a leftover
      group run alone. 9 launches per sweep, and any pile spreads over
      the whole device.
+   * ``single`` (the GPU default while every body fits the local memory):
+     one group of all constraints, coloured by one work group with its body
+     marks in local memory (``batching_single.cl.mako``: one launch), for a
+     resident solve (`rbgen.pipeline.solver`) that keeps every velocity in
+     local memory: one launch for the whole solve. A 1,000-box scene keeps
+     one compute unit busy, but its step is 15 launches instead of 117.
    * ``slabs`` (the CPU default): the cells are slabs across one horizontal
      axis (``slab_axis``), 2 colours: 3 launches per sweep, a pile spreads
      over a few cores, and a slab holds whole stacks, solved in index order
@@ -46,7 +52,7 @@ from ..codegen import compile_spec, KernelTemplate, Param, power_of_two, work_gr
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 
-MODES = ("components", "cells", "slabs")
+MODES = ("components", "cells", "slabs", "single")
 #: kernel shapes (match the solver's: see `rbgen.pipeline.solver`)
 SHAPES = ("gpu", "cpu")
 
@@ -78,6 +84,46 @@ TEMPLATE = KernelTemplate(
 
 #: colours of the spatial modes: parity of 3 cell coordinates, or of the slab index
 MODE_COLOURS = {"cells": 8, "slabs": 2}
+
+
+SINGLE_TEMPLATE = KernelTemplate(
+    "pipeline/batching_single.cl.mako",
+    [
+        work_group_size_param("lanes of the one work group that colours every constraint"),
+        Param("max_batches", power_of_two(2, 4096),
+              "batch slots (the solver's layout of group_batches); the last is the serial "
+              "remainder", "a power of two from 2 to 4096"),
+        Param("max_bodies", lambda v: isinstance(v, int) and 1 <= v <= 1 << 16,
+              "bodies whose marks fit the local memory (12 bytes a body); body indices must "
+              "stay below it", "an integer from 1 to 65536"),
+    ],
+    doc="Single mode: one work group colours all constraints (Jones-Plassmann rounds with "
+        "local body marks).",
+    roles={"constraint_colour": "inout"},
+    defaults=lambda traits: {"work_group_size": default_single_work_group_size(traits),
+                             "max_batches": 128,
+                             "max_bodies": single_capacity(traits)},
+)
+
+#: local bytes per body of the single-mode colouring: a bid and a 64-bit colour mask
+SINGLE_BYTES_PER_BODY = 12
+
+
+#: most bodies single mode is built for, whatever the local memory (CPUs report
+#: hundreds of KiB): one work group walking every batch is no way to solve more
+SINGLE_MAX_BODIES = 8192
+
+
+def single_capacity(traits: DeviceTraits) -> int:
+    """Bodies whose colouring marks fit the local memory (a multiple of 64; 3,968 in
+    48 KiB), keeping 1.5 KiB for the batch counters; at most SINGLE_MAX_BODIES."""
+    fit = (traits.local_mem_size - 1536) // SINGLE_BYTES_PER_BODY // 64 * 64
+    return max(0, min(SINGLE_MAX_BODIES, fit))
+
+
+def default_single_work_group_size(traits: DeviceTraits) -> int:
+    """1,024 lanes on GPUs (a round touches every uncoloured constraint once); 64 on CPUs."""
+    return min(1024 if traits.is_gpu else 64, traits.max_work_group_size)
 
 
 def default_mode(traits: DeviceTraits) -> str:
@@ -136,41 +182,60 @@ class ConstraintBatcher:
 
     def __init__(self, runtime: Runtime, *, mode: str | None = None, group_count: int | None = None,
                  cell_size: float | None = None, max_batches: int = 128,
-                 work_group_size: int | None = None, shape: str | None = None):
+                 work_group_size: int | None = None, shape: str | None = None,
+                 max_bodies: int | None = None):
         self.runtime = runtime
-        self.mode = mode or default_mode(runtime.traits)
+        traits = runtime.traits
+        self.mode = mode or default_mode(traits)
         if self.mode not in MODES:
             raise RbgenError(f"batching mode must be one of {MODES}, got {mode!r}")
-        self.shape = shape or runtime.traits.kind
+        self.shape = shape or traits.kind
         if self.shape not in SHAPES:
             raise RbgenError(f"batching shape must be one of {SHAPES}, got {shape!r}")
+        if self.mode == "single" and self.shape != "gpu":
+            raise RbgenError("batching mode 'single' colours for the gpu-shaped solver: it "
+                             "needs shape='gpu'")
         self.batches = self.shape == "gpu"
-        self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
-        per_colour = int(group_count or default_group_count(runtime.traits))
-        if per_colour < 1:
-            raise RbgenError(f"group_count must be >= 1, got {group_count!r}")
+        self.max_batches = int(max_batches)
         self.cell_size = None if cell_size is None else float(cell_size)
         self.slab_axis = (1.0, 0.0, 0.0)
         #: colours of the spatial modes (without the leftover group)
         self.cell_colours = MODE_COLOURS.get(self.mode, 0)
-        if self.cell_colours:
-            colours = self.cell_colours
-            self.groups_per_colour = per_colour
-            self.group_count = colours * per_colour + 1
-            self.colours = colours + 1
-            self.launch_plan = [(c * per_colour, per_colour) for c in range(colours)]
-            self.launch_plan.append((colours * per_colour, 1))
+        if self.mode == "single":
+            self.max_bodies = int(max_bodies or single_capacity(traits))
+            self.work_group_size = work_group_size or default_single_work_group_size(traits)
+            self.groups_per_colour = self.group_count = self.colours = 1
+            self.launch_plan = [(0, 1)]
+            self.spec = SINGLE_TEMPLATE.spec(work_group_size=self.work_group_size,
+                                             max_batches=self.max_batches,
+                                             max_bodies=self.max_bodies)
+            names = ["colour_single"]
         else:
-            self.groups_per_colour = self.group_count = per_colour
-            self.colours = 1
-            self.launch_plan = [(0, per_colour)]
-        self.max_batches = int(max_batches)
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
-                                  max_batches=self.max_batches, mode=self.mode, shape=self.shape)
+            self.max_bodies = None
+            self.work_group_size = work_group_size or default_work_group_size(traits)
+            per_colour = int(group_count or default_group_count(traits))
+            if per_colour < 1:
+                raise RbgenError(f"group_count must be >= 1, got {group_count!r}")
+            if self.cell_colours:
+                colours = self.cell_colours
+                self.groups_per_colour = per_colour
+                self.group_count = colours * per_colour + 1
+                self.colours = colours + 1
+                self.launch_plan = [(c * per_colour, per_colour) for c in range(colours)]
+                self.launch_plan.append((colours * per_colour, 1))
+            else:
+                self.groups_per_colour = self.group_count = per_colour
+                self.colours = 1
+                self.launch_plan = [(0, per_colour)]
+            self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
+                                      max_batches=self.max_batches, mode=self.mode,
+                                      shape=self.shape)
+            names = ["reset_batching"]
+            names += ["link_bodies", "assign_groups"] if self.mode == "components" \
+                else ["assign_cells"]
+            names += ["scan_groups", "scatter_groups", "batch_groups"] if self.batches \
+                else ["list_groups"]
         program = compile_spec(runtime, self.spec)
-        names = ["reset_batching"]
-        names += ["link_bodies", "assign_groups"] if self.mode == "components" else ["assign_cells"]
-        names += ["scan_groups", "scatter_groups", "batch_groups"] if self.batches else ["list_groups"]
         self._kernels = {name: runtime.bound(program.kernel(name)) for name in names}
         self.body_capacity = self.constraint_capacity = 0
         queue, g = runtime.queue, self.group_count
@@ -182,7 +247,12 @@ class ConstraintBatcher:
     def ensure_capacity(self, body_capacity: int, constraint_capacity: int) -> None:
         """Grow the per-body and per-constraint scratch (never shrinks)."""
         queue = self.runtime.queue
-        if body_capacity > self.body_capacity:
+        if body_capacity > self.body_capacity and self.mode == "single":
+            if body_capacity > self.max_bodies:
+                raise RbgenError(f"batching mode 'single' holds at most {self.max_bodies} "
+                                 f"bodies (max_bodies), got {body_capacity}")
+            self.body_capacity = int(body_capacity)
+        elif body_capacity > self.body_capacity:
             self.body_capacity = int(body_capacity)
             n = max(1, self.body_capacity)
             if self.batches:  # level-2 marks, one set per colour
@@ -193,9 +263,12 @@ class ConstraintBatcher:
         if constraint_capacity > self.constraint_capacity:
             self.constraint_capacity = int(constraint_capacity)
             n = max(1, self.constraint_capacity)
+            self.order = cl_array.empty(queue, n, np.uint32)
+            if self.mode == "single":  # per constraint: its colour
+                self.constraint_batch = cl_array.empty(queue, n, np.uint32)
+                return
             #: per constraint: its slot in its group's list (gpu shape) or its group (cpu)
             self.constraint_slot = cl_array.empty(queue, n, np.uint32)
-            self.order = cl_array.empty(queue, n, np.uint32)
             if self.batches:
                 (self.constraint_batch, self.constraint_blocked,
                  self.group_list) = (cl_array.empty(queue, n, np.uint32) for _ in range(3))
@@ -210,6 +283,11 @@ class ConstraintBatcher:
             raise RbgenError(f"batching mode {self.mode!r} needs a positive cell_size")
         self.ensure_capacity(body_count, constraint_capacity)
         k, wg = self._kernels, self.work_group_size
+        if self.mode == "single":
+            k["colour_single"].bind(constraints, constraint_count, bodies, self.constraint_batch,
+                                    self.order, self.group_batches, self.group_batch_count,
+                                    np.uint32(body_count)).launch(wg, wg)
+            return
         g, n = self.group_count, self.body_capacity
         marks = max(1, self.cell_colours) * n
         if self.batches:

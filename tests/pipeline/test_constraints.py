@@ -87,7 +87,7 @@ class ContactRig:
         cons = self.setup.constraints
         self.batcher(cons, self.setup.count, self.bodies, self.body_count, self.capacity)
         self.solver.solve_velocities(cons, self.batcher, self.bodies, self.inertia,
-                                     iterations=iterations, relaxation=relaxation,
+                                     self.body_count, iterations=iterations, relaxation=relaxation,
                                      warm_start=self.warm_start)
         if position_iterations:
             self.solver.solve_positions(cons, self.batcher, self.bodies, self.inertia,

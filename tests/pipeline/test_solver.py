@@ -13,7 +13,8 @@
   asymmetric free spinning body.
 
 Both kernel shapes (gpu: lanes over level-2 batches; cpu: one work-item per
-group) run on every device present.
+group) and the resident solve (gpu shape, one work group with every body's
+velocity in local memory, single-mode batching) run on every device present.
 """
 from __future__ import annotations
 
@@ -29,21 +30,29 @@ from rbgen.pipeline.integrate import Integrator
 from rbgen.pipeline.solver import ContactSolver
 from tests.pipeline.test_constraints import ContactRig, make_bodies, make_manifold
 
+#: bodies of the resident solves (fits any device's 32 KiB of local memory)
+RESIDENT_BODIES = 1024
 SQUARE = np.array([[0.5, 0, 0.5], [-0.5, 0, 0.5], [0.5, 0, -0.5], [-0.5, 0, -0.5]])
-SHAPES = ["gpu", "cpu"]
+SHAPES = ["gpu", "cpu", "resident"]
 
 
 def shaped_rig(runtime, bodies, inv_inertia, shape, *, penetration="split", warm_start=True,
                group_count=3, work_group_size=None, batching="components", friction="point"):
-    """A ContactRig whose batcher and solver have the given kernel shape."""
+    """A ContactRig whose batcher and solver have the given kernel shape ("resident": the
+    gpu shape solving in local memory, over single-mode batches)."""
+    resident = RESIDENT_BODIES if shape == "resident" else 0
+    if resident:
+        shape, batching = "gpu", "single"
     rig = ContactRig(runtime, bodies, inv_inertia, penetration=penetration,
-                     warm_start=warm_start, group_count=group_count, batching=batching,
-                     friction=friction)
+                     warm_start=warm_start, group_count=group_count,
+                     batching="components" if resident else batching, friction=friction)
     rig.batcher = ConstraintBatcher(runtime, group_count=group_count, mode=batching,
-                                    cell_size=2.5, shape=shape)
+                                    cell_size=2.5, shape=shape,
+                                    max_bodies=resident or None)
     rig.solver = ContactSolver(runtime, split_impulse=penetration == "split",
                                work_group_size=work_group_size, friction=friction,
-                               normal_solve=rig.solver.spec.values["normal_solve"], shape=shape)
+                               normal_solve=rig.solver.spec.values["normal_solve"], shape=shape,
+                               resident_bodies=resident)
     return rig
 
 
@@ -171,7 +180,7 @@ def test_penetration_recovery(runtime, penetration, shape):
 @pytest.mark.parametrize("shape,work_group_size,batching", [
     ("gpu", 1, "components"), ("gpu", 32, "components"), ("gpu", 64, "cells"), ("gpu", 1, "cells"),
     ("gpu", 32, "slabs"), ("cpu", 1, "components"), ("cpu", 1, "cells"), ("cpu", 2, "cells"),
-    ("cpu", 1, "slabs")])
+    ("cpu", 1, "slabs"), ("resident", 1, "single"), ("resident", 64, "single")])
 def test_stacked_columns_end_resting(runtime, rng, shape, work_group_size, batching):
     """Columns of 6 boxes falling onto each other (one pile per column, batched):
     after the solve every box's vertical speed is ~0 (inelastic), in both batching modes
@@ -236,17 +245,77 @@ def test_gyroscopic_term_conserves_angular_momentum(runtime):
     assert largest_change > 0.5 * np.linalg.norm(w0)
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "slabs"])
+def test_resident_solve_matches_the_global_one_bit_for_bit(runtime, rng):
+    """Over the same single-mode batches, the resident solve (velocities in local memory)
+    does the global solve's arithmetic in the same order: equal results, velocities,
+    push velocities and impulses alike, for a pile of columns with warm starting."""
+    columns, height = 7, 5
+    positions, manifolds = [[0, 0, 0]], []
+    for col in range(columns):
+        for level in range(height):
+            positions.append([1.2 * col, 0.5 + level, 0])
+            i = len(positions) - 1
+            below = 0 if level == 0 else i - 1
+            manifolds.append(make_manifold(below, i, [0, 1, 0], np.array(positions[i]) + SQUARE
+                                           - [0, 0.5, 0], rng.uniform(-0.01, 0.0, 4)))
+            if col:  # a side contact with the column before
+                manifolds.append(make_manifold(i - height, i, [1, 0, 0], np.array(positions[i])
+                                               + SQUARE[:, [1, 0, 2]] * [0, 0.8, 0.8]
+                                               - [0.6, 0, 0], [-0.002] * 4))
+    positions = np.array(positions)
+    n = len(positions)
+    velocities = rng.uniform(-1, 1, (n, 3))
+    velocities[0] = 0
+    bodies = make_bodies(positions, np.r_[0.0, rng.uniform(0.5, 2, n - 1)],
+                         velocities=velocities)
+    inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(2, 8, (n - 1, 3))]
+    manifolds = np.array(manifolds)[rng.permutation(len(manifolds))]
+    results = []
+    for resident in (0, RESIDENT_BODIES):
+        rig = shaped_rig(runtime, bodies, inv_inertia, "resident", work_group_size=32)
+        if not resident:
+            rig.solver = ContactSolver(runtime, split_impulse=True, work_group_size=32,
+                                       friction="point", shape="gpu",
+                                       normal_solve=rig.solver.spec.values["normal_solve"])
+        results.append(rig.solve(manifolds, iterations=7, position_iterations=3))
+    (bodies_g, cons_g), (bodies_r, cons_r) = results
+    for field in ("linear_velocity", "angular_velocity", "position", "orientation"):
+        assert np.array_equal(bodies_g[field], bodies_r[field]), field
+    for field in ("normal_impulse", "tangent1_impulse", "tangent2_impulse", "push_impulse"):
+        assert np.array_equal(cons_g[field], cons_r[field]), field
+    assert np.abs(bodies_r["linear_velocity"][1:, :3]).max() > 0  # something was solved
+
+
+def test_resident_solve_refuses_what_does_not_fit(runtime):
+    """A resident solver needs the gpu shape, one group (single batching) and a body
+    count within its local memory; each refusal names what is wrong."""
+    with pytest.raises(RbgenError, match="gpu shape"):
+        ContactSolver(runtime, shape="cpu", resident_bodies=64)
+    with pytest.raises(RbgenError, match="local memory"):
+        ContactSolver(runtime, shape="gpu", resident_bodies=1 << 16)
+    solver = ContactSolver(runtime, shape="gpu", resident_bodies=64)
+    bodies = cl_array.to_device(runtime.queue, make_bodies([[0, 0, 0]], [1.0]))
+    with pytest.raises(RbgenError, match="single"):
+        solver.solve(None, ConstraintBatcher(runtime, group_count=3, mode="components",
+                                             shape="gpu"), bodies, None, 1, iterations=1)
+    single = ConstraintBatcher(runtime, mode="single", shape="gpu", max_bodies=128)
+    with pytest.raises(RbgenError, match="100 bodies do not fit"):
+        solver.solve(None, single, bodies, None, 100, iterations=1)
+
+
+@pytest.mark.parametrize("batching", ["components", "cells", "slabs", "single"])
 def test_launch_schedule(runtime, batching):
     """components: the warm start and every sweep in ONE launch; cells: a warm-start sweep,
     then one launch per colour and velocity sweep, the position sweeps riding along."""
-    batcher = ConstraintBatcher(runtime, group_count=3, mode=batching, cell_size=2.5)
+    batcher = ConstraintBatcher(runtime, group_count=3, mode=batching, cell_size=2.5,
+                                shape="gpu")
     solver = ContactSolver(runtime, split_impulse=True)
     launches, _ = solver._schedule(batcher.launch_plan, 10, 4, True)
     colours = len(batcher.launch_plan)
-    assert len(launches) == (1 if batching == "components" else colours * 11)
+    one = batching in ("components", "single")
+    assert len(launches) == (1 if one else colours * 11)
     assert len(solver._schedule(batcher.launch_plan, 3, 5, False)[0]) == \
-        (1 if batching == "components" else colours * 5)
+        (1 if one else colours * 5)
     assert solver._schedule(batcher.launch_plan, 0, 0, False)[0] == []
 
 

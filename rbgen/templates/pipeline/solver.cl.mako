@@ -62,6 +62,10 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
 % endif
 
 #define MAX_BATCHES ${max_batches}
+% if resident_bodies:
+/* bodies whose velocities fit the local memory of a resident solve */
+#define RESIDENT_BODIES ${resident_bodies}
+% endif
 % if shape == "gpu":
 #define SERIAL_BATCH (MAX_BATCHES - 1)
 % endif
@@ -113,7 +117,7 @@ inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, floa
  * below); and when the points lie nearly on one line or Q is nearly
  * singular: then the general solve decides. */
 bool solve_flat_points(const uint count, const float3 n, const float3 t1, const float3 t2,
-                       __global const float4* r_a, __global const float4* r_b,
+                       __private const float4* r_a, __private const float4* r_b,
                        const float relaxation,
                        float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
                        float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
@@ -244,6 +248,69 @@ bool solve_flat_points(const uint count, const float3 n, const float3 t1, const 
     return true;
 }
 
+/* The common case of solve_normal_block for one or two points (an edge on a
+ * face, a corner): the contact problem K total = rhs, total >= 0, with the
+ * velocity reached at a released point no slower than its target, solved
+ * exactly by trying the active sets in turn (both pushing, either alone,
+ * none), which for a regular 2x2 K finds its unique solution. Returns false,
+ * changing nothing, when the two points (nearly) coincide in K (det below
+ * FLAT_SPREAD_RATIO of the diagonal's product): the general solve decides. */
+bool solve_two_points(const uint count, const float3 n,
+                      __private const float4* r_a, __private const float4* r_b,
+                      const float relaxation,
+                      float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
+                      float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
+                      const float target[4], float lambda[4])
+{
+    if (count == 0)
+        return true;
+    const bool two = count == 2;
+    float3 arm_a0 = cross3(r_a[0].xyz, n), arm_b0 = cross3(r_b[0].xyz, n);
+    float3 arm_a1 = cross3(r_a[1].xyz, n), arm_b1 = cross3(r_b[1].xyz, n);
+    float3 turn_a0 = mul_rows(inv_inertia_a, arm_a0), turn_b0 = mul_rows(inv_inertia_b, arm_b0);
+    float3 turn_a1 = mul_rows(inv_inertia_a, arm_a1), turn_b1 = mul_rows(inv_inertia_b, arm_b1);
+    float inv_mass = inv_mass_a + inv_mass_b;
+    float k00 = inv_mass + dot3(arm_a0, turn_a0) + dot3(arm_b0, turn_b0);
+    float k01 = inv_mass + dot3(arm_a0, turn_a1) + dot3(arm_b0, turn_b1);
+    float k11 = inv_mass + dot3(arm_a1, turn_a1) + dot3(arm_b1, turn_b1);
+    float det = k00 * k11 - k01 * k01;
+    if (two && !(det > FLAT_SPREAD_RATIO * k00 * k11))
+        return false;
+    if (!(k00 > 0.0f))
+        return false;
+    /* rhs_j = target_j - normal velocity_j + (K lambda)_j: what K total must reach */
+    float3 dv = *vb - *va;
+    float speed0 = dot3(n, dv) + dot3(*wb, arm_b0) - dot3(*wa, arm_a0);
+    float speed1 = dot3(n, dv) + dot3(*wb, arm_b1) - dot3(*wa, arm_a1);
+    float lambda1 = two ? lambda[1] : 0.0f;
+    float rhs0 = target[0] - speed0 + k00 * lambda[0] + k01 * lambda1;
+    float rhs1 = target[1] - speed1 + k01 * lambda[0] + k11 * lambda1;
+    float tolerance = OVERSHOOT_TOLERANCE * max1(abs1(rhs0), two ? abs1(rhs1) : 0.0f);
+    float total0 = 0.0f, total1 = 0.0f;
+    float both0 = (k11 * rhs0 - k01 * rhs1) / det, both1 = (k00 * rhs1 - k01 * rhs0) / det;
+    float alone0 = positive_part(rhs0 / k00), alone1 = two ? positive_part(rhs1 / k11) : 0.0f;
+    if (!two) {
+        total0 = alone0;
+    } else if (both0 >= 0.0f && both1 >= 0.0f) {
+        total0 = both0, total1 = both1;
+    } else if (k01 * alone0 >= rhs1 - tolerance) {  /* point 1 released, still fast enough */
+        total0 = alone0;
+    } else if (k01 * alone1 >= rhs0 - tolerance) {
+        total1 = alone1;
+    }
+    float change0 = positive_part(lambda[0] + relaxation * (total0 - lambda[0])) - lambda[0];
+    float change1 = two ? positive_part(lambda1 + relaxation * (total1 - lambda1)) - lambda1 : 0.0f;
+    lambda[0] += change0;
+    if (two)
+        lambda[1] += change1;
+    float applied = change0 + change1;
+    *va -= n * (applied * inv_mass_a);
+    *vb += n * (applied * inv_mass_b);
+    *wa -= turn_a0 * change0 + turn_a1 * change1;
+    *wb += turn_b0 * change0 + turn_b1 * change1;
+    return true;
+}
+
 /* The normal rows of one manifold as a block: the accumulated impulses
  * lambda[k] (>= 0) of its `count` points are replaced by totals with which
  * every point that keeps a positive impulse reaches its normal velocity
@@ -267,18 +334,31 @@ bool solve_flat_points(const uint count, const float3 n, const float3 t1, const 
  * one of those with the lowest target (farthest apart) is released and the
  * rest solved exactly, as the contact problem demands. Three or four
  * points that all keep pushing (a face resting on a face) are solved in
- * closed form first (solve_flat_points). Updates the velocities in place. */
-void solve_normal_block(const uint count, const float3 n, const float3 t1, const float3 t2,
-                        __global const float4* r_a, __global const float4* r_b,
+ * closed form first (solve_flat_points), one or two points by trying their
+ * active sets (solve_two_points): conjugate gradients are left to the rare
+ * rest, which on a GPU matters beyond their own cost: a warp runs them
+ * whenever one of its 32 manifolds needs them, and their code alone doubled
+ * a resident solve's time on an H100. With exact_fallback false they are
+ * skipped: false is returned, and the caller solves the rows one after
+ * another. Updates the velocities in place. */
+bool solve_normal_block(const uint count, const float3 n, const float3 t1, const float3 t2,
+                        __private const float4* r_a, __private const float4* r_b,
                         const float relaxation,
                         float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
                         float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
-                        const float target[4], float lambda[4])
+                        const float target[4], float lambda[4], const bool exact_fallback)
 {
     if (count >= 3 && solve_flat_points(count, n, t1, t2, r_a, r_b, relaxation, inv_mass_a,
                                         inv_inertia_a, va, wa, inv_mass_b, inv_inertia_b, vb,
                                         wb, target, lambda))
-        return;
+        return true;
+    if (count <= 2 && solve_two_points(count, n, r_a, r_b, relaxation, inv_mass_a,
+                                       inv_inertia_a, va, wa, inv_mass_b, inv_inertia_b, vb,
+                                       wb, target, lambda))
+        return true;
+    /* (a constant at each call: the compiler keeps only one branch) */
+    if (!exact_fallback)
+        return false;  /* the rest is left to rows solved one after another */
     /* Loops run to the constant RB_MAX_MANIFOLD_POINTS and test `count` inside, so
      * that compilers unroll them and keep these small arrays in registers (with a
      * runtime trip count NVIDIA's compiler put them in slow private memory). */
@@ -378,6 +458,7 @@ void solve_normal_block(const uint count, const float3 n, const float3 t1, const
         *vb += n * (change * inv_mass_b);
         *wb += mul_rows(inv_inertia_b, arm_b[k] * change);
     }
+    return true;
 }
 
 % endif
@@ -504,13 +585,15 @@ inline void reverse4(float a[4])
     a[1] = a[2], a[2] = t;
 }
 
+/* Where a sweep reads and writes the velocities it solves for: the bodies'
+ * velocities (or push velocities) in global memory, or the copies a resident
+ * solve keeps in local memory. Only dynamic bodies are written back. */
 inline void load_velocities(__private ContactBodies* p, __global const Body* bodies, uint a, uint b)
 {
     p->va = bodies[a].linear_velocity.xyz, p->wa = bodies[a].angular_velocity.xyz;
     p->vb = bodies[b].linear_velocity.xyz, p->wb = bodies[b].angular_velocity.xyz;
 }
 
-/* write back the velocities of the dynamic bodies (a static body is never written) */
 inline void store_velocities(const __private ContactBodies* p, __global Body* bodies, uint a, uint b)
 {
     if (p->inv_mass_a > 0.0f) {
@@ -522,15 +605,65 @@ inline void store_velocities(const __private ContactBodies* p, __global Body* bo
         bodies[b].angular_velocity.xyz = p->wb;
     }
 }
+% if split_impulse:
 
-/* Apply last step's accumulated impulses of one constraint (warm start). */
-void warm_start_contact(__global const ContactConstraint* c, __global Body* bodies,
-                        __global const BodyInertia* inertia)
+inline void load_push(__private ContactBodies* p, __global const SplitVelocity* split, uint a, uint b)
 {
-    uint a = c->body_a, b = c->body_b, count = c->point_count;
-    ContactBodies p;
-    load_bodies(&p, bodies, inertia, a, b);
-    load_velocities(&p, bodies, a, b);
+    p->va = split[a].linear.xyz, p->wa = split[a].angular.xyz;
+    p->vb = split[b].linear.xyz, p->wb = split[b].angular.xyz;
+}
+
+inline void store_push(const __private ContactBodies* p, __global SplitVelocity* split, uint a, uint b)
+{
+    if (p->inv_mass_a > 0.0f) {
+        split[a].linear.xyz = p->va;
+        split[a].angular.xyz = p->wa;
+    }
+    if (p->inv_mass_b > 0.0f) {
+        split[b].linear.xyz = p->vb;
+        split[b].angular.xyz = p->wb;
+    }
+}
+% endif
+% if resident_bodies:
+
+/* Resident velocities: body i's (linear, angular) velocity at 6 i .. 6 i + 5
+ * of a local float array (floats, not float4s: 24 bytes a body, so that
+ * RESIDENT_BODIES of them fit the local memory). */
+inline float3 resident_vector(__local const float* velocities, uint at)
+{
+    return (float3)(velocities[at], velocities[at + 1], velocities[at + 2]);
+}
+
+inline void set_resident_vector(__local float* velocities, uint at, float3 v)
+{
+    velocities[at] = v.x, velocities[at + 1] = v.y, velocities[at + 2] = v.z;
+}
+
+inline void load_resident(__private ContactBodies* p, __local const float* velocities, uint a, uint b)
+{
+    p->va = resident_vector(velocities, 6 * a), p->wa = resident_vector(velocities, 6 * a + 3);
+    p->vb = resident_vector(velocities, 6 * b), p->wb = resident_vector(velocities, 6 * b + 3);
+}
+
+inline void store_resident(const __private ContactBodies* p, __local float* velocities, uint a, uint b)
+{
+    if (p->inv_mass_a > 0.0f) {
+        set_resident_vector(velocities, 6 * a, p->va);
+        set_resident_vector(velocities, 6 * a + 3, p->wa);
+    }
+    if (p->inv_mass_b > 0.0f) {
+        set_resident_vector(velocities, 6 * b, p->vb);
+        set_resident_vector(velocities, 6 * b + 3, p->wb);
+    }
+}
+% endif
+
+/* Apply last step's accumulated impulses of one constraint (warm start) to
+ * its bodies' velocities in *p. */
+void warm_start_contact(const __private ContactConstraint* c, __private ContactBodies* p)
+{
+    uint count = c->point_count;
     float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
     float normal_impulse[4], tangent1_impulse[4], tangent2_impulse[4];
     unpack4(c->normal_impulse, normal_impulse);
@@ -540,32 +673,27 @@ void warm_start_contact(__global const ContactConstraint* c, __global Body* bodi
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         float3 impulse = n * normal_impulse[k] + t1 * tangent1_impulse[k]
                        + t2 * tangent2_impulse[k];
-        apply_impulse(impulse, c->r_a[k].xyz, c->r_b[k].xyz, &p);
+        apply_impulse(impulse, c->r_a[k].xyz, c->r_b[k].xyz, p);
     }
 % else:
     float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-        apply_impulse(n * normal_impulse[k], c->r_a[k].xyz, c->r_b[k].xyz, &p);
+        apply_impulse(n * normal_impulse[k], c->r_a[k].xyz, c->r_b[k].xyz, p);
         ra += c->r_a[k].xyz, rb += c->r_b[k].xyz;
     }
     float share = count > 0 ? 1.0f / (float)count : 0.0f;
-    apply_impulse(t1 * tangent1_impulse[0] + t2 * tangent2_impulse[0], ra * share, rb * share, &p);
-    Row twist = twist_row(n, &p);
-    apply_row(&twist, tangent1_impulse[1], &p);
+    apply_impulse(t1 * tangent1_impulse[0] + t2 * tangent2_impulse[0], ra * share, rb * share, p);
+    Row twist = twist_row(n, p);
+    apply_row(&twist, tangent1_impulse[1], p);
 % endif
-    store_velocities(&p, bodies, a, b);
 }
 
-/* Solve all rows of one constraint and write back its impulses and the
- * velocities of its dynamic bodies. */
-void solve_contact(__global ContactConstraint* c, __global Body* bodies,
-                   __global const BodyInertia* inertia, const float relaxation,
-                   const bool reverse)
+/* Solve all rows of one constraint, updating its impulses and its bodies'
+ * velocities in *p. */
+void solve_contact(__private ContactConstraint* c, __private ContactBodies* p,
+                   const float relaxation, const bool reverse)
 {
-    uint a = c->body_a, b = c->body_b, count = c->point_count;
-    ContactBodies p;
-    load_bodies(&p, bodies, inertia, a, b);
-    load_velocities(&p, bodies, a, b);
+    uint count = c->point_count;
     float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
     float friction = c->normal.w;
     float normal_impulse[4], tangent1_impulse[4], tangent2_impulse[4];
@@ -580,9 +708,9 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
 
 % if normal_solve == "block":
     solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a, c->r_b, relaxation,
-                       p.inv_mass_a, p.inv_inertia_a, &p.va, &p.wa, p.inv_mass_b,
-                       p.inv_inertia_b, &p.vb, &p.wb, target,
-                       normal_impulse);
+                       p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa, p->inv_mass_b,
+                       p->inv_inertia_b, &p->vb, &p->wb, target,
+                       normal_impulse, ${"true" if block_fallback == "cg" else "false"});
     /* then the rows one after another: no change where the block was exact;
      * completes a point the block released while it still approaches */
 % endif
@@ -601,7 +729,7 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
         uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - slot : slot;
         if (k < count)
             solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[slot], target[slot],
-                             relaxation, &normal_impulse[slot], &p);
+                             relaxation, &normal_impulse[slot], p);
     }
 % if friction == "point":
     /* friction pairs: |(f1, f2)| <= mu * normal impulse (same point order) */
@@ -611,7 +739,7 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
             solve_friction_pair(t1, t2, c->r_a[k].xyz, c->r_b[k].xyz, tangent1_mass[slot],
                                 tangent2_mass[slot], friction * normal_impulse[slot],
                                 relaxation, &tangent1_impulse[slot], &tangent2_impulse[slot],
-                                &p);
+                                p);
     }
     if (reverse)
         reverse4(normal_impulse), reverse4(tangent1_impulse), reverse4(tangent2_impulse);
@@ -629,78 +757,93 @@ void solve_contact(__global ContactConstraint* c, __global Body* bodies,
     rb *= share;
     float limit = friction * total;
     solve_friction_pair(t1, t2, ra, rb, tangent1_mass[0], tangent2_mass[0], limit, relaxation,
-                        &tangent1_impulse[0], &tangent2_impulse[0], &p);
+                        &tangent1_impulse[0], &tangent2_impulse[0], p);
     float radius = 0.0f;
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         radius += length3(c->r_b[k].xyz - rb);
     float twist_limit = limit * radius * share;
-    Row twist = twist_row(n, &p);
-    float twist_total = tangent1_impulse[1] - relaxation * tangent1_mass[1] * row_speed(&twist, &p);
+    Row twist = twist_row(n, p);
+    float twist_total = tangent1_impulse[1] - relaxation * tangent1_mass[1] * row_speed(&twist, p);
     twist_total = min1(max1(twist_total, -twist_limit), twist_limit);
-    apply_row(&twist, twist_total - tangent1_impulse[1], &p);
+    apply_row(&twist, twist_total - tangent1_impulse[1], p);
     tangent1_impulse[1] = twist_total;
 % endif
     c->normal_impulse = pack4(normal_impulse);
     c->tangent1_impulse = pack4(tangent1_impulse);
     c->tangent2_impulse = pack4(tangent2_impulse);
-    store_velocities(&p, bodies, a, b);
 }
 % if split_impulse:
 
-/* Normal rows on the push velocities of one constraint (split impulse). */
-void solve_push(__global ContactConstraint* c, __global SplitVelocity* split,
-                __global const Body* bodies, __global const BodyInertia* inertia,
-                const float relaxation)
+/* Normal rows of one constraint on its bodies' push velocities in *p (split
+ * impulse). */
+void solve_push(__private ContactConstraint* c, __private ContactBodies* p, const float relaxation)
 {
-    uint a = c->body_a, b = c->body_b, count = c->point_count;
-    ContactBodies p;
-    load_bodies(&p, bodies, inertia, a, b);
-    p.va = split[a].linear.xyz, p.wa = split[a].angular.xyz;
-    p.vb = split[b].linear.xyz, p.wb = split[b].angular.xyz;
+    uint count = c->point_count;
     float3 n = c->normal.xyz;
     float push_impulse[4], normal_mass[4], target[4];
     unpack4(c->push_impulse, push_impulse);
     unpack4(c->normal_mass, normal_mass);
     unpack4(c->position_target, target);
+    bool solved = false;  /* by the block solve; else row after row */
 % if normal_solve == "block":
-    solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a, c->r_b, relaxation,
-                       p.inv_mass_a, p.inv_inertia_a, &p.va, &p.wa, p.inv_mass_b,
-                       p.inv_inertia_b, &p.vb, &p.wb, target,
-                       push_impulse);
-% else:
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-        solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[k], target[k],
-                         relaxation, &push_impulse[k], &p);
+    solved = solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a, c->r_b,
+                                relaxation, p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa,
+                                p->inv_mass_b, p->inv_inertia_b, &p->vb, &p->wb, target,
+                                push_impulse, ${"false" if block_fallback == "rows" else "true"});
 % endif
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count && !solved)
+        solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[k], target[k],
+                         relaxation, &push_impulse[k], p);
     c->push_impulse = pack4(push_impulse);
-    if (p.inv_mass_a > 0.0f) {
-        split[a].linear.xyz = p.va;
-        split[a].angular.xyz = p.wa;
-    }
-    if (p.inv_mass_b > 0.0f) {
-        split[b].linear.xyz = p.vb;
-        split[b].angular.xyz = p.wb;
-    }
 }
 % endif
-<%def name="each_constraint(call)">\
+<%
+    # where each kind of sweep finds its velocities (see load_velocities)
+    memory = {"velocities": "bodies", "push": "split", "resident": "resident"}
+    fence = "CLK_LOCAL_MEM_FENCE" if resident_bodies else "CLK_GLOBAL_MEM_FENCE"
+%>\
+<%def name="visit(action, source, results)">\
+{
+                /* a private copy: every load is issued at once, none is repeated */
+                const uint index = order[i];
+                ContactConstraint constraint = constraints[index];
+                __private ContactConstraint* c = &constraint;
+                uint a = c->body_a, b = c->body_b;
+                ContactBodies p;
+                load_bodies(&p, bodies, inertia, a, b);
+                load_${source}(&p, ${memory[source]}, a, b);
+                ${action};
+                store_${source}(&p, ${memory[source]}, a, b);
+% for field in results:
+                constraints[index].${field} = c->${field};
+% endfor
+            }\
+</%def>\
+<%def name="each_constraint(action, source, results=())">\
 % if shape == "gpu":
         for (uint batch = 0; batch < batch_count; ++batch) {
-            uint begin = offsets[batch], end = offsets[batch + 1];
+            uint begin = ${"batch_offsets" if resident_bodies else "offsets"}[batch];
+            uint end = ${"batch_offsets" if resident_bodies else "offsets"}[batch + 1];
             uint stride = ${work_group_size};
             if (batch == SERIAL_BATCH)  /* the remainder: lane 0 alone, in order */
                 stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
-            for (uint i = begin + lane; i < end; i += stride)
-                ${call};
-            barrier(CLK_GLOBAL_MEM_FENCE);
+            for (uint i = begin + lane; i < end; i += stride) ${visit(action, source, results)}
+            barrier(${fence});
         }
 % else:
-        for (uint i = begin; i < end; ++i)
-            ${call};
+        for (uint i = begin; i < end; ++i) ${visit(action, source, results)}
 % endif
-</%def>
+</%def>\
+<% velocities = "resident" if resident_bodies else "velocities" %>\
 
-% if shape == "gpu":
+% if resident_bodies:
+/* The warm start, `velocity_sweeps` and then `position_sweeps` sweeps over
+ * the one group of all constraints, by one work group whose local memory
+ * holds the velocities of all body_count (<= ${resident_bodies}) bodies: a
+ * batch step then reads no body velocity from global memory, and the
+ * velocities go home once, at the end of the velocity sweeps (the push
+ * velocities start from zero there and go to `split` at the end). */
+% elif shape == "gpu":
 /* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
  * the groups group_offset + 0, 1, ... (one launch). A work group is
  * responsible for one level-1 group: its batches in order, a barrier after
@@ -721,6 +864,9 @@ void solve_groups(__global ContactConstraint* constraints,
                   __global SplitVelocity* split,
 % endif
                   const float relaxation,
+% if resident_bodies:
+                  const uint body_count,
+% endif
                   const uint group_offset,
 % if shape == "cpu":
                   const uint group_end,
@@ -744,17 +890,56 @@ void solve_groups(__global ContactConstraint* constraints,
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint begin = offsets[0], end = offsets[group_batch_count[group]];
 % endif
+% if resident_bodies:
+    __local float resident[6 * RESIDENT_BODIES];
+    /* the batch offsets, read at every batch step, from local memory too */
+    __local uint batch_offsets[MAX_BATCHES + 1];
+    for (uint k = lane; k <= batch_count; k += ${work_group_size})
+        batch_offsets[k] = offsets[k];
+    for (uint body = lane; body < body_count; body += ${work_group_size}) {
+        set_resident_vector(resident, 6 * body, bodies[body].linear_velocity.xyz);
+        set_resident_vector(resident, 6 * body + 3, bodies[body].angular_velocity.xyz);
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+% endif
     if (passes & WARM_START_PASS) {
-${each_constraint("warm_start_contact(&constraints[order[i]], bodies, inertia)")}\
+${each_constraint("warm_start_contact(c, &p)", velocities)}\
     }
     for (uint sweep = 0; sweep < velocity_sweeps; ++sweep) {
         const bool reverse = ((passes & FIRST_REVERSED) != 0) != ((sweep & 1) != 0);
-${each_constraint("solve_contact(&constraints[order[i]], bodies, inertia, relaxation, reverse)")}\
+${each_constraint("solve_contact(c, &p, relaxation, reverse)", velocities, ("normal_impulse", "tangent1_impulse", "tangent2_impulse"))}\
     }
+% if resident_bodies:
+    /* each lane sends home the bodies it loaded (the last barrier made every
+     * lane's updates visible) and clears them for the push velocities */
+    for (uint body = lane; body < body_count; body += ${work_group_size}) {
+        if (bodies[body].inv_mass > 0.0f) {
+            bodies[body].linear_velocity.xyz = resident_vector(resident, 6 * body);
+            bodies[body].angular_velocity.xyz = resident_vector(resident, 6 * body + 3);
+        }
 % if split_impulse:
-    for (uint sweep = 0; sweep < position_sweeps; ++sweep) {
-${each_constraint("solve_push(&constraints[order[i]], split, bodies, inertia, relaxation)")}\
+        set_resident_vector(resident, 6 * body, (float3)(0.0f));
+        set_resident_vector(resident, 6 * body + 3, (float3)(0.0f));
+% endif
     }
+% endif
+% if split_impulse:
+% if resident_bodies:
+    if (position_sweeps == 0)
+        return;
+    barrier(CLK_LOCAL_MEM_FENCE);
+% endif
+    for (uint sweep = 0; sweep < position_sweeps; ++sweep) {
+${each_constraint("solve_push(c, &p, relaxation)", velocities if resident_bodies else "push", ("push_impulse",))}\
+    }
+% if resident_bodies:
+    for (uint body = lane; body < body_count; body += ${work_group_size}) {
+        if (bodies[body].inv_mass > 0.0f) {
+            split[body].linear.xyz = resident_vector(resident, 6 * body);
+            split[body].angular.xyz = resident_vector(resident, 6 * body + 3);
+        }
+    }
+% endif
 % endif
 }
 % if split_impulse:
