@@ -47,9 +47,9 @@ def test_symmetric_column_gets_no_sideways_motion(batching):
         "with rounding-level changes (H200: 0.13 m/s late; PoCL 0.006-0.11 across solver "
         "revisions)")),
     pytest.param("single", marks=pytest.mark.xfail(
-        strict=False, reason="open (issue #6): passes on the H100, keeps rocking at "
-        "~0.27 m/s on PoCL, like cells: the gpu shape solves a batch's manifolds side by "
-        "side")),
+        strict=False, reason="open (issue #6): settles on the H100 and on PoCL with some "
+        "solver revisions, keeps rocking at ~0.27 m/s with others, like cells: the gpu "
+        "shape solves a batch's manifolds side by side")),
 ])
 def test_tipped_column_stops_rocking(batching):
     """A column of five unit boxes (1 m wide, 5 m tall) set rocking about a base edge at

@@ -54,7 +54,7 @@ FRICTION_MODELS = ("point", "manifold")
 #: how a manifold's normal rows are solved (see the template parameter "normal_solve")
 NORMAL_SOLVES = ("block", "sequential")
 #: what the block solve does with manifolds its closed forms leave (template parameter)
-BLOCK_FALLBACKS = ("rows", "cg", "cg_positions")
+BLOCK_FALLBACKS = ("rows", "cg", "cg_velocities", "cg_positions")
 #: kernel shapes (see the template parameter "shape")
 SHAPES = ("gpu", "cpu")
 
@@ -84,9 +84,9 @@ TEMPLATE = KernelTemplate(
         Param("block_fallback", BLOCK_FALLBACKS,
               "block normal solve, manifolds that neither closed form takes (3-4 points "
               "not all pushing, nearly coincident points): rows (left to rows solved one "
-              "after another: the gpu shape's default), cg (conjugate gradients with "
-              "releases, exact: the cpu shape's default) or cg_positions (cg in the "
-              "split-impulse position sweeps only); see default_block_fallback"),
+              "after another), cg (conjugate gradients with releases, exact: the cpu "
+              "shape's default), cg_velocities (the gpu shape's default) or cg_positions "
+              "(cg in those sweeps only, rows in the others); see default_block_fallback"),
         Param("friction", FRICTION_MODELS,
               "point: two tangent rows per contact point; manifold: one tangent pair at the "
               "points' centre plus a twist row (fewer rows, Bullet3's GPU choice)"),
@@ -113,15 +113,17 @@ def default_work_group_size(traits: DeviceTraits, shape: str | None = None,
 
 
 def default_block_fallback(shape: str) -> str:
-    """rows for the gpu shape, cg for the cpu shape.
+    """gpu shape: cg_velocities; cpu shape: cg.
 
-    H100, BoxBox, ms a step with rows / cg: 1.8 / 3.1 at 1,000 boxes (single), 3.7 / 7.5
-    at 8,000, 4.6 / 8.6 at 27,000 (cells), with the same stacking (boxes sunk > 2 cm at
-    27,000: 63 / 49; the 20-row pyramid, the piles and the columns pass either way). The
-    conjugate-gradient code alone, run or not, doubles the solve: a warp runs it whenever
-    one of its 32 manifolds needs it. On PoCL (cpu shape) it costs little, and without
-    it a tipped 5-box column keeps rocking (tests/test_world_column.py)."""
-    return "rows" if shape == "gpu" else "cg"
+    H100, BoxBox, ms a step with rows / cg_velocities / cg (single batching at 1,000,
+    cells above): 1.54 / 2.59 / 2.90 at 1,000; 2.96 / 5.80 / 6.70 at 8,000; 3.91 / 6.74 /
+    7.71 at 27,000; 7.3 / 11.1 / 12.4 at 111,375. The conjugate gradients cost that much,
+    rolled or not, because a warp runs them whenever one of its 32 manifolds needs them.
+    But with rows in the velocity sweeps a tipped 5-box column keeps rocking (components
+    batching, tests/test_world_column.py, on the H100 and on PoCL), while the position
+    sweeps take rows with no measured loss (boxes sunk > 2 cm at 27,000: 62 against
+    52 with cg; the pyramid, the piles and the columns pass)."""
+    return "cg_velocities" if shape == "gpu" else "cg"
 
 
 #: local memory a resident solve leaves for the compiler's own use (bytes)

@@ -13,7 +13,7 @@ bodies with full inertia tensors get the smallest impulses that stop every
 point, K total = target - v (float64 pseudo-inverse reference); when one of
 four corners would pull, it is released and the other three stop the face.
 The general cases (points released for overshooting or separating) are those
-of block_fallback="cg"; the gpu shape's default "rows" leaves them to the rows solved one
+of block_fallback="cg" (and of the gpu default "cg_velocities" in velocity sweeps); "rows" leaves them to the rows solved one
 after another.
 """
 from __future__ import annotations
@@ -108,7 +108,7 @@ def test_block_leaves_a_corner_that_is_apart(runtime, rng, fallback, iterations)
     one iteration: the three touching corners fix the plane of the bottom face, so v_y = 0
     and w = 0, and the corner apart keeps impulse 0 (it does not close its gap). The four
     targets fit no rigid motion; a least-squares compromise tips the box towards the gap
-    (|w| ~ gap/dt). block_fallback="cg" is exact in one iteration; "rows" (gpu default)
+    (|w| ~ gap/dt). block_fallback="cg" is exact in one iteration; "rows"
     leaves this case to the rows one after another, which converge slowly: measured on
     PoCL, |w| 0.03-0.15 rad/s after 10 iterations, 1e-3-0.05 after 50, < 1e-6 after 200."""
     bodies = make_bodies([[0, 0, 0], [0, 0.5, 0]], [0.0, 1.0],

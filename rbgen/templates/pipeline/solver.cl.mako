@@ -337,8 +337,8 @@ bool solve_two_points(const uint count, const float3 n,
  * closed form first (solve_flat_points), one or two points by trying their
  * active sets (solve_two_points): conjugate gradients are left to the rare
  * rest, which on a GPU matters beyond their own cost: a warp runs them
- * whenever one of its 32 manifolds needs them, and their code alone doubled
- * a resident solve's time on an H100. With exact_fallback false they are
+ * whenever one of its 32 manifolds needs them (on an H100 they make a
+ * velocity sweep nearly twice as long). With exact_fallback false they are
  * skipped: false is returned, and the caller solves the rows one after
  * another. Updates the velocities in place. */
 bool solve_normal_block(const uint count, const float3 n, const float3 t1, const float3 t2,
@@ -390,6 +390,9 @@ bool solve_normal_block(const uint count, const float3 n, const float3 t1, const
             rhs[j] += k_matrix[j][k] * lambda[k];
         tolerance = max1(tolerance, OVERSHOOT_TOLERANCE * abs1(rhs[j]));
     }
+    /* the two outer loops stay rolled (their bodies index the arrays by the inner
+     * loops' constants only): unrolled, the code was 16 copies of their bodies */
+#pragma unroll 1
     for (uint attempt = 0; attempt < RB_MAX_MANIFOLD_POINTS; ++attempt) if (attempt < count) {
         /* new totals: 0 for released points; for the others, four points
          * (K singular) start from 0 so that they end as the smallest, evenly
@@ -407,6 +410,7 @@ bool solve_normal_block(const uint count, const float3 n, const float3 t1, const
             gradient[j] = direction[j] = active[j] ? gradient[j] : 0.0f;
             rr += gradient[j] * gradient[j];
         }
+#pragma unroll 1
         for (uint iteration = 0; iteration < RB_MAX_MANIFOLD_POINTS; ++iteration) if (iteration < count) {
             float k_direction[4], dkd = 0.0f, dd = 0.0f;
             for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count) {
@@ -710,7 +714,7 @@ void solve_contact(__private ContactConstraint* c, __private ContactBodies* p,
     solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a, c->r_b, relaxation,
                        p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa, p->inv_mass_b,
                        p->inv_inertia_b, &p->vb, &p->wb, target,
-                       normal_impulse, ${"true" if block_fallback == "cg" else "false"});
+                       normal_impulse, ${"true" if block_fallback in ("cg", "cg_velocities") else "false"});
     /* then the rows one after another: no change where the block was exact;
      * completes a point the block released while it still approaches */
 % endif
@@ -789,7 +793,7 @@ void solve_push(__private ContactConstraint* c, __private ContactBodies* p, cons
     solved = solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a, c->r_b,
                                 relaxation, p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa,
                                 p->inv_mass_b, p->inv_inertia_b, &p->vb, &p->wb, target,
-                                push_impulse, ${"false" if block_fallback == "rows" else "true"});
+                                push_impulse, ${"true" if block_fallback in ("cg", "cg_positions") else "false"});
 % endif
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count && !solved)
         solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[k], target[k],
