@@ -50,10 +50,11 @@ def main(argv=None) -> int:
             print(f"device: {s['device']}; {args.scene}, {args.steps} steps after {args.warmup} "
                   f"warm-up, dt 1/60, {args.iterations} iterations")
             print(f"{'boxes':>8} {'ms/step':>9} {'launch':>7} {'reads':>6} {'pairs':>9} "
-                  f"{'manifolds':>10} {'points':>9} {'batches':>8} | sanity")
+                  f"{'manifolds':>10} {'points':>9} {'batches':>8} {'batching':>10} | sanity")
         print(f"{s['bodies']:>8,} {s['ms_per_step']:>9.2f} {s['launches_per_step']:>7} "
               f"{s['blocking_reads_per_step']:>6} {s['pairs']:>9,} {s['manifolds']:>10,} "
-              f"{s['contacts']:>9,} {s['batches']:>8} | NaN {s['nans']}, sunk {s['sunk']}, "
+              f"{s['contacts']:>9,} {s['batches']:>8} {s['batching']:>10} | NaN {s['nans']}, "
+              f"sunk {s['sunk']}, "
               f"max speed {s['max_speed']:.3f} m/s, redone steps {s['overflows']}", flush=True)
     return 0
 

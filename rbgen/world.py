@@ -501,11 +501,13 @@ class World:
 
     # ------------------------------------------------------------- statistics
     def statistics(self) -> dict:
-        """Counts of the last step (blocking reads: call outside the timed loop)."""
+        """Counts of the last step and the batching mode it used (blocking reads: call
+        outside the timed loop)."""
         self._finish_pending()
         if self._device_stale or self.body_count == 0:
             return {"bodies": self.body_count, "pairs": 0, "manifolds": 0, "contacts": 0,
-                    "batches": 0, "groups_used": 0, **self.last_step_counters}
+                    "batches": 0, "groups_used": 0, "batching": self._batching,
+                    **self.last_step_counters}
         read = self.runtime.read
         pairs = int(read(self._broadphase.count)[0])
         manifolds = int(read(self._constraints.count)[0])
@@ -513,7 +515,8 @@ class World:
         batch_counts = read(self._batcher.group_batch_count)
         return {"bodies": self.body_count, "pairs": pairs, "manifolds": manifolds,
                 "contacts": int(points.sum()), "batches": int(batch_counts.max(initial=0)),
-                "groups_used": int((batch_counts > 0).sum()), **self.last_step_counters}
+                "groups_used": int((batch_counts > 0).sum()), "batching": self._batcher.mode,
+                **self.last_step_counters}
 
 
 class _InFlight:

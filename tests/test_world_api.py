@@ -109,3 +109,29 @@ def test_empty_world_steps(runtime):
     world.add_static(rbgen.Plane((0, 1, 0)))
     world.step(1 / 60)
     assert world.statistics()["contacts"] == 0
+
+
+def test_automatic_batching_follows_the_body_count(runtime):
+    """batching=None: on a GPU "single" (a resident solve, two solver-side launches a step)
+    while every body fits the local memory, "cells" once bodies are added past it; on a
+    CPU "slabs". The mode used is reported by statistics(), and a resident step solves
+    the same falling boxes as cells would (both land at rest on the ground)."""
+    from rbgen.pipeline.solver import resident_capacity
+    world = World(runtime)
+    world.add_static(rbgen.Box((60, 1, 60)), position=(0, -1, 0))
+    world.add_bodies(BOX, positions=grid(40) + [0, 0.2, 0])
+    for _ in range(60):
+        world.step(1 / 60)
+    gpu = runtime.traits.is_gpu
+    assert world.statistics()["batching"] == ("single" if gpu else "slabs")
+    assert np.abs(world.linear_velocities).max() < 0.05  # landed and resting
+    if not gpu:
+        return
+    capacity = resident_capacity(runtime.traits)
+    side = int(np.ceil(np.sqrt(capacity))) + 1
+    spread = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2) * 3.0
+    world.add_bodies(BOX, positions=np.c_[spread[:, 0] - 90, np.full(len(spread), 5.0),
+                                          spread[:, 1] - 90])
+    assert world.body_count > capacity
+    world.step(1 / 60)
+    assert world.statistics()["batching"] == "cells"
