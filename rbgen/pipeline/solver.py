@@ -13,8 +13,8 @@ Two shapes (template parameter ``shape``, chosen by the device kind):
 Resident solve (``resident_bodies`` > 0, gpu shape, over ``single``
 batching): one work group keeps every body's velocity in local memory for the
 whole solve and sends them home once; a batch step then waits on no global
-velocity. H100, BoxBox 1,000 boxes: 15 launches and 1.5 ms a step against 117
-launches and 5.6 ms with cells.
+velocity. A BoxBox step of 1,000 boxes is then 15 launches instead of 117 (the
+README has the times).
 
 Launches: `solve` runs the warm start, the ``iterations`` velocity sweeps
 and the ``position_iterations`` split-impulse sweeps. With the batcher's
@@ -82,11 +82,15 @@ TEMPLATE = KernelTemplate(
               "local memory (24 bytes a body) for the whole solve",
               "an integer from 0 to 65536"),
         Param("block_fallback", BLOCK_FALLBACKS,
-              "block normal solve, manifolds that neither closed form takes (3-4 points "
-              "not all pushing, nearly coincident points): rows (left to rows solved one "
-              "after another), cg (conjugate gradients with releases, exact: the cpu "
-              "shape's default), cg_velocities (the gpu shape's default) or cg_positions "
-              "(cg in those sweeps only, rows in the others); see default_block_fallback"),
+              "block normal solve, manifolds that neither closed form takes (3-4 points not "
+              "all pushing, nearly coincident points): cg (conjugate gradients with releases, "
+              "exact; the default), rows (left to rows solved one after another), or cg in "
+              "one kind of sweep only (cg_velocities, cg_positions). H100, BoxBox, ms a step "
+              "with cg / cg_velocities / rows: 2.90 / 2.59 / 1.54 at 1,000 boxes, 6.70 / "
+              "5.80 / 2.96 at 8,000, 7.71 / 6.74 / 3.91 at 27,000. But with rows in the "
+              "velocity sweeps a tipped 5-box column keeps rocking, and with the two kinds of "
+              "sweep solved differently a dropped 4x4x4 grid keeps a box moving: only cg "
+              "passes every stacking test"),
         Param("friction", FRICTION_MODELS,
               "point: two tangent rows per contact point; manifold: one tangent pair at the "
               "points' centre plus a twist row (fewer rows, Bullet3's GPU choice)"),
@@ -96,7 +100,7 @@ TEMPLATE = KernelTemplate(
     defaults=lambda traits: {"friction": "point", "work_group_size": default_work_group_size(traits),
                              "max_batches": 128, "shape": traits.kind, "split_impulse": True,
                              "normal_solve": "block", "resident_bodies": 0,
-                             "block_fallback": default_block_fallback(traits.kind)},
+                             "block_fallback": "cg"},
 )
 
 
@@ -110,20 +114,6 @@ def default_work_group_size(traits: DeviceTraits, shape: str | None = None,
     if (shape or traits.kind) == "cpu":
         return 1
     return min(256 if resident else 64, traits.max_work_group_size)
-
-
-def default_block_fallback(shape: str) -> str:
-    """gpu shape: cg_velocities; cpu shape: cg.
-
-    H100, BoxBox, ms a step with rows / cg_velocities / cg (single batching at 1,000,
-    cells above): 1.54 / 2.59 / 2.90 at 1,000; 2.96 / 5.80 / 6.70 at 8,000; 3.91 / 6.74 /
-    7.71 at 27,000; 7.3 / 11.1 / 12.4 at 111,375. The conjugate gradients cost that much,
-    rolled or not, because a warp runs them whenever one of its 32 manifolds needs them.
-    But with rows in the velocity sweeps a tipped 5-box column keeps rocking (components
-    batching, tests/test_world_column.py, on the H100 and on PoCL), while the position
-    sweeps take rows with no measured loss (boxes sunk > 2 cm at 27,000: 62 against
-    52 with cg; the pyramid, the piles and the columns pass)."""
-    return "cg_velocities" if shape == "gpu" else "cg"
 
 
 #: local memory a resident solve leaves for the compiler's own use (bytes)
@@ -153,7 +143,7 @@ class ContactSolver:
     def __init__(self, runtime: Runtime, *, split_impulse: bool = True, max_batches: int = 128,
                  friction: str = "point", work_group_size: int | None = None,
                  normal_solve: str = "block", shape: str | None = None,
-                 resident_bodies: int = 0, block_fallback: str | None = None):
+                 resident_bodies: int = 0, block_fallback: str = "cg"):
         self.runtime = runtime
         self.split_impulse = bool(split_impulse)
         self.shape = shape or runtime.traits.kind
@@ -178,8 +168,7 @@ class ContactSolver:
                                   shape=self.shape, split_impulse=self.split_impulse,
                                   friction=friction, normal_solve=normal_solve,
                                   resident_bodies=self.resident_bodies,
-                                  block_fallback=block_fallback or
-                                  default_block_fallback(self.shape))
+                                  block_fallback=block_fallback)
         self._program = program = compile_spec(runtime, self.spec)
         if self.split_impulse:
             self.apply_kernel = runtime.bound(program.kernel("apply_split_velocities"))

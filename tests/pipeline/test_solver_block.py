@@ -13,7 +13,7 @@ bodies with full inertia tensors get the smallest impulses that stop every
 point, K total = target - v (float64 pseudo-inverse reference); when one of
 four corners would pull, it is released and the other three stop the face.
 The general cases (points released for overshooting or separating) are those
-of block_fallback="cg" (and of the gpu default "cg_velocities" in velocity sweeps); "rows" leaves them to the rows solved one
+of block_fallback="cg" (the default); "rows" leaves them to the rows solved one
 after another.
 """
 from __future__ import annotations
