@@ -89,7 +89,8 @@ class KernelTemplate:
 
     def __init__(self, path: str, params: Iterable[Param], doc: str = "",
                  roles: Mapping[str, str] | None = None,
-                 defaults: Callable[[Any], dict] | None = None):
+                 defaults: Callable[[Any], dict] | None = None,
+                 requires: Callable[[dict], str | None] | None = None):
         self.path = path
         self.params = {p.name: p for p in params}
         self.doc = doc
@@ -98,6 +99,8 @@ class KernelTemplate:
         #: heuristic parameters for a device: ``defaults(traits) -> {name: value}``
         #: (what an untuned device gets, and what `rbgen export` renders by default)
         self._defaults = defaults
+        #: rules between parameters: ``requires(values)`` says what is wrong, or None
+        self._requires = requires
         if not (TEMPLATE_DIR / path).is_file():
             raise TemplateParameterError(f"template {path!r} not found under {TEMPLATE_DIR}")
         TEMPLATES[path] = self
@@ -120,6 +123,9 @@ class KernelTemplate:
             raise TemplateParameterError(f"{where}: missing parameter(s) {missing}")
         for name, value in values.items():
             self.params[name].check(value, where)
+        problem = self._requires(values) if self._requires else None
+        if problem:
+            raise TemplateParameterError(f"{where}: {problem}")
         return KernelSpec(self.path, tuple(sorted(values.items())), self)
 
     def source_hash(self) -> str:

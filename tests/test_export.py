@@ -73,3 +73,22 @@ def test_export_param_override_and_bad_names(runtime, tmp_path):
     with pytest.raises(RbgenError, match="no template matches 'warp_drive'"):
         default_specs(runtime.traits, ["warp_drive"])
     assert main(["export", "--out", str(tmp_path), "--kernel", "warp_drive"]) == 2
+
+
+def test_exported_resident_solver_builds_standalone(runtime, tmp_path):
+    """The resident solve (velocities in local memory, the GPU default for small worlds)
+    exports like any specialisation: its .cl builds outside rbgen's loader, and the
+    manifest lists the body count it takes after the relaxation."""
+    assert main(["export", "--out", str(tmp_path), "--kernel", "solver", "--device",
+                 runtime.device.name.strip(), "--param", "resident_bodies=64",
+                 "--param", "shape=gpu", "--param", "work_group_size=32"]) == 0
+    entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
+    assert entry["params"]["resident_bodies"] == 64
+    program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
+    solve = next(k for k in entry["kernels"] if k["name"] == "solve_groups")
+    names = [a["name"] for a in solve["args"]]
+    assert names[names.index("relaxation") + 1] == "body_count"
+    assert program.solve_groups.num_args == len(solve["args"])
+    # the cpu shape cannot be resident: refused by name, before any rendering
+    assert main(["export", "--out", str(tmp_path), "--kernel", "solver", "--param",
+                 "resident_bodies=64", "--param", "shape=cpu"]) == 2

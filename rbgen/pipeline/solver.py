@@ -97,6 +97,8 @@ TEMPLATE = KernelTemplate(
     ],
     doc="PGS velocity sweeps (and split-impulse position sweeps) over batched contacts.",
     roles={"constraints": "inout", "bodies": "inout", "split": "inout"},
+    requires=lambda v: ("resident_bodies needs shape='gpu' (one work group solves everything)"
+                        if v["resident_bodies"] and v["shape"] != "gpu" else None),
     defaults=lambda traits: {"friction": "point", "work_group_size": default_work_group_size(traits),
                              "max_batches": 128, "shape": traits.kind, "split_impulse": True,
                              "normal_solve": "block", "resident_bodies": 0,
