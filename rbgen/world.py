@@ -60,7 +60,9 @@ MAX_REDOS = 16
 
 def _default_normal_solve(batching_mode: str, solver_shape: str) -> str:
     """The normal solve that holds stacks (10 iterations, dt 1/60, manifold friction):
-    block, except sequential for the cpu shape with components or slabs batching.
+    block, except sequential for the cpu shape with components, columns or slabs batching
+    (each keeps a stack whole in one group; with columns and block on PoCL a tipped
+    column keeps rocking).
 
     H200, gpu shape: top motion of a 20-row pyramid in 600 steps / max speed of a dropped
     8,000-box pile at step 300 / sideways drift of a 10-box column in 600 steps:
@@ -77,7 +79,7 @@ def _default_normal_solve(batching_mode: str, solver_shape: str) -> str:
     keep a stack top rocking, and block costs 8x the sequential solve there (2x on the
     H200). Cells with the cpu shape needs block: sequential lets the 10-box column drift
     9 cm (the colours split a column between launches)."""
-    if solver_shape == "cpu" and batching_mode in ("components", "slabs"):
+    if solver_shape == "cpu" and batching_mode in ("components", "columns", "slabs"):
         return "sequential"
     return "block"
 
@@ -116,7 +118,8 @@ class World:
     colours every constraint and one solves them all with the velocities in
     local memory, one launch each a step; "components": one solver launch per
     step, one work group (GPU) or work-item (CPU) per pile; "cells": 9
-    launches per sweep, piles spread over the device; "slabs": 3 launches per
+    launches per sweep, piles spread over the device; "columns": cells that run along
+    gravity, 5 launches per sweep, a stack whole in one group; "slabs": 3 launches per
     sweep, piles spread over a few cores in slabs across the widest horizontal
     axis of the bodies when they were last set), ``group_count``
     (solver groups per colour), ``manifold_capacity`` and
@@ -351,6 +354,7 @@ class World:
                                                        self._automatic_batching(n))
         self._batcher.cell_size = self._cell_size()
         self._batcher.slab_axis = self._slab_axis()
+        self._batcher.column_axes = self._column_axes()
         self._ensure_manifolds(self._initial_manifolds or MANIFOLDS_PER_BODY * max(n, 16))
         self._device_stale = False
 
@@ -410,6 +414,12 @@ class World:
         spread = positions.max(axis=0) - positions.min(axis=0)
         best = max(candidates, key=lambda axis: spread[axis])
         return tuple(float(i == best) for i in range(3))
+
+    def _column_axes(self) -> tuple:
+        """Batching columns: along the coordinate axis most along gravity (when the bodies
+        were last set), so the columns' cross-section spans the other two."""
+        across = sorted(np.argsort(np.abs(self.gravity))[:2])
+        return tuple(tuple(float(i == axis) for i in range(3)) for axis in across)
 
     # ------------------------------------------------------------- stepping
     def step(self, dt: float, substeps: int = 1) -> None:

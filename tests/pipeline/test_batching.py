@@ -42,7 +42,7 @@ def run_device(runtime, a, b, dynamic, rng=None, **kwargs):
     cons = layouts.CONTACT_CONSTRAINT.zeros(max(1, len(a)))
     cons["body_a"][: len(a)], cons["body_b"][: len(a)] = a, b
     cons["r_b"][:, 0, :3] = rng.uniform(-0.3, 0.3, (len(cons), 3))
-    if kwargs.get("mode") in ("cells", "slabs"):
+    if kwargs.get("mode") in ("cells", "columns", "slabs"):
         kwargs.setdefault("cell_size", 1.5)
     capacity = len(a) + 7  # launches over capacity, count on the device
     d_cons = cl_array.to_device(queue, np.resize(cons, capacity) if len(a) else cons)
@@ -106,7 +106,7 @@ def check_invariants(batcher, a, b, dynamic, order, offsets, batch_counts, group
 
 
 @pytest.mark.parametrize("shape", ["gpu", "cpu"])
-@pytest.mark.parametrize("mode", ["components", "cells", "slabs"])
+@pytest.mark.parametrize("mode", ["components", "cells", "columns", "slabs"])
 @pytest.mark.parametrize("n_bodies,n_constraints", [(1, 0), (2, 1), (9, 31), (100, 333),
                                                    (2000, 5003)])
 def test_batches_are_independent(runtime, rng, n_bodies, n_constraints, mode, shape):
@@ -189,6 +189,46 @@ def test_single_mode_refuses_more_bodies_than_its_marks(runtime, rng):
         ConstraintBatcher(runtime, mode="single", shape="cpu")
 
 
+@pytest.mark.parametrize("shape", ["gpu", "cpu"])
+def test_columns_keep_each_stack_in_one_group(runtime, rng, shape):
+    """Columns mode: stacks 8 boxes tall on a 6 x 6 grid (pitch 1.6 m, cell 1.5 m), contacts
+    between vertical neighbours and the ground: every stack's constraints share one group
+    (the cells of a column run along gravity), stacks spread over many groups, and
+    nothing lands in the leftovers (no body is wider than a cell)."""
+    side, height = 6, 8
+    positions, a, b = [[0.0, -1.0, 0.0]], [], []
+    for x in range(side):
+        for z in range(side):
+            below = 0
+            for level in range(height):
+                positions.append([1.6 * x + 0.7, 0.5 + level, 1.6 * z + 0.7])
+                a.append(below)
+                b.append(len(positions) - 1)
+                below = len(positions) - 1
+    positions = np.array(positions)
+    bodies = layouts.BODY.zeros(len(positions))
+    bodies["inv_mass"][1:] = 1.0
+    bodies["position"][:, :3] = positions
+    a, b = np.array(a, np.uint32), np.array(b, np.uint32)
+    cons = layouts.CONTACT_CONSTRAINT.zeros(len(a))
+    cons["body_a"], cons["body_b"] = a, b
+    cons["r_b"][:, 0, :3] = [0.2, -0.5, 0.2]
+    queue = runtime.queue
+    batcher = ConstraintBatcher(runtime, mode="columns", group_count=50, cell_size=1.5,
+                                shape=shape)
+    d_cons = cl_array.to_device(queue, cons)
+    count = cl_array.to_device(queue, np.array([len(cons)], np.uint32))
+    batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
+    order, offsets, batch_counts = batcher.read_batches()
+    groups = d_cons.get()["group"]
+    check_invariants(batcher, a, b, bodies["inv_mass"] > 0, order[: len(cons)], offsets,
+                     batch_counts, groups)
+    stacks = groups.reshape(side * side, height)
+    assert np.all(stacks == stacks[:, :1]), "a stack split over groups"
+    assert not np.any(groups == batcher.launch_plan[-1][0]), "leftovers"
+    assert len(np.unique(groups)) > 12 and batcher.colours == 5
+
+
 def test_host_reference_colours_properly(rng):
     a, b, dynamic = random_graph(rng, 50, 200)
     batches = batch_host(a, b, dynamic)
@@ -236,7 +276,7 @@ def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rn
     assert np.count_nonzero(touching == leftover) >= 1
 
 
-@pytest.mark.parametrize("mode", ["components", "cells", "slabs"])
+@pytest.mark.parametrize("mode", ["components", "cells", "columns", "slabs"])
 def test_cpu_shape_lists_each_group_once_in_index_order_twice_running(runtime, rng, mode):
     """CPU shape: each group's constraints are listed in index order (one work-item lists
     them, no atomics decide the order), and the count on the device may be below the
