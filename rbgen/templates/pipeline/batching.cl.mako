@@ -77,17 +77,7 @@ ${cl_structs("ContactConstraint", "Body")}
 #define BATCH_COLOURS (CELL_COLOURS + 1)
 % endif
 
-/* A bijective mix of 32-bit integers (lowbias32): distinct constraints get
- * distinct, well spread priorities and groups. */
-inline uint mix32(uint x)
-{
-    x ^= x >> 16;
-    x *= 0x7feb352du;
-    x ^= x >> 15;
-    x *= 0x846ca68bu;
-    x ^= x >> 16;
-    return x;
-}
+<%include file="/common/hash.cl.mako"/>
 
 inline bool is_dynamic(__global const Body* bodies, uint body)
 {

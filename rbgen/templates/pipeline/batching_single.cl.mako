@@ -34,17 +34,7 @@ ${cl_structs("ContactConstraint", "Body")}
 #define COLOURS ${colours}
 #define MAX_BODIES ${max_bodies}
 
-/* A bijective mix of 32-bit integers (lowbias32): distinct constraints get
- * distinct, well spread priorities. */
-inline uint mix32(uint x)
-{
-    x ^= x >> 16;
-    x *= 0x7feb352du;
-    x ^= x >> 15;
-    x *= 0x846ca68bu;
-    x ^= x >> 16;
-    return x;
-}
+<%include file="/common/hash.cl.mako"/>
 
 /* index of the lowest clear bit of the 64-bit mask (lo, hi); COLOURS if none */
 inline uint lowest_free(uint lo, uint hi)
