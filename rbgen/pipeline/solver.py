@@ -54,7 +54,7 @@ FRICTION_MODELS = ("point", "manifold")
 #: how a manifold's normal rows are solved (see the template parameter "normal_solve")
 NORMAL_SOLVES = ("block", "sequential")
 #: what the block solve does with manifolds its closed forms leave (template parameter)
-BLOCK_FALLBACKS = ("rows", "cg", "cg_velocities", "cg_positions")
+BLOCK_FALLBACKS = ("cg", "rows")
 #: kernel shapes (see the template parameter "shape")
 SHAPES = ("gpu", "cpu")
 
@@ -84,13 +84,11 @@ TEMPLATE = KernelTemplate(
         Param("block_fallback", BLOCK_FALLBACKS,
               "block normal solve, manifolds that neither closed form takes (3-4 points not "
               "all pushing, nearly coincident points): cg (conjugate gradients with releases, "
-              "exact; the default), rows (left to rows solved one after another), or cg in "
-              "one kind of sweep only (cg_velocities, cg_positions). H100, BoxBox, ms a step "
-              "with cg / cg_velocities / rows: 2.90 / 2.59 / 1.54 at 1,000 boxes, 6.70 / "
-              "5.80 / 2.96 at 8,000, 7.71 / 6.74 / 3.91 at 27,000. But with rows in the "
-              "velocity sweeps a tipped 5-box column keeps rocking, and with the two kinds of "
-              "sweep solved differently a dropped 4x4x4 grid keeps a box moving: only cg "
-              "passes every stacking test"),
+              "exact; the default) or rows (left to rows solved one after another). H100, "
+              "BoxBox, ms a step with cg / rows: 2.90 / 1.54 at 1,000 boxes, 6.70 / 2.96 at "
+              "8,000, 7.71 / 3.91 at 27,000; but with rows a tipped 5-box column keeps "
+              "rocking (and cg in the velocity sweeps only, 2.59 / 5.80 / 6.74, left a "
+              "dropped 4x4x4 grid with a box moving): only cg passes every stacking test"),
         Param("friction", FRICTION_MODELS,
               "point: two tangent rows per contact point; manifold: one tangent pair at the "
               "points' centre plus a twist row (fewer rows, Bullet3's GPU choice)"),

@@ -338,7 +338,7 @@ bool solve_two_points(const uint count, const float3 n,
  * active sets (solve_two_points): conjugate gradients are left to the rare
  * rest, which on a GPU matters beyond their own cost: a warp runs them
  * whenever one of its 32 manifolds needs them (on an H100 they make a
- * velocity sweep nearly twice as long). With exact_fallback false they are
+ * velocity sweep nearly twice as long). With block_fallback "rows" they are
  * skipped: false is returned, and the caller solves the rows one after
  * another. Updates the velocities in place. */
 bool solve_normal_block(const uint count, const float3 n, const float3 t1, const float3 t2,
@@ -346,7 +346,7 @@ bool solve_normal_block(const uint count, const float3 n, const float3 t1, const
                         const float relaxation,
                         float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
                         float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
-                        const float target[4], float lambda[4], const bool exact_fallback)
+                        const float target[4], float lambda[4])
 {
     if (count >= 3 && solve_flat_points(count, n, t1, t2, r_a, r_b, relaxation, inv_mass_a,
                                         inv_inertia_a, va, wa, inv_mass_b, inv_inertia_b, vb,
@@ -356,9 +356,9 @@ bool solve_normal_block(const uint count, const float3 n, const float3 t1, const
                                        inv_inertia_a, va, wa, inv_mass_b, inv_inertia_b, vb,
                                        wb, target, lambda))
         return true;
-    /* (a constant at each call: the compiler keeps only one branch) */
-    if (!exact_fallback)
-        return false;  /* the rest is left to rows solved one after another */
+% if block_fallback == "rows":
+    return false;  /* the rest is left to rows solved one after another */
+% else:
     /* Loops run to the constant RB_MAX_MANIFOLD_POINTS and test `count` inside, so
      * that compilers unroll them and keep these small arrays in registers (with a
      * runtime trip count NVIDIA's compiler put them in slow private memory). */
@@ -463,6 +463,7 @@ bool solve_normal_block(const uint count, const float3 n, const float3 t1, const
         *wb += mul_rows(inv_inertia_b, arm_b[k] * change);
     }
     return true;
+% endif
 }
 
 % endif
@@ -714,7 +715,7 @@ void solve_contact(__private ContactConstraint* c, __private ContactBodies* p,
     solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a, c->r_b, relaxation,
                        p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa, p->inv_mass_b,
                        p->inv_inertia_b, &p->vb, &p->wb, target,
-                       normal_impulse, ${"true" if block_fallback in ("cg", "cg_velocities") else "false"});
+                       normal_impulse);
     /* then the rows one after another: no change where the block was exact;
      * completes a point the block released while it still approaches */
 % endif
@@ -793,7 +794,7 @@ void solve_push(__private ContactConstraint* c, __private ContactBodies* p, cons
     solved = solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a, c->r_b,
                                 relaxation, p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa,
                                 p->inv_mass_b, p->inv_inertia_b, &p->vb, &p->wb, target,
-                                push_impulse, ${"true" if block_fallback in ("cg", "cg_positions") else "false"});
+                                push_impulse);
 % endif
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count && !solved)
         solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[k], target[k],
