@@ -150,6 +150,17 @@ def default_group_count(traits: DeviceTraits) -> int:
     return max(1, min(1024, (2 if traits.is_gpu else 8) * traits.compute_units))
 
 
+def _unit4(vector, name: str) -> np.ndarray:
+    """A direction as the float4 kernel argument (unit length, w = 0); a zero or
+    non-finite one is refused, naming the setting."""
+    axis = np.zeros(4, np.float32)
+    axis[:3] = vector
+    norm = float(np.linalg.norm(axis))
+    if not np.isfinite(norm) or norm == 0.0:
+        raise RbgenError(f"{name} must be a non-zero finite vector, got {vector!r}")
+    return axis / norm
+
+
 def batch_host(body_a, body_b, dynamic) -> np.ndarray:
     """Reference: sequential first-fit colouring; returns the batch of every constraint.
 
@@ -338,24 +349,10 @@ class ConstraintBatcher:
                                np.uint32(self.groups_per_colour)).launch(g * wg, wg)
 
     def _column_axes(self) -> tuple:
-        axes = []
-        for axis in self.column_axes:
-            v = np.zeros(4, np.float32)
-            v[:3] = axis
-            norm = float(np.linalg.norm(v))
-            if not np.isfinite(norm) or norm == 0.0:
-                raise RbgenError(f"column_axes must be non-zero finite vectors, got "
-                                 f"{self.column_axes!r}")
-            axes.append(v / norm)
-        return tuple(axes)
+        return tuple(_unit4(axis, "column_axes") for axis in self.column_axes)
 
     def _slab_axis(self) -> np.ndarray:
-        axis = np.zeros(4, np.float32)
-        axis[:3] = self.slab_axis
-        norm = float(np.linalg.norm(axis))
-        if not np.isfinite(norm) or norm == 0.0:
-            raise RbgenError(f"slab_axis must be a non-zero finite vector, got {self.slab_axis!r}")
-        return axis / norm
+        return _unit4(self.slab_axis, "slab_axis")
 
     def read_batches(self):
         """Host copy of the result (tests, statistics): (order, per-group batch offsets, counts).

@@ -227,6 +227,9 @@ def test_columns_keep_each_stack_in_one_group(runtime, rng, shape):
     assert np.all(stacks == stacks[:, :1]), "a stack split over groups"
     assert not np.any(groups == batcher.launch_plan[-1][0]), "leftovers"
     assert len(np.unique(groups)) > 12 and batcher.colours == 5
+    batcher.column_axes = ((1.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    with pytest.raises(RbgenError, match="column_axes"):
+        batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
 
 
 def test_host_reference_colours_properly(rng):
