@@ -36,6 +36,26 @@ SQUARE = np.array([[0.5, 0, 0.5], [-0.5, 0, 0.5], [0.5, 0, -0.5], [-0.5, 0, -0.5
 SHAPES = ["gpu", "cpu", "resident"]
 
 
+def stacked_columns(columns, height, pitch, separations, side_contacts=False):
+    """Body 0 the static ground, then columns of unit boxes ``pitch`` apart along x, each
+    box on a 4-point manifold to the one below (separations from ``separations()``) and,
+    with ``side_contacts``, on one to its neighbour in the column before: (positions,
+    manifolds in build order)."""
+    positions, manifolds = [[0, 0, 0]], []
+    for col in range(columns):
+        for level in range(height):
+            positions.append([pitch * col, 0.5 + level, 0])
+            i = len(positions) - 1
+            below = 0 if level == 0 else i - 1
+            manifolds.append(make_manifold(below, i, [0, 1, 0], np.array(positions[i]) + SQUARE
+                                           - [0, 0.5, 0], separations()))
+            if side_contacts and col:
+                manifolds.append(make_manifold(i - height, i, [1, 0, 0], np.array(positions[i])
+                                               + SQUARE[:, [1, 0, 2]] * [0, 0.8, 0.8]
+                                               - [pitch / 2, 0, 0], [-0.002] * 4))
+    return np.array(positions), manifolds
+
+
 def shaped_rig(runtime, bodies, inv_inertia, shape, *, penetration="split", warm_start=True,
                group_count=3, work_group_size=None, batching="components", friction="point"):
     """A ContactRig whose batcher and solver have the given kernel shape ("resident": the
@@ -187,17 +207,8 @@ def test_stacked_columns_end_resting(runtime, rng, shape, work_group_size, batch
     (in cells mode each column spans several cells and colours) and both shapes (cpu with
     2 groups per work group: the leftover launch has one idle); PGS converges slowly on
     the lateral drift its point ordering creates, which friction removes (< 10% of v)."""
-    columns, height, speed = 17, 6, 1.0
-    positions = [[0, 0, 0]]
-    manifolds = []
-    for col in range(columns):
-        for level in range(height):
-            positions.append([3.0 * col, 0.5 + level, 0])
-            i = len(positions) - 1
-            below = 0 if level == 0 else i - 1
-            manifolds.append(make_manifold(below, i, [0, 1, 0], np.array(positions[i]) + SQUARE
-                                           - [0, 0.5, 0], [0.0] * 4))
-    positions = np.array(positions)
+    speed = 1.0
+    positions, manifolds = stacked_columns(17, 6, 3.0, lambda: [0.0] * 4)
     n = len(positions)
     velocities = np.tile([0, -speed, 0], (n, 1))
     velocities[0] = 0
@@ -249,20 +260,8 @@ def test_resident_solve_matches_the_global_one_bit_for_bit(runtime, rng):
     """Over the same single-mode batches, the resident solve (velocities in local memory)
     does the global solve's arithmetic in the same order: equal results, velocities,
     push velocities and impulses alike, for a pile of columns with warm starting."""
-    columns, height = 7, 5
-    positions, manifolds = [[0, 0, 0]], []
-    for col in range(columns):
-        for level in range(height):
-            positions.append([1.2 * col, 0.5 + level, 0])
-            i = len(positions) - 1
-            below = 0 if level == 0 else i - 1
-            manifolds.append(make_manifold(below, i, [0, 1, 0], np.array(positions[i]) + SQUARE
-                                           - [0, 0.5, 0], rng.uniform(-0.01, 0.0, 4)))
-            if col:  # a side contact with the column before
-                manifolds.append(make_manifold(i - height, i, [1, 0, 0], np.array(positions[i])
-                                               + SQUARE[:, [1, 0, 2]] * [0, 0.8, 0.8]
-                                               - [0.6, 0, 0], [-0.002] * 4))
-    positions = np.array(positions)
+    positions, manifolds = stacked_columns(7, 5, 1.2, lambda: rng.uniform(-0.01, 0.0, 4),
+                                           side_contacts=True)
     n = len(positions)
     velocities = rng.uniform(-1, 1, (n, 3))
     velocities[0] = 0
