@@ -45,6 +45,18 @@ _WITH_VALUES = Param("with_values", (True, False), "move a uint value with every
 _WAVEFRONT = Param("wavefront", (32, 64), "segment width of the work-group scan")
 
 
+def _tile_params(radix_bits: str, work_group_size: str, work_group_text: str,
+                 items_per_thread: str) -> list[Param]:
+    """The parameters every tile shape takes; the docs say what each shape does with them."""
+    return [
+        _WITH_VALUES,
+        Param("radix_bits", (4, 8), radix_bits),
+        Param("work_group_size", power_of_two(32, 1024), work_group_size, work_group_text),
+        Param("items_per_thread", (1, 2, 4, 8, 16, 32), items_per_thread),
+        _WAVEFRONT,
+    ]
+
+
 class _TileTemplate(PrimitiveTemplate):
     """The tile shapes also include the kernels they share."""
 
@@ -53,16 +65,10 @@ class _TileTemplate(PrimitiveTemplate):
 
 TILED = _TileTemplate(
     "primitives/radix_sort_tiled.cl.mako",
-    [
-        _WITH_VALUES,
-        Param("radix_bits", (4, 8),
-              "bits per pass: 8 halves the passes but needs 16x the local counters"),
-        Param("work_group_size", power_of_two(32, 1024),
-              "work-items per tile; RADIX * WG counters must fit in local memory",
-              "a power of two from 32 to 1024, at least the wavefront"),
-        Param("items_per_thread", (1, 2, 4, 8, 16, 32),
-              "consecutive keys ranked serially by each work-item"),
-        _WAVEFRONT,
+    _tile_params("bits per pass: 8 halves the passes but needs 16x the local counters",
+                 "work-items per tile; RADIX * WG counters must fit in local memory",
+                 "a power of two from 32 to 1024, at least the wavefront",
+                 "consecutive keys ranked serially by each work-item") + [
         Param("counter_type", ("uint", "ushort"),
               "local rank counters: ushort halves their local memory (tiles < 65536 keys)"),
     ],
@@ -73,17 +79,11 @@ TILED = _TileTemplate(
 
 SPLIT = _TileTemplate(
     "primitives/radix_sort_split.cl.mako",
-    [
-        _WITH_VALUES,
-        Param("radix_bits", (4, 8),
-              "bits per pass, ranked by one or two 4-bit splits of the tile: 8 halves the passes"),
-        Param("work_group_size", power_of_two(32, 1024),
-              "work-items per tile; 8 packed counters each, plus the tile, in local memory",
-              "a power of two from 32 to 1024, at least the wavefront"),
-        Param("items_per_thread", (1, 2, 4, 8, 16, 32),
-              "consecutive keys ranked serially by each work-item: amortises the scans"),
-        _WAVEFRONT,
-    ],
+    _tile_params("bits per pass, ranked by one or two 4-bit splits of the tile: 8 halves the "
+                 "passes",
+                 "work-items per tile; 8 packed counters each, plus the tile, in local memory",
+                 "a power of two from 32 to 1024, at least the wavefront",
+                 "consecutive keys ranked serially by each work-item: amortises the scans"),
     doc="Radix sort pass kernels, GPU shape: tile histograms, tile sorted by 4-bit splits.",
     roles={"keys": "inout"},
     defaults=lambda traits: _template_defaults(traits, "split"),
@@ -91,16 +91,11 @@ SPLIT = _TileTemplate(
 
 ONESWEEP = _TileTemplate(
     "primitives/radix_sort_onesweep.cl.mako",
-    [
-        _WITH_VALUES,
-        Param("radix_bits", (4, 8), "bits per pass, ranked by one or two 4-bit splits of the tile"),
-        Param("work_group_size", power_of_two(32, 1024),
-              "work-items per tile, at least one per digit (each looks back for its digit)",
-              "a power of two from 32 to 1024, at least the wavefront and 2^radix_bits"),
-        Param("items_per_thread", (1, 2, 4, 8, 16, 32),
-              "consecutive keys ranked serially by each work-item: amortises scans and look-back"),
-        _WAVEFRONT,
-    ],
+    _tile_params("bits per pass, ranked by one or two 4-bit splits of the tile",
+                 "work-items per tile, at least one per digit (each looks back for its digit)",
+                 "a power of two from 32 to 1024, at least the wavefront and 2^radix_bits",
+                 "consecutive keys ranked serially by each work-item: amortises scans and "
+                 "look-back"),
     doc="Radix sort, one launch per pass: digit totals once, tile look-back for tile offsets.",
     roles={"keys": "inout"},
     defaults=lambda traits: _template_defaults(traits, "onesweep"),
