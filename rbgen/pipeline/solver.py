@@ -150,10 +150,7 @@ class ContactSolver:
         if self.shape not in SHAPES:
             raise RbgenError(f"shape must be one of {SHAPES}, got {shape!r}")
         self.resident_bodies = int(resident_bodies)
-        if self.resident_bodies:
-            if self.shape != "gpu":
-                raise RbgenError("resident_bodies needs the gpu shape (one work group solves "
-                                 "everything)")
+        if self.resident_bodies:  # (the gpu shape is the template's rule)
             capacity = resident_capacity(runtime.traits)
             if not 0 < self.resident_bodies <= capacity:
                 raise RbgenError(f"resident_bodies={self.resident_bodies} does not fit this "

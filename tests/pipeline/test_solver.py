@@ -288,7 +288,7 @@ def test_resident_solve_matches_the_global_one_bit_for_bit(runtime, rng):
 def test_resident_solve_refuses_what_does_not_fit(runtime):
     """A resident solver needs the gpu shape, one group (single batching) and a body
     count within its local memory; each refusal names what is wrong."""
-    with pytest.raises(RbgenError, match="gpu shape"):
+    with pytest.raises(RbgenError, match="resident_bodies needs shape='gpu'"):
         ContactSolver(runtime, shape="cpu", resident_bodies=64)
     with pytest.raises(RbgenError, match="local memory"):
         ContactSolver(runtime, shape="gpu", resident_bodies=1 << 16)
