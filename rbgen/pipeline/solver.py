@@ -53,8 +53,6 @@ from .batching import SINGLE_MAX_BODIES
 FRICTION_MODELS = ("point", "manifold")
 #: how a manifold's normal rows are solved (see the template parameter "normal_solve")
 NORMAL_SOLVES = ("block", "sequential")
-#: what the block solve does with manifolds its closed forms leave (template parameter)
-BLOCK_FALLBACKS = ("cg", "rows")
 #: kernel shapes (see the template parameter "shape")
 SHAPES = ("gpu", "cpu")
 
@@ -81,14 +79,6 @@ TEMPLATE = KernelTemplate(
               "constraints): the single work group keeps the velocities of up to N bodies in "
               "local memory (24 bytes a body) for the whole solve",
               "an integer from 0 to 65536"),
-        Param("block_fallback", BLOCK_FALLBACKS,
-              "block normal solve, manifolds that neither closed form takes (3-4 points not "
-              "all pushing, nearly coincident points): cg (conjugate gradients with releases, "
-              "exact; the default) or rows (left to rows solved one after another). H100, "
-              "BoxBox, ms a step with cg / rows: 2.90 / 1.54 at 1,000 boxes, 6.70 / 2.96 at "
-              "8,000, 7.71 / 3.91 at 27,000; but with rows a tipped 5-box column keeps "
-              "rocking (and cg in the velocity sweeps only, 2.59 / 5.80 / 6.74, left a "
-              "dropped 4x4x4 grid with a box moving): only cg passes every stacking test"),
         Param("friction", FRICTION_MODELS,
               "point: two tangent rows per contact point; manifold: one tangent pair at the "
               "points' centre plus a twist row (fewer rows, Bullet3's GPU choice)"),
@@ -99,8 +89,7 @@ TEMPLATE = KernelTemplate(
                         if v["resident_bodies"] and v["shape"] != "gpu" else None),
     defaults=lambda traits: {"friction": "point", "work_group_size": default_work_group_size(traits),
                              "max_batches": 128, "shape": traits.kind, "split_impulse": True,
-                             "normal_solve": "block", "resident_bodies": 0,
-                             "block_fallback": "cg"},
+                             "normal_solve": "block", "resident_bodies": 0},
 )
 
 
@@ -143,7 +132,7 @@ class ContactSolver:
     def __init__(self, runtime: Runtime, *, split_impulse: bool = True, max_batches: int = 128,
                  friction: str = "point", work_group_size: int | None = None,
                  normal_solve: str = "block", shape: str | None = None,
-                 resident_bodies: int = 0, block_fallback: str = "cg"):
+                 resident_bodies: int = 0):
         self.runtime = runtime
         self.split_impulse = bool(split_impulse)
         self.shape = shape or runtime.traits.kind
@@ -164,8 +153,7 @@ class ContactSolver:
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, max_batches=int(max_batches),
                                   shape=self.shape, split_impulse=self.split_impulse,
                                   friction=friction, normal_solve=normal_solve,
-                                  resident_bodies=self.resident_bodies,
-                                  block_fallback=block_fallback)
+                                  resident_bodies=self.resident_bodies)
         self._program = program = compile_spec(runtime, self.spec)
         if self.split_impulse:
             self.apply_kernel = runtime.bound(program.kernel("apply_split_velocities"))

@@ -21,11 +21,11 @@
  * velocity to its target),
 % if normal_solve == "block":
  * all points' normal rows of a manifold solved together as one block
- * (solve_normal_block: exact for the points that stay pushing, so that the
- * result does not depend on the order of the points: solving them one after
- * another leaves a residual torque that tips a symmetric column from its
- * first step and makes it lean or walk), then once more one after another
- * (forwards and backwards on alternate sweeps) for the points it released, then
+ * (solve_normal_block: the exact contact solution, so that the result does
+ * not depend on the order of the points: solving them one after another
+ * leaves a residual torque that tips a symmetric column from its first step
+ * and makes it lean or walk; rows one after another, forwards and backwards
+ * on alternate sweeps, only for the degenerate manifolds it declines), then
 % else:
  * all points' normal rows first, one after another, forwards and backwards
  * on alternate sweeps (always solving point 0 first biases a heavy stack's
@@ -92,37 +92,63 @@ inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, floa
 }
 
 % if normal_solve == "block":
-/* a pushing point counts as separating beyond its target above this fraction of the
- * largest right-hand side (float32 round-off of an exact solve stays far below) */
+/* a released point counts as approaching beyond its target, and a pushing
+ * point's target as missed, above this fraction of the largest right-hand side
+ * (float32 round-off of an exact solve stays far below) */
 #define OVERSHOOT_TOLERANCE 1e-4f
-/* below these ratios (det / product of the diagonal) the closed form leaves a
- * manifold to conjugate gradients: its points nearly on one line, or bodies
- * (almost) without rotational freedom */
+/* below these ratios (det / product of the diagonal) the closed forms leave a
+ * manifold to the rows: its points nearly on one line (or two coinciding), or
+ * bodies (almost) without rotational freedom, where K has fewer independent
+ * motions than the closed forms assume */
 #define FLAT_SPREAD_RATIO 1e-3f
 #define FLAT_MOBILITY_RATIO 1e-4f
 
-/* The common case of solve_normal_block in closed form: three or four points
- * of one face, all pushing. A normal row's Jacobian is affine in its point's
- * coordinates (u, v) in the contact plane about the points' centre (the
- * lever arm's part along n drops out of r x n): arm_a[k] = A0 + u_k A1 +
- * v_k A2, likewise for B, so K = G Q G^T with the rows g_k = (1, u_k, v_k)
- * of G and the 3x3 mobility Q of the face (force and two moments). The
- * smallest totals with K total = rhs (what conjugate gradients from zero
- * converge to) are total = G M^-1 Q^-1 M^-1 G^T rhs with M = G^T G (for
- * three points, G^-T Q^-1 G^-1 rhs: the one solution), and the velocity they
- * leave misses each target by the residual of the affine least-squares fit
- * of the targets (0 for three points). Returns false, changing nothing,
- * unless no point overshoots its target (the targets fit one rigid motion)
- * and every new impulse stays >= 0, or but one of four would pull (see
- * below); and when the points lie nearly on one line or Q is nearly
- * singular: then the general solve decides. */
-bool solve_flat_points(const uint count, const float3 n, const float3 t1, const float3 t2,
+/* Three or four points of one face: the contact problem K total = rhs on the
+ * pushing points, total >= 0, and every released point reaching at least its
+ * target, solved exactly.
+ *
+ * A normal row's Jacobian is affine in its point's coordinates (u, v) in the
+ * contact plane about the points' centre (the lever arm's part along n drops
+ * out of r x n): arm_a[k] = A0 + u_k A1 + v_k A2, likewise for B, so
+ * K = G Q G^T with the rows g_k = (1, u_k, v_k) of G and the 3x3 mobility Q
+ * of the face (normal velocity and two tilt rates per unit of force and of
+ * the two moments). An impulse set acts through its wrench G^T total only,
+ * and the normal velocity it adds at point k is g_k . Q wrench. K is PSD, so
+ * every solution of the contact problem leaves the same velocities; they
+ * differ only in how the impulse is shared, which is what the order below
+ * decides.
+ *
+ * 1. All points pushing: the smallest totals with K total = rhs, total =
+ *    G M^-1 Q^-1 M^-1 G^T rhs with M = G^T G (for three points, the one
+ *    solution G^-T Q^-1 G^-1 rhs): evenly spread, no drift of the share
+ *    between the points from step to step. Valid when the targets fit one
+ *    rigid motion (the affine least-squares fit of rhs misses no point) and
+ *    no total is negative: a face resting on a face, nearly always.
+ * 2. Else (a corner still apart beside touching ones, a corner that would
+ *    pull, the kink of the split-impulse slop) the active sets in turn, the
+ *    larger first: three of four points (the plane p through their rhs, the
+ *    wrench Q^-1 p, and the totals its barycentric split: cofactors c_i =
+ *    g_j x g_l, D = g_i . c_i); then two, one and none (K's entries
+ *    g_j . Q g_k). Among three-point sets that hold, the one releasing the
+ *    point whose all-pushing total is lowest: for targets that fit one rigid
+ *    motion the solutions lie on a line through the all-pushing totals, and
+ *    that is the one nearest them (the point that would pull the most).
+ * A least-squares compromise instead (what conjugate gradients without
+ * releases give) tilts the box towards the gap on every sweep and kept stacks
+ * of a dropped pile rocking for ever.
+ * Straight-line code, no iteration: on a GPU a warp pays for the rare case
+ * whenever one of its 32 manifolds takes it, so the rare case must be cheap.
+ * Returns false, changing nothing, when the points lie nearly on one line, Q
+ * is nearly singular, or round-off leaves no active set valid: the caller then
+ * solves the rows one after another. */
+bool solve_face_points(const uint count, const float3 n, const float3 t1, const float3 t2,
                        __private const float4* r_a, __private const float4* r_b,
                        const float relaxation,
                        float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
                        float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
                        const float target[4], float lambda[4])
 {
+    const bool four = count == 4;
     const float share = 1.0f / (float)count;
     float3 centre_a = (float3)(0.0f), centre_b = (float3)(0.0f);
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
@@ -130,22 +156,18 @@ bool solve_flat_points(const uint count, const float3 n, const float3 t1, const 
     centre_a *= share;
     centre_b *= share;
     /* M = G^T G = diag(count, spread): the points' second moments in the plane */
-    float u[4], v[4], suu = 0.0f, suv = 0.0f, svv = 0.0f;
-    float target_mean = 0.0f, target_u = 0.0f, target_v = 0.0f;
+    float u[4] = {0.0f, 0.0f, 0.0f, 0.0f}, v[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+    float suu = 0.0f, suv = 0.0f, svv = 0.0f;
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         float3 d = r_a[k].xyz - centre_a;
         u[k] = dot3(d, t1);
         v[k] = dot3(d, t2);
         suu += u[k] * u[k], suv += u[k] * v[k], svv += v[k] * v[k];
-        target_mean += share * target[k], target_u += u[k] * target[k], target_v += v[k] * target[k];
     }
     float spread_det = suu * svv - suv * suv;
     if (!(spread_det > FLAT_SPREAD_RATIO * suu * svv))
         return false;
     float inv_spread = 1.0f / spread_det;
-    /* the targets' affine fit (mean, slope along u, slope along v) */
-    float fit_u = (svv * target_u - suv * target_v) * inv_spread;
-    float fit_v = (suu * target_v - suv * target_u) * inv_spread;
 
     /* Q[i][j]: normal velocity change of motion i per unit of wrench j (rows
      * of G: force, moment along u, moment along v) */
@@ -162,99 +184,136 @@ bool solve_flat_points(const uint count, const float3 n, const float3 t1, const 
             q[i][j] = q[j][i] = dot3(arm_a[i], turn_a[j]) + dot3(arm_b[i], turn_b[j]);
     q[0][0] += inv_mass_a + inv_mass_b;
     /* Q^-1 by cofactors */
-    float c00 = q[1][1] * q[2][2] - q[1][2] * q[1][2];
-    float c01 = q[0][2] * q[1][2] - q[0][1] * q[2][2];
-    float c02 = q[0][1] * q[1][2] - q[0][2] * q[1][1];
-    float c11 = q[0][0] * q[2][2] - q[0][2] * q[0][2];
-    float c12 = q[0][1] * q[0][2] - q[0][0] * q[1][2];
-    float c22 = q[0][0] * q[1][1] - q[0][1] * q[0][1];
-    float q_det = q[0][0] * c00 + q[0][1] * c01 + q[0][2] * c02;
+    float3 q_row0 = (float3)(q[0][0], q[0][1], q[0][2]);
+    float3 q_row1 = (float3)(q[1][0], q[1][1], q[1][2]);
+    float3 q_row2 = (float3)(q[2][0], q[2][1], q[2][2]);
+    float3 inv_q0 = cross3(q_row1, q_row2), inv_q1 = cross3(q_row2, q_row0);
+    float3 inv_q2 = cross3(q_row0, q_row1);
+    float q_det = dot3(q_row0, inv_q0);
     if (!(q_det > FLAT_MOBILITY_RATIO * q[0][0] * q[1][1] * q[2][2]))
         return false;
-
-    /* the normal velocity (affine in u, v) and the wrench of the current impulses */
-    float3 dw = *wb - *wa;
-    float speed[3] = {dot3(n, *vb - *va) + dot3(*wb, arm_b[0]) - dot3(*wa, arm_a[0]),
-                      dot3(dw, arm_a[1]), dot3(dw, arm_a[2])};
-    float wrench[3] = {0.0f, 0.0f, 0.0f};
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-        wrench[0] += lambda[k], wrench[1] += u[k] * lambda[k], wrench[2] += v[k] * lambda[k];
-    /* y = M^-1 G^T rhs, rhs = target - velocity + K lambda: the motion to reach */
-    float y[3], tolerance = 0.0f;
-    for (uint i = 0; i < 3; ++i)
-        y[i] = q[i][0] * wrench[0] + q[i][1] * wrench[1] + q[i][2] * wrench[2] - speed[i];
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-        tolerance = max1(tolerance, OVERSHOOT_TOLERANCE
-                                    * abs1(target[k] + y[0] + u[k] * y[1] + v[k] * y[2]));
-    y[0] += target_mean, y[1] += fit_u, y[2] += fit_v;
-    /* z = Q^-1 y, then x = M^-1 z: total_k = x0 + u_k x1 + v_k x2 */
     float inv_q_det = 1.0f / q_det;
-    float z0 = (c00 * y[0] + c01 * y[1] + c02 * y[2]) * inv_q_det;
-    float z1 = (c01 * y[0] + c11 * y[1] + c12 * y[2]) * inv_q_det;
-    float z2 = (c02 * y[0] + c12 * y[1] + c22 * y[2]) * inv_q_det;
-    float x0 = share * z0;
-    float x1 = (svv * z1 - suv * z2) * inv_spread;
-    float x2 = (suu * z2 - suv * z1) * inv_spread;
-    float total[4];
-    uint pulls = 0, pulling = 0;
-    bool overshoot = false;
+    inv_q0 *= inv_q_det, inv_q1 *= inv_q_det, inv_q2 *= inv_q_det;
+
+    /* the normal velocity now (affine in u, v), and the wrench of the current
+     * impulses; rhs_k = target_k - velocity_k + (K lambda)_k, what K total must reach */
+    float3 dw = *wb - *wa;
+    float3 speed = (float3)(dot3(n, *vb - *va) + dot3(*wb, arm_b[0]) - dot3(*wa, arm_a[0]),
+                            dot3(dw, arm_a[1]), dot3(dw, arm_a[2]));
+    float3 wrench = (float3)(0.0f);
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        wrench += (float3)(1.0f, u[k], v[k]) * lambda[k];
+    float3 reached = (float3)(dot3(q_row0, wrench), dot3(q_row1, wrench), dot3(q_row2, wrench))
+                   - speed;
+    float3 g[4];
+    float rhs[4], tolerance = 0.0f;
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) {
+        g[k] = (float3)(1.0f, u[k], v[k]);
+        rhs[k] = k < count ? target[k] + dot3(g[k], reached) : 0.0f;
+        tolerance = max1(tolerance, OVERSHOOT_TOLERANCE * abs1(rhs[k]));
+    }
+
+    /* 1. all pushing: the affine fit p of rhs, wrench z = Q^-1 p, totals G M^-1 z */
+    float3 fit = (float3)(0.0f);
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        fit += g[k] * rhs[k];
+    fit = (float3)(share * fit.x, (svv * fit.y - suv * fit.z) * inv_spread,
+                   (suu * fit.z - suv * fit.y) * inv_spread);
+    float3 z = (float3)(dot3(inv_q0, fit), dot3(inv_q1, fit), dot3(inv_q2, fit));
+    float3 x = (float3)(share * z.x, (svv * z.y - suv * z.z) * inv_spread,
+                        (suu * z.z - suv * z.y) * inv_spread);
+    float total[4], even[4];
+    bool valid = true;
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-        total[k] = x0 + u[k] * x1 + v[k] * x2;
-        overshoot = overshoot || target[k] - (target_mean + u[k] * fit_u + v[k] * fit_v) < -tolerance;
-        if (lambda[k] + relaxation * (total[k] - lambda[k]) < 0.0f)
-            ++pulls, pulling = k;
+        total[k] = even[k] = dot3(g[k], x);
+        valid = valid && total[k] >= 0.0f && abs1(rhs[k] - dot3(g[k], fit)) <= tolerance;
     }
-    if (pulls > 0) {
-        /* One of four points would pull, the targets fitting one rigid motion:
-         * the contact releases it, and the other three, solved exactly, reach
-         * the same targets, on the line of solutions total + t eta (K eta = 0:
-         * eta_k = +-det of the other three rows of G) where total_pulling = 0.
-         * Anything else is left to the general solve. */
-        if (pulls > 1 || count < 4 || overshoot)
-            return false;
-        /* (indices picked by compare, not array subscripts: registers on GPUs) */
-        float eta[4], eta_pulling = 0.0f, total_pulling = 0.0f;
-        for (uint k = 0; k < 4; ++k) {
-            uint i = k == 0 ? 1 : 0, j = k <= 1 ? 2 : 1, l = k <= 2 ? 3 : 2;
-            float area = (u[j] - u[i]) * (v[l] - v[i]) - (u[l] - u[i]) * (v[j] - v[i]);
-            eta[k] = (k & 1) ? -area : area;
-            if (k == pulling)
-                eta_pulling = eta[k], total_pulling = total[k];
+
+    if (!valid) {
+        /* 2a. three of four pushing, point m released */
+        float lowest = INFINITY;
+        for (uint m = 0; m < 4; ++m) if (four) {
+            /* (indices picked by compare, not array subscripts: registers on GPUs) */
+            uint i = m == 0 ? 1 : 0, j = m <= 1 ? 2 : 1, l = m <= 2 ? 3 : 2;
+            float3 c_i = cross3(g[j], g[l]), c_j = cross3(g[l], g[i]), c_l = cross3(g[i], g[j]);
+            float det = dot3(g[i], c_i);
+            if (!(abs1(det) > FLAT_SPREAD_RATIO * (suu + svv)))
+                continue;
+            float inv_det = 1.0f / det;
+            float3 plane = (c_i * rhs[i] + c_j * rhs[j] + c_l * rhs[l]) * inv_det;
+            float3 w3 = (float3)(dot3(inv_q0, plane), dot3(inv_q1, plane), dot3(inv_q2, plane));
+            float x_i = dot3(c_i, w3) * inv_det, x_j = dot3(c_j, w3) * inv_det;
+            float x_l = dot3(c_l, w3) * inv_det;
+            if (x_i >= 0.0f && x_j >= 0.0f && x_l >= 0.0f
+                && dot3(g[m], plane) >= rhs[m] - tolerance && even[m] < lowest) {
+                lowest = even[m], valid = true;
+                total[m] = 0.0f, total[i] = x_i, total[j] = x_j, total[l] = x_l;
+            }
         }
-        if (!(abs1(eta_pulling) > FLAT_SPREAD_RATIO * (suu + svv)))
-            return false;
-        float t = -total_pulling / eta_pulling;
-        for (uint k = 0; k < 4; ++k) {
-            total[k] = k == pulling ? 0.0f : total[k] + t * eta[k];
-            if (lambda[k] + relaxation * (total[k] - lambda[k]) < 0.0f && k != pulling)
-                return false;
-        }
-    } else if (overshoot) {
-        return false;
     }
+    if (!valid) {
+        /* 2b. two, one or none pushing: K's entries g_j . Q g_k */
+        float3 h[4];
+        float k_matrix[4][4];
+        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+            h[k] = (float3)(dot3(q_row0, g[k]), dot3(q_row1, g[k]), dot3(q_row2, g[k]));
+        for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j)
+            for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+                k_matrix[j][k] = dot3(g[j], h[k]);
+        for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i)
+            for (uint j = i + 1; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count && !valid) {
+                float kii = k_matrix[i][i], kij = k_matrix[i][j], kjj = k_matrix[j][j];
+                float det = kii * kjj - kij * kij;
+                if (!(det > FLAT_SPREAD_RATIO * kii * kjj))
+                    continue;
+                float x_i = (kjj * rhs[i] - kij * rhs[j]) / det;
+                float x_j = (kii * rhs[j] - kij * rhs[i]) / det;
+                bool holds = x_i >= 0.0f && x_j >= 0.0f;
+                for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i && m != j)
+                    holds = holds && k_matrix[m][i] * x_i + k_matrix[m][j] * x_j >= rhs[m] - tolerance;
+                if (holds) {
+                    valid = true;
+                    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+                        total[k] = k == i ? x_i : k == j ? x_j : 0.0f;
+                }
+            }
+        for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i) if (i < count && !valid) {
+            float x_i = positive_part(rhs[i]) / k_matrix[i][i];
+            bool holds = true;
+            for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i)
+                holds = holds && k_matrix[m][i] * x_i >= rhs[m] - tolerance;
+            if (holds) {
+                valid = true;
+                for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+                    total[k] = k == i ? x_i : 0.0f;
+            }
+        }
+        if (!valid)
+            return false;
+    }
+
     float change[4];
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         change[k] = positive_part(lambda[k] + relaxation * (total[k] - lambda[k])) - lambda[k];
     /* apply: the summed impulse and its moments */
-    float applied[3] = {0.0f, 0.0f, 0.0f};
+    float3 applied = (float3)(0.0f);
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         lambda[k] += change[k];
-        applied[0] += change[k], applied[1] += u[k] * change[k], applied[2] += v[k] * change[k];
+        applied += g[k] * change[k];
     }
-    *va -= n * (applied[0] * inv_mass_a);
-    *vb += n * (applied[0] * inv_mass_b);
-    *wa -= turn_a[0] * applied[0] + turn_a[1] * applied[1] + turn_a[2] * applied[2];
-    *wb += turn_b[0] * applied[0] + turn_b[1] * applied[1] + turn_b[2] * applied[2];
+    *va -= n * (applied.x * inv_mass_a);
+    *vb += n * (applied.x * inv_mass_b);
+    *wa -= turn_a[0] * applied.x + turn_a[1] * applied.y + turn_a[2] * applied.z;
+    *wb += turn_b[0] * applied.x + turn_b[1] * applied.y + turn_b[2] * applied.z;
     return true;
 }
 
-/* The common case of solve_normal_block for one or two points (an edge on a
- * face, a corner): the contact problem K total = rhs, total >= 0, with the
+/* solve_normal_block for one or two points (an edge on a face, a corner): the contact problem K total = rhs, total >= 0, with the
  * velocity reached at a released point no slower than its target, solved
  * exactly by trying the active sets in turn (both pushing, either alone,
  * none), which for a regular 2x2 K finds its unique solution. Returns false,
  * changing nothing, when the two points (nearly) coincide in K (det below
- * FLAT_SPREAD_RATIO of the diagonal's product): the general solve decides. */
+ * FLAT_SPREAD_RATIO of the diagonal's product): the rows decide. */
 bool solve_two_points(const uint count, const float3 n,
                       __private const float4* r_a, __private const float4* r_b,
                       const float relaxation,
@@ -312,35 +371,18 @@ bool solve_two_points(const uint count, const float3 n,
 }
 
 /* The normal rows of one manifold as a block: the accumulated impulses
- * lambda[k] (>= 0) of its `count` points are replaced by totals with which
- * every point that keeps a positive impulse reaches its normal velocity
- * target at once, K (total - lambda) = target - vn, with K[j][k] = the normal
- * velocity change at point j per unit impulse at point k. Points whose
- * impulse would turn negative are released (impulse 0) and the rest is
- * solved again, at most `count` rounds. K is singular for four points on one
- * face (only three of their motions are independent), so the totals are
- * found by conjugate gradients started from zero: they converge to the
- * smallest such totals, the evenly spread ones (no drift of the split
- * between the points from step to step, which would skew the per-point
- * friction limits), and stop once the remaining residual lies in K's null
- * space (no velocity left to fix).
- * Targets that no rigid motion meets together (a corner still apart, target
- * -gap/dt, beside touching corners at 0; the kink of the split-impulse slop)
- * leave conjugate gradients at a least-squares compromise with every impulse
- * positive: it moves the apart corner down and lifts the opposite one, i.e.
- * tilts the box towards the gap on every sweep, which kept stacks of a
- * dropped pile rocking for ever. Such a compromise shows as a pushing point
- * that would separate faster than its target (complementarity violated): the
- * one of those with the lowest target (farthest apart) is released and the
- * rest solved exactly, as the contact problem demands. Three or four
- * points that all keep pushing (a face resting on a face) are solved in
- * closed form first (solve_flat_points), one or two points by trying their
- * active sets (solve_two_points): conjugate gradients are left to the rare
- * rest, which on a GPU matters beyond their own cost: a warp runs them
- * whenever one of its 32 manifolds needs them (on an H100 they make a
- * velocity sweep nearly twice as long). With block_fallback "rows" they are
- * skipped: false is returned, and the caller solves the rows one after
- * another. Updates the velocities in place. */
+ * lambda[k] (>= 0) of its `count` points are replaced by the exact solution of
+ * the contact problem: every point that keeps a positive impulse reaches its
+ * normal velocity target, K (total - lambda) = target - vn with K[j][k] = the
+ * normal velocity change at point j per unit impulse at point k, and every
+ * released point (impulse 0) reaches at least its target. Solving the rows
+ * one after another instead leaves a residual torque after each sweep, which
+ * tips a symmetric column from its first step and makes it lean or walk.
+ * Three or four points: solve_face_points; one or two: solve_two_points.
+ * Returns false, changing nothing, for the degenerate geometry those decline
+ * (points nearly on one line or coinciding, bodies without rotational
+ * freedom): the caller then solves the rows one after another. Updates the
+ * velocities in place. */
 bool solve_normal_block(const uint count, const float3 n, const float3 t1, const float3 t2,
                         __private const float4* r_a, __private const float4* r_b,
                         const float relaxation,
@@ -348,122 +390,12 @@ bool solve_normal_block(const uint count, const float3 n, const float3 t1, const
                         float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
                         const float target[4], float lambda[4])
 {
-    if (count >= 3 && solve_flat_points(count, n, t1, t2, r_a, r_b, relaxation, inv_mass_a,
-                                        inv_inertia_a, va, wa, inv_mass_b, inv_inertia_b, vb,
-                                        wb, target, lambda))
-        return true;
-    if (count <= 2 && solve_two_points(count, n, r_a, r_b, relaxation, inv_mass_a,
-                                       inv_inertia_a, va, wa, inv_mass_b, inv_inertia_b, vb,
-                                       wb, target, lambda))
-        return true;
-% if block_fallback == "rows":
-    return false;  /* the rest is left to rows solved one after another */
-% else:
-    /* Loops run to the constant RB_MAX_MANIFOLD_POINTS and test `count` inside, so
-     * that compilers unroll them and keep these small arrays in registers (with a
-     * runtime trip count NVIDIA's compiler put them in slow private memory). */
-    /* per point: the torque arms of its normal row on A and B */
-    float3 arm_a[4], arm_b[4];
-    float residual[4], total[4], k_matrix[4][4];
-    float largest = 0.0f;
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-        float3 ra = r_a[k].xyz, rb = r_b[k].xyz;
-        arm_a[k] = cross3(ra, n);
-        arm_b[k] = cross3(rb, n);
-        residual[k] = target[k] - dot3(relative_velocity(ra, rb, *va, *wa, *vb, *wb), n);
-    }
-    for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count)
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-            k_matrix[j][k] = inv_mass_a + inv_mass_b
-                           + dot3(arm_a[j], mul_rows(inv_inertia_a, arm_a[k]))
-                           + dot3(arm_b[j], mul_rows(inv_inertia_b, arm_b[k]));
-            largest = max1(largest, k_matrix[j][k]);
-        }
-    bool active[4];
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-        active[k] = true;
-    /* the velocity the current impulses produce: residual + K lambda */
-    float rhs[4], tolerance = 0.0f;
-    for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count) {
-        rhs[j] = residual[j];
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-            rhs[j] += k_matrix[j][k] * lambda[k];
-        tolerance = max1(tolerance, OVERSHOOT_TOLERANCE * abs1(rhs[j]));
-    }
-    /* the two outer loops stay rolled (their bodies index the arrays by the inner
-     * loops' constants only): unrolled, the code was 16 copies of their bodies */
-#pragma unroll 1
-    for (uint attempt = 0; attempt < RB_MAX_MANIFOLD_POINTS; ++attempt) if (attempt < count) {
-        /* new totals: 0 for released points; for the others, four points
-         * (K singular) start from 0 so that they end as the smallest, evenly
-         * spread totals that reach the targets; fewer points (K regular, but
-         * ill-conditioned when two lie close) start from the current ones so
-         * that a direction the iteration gives up on keeps what earlier
-         * sweeps built */
-        float gradient[4], direction[4], rr = 0.0f;
-        for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count)
-            total[j] = active[j] && count < 4 ? lambda[j] : 0.0f;
-        for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count) {
-            gradient[j] = rhs[j];
-            for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-                gradient[j] -= k_matrix[j][k] * total[k];
-            gradient[j] = direction[j] = active[j] ? gradient[j] : 0.0f;
-            rr += gradient[j] * gradient[j];
-        }
-#pragma unroll 1
-        for (uint iteration = 0; iteration < RB_MAX_MANIFOLD_POINTS; ++iteration) if (iteration < count) {
-            float k_direction[4], dkd = 0.0f, dd = 0.0f;
-            for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count) {
-                k_direction[j] = 0.0f;
-                for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-                    k_direction[j] += k_matrix[j][k] * direction[k];
-                k_direction[j] = active[j] ? k_direction[j] : 0.0f;
-                dkd += direction[j] * k_direction[j];
-                dd += direction[j] * direction[j];
-            }
-            /* nothing left but directions K (almost) does not move: its null
-             * space, blurred by a slightly tilted face; a step along them would
-             * be huge impulses that cancel each other */
-            if (dkd <= 1e-3f * largest * dd)
-                break;
-            float distance = rr / dkd, next_rr = 0.0f;
-            for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count) {
-                total[j] += active[j] ? distance * direction[j] : 0.0f;
-                gradient[j] -= distance * k_direction[j];
-                next_rr += gradient[j] * gradient[j];
-            }
-            for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count)
-                direction[j] = gradient[j] + next_rr / rr * direction[j];
-            rr = next_rr;
-        }
-        bool released = false;
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-            if (active[k] && lambda[k] + relaxation * (total[k] - lambda[k]) < 0.0f)
-                active[k] = false, released = true;
-        /* none negative: release the pushing point that overshoots its target
-         * (gradient = target - velocity reached < 0) and has the lowest target */
-        uint overshoot = RB_MAX_MANIFOLD_POINTS;
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-            if (active[k] && gradient[k] < -tolerance
-                && (overshoot == RB_MAX_MANIFOLD_POINTS || target[k] < target[overshoot]))
-                overshoot = k;
-        if (!released && overshoot < RB_MAX_MANIFOLD_POINTS)
-            active[overshoot] = false, released = true;
-        if (!released)
-            break;
-    }
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-        /* a point released in the last round keeps no impulse */
-        float change = positive_part(lambda[k] + relaxation * ((active[k] ? total[k] : 0.0f)
-                                                               - lambda[k])) - lambda[k];
-        lambda[k] += change;
-        *va -= n * (change * inv_mass_a);
-        *wa -= mul_rows(inv_inertia_a, arm_a[k] * change);
-        *vb += n * (change * inv_mass_b);
-        *wb += mul_rows(inv_inertia_b, arm_b[k] * change);
-    }
-    return true;
-% endif
+    if (count >= 3)
+        return solve_face_points(count, n, t1, t2, r_a, r_b, relaxation, inv_mass_a,
+                                 inv_inertia_a, va, wa, inv_mass_b, inv_inertia_b, vb, wb,
+                                 target, lambda);
+    return solve_two_points(count, n, r_a, r_b, relaxation, inv_mass_a, inv_inertia_a, va, wa,
+                            inv_mass_b, inv_inertia_b, vb, wb, target, lambda);
 }
 
 % endif
@@ -711,13 +643,11 @@ void solve_contact(__private ContactConstraint* c, __private ContactBodies* p,
     unpack4(c->tangent2_mass, tangent2_mass);
     unpack4(c->velocity_target, target);
 
+    bool solved = false;  /* by the block solve; else row after row */
 % if normal_solve == "block":
-    solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a, c->r_b, relaxation,
-                       p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa, p->inv_mass_b,
-                       p->inv_inertia_b, &p->vb, &p->wb, target,
-                       normal_impulse);
-    /* then the rows one after another: no change where the block was exact;
-     * completes a point the block released while it still approaches */
+    solved = solve_normal_block(count, n, t1, t2, c->r_a, c->r_b, relaxation,
+                                p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa, p->inv_mass_b,
+                                p->inv_inertia_b, &p->vb, &p->wb, target, normal_impulse);
 % endif
     /* alternate the point order between sweeps, so that no point is always first:
      * slot s visits point k = reverse ? 3 - s : s, with the per-point arrays
@@ -732,7 +662,7 @@ void solve_contact(__private ContactConstraint* c, __private ContactBodies* p,
     }
     for (uint slot = 0; slot < RB_MAX_MANIFOLD_POINTS; ++slot) {
         uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - slot : slot;
-        if (k < count)
+        if (k < count && !solved)
             solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[slot], target[slot],
                              relaxation, &normal_impulse[slot], p);
     }
