@@ -28,7 +28,7 @@ def main() -> None:
     parser.add_argument("--scene", default="boxbox")
     parser.add_argument("--n", type=int, default=8000)
     parser.add_argument("--steps", type=int, default=10)
-    parser.add_argument("--batching", default=None, choices=["cells", "columns", "components", "slabs", "single"])
+    parser.add_argument("--batching", default=None, choices=["cells", "columns", "components", "slabs", "single", "global"])
     parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"])
     parser.add_argument("--top", type=int, default=15)
     args = parser.parse_args()

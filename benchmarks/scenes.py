@@ -28,7 +28,7 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--warmup", type=int, default=10)
     parser.add_argument("--scene", default="boxbox", choices=["boxbox", "box_pile"])
-    parser.add_argument("--batching", default=None, choices=["cells", "columns", "components", "slabs", "single"],
+    parser.add_argument("--batching", default=None, choices=["cells", "columns", "components", "slabs", "single", "global"],
                         help="batching mode (default: single on GPUs while the bodies fit its local memory, else cells; slabs on CPUs)")
     parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"],

@@ -314,7 +314,9 @@ CONTACT_CONSTRAINT = declare("ContactConstraint", [
     ("body_a", "uint", "first body"),
     ("body_b", "uint", "second body"),
     ("point_count", "uint", "valid points, 0..4 (0: inactive)"),
-    ("group", "uint", "level-1 batching group (work group of the solver)"),
+    ("group", "uint", "level-1 batching group (work group of the solver); global batching: "
+                      "the colour, which the next step's constraint of the pair starts from "
+                      "(RB_SOLVER_NONE: none)"),
 ], "One contact manifold prepared for the solver: up to four normal and eight friction rows.")
 
 # --------------------------------------------------------------------------

@@ -58,8 +58,9 @@ import pyopencl.array as cl_array
 from ..codegen import compile_spec, KernelTemplate, Param, power_of_two, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
+from .grid import grid_groups, sync_buffer
 
-MODES = ("components", "cells", "columns", "slabs", "single")
+MODES = ("components", "cells", "columns", "slabs", "single", "global")
 #: kernel shapes (match the solver's: see `rbgen.pipeline.solver`)
 SHAPES = ("gpu", "cpu")
 
@@ -111,6 +112,30 @@ SINGLE_TEMPLATE = KernelTemplate(
                              "max_batches": 128,
                              "max_bodies": single_capacity(traits)},
 )
+
+GLOBAL_TEMPLATE = KernelTemplate(
+    "pipeline/batching_global.cl.mako",
+    [
+        work_group_size_param("lanes of each of the launch's work groups (one per compute unit)"),
+        Param("max_batches", power_of_two(2, 4096),
+              "batch slots (the solver's layout of group_batches); the last is the serial "
+              "remainder", "a power of two from 2 to 4096"),
+    ],
+    doc="Global mode: one launch over the whole device colours all constraints (the previous "
+        "step's colours where they still hold, Jones-Plassmann rounds for the rest, global "
+        "body marks and a grid barrier between phases).",
+    roles={"constraints": "inout", "constraint_colour": "inout", "pairs": "inout",
+           "bids": "inout", "used": "inout", "state": "inout"},
+    defaults=lambda traits: {"work_group_size": default_global_work_group_size(traits),
+                             "max_batches": 128},
+)
+
+
+def default_global_work_group_size(traits: DeviceTraits) -> int:
+    """256 on GPUs (one group per compute unit: the lanes are the device's parallelism);
+    64 on CPUs."""
+    return min(256 if traits.is_gpu else 64, traits.max_work_group_size)
+
 
 #: local bytes per body of the single-mode colouring: a bid and a 64-bit colour mask
 SINGLE_BYTES_PER_BODY = 12
@@ -210,9 +235,9 @@ class ConstraintBatcher:
         self.shape = shape or traits.kind
         if self.shape not in SHAPES:
             raise RbgenError(f"batching shape must be one of {SHAPES}, got {shape!r}")
-        if self.mode == "single" and self.shape != "gpu":
-            raise RbgenError("batching mode 'single' colours for the gpu-shaped solver: it "
-                             "needs shape='gpu'")
+        if self.mode in ("single", "global") and self.shape != "gpu":
+            raise RbgenError(f"batching mode {self.mode!r} colours for the gpu-shaped solver: "
+                             f"it needs shape='gpu'")
         self.batches = self.shape == "gpu"
         self.max_batches = int(max_batches)
         self.cell_size = None if cell_size is None else float(cell_size)
@@ -230,6 +255,17 @@ class ConstraintBatcher:
                                              max_batches=self.max_batches,
                                              max_bodies=self.max_bodies)
             names = ["colour_single"]
+        elif self.mode == "global":
+            self.max_bodies = None
+            self.work_group_size = work_group_size or default_global_work_group_size(traits)
+            self.groups_per_colour = self.group_count = self.colours = 1
+            self.launch_plan = [(0, 1)]
+            self.spec = GLOBAL_TEMPLATE.spec(work_group_size=self.work_group_size,
+                                             max_batches=self.max_batches)
+            #: the grid barrier's words, 2 lost flags, the highest colour, the batch
+            #: counters (the layout of colour_global's STATE_*)
+            self.state = sync_buffer(runtime, 3 + self.max_batches + 1)
+            names = ["colour_global"]
         else:
             self.max_bodies = None
             self.work_group_size = work_group_size or default_work_group_size(traits)
@@ -272,6 +308,11 @@ class ConstraintBatcher:
                 raise RbgenError(f"batching mode 'single' holds at most {self.max_bodies} "
                                  f"bodies (max_bodies), got {body_capacity}")
             self.body_capacity = int(body_capacity)
+        elif body_capacity > self.body_capacity and self.mode == "global":
+            self.body_capacity = int(body_capacity)
+            n = max(1, self.body_capacity)
+            self.body_bids = cl_array.empty(queue, 2 * n, np.uint32)  # two rounds' bids
+            self.body_colours = cl_array.empty(queue, 4 * n, np.uint32)  # 2 64-bit masks
         elif body_capacity > self.body_capacity:
             self.body_capacity = int(body_capacity)
             n = max(1, self.body_capacity)
@@ -284,8 +325,10 @@ class ConstraintBatcher:
             self.constraint_capacity = int(constraint_capacity)
             n = max(1, self.constraint_capacity)
             self.order = cl_array.empty(queue, n, np.uint32)
-            if self.mode == "single":  # per constraint: its colour
+            if self.mode in ("single", "global"):  # per constraint: its colour
                 self.constraint_batch = cl_array.empty(queue, n, np.uint32)
+                if self.mode == "global":  # and its dynamic bodies
+                    self.constraint_pairs = cl_array.empty(queue, 2 * n, np.uint32)
                 return
             #: per constraint: its slot in its group's list (gpu shape) or its group (cpu)
             self.constraint_slot = cl_array.empty(queue, n, np.uint32)
@@ -307,6 +350,13 @@ class ConstraintBatcher:
             k["colour_single"].bind(constraints, constraint_count, bodies, self.constraint_batch,
                                     self.order, self.group_batches, self.group_batch_count,
                                     np.uint32(body_count)).launch(wg, wg)
+            return
+        if self.mode == "global":
+            k["colour_global"].bind(constraints, constraint_count, bodies, self.constraint_batch,
+                                    self.order, self.group_batches, self.group_batch_count,
+                                    self.constraint_pairs, self.body_bids, self.body_colours,
+                                    self.state, np.uint32(body_count)
+                                    ).launch(grid_groups(self.runtime.traits) * wg, wg)
             return
         g, n = self.group_count, self.body_capacity
         marks = max(1, self.cell_colours) * n

@@ -48,6 +48,7 @@ from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 from ..launch import instance
 from .batching import SINGLE_MAX_BODIES
+from .grid import grid_groups, sync_buffer
 
 #: friction models (see the template parameter "friction")
 FRICTION_MODELS = ("point", "manifold")
@@ -79,25 +80,40 @@ TEMPLATE = KernelTemplate(
               "constraints): the single work group keeps the velocities of up to N bodies in "
               "local memory (24 bytes a body) for the whole solve",
               "an integer from 0 to 65536"),
+        Param("grid", (False, True),
+              "gpu shape, one group of all constraints (single or global batching): every "
+              "work group of the launch (one per compute unit) takes part in each batch, with "
+              "a barrier across the work groups between batches (one launch for the whole "
+              "solve, every compute unit busy)"),
         Param("friction", FRICTION_MODELS,
               "point: two tangent rows per contact point; manifold: one tangent pair at the "
               "points' centre plus a twist row (fewer rows, Bullet3's GPU choice)"),
     ],
     doc="PGS velocity sweeps (and split-impulse position sweeps) over batched contacts.",
     roles={"constraints": "inout", "bodies": "inout", "split": "inout"},
-    requires=lambda v: ("resident_bodies needs shape='gpu' (one work group solves everything)"
-                        if v["resident_bodies"] and v["shape"] != "gpu" else None),
+    requires=lambda v: _parameter_rules(v),
     defaults=lambda traits: {"friction": "point", "work_group_size": default_work_group_size(traits),
                              "max_batches": 128, "shape": traits.kind, "split_impulse": True,
-                             "normal_solve": "block", "resident_bodies": 0},
+                             "normal_solve": "block", "resident_bodies": 0, "grid": False},
 )
+
+
+def _parameter_rules(values: dict) -> str | None:
+    """What the solver template's parameters must agree on (None: they do)."""
+    if values["resident_bodies"] and values["shape"] != "gpu":
+        return "resident_bodies needs shape='gpu' (one work group solves everything)"
+    if values["grid"] and (values["shape"] != "gpu" or values["resident_bodies"]):
+        return "grid needs shape='gpu' and no resident_bodies (the work groups share the " \
+               "velocities through global memory)"
+    return None
 
 
 def default_work_group_size(traits: DeviceTraits, shape: str | None = None,
                              resident: bool = False) -> int:
-    """gpu shape: 64 (two warps / one wavefront per batch step), 256 for a resident solve
-    (one work group does all, and a batch of 1,000 boxes holds ~300 manifolds; the block
-    solve's ~180 registers a lane allow no more on 64k-register compute units); cpu
+    """gpu shape: 64 (two warps / one wavefront per batch step), 256 for a resident or grid
+    solve (one work group a compute unit does all, and a batch of 1,000 boxes holds ~300
+    manifolds; the block solve's ~180 registers a lane allow no more on 64k-register
+    compute units); cpu
     shape: 1 (one group per work group, so that PoCL hands groups to its threads one at a
     time)."""
     if (shape or traits.kind) == "cpu":
@@ -132,7 +148,7 @@ class ContactSolver:
     def __init__(self, runtime: Runtime, *, split_impulse: bool = True, max_batches: int = 128,
                  friction: str = "point", work_group_size: int | None = None,
                  normal_solve: str = "block", shape: str | None = None,
-                 resident_bodies: int = 0):
+                 resident_bodies: int = 0, grid: bool = False):
         self.runtime = runtime
         self.split_impulse = bool(split_impulse)
         self.shape = shape or runtime.traits.kind
@@ -145,7 +161,7 @@ class ContactSolver:
                 raise RbgenError(f"resident_bodies={self.resident_bodies} does not fit this "
                                  f"device's local memory ({capacity} bodies at most)")
         self.work_group_size = work_group_size or default_work_group_size(
-            runtime.traits, self.shape, resident=bool(self.resident_bodies))
+            runtime.traits, self.shape, resident=bool(self.resident_bodies or grid))
         if friction not in FRICTION_MODELS:
             raise RbgenError(f"friction must be one of {FRICTION_MODELS}, got {friction!r}")
         if normal_solve not in NORMAL_SOLVES:
@@ -153,7 +169,10 @@ class ContactSolver:
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, max_batches=int(max_batches),
                                   shape=self.shape, split_impulse=self.split_impulse,
                                   friction=friction, normal_solve=normal_solve,
-                                  resident_bodies=self.resident_bodies)
+                                  resident_bodies=self.resident_bodies, grid=bool(grid))
+        self.grid = bool(grid)
+        #: the grid barrier's words (zero between launches)
+        self._sync = sync_buffer(runtime) if self.grid else None
         self._program = program = compile_spec(runtime, self.spec)
         if self.split_impulse:
             self.apply_kernel = runtime.bound(program.kernel("apply_split_velocities"))
@@ -178,9 +197,10 @@ class ContactSolver:
         if self.shape == "gpu" and not batcher.batches:
             raise RbgenError("the gpu-shaped solver needs level-2 batches: build the "
                              "ConstraintBatcher with shape='gpu'")
-        if self.resident_bodies and batcher.group_count != 1:
-            raise RbgenError(f"a resident solve needs one group of all constraints (batching "
-                             f"mode 'single'), got {batcher.group_count} groups "
+        if (self.resident_bodies or self.grid) and batcher.group_count != 1:
+            raise RbgenError(f"a {'resident' if self.resident_bodies else 'grid'} solve needs "
+                             f"one group of all constraints (batching mode 'single' or "
+                             f"'global'), got {batcher.group_count} groups "
                              f"(mode {batcher.mode!r})")
 
     def solve(self, constraints, batcher, bodies, inertia, body_capacity: int = 0, *,
@@ -216,6 +236,8 @@ class ContactSolver:
                   bodies, inertia]
         if self.split_impulse:
             shared.append(self.split_velocities(max(1, int(body_capacity))))
+        if self.grid:
+            shared.append(self._sync)
         shared.append(np.float32(relaxation))
         if self.resident_bodies:
             shared.append(np.uint32(body_capacity))
@@ -269,6 +291,8 @@ class ContactSolver:
         if self.shape == "cpu":  # a work-item per group, the last work group partly idle
             scalars.append(first + count)
             size = -(-count // wg) * wg
+        elif self.grid:  # every compute unit, whatever the group count (1)
+            size = grid_groups(self.runtime.traits) * wg
         else:
             size = count * wg
         scalars += [passes, velocity_sweeps]

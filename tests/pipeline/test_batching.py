@@ -32,8 +32,10 @@ def random_graph(rng, n_bodies, n_constraints, static_fraction=0.1, chain=False)
     return a.astype(np.uint32), b.astype(np.uint32), dynamic
 
 
-def run_device(runtime, a, b, dynamic, rng=None, **kwargs):
-    """Bodies scattered in a 20 m box, contact points 0.5 m from B (cell size 1.5 m)."""
+def run_device(runtime, a, b, dynamic, rng=None, hints=None, **kwargs):
+    """Bodies scattered in a 20 m box, contact points 0.5 m from B (cell size 1.5 m).
+    Global mode: ``hints`` are the constraints' inherited colours (None: a first step,
+    none inherited). The one-group modes return groups of 0."""
     queue = runtime.queue
     rng = rng or np.random.default_rng(0)
     bodies = layouts.BODY.zeros(max(1, len(dynamic)))
@@ -42,6 +44,9 @@ def run_device(runtime, a, b, dynamic, rng=None, **kwargs):
     cons = layouts.CONTACT_CONSTRAINT.zeros(max(1, len(a)))
     cons["body_a"][: len(a)], cons["body_b"][: len(a)] = a, b
     cons["r_b"][:, 0, :3] = rng.uniform(-0.3, 0.3, (len(cons), 3))
+    cons["group"] = layouts.SOLVER_NONE
+    if hints is not None:
+        cons["group"][: len(a)] = hints
     if kwargs.get("mode") in ("cells", "columns", "slabs"):
         kwargs.setdefault("cell_size", 1.5)
     capacity = len(a) + 7  # launches over capacity, count on the device
@@ -52,6 +57,10 @@ def run_device(runtime, a, b, dynamic, rng=None, **kwargs):
     batcher(d_cons, count, d_bodies, len(dynamic), capacity)
     order, offsets, batch_counts = batcher.read_batches()
     groups = d_cons.get()["group"][: len(a)]
+    if batcher.mode == "global":  # the field holds the colour
+        assert np.array_equal(groups, batcher.constraint_batch.get()[: len(a)])
+    if batcher.mode in ("single", "global"):  # one group
+        groups = np.zeros_like(groups)
     return batcher, order[: len(a)], offsets, batch_counts, groups
 
 
@@ -143,17 +152,24 @@ def test_chain_and_tiny_batch_limit(runtime, rng, work_group_size):
     assert int(result[2].max()) == 4
 
 
+def one_group_options(mode):
+    """Batcher options of the one-group modes for the tests' graphs (<= 2,048 bodies)."""
+    return {"max_bodies": 2048} if mode == "single" else {}
+
+
+@pytest.mark.parametrize("mode", ["single", "global"])
 @pytest.mark.parametrize("work_group_size", [1, 32, 64, 256])
 @pytest.mark.parametrize("n_bodies,n_constraints", [(1, 0), (2, 1), (9, 31), (100, 333),
                                                    (2000, 5003)])
-def test_single_mode_colours_in_one_work_group(runtime, rng, n_bodies, n_constraints,
-                                               work_group_size):
-    """Single mode: one group of every constraint, coloured with local body marks; batches
-    share no dynamic body and stay close to the sequential greedy colouring (the
-    Jones-Plassmann rounds colour each winner greedily)."""
+def test_one_group_modes_colour_every_constraint(runtime, rng, n_bodies, n_constraints,
+                                                 work_group_size, mode):
+    """Single mode (one work group, local body marks) and global mode (every compute unit,
+    global marks, grid barriers): one group of every constraint; batches share no dynamic
+    body and stay close to the sequential greedy colouring (the Jones-Plassmann rounds
+    colour each winner greedily)."""
     a, b, dynamic = random_graph(rng, n_bodies, n_constraints)
-    batcher, *result = run_device(runtime, a, b, dynamic, rng, mode="single", shape="gpu",
-                                  work_group_size=work_group_size, max_bodies=2048)
+    batcher, *result = run_device(runtime, a, b, dynamic, rng, mode=mode, shape="gpu",
+                                  work_group_size=work_group_size, **one_group_options(mode))
     assert batcher.launch_plan == [(0, 1)] and batcher.group_count == 1
     check_invariants(batcher, a, b, dynamic, *result)
     order, offsets, batch_counts, _ = result
@@ -166,27 +182,91 @@ def test_single_mode_colours_in_one_work_group(runtime, rng, n_bodies, n_constra
     assert np.all(sizes > 0)
 
 
-def test_single_mode_sends_a_hub_past_64_colours_to_the_serial_batch(runtime):
+@pytest.mark.parametrize("mode", ["single", "global"])
+def test_one_group_modes_send_a_hub_past_64_colours_to_the_serial_batch(runtime, mode):
     """A star of 100 constraints on one dynamic body needs 100 colours: 64 batches of one,
-    the other 36 in the serial last slot (nothing dropped)."""
+    the other 36 in the serial last slot (nothing dropped), listed in index order (one
+    lane solves it in that order: the result must not depend on timing)."""
     star_b = np.arange(2, 102, dtype=np.uint32)
     star_a = np.ones_like(star_b)
     dynamic = np.ones(102, bool)
-    batcher, *result = run_device(runtime, star_a, star_b, dynamic, mode="single", shape="gpu",
-                                  work_group_size=32, max_bodies=128)
+    batcher, *result = run_device(runtime, star_a, star_b, dynamic, mode=mode, shape="gpu",
+                                  work_group_size=32, **one_group_options(mode))
     check_invariants(batcher, star_a, star_b, dynamic, *result)
     order, offsets, batch_counts, _ = result
     assert int(batch_counts[0]) == batcher.max_batches
     sizes = np.diff(offsets[0].astype(np.int64))
     assert np.all(sizes[:64] == 1) and np.all(sizes[64:-1] == 0) and sizes[-1] == 36
+    if mode == "global":
+        serial = order[offsets[0, -2]: offsets[0, -1]]
+        assert np.all(np.diff(serial.astype(np.int64)) > 0)
+
+
+@pytest.mark.parametrize("n_bodies,n_constraints", [(9, 31), (2000, 5003)])
+def test_global_mode_colours_like_single_mode(runtime, rng, n_bodies, n_constraints):
+    """The colours depend on the priorities alone, not on how many work groups take part or
+    in which order their atomics land: global mode gives every constraint the colour that
+    single mode (one work group) gives it, and the same batch sizes."""
+    a, b, dynamic = random_graph(rng, n_bodies, n_constraints)
+    colours = {}
+    for mode in ("single", "global"):
+        batcher, order, offsets, counts, _ = run_device(runtime, a, b, dynamic, rng, mode=mode,
+                                                        shape="gpu", work_group_size=64,
+                                                        **one_group_options(mode))
+        colours[mode] = (batcher.constraint_batch.get()[:n_constraints], counts[0],
+                         offsets[0].copy())
+    assert np.array_equal(colours["single"][0], colours["global"][0])
+    assert colours["single"][1] == colours["global"][1]
+    assert np.array_equal(colours["single"][2], colours["global"][2])
+
+
+def inherited_colours_kept(a, b, dynamic, hints, colours=64):
+    """Host reference of global mode's step 1: a hint below ``colours`` is kept unless
+    another hinted constraint has the same colour on one of its dynamic bodies."""
+    claims = {}
+    for i, k in enumerate(hints):
+        if k < colours:
+            for x in (int(a[i]), int(b[i])):
+                if dynamic[x]:
+                    claims[(x, int(k))] = claims.get((x, int(k)), 0) + 1
+    return np.array([k < colours and all(claims[(int(x), int(k))] == 1
+                                         for x in (a[i], b[i]) if dynamic[x])
+                     for i, k in enumerate(hints)], bool)
+
+
+@pytest.mark.parametrize("work_group_size", [1, 64])
+@pytest.mark.parametrize("n_bodies,n_constraints", [(9, 31), (100, 333), (2000, 5003)])
+def test_global_mode_keeps_the_colours_it_inherits(runtime, rng, n_bodies, n_constraints,
+                                                   work_group_size):
+    """A step whose constraints inherit the colours of the last step (the same contact
+    graph) gets exactly the same colours; random inherited colours, with clashes, still
+    give valid batches, and every inherited colour that clashes with none on its bodies
+    is kept (the host reference of the clash rule)."""
+    a, b, dynamic = random_graph(rng, n_bodies, n_constraints)
+    options = dict(mode="global", shape="gpu", work_group_size=work_group_size)
+    batcher, *first = run_device(runtime, a, b, dynamic, rng, **options)
+    colours = batcher.constraint_batch.get()[:n_constraints]
+    batcher, *again = run_device(runtime, a, b, dynamic, rng, hints=colours, **options)
+    check_invariants(batcher, a, b, dynamic, *again)
+    assert np.array_equal(batcher.constraint_batch.get()[:n_constraints], colours)
+    assert int(again[2][0]) == int(first[2][0])
+
+    hints = rng.integers(0, 80, n_constraints).astype(np.uint32)  # some past 64: none
+    hints[rng.random(n_constraints) < 0.2] = layouts.SOLVER_NONE
+    batcher, *result = run_device(runtime, a, b, dynamic, rng, hints=hints, **options)
+    check_invariants(batcher, a, b, dynamic, *result)
+    got = batcher.constraint_batch.get()[:n_constraints]
+    kept = inherited_colours_kept(a, b, dynamic, hints)
+    assert np.array_equal(got[kept], hints[kept])
 
 
 def test_single_mode_refuses_more_bodies_than_its_marks(runtime, rng):
     a, b, dynamic = random_graph(rng, 200, 50)
     with pytest.raises(RbgenError, match="at most 128 bodies"):
         run_device(runtime, a, b, dynamic, mode="single", shape="gpu", max_bodies=128)
-    with pytest.raises(RbgenError, match="needs shape='gpu'"):
-        ConstraintBatcher(runtime, mode="single", shape="cpu")
+    for mode in ("single", "global"):
+        with pytest.raises(RbgenError, match="needs shape='gpu'"):
+            ConstraintBatcher(runtime, mode=mode, shape="cpu")
 
 
 @pytest.mark.parametrize("shape", ["gpu", "cpu"])

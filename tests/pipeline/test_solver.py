@@ -13,8 +13,10 @@
   asymmetric free spinning body.
 
 Both kernel shapes (gpu: lanes over level-2 batches; cpu: one work-item per
-group) and the resident solve (gpu shape, one work group with every body's
-velocity in local memory, single-mode batching) run on every device present.
+group), the resident solve (gpu shape, one work group with every body's
+velocity in local memory, single-mode batching) and the grid solve (gpu shape,
+one work group per compute unit stepping through the batches together,
+global-mode batching) run on every device present.
 """
 from __future__ import annotations
 
@@ -33,7 +35,7 @@ from tests.pipeline.test_constraints import ContactRig, make_bodies, make_manifo
 #: bodies of the resident solves (fits any device's 32 KiB of local memory)
 RESIDENT_BODIES = 1024
 SQUARE = np.array([[0.5, 0, 0.5], [-0.5, 0, 0.5], [0.5, 0, -0.5], [-0.5, 0, -0.5]])
-SHAPES = ["gpu", "cpu", "resident"]
+SHAPES = ["gpu", "cpu", "resident", "grid"]
 
 
 def stacked_columns(columns, height, pitch, separations, side_contacts=False):
@@ -59,20 +61,25 @@ def stacked_columns(columns, height, pitch, separations, side_contacts=False):
 def shaped_rig(runtime, bodies, inv_inertia, shape, *, penetration="split", warm_start=True,
                group_count=3, work_group_size=None, batching="components", friction="point"):
     """A ContactRig whose batcher and solver have the given kernel shape ("resident": the
-    gpu shape solving in local memory, over single-mode batches)."""
+    gpu shape solving in local memory, over single-mode batches; "grid": the gpu shape
+    spread over every compute unit, over global-mode batches)."""
     resident = RESIDENT_BODIES if shape == "resident" else 0
+    grid = shape == "grid"
     if resident:
         shape, batching = "gpu", "single"
+    if grid:
+        shape, batching = "gpu", "global"
     rig = ContactRig(runtime, bodies, inv_inertia, penetration=penetration,
                      warm_start=warm_start, group_count=group_count,
-                     batching="components" if resident else batching, friction=friction)
+                     batching="components" if resident or grid else batching,
+                     friction=friction)
     rig.batcher = ConstraintBatcher(runtime, group_count=group_count, mode=batching,
                                     cell_size=2.5, shape=shape,
                                     max_bodies=resident or None)
     rig.solver = ContactSolver(runtime, split_impulse=penetration == "split",
                                work_group_size=work_group_size, friction=friction,
                                normal_solve=rig.solver.spec.values["normal_solve"], shape=shape,
-                               resident_bodies=resident)
+                               resident_bodies=resident, grid=grid)
     return rig
 
 
@@ -200,7 +207,8 @@ def test_penetration_recovery(runtime, penetration, shape):
 @pytest.mark.parametrize("shape,work_group_size,batching", [
     ("gpu", 1, "components"), ("gpu", 32, "components"), ("gpu", 64, "cells"), ("gpu", 1, "cells"),
     ("gpu", 32, "slabs"), ("cpu", 1, "components"), ("cpu", 1, "cells"), ("cpu", 2, "cells"),
-    ("cpu", 1, "slabs"), ("resident", 1, "single"), ("resident", 64, "single")])
+    ("cpu", 1, "slabs"), ("resident", 1, "single"), ("resident", 64, "single"),
+    ("grid", 1, "global"), ("grid", 32, "global")])
 def test_stacked_columns_end_resting(runtime, rng, shape, work_group_size, batching):
     """Columns of 6 boxes falling onto each other (one pile per column, batched):
     after the solve every box's vertical speed is ~0 (inelastic), in both batching modes
@@ -256,10 +264,13 @@ def test_gyroscopic_term_conserves_angular_momentum(runtime):
     assert largest_change > 0.5 * np.linalg.norm(w0)
 
 
-def test_resident_solve_matches_the_global_one_bit_for_bit(runtime, rng):
-    """Over the same single-mode batches, the resident solve (velocities in local memory)
-    does the global solve's arithmetic in the same order: equal results, velocities,
-    push velocities and impulses alike, for a pile of columns with warm starting."""
+@pytest.mark.parametrize("variant", ["resident", "grid"])
+def test_one_group_solves_match_the_plain_one_bit_for_bit(runtime, rng, variant):
+    """Over the same batches (single mode; global mode colours alike), the resident solve
+    (velocities in local memory, one work group) and the grid solve (every compute unit,
+    a barrier across them after each batch) do the plain one-work-group solve's
+    arithmetic in the same order: equal results, velocities, push velocities and
+    impulses alike, for a pile of columns with warm starting."""
     positions, manifolds = stacked_columns(7, 5, 1.2, lambda: rng.uniform(-0.01, 0.0, 4),
                                            side_contacts=True)
     n = len(positions)
@@ -270,9 +281,10 @@ def test_resident_solve_matches_the_global_one_bit_for_bit(runtime, rng):
     inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(2, 8, (n - 1, 3))]
     manifolds = np.array(manifolds)[rng.permutation(len(manifolds))]
     results = []
-    for resident in (0, RESIDENT_BODIES):
-        rig = shaped_rig(runtime, bodies, inv_inertia, "resident", work_group_size=32)
-        if not resident:
+    for plain in (True, False):
+        rig = shaped_rig(runtime, bodies, inv_inertia, "resident" if plain else variant,
+                         work_group_size=32)
+        if plain:
             rig.solver = ContactSolver(runtime, split_impulse=True, work_group_size=32,
                                        friction="point", shape="gpu",
                                        normal_solve=rig.solver.spec.values["normal_solve"])
@@ -300,6 +312,21 @@ def test_resident_solve_refuses_what_does_not_fit(runtime):
     single = ConstraintBatcher(runtime, mode="single", shape="gpu", max_bodies=128)
     with pytest.raises(RbgenError, match="100 bodies do not fit"):
         solver.solve(None, single, bodies, None, 100, iterations=1)
+
+
+def test_grid_solve_refuses_what_it_cannot_run(runtime):
+    """A grid solver needs the gpu shape, no resident bodies and one group of all
+    constraints (single or global batching); each refusal names what is wrong."""
+    with pytest.raises(RbgenError, match="grid needs shape='gpu'"):
+        ContactSolver(runtime, shape="cpu", grid=True)
+    with pytest.raises(RbgenError, match="grid needs shape='gpu' and no resident_bodies"):
+        ContactSolver(runtime, shape="gpu", grid=True, resident_bodies=64)
+    solver = ContactSolver(runtime, shape="gpu", grid=True)
+    bodies = cl_array.to_device(runtime.queue, make_bodies([[0, 0, 0]], [1.0]))
+    with pytest.raises(RbgenError, match="grid solve needs one group"):
+        solver.solve(None, ConstraintBatcher(runtime, group_count=3, mode="cells",
+                                             shape="gpu", cell_size=1.0), bodies, None, 1,
+                     iterations=1)
 
 
 @pytest.mark.parametrize("batching", ["components", "cells", "slabs", "single"])

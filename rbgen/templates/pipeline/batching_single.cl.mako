@@ -35,16 +35,7 @@ ${cl_structs("ContactConstraint", "Body")}
 #define MAX_BODIES ${max_bodies}
 
 <%include file="/common/hash.cl.mako"/>
-
-/* index of the lowest clear bit of the 64-bit mask (lo, hi); COLOURS if none */
-inline uint lowest_free(uint lo, uint hi)
-{
-    if (lo != 0xFFFFFFFFu)
-        return ctz(~lo);
-    if (hi != 0xFFFFFFFFu)
-        return 32 + ctz(~hi);
-    return 64;
-}
+<%include file="/common/colour_mask.cl.mako"/>
 
 /* One work group colours the first constraint_count[0] constraints (see the
  * file comment). The lanes exchange data through local memory, with a barrier

@@ -206,7 +206,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     c.body_b = b;
     uint point_count = m->point_count;
     c.point_count = point_count < RB_MAX_MANIFOLD_POINTS ? point_count : RB_MAX_MANIFOLD_POINTS;
-    c.group = 0;
+    c.group = RB_SOLVER_NONE;  /* no inherited colour (see below) */
     c.features = (uint4)(m->features[0], m->features[1], m->features[2], m->features[3]);
     c.normal_impulse = c.tangent1_impulse = c.tangent2_impulse = c.push_impulse = (float4)(0.0f);
     float normal_mass[4] = {0}, tangent1_mass[4] = {0}, tangent2_mass[4] = {0};
@@ -270,8 +270,10 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     c.position_target = (float4)(position_target[0], position_target[1], position_target[2], position_target[3]);
 % if warm_start:
     uint old = find_previous(previous, previous_count[0], previous_table, previous_mask, i, a, b);
-    if (old != RB_SOLVER_NONE)
+    if (old != RB_SOLVER_NONE) {
         warm_start_from(&previous[old], match_distance, &c);
+        c.group = previous[old].group;  /* global batching starts from the old colour */
+    }
     c.normal_impulse *= warm_start_factor;
     c.tangent1_impulse *= warm_start_factor;
     c.tangent2_impulse *= warm_start_factor;

@@ -16,6 +16,13 @@
  * One launch runs the warm start and any number of sweeps over the groups
  * it is given: all sweeps of a step when the groups are whole contact-graph
  * components, one sweep per cell colour otherwise.
+% if grid:
+ * Grid variant: the one group of all constraints (single or global batching)
+ * is solved by every work group of the launch (as many as the device runs at
+ * once), a batch's constraints spread over all their lanes, with a barrier
+ * across the work groups after each batch (common/grid_barrier.cl.mako):
+ * the whole solve is one launch, and every compute unit takes part.
+% endif
  *
  * Rows: per contact point a normal row (impulse >= 0, drives the normal
  * velocity to its target),
@@ -74,6 +81,15 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
 #define FIRST_REVERSED 2u
 
 <%include file="/common/inline_math.cl.mako"/>
+% if grid:
+<%include file="/common/grid_barrier.cl.mako"/>
+% endif
+<%
+    # the velocities' address space: in the grid variant other work groups of
+    # the same launch write them between batches, so they are read through
+    # volatile pointers (see common/grid_barrier.cl.mako)
+    shared = "volatile __global" if grid else "__global"
+%>\
 
 inline float positive_part(float x)
 {
@@ -410,7 +426,7 @@ typedef struct {
     float3 va, wa, vb, wb;
 } ContactBodies;
 
-inline void load_bodies(__private ContactBodies* p, __global const Body* bodies,
+inline void load_bodies(__private ContactBodies* p, ${shared} const Body* bodies,
                         __global const BodyInertia* inertia, uint a, uint b)
 {
     p->inv_mass_a = bodies[a].inv_mass;
@@ -525,13 +541,13 @@ inline void reverse4(float a[4])
 /* Where a sweep reads and writes the velocities it solves for: the bodies'
  * velocities (or push velocities) in global memory, or the copies a resident
  * solve keeps in local memory. Only dynamic bodies are written back. */
-inline void load_velocities(__private ContactBodies* p, __global const Body* bodies, uint a, uint b)
+inline void load_velocities(__private ContactBodies* p, ${shared} const Body* bodies, uint a, uint b)
 {
     p->va = bodies[a].linear_velocity.xyz, p->wa = bodies[a].angular_velocity.xyz;
     p->vb = bodies[b].linear_velocity.xyz, p->wb = bodies[b].angular_velocity.xyz;
 }
 
-inline void store_velocities(const __private ContactBodies* p, __global Body* bodies, uint a, uint b)
+inline void store_velocities(const __private ContactBodies* p, ${shared} Body* bodies, uint a, uint b)
 {
     if (p->inv_mass_a > 0.0f) {
         bodies[a].linear_velocity.xyz = p->va;
@@ -544,13 +560,13 @@ inline void store_velocities(const __private ContactBodies* p, __global Body* bo
 }
 % if split_impulse:
 
-inline void load_push(__private ContactBodies* p, __global const SplitVelocity* split, uint a, uint b)
+inline void load_push(__private ContactBodies* p, ${shared} const SplitVelocity* split, uint a, uint b)
 {
     p->va = split[a].linear.xyz, p->wa = split[a].angular.xyz;
     p->vb = split[b].linear.xyz, p->wb = split[b].angular.xyz;
 }
 
-inline void store_push(const __private ContactBodies* p, __global SplitVelocity* split, uint a, uint b)
+inline void store_push(const __private ContactBodies* p, ${shared} SplitVelocity* split, uint a, uint b)
 {
     if (p->inv_mass_a > 0.0f) {
         split[a].linear.xyz = p->va;
@@ -736,6 +752,8 @@ void solve_push(__private ContactConstraint* c, __private ContactBodies* p, cons
     # where each kind of sweep finds its velocities (see load_velocities)
     memory = {"velocities": "bodies", "push": "split", "resident": "resident"}
     fence = "CLK_LOCAL_MEM_FENCE" if resident_bodies else "CLK_GLOBAL_MEM_FENCE"
+    batch_barrier = "grid_barrier(sync)" if grid else f"barrier({fence})"
+    lanes = "get_global_size(0)" if grid else work_group_size
 %>\
 <%def name="visit(action, source, results)">\
 {
@@ -759,11 +777,15 @@ void solve_push(__private ContactConstraint* c, __private ContactBodies* p, cons
         for (uint batch = 0; batch < batch_count; ++batch) {
             uint begin = ${"batch_offsets" if resident_bodies else "offsets"}[batch];
             uint end = ${"batch_offsets" if resident_bodies else "offsets"}[batch + 1];
-            uint stride = ${work_group_size};
+            uint stride = ${lanes};
+% if grid:
+            if (begin == end)  /* an unused colour (inherited colours can leave gaps) */
+                continue;
+% endif
             if (batch == SERIAL_BATCH)  /* the remainder: lane 0 alone, in order */
                 stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
             for (uint i = begin + lane; i < end; i += stride) ${visit(action, source, results)}
-            barrier(${fence});
+            ${batch_barrier};
         }
 % else:
         for (uint i = begin; i < end; ++i) ${visit(action, source, results)}
@@ -778,6 +800,12 @@ void solve_push(__private ContactConstraint* c, __private ContactBodies* p, cons
  * batch step then reads no body velocity from global memory, and the
  * velocities go home once, at the end of the velocity sweeps (the push
  * velocities start from zero there and go to `split` at the end). */
+% elif grid:
+/* The warm start, `velocity_sweeps` and then `position_sweeps` sweeps over
+ * the one group of all constraints, by every work group of the launch: a
+ * lane is responsible for the constraints of a batch at its global index
+ * plus multiples of the launch's size, and all wait for all after each
+ * batch (`sync`: the grid barrier's two words, zero between launches). */
 % elif shape == "gpu":
 /* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
  * the groups group_offset + 0, 1, ... (one launch). A work group is
@@ -793,10 +821,13 @@ void solve_groups(__global ContactConstraint* constraints,
                   __global const uint* order,
                   __global const uint* group_batches,
                   __global const uint* group_batch_count,
-                  __global Body* bodies,
+                  ${shared} Body* bodies,
                   __global const BodyInertia* inertia,
 % if split_impulse:
-                  __global SplitVelocity* split,
+                  ${shared} SplitVelocity* split,
+% endif
+% if grid:
+                  volatile __global uint* sync,
 % endif
                   const float relaxation,
 % if resident_bodies:
@@ -814,7 +845,11 @@ void solve_groups(__global ContactConstraint* constraints,
                   const uint velocity_sweeps)
 % endif
 {
-% if shape == "gpu":
+% if grid:
+    const uint lane = get_global_id(0), group = group_offset;
+    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
+    const uint batch_count = group_batch_count[group];
+% elif shape == "gpu":
     const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint batch_count = group_batch_count[group];
@@ -875,6 +910,9 @@ ${each_constraint("solve_push(c, &p, relaxation)", velocities if resident_bodies
         }
     }
 % endif
+% endif
+% if grid:
+    grid_leave(sync);
 % endif
 }
 % if split_impulse:
