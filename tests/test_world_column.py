@@ -7,7 +7,7 @@ import pytest
 import rbgen
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single"])
+@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
 def test_ten_box_column_stands(batching):
     """Closed form: at rest box k's centre is at 0.5 + k (half extent 0.5, ground top y = 0).
     Over 600 steps no box may drift sideways more than 2 cm or sink more than 2 cm (10 contacts
@@ -24,7 +24,7 @@ def test_ten_box_column_stands(batching):
     assert np.linalg.norm(world.linear_velocities[ids], axis=1).max() < 0.05
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single"])
+@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
 def test_symmetric_column_gets_no_sideways_motion(batching):
     """Closed form: three boxes stacked exactly on each other (no warm start, so every
     step is solved from scratch) are symmetric under x -> -x and z -> -z, so no box may
@@ -65,7 +65,7 @@ def rock_tipped_column(batching, steps=300, **settings):
     return late, np.abs(world.positions[ids][:, [0, 2]]).max()
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single"])
+@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
 def test_tipped_column_stops_rocking(batching):
     """Without position correction (position_iterations=0), the tipped column must come to
     rest: a rigid block that rocks loses energy at every landing of an edge (Housner: its
@@ -80,7 +80,7 @@ def test_tipped_column_stops_rocking(batching):
     assert offset < 0.1
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single"])
+@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
 def test_tipped_column_sway_stays_bounded_with_position_correction(batching):
     """With the default split-impulse position sweeps the same column may keep swaying:
     an open defect (issue #6). The pushes that lift an interface's deeper edge raise the

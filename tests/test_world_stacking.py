@@ -24,7 +24,7 @@ def pyramid_positions(rows: int, gap: float = 0.02) -> np.ndarray:
                      for r in range(rows) for i in range(rows - r)])
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single"])
+@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
 def test_pyramid_of_20_rows_holds(runtime, batching):
     world = World(runtime, batching=batching)
     world.add_static(rbgen.Box((50, 1, 50)), position=(0, -1, 0))
@@ -34,13 +34,13 @@ def test_pyramid_of_20_rows_holds(runtime, batching):
     for _ in range(600):
         world.step(DT)
     assert np.linalg.norm(world.positions[top] - start) < 0.05
-    if batching in ("components", "single"):
+    if batching in ("components", "single", "global"):
         assert world.statistics()["groups_used"] == 1  # one connected pile: one work group
     else:
         assert world.statistics()["groups_used"] > 1
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single"])
+@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
 def test_dropped_grid_comes_to_rest(runtime, batching):
     """A fixed jitter (seed 1). Measured over seeds 0-7 on PoCL (max speed at step 300):
     components and slabs 0.000 for all eight; cells (cpu shape, block solve) 0.088 and
