@@ -92,3 +92,28 @@ def test_exported_resident_solver_builds_standalone(runtime, tmp_path):
     # the cpu shape cannot be resident: refused by name, before any rendering
     assert main(["export", "--out", str(tmp_path), "--kernel", "solver", "--param",
                  "resident_bodies=64", "--param", "shape=cpu"]) == 2
+
+
+def test_exported_grid_solver_and_colouring_build_standalone(runtime, tmp_path):
+    """The global mode's kernels (the grid solve and its colouring, the NVIDIA default)
+    export like any specialisation: each .cl builds outside rbgen's loader, the solver's
+    manifest lists the grid barrier's words before the relaxation, and a grid solver of
+    the cpu shape is refused by name."""
+    assert main(["export", "--out", str(tmp_path), "--kernel", "solver", "--device",
+                 runtime.device.name.strip(), "--param", "grid=True", "--param", "shape=gpu",
+                 "--param", "work_group_size=32"]) == 0
+    entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
+    assert entry["params"]["grid"] is True
+    program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
+    solve = next(k for k in entry["kernels"] if k["name"] == "solve_groups")
+    names = [a["name"] for a in solve["args"]]
+    assert names[names.index("relaxation") - 1] == "sync"
+    assert program.solve_groups.num_args == len(solve["args"])
+    assert main(["export", "--out", str(tmp_path), "--kernel", "batching_global", "--device",
+                 runtime.device.name.strip()]) == 0
+    entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
+    program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
+    colour = next(k for k in entry["kernels"] if k["name"] == "colour_global")
+    assert program.colour_global.num_args == len(colour["args"])
+    assert main(["export", "--out", str(tmp_path), "--kernel", "solver", "--param",
+                 "grid=True", "--param", "shape=cpu"]) == 2

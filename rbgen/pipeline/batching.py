@@ -94,13 +94,16 @@ TEMPLATE = KernelTemplate(
 MODE_COLOURS = {"cells": 8, "columns": 4, "slabs": 2}
 
 
+#: the batch slots of the one-group modes (single, global)
+ONE_GROUP_BATCHES = Param("max_batches", power_of_two(2, 4096),
+                          "batch slots (the solver's layout of group_batches); the last is "
+                          "the serial remainder", "a power of two from 2 to 4096")
+
 SINGLE_TEMPLATE = KernelTemplate(
     "pipeline/batching_single.cl.mako",
     [
         work_group_size_param("lanes of the one work group that colours every constraint"),
-        Param("max_batches", power_of_two(2, 4096),
-              "batch slots (the solver's layout of group_batches); the last is the serial "
-              "remainder", "a power of two from 2 to 4096"),
+        ONE_GROUP_BATCHES,
         Param("max_bodies", lambda v: isinstance(v, int) and 1 <= v <= 1 << 16,
               "bodies whose marks fit the local memory (12 bytes a body); body indices must "
               "stay below it", "an integer from 1 to 65536"),
@@ -117,9 +120,7 @@ GLOBAL_TEMPLATE = KernelTemplate(
     "pipeline/batching_global.cl.mako",
     [
         work_group_size_param("lanes of each of the launch's work groups (one per compute unit)"),
-        Param("max_batches", power_of_two(2, 4096),
-              "batch slots (the solver's layout of group_batches); the last is the serial "
-              "remainder", "a power of two from 2 to 4096"),
+        ONE_GROUP_BATCHES,
     ],
     doc="Global mode: one launch over the whole device colours all constraints (the previous "
         "step's colours where they still hold, Jones-Plassmann rounds for the rest, global "
