@@ -547,15 +547,17 @@ inline void load_velocities(__private ContactBodies* p, ${shared} const Body* bo
     p->vb = bodies[b].linear_velocity.xyz, p->wb = bodies[b].angular_velocity.xyz;
 }
 
+/* (whole float4s, w = 0 as unused: a store of .xyz alone through a volatile
+ * pointer is a read-modify-write, a round trip more per batch step) */
 inline void store_velocities(const __private ContactBodies* p, ${shared} Body* bodies, uint a, uint b)
 {
     if (p->inv_mass_a > 0.0f) {
-        bodies[a].linear_velocity.xyz = p->va;
-        bodies[a].angular_velocity.xyz = p->wa;
+        bodies[a].linear_velocity = (float4)(p->va, 0.0f);
+        bodies[a].angular_velocity = (float4)(p->wa, 0.0f);
     }
     if (p->inv_mass_b > 0.0f) {
-        bodies[b].linear_velocity.xyz = p->vb;
-        bodies[b].angular_velocity.xyz = p->wb;
+        bodies[b].linear_velocity = (float4)(p->vb, 0.0f);
+        bodies[b].angular_velocity = (float4)(p->wb, 0.0f);
     }
 }
 % if split_impulse:
@@ -569,12 +571,12 @@ inline void load_push(__private ContactBodies* p, ${shared} const SplitVelocity*
 inline void store_push(const __private ContactBodies* p, ${shared} SplitVelocity* split, uint a, uint b)
 {
     if (p->inv_mass_a > 0.0f) {
-        split[a].linear.xyz = p->va;
-        split[a].angular.xyz = p->wa;
+        split[a].linear = (float4)(p->va, 0.0f);
+        split[a].angular = (float4)(p->wa, 0.0f);
     }
     if (p->inv_mass_b > 0.0f) {
-        split[b].linear.xyz = p->vb;
-        split[b].angular.xyz = p->wb;
+        split[b].linear = (float4)(p->vb, 0.0f);
+        split[b].angular = (float4)(p->wb, 0.0f);
     }
 }
 % endif
