@@ -7,8 +7,8 @@ Such a barrier needs every group of the launch running at once, which
 OpenCL 1.2 does not promise: it holds when the launch has no more groups
 than the device runs side by side. `grid_groups` picks one per compute unit
 (the kernels using it need at most one compute unit's registers and local
-memory per group), and a `GridSync` is the two counters the barrier keeps,
-zero between launches.
+memory per group), and `sync_buffer` holds the two counters the barrier
+keeps, zero between launches.
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import pyopencl.array as cl_array
 
 from ..device import DeviceTraits, Runtime
 
-#: words of a grid barrier's state: arrivals and generation
+#: words of a grid barrier's state: arrivals since the launch began, groups that left
 SYNC_WORDS = 2
 
 
