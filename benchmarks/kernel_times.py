@@ -18,6 +18,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 import numpy as np  # noqa: E402
 import pyopencl as cl  # noqa: E402
 
+from rbgen.pipeline.batching import MODES as BATCHING_MODES  # noqa: E402
+
 
 def main() -> None:
     from rbgen.demo import build_scene
@@ -28,7 +30,7 @@ def main() -> None:
     parser.add_argument("--scene", default="boxbox")
     parser.add_argument("--n", type=int, default=8000)
     parser.add_argument("--steps", type=int, default=10)
-    parser.add_argument("--batching", default=None, choices=["cells", "columns", "components", "slabs", "single", "global"])
+    parser.add_argument("--batching", default=None, choices=BATCHING_MODES)
     parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"])
     parser.add_argument("--top", type=int, default=15)
     args = parser.parse_args()

@@ -1,7 +1,7 @@
 """BoxBox scene benchmark: the whole World step (broadphase to integration).
 
     python benchmarks/scenes.py [--device D] [--sizes 1000 8000 27000 111375]
-                                [--steps 100] [--warmup 10] [--batching cells|components|slabs]
+                                [--steps 100] [--warmup 10] [--batching MODE]
 
 For each size: ms/step = wall time of ``--steps`` steps enqueued back to back
 after ``--warmup`` (one queue.finish() at the end), kernel launches and blocking reads per
@@ -19,6 +19,7 @@ import sys
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 from rbgen.demo import run_scene  # noqa: E402
+from rbgen.pipeline.batching import MODES as BATCHING_MODES  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -28,8 +29,8 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--warmup", type=int, default=10)
     parser.add_argument("--scene", default="boxbox", choices=["boxbox", "box_pile"])
-    parser.add_argument("--batching", default=None, choices=["cells", "columns", "components", "slabs", "single", "global"],
-                        help="batching mode (default: single on GPUs while the bodies fit its local memory, else cells; slabs on CPUs)")
+    parser.add_argument("--batching", default=None, choices=BATCHING_MODES,
+                        help="batching mode (default: the World's: global on NVIDIA GPUs, single then cells on other GPUs, slabs on CPUs)")
     parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"],
                         help="a manifold's normal rows as one block or one by one (default: "
