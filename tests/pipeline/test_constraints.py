@@ -259,7 +259,9 @@ def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start, reorder):
     """Impulses carry over for the same body pair, per point: from the old point with the
     same feature id, else from an old point within match_distance (relative to B), else 0;
     whether the pairs come in the same order (found at their own index) or another (found
-    through the table)."""
+    through the table). The pair's old ``group`` (global batching: its colour) comes along
+    too, as the next colouring's inherited colour; none without warm starting or after a
+    reset."""
     n_pairs = 37
     positions = np.zeros((n_pairs + 1, 3))
     positions[1:, 0] = np.arange(n_pairs) * 3.0
@@ -297,9 +299,13 @@ def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start, reorder):
                             old["tangent2_impulse"][j])
             got = (c["normal_impulse"][k], c["tangent1_impulse"][k], c["tangent2_impulse"][k])
             np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-7)
+        assert c["group"] == (old["group"] if warm_start else layouts.SOLVER_NONE)
     assert not warm_start or np.all(second["normal_impulse"][:, [0, 1, 3]] > 0)
+    assert len(set(first["group"].tolist())) > 1  # the groups carried are not all one value
     rig.setup.reset()  # forgets the previous step, found at its index or through the table
-    assert not rig.constraints(changed[order])["normal_impulse"].any()
+    fresh = rig.constraints(changed[order])
+    assert not fresh["normal_impulse"].any()
+    assert np.all(fresh["group"] == layouts.SOLVER_NONE)
 
 
 def test_overflowing_manifold_count_is_clamped_to_capacity(runtime):
