@@ -30,7 +30,8 @@ def main(argv=None) -> int:
     parser.add_argument("--warmup", type=int, default=10)
     parser.add_argument("--scene", default="boxbox", choices=["boxbox", "box_pile"])
     parser.add_argument("--batching", default=None, choices=BATCHING_MODES,
-                        help="batching mode (default: the World's: global on NVIDIA GPUs, single then cells on other GPUs, slabs on CPUs)")
+                        help="batching mode (default: the World's: global on NVIDIA GPUs, single "
+                             "then cells on other GPUs, slabs on CPUs)")
     parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"],
                         help="a manifold's normal rows as one block or one by one (default: "

@@ -7,15 +7,15 @@
  * launch size is what makes it hold.
  *
  * sync[0] counts the arrivals since the launch began: every group passes the
- * same sequence of barriers, so a group whose arrival is number a (from 0)
- * is at barrier a / groups, which opens once (a / groups + 1) * groups
- * arrivals are in. One atomic to arrive and polls to leave: no reset between
- * barriers, which would cost a round trip to the shared cache each, and no
- * count of barriers kept by the lanes (a private counter live across
- * barriers hung PoCL's colouring with 4 or more lanes a group). sync[1] counts the groups that have left their
- * last barrier (grid_leave): the last of them zeroes both words, so the
- * buffer is zero between launches and serves every launch that uses it, one
- * launch at a time.
+ * same sequence of barriers, so a group whose arrival is number a (from 0) is
+ * at barrier a / groups, which opens once (a / groups + 1) * groups arrivals
+ * are in. One atomic to arrive and polls to leave: no reset between barriers,
+ * which would cost a round trip to the shared cache each, and no count of
+ * barriers kept by the lanes (a private counter live across barriers hung
+ * PoCL's colouring with 4 or more lanes a group). sync[1] counts the groups
+ * that have left their last barrier (grid_leave): the last of them zeroes
+ * both words, so the buffer is zero between launches and serves every launch
+ * that uses it, one launch at a time.
  *
  * Visibility: every lane fences its global writes before arriving, so that
  * they reach the device's shared cache before any group leaves (a write

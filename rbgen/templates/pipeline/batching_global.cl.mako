@@ -16,14 +16,15 @@
  *    others keep theirs: no two of them share a colour on a body, whatever
  *    the hints were. A scene at rest keeps its colouring, so the rounds below
  *    have only new contacts to colour.
- * 2. Jones-Plassmann rounds over the rest: in each round every uncoloured constraint bids its priority (a bijective
- *    hash of its index, so no two are equal) on its dynamic bodies with
- *    atomic_min; a constraint that holds the lowest bid on each of its bodies
- *    takes the lowest colour free on both. Winners of one round share no
- *    body, so their choices cannot clash and need no atomics; the lowest bid
- *    of the round always wins, so every round colours at least one. Two bid
- *    arrays and two "some constraint lost" flags alternate between rounds (a
- *    round clears the next round's): two grid barriers a round.
+ * 2. Jones-Plassmann rounds over the rest: in each round every uncoloured
+ *    constraint bids its priority (a bijective hash of its index, so no two
+ *    are equal) on its dynamic bodies with atomic_min; a constraint that
+ *    holds the lowest bid on each of its bodies takes the lowest colour free
+ *    on both. Winners of one round share no body, so their choices cannot
+ *    clash and need no atomics; the lowest bid of the round always wins, so
+ *    every round colours at least one. Two bid arrays and two "some
+ *    constraint lost" flags alternate between rounds (a round clears the next
+ *    round's): two grid barriers a round.
  * The colours depend on the constraints and the previous step's colours
  * alone, not on timing. Static bodies are ignored. A constraint finding all
  * ${colours} colours taken on its bodies goes to the last batch slot
