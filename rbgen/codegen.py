@@ -129,7 +129,7 @@ class KernelTemplate:
         return KernelSpec(self.path, tuple(sorted(values.items())), self)
 
     def source_hash(self) -> str:
-        """Hash of this template and the shared templates it may include."""
+        """Hash of this template and the templates it uses."""
         return template_source_hash(self.path)
 
     def __repr__(self) -> str:
@@ -190,11 +190,30 @@ def _tidy(text: str) -> str:
     return text.strip() + "\n"
 
 
+#: a template's use of another: <%include file="..."/> or <%namespace ... file="..."/>
+_USES = re.compile(r'<%(?:include|namespace)\b[^>]*?\bfile="/?([^"]+)"')
+
+
+def template_sources(path: str) -> list[str]:
+    """A template and every template it includes or imports, directly or not (paths under
+    the template directory, each once, the template first)."""
+    seen, pending = [], [path]
+    while pending:
+        current = pending.pop(0)
+        if current in seen:
+            continue
+        seen.append(current)
+        pending += _USES.findall((TEMPLATE_DIR / current).read_text(encoding="utf-8"))
+    return seen
+
+
 def template_source_hash(path: str) -> str:
+    """Hash of a template's text, the templates it uses and the struct header: what
+    its rendered source can depend on besides its parameters."""
     h = hashlib.sha256()
-    h.update((TEMPLATE_DIR / path).read_bytes())
-    for common in sorted((TEMPLATE_DIR / "common").glob("*.mako")):
-        h.update(common.read_bytes())
+    for source in template_sources(path):
+        h.update(source.encode())
+        h.update((TEMPLATE_DIR / source).read_bytes())
     h.update(layouts.c_header().encode())
     return h.hexdigest()[:16]
 

@@ -32,6 +32,7 @@ ${cl_constants()}
 ${cl_structs("Body", "BodyInertia", "ContactManifold", "ContactConstraint")}
 
 <%include file="/common/inline_math.cl.mako"/>
+<%include file="/pipeline/contact_masses.cl.mako"/>
 
 /* Slot of a body pair in the warm-starting table (linear probing from here). */
 inline uint pair_slot(uint a, uint b, uint mask)
@@ -52,16 +53,6 @@ inline void tangent_basis(float3 n, float3* t1, float3* t2)
     else
         *t1 = normalize3((float3)(0.0f, n.z, -n.y));
     *t2 = cross3(n, *t1);
-}
-
-/* 1 / (J M^-1 J^T) for a row with direction d at lever arms ra, rb. */
-inline float row_mass(float3 d, float3 ra, float3 rb, float inv_mass_a, float inv_mass_b,
-                      const float3 inv_inertia_a[3], const float3 inv_inertia_b[3])
-{
-    float3 ca = cross3(ra, d), cb = cross3(rb, d);
-    float k = inv_mass_a + inv_mass_b + dot3(ca, mul_rows(inv_inertia_a, ca))
-            + dot3(cb, mul_rows(inv_inertia_b, cb));
-    return k > 0.0f ? 1.0f / k : 0.0f;
 }
 
 /* One work-item per warm-starting table slot: mark it empty. A work group is
@@ -209,7 +200,6 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     c.group = RB_SOLVER_NONE;  /* no inherited colour (see below) */
     c.features = (uint4)(m->features[0], m->features[1], m->features[2], m->features[3]);
     c.normal_impulse = c.tangent1_impulse = c.tangent2_impulse = c.push_impulse = (float4)(0.0f);
-    float normal_mass[4] = {0}, tangent1_mass[4] = {0}, tangent2_mass[4] = {0};
     float velocity_target[4] = {0}, position_target[4] = {0};
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) {
         c.r_a[k] = c.r_b[k] = (float4)(0.0f);
@@ -220,11 +210,6 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
         float3 ra = p - xa, rb = p - xb;
         c.r_a[k] = (float4)(ra, 0.0f);
         c.r_b[k] = (float4)(rb, 0.0f);
-        normal_mass[k] = row_mass(n, ra, rb, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b);
-% if friction == "point":
-        tangent1_mass[k] = row_mass(t1, ra, rb, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b);
-        tangent2_mass[k] = row_mass(t2, ra, rb, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b);
-% endif
 
         /* normal velocity of B relative to A (> 0: separating) */
         float approach = dot3(vb + cross3(wb, rb) - va - cross3(wa, ra), n);
@@ -248,24 +233,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
         position_target[k] = separation > 0.0f ? -penetration_recovery / dt * separation : push;
 % endif
     }
-% if friction == "manifold":
-    /* one friction pair at the centre of the points, and a twist row about n */
-    float3 centre_a = (float3)(0.0f), centre_b = (float3)(0.0f);
-    for (uint k = 0; k < c.point_count; ++k)
-        centre_a += c.r_a[k].xyz, centre_b += c.r_b[k].xyz;
-    float share = c.point_count > 0 ? 1.0f / (float)c.point_count : 0.0f;
-    centre_a *= share;
-    centre_b *= share;
-    tangent1_mass[0] = row_mass(t1, centre_a, centre_b, inv_mass_a, inv_mass_b, inv_inertia_a,
-                                inv_inertia_b);
-    tangent2_mass[0] = row_mass(t2, centre_a, centre_b, inv_mass_a, inv_mass_b, inv_inertia_a,
-                                inv_inertia_b);
-    float twist = dot3(n, mul_rows(inv_inertia_a, n)) + dot3(n, mul_rows(inv_inertia_b, n));
-    tangent1_mass[1] = twist > 0.0f ? 1.0f / twist : 0.0f;
-% endif
-    c.normal_mass = (float4)(normal_mass[0], normal_mass[1], normal_mass[2], normal_mass[3]);
-    c.tangent1_mass = (float4)(tangent1_mass[0], tangent1_mass[1], tangent1_mass[2], tangent1_mass[3]);
-    c.tangent2_mass = (float4)(tangent2_mass[0], tangent2_mass[1], tangent2_mass[2], tangent2_mass[3]);
+    set_row_masses(&c, inv_mass_a, inv_inertia_a, inv_mass_b, inv_inertia_b);
     c.velocity_target = (float4)(velocity_target[0], velocity_target[1], velocity_target[2], velocity_target[3]);
     c.position_target = (float4)(position_target[0], position_target[1], position_target[2], position_target[3]);
 % if warm_start:

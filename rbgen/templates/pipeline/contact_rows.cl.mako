@@ -1,0 +1,581 @@
+<%doc>
+  The rows of a contact constraint and how one constraint is solved, shared by
+  the Gauss-Seidel solver (solver.cl.mako) and the Jacobi solver with mass
+  splitting (jacobi.cl.mako). The including template supplies the parameters
+  friction, normal_solve and split_impulse, the structs Body, BodyInertia,
+  ContactConstraint, and common/inline_math.cl.mako.
+</%doc>
+inline float positive_part(float x)
+{
+    return x > 0.0f ? x : 0.0f;
+}
+
+inline void load_inertia(__global const BodyInertia* inertia, uint body, float3 rows[3])
+{
+    for (int r = 0; r < 3; ++r)
+        rows[r] = inertia[body].inv_inertia_world[r].xyz;
+}
+
+inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, float3 vb, float3 wb)
+{
+    return vb + cross3(wb, rb) - va - cross3(wa, ra);
+}
+
+% if normal_solve == "block":
+/* a released point counts as approaching beyond its target, and a pushing
+ * point's target as missed, above this fraction of the largest right-hand side
+ * (float32 round-off of an exact solve stays far below) */
+#define OVERSHOOT_TOLERANCE 1e-4f
+/* below these ratios (det / product of the diagonal) the closed forms leave a
+ * manifold to the rows: its points nearly on one line (or two coinciding), or
+ * bodies (almost) without rotational freedom, where K has fewer independent
+ * motions than the closed forms assume */
+#define FLAT_SPREAD_RATIO 1e-3f
+#define FLAT_MOBILITY_RATIO 1e-4f
+
+/* Three or four points of one face: the contact problem K total = rhs on the
+ * pushing points, total >= 0, and every released point reaching at least its
+ * target, solved exactly.
+ *
+ * A normal row's Jacobian is affine in its point's coordinates (u, v) in the
+ * contact plane about the points' centre (the lever arm's part along n drops
+ * out of r x n): arm_a[k] = A0 + u_k A1 + v_k A2, likewise for B, so
+ * K = G Q G^T with the rows g_k = (1, u_k, v_k) of G and the 3x3 mobility Q
+ * of the face (normal velocity and two tilt rates per unit of force and of
+ * the two moments). An impulse set acts through its wrench G^T total only,
+ * and the normal velocity it adds at point k is g_k . Q wrench. K is PSD, so
+ * every solution of the contact problem leaves the same velocities; they
+ * differ only in how the impulse is shared, which is what the order below
+ * decides.
+ *
+ * 1. All points pushing: the smallest totals with K total = rhs, total =
+ *    G M^-1 Q^-1 M^-1 G^T rhs with M = G^T G (for three points, the one
+ *    solution G^-T Q^-1 G^-1 rhs): evenly spread, no drift of the share
+ *    between the points from step to step. Valid when the targets fit one
+ *    rigid motion (the affine least-squares fit of rhs misses no point) and
+ *    no total is negative: a face resting on a face, nearly always.
+ * 2. Else (a corner still apart beside touching ones, a corner that would
+ *    pull, the kink of the split-impulse slop) the active sets in turn, the
+ *    larger first: three of four points (the plane p through their rhs, the
+ *    wrench Q^-1 p, and the totals its barycentric split: cofactors c_i =
+ *    g_j x g_l, D = g_i . c_i); then two, one and none (K's entries
+ *    g_j . Q g_k). Among three-point sets that hold, the one releasing the
+ *    point whose all-pushing total is lowest: for targets that fit one rigid
+ *    motion the solutions lie on a line through the all-pushing totals, and
+ *    that is the one nearest them (the point that would pull the most).
+ * A least-squares compromise instead (what conjugate gradients without
+ * releases give) tilts the box towards the gap on every sweep and kept stacks
+ * of a dropped pile rocking for ever.
+ * Straight-line code, no iteration: on a GPU a warp pays for the rare case
+ * whenever one of its 32 manifolds takes it, so the rare case must be cheap.
+ * Returns false, changing nothing, when the points lie nearly on one line, Q
+ * is nearly singular, or round-off leaves no active set valid: the caller then
+ * solves the rows one after another. */
+bool solve_face_points(const uint count, const float3 n, const float3 t1, const float3 t2,
+                       __private const float4* r_a, __private const float4* r_b,
+                       const float relaxation,
+                       float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
+                       float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
+                       const float target[4], float lambda[4])
+{
+    const bool four = count == 4;
+    const float share = 1.0f / (float)count;
+    float3 centre_a = (float3)(0.0f), centre_b = (float3)(0.0f);
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        centre_a += r_a[k].xyz, centre_b += r_b[k].xyz;
+    centre_a *= share;
+    centre_b *= share;
+    /* M = G^T G = diag(count, spread): the points' second moments in the plane */
+    float u[4] = {0.0f, 0.0f, 0.0f, 0.0f}, v[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+    float suu = 0.0f, suv = 0.0f, svv = 0.0f;
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+        float3 d = r_a[k].xyz - centre_a;
+        u[k] = dot3(d, t1);
+        v[k] = dot3(d, t2);
+        suu += u[k] * u[k], suv += u[k] * v[k], svv += v[k] * v[k];
+    }
+    float spread_det = suu * svv - suv * suv;
+    if (!(spread_det > FLAT_SPREAD_RATIO * suu * svv))
+        return false;
+    float inv_spread = 1.0f / spread_det;
+
+    /* Q[i][j]: normal velocity change of motion i per unit of wrench j (rows
+     * of G: force, moment along u, moment along v) */
+    float3 arm_a[3] = {cross3(centre_a, n), cross3(t1, n), cross3(t2, n)};
+    float3 arm_b[3] = {cross3(centre_b, n), arm_a[1], arm_a[2]};
+    float3 turn_a[3], turn_b[3];
+    for (uint i = 0; i < 3; ++i) {
+        turn_a[i] = mul_rows(inv_inertia_a, arm_a[i]);
+        turn_b[i] = mul_rows(inv_inertia_b, arm_b[i]);
+    }
+    float q[3][3];
+    for (uint i = 0; i < 3; ++i)
+        for (uint j = i; j < 3; ++j)
+            q[i][j] = q[j][i] = dot3(arm_a[i], turn_a[j]) + dot3(arm_b[i], turn_b[j]);
+    q[0][0] += inv_mass_a + inv_mass_b;
+    /* Q^-1 by cofactors */
+    float3 q_row0 = (float3)(q[0][0], q[0][1], q[0][2]);
+    float3 q_row1 = (float3)(q[1][0], q[1][1], q[1][2]);
+    float3 q_row2 = (float3)(q[2][0], q[2][1], q[2][2]);
+    float3 inv_q0 = cross3(q_row1, q_row2), inv_q1 = cross3(q_row2, q_row0);
+    float3 inv_q2 = cross3(q_row0, q_row1);
+    float q_det = dot3(q_row0, inv_q0);
+    if (!(q_det > FLAT_MOBILITY_RATIO * q[0][0] * q[1][1] * q[2][2]))
+        return false;
+    float inv_q_det = 1.0f / q_det;
+    inv_q0 *= inv_q_det, inv_q1 *= inv_q_det, inv_q2 *= inv_q_det;
+
+    /* the normal velocity now (affine in u, v), and the wrench of the current
+     * impulses; rhs_k = target_k - velocity_k + (K lambda)_k, what K total must reach */
+    float3 dw = *wb - *wa;
+    float3 speed = (float3)(dot3(n, *vb - *va) + dot3(*wb, arm_b[0]) - dot3(*wa, arm_a[0]),
+                            dot3(dw, arm_a[1]), dot3(dw, arm_a[2]));
+    float3 wrench = (float3)(0.0f);
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        wrench += (float3)(1.0f, u[k], v[k]) * lambda[k];
+    float3 reached = (float3)(dot3(q_row0, wrench), dot3(q_row1, wrench), dot3(q_row2, wrench))
+                   - speed;
+    float3 g[4];
+    float rhs[4], tolerance = 0.0f;
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) {
+        g[k] = (float3)(1.0f, u[k], v[k]);
+        rhs[k] = k < count ? target[k] + dot3(g[k], reached) : 0.0f;
+        tolerance = max1(tolerance, OVERSHOOT_TOLERANCE * abs1(rhs[k]));
+    }
+
+    /* 1. all pushing: the affine fit p of rhs, wrench z = Q^-1 p, totals G M^-1 z */
+    float3 fit = (float3)(0.0f);
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        fit += g[k] * rhs[k];
+    fit = (float3)(share * fit.x, (svv * fit.y - suv * fit.z) * inv_spread,
+                   (suu * fit.z - suv * fit.y) * inv_spread);
+    float3 z = (float3)(dot3(inv_q0, fit), dot3(inv_q1, fit), dot3(inv_q2, fit));
+    float3 x = (float3)(share * z.x, (svv * z.y - suv * z.z) * inv_spread,
+                        (suu * z.z - suv * z.y) * inv_spread);
+    float total[4], even[4];
+    bool valid = true;
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+        total[k] = even[k] = dot3(g[k], x);
+        valid = valid && total[k] >= 0.0f && abs1(rhs[k] - dot3(g[k], fit)) <= tolerance;
+    }
+
+    if (!valid) {
+        /* 2a. three of four pushing, point m released */
+        float lowest = INFINITY;
+        for (uint m = 0; m < 4; ++m) if (four) {
+            /* (indices picked by compare, not array subscripts: registers on GPUs) */
+            uint i = m == 0 ? 1 : 0, j = m <= 1 ? 2 : 1, l = m <= 2 ? 3 : 2;
+            float3 c_i = cross3(g[j], g[l]), c_j = cross3(g[l], g[i]), c_l = cross3(g[i], g[j]);
+            float det = dot3(g[i], c_i);
+            if (!(abs1(det) > FLAT_SPREAD_RATIO * (suu + svv)))
+                continue;
+            float inv_det = 1.0f / det;
+            float3 plane = (c_i * rhs[i] + c_j * rhs[j] + c_l * rhs[l]) * inv_det;
+            float3 w3 = (float3)(dot3(inv_q0, plane), dot3(inv_q1, plane), dot3(inv_q2, plane));
+            float x_i = dot3(c_i, w3) * inv_det, x_j = dot3(c_j, w3) * inv_det;
+            float x_l = dot3(c_l, w3) * inv_det;
+            if (x_i >= 0.0f && x_j >= 0.0f && x_l >= 0.0f
+                && dot3(g[m], plane) >= rhs[m] - tolerance && even[m] < lowest) {
+                lowest = even[m], valid = true;
+                total[m] = 0.0f, total[i] = x_i, total[j] = x_j, total[l] = x_l;
+            }
+        }
+    }
+    if (!valid) {
+        /* 2b. two, one or none pushing: K's entries g_j . Q g_k */
+        float3 h[4];
+        float k_matrix[4][4];
+        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+            h[k] = (float3)(dot3(q_row0, g[k]), dot3(q_row1, g[k]), dot3(q_row2, g[k]));
+        for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j)
+            for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+                k_matrix[j][k] = dot3(g[j], h[k]);
+        for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i)
+            for (uint j = i + 1; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count && !valid) {
+                float kii = k_matrix[i][i], kij = k_matrix[i][j], kjj = k_matrix[j][j];
+                float det = kii * kjj - kij * kij;
+                if (!(det > FLAT_SPREAD_RATIO * kii * kjj))
+                    continue;
+                float x_i = (kjj * rhs[i] - kij * rhs[j]) / det;
+                float x_j = (kii * rhs[j] - kij * rhs[i]) / det;
+                bool holds = x_i >= 0.0f && x_j >= 0.0f;
+                for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i && m != j)
+                    holds = holds && k_matrix[m][i] * x_i + k_matrix[m][j] * x_j >= rhs[m] - tolerance;
+                if (holds) {
+                    valid = true;
+                    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+                        total[k] = k == i ? x_i : k == j ? x_j : 0.0f;
+                }
+            }
+        for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i) if (i < count && !valid) {
+            float x_i = positive_part(rhs[i]) / k_matrix[i][i];
+            bool holds = true;
+            for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i)
+                holds = holds && k_matrix[m][i] * x_i >= rhs[m] - tolerance;
+            if (holds) {
+                valid = true;
+                for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+                    total[k] = k == i ? x_i : 0.0f;
+            }
+        }
+        if (!valid)
+            return false;
+    }
+
+    float change[4];
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        change[k] = positive_part(lambda[k] + relaxation * (total[k] - lambda[k])) - lambda[k];
+    /* apply: the summed impulse and its moments */
+    float3 applied = (float3)(0.0f);
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+        lambda[k] += change[k];
+        applied += g[k] * change[k];
+    }
+    *va -= n * (applied.x * inv_mass_a);
+    *vb += n * (applied.x * inv_mass_b);
+    *wa -= turn_a[0] * applied.x + turn_a[1] * applied.y + turn_a[2] * applied.z;
+    *wb += turn_b[0] * applied.x + turn_b[1] * applied.y + turn_b[2] * applied.z;
+    return true;
+}
+
+/* solve_normal_block for one or two points (an edge on a face, a corner): the contact problem K total = rhs, total >= 0, with the
+ * velocity reached at a released point no slower than its target, solved
+ * exactly by trying the active sets in turn (both pushing, either alone,
+ * none), which for a regular 2x2 K finds its unique solution. Returns false,
+ * changing nothing, when the two points (nearly) coincide in K (det below
+ * FLAT_SPREAD_RATIO of the diagonal's product): the rows decide. */
+bool solve_two_points(const uint count, const float3 n,
+                      __private const float4* r_a, __private const float4* r_b,
+                      const float relaxation,
+                      float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
+                      float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
+                      const float target[4], float lambda[4])
+{
+    if (count == 0)
+        return true;
+    const bool two = count == 2;
+    float3 arm_a0 = cross3(r_a[0].xyz, n), arm_b0 = cross3(r_b[0].xyz, n);
+    float3 arm_a1 = cross3(r_a[1].xyz, n), arm_b1 = cross3(r_b[1].xyz, n);
+    float3 turn_a0 = mul_rows(inv_inertia_a, arm_a0), turn_b0 = mul_rows(inv_inertia_b, arm_b0);
+    float3 turn_a1 = mul_rows(inv_inertia_a, arm_a1), turn_b1 = mul_rows(inv_inertia_b, arm_b1);
+    float inv_mass = inv_mass_a + inv_mass_b;
+    float k00 = inv_mass + dot3(arm_a0, turn_a0) + dot3(arm_b0, turn_b0);
+    float k01 = inv_mass + dot3(arm_a0, turn_a1) + dot3(arm_b0, turn_b1);
+    float k11 = inv_mass + dot3(arm_a1, turn_a1) + dot3(arm_b1, turn_b1);
+    float det = k00 * k11 - k01 * k01;
+    if (two && !(det > FLAT_SPREAD_RATIO * k00 * k11))
+        return false;
+    if (!(k00 > 0.0f))
+        return false;
+    /* rhs_j = target_j - normal velocity_j + (K lambda)_j: what K total must reach */
+    float3 dv = *vb - *va;
+    float speed0 = dot3(n, dv) + dot3(*wb, arm_b0) - dot3(*wa, arm_a0);
+    float speed1 = dot3(n, dv) + dot3(*wb, arm_b1) - dot3(*wa, arm_a1);
+    float lambda1 = two ? lambda[1] : 0.0f;
+    float rhs0 = target[0] - speed0 + k00 * lambda[0] + k01 * lambda1;
+    float rhs1 = target[1] - speed1 + k01 * lambda[0] + k11 * lambda1;
+    float tolerance = OVERSHOOT_TOLERANCE * max1(abs1(rhs0), two ? abs1(rhs1) : 0.0f);
+    float total0 = 0.0f, total1 = 0.0f;
+    float both0 = (k11 * rhs0 - k01 * rhs1) / det, both1 = (k00 * rhs1 - k01 * rhs0) / det;
+    float alone0 = positive_part(rhs0 / k00), alone1 = two ? positive_part(rhs1 / k11) : 0.0f;
+    if (!two) {
+        total0 = alone0;
+    } else if (both0 >= 0.0f && both1 >= 0.0f) {
+        total0 = both0, total1 = both1;
+    } else if (k01 * alone0 >= rhs1 - tolerance) {  /* point 1 released, still fast enough */
+        total0 = alone0;
+    } else if (k01 * alone1 >= rhs0 - tolerance) {
+        total1 = alone1;
+    }
+    float change0 = positive_part(lambda[0] + relaxation * (total0 - lambda[0])) - lambda[0];
+    float change1 = two ? positive_part(lambda1 + relaxation * (total1 - lambda1)) - lambda1 : 0.0f;
+    lambda[0] += change0;
+    if (two)
+        lambda[1] += change1;
+    float applied = change0 + change1;
+    *va -= n * (applied * inv_mass_a);
+    *vb += n * (applied * inv_mass_b);
+    *wa -= turn_a0 * change0 + turn_a1 * change1;
+    *wb += turn_b0 * change0 + turn_b1 * change1;
+    return true;
+}
+
+/* The normal rows of one manifold as a block: the accumulated impulses
+ * lambda[k] (>= 0) of its `count` points are replaced by the exact solution of
+ * the contact problem: every point that keeps a positive impulse reaches its
+ * normal velocity target, K (total - lambda) = target - vn with K[j][k] = the
+ * normal velocity change at point j per unit impulse at point k, and every
+ * released point (impulse 0) reaches at least its target. Solving the rows
+ * one after another instead leaves a residual torque after each sweep, which
+ * tips a symmetric column from its first step and makes it lean or walk.
+ * Three or four points: solve_face_points; one or two: solve_two_points.
+ * Returns false, changing nothing, for the degenerate geometry those decline
+ * (points nearly on one line or coinciding, bodies without rotational
+ * freedom): the caller then solves the rows one after another. Updates the
+ * velocities in place. */
+bool solve_normal_block(const uint count, const float3 n, const float3 t1, const float3 t2,
+                        __private const float4* r_a, __private const float4* r_b,
+                        const float relaxation,
+                        float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
+                        float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
+                        const float target[4], float lambda[4])
+{
+    if (count >= 3)
+        return solve_face_points(count, n, t1, t2, r_a, r_b, relaxation, inv_mass_a,
+                                 inv_inertia_a, va, wa, inv_mass_b, inv_inertia_b, vb, wb,
+                                 target, lambda);
+    return solve_two_points(count, n, r_a, r_b, relaxation, inv_mass_a, inv_inertia_a, va, wa,
+                            inv_mass_b, inv_inertia_b, vb, wb, target, lambda);
+}
+
+% endif
+/* The two bodies of one constraint as the solver sees them: inverse masses
+ * and world inverse inertias, and the (push) velocities being solved for.
+ * Functions take it as `__private ContactBodies*`: NVIDIA's compiler treats an
+ * unqualified pointer as generic and refuses to pass its inertia arrays on to
+ * array parameters (private). */
+typedef struct {
+    float inv_mass_a, inv_mass_b;
+    float3 inv_inertia_a[3], inv_inertia_b[3];
+    float3 va, wa, vb, wb;
+} ContactBodies;
+
+/* Impulse p at lever arms ra (on A, as -p) and rb (on B, as +p). */
+inline void apply_impulse(float3 p, float3 ra, float3 rb, __private ContactBodies* q)
+{
+    q->va -= p * q->inv_mass_a;
+    q->wa -= mul_rows(q->inv_inertia_a, cross3(ra, p));
+    q->vb += p * q->inv_mass_b;
+    q->wb += mul_rows(q->inv_inertia_b, cross3(rb, p));
+}
+
+/* One row: impulse along `direction` at lever arms ra, rb (or a pure torque
+ * about `direction` when `linear` is 0). arm_*: lever arm x direction;
+ * turn_*: angular velocity change per unit impulse. */
+typedef struct {
+    float3 linear, arm_a, arm_b, turn_a, turn_b;
+} Row;
+
+inline Row point_row(float3 direction, float3 ra, float3 rb, const __private ContactBodies* p)
+{
+    Row row;
+    row.linear = direction;
+    row.arm_a = cross3(ra, direction);
+    row.arm_b = cross3(rb, direction);
+    row.turn_a = mul_rows(p->inv_inertia_a, row.arm_a);
+    row.turn_b = mul_rows(p->inv_inertia_b, row.arm_b);
+    return row;
+}
+
+inline Row twist_row(float3 axis, const __private ContactBodies* p)
+{
+    Row row;
+    row.linear = (float3)(0.0f);
+    row.arm_a = row.arm_b = axis;
+    row.turn_a = mul_rows(p->inv_inertia_a, axis);
+    row.turn_b = mul_rows(p->inv_inertia_b, axis);
+    return row;
+}
+
+/* velocity of B relative to A along the row */
+inline float row_speed(const Row* row, const __private ContactBodies* p)
+{
+    float3 s = row->linear * (p->vb - p->va) + row->arm_b * p->wb - row->arm_a * p->wa;
+    return s.x + s.y + s.z;
+}
+
+inline void apply_row(const Row* row, float impulse, __private ContactBodies* p)
+{
+    p->va -= row->linear * (impulse * p->inv_mass_a);
+    p->wa -= row->turn_a * impulse;
+    p->vb += row->linear * (impulse * p->inv_mass_b);
+    p->wb += row->turn_b * impulse;
+}
+
+/* A normal row: the accumulated impulse stays >= 0. */
+inline void solve_normal_row(float3 n, float3 ra, float3 rb, float mass, float target,
+                             float relaxation, float* impulse, __private ContactBodies* p)
+{
+    Row row = point_row(n, ra, rb, p);
+    float total = positive_part(*impulse + relaxation * mass * (target - row_speed(&row, p)));
+    apply_row(&row, total - *impulse, p);
+    *impulse = total;
+}
+
+/* A friction pair at lever arms ra, rb: the accumulated (f1, f2) is clamped
+ * to the disc |f| <= limit. Always inlined: as a call (PoCL declines to
+ * inline it) the bodies' state would go through memory. */
+__attribute__((always_inline))
+inline void solve_friction_pair(float3 t1, float3 t2, float3 ra, float3 rb, float mass1,
+                                float mass2, float limit, float relaxation, float* impulse1,
+                                float* impulse2, __private ContactBodies* p)
+{
+    Row row1 = point_row(t1, ra, rb, p), row2 = point_row(t2, ra, rb, p);
+    float f1 = *impulse1 - relaxation * mass1 * row_speed(&row1, p);
+    float f2 = *impulse2 - relaxation * mass2 * row_speed(&row2, p);
+    float length_sq = f1 * f1 + f2 * f2;
+    if (length_sq > limit * limit) {
+        float scale = limit / sqrt1(length_sq);
+        f1 *= scale;
+        f2 *= scale;
+    }
+    apply_row(&row1, f1 - *impulse1, p);
+    apply_row(&row2, f2 - *impulse2, p);
+    *impulse1 = f1;
+    *impulse2 = f2;
+}
+
+inline void unpack4(float4 v, float out[4])
+{
+    out[0] = v.x, out[1] = v.y, out[2] = v.z, out[3] = v.w;
+}
+
+inline float4 pack4(const float in[4])
+{
+    return (float4)(in[0], in[1], in[2], in[3]);
+}
+
+inline void reverse4(float a[4])
+{
+    float t = a[0];
+    a[0] = a[3], a[3] = t;
+    t = a[1];
+    a[1] = a[2], a[2] = t;
+}
+
+/* Apply last step's accumulated impulses of one constraint (warm start) to
+ * its bodies' velocities in *p. */
+void warm_start_contact(const __private ContactConstraint* c, __private ContactBodies* p)
+{
+    uint count = c->point_count;
+    float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
+    float normal_impulse[4], tangent1_impulse[4], tangent2_impulse[4];
+    unpack4(c->normal_impulse, normal_impulse);
+    unpack4(c->tangent1_impulse, tangent1_impulse);
+    unpack4(c->tangent2_impulse, tangent2_impulse);
+% if friction == "point":
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+        float3 impulse = n * normal_impulse[k] + t1 * tangent1_impulse[k]
+                       + t2 * tangent2_impulse[k];
+        apply_impulse(impulse, c->r_a[k].xyz, c->r_b[k].xyz, p);
+    }
+% else:
+    float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+        apply_impulse(n * normal_impulse[k], c->r_a[k].xyz, c->r_b[k].xyz, p);
+        ra += c->r_a[k].xyz, rb += c->r_b[k].xyz;
+    }
+    float share = count > 0 ? 1.0f / (float)count : 0.0f;
+    apply_impulse(t1 * tangent1_impulse[0] + t2 * tangent2_impulse[0], ra * share, rb * share, p);
+    Row twist = twist_row(n, p);
+    apply_row(&twist, tangent1_impulse[1], p);
+% endif
+}
+
+/* Solve all rows of one constraint, updating its impulses and its bodies'
+ * velocities in *p. */
+void solve_contact(__private ContactConstraint* c, __private ContactBodies* p,
+                   const float relaxation, const bool reverse)
+{
+    uint count = c->point_count;
+    float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
+    float friction = c->normal.w;
+    float normal_impulse[4], tangent1_impulse[4], tangent2_impulse[4];
+    float normal_mass[4], tangent1_mass[4], tangent2_mass[4], target[4];
+    unpack4(c->normal_impulse, normal_impulse);
+    unpack4(c->tangent1_impulse, tangent1_impulse);
+    unpack4(c->tangent2_impulse, tangent2_impulse);
+    unpack4(c->normal_mass, normal_mass);
+    unpack4(c->tangent1_mass, tangent1_mass);
+    unpack4(c->tangent2_mass, tangent2_mass);
+    unpack4(c->velocity_target, target);
+
+    bool solved = false;  /* by the block solve; else row after row */
+% if normal_solve == "block":
+    solved = solve_normal_block(count, n, t1, t2, c->r_a, c->r_b, relaxation,
+                                p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa, p->inv_mass_b,
+                                p->inv_inertia_b, &p->vb, &p->wb, target, normal_impulse);
+% endif
+    /* alternate the point order between sweeps, so that no point is always first:
+     * slot s visits point k = reverse ? 3 - s : s, with the per-point arrays
+     * reversed to match rather than indexed by k (subscripts that stay constants
+     * keep the arrays in registers, on PoCL and on GPUs alike) */
+    if (reverse) {
+        reverse4(normal_impulse), reverse4(normal_mass), reverse4(target);
+% if friction == "point":
+        reverse4(tangent1_impulse), reverse4(tangent2_impulse);
+        reverse4(tangent1_mass), reverse4(tangent2_mass);
+% endif
+    }
+    for (uint slot = 0; slot < RB_MAX_MANIFOLD_POINTS; ++slot) {
+        uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - slot : slot;
+        if (k < count && !solved)
+            solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[slot], target[slot],
+                             relaxation, &normal_impulse[slot], p);
+    }
+% if friction == "point":
+    /* friction pairs: |(f1, f2)| <= mu * normal impulse (same point order) */
+    for (uint slot = 0; slot < RB_MAX_MANIFOLD_POINTS; ++slot) {
+        uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - slot : slot;
+        if (k < count)
+            solve_friction_pair(t1, t2, c->r_a[k].xyz, c->r_b[k].xyz, tangent1_mass[slot],
+                                tangent2_mass[slot], friction * normal_impulse[slot],
+                                relaxation, &tangent1_impulse[slot], &tangent2_impulse[slot],
+                                p);
+    }
+    if (reverse)
+        reverse4(normal_impulse), reverse4(tangent1_impulse), reverse4(tangent2_impulse);
+% else:
+    if (reverse)
+        reverse4(normal_impulse);
+    /* one friction pair at the centre of the points: |(f1, f2)| <= mu * total normal
+     * impulse, and a twist row about n: |f| <= mu * total * mean point distance */
+    float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
+    float total = 0.0f;
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        ra += c->r_a[k].xyz, rb += c->r_b[k].xyz, total += normal_impulse[k];
+    float share = count > 0 ? 1.0f / (float)count : 0.0f;
+    ra *= share;
+    rb *= share;
+    float limit = friction * total;
+    solve_friction_pair(t1, t2, ra, rb, tangent1_mass[0], tangent2_mass[0], limit, relaxation,
+                        &tangent1_impulse[0], &tangent2_impulse[0], p);
+    float radius = 0.0f;
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        radius += length3(c->r_b[k].xyz - rb);
+    float twist_limit = limit * radius * share;
+    Row twist = twist_row(n, p);
+    float twist_total = tangent1_impulse[1] - relaxation * tangent1_mass[1] * row_speed(&twist, p);
+    twist_total = min1(max1(twist_total, -twist_limit), twist_limit);
+    apply_row(&twist, twist_total - tangent1_impulse[1], p);
+    tangent1_impulse[1] = twist_total;
+% endif
+    c->normal_impulse = pack4(normal_impulse);
+    c->tangent1_impulse = pack4(tangent1_impulse);
+    c->tangent2_impulse = pack4(tangent2_impulse);
+}
+% if split_impulse:
+
+/* Normal rows of one constraint on its bodies' push velocities in *p (split
+ * impulse). */
+void solve_push(__private ContactConstraint* c, __private ContactBodies* p, const float relaxation)
+{
+    uint count = c->point_count;
+    float3 n = c->normal.xyz;
+    float push_impulse[4], normal_mass[4], target[4];
+    unpack4(c->push_impulse, push_impulse);
+    unpack4(c->normal_mass, normal_mass);
+    unpack4(c->position_target, target);
+    bool solved = false;  /* by the block solve; else row after row */
+% if normal_solve == "block":
+    solved = solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a, c->r_b,
+                                relaxation, p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa,
+                                p->inv_mass_b, p->inv_inertia_b, &p->vb, &p->wb, target,
+                                push_impulse);
+% endif
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count && !solved)
+        solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[k], target[k],
+                         relaxation, &push_impulse[k], p);
+    c->push_impulse = pack4(push_impulse);
+}
+% endif
