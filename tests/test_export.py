@@ -117,3 +117,27 @@ def test_exported_grid_solver_and_colouring_build_standalone(runtime, tmp_path):
     assert program.colour_global.num_args == len(colour["args"])
     assert main(["export", "--out", str(tmp_path), "--kernel", "solver", "--param",
                  "grid=True", "--param", "shape=cpu"]) == 2
+
+
+@pytest.mark.parametrize("grid", [False, True])
+def test_exported_jacobi_solver_builds_standalone(runtime, tmp_path, grid):
+    """The Jacobi solver exports in both launch variants: the .cl builds outside rbgen's
+    loader; the phase variant's kernels all take one argument list (a C++ caller binds
+    the buffers once and launches the phases in order), the grid variant's one kernel
+    takes the barrier's words before the relaxation."""
+    assert main(["export", "--out", str(tmp_path), "--kernel", "jacobi", "--device",
+                 runtime.device.name.strip(), "--param", f"grid={grid}",
+                 "--param", "work_group_size=32"]) == 0
+    entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
+    assert entry["params"]["grid"] is grid
+    program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
+    names = {k["name"]: [a["name"] for a in k["args"]] for k in entry["kernels"]}
+    for name, args in names.items():
+        assert getattr(program, name).num_args == len(args)
+    if grid:
+        assert list(names) == ["solve_jacobi"]
+        args = names["solve_jacobi"]
+        assert args[args.index("relaxation") - 1] == "sync"
+    else:
+        assert {"jacobi_clear", "jacobi_sweep", "jacobi_average", "jacobi_push"} <= set(names)
+        assert len({tuple(args) for args in names.values()}) == 1
