@@ -97,7 +97,9 @@ def cmd_run(args) -> int:
     if demo is None or not hasattr(demo, "run_scene"):
         print("scene simulation needs the World (not available in this build)", file=sys.stderr)
         return 1
-    demo.run_scene(args.scene, args.n, args.steps, device=args.device, progress=True)
+    options = {k: v for k, v in (("solver", args.solver), ("iterations", args.iterations))
+               if v is not None}
+    demo.run_scene(args.scene, args.n, args.steps, device=args.device, progress=True, **options)
     return 0
 
 
@@ -184,6 +186,10 @@ def main(argv=None) -> int:
     p.add_argument("--n", type=int, default=1000)
     p.add_argument("--steps", type=int, default=300)
     p.add_argument("--device", default=None)
+    p.add_argument("--solver", default=None, choices=("pgs", "jacobi"),
+                   help="contact solver (default pgs: batched Gauss-Seidel; jacobi: mass "
+                        "splitting, no batching, softer tall stacks at equal sweeps)")
+    p.add_argument("--iterations", type=int, default=None, help="velocity sweeps a step")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("tune", help="autotune every kernel family for a device")

@@ -106,7 +106,7 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
         "launches_per_step": stats["launches"], "blocking_reads_per_step": stats["blocking_reads"],
         "pairs": stats["pairs"], "manifolds": stats["manifolds"], "contacts": stats["contacts"],
         "batches": stats["batches"], "groups_used": stats["groups_used"],
-        "batching": stats["batching"],
+        "batching": stats["batching"], "solver": stats["solver"],
         "overflows": world.overflows,
         "nans": int(np.isnan(positions).any(axis=1).sum()),
         "sunk": int((positions[:, 1] < ground_top + half - 0.02).sum()),
@@ -122,7 +122,9 @@ def format_summary(s: dict) -> str:
     return (f"{s['scene']} {s['bodies']:,} boxes: {s['ms_per_step']:.2f} ms/step, "
             f"{s['launches_per_step']} launches and {s['blocking_reads_per_step']} blocking reads "
             f"per step; {s['pairs']:,} pairs, {s['manifolds']:,} manifolds, {s['contacts']:,} "
-            f"contact points, {s['batches']} batches in the largest group ({s['batching']} "
-            f"batching); sanity: NaNs {s['nans']}, "
+            f"contact points, "
+            + (f"{s['batches']} batches in the largest group ({s['batching']} batching)"
+               if s["solver"] == "pgs" else "Jacobi solver, no batching")
+            + f"; sanity: NaNs {s['nans']}, "
             f"sunk {s['sunk']}, max speed {s['max_speed']:.3f} m/s, overflows {s['overflows']}, "
             f"last box moved {100 * s['last_box_moved']:.2f} cm")

@@ -10,6 +10,9 @@ a fixed sequence of enqueues with no blocking read:
     components batching, one per colour and sweep otherwise) -> integrate ->
     (split impulse: apply push velocities)
 
+(With ``solver="jacobi"`` there is no batching, and the sweeps are Jacobi
+sweeps with mass splitting, `rbgen.pipeline.jacobi`.)
+
 Counts (pairs, manifolds, constraints, batches) stay on the device. Capacity
 overflow: the broadphase and the narrowphase report the size they needed in
 small status buffers that are copied to pinned host memory without blocking.
@@ -46,11 +49,14 @@ from .pipeline.constraints import ContactConstraints
 from .pipeline.grid import grid_validated
 from .pipeline.gyroscopic import BodyPreparation, inertia_records
 from .pipeline.integrate import Integrator
+from .pipeline.jacobi import JacobiSolver
 from .pipeline.solver import ContactSolver, resident_capacity
 from .shapes import Box, Capsule, ConvexHull, Plane, Shape, ShapeTable, Sphere
 
 #: manifolds reserved per body before the first overflow (grown on demand)
 MANIFOLDS_PER_BODY = 4
+#: contact solvers (World option ``solver``)
+SOLVERS = ("pgs", "jacobi")
 #: enqueued steps whose overflow status may be unchecked: a step checks the one
 #: before the last, whose status copy is done by then, so the host never drains
 #: the queue (the constraint ring keeps the warm-start data of both)
@@ -144,7 +150,7 @@ class World:
                  restitution_threshold: float = 0.5, penetration_slop: float | None = None,
                  penetration_recovery: float = 0.2, linear_damping: float = 0.0,
                  angular_damping: float = 0.0, batching: str | None = None,
-                 group_count: int | None = None,
+                 group_count: int | None = None, solver: str = "pgs",
                  manifold_capacity: int | None = None, pair_capacity: int | None = None):
         self.runtime: Runtime = coerce_runtime(device)
         self.gravity = _vector(gravity, 3, "gravity")
@@ -167,6 +173,12 @@ class World:
         if batching is not None and batching not in BATCHING_MODES:
             raise RbgenError(f"batching must be one of {BATCHING_MODES} or None (automatic), "
                              f"got {batching!r}")
+        if solver not in SOLVERS:
+            raise RbgenError(f"solver must be one of {SOLVERS}, got {solver!r}")
+        if solver == "jacobi" and batching is not None:
+            raise RbgenError(f"batching={batching!r} needs solver='pgs': the Jacobi solver "
+                             f"colours nothing")
+        self.solver = solver
         self._batching = batching       # None: chosen from the body count at each upload
         self._solver_options = {"split_impulse": penetration == "split",
                                 "friction": friction_model, "normal_solve": normal_solve,
@@ -177,6 +189,10 @@ class World:
             raise RbgenError(f"group_count must be >= 1, got {group_count!r}")
         # an explicit mode is built now (its errors surface here); automatic at the upload
         self._batcher, self._solver = self._solver_for(batching) if batching else (None, None)
+        if solver == "jacobi":
+            self._solver = JacobiSolver(rt, split_impulse=penetration == "split",
+                                        friction=friction_model,
+                                        normal_solve=normal_solve or "block")
         self.relaxation = float(relaxation)
         self.restitution_threshold = restitution_threshold
         if penetration_slop is None:
@@ -356,11 +372,12 @@ class World:
             self._broadphase = make_broadphase(self.runtime, self.broadphase_name, **options)
             self._stages_types = types
         self._packed = self.shapes.pack_all().to_device(queue)
-        self._batcher, self._solver = self._solver_for(self._batching or
-                                                       self._automatic_batching(n))
-        self._batcher.cell_size = self._cell_size()
-        self._batcher.slab_axis = self._slab_axis()
-        self._batcher.column_axes = self._column_axes()
+        if self.solver == "pgs":
+            self._batcher, self._solver = self._solver_for(self._batching or
+                                                           self._automatic_batching(n))
+            self._batcher.cell_size = self._cell_size()
+            self._batcher.slab_axis = self._slab_axis()
+            self._batcher.column_axes = self._column_axes()
         self._ensure_manifolds(self._initial_manifolds or MANIFOLDS_PER_BODY * max(n, 16))
         self._device_stale = False
 
@@ -474,12 +491,17 @@ class World:
         self._constraints(self._manifolds, self._manifold_count, self._bodies, self._inertia,
                           capacity, h)
         constraints = self._constraints.constraints
-        self._batcher(constraints, self._constraints.count, self._bodies, n, capacity)
         split = self._solver.split_impulse and self.position_iterations > 0
-        self._solver.solve(constraints, self._batcher, self._bodies, self._inertia, n,
-                           iterations=self.iterations,
-                           position_iterations=self.position_iterations if split else 0,
-                           relaxation=self.relaxation, warm_start=self.warm_start)
+        sweeps = {"iterations": self.iterations,
+                  "position_iterations": self.position_iterations if split else 0,
+                  "relaxation": self.relaxation, "warm_start": self.warm_start}
+        if self._batcher is None:  # Jacobi: no colouring
+            self._solver.solve(constraints, self._constraints.count, capacity, self._bodies,
+                               self._inertia, n, **sweeps)
+        else:
+            self._batcher(constraints, self._constraints.count, self._bodies, n, capacity)
+            self._solver.solve(constraints, self._batcher, self._bodies, self._inertia, n,
+                               **sweeps)
         self._integrate(self._bodies, n, h, linear_damping=self.linear_damping,  # push fused in
                         angular_damping=self.angular_damping,
                         split=self._solver.split_velocities(n) if split else None)
@@ -532,16 +554,18 @@ class World:
         if self._device_stale or self.body_count == 0:
             return {"bodies": self.body_count, "pairs": 0, "manifolds": 0, "contacts": 0,
                     "batches": 0, "groups_used": 0, "batching": self._batching,
-                    **self.last_step_counters}
+                    "solver": self.solver, **self.last_step_counters}
         read = self.runtime.read
         pairs = int(read(self._broadphase.count)[0])
         manifolds = int(read(self._constraints.count)[0])
         points = read(self._constraints.constraints)[:manifolds]["point_count"]
-        batch_counts = read(self._batcher.group_batch_count)
+        batch_counts = (read(self._batcher.group_batch_count) if self._batcher is not None
+                        else np.zeros(0, np.uint32))
         return {"bodies": self.body_count, "pairs": pairs, "manifolds": manifolds,
                 "contacts": int(points.sum()), "batches": int(batch_counts.max(initial=0)),
-                "groups_used": int((batch_counts > 0).sum()), "batching": self._batcher.mode,
-                **self.last_step_counters}
+                "groups_used": int((batch_counts > 0).sum()),
+                "batching": self._batcher.mode if self._batcher is not None else None,
+                "solver": self.solver, **self.last_step_counters}
 
 
 class _InFlight:
