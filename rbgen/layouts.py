@@ -295,6 +295,15 @@ SPLIT_VELOCITY = declare("SplitVelocity", [
 #: Marks an empty slot of the warm-starting hash table and an unassigned batch.
 SOLVER_NONE = constant("RB_SOLVER_NONE", 0xFFFFFFFF, "empty table slot / unassigned batch")
 
+# The words of a grid barrier's state (common/grid_barrier.cl.mako, rbgen.pipeline.grid)
+GRID_ARRIVALS = constant("RB_GRID_ARRIVALS", 0, "grid barrier: arrivals since the launch began")
+GRID_DEPARTURES = constant("RB_GRID_DEPARTURES", 1, "grid barrier: groups that have left")
+GRID_SPIN_LIMIT = constant("RB_GRID_SPIN_LIMIT", 2,
+                           "grid barrier: polls before a waiting group gives up (set by the host)")
+GRID_ABANDONED = constant("RB_GRID_ABANDONED", 3,
+                          "grid barrier: nonzero once a group gave up (reset by the host)")
+GRID_SYNC_WORDS = constant("RB_GRID_SYNC_WORDS", 4, "grid barrier: words of its state")
+
 CONTACT_CONSTRAINT = declare("ContactConstraint", [
     ("normal", "float4", "unit normal from A to B (world); w: friction coefficient"),
     ("tangent1", "float4", "first friction direction, unit, orthogonal to normal"),

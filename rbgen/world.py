@@ -46,9 +46,9 @@ from .device import Runtime, coerce_runtime
 from .errors import CapacityOverflowError, RbgenError
 from .pipeline.batching import MODES as BATCHING_MODES, ConstraintBatcher, default_mode
 from .pipeline.constraints import ContactConstraints
-from .pipeline.grid import grid_validated
 from .pipeline.gyroscopic import BodyPreparation, inertia_records
 from .pipeline.integrate import Integrator
+from .pipeline.grid import abandoned_word, clear_abandoned, grid_validated
 from .pipeline.jacobi import JacobiSolver
 from .pipeline.solver import ContactSolver, resident_capacity
 from .shapes import Box, Capsule, ConvexHull, Plane, Shape, ShapeTable, Sphere
@@ -133,7 +133,16 @@ class World:
     launches per sweep, piles spread over the device; "columns": cells that run along
     gravity, 5 launches per sweep, a stack whole in one group; "slabs": 3 launches per
     sweep, piles spread over a few cores in slabs across the widest horizontal
-    axis of the bodies when they were last set), ``group_count``
+    axis of the bodies when they were last set; a grid launch, global mode's
+    or the Jacobi solver's, whose work groups turn out not to run all at once
+    gives up its barrier instead of hanging, and the World redoes the step
+    without grid launches from then on, with a RuntimeWarning),
+    ``solver`` ("pgs", the default: projected Gauss-Seidel over the batching's
+    colours; "jacobi": Jacobi sweeps with mass splitting, no batching, see
+    `rbgen.pipeline.jacobi`: a sweep is two phases over the whole device
+    instead of one per colour, but a push travels one body down a stack per
+    sweep, so a 20-row pyramid's top sinks ~22 cm at 10 iterations and holds
+    within 2 cm at 80 iterations and 40 position iterations), ``group_count``
     (solver groups per colour), ``manifold_capacity`` and
     ``pair_capacity`` (initial buffer sizes; grown on overflow).
 
@@ -180,6 +189,7 @@ class World:
                              f"colours nothing")
         self.solver = solver
         self._batching = batching       # None: chosen from the body count at each upload
+        self._grid_failed = False       # a grid launch gave up: none from now on
         self._solver_options = {"split_impulse": penetration == "split",
                                 "friction": friction_model, "normal_solve": normal_solve,
                                 "group_count": group_count}
@@ -190,9 +200,10 @@ class World:
         # an explicit mode is built now (its errors surface here); automatic at the upload
         self._batcher, self._solver = self._solver_for(batching) if batching else (None, None)
         if solver == "jacobi":
-            self._solver = JacobiSolver(rt, split_impulse=penetration == "split",
-                                        friction=friction_model,
-                                        normal_solve=normal_solve or "block")
+            self._jacobi_options = {"split_impulse": penetration == "split",
+                                    "friction": friction_model,
+                                    "normal_solve": normal_solve or "block"}
+            self._solver = JacobiSolver(rt, **self._jacobi_options)
         self.relaxation = float(relaxation)
         self.restitution_threshold = restitution_threshold
         if penetration_slop is None:
@@ -373,13 +384,41 @@ class World:
             self._stages_types = types
         self._packed = self.shapes.pack_all().to_device(queue)
         if self.solver == "pgs":
-            self._batcher, self._solver = self._solver_for(self._batching or
-                                                           self._automatic_batching(n))
-            self._batcher.cell_size = self._cell_size()
-            self._batcher.slab_axis = self._slab_axis()
-            self._batcher.column_axes = self._column_axes()
+            mode = self._batching or self._automatic_batching(n)
+            if mode == "global" and self._grid_failed:
+                mode = self._automatic_batching(n)
+            self._use_batching(mode)
         self._ensure_manifolds(self._initial_manifolds or MANIFOLDS_PER_BODY * max(n, 16))
         self._device_stale = False
+
+    def _use_batching(self, mode: str) -> None:
+        self._batcher, self._solver = self._solver_for(mode)
+        self._batcher.cell_size = self._cell_size()
+        self._batcher.slab_axis = self._slab_axis()
+        self._batcher.column_axes = self._column_axes()
+
+    def _grid_sync(self):
+        """The grid barrier state of this step's grid launches (None: it makes none)."""
+        if self._batcher is None:
+            return self._solver.sync if self._solver.grid else None
+        return self._batcher.state if self._batcher.mode == "global" else None
+
+    def _abandon_grid(self) -> None:
+        """A grid launch gave up its barrier (its work groups did not all run at once):
+        from now on this World makes no grid launch; the caller redoes the steps."""
+        self._grid_failed = True
+        clear_abandoned(self.runtime, self._grid_sync())
+        if self._batcher is None:
+            self._solver = JacobiSolver(self.runtime, grid=False, **self._jacobi_options)
+            instead = "the Jacobi solver's launch per phase"
+        else:
+            mode = self._automatic_batching(self.body_count)
+            self._use_batching(mode)
+            instead = f"batching mode {mode!r}"
+        warnings.warn(f"a grid launch on {self.runtime.traits.device_name} gave up waiting at "
+                      f"a barrier across its work groups (they did not all run at once: a GPU "
+                      f"shared through MPS?); the step is redone, and this World uses "
+                      f"{instead} from now on", RuntimeWarning, stacklevel=3)
 
     def _automatic_batching(self, body_count: int) -> str:
         """``global`` on NVIDIA GPUs (one colouring and one solver launch a step over every
@@ -390,7 +429,7 @@ class World:
         solver launch a step, velocities in local memory), else the device's default
         (cells on GPUs, slabs on CPUs)."""
         traits = self.runtime.traits
-        if grid_validated(traits):
+        if grid_validated(traits) and not self._grid_failed:
             return "global"
         if traits.is_gpu and body_count <= resident_capacity(traits):
             return "single"
@@ -531,11 +570,14 @@ class World:
                 raise CapacityOverflowError(
                     f"a step still overflowed after {MAX_REDOS} redos with grown buffers "
                     f"(pairs found {problem[0]}, manifolds needed {problem[1]})")
-            self.overflows += 1
             self.runtime.queue.finish()
-            self._broadphase.check()  # raises for a NaN body, grows the pair buffer
-            pairs_found, needed = problem
-            self._broadphase.buffer.grow_for(pairs_found)
+            pairs_found, needed, abandoned = problem
+            if abandoned:
+                self._abandon_grid()
+            if not abandoned or pairs_found > self._broadphase.capacity or needed:
+                self.overflows += 1
+                self._broadphase.check()  # raises for a NaN body, grows the pair buffer
+                self._broadphase.buffer.grow_for(pairs_found)
             if needed:
                 self._ensure_manifolds(int(needed * 1.25) + 16)
             redo = [e.h for e in self._in_flight]
@@ -580,10 +622,13 @@ class _InFlight:
 
     @classmethod
     def start(cls, world: "World", h: float, slot: int) -> "_InFlight":
-        """Enqueue non-blocking copies of the broadphase status and the narrowphase overflow."""
+        """Enqueue non-blocking copies of the broadphase status, the narrowphase overflow
+        and, for a step with grid launches, their barrier's abandoned flag: pinned host
+        words [status..., overflow(, abandoned)]."""
         queue = world.runtime.queue
         status = world._broadphase.buffer.status
-        words = status.size + 1
+        grid = world._grid_sync()
+        words = status.size + 1 + (grid is not None)
         pinned = world._status_pinned.get(slot)
         if pinned is None or pinned[1].size != words:
             buffer = cl.Buffer(world.runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 4 * words)
@@ -591,20 +636,28 @@ class _InFlight:
                                             0, (words,), np.uint32)
             pinned = world._status_pinned[slot] = (buffer, host)
         host = pinned[1]
-        events = (cl.enqueue_copy(queue, host[:-1], status.data, is_blocking=False),
-                  cl.enqueue_copy(queue, host[-1:], world._overflow.data, is_blocking=False))
+        n = status.size
+        events = [cl.enqueue_copy(queue, host[:n], status.data, is_blocking=False),
+                  cl.enqueue_copy(queue, host[n:n + 1], world._overflow.data, is_blocking=False)]
+        if grid is not None:
+            buffer, offset = abandoned_word(grid)
+            events.append(cl.enqueue_copy(queue, host[n + 1:], buffer.data, src_offset=offset,
+                                          is_blocking=False))
         return cls(h, slot, host, events)
 
     def problem(self, world: "World"):
-        """None when the step was complete, else (pairs found, manifolds needed)."""
+        """None when the step was complete, else (pairs found, manifolds needed, whether a
+        grid launch gave up)."""
         cl.wait_for_events(self.events)
-        status = self.host[:-1].view(layouts.BROADPHASE_STATUS.dtype)[0]
+        n = world._broadphase.buffer.status.size
+        status = self.host[:n].view(layouts.BROADPHASE_STATUS.dtype)[0]
         pairs_found = int(status["pairs_found"])
-        needed = int(self.host[-1])
+        needed = int(self.host[n])
+        abandoned = len(self.host) > n + 1 and bool(self.host[n + 1])
         retry = int(status["retry"]) if "retry" in status.dtype.names else 0
-        if (status["bad_body"] != layouts.BP_NO_BODY or retry or needed
+        if (status["bad_body"] != layouts.BP_NO_BODY or retry or needed or abandoned
                 or pairs_found > world._broadphase.capacity):
-            return pairs_found, needed
+            return pairs_found, needed, abandoned
         return None
 
 

@@ -7,18 +7,26 @@ Such a barrier needs every group of the launch running at once, which
 OpenCL 1.2 does not promise: it holds when the launch has no more groups
 than the device runs side by side. `grid_groups` picks one per compute unit
 (the kernels using it need at most one compute unit's registers and local
-memory per group), and `sync_buffer` holds the two counters the barrier
-keeps, zero between launches.
+memory per group), and `sync_buffer` holds the barrier's state: two counters,
+zero between launches, the number of polls after which a waiting group gives
+up, and the flag it then sets. A launch that gave up did none of its work;
+the World reads the flag without blocking and redoes the step without grid
+barriers (`rbgen.world`).
 """
 from __future__ import annotations
 
 import numpy as np
 import pyopencl.array as cl_array
 
+from .. import layouts
 from ..device import DeviceTraits, Runtime
 
-#: words of a grid barrier's state: arrivals since the launch began, groups that left
-SYNC_WORDS = 2
+#: words of a grid barrier's state: arrivals since the launch began, groups that left,
+#: the spin limit, the abandoned flag (layouts.GRID_*)
+SYNC_WORDS = layouts.GRID_SYNC_WORDS
+#: polls of a waiting work group before it gives up the barrier: a poll is a round trip
+#: to the shared cache, ~0.5 us on an H200 (2^23: ~4 s) and ~1-10 ns on a CPU (2^31)
+SPIN_LIMIT_GPU, SPIN_LIMIT_CPU = 1 << 23, 1 << 31
 
 
 def grid_groups(traits: DeviceTraits) -> int:
@@ -36,7 +44,26 @@ def grid_validated(traits: DeviceTraits) -> bool:
     return traits.is_gpu and "nvidia" in traits.vendor.lower()
 
 
+def spin_limit(traits: DeviceTraits) -> int:
+    """Polls before a work group waiting at a grid barrier gives up (seconds of waiting,
+    far beyond any phase: a barrier that waits that long has groups that never ran)."""
+    return SPIN_LIMIT_GPU if traits.is_gpu else SPIN_LIMIT_CPU
+
+
 def sync_buffer(runtime: Runtime, extra_words: int = 0):
-    """A zeroed uint32 device array: the barrier's SYNC_WORDS, then ``extra_words`` for the
-    kernel's own use."""
-    return cl_array.zeros(runtime.queue, SYNC_WORDS + int(extra_words), np.uint32)
+    """A uint32 device array: the barrier's SYNC_WORDS (counters and flag zero, the spin
+    limit set), then ``extra_words`` of zeros for the kernel's own use."""
+    words = np.zeros(SYNC_WORDS + int(extra_words), np.uint32)
+    words[layouts.GRID_SPIN_LIMIT] = spin_limit(runtime.traits)
+    return cl_array.to_device(runtime.queue, words)
+
+
+def abandoned_word(sync) -> tuple:
+    """(buffer, byte offset) of a sync buffer's abandoned flag, for a non-blocking copy."""
+    return sync, 4 * layouts.GRID_ABANDONED
+
+
+def clear_abandoned(runtime: Runtime, sync) -> None:
+    """Reset a sync buffer's abandoned flag (after the host has dealt with it)."""
+    sync[layouts.GRID_ABANDONED:layouts.GRID_ABANDONED + 1].fill(np.uint32(0),
+                                                                  queue=runtime.queue)

@@ -97,7 +97,8 @@ class JacobiSolver:
         #: work groups of every launch (the scan's chunks depend on it)
         self.groups = grid_groups(traits) * (1 if self.grid else PHASE_GROUPS_PER_UNIT)
         q = runtime.queue
-        self._sync = sync_buffer(runtime) if self.grid else None
+        #: the grid barrier's words (grid variant; its abandoned flag is read by the World)
+        self.sync = sync_buffer(runtime) if self.grid else None
         self._chunk_sums = cl_array.zeros(q, self.groups, np.uint32)
         self._body_capacity = self._side_capacity = 0
         self._split = None
@@ -159,7 +160,7 @@ class JacobiSolver:
         shared += [self._body_contacts, self._body_first, self._chunk_sums, self._side_slots,
                    self._lists, self._changes]
         if self.grid:
-            shared.append(self._sync)
+            shared.append(self.sync)
         shared += [np.float32(relaxation), np.uint32(body_count)]
         size = self.groups * self.work_group_size
         for kernel in self._schedule(int(iterations), int(position_iterations),

@@ -181,7 +181,7 @@ class ContactSolver:
                                   friction=friction, normal_solve=normal_solve,
                                   resident_bodies=self.resident_bodies, grid=bool(grid))
         self.grid = bool(grid)
-        #: the grid barrier's words (zero between launches)
+        #: the grid barrier's words over batches other than global's (which brings its own)
         self._sync = sync_buffer(runtime) if self.grid else None
         self._program = program = compile_spec(runtime, self.spec)
         if self.split_impulse:
@@ -246,8 +246,8 @@ class ContactSolver:
                   bodies, inertia]
         if self.split_impulse:
             shared.append(self.split_velocities(max(1, int(body_capacity))))
-        if self.grid:
-            shared.append(self._sync)
+        if self.grid:  # after a global colouring: its buffer (it may have given up)
+            shared.append(batcher.state if batcher.mode == "global" else self._sync)
         shared.append(np.float32(relaxation))
         if self.resident_bodies:
             shared.append(np.uint32(body_capacity))

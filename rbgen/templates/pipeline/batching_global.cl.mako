@@ -52,9 +52,9 @@ ${cl_structs("ContactConstraint", "Body")}
 #define COLOURS ${colours}
 /* the layout of `state` (see colour_global) */
 #define STATE_SYNC 0
-#define STATE_LOST 2
-#define STATE_HIGHEST 4
-#define STATE_BATCH_SIZE 5
+#define STATE_LOST RB_GRID_SYNC_WORDS
+#define STATE_HIGHEST (STATE_LOST + 2)
+#define STATE_BATCH_SIZE (STATE_HIGHEST + 1)
 
 <%include file="/common/hash.cl.mako"/>
 <%include file="/common/colour_mask.cl.mako"/>
@@ -83,9 +83,10 @@ inline void take_colour(__global uint* constraint_colour, volatile __global uint
 /* Colours the first constraint_count[0] constraints (see the file comment).
  * Scratch: `pairs` (2 per constraint: its dynamic bodies, RB_SOLVER_NONE for a
  * static one), `bids` (2 per body), `used` (4 per body: the colour mask, then
- * the repeated-colour mask of step 1) and `state`: the grid barrier's 2 words
- * (zero between launches), the 2 lost flags, the highest colour taken and
- * MAX_BATCHES + 1 batch counters. */
+ * the repeated-colour mask of step 1) and `state`: the grid barrier's
+ * RB_GRID_SYNC_WORDS words (which the solver's launch after this one shares),
+ * the 2 lost flags, the highest colour taken and MAX_BATCHES + 1 batch
+ * counters. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void colour_global(__global ContactConstraint* constraints,
                    __global const uint* constraint_count,
@@ -100,34 +101,38 @@ void colour_global(__global ContactConstraint* constraints,
                    volatile __global uint* state,
                    const uint body_count)
 {
-    const uint id = get_global_id(0), lanes = get_global_size(0), n = constraint_count[0];
+    const uint id = get_global_id(0), lanes = get_global_size(0);
     volatile __global uint* sync = state + STATE_SYNC;
     volatile __global uint* lost = state + STATE_LOST;
     volatile __global uint* highest = state + STATE_HIGHEST;
     volatile __global uint* batch_size = state + STATE_BATCH_SIZE;
     volatile __global uint* repeated = used + 2 * body_count;
+    /* 0 once a grid barrier was given up: every later phase is skipped */
+    __local uint grid_ok;
+    grid_start(sync, &grid_ok);
+    const uint n = grid_ok ? constraint_count[0] : 0u;
 
-    for (uint body = id; body < body_count; body += lanes) {
+    for (uint body = id; body < body_count && grid_ok; body += lanes) {
         bids[body] = bids[body_count + body] = RB_SOLVER_NONE;
         used[2 * body] = used[2 * body + 1] = 0;
         repeated[2 * body] = repeated[2 * body + 1] = 0;
     }
-    for (uint k = id; k <= MAX_BATCHES; k += lanes)
+    for (uint k = id; k <= MAX_BATCHES && grid_ok; k += lanes)
         batch_size[k] = 0;
-    if (id == 0)
+    if (id == 0 && grid_ok)
         lost[0] = lost[1] = *highest = 0;
     /* every constraint's dynamic bodies, and its inherited colour, if any */
-    for (uint c = id; c < n; c += lanes) {
+    for (uint c = id; c < n && grid_ok; c += lanes) {
         uint a = constraints[c].body_a, b = constraints[c].body_b;
         uint hint = constraints[c].group;
         pairs[2 * c] = bodies[a].inv_mass > 0.0f ? a : RB_SOLVER_NONE;
         pairs[2 * c + 1] = bodies[b].inv_mass > 0.0f ? b : RB_SOLVER_NONE;
         constraint_colour[c] = hint < COLOURS ? hint : RB_SOLVER_NONE;
     }
-    grid_barrier(sync);
+    grid_barrier(sync, &grid_ok);
 
     /* 1. inherited colours: mark them on the bodies, noting repeats */
-    for (uint c = id; c < n; c += lanes) {
+    for (uint c = id; c < n && grid_ok; c += lanes) {
         uint k = constraint_colour[c];
         if (k == RB_SOLVER_NONE)
             continue;
@@ -138,9 +143,9 @@ void colour_global(__global ContactConstraint* constraints,
                 atomic_or(&repeated[2 * body + word], bit);
         }
     }
-    grid_barrier(sync);
+    grid_barrier(sync, &grid_ok);
     /* keep the colours repeated on neither body; list the rest for the rounds */
-    for (uint c = id; c < n; c += lanes) {
+    for (uint c = id; c < n && grid_ok; c += lanes) {
         uint k = constraint_colour[c];
         bool keep = k != RB_SOLVER_NONE;
         if (keep) {
@@ -156,11 +161,11 @@ void colour_global(__global ContactConstraint* constraints,
             constraint_colour[c] = RB_SOLVER_NONE;
     }
     /* the masks keep only the colours kept (a repeated colour was dropped by all) */
-    for (uint body = id; body < body_count; body += lanes) {
+    for (uint body = id; body < body_count && grid_ok; body += lanes) {
         used[2 * body] &= ~repeated[2 * body];
         used[2 * body + 1] &= ~repeated[2 * body + 1];
     }
-    grid_barrier(sync);
+    grid_barrier(sync, &grid_ok);
 
     /* 2. Jones-Plassmann rounds over the uncoloured constraints */
     bool more = n > 0;
@@ -169,9 +174,9 @@ void colour_global(__global ContactConstraint* constraints,
         volatile __global uint* next_bid = bids + ((round + 1) & 1) * body_count;
         /* every uncoloured constraint bids on its dynamic bodies; the next
          * round's bids are cleared (the last round read them before its barrier) */
-        for (uint body = id; body < body_count; body += lanes)
+        for (uint body = id; body < body_count && grid_ok; body += lanes)
             next_bid[body] = RB_SOLVER_NONE;
-        for (uint c = id; c < n; c += lanes) {
+        for (uint c = id; c < n && grid_ok; c += lanes) {
             if (constraint_colour[c] != RB_SOLVER_NONE)
                 continue;
             uint a = pairs[2 * c], b = pairs[2 * c + 1], priority = mix32(c);
@@ -180,13 +185,13 @@ void colour_global(__global ContactConstraint* constraints,
             if (b != RB_SOLVER_NONE)
                 atomic_min(&bid[b], priority);
         }
-        grid_barrier(sync);
+        grid_barrier(sync, &grid_ok);
         /* a constraint holding the lowest bid on all its dynamic bodies takes
          * the lowest colour free on them (no other winner touches them); the
          * next round's flag is cleared (nobody reads it now) */
-        if (id == 0)
+        if (id == 0 && grid_ok)
             lost[(round + 1) & 1] = 0;
-        for (uint c = id; c < n; c += lanes) {
+        for (uint c = id; c < n && grid_ok; c += lanes) {
             if (constraint_colour[c] != RB_SOLVER_NONE)
                 continue;
             uint a = pairs[2 * c], b = pairs[2 * c + 1], priority = mix32(c);
@@ -209,14 +214,14 @@ void colour_global(__global ContactConstraint* constraints,
             }
             take_colour(constraint_colour, highest, batch_size, c, k);
         }
-        grid_barrier(sync);
-        more = lost[round & 1] != 0;
+        grid_barrier(sync, &grid_ok);
+        more = grid_ok && lost[round & 1] != 0;
     }
 
     /* batch offsets (one lane: at most MAX_BATCHES entries), then the list;
      * each constraint keeps its colour for the next step */
-    const uint batch_count = n == 0 ? 0 : *highest + 1;
-    if (id == 0) {
+    const uint batch_count = n == 0 || !grid_ok ? 0 : *highest + 1;
+    if (id == 0 && grid_ok) {
         uint total = 0;
         for (uint k = 0; k <= batch_count; ++k) {
             uint size = batch_size[k];
@@ -226,16 +231,16 @@ void colour_global(__global ContactConstraint* constraints,
         }
         group_batch_count[0] = batch_count;
     }
-    grid_barrier(sync);
-    for (uint c = id; c < n; c += lanes) {
+    grid_barrier(sync, &grid_ok);
+    for (uint c = id; c < n && grid_ok; c += lanes) {
         uint k = constraint_colour[c];
         order[atomic_inc(&batch_size[k])] = c;
         constraints[c].group = k;
     }
     /* the serial slot is solved in list order: make it index order (insertion
      * sort by one lane; the slot holds only what 64 colours could not take) */
-    grid_barrier(sync);
-    if (id == 0 && batch_count > SERIAL_BATCH) {
+    grid_barrier(sync, &grid_ok);
+    if (id == 0 && grid_ok && batch_count > SERIAL_BATCH) {
         const uint begin = group_batches[SERIAL_BATCH], end = group_batches[SERIAL_BATCH + 1];
         for (uint i = begin + 1; i < end; ++i) {
             uint value = order[i], j = i;

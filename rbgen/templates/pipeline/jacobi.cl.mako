@@ -261,7 +261,7 @@ __global ContactConstraint* constraints,
 /* The whole solve of one step: the lists, the warm start (passes &
  * WARM_START_PASS), `velocity_sweeps` sweeps on the velocities and
  * `position_sweeps` on the push velocities, by every work group of the
- * launch (`sync`: the grid barrier's two words, zero between launches). */
+ * launch (`sync`: the grid barrier's words). */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void solve_jacobi(${arguments()},
                   const uint passes,
@@ -269,48 +269,65 @@ void solve_jacobi(${arguments()},
                   const uint position_sweeps)
 {
 ${indices(True)}\
-    {
+    /* 0 once a grid barrier was given up: the phases that index through what
+     * earlier phases wrote are skipped from then on (the scan's run on as they
+     * are: they index nothing they did not bound themselves) */
+    __local uint grid_ok;
+    grid_start(sync, &grid_ok);
+    if (grid_ok) {
 ${clear_phase()}\
     }
-    grid_barrier(sync);
-    {
+    grid_barrier(sync, &grid_ok);
+    if (grid_ok) {
 ${count_phase()}\
     }
-    grid_barrier(sync);
+    grid_barrier(sync, &grid_ok);
     {
 ${chunk_sum_phase()}\
     }
-    grid_barrier(sync);
+    grid_barrier(sync, &grid_ok);
     {
 ${scan_phase()}\
     }
-    grid_barrier(sync);
-    {
+    grid_barrier(sync, &grid_ok);
+    if (grid_ok) {
 ${link_phase()}\
     }
-    grid_barrier(sync);
-    {
+    grid_barrier(sync, &grid_ok);
+    if (grid_ok) {
 ${order_phase()}\
     }
     if (passes & WARM_START_PASS) {
+        if (grid_ok) {
 ${constraint_phase("warm_start_contact(c, &p)", "bodies")}\
-        grid_barrier(sync);
+        }
+        grid_barrier(sync, &grid_ok);
+        if (grid_ok) {
 ${body_phase("bodies")}\
-        grid_barrier(sync);
+        }
+        grid_barrier(sync, &grid_ok);
     }
     for (uint s = 0; s < velocity_sweeps; ++s) {
         const bool reverse = ((passes & FIRST_REVERSED) != 0) != ((s & 1) != 0);
+        if (grid_ok) {
 ${constraint_phase(sweep, "bodies", velocity_results)}\
-        grid_barrier(sync);
+        }
+        grid_barrier(sync, &grid_ok);
+        if (grid_ok) {
 ${body_phase("bodies")}\
-        grid_barrier(sync);
+        }
+        grid_barrier(sync, &grid_ok);
     }
 % if split_impulse:
     for (uint s = 0; s < position_sweeps; ++s) {
+        if (grid_ok) {
 ${constraint_phase("solve_push(c, &p, relaxation)", "split", ("push_impulse",))}\
-        grid_barrier(sync);
+        }
+        grid_barrier(sync, &grid_ok);
+        if (grid_ok) {
 ${body_phase("split")}\
-        grid_barrier(sync);
+        }
+        grid_barrier(sync, &grid_ok);
     }
 % endif
     grid_leave(sync);

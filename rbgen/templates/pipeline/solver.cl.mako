@@ -182,7 +182,7 @@ inline void store_resident(const __private ContactBodies* p, __local float* velo
     # where each kind of sweep finds its velocities (see load_velocities)
     memory = {"velocities": "bodies", "push": "split", "resident": "resident"}
     fence = "CLK_LOCAL_MEM_FENCE" if resident_bodies else "CLK_GLOBAL_MEM_FENCE"
-    batch_barrier = "grid_barrier(sync)" if grid else f"barrier({fence})"
+    batch_barrier = "grid_barrier(sync, &grid_ok);" if grid else f"barrier({fence});"
     lanes = "get_global_size(0)" if grid else work_group_size
 %>\
 <%def name="visit(action, source, results)">\
@@ -209,13 +209,15 @@ inline void store_resident(const __private ContactBodies* p, __local float* velo
             uint end = ${"batch_offsets" if resident_bodies else "offsets"}[batch + 1];
             uint stride = ${lanes};
 % if grid:
-            if (begin == end)  /* an unused colour (inherited colours can leave gaps) */
+            /* an unused colour (inherited colours can leave gaps), or a launch that
+             * gave up its barrier (no more work; see grid_barrier) */
+            if (begin == end || !grid_ok)
                 continue;
 % endif
             if (batch == SERIAL_BATCH)  /* the remainder: lane 0 alone, in order */
                 stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
             for (uint i = begin + lane; i < end; i += stride) ${visit(action, source, results)}
-            ${batch_barrier};
+            ${batch_barrier}
         }
 % else:
         for (uint i = begin; i < end; ++i) ${visit(action, source, results)}
@@ -235,7 +237,8 @@ inline void store_resident(const __private ContactBodies* p, __local float* velo
  * the one group of all constraints, by every work group of the launch: a
  * lane is responsible for the constraints of a batch at its global index
  * plus multiples of the launch's size, and all wait for all after each
- * batch (`sync`: the grid barrier's two words, zero between launches). */
+ * batch (`sync`: the grid barrier's words, shared with the global colouring
+ * launched before). */
 % elif shape == "gpu":
 /* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
  * the groups group_offset + 0, 1, ... (one launch). A work group is
@@ -276,6 +279,8 @@ void solve_groups(__global ContactConstraint* constraints,
 % endif
 {
 % if grid:
+    __local uint grid_ok;
+    grid_start(sync, &grid_ok);  /* (the colouring before, on the same `sync`, may have given up) */
     const uint lane = get_global_id(0), group = group_offset;
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint batch_count = group_batch_count[group];
