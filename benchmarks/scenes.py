@@ -3,7 +3,7 @@
     python benchmarks/scenes.py [--device D] [--sizes 1000 8000 27000 111375]
                                 [--steps 100] [--warmup 10] [--batching MODE]
                                 [--solver pgs|jacobi] [--iterations 10]
-                                [--position-iterations 4]
+                                [--position-iterations 4] [--relaxation 1.0]
 
 For each size: ms/step = wall time of ``--steps`` steps enqueued back to back
 after ``--warmup`` (one queue.finish() at the end), kernel launches and blocking reads per
@@ -31,7 +31,8 @@ def main(argv=None) -> int:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 8000, 27000, 111375])
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--warmup", type=int, default=10)
-    parser.add_argument("--scene", default="boxbox", choices=["boxbox", "box_pile"])
+    parser.add_argument("--scene", default="boxbox", choices=["boxbox", "box_pile", "pyramid"],
+                        help="pyramid: --sizes are its rows")
     parser.add_argument("--batching", default=None, choices=BATCHING_MODES,
                         help="batching mode (default: the World's: global on NVIDIA GPUs, single "
                              "then cells on other GPUs, slabs on CPUs)")
@@ -40,13 +41,15 @@ def main(argv=None) -> int:
                              "(mass splitting, no batching)")
     parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--position-iterations", type=int, default=4)
+    parser.add_argument("--relaxation", type=float, default=1.0,
+                        help="successive over-relaxation of every row (World setting)")
     parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"],
                         help="a manifold's normal rows as one block or one by one (default: "
                              "block with cells batching, else one by one)")
     args = parser.parse_args(argv)
 
     options = {"iterations": args.iterations, "position_iterations": args.position_iterations,
-               "solver": args.solver}
+               "solver": args.solver, "relaxation": args.relaxation}
     if args.normal_solve:
         options["normal_solve"] = args.normal_solve
     if args.batching:
@@ -59,14 +62,16 @@ def main(argv=None) -> int:
         if len(rows) == 1:
             print(f"device: {s['device']}; {args.scene}, {args.steps} steps after {args.warmup} "
                   f"warm-up, dt 1/60, {args.iterations} iterations, "
-                  f"{args.position_iterations} position iterations, solver {args.solver}")
+                  f"{args.position_iterations} position iterations, relaxation "
+                  f"{args.relaxation}, solver {args.solver}")
             print(f"{'boxes':>8} {'ms/step':>9} {'launch':>7} {'reads':>6} {'pairs':>9} "
                   f"{'manifolds':>10} {'points':>9} {'batches':>8} {'batching':>10} | sanity")
         print(f"{s['bodies']:>8,} {s['ms_per_step']:>9.2f} {s['launches_per_step']:>7} "
               f"{s['blocking_reads_per_step']:>6} {s['pairs']:>9,} {s['manifolds']:>10,} "
               f"{s['contacts']:>9,} {s['batches']:>8} {s['batching'] or '-':>10} | NaN {s['nans']}, "
               f"sunk {s['sunk']}, "
-              f"max speed {s['max_speed']:.3f} m/s, redone steps {s['overflows']}", flush=True)
+              f"max speed {s['max_speed']:.3f} m/s, top box moved {100 * s['last_box_moved']:.1f} cm, "
+              f"redone steps {s['overflows']}", flush=True)
     return 0
 
 
