@@ -30,13 +30,12 @@ import numpy as np
 import pyopencl.array as cl_array
 import pyopencl.cltypes as cltypes
 
-from .. import layouts
 from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 from ..launch import instance
 from .grid import grid_groups, grid_validated, sync_buffer
-from .solver import FRICTION_MODELS, NORMAL_SOLVES
+from .solver import FRICTION_MODELS, NORMAL_SOLVES, PushVelocities, check_sweeps
 
 TEMPLATE = KernelTemplate(
     "pipeline/jacobi.cl.mako",
@@ -61,8 +60,9 @@ TEMPLATE = KernelTemplate(
                              "friction": "manifold", "grid": grid_validated(traits)},
 )
 
-#: bit flags of the grid kernel's ``passes`` argument (as in the template)
-WARM_START_PASS, FIRST_REVERSED = 1, 2
+#: the grid kernel's ``passes`` flag for the warm start (as in the template; its other
+#: flag, FIRST_REVERSED, is for a caller that splits the sweeps over launches)
+WARM_START_PASS = 1
 #: work groups of a phase launch per compute unit (a CPU balances the chunks better)
 PHASE_GROUPS_PER_UNIT = 4
 #: the phases that build the bodies' contact lists, in order (phase launches)
@@ -75,7 +75,7 @@ def default_work_group_size(traits: DeviceTraits) -> int:
     return min(256 if traits.is_gpu else 16, traits.max_work_group_size)
 
 
-class JacobiSolver:
+class JacobiSolver(PushVelocities):
     """Launches the Jacobi sweeps with mass splitting (see the module docstring)."""
 
     def __init__(self, runtime: Runtime, *, split_impulse: bool = True,
@@ -101,18 +101,10 @@ class JacobiSolver:
         self.sync = sync_buffer(runtime) if self.grid else None
         self._chunk_sums = cl_array.zeros(q, self.groups, np.uint32)
         self._body_capacity = self._side_capacity = 0
-        self._split = None
         #: trailing scalars -> kernel object with those scalars set
         self._instances: dict = {}
 
     # ------------------------------------------------------------- buffers
-    def split_velocities(self, body_capacity: int):
-        """The zeroed push-velocity array (grown to ``body_capacity``)."""
-        if self._split is None or len(self._split) < body_capacity:
-            self._split = cl_array.zeros(self.runtime.queue, max(1, int(body_capacity)),
-                                         layouts.SPLIT_VELOCITY.dtype)
-        return self._split
-
     def _ensure(self, body_count: int, capacity: int) -> None:
         q = self.runtime.queue
         if body_count > self._body_capacity:
@@ -142,14 +134,8 @@ class JacobiSolver:
         constraints (``constraint_count``: a device uint32 array(1)) between the first
         ``body_count`` bodies. Rewrites the constraints' row masses for the split bodies
         and their impulses; leaves the push velocities in `split_velocities`."""
-        if iterations < 0 or position_iterations < 0 or not 0.0 < relaxation < 2.0:
-            raise RbgenError(f"need iterations >= 0, position_iterations >= 0 and "
-                             f"0 < relaxation < 2, got iterations={iterations!r}, "
-                             f"position_iterations={position_iterations!r}, "
-                             f"relaxation={relaxation!r}")
-        if position_iterations and not self.split_impulse:
-            raise RbgenError("position_iterations need a JacobiSolver built with "
-                             "split_impulse=True")
+        check_sweeps(iterations, position_iterations, relaxation, self.split_impulse,
+                     "JacobiSolver")
         if capacity <= 0 or body_count <= 0 or not (warm_start or iterations
                                                     or position_iterations):
             return

@@ -152,7 +152,32 @@ APPLY_WORK_GROUP_SIZE = 64
 WARM_START_PASS, FIRST_REVERSED = 1, 2
 
 
-class ContactSolver:
+def check_sweeps(iterations: int, position_iterations: int, relaxation: float,
+                 split_impulse: bool, solver: str) -> None:
+    """Refuse sweep settings no solver can run, naming them."""
+    if iterations < 0 or position_iterations < 0 or not 0.0 < relaxation < 2.0:
+        raise RbgenError(f"need iterations >= 0, position_iterations >= 0 and "
+                         f"0 < relaxation < 2, got iterations={iterations!r}, "
+                         f"position_iterations={position_iterations!r}, "
+                         f"relaxation={relaxation!r}")
+    if position_iterations and not split_impulse:
+        raise RbgenError(f"position_iterations need a {solver} built with split_impulse=True")
+
+
+class PushVelocities:
+    """A solver's push velocities (split impulse): zero between steps, grown on demand."""
+
+    _split = None
+
+    def split_velocities(self, body_capacity: int):
+        """The zeroed push-velocity array (grown to ``body_capacity``)."""
+        if self._split is None or len(self._split) < body_capacity:
+            self._split = cl_array.zeros(self.runtime.queue, max(1, int(body_capacity)),
+                                         layouts.SPLIT_VELOCITY.dtype)
+        return self._split
+
+
+class ContactSolver(PushVelocities):
     """Launches the PGS sweeps over a `ConstraintBatcher`'s groups."""
 
     def __init__(self, runtime: Runtime, *, split_impulse: bool = True, max_batches: int = 128,
@@ -187,18 +212,10 @@ class ContactSolver:
         if self.split_impulse:
             self.apply_kernel = runtime.bound(program.kernel("apply_split_velocities"))
         self.max_batches = int(max_batches)
-        self._split = None
         #: trailing scalars -> kernel object with those scalars set
         self._instances: dict = {}
         #: (plan, sweeps, warm start) -> ([(kernel, global size)], distinct kernels)
         self._schedules: dict = {}
-
-    def split_velocities(self, body_capacity: int):
-        """The zeroed push-velocity array (grown to ``body_capacity``)."""
-        if self._split is None or len(self._split) < body_capacity:
-            self._split = cl_array.zeros(self.runtime.queue, max(1, int(body_capacity)),
-                                         layouts.SPLIT_VELOCITY.dtype)
-        return self._split
 
     def _check(self, batcher):
         if batcher.max_batches != self.max_batches:
@@ -230,14 +247,8 @@ class ContactSolver:
         if self.resident_bodies and not 0 < body_capacity <= self.resident_bodies:
             raise RbgenError(f"{body_capacity} bodies do not fit a resident solve built for "
                              f"{self.resident_bodies}")
-        if iterations < 0 or position_iterations < 0 or not 0.0 < relaxation < 2.0:
-            raise RbgenError(f"need iterations >= 0, position_iterations >= 0 and "
-                             f"0 < relaxation < 2, got iterations={iterations!r}, "
-                             f"position_iterations={position_iterations!r}, "
-                             f"relaxation={relaxation!r}")
-        if position_iterations and not self.split_impulse:
-            raise RbgenError("position_iterations need a ContactSolver built with "
-                             "split_impulse=True")
+        check_sweeps(iterations, position_iterations, relaxation, self.split_impulse,
+                     "ContactSolver")
         launches, kernels = self._schedule(batcher.launch_plan, int(iterations),
                                            int(position_iterations), bool(warm_start))
         if not launches:
