@@ -167,14 +167,14 @@ bool solve_face_points(const uint count, const float3 n, const float3 t1, const 
             uint i = m == 0 ? 1 : 0, j = m <= 1 ? 2 : 1, l = m <= 2 ? 3 : 2;
             float3 c_i = cross3(g[j], g[l]), c_j = cross3(g[l], g[i]), c_l = cross3(g[i], g[j]);
             float det = dot3(g[i], c_i);
-            if (!(abs1(det) > FLAT_SPREAD_RATIO * (suu + svv)))
-                continue;
-            float inv_det = 1.0f / det;
+            /* (no branch out: the four sets are independent work, overlapped) */
+            bool solvable = abs1(det) > FLAT_SPREAD_RATIO * (suu + svv);
+            float inv_det = 1.0f / (solvable ? det : 1.0f);
             float3 plane = (c_i * rhs[i] + c_j * rhs[j] + c_l * rhs[l]) * inv_det;
             float3 w3 = (float3)(dot3(inv_q0, plane), dot3(inv_q1, plane), dot3(inv_q2, plane));
             float x_i = dot3(c_i, w3) * inv_det, x_j = dot3(c_j, w3) * inv_det;
             float x_l = dot3(c_l, w3) * inv_det;
-            if (x_i >= 0.0f && x_j >= 0.0f && x_l >= 0.0f
+            if (solvable && x_i >= 0.0f && x_j >= 0.0f && x_l >= 0.0f
                 && dot3(g[m], plane) >= rhs[m] - tolerance && even[m] < lowest) {
                 lowest = even[m], valid = true;
                 total[m] = 0.0f, total[i] = x_i, total[j] = x_j, total[l] = x_l;
@@ -190,29 +190,31 @@ bool solve_face_points(const uint count, const float3 n, const float3 t1, const 
         for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j)
             for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
                 k_matrix[j][k] = dot3(g[j], h[k]);
+        /* every candidate is evaluated (independent work, overlapped; no
+         * branch out of the loops), the first that holds is taken */
         for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i)
-            for (uint j = i + 1; j < RB_MAX_MANIFOLD_POINTS; ++j) if (j < count && !valid) {
+            for (uint j = i + 1; j < RB_MAX_MANIFOLD_POINTS; ++j) {
                 float kii = k_matrix[i][i], kij = k_matrix[i][j], kjj = k_matrix[j][j];
                 float det = kii * kjj - kij * kij;
-                if (!(det > FLAT_SPREAD_RATIO * kii * kjj))
-                    continue;
+                bool holds = j < count && det > FLAT_SPREAD_RATIO * kii * kjj;
+                det = holds ? det : 1.0f;
                 float x_i = (kjj * rhs[i] - kij * rhs[j]) / det;
                 float x_j = (kii * rhs[j] - kij * rhs[i]) / det;
-                bool holds = x_i >= 0.0f && x_j >= 0.0f;
+                holds = holds && x_i >= 0.0f && x_j >= 0.0f;
                 for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i && m != j)
                     holds = holds && k_matrix[m][i] * x_i + k_matrix[m][j] * x_j >= rhs[m] - tolerance;
-                if (holds) {
+                if (holds && !valid) {
                     valid = true;
                     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
                         total[k] = k == i ? x_i : k == j ? x_j : 0.0f;
                 }
             }
-        for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i) if (i < count && !valid) {
-            float x_i = positive_part(rhs[i]) / k_matrix[i][i];
-            bool holds = true;
+        for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i) {
+            float x_i = positive_part(rhs[i]) / (i < count ? k_matrix[i][i] : 1.0f);
+            bool holds = i < count;
             for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i)
                 holds = holds && k_matrix[m][i] * x_i >= rhs[m] - tolerance;
-            if (holds) {
+            if (holds && !valid) {
                 valid = true;
                 for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
                     total[k] = k == i ? x_i : 0.0f;
