@@ -48,7 +48,7 @@ from .pipeline.batching import MODES as BATCHING_MODES, ConstraintBatcher, defau
 from .pipeline.constraints import ContactConstraints
 from .pipeline.gyroscopic import BodyPreparation, inertia_records
 from .pipeline.integrate import Integrator
-from .pipeline.grid import abandoned_word, clear_abandoned, grid_validated
+from .pipeline.grid import ABANDONED_OFFSET, clear_abandoned, grid_validated
 from .pipeline.jacobi import JacobiSolver
 from .pipeline.solver import ContactSolver, resident_capacity
 from .shapes import Box, Capsule, ConvexHull, Plane, Shape, ShapeTable, Sphere
@@ -640,9 +640,8 @@ class _InFlight:
         events = [cl.enqueue_copy(queue, host[:n], status.data, is_blocking=False),
                   cl.enqueue_copy(queue, host[n:n + 1], world._overflow.data, is_blocking=False)]
         if grid is not None:
-            buffer, offset = abandoned_word(grid)
-            events.append(cl.enqueue_copy(queue, host[n + 1:], buffer.data, src_offset=offset,
-                                          is_blocking=False))
+            events.append(cl.enqueue_copy(queue, host[n + 1:], grid.data,
+                                          src_offset=ABANDONED_OFFSET, is_blocking=False))
         return cls(h, slot, host, events)
 
     def problem(self, world: "World"):

@@ -25,8 +25,11 @@ from ..device import DeviceTraits, Runtime
 #: the spin limit, the abandoned flag (layouts.GRID_*)
 SYNC_WORDS = layouts.GRID_SYNC_WORDS
 #: polls of a waiting work group before it gives up the barrier: a poll is a round trip
-#: to the shared cache, ~0.5 us on an H200 (2^23: ~4 s) and ~1-10 ns on a CPU (2^31)
+#: to the shared cache, estimated (not measured) at ~0.1-0.5 us on an H200 (2^23: ~1-4 s)
+#: and ~1-10 ns on a CPU (2^31: seconds); 4,096 polls were shorter than a phase on PoCL
 SPIN_LIMIT_GPU, SPIN_LIMIT_CPU = 1 << 23, 1 << 31
+#: byte offset of the abandoned flag in a sync buffer (the World copies it each step)
+ABANDONED_OFFSET = 4 * layouts.GRID_ABANDONED
 
 
 def grid_groups(traits: DeviceTraits) -> int:
@@ -56,11 +59,6 @@ def sync_buffer(runtime: Runtime, extra_words: int = 0):
     words = np.zeros(SYNC_WORDS + int(extra_words), np.uint32)
     words[layouts.GRID_SPIN_LIMIT] = spin_limit(runtime.traits)
     return cl_array.to_device(runtime.queue, words)
-
-
-def abandoned_word(sync) -> tuple:
-    """(buffer, byte offset) of a sync buffer's abandoned flag, for a non-blocking copy."""
-    return sync, 4 * layouts.GRID_ABANDONED
 
 
 def clear_abandoned(runtime: Runtime, sync) -> None:

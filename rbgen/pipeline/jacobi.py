@@ -60,8 +60,7 @@ TEMPLATE = KernelTemplate(
                              "friction": "manifold", "grid": grid_validated(traits)},
 )
 
-#: the grid kernel's ``passes`` flag for the warm start (as in the template; its other
-#: flag, FIRST_REVERSED, is for a caller that splits the sweeps over launches)
+#: the grid kernel's ``passes`` flag for the warm start (as in the template)
 WARM_START_PASS = 1
 #: work groups of a phase launch per compute unit (a CPU balances the chunks better)
 PHASE_GROUPS_PER_UNIT = 4

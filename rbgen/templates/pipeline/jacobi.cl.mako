@@ -52,9 +52,8 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity")}
 ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
 % endif
 
-/* what one launch does before its sweeps (bit flags of `passes`) */
+/* `passes` of the grid kernel: whether it runs the warm start */
 #define WARM_START_PASS 1u
-#define FIRST_REVERSED 2u
 
 <%include file="/common/inline_math.cl.mako"/>
 % if grid:
@@ -118,9 +117,11 @@ __global ContactConstraint* constraints,
                   const float relaxation,
                   const uint body_count\
 </%def>
-<%def name="indices(chunks)">\
+<%def name="indices(chunks, constraints=True)">\
     const uint lane = get_global_id(0), lanes = get_global_size(0);
+% if constraints:
     const uint count = min(constraint_count[0], capacity);
+% endif
 % if chunks:
     const uint local_lane = get_local_id(0), group = get_group_id(0), groups = get_num_groups(0);
     /* the bodies of this work group's chunk (phases 3 and 4), a run of them per lane */
@@ -308,7 +309,7 @@ ${body_phase("bodies")}\
         grid_barrier(sync, &grid_ok);
     }
     for (uint s = 0; s < velocity_sweeps; ++s) {
-        const bool reverse = ((passes & FIRST_REVERSED) != 0) != ((s & 1) != 0);
+        const bool reverse = (s & 1) != 0;
         if (grid_ok) {
 ${constraint_phase(sweep, "bodies", velocity_results)}\
         }
@@ -350,7 +351,7 @@ __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void jacobi_${name}(${arguments()},
                   const uint reverse)
 {
-${indices(name in ("chunk_sums", "scan"))}\
+${indices(name in ("chunk_sums", "scan"), name in ("count", "link"))}\
     {
 ${phase()}\
     }
@@ -384,7 +385,7 @@ __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void jacobi_average(${arguments()},
                   const uint reverse)
 {
-${indices(False)}\
+${indices(False, False)}\
     {
 ${body_phase("bodies")}\
     }
@@ -407,7 +408,7 @@ __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void jacobi_average_push(${arguments()},
                   const uint reverse)
 {
-${indices(False)}\
+${indices(False, False)}\
     {
 ${body_phase("split")}\
     }
