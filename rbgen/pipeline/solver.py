@@ -22,17 +22,24 @@ compute unit, a batch's constraints spread over all their lanes, with a
 barrier across the device after each batch (`rbgen.pipeline.grid`): ONE
 launch for the whole solve at any size, every compute unit busy. Velocities
 are read through volatile pointers, since other work groups write them during
-the launch. H200 BoxBox 8,000: 1.71 ms a step against 3.52 with cells; a
+the launch. H200 BoxBox 8,000: 1.60 ms a step against 3.52 with cells; a
 batch step costs ~9 us (a 1.2 us barrier, ~3 us of memory round trips, ~5 us
-of one lane's block solve and friction).
+of one lane's block solve and friction). Loading each lane's next constraint
+while the barrier waits (measured 2026-12-02) made every size 6-10% slower and
+was dropped.
 
 Launches: `solve` runs the warm start, the ``iterations`` velocity sweeps
 and the ``position_iterations`` split-impulse sweeps. With the batcher's
 ``components`` mode no dynamic body is shared between groups, so ONE launch
 of `solve_groups` does them all (each work group loops over the sweeps
 itself). With ``cells``, a sweep is one launch per cell colour plus one for
-the leftovers, and the warm start is a sweep of its own; position sweep k
-rides in the launches of velocity sweep k (it only touches push velocities).
+the leftovers, and the warm start is a sweep of its own. Position sweep k is
+solved in the same batch steps as velocity sweep k (its rows read and write
+only push velocities and push impulses, the velocity rows neither, so each
+sees what it would alone): 10 + 4 sweeps cost 10 batch passes, not 14, and
+the template loads both velocity sets before solving either, so that the two
+chains overlap (H200 BoxBox 1,000 / 8,000 / 27,000 / 111,375: 1.44 / 1.68 /
+2.05 / 4.47 -> 1.34 / 1.60 / 1.91 / 4.15 ms a step, the same trajectories).
 Odd velocity sweeps visit each manifold's points backwards.
 `apply_split_velocities` moves the bodies by their push velocities after
 integration.

@@ -270,7 +270,10 @@ def test_one_group_solves_match_the_plain_one_bit_for_bit(runtime, rng, variant)
     (velocities in local memory, one work group) and the grid solve (every compute unit,
     a barrier across them after each batch) do the plain one-work-group solve's
     arithmetic in the same order: equal results, velocities, push velocities and
-    impulses alike, for a pile of columns with warm starting."""
+    impulses alike, for a pile of columns with warm starting. The resident solve runs
+    its position sweeps after the velocity sweeps, the other two in the same batch steps
+    as the first velocity sweeps: equal bits say that neither set of rows sees the
+    other's."""
     positions, manifolds = stacked_columns(7, 5, 1.2, lambda: rng.uniform(-0.01, 0.0, 4),
                                            side_contacts=True)
     n = len(positions)

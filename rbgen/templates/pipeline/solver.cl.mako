@@ -185,24 +185,45 @@ inline void store_resident(const __private ContactBodies* p, __local float* velo
     batch_barrier = "grid_barrier(sync, &grid_ok);" if grid else f"barrier({fence});"
     lanes = "get_global_size(0)" if grid else work_group_size
 %>\
-<%def name="visit(action, source, results)">\
+<%def name="visit(solves)">\
 {
                 /* a private copy: every load is issued at once, none is repeated */
                 const uint index = order[i];
                 ContactConstraint constraint = constraints[index];
                 __private ContactConstraint* c = &constraint;
                 uint a = c->body_a, b = c->body_b;
-                ContactBodies p;
-                load_bodies(&p, bodies, inertia, a, b);
-                load_${source}(&p, ${memory[source]}, a, b);
-                ${action};
-                store_${source}(&p, ${memory[source]}, a, b);
+% for k, (name, when, action, source, results) in enumerate(solves):
+% if k == 0:
+                ContactBodies ${name};
+                load_bodies(&${name}, bodies, inertia, a, b);
+% else:
+                ContactBodies ${name} = ${solves[0][0]};
+% endif
+% endfor
+<%
+    # the solves read first, then compute, then write: they touch disjoint
+    # velocities, so their chains overlap instead of queueing behind each
+    # other's (volatile) stores
+    guarded = [(f"if ({when}) " if when else "", name, action, source, results)
+               for name, when, action, source, results in solves]
+%>\
+% for guard, name, action, source, results in guarded:
+                ${guard}load_${source}(&${name}, ${memory[source]}, a, b);
+% endfor
+% for guard, name, action, source, results in guarded:
+                ${guard}${action.format(state="&" + name)};
+% endfor
+% for guard, name, action, source, results in guarded:
+                ${guard}{
+                    store_${source}(&${name}, ${memory[source]}, a, b);
 % for field in results:
-                constraints[index].${field} = c->${field};
+                    constraints[index].${field} = c->${field};
+% endfor
+                }
 % endfor
             }\
 </%def>\
-<%def name="each_constraint(action, source, results=())">\
+<%def name="each_constraint(*solves)">\
 % if shape == "gpu":
         for (uint batch = 0; batch < batch_count; ++batch) {
             uint begin = ${"batch_offsets" if resident_bodies else "offsets"}[batch];
@@ -216,11 +237,11 @@ inline void store_resident(const __private ContactBodies* p, __local float* velo
 % endif
             if (batch == SERIAL_BATCH)  /* the remainder: lane 0 alone, in order */
                 stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
-            for (uint i = begin + lane; i < end; i += stride) ${visit(action, source, results)}
+            for (uint i = begin + lane; i < end; i += stride) ${visit(solves)}
             ${batch_barrier}
         }
 % else:
-        for (uint i = begin; i < end; ++i) ${visit(action, source, results)}
+        for (uint i = begin; i < end; ++i) ${visit(solves)}
 % endif
 </%def>\
 <% velocities = "resident" if resident_bodies else "velocities" %>\
@@ -307,13 +328,36 @@ void solve_groups(__global ContactConstraint* constraints,
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 % endif
+<%
+    velocity_results = ("normal_impulse", "tangent1_impulse", "tangent2_impulse")
+    # (the state's name, the flag that enables it, the call, the velocities, the results)
+    warm_start = ("state", None, "warm_start_contact(c, {state})", velocities, ())
+    velocity_sweep = ("state", "velocity", "solve_contact(c, {state}, relaxation, reverse)",
+                      velocities, velocity_results)
+    push_sweep = ("push_state", "push", "solve_push(c, {state}, relaxation)",
+                  velocities if resident_bodies else "push", ("push_impulse",))
+%>\
     if (passes & WARM_START_PASS) {
-${each_constraint("warm_start_contact(c, &p)", velocities)}\
+${each_constraint(warm_start)}\
     }
+% if split_impulse and not resident_bodies:
+    /* The velocity and the position sweeps at once: the push rows read only
+     * push velocities and impulses, the velocity rows neither, so sweep s of
+     * each sees what it would see alone, and one batch step (one barrier)
+     * serves both. */
+    const uint sweeps = max(velocity_sweeps, position_sweeps);
+    for (uint sweep = 0; sweep < sweeps; ++sweep) {
+        const bool reverse = ((passes & FIRST_REVERSED) != 0) != ((sweep & 1) != 0);
+        const bool velocity = sweep < velocity_sweeps, push = sweep < position_sweeps;
+${each_constraint(velocity_sweep, push_sweep)}\
+    }
+% else:
     for (uint sweep = 0; sweep < velocity_sweeps; ++sweep) {
         const bool reverse = ((passes & FIRST_REVERSED) != 0) != ((sweep & 1) != 0);
-${each_constraint("solve_contact(c, &p, relaxation, reverse)", velocities, ("normal_impulse", "tangent1_impulse", "tangent2_impulse"))}\
+        const bool velocity = true;
+${each_constraint(velocity_sweep)}\
     }
+% endif
 % if resident_bodies:
     /* each lane sends home the bodies it loaded (the last barrier made every
      * lane's updates visible) and clears them for the push velocities */
@@ -327,17 +371,15 @@ ${each_constraint("solve_contact(c, &p, relaxation, reverse)", velocities, ("nor
         set_resident_vector(resident, 6 * body + 3, (float3)(0.0f));
 % endif
     }
-% endif
 % if split_impulse:
-% if resident_bodies:
     if (position_sweeps == 0)
         return;
     barrier(CLK_LOCAL_MEM_FENCE);
-% endif
+    /* (the push velocities take the velocities' place in local memory: after them) */
     for (uint sweep = 0; sweep < position_sweeps; ++sweep) {
-${each_constraint("solve_push(c, &p, relaxation)", velocities if resident_bodies else "push", ("push_impulse",))}\
+        const bool push = true;
+${each_constraint(push_sweep)}\
     }
-% if resident_bodies:
     for (uint body = lane; body < body_count; body += ${work_group_size}) {
         if (bodies[body].inv_mass > 0.0f) {
             split[body].linear.xyz = resident_vector(resident, 6 * body);
