@@ -57,8 +57,10 @@ def run_device(runtime, a, b, dynamic, rng=None, hints=None, **kwargs):
     batcher(d_cons, count, d_bodies, len(dynamic), capacity)
     order, offsets, batch_counts = batcher.read_batches()
     groups = d_cons.get()["group"][: len(a)]
-    if batcher.mode == "global":  # the field holds the colour
-        assert np.array_equal(groups, batcher.constraint_batch.get()[: len(a)])
+    if batcher.mode == "global":  # the field holds the colour, or none if provisional
+        inherited = groups != layouts.SOLVER_NONE
+        colours = batcher.constraint_batch.get()[: len(a)]
+        assert np.array_equal(groups[inherited], colours[inherited])
     if batcher.mode in ("single", "global"):  # one group
         groups = np.zeros_like(groups)
     return batcher, order[: len(a)], offsets, batch_counts, groups
@@ -205,19 +207,85 @@ def test_one_group_modes_send_a_hub_past_64_colours_to_the_serial_batch(runtime,
 @pytest.mark.parametrize("n_bodies,n_constraints", [(9, 31), (2000, 5003)])
 def test_global_mode_colours_like_single_mode(runtime, rng, n_bodies, n_constraints):
     """The colours depend on the priorities alone, not on how many work groups take part or
-    in which order their atomics land: global mode gives every constraint the colour that
-    single mode (one work group) gives it, and the same batch sizes."""
+    in which order their atomics land: global mode with hashed bids only gives every
+    constraint the colour that single mode (one work group, hashed bids) gives it, and the
+    same batch sizes."""
     a, b, dynamic = random_graph(rng, n_bodies, n_constraints)
     colours = {}
     for mode in ("single", "global"):
+        options = one_group_options(mode) if mode == "single" else {"ordered_rounds": 0}
         batcher, order, offsets, counts, _ = run_device(runtime, a, b, dynamic, rng, mode=mode,
                                                         shape="gpu", work_group_size=64,
-                                                        **one_group_options(mode))
+                                                        **options)
         colours[mode] = (batcher.constraint_batch.get()[:n_constraints], counts[0],
                          offsets[0].copy())
     assert np.array_equal(colours["single"][0], colours["global"][0])
     assert colours["single"][1] == colours["global"][1]
     assert np.array_equal(colours["single"][2], colours["global"][2])
+
+
+def global_colouring(runtime, a, b, dynamic, hints=None, **options):
+    """One global-mode colouring of the graph (every invariant checked): (each
+    constraint's colour, its group field, i.e. the colour handed to the next step,
+    the batch count)."""
+    queue = runtime.queue
+    bodies = layouts.BODY.zeros(max(1, len(dynamic)))
+    bodies["inv_mass"][: len(dynamic)] = np.where(dynamic, 1.0, 0.0)
+    cons = layouts.CONTACT_CONSTRAINT.zeros(max(1, len(a)))
+    cons["body_a"][: len(a)], cons["body_b"][: len(a)] = a, b
+    cons["group"] = layouts.SOLVER_NONE if hints is None else hints
+    d_cons = cl_array.to_device(queue, cons)
+    batcher = ConstraintBatcher(runtime, mode="global", shape="gpu", **options)
+    batcher(d_cons, cl_array.to_device(queue, np.array([len(a)], np.uint32)),
+            cl_array.to_device(queue, bodies), len(dynamic), len(cons))
+    order, offsets, counts = batcher.read_batches()
+    check_invariants(batcher, a, b, dynamic, order[: len(a)], offsets, counts,
+                     np.zeros(len(a), np.uint32))
+    return (batcher.constraint_batch.get()[: len(a)], d_cons.get()["group"][: len(a)],
+            int(counts[0]))
+
+
+@pytest.mark.parametrize("work_group_size", [1, 64])
+@pytest.mark.parametrize("n_bodies,n_constraints", [(9, 31), (2000, 5003)])
+def test_global_mode_ordered_rounds_colour_first_fit_in_index_order(
+        runtime, rng, n_bodies, n_constraints, work_group_size):
+    """Bids of constraint indices make the Jones-Plassmann rounds the sequential first-fit
+    colouring in index order (batch_host) exactly, every colour handed on; with hashed
+    bids only, the colours are valid but not those."""
+    a, b, dynamic = random_graph(rng, n_bodies, n_constraints)
+    reference = batch_host(a, b, dynamic)
+    colours, field, count = global_colouring(runtime, a, b, dynamic, ordered_rounds=2**31,
+                                             work_group_size=work_group_size)
+    assert np.array_equal(colours, reference)
+    assert np.array_equal(field, colours)
+    assert count == int(reference.max()) + 1
+    if n_constraints > 1000:  # (a small graph might come out the same)
+        hashed, _, _ = global_colouring(runtime, a, b, dynamic, ordered_rounds=0,
+                                        work_group_size=work_group_size)
+        assert not np.array_equal(hashed, reference)
+
+
+def test_global_mode_spreads_the_ordered_rounds_over_steps(runtime):
+    """A chain of 300 constraints on 301 dynamic bodies in index order needs 300 ordered
+    rounds (each link waits for the one before). With 64 a step, a step's first 64 links
+    get the first-fit colours (0, 1, 0, ...) and hand them on; the rest are coloured by
+    hashed bids, validly, but hand on none; fed back as the next step's inherited colours
+    (as the constraint setup does), the ordered rounds go on from there: after five steps
+    every link holds its first-fit colour, and a sixth changes nothing."""
+    a = np.arange(300, dtype=np.uint32)
+    b = a + 1
+    dynamic = np.ones(301, bool)
+    reference = np.arange(300) % 2
+    hints = None
+    for step in range(1, 7):
+        colours, field, count = global_colouring(runtime, a, b, dynamic, hints,
+                                                 ordered_rounds=64, work_group_size=32)
+        done = min(300, 64 * step)
+        assert np.array_equal(field[:done], reference[:done]), f"step {step}"
+        assert np.all(field[done:] == layouts.SOLVER_NONE), f"step {step}"
+        assert np.array_equal(colours[:done], reference[:done])
+        hints = field
+    assert count == 2
 
 
 def inherited_colours_kept(a, b, dynamic, hints, colours=64):

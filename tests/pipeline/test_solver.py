@@ -26,7 +26,7 @@ import pytest
 
 from rbgen import layouts
 from rbgen.errors import RbgenError
-from rbgen.pipeline.batching import ConstraintBatcher
+from rbgen.pipeline.batching import ORDERED_ROUNDS, ConstraintBatcher
 from rbgen.pipeline.gyroscopic import BodyPreparation, inertia_records
 from rbgen.pipeline.integrate import Integrator
 from rbgen.pipeline.solver import ContactSolver
@@ -62,7 +62,8 @@ def shaped_rig(runtime, bodies, inv_inertia, shape, *, penetration="split", warm
                group_count=3, work_group_size=None, batching="components", friction="point"):
     """A ContactRig whose batcher and solver have the given kernel shape ("resident": the
     gpu shape solving in local memory, over single-mode batches; "grid": the gpu shape
-    spread over every compute unit, over global-mode batches)."""
+    spread over every compute unit, over global-mode batches with hashed bids only, which
+    colour as single mode does)."""
     resident = RESIDENT_BODIES if shape == "resident" else 0
     grid = shape == "grid"
     if resident:
@@ -75,7 +76,8 @@ def shaped_rig(runtime, bodies, inv_inertia, shape, *, penetration="split", warm
                      friction=friction)
     rig.batcher = ConstraintBatcher(runtime, group_count=group_count, mode=batching,
                                     cell_size=2.5, shape=shape,
-                                    max_bodies=resident or None)
+                                    max_bodies=resident or None,
+                                    ordered_rounds=0 if batching == "global" else ORDERED_ROUNDS)
     rig.solver = ContactSolver(runtime, split_impulse=penetration == "split",
                                work_group_size=work_group_size, friction=friction,
                                normal_solve=rig.solver.spec.values["normal_solve"], shape=shape,

@@ -3,7 +3,13 @@
 % if shape == "gpu":
  * GPU shape: a work group is responsible for one level-1 group (no dynamic
  * body is shared with a group of the same launch) and walks its level-2
- * batches in order, with a barrier between batches; the lanes of a batch
+ * batches from the last to the first, with a barrier between batches (the
+ * first-fit colourings give the lowest colours to the contacts of the
+ * lowest-indexed bodies: a ground added first has all its contacts in batch
+ * 0, which then comes after the weight above has been passed down. Solved
+ * first, BoxBox 27,000 sank 3 cm into the ground, last 0.1 cm; alternating
+ * the direction between sweeps held the ground too, but kept boxes of a
+ * dropped 4 x 4 x 4 grid rocking at 0.3 m/s); the lanes of a batch
  * solve constraints that share no dynamic body, so they may write body
  * velocities without atomics. The last batch slot (${max_batches - 1}) holds any
  * remainder and is solved by lane 0 alone.
@@ -225,7 +231,8 @@ inline void store_resident(const __private ContactBodies* p, __local float* velo
 </%def>\
 <%def name="each_constraint(*solves)">\
 % if shape == "gpu":
-        for (uint batch = 0; batch < batch_count; ++batch) {
+        for (uint step = 0; step < batch_count; ++step) {
+            const uint batch = batch_count - 1 - step;  /* the highest colour first */
             uint begin = ${"batch_offsets" if resident_bodies else "offsets"}[batch];
             uint end = ${"batch_offsets" if resident_bodies else "offsets"}[batch + 1];
             uint stride = ${lanes};
