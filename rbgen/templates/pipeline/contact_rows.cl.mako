@@ -394,14 +394,61 @@ inline void apply_row(const Row* row, float impulse, __private ContactBodies* p)
     p->wb += row->turn_b * impulse;
 }
 
-/* A normal row: the accumulated impulse stays >= 0. */
-inline void solve_normal_row(float3 n, float3 ra, float3 rb, float mass, float target,
-                             float relaxation, float* impulse, __private ContactBodies* p)
+/* The normal rows of one manifold one after another (Gauss-Seidel), slot s
+ * being point reverse ? 3 - s : s, with mass[s], target[s] and impulse[s]
+ * (accumulated, kept >= 0) given in slot order. Each row's speed is its
+ * speed before the manifold plus what the rows solved before it added
+ * (K[t][s] times their changes: K[t][s] = J_t M^-1 J_s^T does not depend on
+ * the velocities), and the velocities change once, at the end: the same
+ * updates as applying each row to the velocities in turn, but the dependent
+ * chain from row to row is a few scalar operations instead of a dot product
+ * over both bodies' velocities and a store of them (on PoCL the chain of
+ * the rows was half of the solve). Always inlined and unrolled, so that the
+ * rows and speeds stay in registers. */
+__attribute__((always_inline))
+inline void solve_normal_rows(const uint count, const float3 n, __private const float4* r_a,
+                       __private const float4* r_b, const float mass[4], const float target[4],
+                       const float relaxation, const bool reverse, float impulse[4],
+                       __private ContactBodies* p)
 {
-    Row row = point_row(n, ra, rb, p);
-    float total = positive_part(*impulse + relaxation * mass * (target - row_speed(&row, p)));
-    apply_row(&row, total - *impulse, p);
-    *impulse = total;
+    Row rows[4];
+    float speed[4], change[4];
+#pragma unroll
+    for (uint slot = 0; slot < RB_MAX_MANIFOLD_POINTS; ++slot) {
+        uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - slot : slot;
+        bool active = k < count;
+        rows[slot] = point_row(n, active ? r_a[k].xyz : (float3)(0.0f),
+                               active ? r_b[k].xyz : (float3)(0.0f), p);
+        speed[slot] = row_speed(&rows[slot], p);
+        change[slot] = 0.0f;
+    }
+    const float inv_mass = p->inv_mass_a + p->inv_mass_b;
+#pragma unroll
+    for (uint slot = 0; slot < RB_MAX_MANIFOLD_POINTS; ++slot) {
+        uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - slot : slot;
+        if (k < count) {
+            float total = positive_part(impulse[slot]
+                                        + relaxation * mass[slot] * (target[slot] - speed[slot]));
+            change[slot] = total - impulse[slot];
+            impulse[slot] = total;
+        }
+#pragma unroll
+        for (uint later = slot + 1; later < RB_MAX_MANIFOLD_POINTS; ++later)
+            speed[later] += (inv_mass + dot3(rows[later].arm_a, rows[slot].turn_a)
+                             + dot3(rows[later].arm_b, rows[slot].turn_b)) * change[slot];
+    }
+    float applied = 0.0f;
+    float3 turn_a = (float3)(0.0f), turn_b = (float3)(0.0f);
+#pragma unroll
+    for (uint slot = 0; slot < RB_MAX_MANIFOLD_POINTS; ++slot) {
+        applied += change[slot];
+        turn_a += rows[slot].turn_a * change[slot];
+        turn_b += rows[slot].turn_b * change[slot];
+    }
+    p->va -= n * (applied * p->inv_mass_a);
+    p->wa -= turn_a;
+    p->vb += n * (applied * p->inv_mass_b);
+    p->wb += turn_b;
 }
 
 /* A friction pair at lever arms ra, rb: the accumulated (f1, f2) is clamped
@@ -509,12 +556,9 @@ void solve_contact(__private ContactConstraint* c, __private ContactBodies* p,
         reverse4(tangent1_mass), reverse4(tangent2_mass);
 % endif
     }
-    for (uint slot = 0; slot < RB_MAX_MANIFOLD_POINTS; ++slot) {
-        uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - slot : slot;
-        if (k < count && !solved)
-            solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[slot], target[slot],
-                             relaxation, &normal_impulse[slot], p);
-    }
+    if (!solved)
+        solve_normal_rows(count, n, c->r_a, c->r_b, normal_mass, target, relaxation, reverse,
+                          normal_impulse, p);
 % if friction == "point":
     /* friction pairs: |(f1, f2)| <= mu * normal impulse (same point order) */
     for (uint slot = 0; slot < RB_MAX_MANIFOLD_POINTS; ++slot) {
@@ -575,9 +619,9 @@ void solve_push(__private ContactConstraint* c, __private ContactBodies* p, cons
                                 p->inv_mass_b, p->inv_inertia_b, &p->vb, &p->wb, target,
                                 push_impulse);
 % endif
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count && !solved)
-        solve_normal_row(n, c->r_a[k].xyz, c->r_b[k].xyz, normal_mass[k], target[k],
-                         relaxation, &push_impulse[k], p);
+    if (!solved)
+        solve_normal_rows(count, n, c->r_a, c->r_b, normal_mass, target, relaxation, false,
+                          push_impulse, p);
     c->push_impulse = pack4(push_impulse);
 }
 % endif
