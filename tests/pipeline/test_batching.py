@@ -458,7 +458,7 @@ def test_unknown_shape_is_refused(runtime):
 
 
 @pytest.mark.parametrize("shape", ["gpu", "cpu"])
-def test_slabs_spread_a_pile_over_consecutive_groups(runtime, rng, shape):
+def test_slabs_spread_a_pile_over_every_group(runtime, rng, shape):
     """Slabs across a tilted axis: a dense lattice (one connected pile) of 40 x 40 bodies at
     unit pitch in slabs 1.5 m wide gives 33 slabs, 16-17 per colour: with 8 groups per colour
     every group of both colours is used, and no body is in two concurrent groups."""
@@ -481,3 +481,29 @@ def test_slabs_spread_a_pile_over_consecutive_groups(runtime, rng, shape):
     with pytest.raises(RbgenError, match="slab_axis"):
         batcher.slab_axis = (0.0, 0.0, 0.0)
         batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
+
+
+@pytest.mark.parametrize("shape", ["gpu", "cpu"])
+def test_slabs_spread_few_slabs_over_both_halves_of_the_groups(runtime, shape):
+    """A pile only 7 m wide in slabs 1.5 m wide: 5 slabs, 3 of one colour and 2 of the
+    other, for 8 groups a colour. PoCL hands each thread a contiguous range of a launch's
+    groups, so the slabs of a colour must not crowd into its first groups (they did, and one
+    of two cores solved the whole pile): in each colour the slabs' groups split evenly
+    between the lower and the upper half of its groups (at most one apart), every slab in a
+    group of its own."""
+    a, b, bodies, cons = lattice(8)
+    queue = runtime.queue
+    batcher = ConstraintBatcher(runtime, mode="slabs", group_count=8, cell_size=1.5, shape=shape)
+    d_cons = cl_array.to_device(queue, cons)
+    count = cl_array.to_device(queue, np.array([len(cons)], np.uint32))
+    batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
+    order, offsets, batch_counts = batcher.read_batches()
+    groups = d_cons.get()["group"]
+    check_invariants(batcher, a, b, np.ones(len(bodies), bool), order[: len(cons)], offsets,
+                     batch_counts, groups)
+    slab = np.floor((bodies["position"][b, 0] + cons["r_b"][:, 0, 0]) / 1.5).astype(int)
+    for colour, slabs in ((0, 3), (1, 2)):
+        used = np.unique(groups[slab % 2 == colour]) - colour * 8
+        assert len(used) == slabs, f"colour {colour}: groups {used.tolist()}"
+        lower, upper = np.count_nonzero(used < 4), np.count_nonzero(used >= 4)
+        assert abs(lower - upper) <= 1, f"colour {colour}: groups {used.tolist()}"
