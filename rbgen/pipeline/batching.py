@@ -62,7 +62,6 @@ checked against the same invariants in tests. Counts stay on the device.
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 import pyopencl.array as cl_array
 
 from ..codegen import compile_spec, KernelTemplate, Param, power_of_two, work_group_size_param

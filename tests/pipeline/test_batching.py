@@ -380,6 +380,22 @@ def test_columns_keep_each_stack_in_one_group(runtime, rng, shape):
         batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
 
 
+def batch_records(runtime, batcher, cons, bodies, dynamic=None):
+    """Batch ContactConstraint records ``cons`` between Body records ``bodies`` (every
+    invariant checked; ``dynamic``: all bodies if None): (order, batch offsets, batch
+    counts, each constraint's group)."""
+    queue = runtime.queue
+    d_cons = cl_array.to_device(queue, cons)
+    count = cl_array.to_device(queue, np.array([len(cons)], np.uint32))
+    batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
+    order, offsets, batch_counts = batcher.read_batches()
+    groups = d_cons.get()["group"]
+    dynamic = np.ones(len(bodies), bool) if dynamic is None else dynamic
+    check_invariants(batcher, cons["body_a"], cons["body_b"], dynamic, order[: len(cons)],
+                     offsets, batch_counts, groups)
+    return order, offsets, batch_counts, groups
+
+
 def test_host_reference_colours_properly(rng):
     a, b, dynamic = random_graph(rng, 50, 200)
     batches = batch_host(a, b, dynamic)
@@ -398,7 +414,6 @@ def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rn
     side = 30
     a, b, bodies, cons = lattice(side)
     dynamic = np.ones(side * side, bool)
-    queue = runtime.queue
     # body 0 is "huge": it also touches bodies far away
     far = rng.choice(np.arange(1, side * side), 25, replace=False)
     extra = layouts.CONTACT_CONSTRAINT.zeros(25)
@@ -406,14 +421,8 @@ def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rn
     extra["r_b"][:, 0, :3] = -bodies["position"][far, :3] / 2
     cons = np.concatenate([cons, extra]).astype(cons.dtype)
     batcher = ConstraintBatcher(runtime, mode="cells", group_count=7, cell_size=1.5, shape=shape)
-    d_cons = cl_array.to_device(queue, cons)
-    count = cl_array.to_device(queue, np.array([len(cons)], np.uint32))
-    batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
-    order, offsets, batch_counts = batcher.read_batches()
-    groups = d_cons.get()["group"]
+    order, offsets, batch_counts, groups = batch_records(runtime, batcher, cons, bodies, dynamic)
     a_all, b_all = cons["body_a"], cons["body_b"]
-    check_invariants(batcher, a_all, b_all, dynamic, order[: len(cons)], offsets, batch_counts,
-                     groups)
     assert len(np.unique(groups)) > 20
     leftover = batcher.launch_plan[-1][0]
     # body 0's far contacts lie in cells of other groups; only the first group to claim
@@ -471,11 +480,7 @@ def test_slabs_spread_a_pile_over_every_group(runtime, rng, shape):
     batcher.slab_axis = (0.96, 0.0, 0.28)
     d_cons = cl_array.to_device(queue, cons)
     count = cl_array.to_device(queue, np.array([len(cons)], np.uint32))
-    batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
-    order, offsets, batch_counts = batcher.read_batches()
-    groups = d_cons.get()["group"]
-    check_invariants(batcher, cons["body_a"], cons["body_b"], np.ones(len(bodies), bool),
-                     order[: len(cons)], offsets, batch_counts, groups)
+    order, offsets, batch_counts, groups = batch_records(runtime, batcher, cons, bodies)
     assert len(batcher.launch_plan) == 3
     assert set(np.unique(groups).tolist()) == set(range(16))  # no leftovers
     with pytest.raises(RbgenError, match="slab_axis"):
@@ -492,15 +497,8 @@ def test_slabs_spread_few_slabs_over_both_halves_of_the_groups(runtime, shape):
     between the lower and the upper half of its groups (at most one apart), every slab in a
     group of its own."""
     a, b, bodies, cons = lattice(8)
-    queue = runtime.queue
     batcher = ConstraintBatcher(runtime, mode="slabs", group_count=8, cell_size=1.5, shape=shape)
-    d_cons = cl_array.to_device(queue, cons)
-    count = cl_array.to_device(queue, np.array([len(cons)], np.uint32))
-    batcher(d_cons, count, cl_array.to_device(queue, bodies), len(bodies), len(cons))
-    order, offsets, batch_counts = batcher.read_batches()
-    groups = d_cons.get()["group"]
-    check_invariants(batcher, a, b, np.ones(len(bodies), bool), order[: len(cons)], offsets,
-                     batch_counts, groups)
+    groups = batch_records(runtime, batcher, cons, bodies)[3]
     slab = np.floor((bodies["position"][b, 0] + cons["r_b"][:, 0, 0]) / 1.5).astype(int)
     for colour, slabs in ((0, 3), (1, 2)):
         used = np.unique(groups[slab % 2 == colour]) - colour * 8

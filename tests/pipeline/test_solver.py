@@ -24,7 +24,6 @@ import numpy as np
 import pyopencl.array as cl_array
 import pytest
 
-from rbgen import layouts
 from rbgen.errors import RbgenError
 from rbgen.pipeline.batching import ORDERED_ROUNDS, ConstraintBatcher
 from rbgen.pipeline.gyroscopic import BodyPreparation, inertia_records
