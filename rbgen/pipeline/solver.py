@@ -22,7 +22,7 @@ compute unit, a batch's constraints spread over all their lanes, with a
 barrier across the device after each batch (`rbgen.pipeline.grid`): ONE
 launch for the whole solve at any size, every compute unit busy. Velocities
 are read through volatile pointers, since other work groups write them during
-the launch. H200 BoxBox 8,000: 1.27 ms a step against 3.52 with cells; a
+the launch. H200 BoxBox 8,000: 1.20 ms a step against 3.52 with cells; a
 batch step costs ~9-11 us (a 1.2 us barrier, ~3 us of memory round trips, the
 rest one lane's block solve and friction: the rows one by one instead save
 ~2 us), 88 of them a step over BoxBox's 8 colours. Batches run from the
