@@ -407,9 +407,9 @@ inline void apply_row(const Row* row, float impulse, __private ContactBodies* p)
  * rows and speeds stay in registers. */
 __attribute__((always_inline))
 inline void solve_normal_rows(const uint count, const float3 n, __private const float4* r_a,
-                       __private const float4* r_b, const float mass[4], const float target[4],
-                       const float relaxation, const bool reverse, float impulse[4],
-                       __private ContactBodies* p)
+                              __private const float4* r_b, const float mass[4],
+                              const float target[4], const float relaxation, const bool reverse,
+                              float impulse[4], __private ContactBodies* p)
 {
     Row rows[4];
     float speed[4], change[4];
