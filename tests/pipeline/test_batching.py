@@ -337,6 +337,12 @@ def test_single_mode_refuses_more_bodies_than_its_marks(runtime, rng):
             ConstraintBatcher(runtime, mode=mode, shape="cpu")
 
 
+@pytest.mark.parametrize("rounds", [-1, 1.5, "64", 2**32])
+def test_global_mode_refuses_bad_ordered_rounds(runtime, rounds):
+    with pytest.raises(RbgenError, match="ordered_rounds must be a non-negative integer"):
+        ConstraintBatcher(runtime, mode="global", shape="gpu", ordered_rounds=rounds)
+
+
 @pytest.mark.parametrize("shape", ["gpu", "cpu"])
 def test_columns_keep_each_stack_in_one_group(runtime, rng, shape):
     """Columns mode: stacks 8 boxes tall on a 6 x 6 grid (pitch 1.6 m, cell 1.5 m), contacts
