@@ -200,6 +200,16 @@ def apply_totals(before, inertia, a, b, n, arm_a, arm_b, total):
             b: (v[b] + inv_mass[b] * impulse, w[b] + inertia[b] @ (arm_b.T @ total))}
 
 
+def assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total, atol=None):
+    """The solved velocities of bodies a and b are those after the normal impulses
+    ``total`` (apply_totals), within ``atol`` (default: 1e-4 of each body's speed before)."""
+    expected = apply_totals(before, inertia, a, b, n, arm_a, arm_b, total)
+    for body, (linear, angular) in expected.items():
+        tolerance = 1e-4 * np.abs(before["linear_velocity"][body]).max() if atol is None else atol
+        np.testing.assert_allclose(out["linear_velocity"][body, :3], linear, atol=tolerance)
+        np.testing.assert_allclose(out["angular_velocity"][body, :3], angular, atol=tolerance)
+
+
 def brute_force_lcp(k_matrix, rhs):
     """float64 reference: impulses x >= 0 with K x - rhs >= 0 and x . (K x - rhs) = 0, found
     by trying every active set (least squares on each, as K is singular for four points of
@@ -240,12 +250,7 @@ def test_pushing_points_get_the_smallest_exact_impulses(runtime, rng, shape, cou
         assert total.min() > 0.05 * total.max()
         np.testing.assert_allclose(s["normal_impulse"][:count], total, rtol=2e-3,
                                    atol=1e-4 * total.max())
-        expected = apply_totals(before, inertia, a, b, n, arm_a, arm_b, total)
-        for body, (linear, angular) in expected.items():
-            scale = np.abs(before["linear_velocity"][body]).max()
-            np.testing.assert_allclose(out["linear_velocity"][body, :3], linear, atol=1e-4 * scale)
-            np.testing.assert_allclose(out["angular_velocity"][body, :3], angular,
-                                       atol=1e-4 * scale)
+        assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total)
 
 
 @pytest.mark.parametrize("shape", ["gpu", "cpu"])
@@ -271,12 +276,8 @@ def test_block_is_the_exact_contact_solution(runtime, rng, shape, count):
             total = brute_force_lcp(k_matrix, target - normal_speed)
             released += int((total == 0).sum())
             scale = max(np.abs(before["linear_velocity"][[a, b]]).max(), 1.0)
-            expected = apply_totals(before, inertia, a, b, n, arm_a, arm_b, total)
-            for body, (linear, angular) in expected.items():
-                np.testing.assert_allclose(out["linear_velocity"][body, :3], linear,
-                                           atol=2e-4 * scale)
-                np.testing.assert_allclose(out["angular_velocity"][body, :3], angular,
-                                           atol=2e-4 * scale)
+            assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total,
+                                    atol=2e-4 * scale)
             impulses = s["normal_impulse"][:count].astype(float)
             reached = normal_speed + k_matrix @ impulses
             assert impulses.min() >= 0.0
@@ -310,9 +311,4 @@ def test_sequential_rows_are_gauss_seidel(runtime, rng, shape, count):
         assert total.max() > 0.0
         np.testing.assert_allclose(s["normal_impulse"][:count], total, rtol=1e-3,
                                    atol=1e-4 * total.max())
-        expected = apply_totals(before, inertia, a, b, n, arm_a, arm_b, total)
-        for body, (linear, angular) in expected.items():
-            scale = np.abs(before["linear_velocity"][body]).max()
-            np.testing.assert_allclose(out["linear_velocity"][body, :3], linear, atol=1e-4 * scale)
-            np.testing.assert_allclose(out["angular_velocity"][body, :3], angular,
-                                       atol=1e-4 * scale)
+        assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total)
