@@ -23,9 +23,12 @@ barrier across the device after each batch (`rbgen.pipeline.grid`): ONE
 launch for the whole solve at any size, every compute unit busy. Velocities
 are read through volatile pointers, since other work groups write them during
 the launch. H200 BoxBox 8,000: 1.20 ms a step against 3.52 with cells; a
-batch step costs ~9-11 us (a 1.2 us barrier, ~3 us of memory round trips, the
-rest one lane's block solve and friction: the rows one by one instead save
-~2 us), 88 of them a step over BoxBox's 8 colours. Batches run from the
+batch step costs ~10 us, 88 of them a step over BoxBox's 8 colours: ~6 us of
+one lane's chain for one manifold (loads of order, constraint and bodies, the
+block solve and friction, stores: a second constraint a lane, in a launch of
+one work group, adds that much; the rows one by one instead of the block save
+~2 us) and ~4 us of fence, barrier and bookkeeping, the same with 2 work
+groups as with 132. Batches run from the
 highest colour to the lowest (see the template: a ground's contacts, all in
 colour 0, come last). Loading each lane's next constraint
 while the barrier waits (measured 2026-12-02) made every size 6-10% slower and

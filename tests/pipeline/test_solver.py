@@ -25,7 +25,7 @@ import pyopencl.array as cl_array
 import pytest
 
 from rbgen.errors import RbgenError
-from rbgen.pipeline.batching import ORDERED_ROUNDS, ConstraintBatcher
+from rbgen.pipeline.batching import ConstraintBatcher
 from rbgen.pipeline.gyroscopic import BodyPreparation, inertia_records
 from rbgen.pipeline.integrate import Integrator
 from rbgen.pipeline.solver import ContactSolver
@@ -76,7 +76,7 @@ def shaped_rig(runtime, bodies, inv_inertia, shape, *, penetration="split", warm
     rig.batcher = ConstraintBatcher(runtime, group_count=group_count, mode=batching,
                                     cell_size=2.5, shape=shape,
                                     max_bodies=resident or None,
-                                    ordered_rounds=0 if batching == "global" else ORDERED_ROUNDS)
+                                    ordered_rounds=0)  # (read by global mode only)
     rig.solver = ContactSolver(runtime, split_impulse=penetration == "split",
                                work_group_size=work_group_size, friction=friction,
                                normal_solve=rig.solver.spec.values["normal_solve"], shape=shape,
