@@ -263,7 +263,11 @@ def test_block_is_the_exact_contact_solution(runtime, rng, shape, count):
     semidefinite K), and the impulses are complementary to the speeds reached: a point
     with an impulse moves at its target, one without moves no slower. The scenes are
     checked to contain released points, so the test cannot pass on the all-pushing case
-    alone."""
+    alone. Tolerances scale with the largest right-hand side too: the block accepts four
+    pushing points whose targets fit one rigid motion to within 1e-4 of it
+    (OVERSHOOT_TOLERANCE), so the velocities agree to that order of it (scaled by the
+    bodies' speeds alone, 3 of 150 seeds failed with four points, at fac43a9 as well;
+    the rows one by one instead of the block fail every seed)."""
     released = 0
     for attempt in range(3):
         rig, manifolds, cons, before = random_face_pairs(runtime, rng, count, shape, pairs=9,
@@ -275,7 +279,8 @@ def test_block_is_the_exact_contact_solution(runtime, rng, shape, count):
             target = c["velocity_target"][:count].astype(float)
             total = brute_force_lcp(k_matrix, target - normal_speed)
             released += int((total == 0).sum())
-            scale = max(np.abs(before["linear_velocity"][[a, b]]).max(), 1.0)
+            scale = max(np.abs(before["linear_velocity"][[a, b]]).max(), 1.0,
+                        np.abs(target - normal_speed).max())
             assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total,
                                     atol=2e-4 * scale)
             impulses = s["normal_impulse"][:count].astype(float)
