@@ -20,7 +20,7 @@ def _optional(module: str):
 
 
 def cmd_info(args) -> int:
-    from .device import DeviceTraits, default_device, list_devices, select_device
+    from .device import DeviceTraits, build_failure, default_device, list_devices, select_device
 
     entries = list_devices()
     if not entries:
@@ -36,6 +36,9 @@ def cmd_info(args) -> int:
         mark = "*" if entry.device == chosen else " "
         print(f"{mark} {entry.index}  {traits.describe()}")
         print(f"        fingerprint {traits.fingerprint}, OpenCL {traits.opencl_version}")
+        failure = build_failure(entry.device)
+        if failure is not None:
+            print(f"        cannot compile a kernel: {failure}")
         if tuning is not None and hasattr(tuning, "describe_cache"):
             lines = tuning.describe_cache(traits)
             print(f"        tuned entries: {len(lines)}")

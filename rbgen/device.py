@@ -9,13 +9,15 @@ Choosing a device: an explicit argument, else the ``RBGEN_DEVICE``
 environment variable, else the first GPU, else the PoCL CPU device. A choice is
 an index ``"P:D"`` (platform, device) or a case-insensitive substring of
 ``"<platform name> <device name>"``; one that matches nothing raises
-`DeviceNotFoundError` listing what is available.
+`DeviceNotFoundError` listing what is available. The default passes over
+devices that cannot compile a kernel (`build_failure`), with a warning.
 """
 from __future__ import annotations
 
 import dataclasses
 import hashlib
 import os
+import warnings
 from functools import cached_property
 
 import pyopencl as cl
@@ -136,19 +138,70 @@ def list_devices() -> list[DeviceEntry]:
     return entries
 
 
+#: the kernel `build_failure` compiles to see whether a device's compiler works at all
+_PROBE_SOURCE = "__kernel void rbgen_probe(__global float* x) { x[get_global_id(0)] *= 2.0f; }"
+_build_failures: dict[int, str | None] = {}
+
+
+def build_failure(device: cl.Device) -> str | None:
+    """None if ``device`` compiles a trivial kernel, else why not (the compiler's words).
+
+    Once per device and process (a fraction of a second; PoCL caches the result on
+    disk). Why: a listed device need not work. The PoCL bundled with pyopencl's wheels
+    (LLVM 14) fails every build on CPUs newer than its LLVM ("unknown target CPU
+    'generic'", seen on AMD Zen 5), and a default that picks it would fail on the first
+    kernel with a message about the kernel, not the device."""
+    key = device.int_ptr
+    if key not in _build_failures:
+        try:
+            context = cl.Context([device])
+            cl.Program(context, _PROBE_SOURCE).build()
+            _build_failures[key] = None
+        except cl.Error as err:
+            lines = [line.strip() for line in str(err).splitlines()]
+            reason = next((line for line in lines if "error" in line.lower() and line != lines[0]),
+                          lines[-1] if lines else type(err).__name__)
+            _build_failures[key] = reason
+    return _build_failures[key]
+
+
+def _is_pocl(entry: DeviceEntry) -> bool:
+    return "pocl" in entry.label.lower() or "portable" in entry.label.lower()
+
+
+def usable_devices() -> list[DeviceEntry]:
+    """The listed devices that compile a kernel (`build_failure`), in listing order."""
+    return [entry for entry in list_devices() if build_failure(entry.device) is None]
+
+
 def default_device() -> cl.Device:
-    """The first GPU if any, else the first CPU device (the bundled PoCL)."""
+    """The first GPU if any, else the first PoCL CPU device, else the first device: among
+    the devices that compile a kernel, with a warning naming each one skipped."""
     entries = list_devices()
     if not entries:
         raise DeviceNotFoundError(
             "no OpenCL device found; install pocl-binary-distribution for a CPU device")
+    usable = []
     for entry in entries:
+        reason = build_failure(entry.device)
+        if reason is None:
+            usable.append(entry)
+        else:
+            warnings.warn(f"OpenCL device {entry.index} ({entry.label}) cannot compile a kernel "
+                          f"({reason}); not used by default", RuntimeWarning, stacklevel=2)
+    if not usable:
+        listing = "\n".join(f"  {e.index}  {e.label}: {build_failure(e.device)}" for e in entries)
+        raise DeviceNotFoundError(
+            f"no OpenCL device here compiles a kernel:\n{listing}\n(on a CPU newer than the "
+            f"PoCL bundled with pyopencl, install the system's PoCL, e.g. Debian's "
+            f"pocl-opencl-icd)")
+    for entry in usable:
         if entry.device.type & cl.device_type.GPU:
             return entry.device
-    for entry in entries:
-        if "pocl" in entry.label.lower() or "portable" in entry.label.lower():
+    for entry in usable:
+        if _is_pocl(entry):
             return entry.device
-    return entries[0].device
+    return usable[0].device
 
 
 def select_device(choice: str | cl.Device | None = None) -> cl.Device:

@@ -1,8 +1,9 @@
 """Test fixtures: every test that takes ``runtime`` runs once per OpenCL device.
 
-``RBGEN_TEST_DEVICES`` narrows the set: a comma-separated list of device
-choices as accepted by ``rbgen.device.match_devices`` (index ``P:D`` or a
-name substring). Programs are cached on disk between runs, so a second run of
+By default: every device that compiles a kernel (one PoCL per CPU; pytest's
+header names the devices left out and why). ``RBGEN_TEST_DEVICES`` chooses
+instead: a comma-separated list of device choices as accepted by
+``rbgen.device.match_devices`` (index ``P:D`` or a name substring). Programs are cached on disk between runs, so a second run of
 the suite skips compilation.
 """
 from __future__ import annotations
@@ -10,11 +11,16 @@ from __future__ import annotations
 import os
 
 import numpy as np
+import pyopencl as cl
 import pytest
 
-from rbgen.device import Runtime, list_devices, match_devices
+from rbgen.device import Runtime, build_failure, list_devices, match_devices
 
 ENV_TEST_DEVICES = "RBGEN_TEST_DEVICES"
+
+
+#: devices left out of the default set, and why (shown in pytest's header)
+_LEFT_OUT: list[str] = []
 
 
 def _test_devices():
@@ -26,10 +32,30 @@ def _test_devices():
                 if d not in devices:
                     devices.append(d)
         return devices
-    return [entry.device for entry in list_devices()]
+    # every device that compiles a kernel; of several PoCL builds of this machine's CPU
+    # (pyopencl's bundled one and the system's), the first that works: one CPU, one run
+    devices, pocl_cpu = [], False
+    for entry in list_devices():
+        reason = build_failure(entry.device)
+        is_pocl_cpu = bool(entry.device.type & cl.device_type.CPU) and (
+            "portable" in entry.label.lower() or "pocl" in entry.label.lower())
+        if reason is not None:
+            _LEFT_OUT.append(f"{entry.index} {entry.label}: cannot compile a kernel ({reason})")
+        elif is_pocl_cpu and pocl_cpu:
+            _LEFT_OUT.append(f"{entry.index} {entry.label}: a second PoCL on the same CPU")
+        else:
+            devices.append(entry.device)
+            pocl_cpu = pocl_cpu or is_pocl_cpu
+    return devices
 
 
 _DEVICES = _test_devices()
+
+
+def pytest_report_header(config):
+    lines = [f"rbgen test devices: {', '.join(d.name.strip() for d in _DEVICES) or 'none'}"]
+    lines += [f"rbgen left out {line}" for line in _LEFT_OUT]
+    return lines
 _RUNTIMES: dict[int, Runtime] = {}
 
 

@@ -69,3 +69,28 @@ def test_runtime_counts_launches_and_reads(runtime):
     arr = cla.zeros(runtime.queue, 4, np.float32)
     runtime.read(arr)
     assert runtime.counters["blocking_reads"] == before["blocking_reads"] + 1
+
+
+def test_every_test_device_compiles_a_kernel(runtime):
+    assert device.build_failure(runtime.device) is None
+
+
+def test_default_passes_over_a_device_that_cannot_compile(monkeypatch):
+    """A listed device whose compiler fails (the bundled PoCL on a CPU its LLVM does not
+    know) is skipped with a warning naming it; with none left the error lists each
+    device with its compiler's words."""
+    monkeypatch.delenv(device.ENV_DEVICE, raising=False)
+    entries = device.list_devices()
+    broken = entries[0]
+    real = device.build_failure
+    monkeypatch.setattr(device, "build_failure",
+                        lambda d: "unknown target CPU 'x'" if d == broken.device else real(d))
+    if len(entries) > 1 and any(real(e.device) is None for e in entries[1:]):
+        with pytest.warns(RuntimeWarning, match=broken.index):
+            chosen = device.default_device()
+        assert chosen != broken.device
+    monkeypatch.setattr(device, "build_failure", lambda d: "unknown target CPU 'x'")
+    with pytest.raises(DeviceNotFoundError) as info:
+        with pytest.warns(RuntimeWarning):
+            device.default_device()
+    assert broken.index in str(info.value) and "unknown target CPU 'x'" in str(info.value)
