@@ -423,7 +423,7 @@ class World:
     def _automatic_batching(self, body_count: int) -> str:
         """``global`` on NVIDIA GPUs (one colouring and one solver launch a step over every
         compute unit, grid barriers between batches: H200 BoxBox 1,000 / 8,000 / 27,000 /
-        111,375 boxes in 1.02 / 1.20 / 1.48 / 3.78 ms a step (2026-12-02), against cells'
+        111,375 boxes in 0.61 / 0.80 / 1.21 / 3.63 ms a step (2026-12-03), against cells'
         2.86 / 3.52 / 4.28 / 7.51 and single's 1.75 at 1,000 in an earlier run); on other
         GPUs ``single`` while every body fits a resident solve (one colouring and one
         solver launch a step, velocities in local memory), else the device's default

@@ -28,8 +28,8 @@ Two levels, after Harada's two-level solver:
      order, the fewest colours, over as many steps as it takes), for the
      solver's grid variant, whose work groups all take part
      in every batch: one launch for the colouring and one for the solve, and
-     the whole device busy (H200 BoxBox 8,000: 1.20 ms a step, against 3.52
-     with cells in an earlier run; 111,375: 3.78 against 7.51).
+     the whole device busy (H200 BoxBox 8,000: 0.80 ms a step on 2026-12-03,
+     against 3.52 with cells in an earlier run; 111,375: 3.63 against 7.51).
    * ``single`` (the default on other GPUs while every body fits the local memory):
      one group of all constraints, coloured by one work group with its body
      marks in local memory (``batching_single.cl.mako``: one launch), for a

@@ -22,13 +22,22 @@ compute unit, a batch's constraints spread over all their lanes, with a
 barrier across the device after each batch (`rbgen.pipeline.grid`): ONE
 launch for the whole solve at any size, every compute unit busy. Velocities
 are read through volatile pointers, since other work groups write them during
-the launch. H200 BoxBox 8,000: 1.20 ms a step against 3.52 with cells; a
-batch step costs ~10 us, 88 of them a step over BoxBox's 8 colours: ~6 us of
-one lane's chain for one manifold (loads of order, constraint and bodies, the
-block solve and friction, stores: a second constraint a lane, in a launch of
-one work group, adds that much; the rows one by one instead of the block save
-~2 us) and ~4 us of fence, barrier and bookkeeping, the same with 2 work
-groups as with 132. Batches run from the
+the launch. A batch's constraints go round the work groups first (the
+template's `lane`), so that a batch of a few hundred manifolds is one or two
+lanes on every compute unit, not full warps on the first few: H200 BoxBox
+1,000 / 8,000 / 27,000 / 111,375 went from 1.01 / 1.19 / 1.48 / 3.78 to
+0.61 / 0.80 / 1.21 / 3.63 ms a step (2026-12-03, the same trajectories).
+A batch step (88 a step over BoxBox's 8 colours) then costs ~5 us at 1,000
+boxes: ~1.3 us of fence, grid barrier and loop (the launch with the visits
+emptied: 0.116 ms for 88 batch steps) and ~3.7 us of one lane's dependent
+chain for one manifold, compute rather than memory: reading the velocities
+through plain pointers instead of volatile ones (wrong, but timed) saved 2%,
+loading the bodies beside the constraint (a visit list written before the
+sweeps) nothing, and keeping each face's velocity-independent block geometry
+(Q, Q^-1, lever arms) from a pass before the sweeps 2% at 1,000 boxes and
+cost 3-13% at 8,000-111,375 (272 bytes a visit more); the rows one by one
+instead of the block cut the solve by a third (0.44 -> 0.28 ms) but let the
+20-row pyramid's top move 8.9 cm. Batches run from the
 highest colour to the lowest (see the template: a ground's contacts, all in
 colour 0, come last). Loading each lane's next constraint
 while the barrier waits (measured 2026-12-02) made every size 6-10% slower and
