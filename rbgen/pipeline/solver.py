@@ -27,6 +27,10 @@ template's `lane`), so that a batch of a few hundred manifolds is one or two
 lanes on every compute unit, not full warps on the first few: H200 BoxBox
 1,000 / 8,000 / 27,000 / 111,375 went from 1.01 / 1.19 / 1.48 / 3.78 to
 0.61 / 0.80 / 1.21 / 3.63 ms a step (2026-12-03, the same trajectories).
+In batches small enough to leave them idle, the push rows of the split-impulse
+sweeps go to a lane a warp further than the velocity rows (the template's
+`push_lane`: 0.59 / 0.77 ms at 1,000 / 8,000 with the split in every batch,
+but slower at 27,000 / 111,375, hence the size rule, untimed on the GPU).
 A batch step (88 a step over BoxBox's 8 colours) then costs ~5 us at 1,000
 boxes: ~1.3 us of fence, grid barrier and loop (the launch with the visits
 emptied: 0.116 ms for 88 batch steps) and ~3.7 us of one lane's dependent
