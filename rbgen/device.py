@@ -165,13 +165,9 @@ def build_failure(device: cl.Device) -> str | None:
     return _build_failures[key]
 
 
-def _is_pocl(entry: DeviceEntry) -> bool:
+def is_pocl(entry: DeviceEntry) -> bool:
+    """Whether a listed device is PoCL's (pyopencl's bundled build or the system's)."""
     return "pocl" in entry.label.lower() or "portable" in entry.label.lower()
-
-
-def usable_devices() -> list[DeviceEntry]:
-    """The listed devices that compile a kernel (`build_failure`), in listing order."""
-    return [entry for entry in list_devices() if build_failure(entry.device) is None]
 
 
 def default_device() -> cl.Device:
@@ -199,7 +195,7 @@ def default_device() -> cl.Device:
         if entry.device.type & cl.device_type.GPU:
             return entry.device
     for entry in usable:
-        if _is_pocl(entry):
+        if is_pocl(entry):
             return entry.device
     return usable[0].device
 

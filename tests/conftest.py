@@ -3,8 +3,9 @@
 By default: every device that compiles a kernel (one PoCL per CPU; pytest's
 header names the devices left out and why). ``RBGEN_TEST_DEVICES`` chooses
 instead: a comma-separated list of device choices as accepted by
-``rbgen.device.match_devices`` (index ``P:D`` or a name substring). Programs are cached on disk between runs, so a second run of
-the suite skips compilation.
+``rbgen.device.match_devices`` (index ``P:D`` or a name substring). Programs
+are cached on disk between runs, so a second run of the suite skips
+compilation.
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from rbgen.device import Runtime, build_failure, list_devices, match_devices
+from rbgen.device import Runtime, build_failure, is_pocl, list_devices, match_devices
 
 ENV_TEST_DEVICES = "RBGEN_TEST_DEVICES"
 
@@ -37,8 +38,7 @@ def _test_devices():
     devices, pocl_cpu = [], False
     for entry in list_devices():
         reason = build_failure(entry.device)
-        is_pocl_cpu = bool(entry.device.type & cl.device_type.CPU) and (
-            "portable" in entry.label.lower() or "pocl" in entry.label.lower())
+        is_pocl_cpu = bool(entry.device.type & cl.device_type.CPU) and is_pocl(entry)
         if reason is not None:
             _LEFT_OUT.append(f"{entry.index} {entry.label}: cannot compile a kernel ({reason})")
         elif is_pocl_cpu and pocl_cpu:
@@ -60,6 +60,8 @@ def pytest_report_header(config):
     lines = [f"rbgen test devices: {', '.join(d.name.strip() for d in _DEVICES) or 'none'}"]
     lines += [f"rbgen left out {line}" for line in _LEFT_OUT]
     return lines
+
+
 _RUNTIMES: dict[int, Runtime] = {}
 
 
