@@ -29,7 +29,10 @@ def cmd_info(args) -> int:
     try:
         chosen = select_device(args.device)
     except Exception:  # noqa: BLE001 - still list the devices
-        chosen = default_device()
+        try:
+            chosen = default_device()
+        except Exception:  # noqa: BLE001 - none compiles a kernel: list them all, say why
+            chosen = None
     tuning = _optional("rbgen.tuning")
     for entry in entries:
         traits = DeviceTraits.of(entry.device)
@@ -44,6 +47,10 @@ def cmd_info(args) -> int:
             print(f"        tuned entries: {len(lines)}")
             for line in lines:
                 print(f"          {line}")
+    if chosen is None:
+        print("no device here compiles a kernel (install the system's PoCL, e.g. Debian's "
+              "pocl-opencl-icd)")
+        return 1
     print("(* = the device rbgen uses by default; set RBGEN_DEVICE or pass --device to change)")
     return 0
 

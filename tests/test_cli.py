@@ -17,6 +17,24 @@ def test_info_names_every_device(capsys):
     assert out.count("*") >= 1
 
 
+def test_info_lists_devices_that_cannot_compile(monkeypatch, capsys):
+    """With no device that compiles a kernel, `rbgen info` still lists every device, each
+    with the compiler's words, and exits 1."""
+    import warnings
+
+    from rbgen import device
+    from rbgen.device import list_devices
+
+    monkeypatch.delenv(device.ENV_DEVICE, raising=False)
+    monkeypatch.setattr(device, "build_failure", lambda d: "unknown target CPU 'x'")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        assert main(["info"]) == 1
+    out = capsys.readouterr().out
+    assert out.count("cannot compile a kernel: unknown target CPU 'x'") == len(list_devices())
+    assert "no device here compiles a kernel" in out
+
+
 def test_info_unknown_device_exit_code():
     result = subprocess.run([sys.executable, "-m", "rbgen", "export", "--out", "/tmp/x",
                              "--device", "no-such-gpu"], capture_output=True, text=True)
