@@ -90,7 +90,8 @@ class KernelTemplate:
     def __init__(self, path: str, params: Iterable[Param], doc: str = "",
                  roles: Mapping[str, str] | None = None,
                  defaults: Callable[[Any], dict] | None = None,
-                 requires: Callable[[dict], str | None] | None = None):
+                 requires: Callable[[dict], str | None] | None = None,
+                 build_options: Callable[[dict], Iterable[str]] | None = None):
         self.path = path
         self.params = {p.name: p for p in params}
         self.doc = doc
@@ -101,6 +102,10 @@ class KernelTemplate:
         self._defaults = defaults
         #: rules between parameters: ``requires(values)`` says what is wrong, or None
         self._requires = requires
+        #: compiler options a specialisation needs: ``build_options(values) -> [option, ...]``
+        #: (part of the program cache key and of the export manifest, so that a program
+        #: built outside rbgen is the one rbgen runs)
+        self._build_options = build_options
         if not (TEMPLATE_DIR / path).is_file():
             raise TemplateParameterError(f"template {path!r} not found under {TEMPLATE_DIR}")
         TEMPLATES[path] = self
@@ -127,6 +132,10 @@ class KernelTemplate:
         if problem:
             raise TemplateParameterError(f"{where}: {problem}")
         return KernelSpec(self.path, tuple(sorted(values.items())), self)
+
+    def build_options(self, values: Mapping[str, Any]) -> tuple[str, ...]:
+        """The compiler options a specialisation with these values is built with."""
+        return tuple(self._build_options(dict(values))) if self._build_options else ()
 
     def source_hash(self) -> str:
         """Hash of this template and the templates it uses."""
@@ -155,6 +164,11 @@ class KernelSpec:
     @property
     def source_hash(self) -> str:
         return hashlib.sha256(self.source.encode()).hexdigest()
+
+    @property
+    def build_options(self) -> tuple[str, ...]:
+        """The compiler options the template asks for with these values."""
+        return self.template.build_options(self.values) if self.template is not None else ()
 
     def __str__(self) -> str:
         args = ", ".join(f"{k}={v!r}" for k, v in self.params)
@@ -352,8 +366,9 @@ _COMPILED: dict[tuple, Compiled] = {}
 
 
 def compile_spec(runtime: Runtime, spec: KernelSpec, options: Iterable[str] = ()) -> Compiled:
-    """Build (or fetch) ``spec`` for ``runtime``; the result is shared."""
-    options = tuple(options)
+    """Build (or fetch) ``spec`` for ``runtime``, with the spec's own build options and then
+    ``options``; the result is shared."""
+    options = spec.build_options + tuple(o for o in options if o not in spec.build_options)
     key = (id(runtime), spec, options)
     c = _COMPILED.get(key)
     if c is None or c.runtime is not runtime:

@@ -89,7 +89,8 @@ def export_kernels(specs: Iterable[KernelSpec], out_dir: str | Path,
             "file": fname,
             "template": spec.path,
             "params": {k: _json_value(v) for k, v in spec.params},
-            "build_options": list(build_options),
+            "build_options": [*spec.build_options,
+                              *(o for o in build_options if o not in spec.build_options)],
             "source_sha256": hashlib.sha256(source.encode()).hexdigest(),
             "kernels": [
                 {"name": name, "args": args, "local_size": local.get(name)}

@@ -142,7 +142,10 @@ class World:
     `rbgen.pipeline.jacobi`: a sweep is two phases over the whole device
     instead of one per colour, but a push travels one body down a stack per
     sweep, so a 20-row pyramid's top sinks ~22 cm at 10 iterations and holds
-    within 2 cm at 80 iterations and 40 position iterations), ``group_count``
+    within 2 cm at 80 iterations and 40 position iterations), ``fast_math``
+    (the contact solver built with -cl-fast-relaxed-math; None, the default: on GPUs,
+    where it shortens each lane's chain of dependent arithmetic, see
+    `rbgen.pipeline.solver.default_fast_math`; off on CPUs), ``group_count``
     (solver groups per colour), ``manifold_capacity`` and
     ``pair_capacity`` (initial buffer sizes; grown on overflow).
 
@@ -160,7 +163,8 @@ class World:
                  penetration_recovery: float = 0.2, linear_damping: float = 0.0,
                  angular_damping: float = 0.0, batching: str | None = None,
                  group_count: int | None = None, solver: str = "pgs",
-                 manifold_capacity: int | None = None, pair_capacity: int | None = None):
+                 manifold_capacity: int | None = None, pair_capacity: int | None = None,
+                 fast_math: bool | None = None):
         self.runtime: Runtime = coerce_runtime(device)
         self.gravity = _vector(gravity, 3, "gravity")
         self.iterations, self.position_iterations = int(iterations), int(position_iterations)
@@ -192,7 +196,7 @@ class World:
         self._grid_failed = False       # a grid launch gave up: none from now on
         self._solver_options = {"split_impulse": penetration == "split",
                                 "friction": friction_model, "normal_solve": normal_solve,
-                                "group_count": group_count}
+                                "group_count": group_count, "fast_math": fast_math}
         #: batching mode -> (ConstraintBatcher, ContactSolver), built when first used
         self._solvers: dict = {}
         if group_count is not None and int(group_count) < 1:
@@ -202,7 +206,8 @@ class World:
         if solver == "jacobi":
             self._jacobi_options = {"split_impulse": penetration == "split",
                                     "friction": friction_model,
-                                    "normal_solve": normal_solve or "block"}
+                                    "normal_solve": normal_solve or "block",
+                                    "fast_math": fast_math}
             self._solver = JacobiSolver(rt, **self._jacobi_options)
         self.relaxation = float(relaxation)
         self.restitution_threshold = restitution_threshold
@@ -455,7 +460,8 @@ class World:
             solver = ContactSolver(rt, split_impulse=options["split_impulse"],
                                    max_batches=batcher.max_batches, friction=options["friction"],
                                    normal_solve=normal_solve, shape=batcher.shape,
-                                   resident_bodies=capacity, grid=mode == "global")
+                                   resident_bodies=capacity, grid=mode == "global",
+                                   fast_math=options["fast_math"])
             pair = self._solvers[mode] = (batcher, solver)
         return pair
 

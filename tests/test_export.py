@@ -53,6 +53,28 @@ def test_exported_integrate_runs_standalone(runtime, rng, tmp_path):
     assert d_standalone.get().tobytes() == d_rbgen.get().tobytes()
 
 
+def test_a_specs_build_options_reach_its_program_and_the_manifest(runtime, tmp_path):
+    """A fast-math solver is built with -cl-fast-relaxed-math by rbgen's loader, and its
+    manifest entry says so, so that a host building the file alone builds the same program;
+    an exact one has no options."""
+    from rbgen.codegen import compile_spec
+    from rbgen.pipeline import solver
+
+    fast = solver.TEMPLATE.default_spec(runtime.traits, fast_math=True)
+    exact = solver.TEMPLATE.default_spec(runtime.traits, fast_math=False)
+    assert fast.build_options == ("-cl-fast-relaxed-math",) and exact.build_options == ()
+    built = compile_spec(runtime, fast).program.get_build_info(
+        runtime.device, cl.program_build_info.OPTIONS)
+    assert "-cl-fast-relaxed-math" in built
+    manifest = export_kernels([fast, exact], tmp_path, runtime.traits)
+    assert [e["build_options"] for e in manifest["files"]] == [["-cl-fast-relaxed-math"], []]
+    assert "-cl-fast-relaxed-math" in fast.source and "-cl-fast-relaxed-math" not in exact.source
+    for entry in manifest["files"]:
+        program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build(
+            options=entry["build_options"])
+        assert "solve_groups" in {k.function_name for k in program.all_kernels()}
+
+
 def test_export_all_builds_every_file(runtime, tmp_path):
     assert main(["export", "--out", str(tmp_path), "--device", runtime.device.name.strip()]) == 0
     manifest = json.loads((tmp_path / "manifest.json").read_text())
@@ -60,7 +82,8 @@ def test_export_all_builds_every_file(runtime, tmp_path):
     names = {e["template"] for e in manifest["files"]}
     assert {"pipeline/integrate.cl.mako", "pipeline/world_aabbs.cl.mako"} <= names
     for entry in manifest["files"]:
-        program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
+        program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build(
+            options=entry["build_options"])
         for k in entry["kernels"]:
             assert getattr(program, k["name"]).num_args == len(k["args"])
 

@@ -2,7 +2,9 @@
 
 All at dt = 1/60 with the default settings (10 PGS iterations, split impulse,
 warm starting) unless a test says otherwise. The contact tests run with both
-solvers (Gauss-Seidel and Jacobi with mass splitting).
+solvers (Gauss-Seidel and Jacobi with mass splitting); the resting, sliding,
+rebound and momentum tests also with each solver built exactly and with
+-cl-fast-relaxed-math (``fast_math``, the GPU default), on every device.
 """
 from __future__ import annotations
 
@@ -21,11 +23,12 @@ def ground(world, friction=0.6, restitution=0.0, orientation=(0, 0, 0, 1), posit
                             orientation=orientation, friction=friction, restitution=restitution)
 
 
+@pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
 @pytest.mark.parametrize("penetration", ["baumgarte", "split"])
-def test_box_resting_on_ground_does_not_drift(runtime, penetration, solver):
+def test_box_resting_on_ground_does_not_drift(runtime, penetration, solver, fast_math):
     """A unit box placed on the ground stays put: drift < 1 mm over 600 steps."""
-    world = World(runtime, penetration=penetration, solver=solver)
+    world = World(runtime, penetration=penetration, solver=solver, fast_math=fast_math)
     ground(world)
     world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0.3, 0.5, -0.2))
     start = world.positions[1]
@@ -34,10 +37,10 @@ def test_box_resting_on_ground_does_not_drift(runtime, penetration, solver):
     assert np.linalg.norm(world.positions[1] - start) < 1e-3
 
 
-def _incline(runtime, mu, steps, friction_model="point", solver="pgs"):
+def _incline(runtime, mu, steps, friction_model="point", solver="pgs", fast_math=False):
     theta = np.radians(30)
     q = (0, 0, np.sin(theta / 2), np.cos(theta / 2))  # ramp rising towards -x
-    world = World(runtime, friction_model=friction_model, solver=solver)
+    world = World(runtime, friction_model=friction_model, solver=solver, fast_math=fast_math)
     ground(world, friction=mu, orientation=q, position=(0, 0, 0))
     normal = np.array([-np.sin(theta), np.cos(theta), 0])
     start = 1.0 * normal + 0.5 * normal  # box centre 0.5 above the slab's top face (half 1)
@@ -58,12 +61,13 @@ def test_box_on_incline_sticks_with_high_friction(runtime, friction_model, solve
     assert np.linalg.norm(positions[-1] - positions[0]) < 1e-3
 
 
+@pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
 @pytest.mark.parametrize("friction_model", ["point", "manifold"])
-def test_box_slides_down_incline_with_low_friction(runtime, friction_model, solver):
+def test_box_slides_down_incline_with_low_friction(runtime, friction_model, solver, fast_math):
     """mu = 0.3: the box slides with a = g (sin 30 - mu cos 30) (within 5%), fitted from
     the distance travelled, s = a t^2 / 2, between steps 60 and 180."""
-    positions, theta = _incline(runtime, 0.3, 180, friction_model, solver)
+    positions, theta = _incline(runtime, 0.3, 180, friction_model, solver, fast_math)
     down = np.array([-np.cos(theta), -np.sin(theta), 0])
     s = (positions - positions[0]) @ down
     t = np.arange(len(s)) * DT
@@ -90,10 +94,11 @@ def test_projectile(runtime):
     assert np.linalg.norm(world.positions[0] - exact) < G * DT * n * DT
 
 
+@pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_restitution_rebound_height(runtime, solver):
+def test_restitution_rebound_height(runtime, solver, fast_math):
     """A box with e = 0.5 dropped from 1 m (bottom face) rebounds to e^2 * 1 m = 0.25 m (5%)."""
-    world = World(runtime, restitution_threshold=0.5, solver=solver)
+    world = World(runtime, restitution_threshold=0.5, solver=solver, fast_math=fast_math)
     ground(world, restitution=0.5)
     world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0, 1.5, 0), restitution=0.5)
     heights, bounced = [], False
@@ -106,11 +111,12 @@ def test_restitution_rebound_height(runtime, solver):
     assert max(heights) == pytest.approx(0.25, rel=0.05)
 
 
+@pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_two_free_boxes_conserve_momentum(runtime, rng, solver):
+def test_two_free_boxes_conserve_momentum(runtime, rng, solver, fast_math):
     """No gravity: two boxes of masses 1 and 3 collide off-centre; linear momentum is
     conserved within 1e-4 relative (before, during and after contact)."""
-    world = World(runtime, gravity=(0, 0, 0), solver=solver)
+    world = World(runtime, gravity=(0, 0, 0), solver=solver, fast_math=fast_math)
     box = rbgen.Box((0.5, 0.5, 0.5))
     world.add_body(box, mass=1.0, position=(-1, 0.2, 0), linear_velocity=(3, 0, 0.5),
                    angular_velocity=rng.normal(size=3))

@@ -8,6 +8,10 @@
   (bottom face above y = -0.02). Both batching modes. The 8,000-box version is a benchmark
   (benchmarks/scenes.py, examples/box_pile.py); this is a 4 x 4 x 4 one.
 * Global batching holds a 30-layer BoxBox lattice off the ground (< 5 mm).
+The pyramid and the dropped grid run every batching mode with the device's default
+solver build, and global and slabs batching (a GPU's and a CPU's default) also with the
+solver built with -cl-fast-relaxed-math (``fast_math``, the GPU default), so that a CPU
+checks that build too.
 """
 from __future__ import annotations
 
@@ -21,14 +25,22 @@ from rbgen.world import World
 DT = 1 / 60
 
 
+#: (batching, fast_math): every mode with the device's default build (None), and the
+#: GPU's and the CPU's default modes with the fast-math build
+STACKING_CASES = ([(mode, None) for mode in ("components", "cells", "columns", "slabs", "single",
+                                             "global")]
+                  + [("global", True), ("slabs", True)])
+STACKING_IDS = [f"{mode}-{'fast' if fast else 'default'}" for mode, fast in STACKING_CASES]
+
+
 def pyramid_positions(rows: int, gap: float = 0.02) -> np.ndarray:
     return np.array([[(i - (rows - r - 1) / 2) * (1 + gap), 0.5 + r, 0.0]
                      for r in range(rows) for i in range(rows - r)])
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
-def test_pyramid_of_20_rows_holds(runtime, batching):
-    world = World(runtime, batching=batching)
+@pytest.mark.parametrize("batching, fast_math", STACKING_CASES, ids=STACKING_IDS)
+def test_pyramid_of_20_rows_holds(runtime, batching, fast_math):
+    world = World(runtime, batching=batching, fast_math=fast_math)
     world.add_static(rbgen.Box((50, 1, 50)), position=(0, -1, 0))
     ids = world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=pyramid_positions(20))
     top = ids[-1]
@@ -52,14 +64,14 @@ def drop_grid(world, seed=1):
     return world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
-def test_dropped_grid_comes_to_rest(runtime, batching):
+@pytest.mark.parametrize("batching, fast_math", STACKING_CASES, ids=STACKING_IDS)
+def test_dropped_grid_comes_to_rest(runtime, batching, fast_math):
     """A fixed jitter (seed 1). Measured over seeds 0-7 on PoCL (max speed at step 300):
     components and slabs 0.000 for all eight; cells (cpu shape, block solve) 0.088 and
     0.244 for seeds 0 and 6, 0.000 for the others: a box at a stack top can keep rocking
     under the block solve there (open, issue #6), so this miniature is a regression
     check of one scene, not proof that every jitter settles."""
-    world = World(runtime, batching=batching)
+    world = World(runtime, batching=batching, fast_math=fast_math)
     ids = drop_grid(world)
     for _ in range(300):
         world.step(DT)

@@ -35,7 +35,8 @@ from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 from ..launch import instance
 from .grid import grid_groups, grid_validated, sync_buffer
-from .solver import FRICTION_MODELS, NORMAL_SOLVES, PushVelocities, check_sweeps
+from .solver import (FRICTION_MODELS, NORMAL_SOLVES, PushVelocities, check_sweeps,
+                     default_fast_math, fast_math_options, fast_math_param)
 
 TEMPLATE = KernelTemplate(
     "pipeline/jacobi.cl.mako",
@@ -52,12 +53,15 @@ TEMPLATE = KernelTemplate(
         Param("grid", (False, True),
               "True: one launch runs every phase with a barrier across the work groups "
               "between phases (they must all run at once); False: one launch per phase"),
+        fast_math_param(),
     ],
     doc="Jacobi sweeps with mass splitting over contact constraints.",
     roles={"constraints": "inout", "bodies": "inout", "split": "inout"},
+    build_options=fast_math_options,
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
                              "split_impulse": True, "normal_solve": "block",
-                             "friction": "manifold", "grid": grid_validated(traits)},
+                             "friction": "manifold", "grid": grid_validated(traits),
+                             "fast_math": default_fast_math(traits)},
 )
 
 #: the grid kernel's ``passes`` flag for the warm start (as in the template)
@@ -79,7 +83,8 @@ class JacobiSolver(PushVelocities):
 
     def __init__(self, runtime: Runtime, *, split_impulse: bool = True,
                  friction: str = "manifold", normal_solve: str = "block",
-                 grid: bool | None = None, work_group_size: int | None = None):
+                 grid: bool | None = None, work_group_size: int | None = None,
+                 fast_math: bool | None = None):
         self.runtime = runtime
         traits = runtime.traits
         if friction not in FRICTION_MODELS:
@@ -91,7 +96,9 @@ class JacobiSolver(PushVelocities):
         self.work_group_size = int(work_group_size or default_work_group_size(traits))
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
                                   split_impulse=self.split_impulse, friction=friction,
-                                  normal_solve=normal_solve, grid=self.grid)
+                                  normal_solve=normal_solve, grid=self.grid,
+                                  fast_math=default_fast_math(traits) if fast_math is None
+                                  else bool(fast_math))
         self._program = compile_spec(runtime, self.spec)
         #: work groups of every launch (the scan's chunks depend on it)
         self.groups = grid_groups(traits) * (1 if self.grid else PHASE_GROUPS_PER_UNIT)

@@ -161,7 +161,7 @@ bool solve_face_points(const uint count, const float3 n, const float3 t1, const 
 
     if (!valid) {
         /* 2a. three of four pushing, point m released */
-        float lowest = INFINITY;
+        float lowest = FLT_MAX;  /* (not INFINITY: the solver may be built finite-math-only) */
         for (uint m = 0; m < 4; ++m) if (four) {
             /* (indices picked by compare, not array subscripts: registers on GPUs) */
             uint i = m == 0 ? 1 : 0, j = m <= 1 ? 2 : 1, l = m <= 2 ? 3 : 2;

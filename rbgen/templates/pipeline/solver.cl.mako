@@ -65,6 +65,11 @@
  * stay on it. Loops over a manifold's points run to the constant
  * RB_MAX_MANIFOLD_POINTS and test the count inside, so that compilers unroll
  * them and keep the per-point arrays in registers.
+% if fast_math:
+ * Built with -cl-fast-relaxed-math (the manifest's build_options): the
+ * chain is shorter with approximate reciprocals and square roots and freely
+ * fused and reordered arithmetic. Nothing here relies on an infinity or a NaN.
+% endif
  */
 ${cl_constants()}
 
