@@ -50,7 +50,7 @@ from .pipeline.gyroscopic import BodyPreparation, inertia_records
 from .pipeline.integrate import Integrator
 from .pipeline.grid import ABANDONED_OFFSET, clear_abandoned, grid_validated
 from .pipeline.jacobi import JacobiSolver
-from .pipeline.solver import ContactSolver, resident_capacity
+from .pipeline.solver import ContactSolver, resident_capacity, resolve_fast_math
 from .shapes import Box, Capsule, ConvexHull, Plane, Shape, ShapeTable, Sphere
 
 #: manifolds reserved per body before the first overflow (grown on demand)
@@ -194,6 +194,7 @@ class World:
         self.solver = solver
         self._batching = batching       # None: chosen from the body count at each upload
         self._grid_failed = False       # a grid launch gave up: none from now on
+        resolve_fast_math(self.runtime.traits, fast_math)  # a bad value fails here, named
         self._solver_options = {"split_impulse": penetration == "split",
                                 "friction": friction_model, "normal_solve": normal_solve,
                                 "group_count": group_count, "fast_math": fast_math}

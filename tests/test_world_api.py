@@ -138,3 +138,11 @@ def test_automatic_batching_follows_the_body_count(runtime):
     assert world.body_count > capacity
     world.step(1 / 60)
     assert world.statistics()["batching"] == ("global" if grid_mode else "cells")
+
+
+def test_fast_math_must_be_a_bool_or_none(runtime):
+    """World(fast_math=...) takes None (the device's default), True or False; anything else
+    is refused when the World is made, naming the parameter."""
+    with pytest.raises(RbgenError, match="fast_math"):
+        World(runtime, fast_math="yes")
+    assert World(runtime, fast_math=True)._solver_options["fast_math"] is True

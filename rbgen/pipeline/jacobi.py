@@ -36,7 +36,8 @@ from ..errors import RbgenError
 from ..launch import instance
 from .grid import grid_groups, grid_validated, sync_buffer
 from .solver import (FRICTION_MODELS, NORMAL_SOLVES, PushVelocities, check_sweeps,
-                     default_fast_math, fast_math_options, fast_math_param)
+                     default_fast_math, fast_math_options, fast_math_param,
+                     resolve_fast_math)
 
 TEMPLATE = KernelTemplate(
     "pipeline/jacobi.cl.mako",
@@ -97,8 +98,7 @@ class JacobiSolver(PushVelocities):
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
                                   split_impulse=self.split_impulse, friction=friction,
                                   normal_solve=normal_solve, grid=self.grid,
-                                  fast_math=default_fast_math(traits) if fast_math is None
-                                  else bool(fast_math))
+                                  fast_math=resolve_fast_math(traits, fast_math))
         self._program = compile_spec(runtime, self.spec)
         #: work groups of every launch (the scan's chunks depend on it)
         self.groups = grid_groups(traits) * (1 if self.grid else PHASE_GROUPS_PER_UNIT)

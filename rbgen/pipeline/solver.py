@@ -122,6 +122,15 @@ def default_fast_math(traits: DeviceTraits) -> bool:
     arithmetic keeps the CPU results the reference."""
     return traits.kind == "gpu"
 
+
+def resolve_fast_math(traits: DeviceTraits, fast_math: bool | None) -> bool:
+    """A solver's ``fast_math`` argument: None is the device's default; else a bool."""
+    if fast_math is None:
+        return default_fast_math(traits)
+    if not isinstance(fast_math, (bool, np.bool_)):
+        raise RbgenError(f"fast_math must be True, False or None, got {fast_math!r}")
+    return bool(fast_math)
+
 TEMPLATE = KernelTemplate(
     "pipeline/solver.cl.mako",
     [
@@ -263,8 +272,7 @@ class ContactSolver(PushVelocities):
                                   shape=self.shape, split_impulse=self.split_impulse,
                                   friction=friction, normal_solve=normal_solve,
                                   resident_bodies=self.resident_bodies, grid=bool(grid),
-                                  fast_math=default_fast_math(runtime.traits)
-                                  if fast_math is None else bool(fast_math))
+                                  fast_math=resolve_fast_math(runtime.traits, fast_math))
         self.grid = bool(grid)
         #: the grid barrier's words over batches other than global's (which brings its own)
         self._sync = sync_buffer(runtime) if self.grid else None
