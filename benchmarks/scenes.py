@@ -4,10 +4,12 @@
                                 [--steps 100] [--warmup 10] [--batching MODE]
                                 [--solver pgs|jacobi] [--iterations 10]
                                 [--position-iterations 4] [--relaxation 1.0]
+                                [--release-sweeps N]
 
-For each size: ms/step = wall time of ``--steps`` steps enqueued back to back
-after ``--warmup`` (one queue.finish() at the end), kernel launches and blocking reads per
-step, broadphase pairs, manifolds and contact points of the last step, the
+For each size: ms/step = the median over 10 blocks of ``--steps``/10 steps, each
+enqueued back to back and ended by one queue.finish(), after ``--warmup`` steps
+(``mean``: all the timed steps' wall time over their number), kernel launches and
+blocking reads per step, broadphase pairs, manifolds and contact points of the last step, the
 batches of the largest group, and a sanity line (NaNs, boxes sunk more than
 2 cm below their resting height, max speed). Imports nothing beyond numpy,
 pyopencl and mako (runs on the GPU machine as is).
@@ -46,12 +48,19 @@ def main(argv=None) -> int:
     parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"],
                         help="a manifold's normal rows as one block or one by one (default: "
                              "block with cells batching, else one by one)")
+    parser.add_argument("--release-sweeps", type=int, default=None,
+                        help="PGS with the block solve: the last N velocity (and position) "
+                             "sweeps may release points, the earlier ones take the block's "
+                             "all-pushing solution or the rows (default: the World's; >= "
+                             "--iterations: every sweep)")
     args = parser.parse_args(argv)
 
     options = {"iterations": args.iterations, "position_iterations": args.position_iterations,
                "solver": args.solver, "relaxation": args.relaxation}
     if args.normal_solve:
         options["normal_solve"] = args.normal_solve
+    if args.release_sweeps is not None:
+        options["release_sweeps"] = args.release_sweeps
     if args.batching:
         options["batching"] = args.batching
     rows = []
@@ -63,10 +72,12 @@ def main(argv=None) -> int:
             print(f"device: {s['device']}; {args.scene}, {args.steps} steps after {args.warmup} "
                   f"warm-up, dt 1/60, {args.iterations} iterations, "
                   f"{args.position_iterations} position iterations, relaxation "
-                  f"{args.relaxation}, solver {args.solver}")
-            print(f"{'boxes':>8} {'ms/step':>9} {'launch':>7} {'reads':>6} {'pairs':>9} "
+                  f"{args.relaxation}, solver {args.solver}, release sweeps "
+                  f"{'every' if s['release_sweeps'] is None else s['release_sweeps']}")
+            print(f"{'boxes':>8} {'ms/step':>9} {'mean':>6} {'launch':>7} {'reads':>6} {'pairs':>9} "
                   f"{'manifolds':>10} {'points':>9} {'batches':>8} {'batching':>10} | sanity")
-        print(f"{s['bodies']:>8,} {s['ms_per_step']:>9.2f} {s['launches_per_step']:>7} "
+        print(f"{s['bodies']:>8,} {s['ms_per_step']:>9.2f} {s['ms_per_step_mean']:>6.2f} "
+              f"{s['launches_per_step']:>7} "
               f"{s['blocking_reads_per_step']:>6} {s['pairs']:>9,} {s['manifolds']:>10,} "
               f"{s['contacts']:>9,} {s['batches']:>8} {s['batching'] or '-':>10} | NaN {s['nans']}, "
               f"sunk {s['sunk']}, "

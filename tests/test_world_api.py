@@ -146,3 +146,28 @@ def test_fast_math_must_be_a_bool_or_none(runtime):
     with pytest.raises(RbgenError, match="fast_math"):
         World(runtime, fast_math="yes")
     assert World(runtime, fast_math=True)._solver_options["fast_math"] is True
+
+
+def test_release_sweeps_is_checked_and_reaches_the_solve(runtime):
+    """World(release_sweeps=...): None is the PGS default (DEFAULT_RELEASE_SWEEPS), an integer
+    >= 0 is kept; a negative, fractional or boolean value is refused when the World is
+    made, naming the parameter, and so is any value with the Jacobi solver (which solves
+    the block on every sweep). The World's value is the one its steps pass to the solve
+    (a one-box step with release_sweeps left at an illegal value after construction fails
+    naming it)."""
+    from rbgen.world import DEFAULT_RELEASE_SWEEPS
+    assert World(runtime).release_sweeps == DEFAULT_RELEASE_SWEEPS
+    assert World(runtime, release_sweeps=0).release_sweeps == 0
+    assert World(runtime, solver="jacobi").release_sweeps is None
+    for bad in (-1, 1.5, True, "2"):
+        with pytest.raises(RbgenError, match="release_sweeps"):
+            World(runtime, release_sweeps=bad)
+    with pytest.raises(RbgenError, match="release_sweeps"):
+        World(runtime, solver="jacobi", release_sweeps=2)
+    world = World(runtime, batching="components")
+    world.add_body(rbgen.Box((0.5, 0.5, 0.5)), position=(0, 0.45, 0))
+    world.add_static(rbgen.Box((5, 0.5, 5)), position=(0, -0.5, 0))
+    world.step(1 / 60)
+    world.release_sweeps = -3
+    with pytest.raises(RbgenError, match="release_sweeps"):
+        world.step(1 / 60)

@@ -108,7 +108,9 @@ def fast_math_param() -> Param:
 
 def fast_math_options(values: dict) -> tuple[str, ...]:
     """The build options of a solver specialisation (its ``fast_math`` value)."""
-    return FAST_MATH_OPTIONS if values["fast_math"] else ()
+    import os  # EXPERIMENT
+    extra = tuple(os.environ.get("RBGEN_VARIANT", "").split())
+    return (FAST_MATH_OPTIONS if values["fast_math"] else ()) + extra
 
 
 def default_fast_math(traits: DeviceTraits) -> bool:
@@ -219,6 +221,21 @@ APPLY_WORK_GROUP_SIZE = 64
 WARM_START_PASS, FIRST_REVERSED = 1, 2
 
 
+def check_release_sweeps(release_sweeps) -> None:
+    """Refuse a ``release_sweeps`` that is neither None nor an integer >= 0, naming it."""
+    if release_sweeps is not None and (isinstance(release_sweeps, bool)
+                                       or not isinstance(release_sweeps, (int, np.integer))
+                                       or release_sweeps < 0):
+        raise RbgenError(f"release_sweeps must be None (every sweep) or an integer >= 0, "
+                         f"got {release_sweeps!r}")
+
+
+def first_release_sweep(sweeps: int, release_sweeps: int | None) -> int:
+    """The first of ``sweeps`` sweeps whose block solve may release points: the last
+    ``release_sweeps`` of them (None: all)."""
+    return 0 if release_sweeps is None else max(0, sweeps - release_sweeps)
+
+
 def check_sweeps(iterations: int, position_iterations: int, relaxation: float,
                  split_impulse: bool, solver: str) -> None:
     """Refuse sweep settings no solver can run, naming them."""
@@ -300,7 +317,7 @@ class ContactSolver(PushVelocities):
 
     def solve(self, constraints, batcher, bodies, inertia, body_capacity: int = 0, *,
               iterations: int, position_iterations: int = 0, relaxation: float = 1.0,
-              warm_start: bool = True) -> None:
+              warm_start: bool = True, release_sweeps: int | None = None) -> None:
         """Warm start (every constraint's old impulses, before any sweep), ``iterations``
         velocity sweeps and ``position_iterations`` split-impulse sweeps (needs
         split_impulse=True and ``body_capacity``), launched as the module docstring says.
@@ -310,15 +327,30 @@ class ContactSolver(PushVelocities):
         Odd sweeps visit each manifold's points backwards (symmetric Gauss-Seidel):
         a 5-box column then comes to rest at 10 iterations instead of wobbling for
         ever; the price is slower convergence of redundant contacts between free
-        bodies (their residual halves more slowly)."""
+        bodies (their residual halves more slowly).
+
+        ``release_sweeps`` (normal_solve "block"): only the last ``release_sweeps``
+        velocity sweeps and the last ``release_sweeps`` position sweeps solve each
+        manifold's complete block, releasing points where its solution needs that (None:
+        every sweep). The earlier ones take the block's all-pushing solution where it
+        holds (a face resting on a face: exact and order-free, so symmetric stacks stay
+        symmetric) and solve the other manifolds' rows one after another: a cheaper
+        sweep, because on a GPU the lanes of a batch wait for the slowest and the
+        releasing cases are the block's long chain. The last sweeps remove the rows'
+        point-order residual (the World's default: 2; `rbgen.world.DEFAULT_RELEASE_SWEEPS`
+        has the figures)."""
         self._check(batcher)
         if self.resident_bodies and not 0 < body_capacity <= self.resident_bodies:
             raise RbgenError(f"{body_capacity} bodies do not fit a resident solve built for "
                              f"{self.resident_bodies}")
         check_sweeps(iterations, position_iterations, relaxation, self.split_impulse,
                      "ContactSolver")
+        check_release_sweeps(release_sweeps)
+        if self.spec.values["normal_solve"] != "block":
+            release_sweeps = 0  # (the rows only: the kernel takes no release scalars)
         launches, kernels = self._schedule(batcher.launch_plan, int(iterations),
-                                           int(position_iterations), bool(warm_start))
+                                           int(position_iterations), bool(warm_start),
+                                           None if release_sweeps is None else int(release_sweeps))
         if not launches:
             return
         shared = [constraints, batcher.order, batcher.group_batches, batcher.group_batch_count,
@@ -337,44 +369,52 @@ class ContactSolver(PushVelocities):
             kernel.launch(size, wg)
 
     def solve_velocities(self, constraints, batcher, bodies, inertia, body_capacity: int = 0, *,
-                         iterations: int, relaxation: float = 1.0,
-                         warm_start: bool = True) -> None:
+                         iterations: int, relaxation: float = 1.0, warm_start: bool = True,
+                         release_sweeps: int | None = None) -> None:
         """Warm start and ``iterations`` velocity sweeps (see `solve`)."""
         self.solve(constraints, batcher, bodies, inertia, body_capacity, iterations=iterations,
-                   relaxation=relaxation, warm_start=warm_start)
+                   relaxation=relaxation, warm_start=warm_start, release_sweeps=release_sweeps)
 
     def solve_positions(self, constraints, batcher, bodies, inertia, body_capacity: int, *,
-                        iterations: int, relaxation: float = 1.0) -> None:
+                        iterations: int, relaxation: float = 1.0,
+                        release_sweeps: int | None = None) -> None:
         """Split-impulse sweeps on push velocities only (needs split_impulse=True)."""
         if not self.split_impulse:
             raise RbgenError("this ContactSolver was built with split_impulse=False")
         self.solve(constraints, batcher, bodies, inertia, body_capacity, iterations=0,
-                   position_iterations=iterations, relaxation=relaxation, warm_start=False)
+                   position_iterations=iterations, relaxation=relaxation, warm_start=False,
+                   release_sweeps=release_sweeps)
 
-    def _schedule(self, plan, iterations: int, position_iterations: int, warm_start: bool):
+    def _schedule(self, plan, iterations: int, position_iterations: int, warm_start: bool,
+                  release_sweeps: int | None):
         """Every launch of one call (kernel object, global size) and the distinct
         kernel objects, computed once per plan and settings."""
-        key = (tuple(plan), iterations, position_iterations, warm_start)
+        key = (tuple(plan), iterations, position_iterations, warm_start, release_sweeps)
         schedule = self._schedules.get(key)
         if schedule is not None:
             return schedule
         warm = WARM_START_PASS if warm_start else 0
+        velocity_from = first_release_sweep(iterations, release_sweeps)
+        position_from = first_release_sweep(position_iterations, release_sweeps)
+        # (passes, velocity sweeps, position sweeps, and the first of each that may release)
         if len(plan) == 1:  # groups share no body: every sweep in one launch
-            passes = [(warm, iterations, position_iterations)]
+            passes = [(warm, iterations, position_iterations, velocity_from, position_from)]
         else:  # one launch per colour and sweep; the warm start is a sweep of its own
-            passes = [(warm, 0, 0)] if warm else []
+            passes = [(warm, 0, 0, 0, 0)] if warm else []
             passes += [(FIRST_REVERSED if s % 2 else 0, int(s < iterations),
-                        int(s < position_iterations))
+                        int(s < position_iterations), int(s < velocity_from),
+                        int(s < position_from))
                        for s in range(max(iterations, position_iterations))]
-        passes = [p for p in passes if p != (0, 0, 0)]
+        passes = [p for p in passes if p[:3] != (0, 0, 0)]
         launches = [self._launch(first, count, *p) for p in passes for first, count in plan]
         kernels = list({id(k): k for k, _ in launches}.values())
         schedule = self._schedules[key] = (launches, kernels)
         return schedule
 
     def _launch(self, first: int, count: int, passes: int, velocity_sweeps: int,
-                position_sweeps: int):
-        """(kernel object, global size) of one launch over groups first .. first + count - 1."""
+                position_sweeps: int, velocity_release_from: int, position_release_from: int):
+        """(kernel object, global size) of one launch over groups first .. first + count - 1;
+        its sweeps from velocity_release_from (position_release_from) on may release points."""
         wg = self.work_group_size
         scalars = [first]
         if self.shape == "cpu":  # a work-item per group, the last work group partly idle
@@ -387,6 +427,10 @@ class ContactSolver(PushVelocities):
         scalars += [passes, velocity_sweeps]
         if self.split_impulse:
             scalars.append(position_sweeps)
+        if self.spec.values["normal_solve"] == "block":
+            scalars.append(velocity_release_from)
+            if self.split_impulse:
+                scalars.append(position_release_from)
         key = tuple(scalars)
         kernel = self._instances.get(key)
         if kernel is None:

@@ -82,16 +82,18 @@ class ContactRig:
         self.setup(self.manifolds, self.count, self.bodies, self.inertia, capacity, dt)
         return self.setup.constraints.get()[:n]
 
-    def solve(self, manifolds, dt=1 / 60, iterations=20, position_iterations=0, relaxation=1.0):
+    def solve(self, manifolds, dt=1 / 60, iterations=20, position_iterations=0, relaxation=1.0,
+              release_sweeps=None):
         self.constraints(manifolds, dt)
         cons = self.setup.constraints
         self.batcher(cons, self.setup.count, self.bodies, self.body_count, self.capacity)
         self.solver.solve_velocities(cons, self.batcher, self.bodies, self.inertia,
                                      self.body_count, iterations=iterations, relaxation=relaxation,
-                                     warm_start=self.warm_start)
+                                     warm_start=self.warm_start, release_sweeps=release_sweeps)
         if position_iterations:
             self.solver.solve_positions(cons, self.batcher, self.bodies, self.inertia,
-                                        self.body_count, iterations=position_iterations)
+                                        self.body_count, iterations=position_iterations,
+                                        release_sweeps=release_sweeps)
             self.solver.apply_split(self.bodies, self.body_count, dt)
         return self.bodies.get(), cons.get()[: len(manifolds)]
 

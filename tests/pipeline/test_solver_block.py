@@ -128,7 +128,8 @@ def test_block_leaves_a_corner_that_is_apart(runtime, rng):
     assert impulses[apart] == 0.0 and impulses.min() >= 0.0
 
 
-def random_face_pairs(runtime, rng, count, shape, pairs=7, spin=0.2, separations=(0.0, 0.0)):
+def random_face_pairs(runtime, rng, count, shape, pairs=7, spin=0.2, separations=(0.0, 0.0),
+                      batching="components"):
     """``pairs`` pairs of free bodies with full inertia tensors, each in contact through
     ``count`` points of a random tilted face (a rectangle, an edge or a triangle about the
     line of centres, points off the contact plane by a few mm), approaching at 1-2 m/s and
@@ -166,9 +167,8 @@ def random_face_pairs(runtime, rng, count, shape, pairs=7, spin=0.2, separations
     quaternions = rng.normal(size=(n_bodies, 4))
     bodies["orientation"] = quaternions / np.linalg.norm(quaternions, axis=1)[:, None]
     rig = shaped_rig(runtime, bodies, rng.uniform(1.0, 6.0, (n_bodies, 3)), shape,
-                     warm_start=False, friction="manifold")
-    rig.solver = ContactSolver(runtime, split_impulse=True, normal_solve="block", shape=shape,
-                               friction="manifold")
+                     warm_start=False, friction="manifold", batching=batching)
+    assert rig.solver.spec.values["normal_solve"] == "block"
     manifolds = np.array(manifolds)
     cons = rig.constraints(manifolds)
     return rig, manifolds, cons, rig.bodies.get()
@@ -317,3 +317,100 @@ def test_sequential_rows_are_gauss_seidel(runtime, rng, shape, count):
         np.testing.assert_allclose(s["normal_impulse"][:count], total, rtol=1e-3,
                                    atol=1e-4 * total.max())
         assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total)
+
+
+def gauss_seidel_rows(k_matrix, rhs, sweeps, alternate=True):
+    """float64 Gauss-Seidel of the normal rows from zero impulses, lambda_k = max(0,
+    lambda_k + (rhs_k - (K lambda)_k) / K_kk): forwards, then (``alternate``: the velocity
+    rows) backwards on odd sweeps."""
+    count = len(rhs)
+    total = np.zeros(count)
+    for sweep in range(sweeps):
+        for k in (reversed(range(count)) if alternate and sweep % 2 else range(count)):
+            total[k] = max(0.0, total[k] + (rhs[k] - k_matrix[k] @ total) / k_matrix[k, k])
+    return total
+
+
+def all_pushing(k_matrix, rhs):
+    """float64 reference of the block's first case: the smallest totals with K total = rhs
+    and whether they hold (True: the targets fit one rigid motion and no total is negative,
+    by a margin that float32 cannot blur; False: clearly not; None: too close to call)."""
+    total = np.linalg.pinv(k_matrix, rcond=1e-6) @ rhs
+    scale = max(np.abs(rhs).max(), 1e-12)
+    misfit = np.abs(k_matrix @ total - rhs).max() / scale
+    lowest = total.min() / max(np.abs(total).max(), 1e-12)
+    if misfit < 1e-6 and lowest > 1e-3:
+        return total, True
+    if misfit > 1e-2 or lowest < -1e-2:
+        return total, False
+    return total, None
+
+
+@pytest.mark.parametrize("shape, batching", [("gpu", "components"), ("gpu", "cells"),
+                                             ("cpu", "components"), ("cpu", "cells"),
+                                             ("resident", "single"), ("grid", "global")])
+def test_release_sweeps_leave_the_releasing_faces_to_the_rows_until_the_last(runtime, rng, shape,
+                                                                             batching):
+    """release_sweeps=1 of 3 velocity and 3 position sweeps: whatever the first two did,
+    the last solves the complete block, whose result is the exact contact solution: the
+    velocities are those of the float64 brute-force solution (brute_force_lcp), and the
+    push impulses (push velocities start at zero) the complementary solution for the
+    position targets. release_sweeps=0: every sweep takes the block's all-pushing
+    solution where it holds (float64 pinv(K) rhs, as in
+    test_pushing_points_get_the_smallest_exact_impulses: a face resting on a face keeps
+    its exact, order-free impulses) and else solves the rows one after another (the
+    float64 Gauss-Seidel of three sweeps, the push rows always forwards), which misses the
+    exact solution (checked, so that the first half can fail). Random faces with points
+    1-4 mm apart or 2 mm deep and bodies spinning at up to 3 rad/s give both kinds, and
+    the test needs both. Components batching runs all sweeps in one launch, cells one
+    launch per colour and sweep (the pairs sit in different cells); the resident solve
+    (velocities in local memory) and the grid solve (every compute unit) have sweep loops
+    of their own."""
+    kinds, missed = {True: 0, False: 0}, 0
+    for attempt in range(3):
+        seed = int(rng.integers(1 << 31))
+        for release_sweeps in (1, 0):
+            rig, manifolds, cons, before = random_face_pairs(
+                runtime, np.random.default_rng(seed), 4, shape, pairs=9, spin=3.0,
+                separations=(-0.002, 0.004), batching=batching)
+            assert (len(rig.batcher.launch_plan) > 1) == (batching == "cells")
+            inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
+            out, solved = rig.solve(manifolds, iterations=3, position_iterations=3,
+                                    release_sweeps=release_sweeps)
+            for m, c, s in zip(manifolds, cons, solved):
+                a, b, n, arm_a, arm_b, k_matrix, normal_speed = normal_rows(m, c, before,
+                                                                            inertia)
+                rhs = c["velocity_target"][:4].astype(float) - normal_speed
+                push_target = c["position_target"][:4].astype(float)
+                scale = max(np.abs(before["linear_velocity"][[a, b]]).max(), 1.0,
+                            np.abs(rhs).max())
+                push = s["push_impulse"][:4].astype(float)
+                push_scale = max(np.abs(push_target).max(), 1e-3)
+                exact = brute_force_lcp(k_matrix, rhs)
+                if release_sweeps:
+                    assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, exact,
+                                            atol=2e-4 * scale)
+                    reached = k_matrix @ push
+                    pushing = push > 1e-4 * max(push.max(), 1e-9)
+                    assert push.min() >= 0.0
+                    np.testing.assert_allclose(reached[pushing], push_target[pushing],
+                                               atol=2e-4 * push_scale)
+                    assert np.all(reached[~pushing] >= push_target[~pushing]
+                                  - 2e-4 * push_scale)
+                    continue
+                block, holds = all_pushing(k_matrix, rhs)
+                if holds is None:
+                    continue
+                kinds[holds] += 1
+                total = block if holds else gauss_seidel_rows(k_matrix, rhs, 3)
+                np.testing.assert_allclose(s["normal_impulse"][:4], total, rtol=2e-3,
+                                           atol=2e-4 * max(np.abs(total).max(), 1e-9))
+                missed += int(not holds and np.abs(k_matrix @ (total - exact)).max()
+                              > 1e-2 * scale)
+                push_block, push_holds = all_pushing(k_matrix, push_target)
+                if push_holds is not None:
+                    expected = push_block if push_holds else \
+                        gauss_seidel_rows(k_matrix, push_target, 3, alternate=False)
+                    np.testing.assert_allclose(push, expected, rtol=2e-3,
+                                               atol=2e-4 * max(np.abs(expected).max(), 1e-9))
+    assert kinds[True] > 0 and kinds[False] > 0 and missed > 0

@@ -70,13 +70,15 @@ inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, floa
  * whenever one of its 32 manifolds takes it, so the rare case must be cheap.
  * Returns false, changing nothing, when the points lie nearly on one line, Q
  * is nearly singular, or round-off leaves no active set valid: the caller then
- * solves the rows one after another. */
+ * solves the rows one after another. Without `releases` only case 1 is tried
+ * (false when it does not hold): a cheaper sweep, exact and order-free for
+ * faces resting on faces, that leaves the other faces to the rows. */
 bool solve_face_points(const uint count, const float3 n, const float3 t1, const float3 t2,
                        __private const float4* r_a, __private const float4* r_b,
                        const float relaxation,
                        float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
                        float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
-                       const float target[4], float lambda[4])
+                       const float target[4], float lambda[4], const bool releases)
 {
     const bool four = count == 4;
     const float share = 1.0f / (float)count;
@@ -159,6 +161,8 @@ bool solve_face_points(const uint count, const float3 n, const float3 t1, const 
         valid = valid && total[k] >= 0.0f && abs1(rhs[k] - dot3(g[k], fit)) <= tolerance;
     }
 
+    if (!valid && !releases)
+        return false;
     if (!valid) {
         /* 2a. three of four pushing, point m released */
         float lowest = FLT_MAX;  /* (not INFINITY: the solver may be built finite-math-only) */
@@ -313,19 +317,20 @@ bool solve_two_points(const uint count, const float3 n,
  * Three or four points: solve_face_points; one or two: solve_two_points.
  * Returns false, changing nothing, for the degenerate geometry those decline
  * (points nearly on one line or coinciding, bodies without rotational
- * freedom): the caller then solves the rows one after another. Updates the
- * velocities in place. */
+ * freedom), and without `releases` for three or four points whose solution
+ * would release one (see solve_face_points): the caller then solves the rows
+ * one after another. Updates the velocities in place. */
 bool solve_normal_block(const uint count, const float3 n, const float3 t1, const float3 t2,
                         __private const float4* r_a, __private const float4* r_b,
                         const float relaxation,
                         float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
                         float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
-                        const float target[4], float lambda[4])
+                        const float target[4], float lambda[4], const bool releases)
 {
     if (count >= 3)
         return solve_face_points(count, n, t1, t2, r_a, r_b, relaxation, inv_mass_a,
                                  inv_inertia_a, va, wa, inv_mass_b, inv_inertia_b, vb, wb,
-                                 target, lambda);
+                                 target, lambda, releases);
     return solve_two_points(count, n, r_a, r_b, relaxation, inv_mass_a, inv_inertia_a, va, wa,
                             inv_mass_b, inv_inertia_b, vb, wb, target, lambda);
 }
@@ -522,9 +527,10 @@ void warm_start_contact(const __private ContactConstraint* c, __private ContactB
 }
 
 /* Solve all rows of one constraint, updating its impulses and its bodies'
- * velocities in *p. */
+ * velocities in *p; `releases`: the block solve may release points (see
+ * solve_normal_block; normal_solve block only). */
 void solve_contact(__private ContactConstraint* c, __private ContactBodies* p,
-                   const float relaxation, const bool reverse)
+                   const float relaxation, const bool reverse, const bool releases)
 {
     uint count = c->point_count;
     float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
@@ -542,8 +548,9 @@ void solve_contact(__private ContactConstraint* c, __private ContactBodies* p,
     bool solved = false;  /* by the block solve; else row after row */
 % if normal_solve == "block":
     solved = solve_normal_block(count, n, t1, t2, c->r_a, c->r_b, relaxation,
-                                p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa, p->inv_mass_b,
-                                p->inv_inertia_b, &p->vb, &p->wb, target, normal_impulse);
+                                p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa,
+                                p->inv_mass_b, p->inv_inertia_b, &p->vb, &p->wb, target,
+                                normal_impulse, releases);
 % endif
     /* alternate the point order between sweeps, so that no point is always first:
      * slot s visits point k = reverse ? 3 - s : s, with the per-point arrays
@@ -603,8 +610,9 @@ void solve_contact(__private ContactConstraint* c, __private ContactBodies* p,
 % if split_impulse:
 
 /* Normal rows of one constraint on its bodies' push velocities in *p (split
- * impulse). */
-void solve_push(__private ContactConstraint* c, __private ContactBodies* p, const float relaxation)
+ * impulse); `releases` as in solve_contact. */
+void solve_push(__private ContactConstraint* c, __private ContactBodies* p, const float relaxation,
+                const bool releases)
 {
     uint count = c->point_count;
     float3 n = c->normal.xyz;
@@ -614,10 +622,10 @@ void solve_push(__private ContactConstraint* c, __private ContactBodies* p, cons
     unpack4(c->position_target, target);
     bool solved = false;  /* by the block solve; else row after row */
 % if normal_solve == "block":
-    solved = solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a, c->r_b,
-                                relaxation, p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa,
-                                p->inv_mass_b, p->inv_inertia_b, &p->vb, &p->wb, target,
-                                push_impulse);
+    solved = solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a,
+                                c->r_b, relaxation, p->inv_mass_a, p->inv_inertia_a, &p->va,
+                                &p->wa, p->inv_mass_b, p->inv_inertia_b, &p->vb, &p->wb,
+                                target, push_impulse, releases);
 % endif
     if (!solved)
         solve_normal_rows(count, n, c->r_a, c->r_b, normal_mass, target, relaxation, false,

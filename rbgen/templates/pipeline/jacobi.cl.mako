@@ -255,7 +255,7 @@ __global ContactConstraint* constraints,
 </%def>
 <%
     velocity_results = ("normal_impulse", "tangent1_impulse", "tangent2_impulse")
-    sweep = "solve_contact(c, &p, relaxation, reverse)"
+    sweep = "solve_contact(c, &p, relaxation, reverse, true)"
 %>\
 % if grid:
 
@@ -322,7 +322,7 @@ ${body_phase("bodies")}\
 % if split_impulse:
     for (uint s = 0; s < position_sweeps; ++s) {
         if (grid_ok) {
-${constraint_phase("solve_push(c, &p, relaxation)", "split", ("push_impulse",))}\
+${constraint_phase("solve_push(c, &p, relaxation, true)", "split", ("push_impulse",))}\
         }
         grid_barrier(sync, &grid_ok);
         if (grid_ok) {
@@ -399,7 +399,7 @@ void jacobi_push(${arguments()},
 {
 ${indices(False)}\
     {
-${constraint_phase("solve_push(c, &p, relaxation)", "split", ("push_impulse",))}\
+${constraint_phase("solve_push(c, &p, relaxation, true)", "split", ("push_impulse",))}\
     }
 }
 

@@ -38,7 +38,11 @@
  * not depend on the order of the points: solving them one after another
  * leaves a residual torque that tips a symmetric column from its first step
  * and makes it lean or walk; rows one after another, forwards and backwards
- * on alternate sweeps, only for the degenerate manifolds it declines), then
+ * on alternate sweeps, only for the degenerate manifolds it declines); the
+ * sweeps before `velocity_release_from` of the launch (`position_release_from`
+ * for the push rows) take only its all-pushing solution, which holds for a
+ * face resting on a face, and leave the other manifolds to the rows: cheaper
+ * sweeps, their residual removed by the complete block of the last ones, then
 % else:
  * all points' normal rows first, one after another, forwards and backwards
  * on alternate sweeps (always solving point 0 first biases a heavy stack's
@@ -323,12 +327,12 @@ void solve_groups(__global ContactConstraint* constraints,
                   const uint group_end,
 % endif
                   const uint passes,
-% if split_impulse:
-                  const uint velocity_sweeps,
-                  const uint position_sweeps)
-% else:
-                  const uint velocity_sweeps)
-% endif
+<%
+    scalars = ["velocity_sweeps"] + (["position_sweeps"] if split_impulse else [])
+    if normal_solve == "block":
+        scalars += ["velocity_release_from"] + (["position_release_from"] if split_impulse else [])
+%>\
+                  ${",\n                  ".join("const uint " + name for name in scalars)})
 {
 % if grid:
     __local uint grid_ok;
@@ -386,9 +390,13 @@ void solve_groups(__global ContactConstraint* constraints,
     velocity_results = ("normal_impulse", "tangent1_impulse", "tangent2_impulse")
     # (the state's name, the flag that enables it, the call, the velocities, the results)
     warm_start = ("state", None, "warm_start_contact(c, {state})", velocities, ())
-    velocity_sweep = ("state", "velocity", "solve_contact(c, {state}, relaxation, reverse)",
+    # whether a sweep's block solve may release points (see the kernel's comment)
+    velocity_releases = "sweep >= velocity_release_from" if normal_solve == "block" else "false"
+    push_releases = "sweep >= position_release_from" if normal_solve == "block" else "false"
+    velocity_sweep = ("state", "velocity",
+                      f"solve_contact(c, {{state}}, relaxation, reverse, {velocity_releases})",
                       velocities, velocity_results)
-    push_sweep = ("push_state", "push", "solve_push(c, {state}, relaxation)",
+    push_sweep = ("push_state", "push", f"solve_push(c, {{state}}, relaxation, {push_releases})",
                   velocities if resident_bodies else "push", ("push_impulse",))
 %>\
     if (passes & WARM_START_PASS) {
