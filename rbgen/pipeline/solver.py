@@ -90,6 +90,10 @@ from .grid import grid_groups, sync_buffer
 FRICTION_MODELS = ("point", "manifold")
 #: how a manifold's normal rows are solved (see the template parameter "normal_solve")
 NORMAL_SOLVES = ("block", "sequential")
+#: how the warm start reaches the velocities (see the template parameter "warm_start_mode")
+WARM_START_MODES = ("batched", "summed")
+#: the OpenCL extension the summed warm start's 64-bit atomic sums need
+INT64_ATOMICS = "cl_khr_int64_base_atomics"
 #: kernel shapes (see the template parameter "shape")
 SHAPES = ("gpu", "cpu")
 #: the build options of a fast_math solver. The solver relies on no infinity or NaN (a
@@ -165,15 +169,21 @@ TEMPLATE = KernelTemplate(
               "point: two tangent rows per contact point; manifold: one tangent pair at the "
               "points' centre plus a twist row (fewer rows, Bullet3's GPU choice)"),
         fast_math_param(),
+        Param("warm_start_mode", WARM_START_MODES,
+              "batched: the warm start is a sweep over the batches (one batch step per "
+              "colour); summed (grid only): every constraint's old impulses are summed per "
+              "body in 64-bit fixed point with atomics, then every body takes its sum, two "
+              "phases with one grid barrier between them whatever the colours"),
     ],
     doc="PGS velocity sweeps (and split-impulse position sweeps) over batched contacts.",
-    roles={"constraints": "inout", "bodies": "inout", "split": "inout"},
+    roles={"constraints": "inout", "bodies": "inout", "split": "inout", "warm_sums": "inout"},
     requires=lambda v: _parameter_rules(v),
     build_options=fast_math_options,
     defaults=lambda traits: {"friction": "point", "work_group_size": default_work_group_size(traits),
                              "max_batches": 128, "shape": traits.kind, "split_impulse": True,
                              "normal_solve": "block", "resident_bodies": 0, "grid": False,
-                             "fast_math": default_fast_math(traits)},
+                             "fast_math": default_fast_math(traits),
+                             "warm_start_mode": "batched"},
 )
 
 
@@ -184,6 +194,9 @@ def _parameter_rules(values: dict) -> str | None:
     if values["grid"] and (values["shape"] != "gpu" or values["resident_bodies"]):
         return "grid needs shape='gpu' and no resident_bodies (the work groups share the " \
                "velocities through global memory)"
+    if values["warm_start_mode"] == "summed" and not values["grid"]:
+        return "warm_start_mode='summed' needs grid=True (its two phases are separated by " \
+               "a grid barrier)"
     return None
 
 
@@ -219,6 +232,21 @@ APPLY_WORK_GROUP_SIZE = 64
 
 #: bit flags of a `solve_groups` launch's ``passes`` argument (as in the template)
 WARM_START_PASS, FIRST_REVERSED = 1, 2
+
+
+#: int64 words of a body's warm-start sums (linear and angular velocity change)
+WARM_SUM_WORDS = 6
+
+
+def has_int64_atomics(runtime: Runtime) -> bool:
+    """Whether the device offers 64-bit integer atomics (the summed warm start's sums)."""
+    return INT64_ATOMICS in runtime.device.extensions
+
+
+def default_warm_start_mode(runtime: Runtime, grid: bool) -> str:
+    """summed for a grid solve on a device with 64-bit atomics (two phases instead of a
+    batch step per colour), else batched."""
+    return "summed" if grid and has_int64_atomics(runtime) else "batched"
 
 
 def check_release_sweeps(release_sweeps) -> None:
@@ -267,7 +295,8 @@ class ContactSolver(PushVelocities):
     def __init__(self, runtime: Runtime, *, split_impulse: bool = True, max_batches: int = 128,
                  friction: str = "point", work_group_size: int | None = None,
                  normal_solve: str = "block", shape: str | None = None,
-                 resident_bodies: int = 0, grid: bool = False, fast_math: bool | None = None):
+                 resident_bodies: int = 0, grid: bool = False, fast_math: bool | None = None,
+                 warm_start_mode: str | None = None):
         self.runtime = runtime
         self.split_impulse = bool(split_impulse)
         self.shape = shape or runtime.traits.kind
@@ -285,11 +314,20 @@ class ContactSolver(PushVelocities):
             raise RbgenError(f"friction must be one of {FRICTION_MODELS}, got {friction!r}")
         if normal_solve not in NORMAL_SOLVES:
             raise RbgenError(f"normal_solve must be one of {NORMAL_SOLVES}, got {normal_solve!r}")
+        if warm_start_mode is None:
+            warm_start_mode = default_warm_start_mode(runtime, bool(grid))
+        elif warm_start_mode == "summed" and not has_int64_atomics(runtime):
+            raise RbgenError(f"warm_start_mode='summed' needs the device extension "
+                             f"{INT64_ATOMICS}, which {runtime.traits.device_name} lacks")
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, max_batches=int(max_batches),
                                   shape=self.shape, split_impulse=self.split_impulse,
                                   friction=friction, normal_solve=normal_solve,
                                   resident_bodies=self.resident_bodies, grid=bool(grid),
-                                  fast_math=resolve_fast_math(runtime.traits, fast_math))
+                                  fast_math=resolve_fast_math(runtime.traits, fast_math),
+                                  warm_start_mode=warm_start_mode)
+        #: per-body fixed-point sums of the summed warm start (6 int64 words a body,
+        #: zero between solves; grown on demand)
+        self._warm_sums = None
         self.grid = bool(grid)
         #: the grid barrier's words over batches other than global's (which brings its own)
         self._sync = sync_buffer(runtime) if self.grid else None
@@ -359,6 +397,11 @@ class ContactSolver(PushVelocities):
             shared.append(self.split_velocities(max(1, int(body_capacity))))
         if self.grid:  # after a global colouring: its buffer (it may have given up)
             shared.append(batcher.state if batcher.mode == "global" else self._sync)
+        if self.spec.values["warm_start_mode"] == "summed":
+            if body_capacity <= 0:
+                raise RbgenError("a summed warm start needs body_capacity (the number of "
+                                 "bodies)")
+            shared += [self._warm_sum_buffer(int(body_capacity)), np.uint32(body_capacity)]
         shared.append(np.float32(relaxation))
         if self.resident_bodies:
             shared.append(np.uint32(body_capacity))
@@ -367,6 +410,13 @@ class ContactSolver(PushVelocities):
         wg = self.work_group_size
         for kernel, size in launches:
             kernel.launch(size, wg)
+
+    def _warm_sum_buffer(self, body_capacity: int):
+        """The summed warm start's zeroed per-body sums (the kernel leaves them zero)."""
+        words = WARM_SUM_WORDS * body_capacity
+        if self._warm_sums is None or len(self._warm_sums) < words:
+            self._warm_sums = cl_array.zeros(self.runtime.queue, words, np.int64)
+        return self._warm_sums
 
     def solve_velocities(self, constraints, batcher, bodies, inertia, body_capacity: int = 0, *,
                          iterations: int, relaxation: float = 1.0, warm_start: bool = True,

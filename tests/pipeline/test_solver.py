@@ -59,12 +59,12 @@ def stacked_columns(columns, height, pitch, separations, side_contacts=False):
 
 def shaped_rig(runtime, bodies, inv_inertia, shape, *, penetration="split", warm_start=True,
                group_count=3, work_group_size=None, batching="components", friction="point",
-               fast_math=None):
+               fast_math=None, warm_start_mode=None):
     """A ContactRig whose batcher and solver have the given kernel shape ("resident": the
     gpu shape solving in local memory, over single-mode batches; "grid": the gpu shape
     spread over every compute unit, over global-mode batches with hashed bids only, which
-    colour as single mode does); ``fast_math`` as ContactSolver's (None: the device's
-    default)."""
+    colour as single mode does); ``fast_math`` and ``warm_start_mode`` as ContactSolver's
+    (None: the device's default)."""
     resident = RESIDENT_BODIES if shape == "resident" else 0
     grid = shape == "grid"
     if resident:
@@ -82,7 +82,8 @@ def shaped_rig(runtime, bodies, inv_inertia, shape, *, penetration="split", warm
     rig.solver = ContactSolver(runtime, split_impulse=penetration == "split",
                                work_group_size=work_group_size, friction=friction,
                                normal_solve=rig.solver.spec.values["normal_solve"], shape=shape,
-                               resident_bodies=resident, grid=grid, fast_math=fast_math)
+                               resident_bodies=resident, grid=grid, fast_math=fast_math,
+                               warm_start_mode=warm_start_mode)
     return rig
 
 
@@ -281,7 +282,9 @@ def test_one_group_solves_match_the_plain_one_bit_for_bit(runtime, rng, variant,
     larger than that threshold on a device of few compute units (PoCL: 32 x 2 lanes).
     Both solvers are exact builds (fast_math=False): -cl-fast-relaxed-math lets the
     compiler contract and reorder each kernel's arithmetic its own way (the H200 gave
-    different bits for the resident kernel), so only exact builds promise equal bits."""
+    different bits for the resident kernel), so only exact builds promise equal bits;
+    the grid solve warm-starts batch by batch as the others do (its summed warm start
+    adds in another order: test_summed_warm_start_is_the_sum_of_the_impulses)."""
     positions, manifolds = stacked_columns(columns, 5, 1.2, lambda: rng.uniform(-0.01, 0.0, 4),
                                            side_contacts=True)
     n = len(positions)
@@ -294,7 +297,8 @@ def test_one_group_solves_match_the_plain_one_bit_for_bit(runtime, rng, variant,
     results = []
     for plain in (True, False):
         rig = shaped_rig(runtime, bodies, inv_inertia, "resident" if plain else variant,
-                         work_group_size=32, fast_math=False)
+                         work_group_size=32, fast_math=False,
+                         warm_start_mode="batched" if variant == "grid" else None)
         if plain:
             rig.solver = ContactSolver(runtime, split_impulse=True, work_group_size=32,
                                        friction="point", shape="gpu",
@@ -307,6 +311,90 @@ def test_one_group_solves_match_the_plain_one_bit_for_bit(runtime, rng, variant,
     for field in ("normal_impulse", "tangent1_impulse", "tangent2_impulse", "push_impulse"):
         assert np.array_equal(cons_g[field], cons_r[field]), field
     assert np.abs(bodies_r["linear_velocity"][1:, :3]).max() > 0  # something was solved
+
+
+def warm_started_velocities(bodies, inv_inertia, constraints):
+    """float64 reference of a warm start with point friction: every constraint's
+    accumulated impulses (normal and two tangents per point) applied at its points' lever
+    arms, v_a -= p / m_a, w_a -= I_a^-1 (r_a x p), v_b += p / m_b, w_b += I_b^-1 (r_b x p):
+    (linear, angular) velocities."""
+    linear = bodies["linear_velocity"][:, :3].astype(float).copy()
+    angular = bodies["angular_velocity"][:, :3].astype(float).copy()
+    inv_mass = bodies["inv_mass"].astype(float)
+    for c in constraints:
+        a, b = int(c["body_a"]), int(c["body_b"])
+        for k in range(int(c["point_count"])):
+            p = (c["normal"][:3] * c["normal_impulse"][k] + c["tangent1"][:3]
+                 * c["tangent1_impulse"][k] + c["tangent2"][:3] * c["tangent2_impulse"][k])
+            p = p.astype(float)
+            linear[a] -= p * inv_mass[a]
+            angular[a] -= inv_inertia[a] @ np.cross(c["r_a"][k, :3].astype(float), p)
+            linear[b] += p * inv_mass[b]
+            angular[b] += inv_inertia[b] @ np.cross(c["r_b"][k, :3].astype(float), p)
+    return linear, angular
+
+
+@pytest.mark.parametrize("friction", ["point", "manifold"])
+def test_summed_warm_start_is_the_sum_of_the_impulses(runtime, rng, friction):
+    """The grid solve's summed warm start (64-bit fixed-point sums per body, then every body
+    takes its sum) against the batched one (a batch step per colour) and, with point
+    friction, the float64 sum of every constraint's impulses at its lever arms
+    (warm_started_velocities): no sweep, only the warm start, over 6 columns of 5 boxes
+    with side contacts (bodies in up to 6 manifolds) and random old impulses, odd body and
+    constraint counts. The sums are integers, so two runs give the same bits whatever the
+    order of the atomic additions."""
+    positions, manifolds = stacked_columns(6, 5, 1.2, lambda: rng.uniform(-0.01, 0.0, 4),
+                                           side_contacts=True)
+    n = len(positions)
+    velocities = rng.uniform(-1, 1, (n, 3))
+    velocities[0] = 0
+    bodies = make_bodies(positions, np.r_[0.0, rng.uniform(0.5, 2, n - 1)],
+                         velocities=velocities, angular=np.r_[[[0, 0, 0]],
+                                                              rng.uniform(-1, 1, (n - 1, 3))])
+    inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(2, 8, (n - 1, 3))]
+    manifolds = np.array(manifolds)[rng.permutation(len(manifolds))]
+    impulses = {name: rng.uniform(0.0 if name == "normal_impulse" else -0.3, 0.6,
+                                  (len(manifolds), 4)).astype(np.float32)
+                for name in ("normal_impulse", "tangent1_impulse", "tangent2_impulse")}
+    results = []
+    for mode in ("summed", "summed", "batched"):
+        rig = shaped_rig(runtime, bodies, inv_inertia, "grid", friction=friction,
+                         warm_start_mode=mode)
+        assert rig.solver.spec.values["warm_start_mode"] == mode
+        rig.constraints(manifolds)
+        cons = rig.setup.constraints
+        records = cons.get()
+        for name, values in impulses.items():
+            records[name][:len(manifolds)] = values
+        cons.set(records)
+        rig.batcher(cons, rig.setup.count, rig.bodies, rig.body_count, rig.capacity)
+        rig.solver.solve(cons, rig.batcher, rig.bodies, rig.inertia, rig.body_count,
+                         iterations=0, warm_start=True)
+        results.append(rig.bodies.get())
+        inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
+        constraints = records[:len(manifolds)]
+    first, again, batched = results
+    assert first.tobytes() == again.tobytes()
+    scale = np.abs(batched["linear_velocity"]).max()
+    for field in ("linear_velocity", "angular_velocity"):
+        np.testing.assert_allclose(first[field], batched[field], atol=2e-6 * scale)
+        assert np.abs(first[field] - bodies[field]).max() > 0.1  # the impulses moved them
+    if friction == "point":
+        linear, angular = warm_started_velocities(bodies, inertia, constraints)
+        np.testing.assert_allclose(first["linear_velocity"][:, :3], linear, atol=2e-6 * scale)
+        np.testing.assert_allclose(first["angular_velocity"][:, :3], angular, atol=2e-6 * scale)
+
+
+def test_summed_warm_start_needs_a_grid_solve_and_int64_atomics(runtime):
+    """warm_start_mode='summed' is refused without grid (naming the rule) and defaults to
+    it for a grid solve on a device with 64-bit atomics."""
+    with pytest.raises(RbgenError, match="warm_start_mode='summed' needs grid=True"):
+        ContactSolver(runtime, shape="gpu", warm_start_mode="summed")
+    expected = "summed" if "cl_khr_int64_base_atomics" in runtime.device.extensions \
+        else "batched"
+    assert ContactSolver(runtime, shape="gpu", grid=True).spec.values["warm_start_mode"] \
+        == expected
+    assert ContactSolver(runtime, shape="gpu").spec.values["warm_start_mode"] == "batched"
 
 
 def test_resident_solve_refuses_what_does_not_fit(runtime):

@@ -56,6 +56,14 @@
 % endif
  * Impulses are accumulated, so warm starting applies last step's
  * totals once, for every constraint, before the first sweep.
+% if warm_start_mode == "summed":
+ * The warm start is summed rather than batched: every lane turns its
+ * constraints' old impulses into velocity changes at once, adds them to
+ * per-body sums of 64-bit fixed-point integers with atomics (integer sums do
+ * not depend on the order of the additions: the same bits at every run),
+ * and after one grid barrier every body takes its sum: two phases instead of
+ * one batch step per colour.
+% endif
 % if split_impulse:
  * The split-impulse position sweeps solve the same normal rows on separate
  * push velocities, which apply_split_velocities turns into a displacement
@@ -94,6 +102,12 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
 /* what one solve_groups launch does before its sweeps (bit flags of `passes`) */
 #define WARM_START_PASS 1u
 #define FIRST_REVERSED 2u
+% if warm_start_mode == "summed":
+#pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
+/* the summed warm start's fixed point: units of 2^-32 m/s (rad/s) */
+#define WARM_SUM_ONE 4294967296.0f
+#define WARM_SUM_WORDS 6
+% endif
 
 <%include file="/common/inline_math.cl.mako"/>
 % if grid:
@@ -157,6 +171,25 @@ inline void store_push(const __private ContactBodies* p, ${shared} SplitVelocity
         split[b].linear = (float4)(p->vb, 0.0f);
         split[b].angular = (float4)(p->wb, 0.0f);
     }
+}
+% endif
+% if warm_start_mode == "summed":
+
+/* Add a velocity change to a body's fixed-point sums (linear, then angular). */
+inline void add_warm_sum(volatile __global long* sums, float3 linear, float3 angular)
+{
+    atom_add(&sums[0], convert_long_rte(linear.x * WARM_SUM_ONE));
+    atom_add(&sums[1], convert_long_rte(linear.y * WARM_SUM_ONE));
+    atom_add(&sums[2], convert_long_rte(linear.z * WARM_SUM_ONE));
+    atom_add(&sums[3], convert_long_rte(angular.x * WARM_SUM_ONE));
+    atom_add(&sums[4], convert_long_rte(angular.y * WARM_SUM_ONE));
+    atom_add(&sums[5], convert_long_rte(angular.z * WARM_SUM_ONE));
+}
+
+inline float3 warm_sum_vector(volatile __global const long* sums)
+{
+    return (float3)(convert_float(sums[0]), convert_float(sums[1]), convert_float(sums[2]))
+           * (1.0f / WARM_SUM_ONE);
 }
 % endif
 % if resident_bodies:
@@ -318,6 +351,10 @@ void solve_groups(__global ContactConstraint* constraints,
 % if grid:
                   volatile __global uint* sync,
 % endif
+% if warm_start_mode == "summed":
+                  volatile __global long* warm_sums,
+                  const uint body_count,
+% endif
                   const float relaxation,
 % if resident_bodies:
                   const uint body_count,
@@ -400,7 +437,38 @@ void solve_groups(__global ContactConstraint* constraints,
                   velocities if resident_bodies else "push", ("push_impulse",))
 %>\
     if (passes & WARM_START_PASS) {
+% if warm_start_mode == "summed":
+        /* 1. every constraint's old impulses as velocity changes, summed per body */
+        const uint all_begin = offsets[0], all_end = offsets[batch_count];
+        for (uint i = all_begin + lane; grid_ok && i < all_end; i += ${lanes}) {
+            ContactConstraint constraint = constraints[order[i]];
+            __private ContactConstraint* c = &constraint;
+            uint a = c->body_a, b = c->body_b;
+            ContactBodies state;
+            load_bodies(&state, bodies, inertia, a, b);
+            state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
+            warm_start_contact(c, &state);
+            if (state.inv_mass_a > 0.0f)
+                add_warm_sum(warm_sums + WARM_SUM_WORDS * a, state.va, state.wa);
+            if (state.inv_mass_b > 0.0f)
+                add_warm_sum(warm_sums + WARM_SUM_WORDS * b, state.vb, state.wb);
+        }
+        ${batch_barrier}
+        /* 2. every body takes its sum, and clears it for the next step */
+        for (uint body = lane; grid_ok && body < body_count; body += ${lanes}) {
+            volatile __global long* sums = warm_sums + WARM_SUM_WORDS * body;
+            if (bodies[body].inv_mass > 0.0f) {
+                float3 linear = warm_sum_vector(sums), angular = warm_sum_vector(sums + 3);
+                bodies[body].linear_velocity = (float4)(bodies[body].linear_velocity.xyz + linear, 0.0f);
+                bodies[body].angular_velocity = (float4)(bodies[body].angular_velocity.xyz + angular, 0.0f);
+                for (uint k = 0; k < WARM_SUM_WORDS; ++k)
+                    sums[k] = 0;
+            }
+        }
+        ${batch_barrier}
+% else:
 ${each_constraint(warm_start)}\
+% endif
     }
 % if split_impulse and not resident_bodies:
     /* The velocity and the position sweeps at once: the push rows read only
