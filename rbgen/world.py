@@ -64,6 +64,15 @@ SOLVERS = ("pgs", "jacobi")
 STEPS_IN_FLIGHT = 2
 #: redos of one step before giving up (each grows the buffers that overflowed)
 MAX_REDOS = 16
+#: the step report: the words the host checks after every step, gathered on the device
+#: and read with ONE copy (a small copy costs an NVIDIA queue ~8 us, as much as a
+#: launch): the manifolds the narrowphase needed beyond the capacity (it writes that
+#: word itself), the broadphase status, and the grid barrier's abandoned flag (grid
+#: launches only; each of these two a device-to-device copy, ~4 us)
+REPORT_NEEDED = 0
+REPORT_BROADPHASE = 1
+REPORT_ABANDONED = REPORT_BROADPHASE + layouts.BROADPHASE_STATUS.itemsize // 4
+REPORT_WORDS = REPORT_ABANDONED + 1
 #: the PGS solve's last sweeps (velocity, and position) whose block solve may release
 #: points, the earlier ones taking only its all-pushing solution (see the World's
 #: release_sweeps and ContactSolver.solve). H200 BoxBox 1,000 / 8,000 / 27,000 / 111,375
@@ -197,7 +206,7 @@ class World:
         self._device_stale = True       # host copy newer than the device
         self._host_stale = False        # device newer than the host copy
         rt = self.runtime
-        self._prepare = BodyPreparation(rt, gyroscopic=gyroscopic, gravity=True)
+        self._prepare = BodyPreparation(rt, gyroscopic=gyroscopic, gravity=True, backup=True)
         self._integrate = Integrator(rt, gravity=False, damping=True)
         self._constraints = ContactConstraints(rt, penetration=penetration, warm_start=warm_start,
                                                friction=friction_model)
@@ -252,6 +261,9 @@ class World:
         self._in_flight: list[_InFlight] = []
         self._serial = 0                # steps enqueued, picks the backup slot
         self._status_pinned: dict = {}  # slot -> (pinned buffer, mapped uint32 words)
+        #: the step report on the device (REPORT_*; word REPORT_NEEDED is the
+        #: narrowphase's overflow word)
+        self._report = cla.zeros(rt.queue, REPORT_WORDS, np.uint32)
         self.last_step_counters = {"launches": 0, "blocking_reads": 0}
         self.steps = 0
         #: steps redone because a buffer overflowed (each grew the buffer)
@@ -409,7 +421,7 @@ class World:
             from .pipeline.narrowphase import Narrowphase
             # world AABBs are written by the body preparation (one launch for both)
             self._prepare = BodyPreparation(self.runtime, gyroscopic=self._prepare.gyroscopic,
-                                            gravity=True, shape_types=types)
+                                            gravity=True, shape_types=types, backup=True)
             self._narrowphase = Narrowphase(self.runtime, self.shapes)
             options = {} if self._pair_capacity is None else {"capacity": int(self._pair_capacity)}
             self._broadphase = make_broadphase(self.runtime, self.broadphase_name, **options)
@@ -440,6 +452,7 @@ class World:
         from now on this World makes no grid launch; the caller redoes the steps."""
         self._grid_failed = True
         clear_abandoned(self.runtime, self._grid_sync())
+        self._report[REPORT_ABANDONED:].fill(np.uint32(0))
         if self._batcher is None:
             self._solver = JacobiSolver(self.runtime, grid=False, **self._jacobi_options)
             instead = "the Jacobi solver's launch per phase"
@@ -499,7 +512,6 @@ class World:
         self._manifold_capacity = int(capacity)
         self._manifolds = cla.empty(queue, self._manifold_capacity, layouts.CONTACT_MANIFOLD.dtype)
         self._manifold_count = cla.zeros(queue, 1, np.uint32)
-        self._overflow = cla.zeros(queue, 1, np.uint32)
 
     def _cell_size(self) -> float:
         """Batching cells: the widest dynamic body plus twice the contact margin."""
@@ -551,14 +563,15 @@ class World:
             return
         slot = self._serial % STEPS_IN_FLIGHT
         self._serial += 1
-        cl.enqueue_copy(rt.queue, self._backups[slot].data, self._bodies.data)
         margin = self.contact_margin
-        self._prepare(self._bodies, self._inertia, n, h, self.gravity,  # gravity, AABBs fused in
-                      aabbs=(self._packed.shapes, self._packed.vertices, self._aabbs, margin))
-        self._broadphase.enqueue(self._aabbs, self._static)
+        # gravity, AABBs and the step's backup (the redo's start) fused in
+        self._prepare(self._bodies, self._inertia, n, h, self.gravity,
+                      aabbs=(self._packed.shapes, self._packed.vertices, self._aabbs, margin),
+                      backup=self._backups[slot])
+        self._broadphase.enqueue(self._aabbs, self._static, read_status=False)  # (the report)
         self._narrowphase.enqueue(self._bodies, self._packed, self._broadphase.pairs,
                                   self._broadphase.count, self._manifolds, self._manifold_count,
-                                  self._overflow, margin)
+                                  self._report[REPORT_NEEDED:REPORT_NEEDED + 1], margin)
         capacity = self._manifold_capacity
         self._constraints(self._manifolds, self._manifold_count, self._bodies, self._inertia,
                           capacity, h)
@@ -644,48 +657,48 @@ class World:
 
 
 class _InFlight:
-    """One enqueued step: its dt, backup slot, and a pinned copy of its overflow status.
+    """One enqueued step: its dt, backup slot, and a pinned copy of its step report.
 
-    Both copy events are kept: pyopencl returns a NannyEvent for a copy into host
-    memory, and deleting one waits for its copy (dropping the first at once
-    drained the whole queue every step)."""
+    The copy's event is kept: pyopencl returns a NannyEvent for a copy into host
+    memory, and deleting one waits for its copy (dropping it at once drained the whole
+    queue every step)."""
 
     def __init__(self, h, slot, host, events):
         self.h, self.slot, self.host, self.events = h, slot, host, events
 
     @classmethod
     def start(cls, world: "World", h: float, slot: int) -> "_InFlight":
-        """Enqueue non-blocking copies of the broadphase status, the narrowphase overflow
-        and, for a step with grid launches, their barrier's abandoned flag: pinned host
-        words [status..., overflow(, abandoned)]."""
-        queue = world.runtime.queue
+        """Gather the step report on the device (the broadphase status and, for a step
+        with grid launches, their barrier's abandoned flag, beside the narrowphase's
+        overflow word) and enqueue one non-blocking copy of it into pinned host words."""
+        queue, report = world.runtime.queue, world._report
         status = world._broadphase.buffer.status
+        cl.enqueue_copy(queue, report.data, status.data, byte_count=status.nbytes,
+                        dst_offset=4 * REPORT_BROADPHASE)
         grid = world._grid_sync()
-        words = status.size + 1 + (grid is not None)
+        if grid is not None:
+            cl.enqueue_copy(queue, report.data, grid.data, byte_count=4,
+                            src_offset=ABANDONED_OFFSET, dst_offset=4 * REPORT_ABANDONED)
         pinned = world._status_pinned.get(slot)
-        if pinned is None or pinned[1].size != words:
-            buffer = cl.Buffer(world.runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 4 * words)
+        if pinned is None:
+            buffer = cl.Buffer(world.runtime.context, cl.mem_flags.ALLOC_HOST_PTR,
+                               4 * REPORT_WORDS)
             host, _ = cl.enqueue_map_buffer(queue, buffer, cl.map_flags.READ | cl.map_flags.WRITE,
-                                            0, (words,), np.uint32)
+                                            0, (REPORT_WORDS,), np.uint32)
             pinned = world._status_pinned[slot] = (buffer, host)
         host = pinned[1]
-        n = status.size
-        events = [cl.enqueue_copy(queue, host[:n], status.data, is_blocking=False),
-                  cl.enqueue_copy(queue, host[n:n + 1], world._overflow.data, is_blocking=False)]
-        if grid is not None:
-            events.append(cl.enqueue_copy(queue, host[n + 1:], grid.data,
-                                          src_offset=ABANDONED_OFFSET, is_blocking=False))
+        events = [cl.enqueue_copy(queue, host, report.data, is_blocking=False)]
         return cls(h, slot, host, events)
 
     def problem(self, world: "World"):
         """None when the step was complete, else (pairs found, manifolds needed, whether a
         grid launch gave up)."""
         cl.wait_for_events(self.events)
-        n = world._broadphase.buffer.status.size
-        status = self.host[:n].view(layouts.BROADPHASE_STATUS.dtype)[0]
+        status = self.host[REPORT_BROADPHASE:REPORT_ABANDONED].view(
+            layouts.BROADPHASE_STATUS.dtype)[0]
         pairs_found = int(status["pairs_found"])
-        needed = int(self.host[n])
-        abandoned = len(self.host) > n + 1 and bool(self.host[n + 1])
+        needed = int(self.host[REPORT_NEEDED])
+        abandoned = bool(self.host[REPORT_ABANDONED])
         retry = int(status["retry"]) if "retry" in status.dtype.names else 0
         if (status["bad_body"] != layouts.BP_NO_BODY or retry or needed or abandoned
                 or pairs_found > world._broadphase.capacity):

@@ -71,7 +71,8 @@ def test_gravity_argument_must_match_the_build(runtime):
 def test_fused_world_aabbs(runtime, rng, n, work_group_size):
     """Built with shape types, prepare_bodies also writes every body's world AABB: each
     holds the float64 bounds of the rotated shape (grown by the margin, within 1e-5), and
-    velocities and inertia tensors are those of the pass without AABBs, bit for bit."""
+    velocities and inertia tensors are those of the pass without AABBs, bit for bit; built
+    with backup too (the World's build), it first copies every body as it was."""
     from rbgen.shapes import ShapeTable
     from tests.pipeline.test_aabbs import expected_bounds, make_shapes
 
@@ -89,16 +90,21 @@ def test_fused_world_aabbs(runtime, rng, n, work_group_size):
     for shape_types in ((), table.type_names()):
         d_bodies = cl_array.to_device(queue, bodies)
         d_inertia = cl_array.to_device(queue, inertia_records(diag))
+        fused = bool(shape_types)  # (the AABBs and the backup fused in, or neither)
         prepare = BodyPreparation(runtime, gyroscopic=True, gravity=True, shape_types=shape_types,
-                                  work_group_size=work_group_size)
+                                  work_group_size=work_group_size, backup=fused)
         aabbs = cl_array.empty(queue, max(n, 1), layouts.AABB.dtype)
+        backup = cl_array.zeros(queue, max(n, 1), layouts.BODY.dtype)
         inputs = (cl_array.to_device(queue, shapes), cl_array.to_device(queue, vertices), aabbs,
                   margin) if shape_types else None
-        prepare(d_bodies, d_inertia, n, dt, gravity, aabbs=inputs)
-        outputs.append((d_bodies.get()[:n], d_inertia.get()[:n], aabbs.get()[:n]))
-    (plain_bodies, plain_inertia, _), (fused_bodies, fused_inertia, boxes) = outputs
+        prepare(d_bodies, d_inertia, n, dt, gravity, aabbs=inputs,
+                backup=backup if fused else None)
+        outputs.append((d_bodies.get()[:n], d_inertia.get()[:n], aabbs.get()[:n],
+                        backup.get()[:n]))
+    (plain_bodies, plain_inertia, _, _), (fused_bodies, fused_inertia, boxes, backup) = outputs
     np.testing.assert_array_equal(fused_bodies, plain_bodies)
     np.testing.assert_array_equal(fused_inertia, plain_inertia)
+    np.testing.assert_array_equal(backup, bodies[:n])  # the bodies as they were
     for i in range(n):
         lo, hi = expected_bounds(shape_list[which[i]], bodies["position"][i, :3].astype(np.float64),
                                  bodies["orientation"][i])
@@ -114,5 +120,9 @@ def test_aabb_inputs_must_match_the_build(runtime):
         BodyPreparation(runtime, shape_types=("box",))(bodies, inertia, 1, 0.1)
     with pytest.raises(RbgenError, match="aabbs"):
         BodyPreparation(runtime)(bodies, inertia, 1, 0.1, aabbs=(None, None, None, 0.0))
+    with pytest.raises(RbgenError, match="backup"):
+        BodyPreparation(runtime, backup=True)(bodies, inertia, 1, 0.1)
+    with pytest.raises(RbgenError, match="backup"):
+        BodyPreparation(runtime)(bodies, inertia, 1, 0.1, backup=bodies)
     with pytest.raises(Exception, match="shape_types"):
         BodyPreparation(runtime, shape_types=("box", "torus"))

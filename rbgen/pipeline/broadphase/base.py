@@ -2,10 +2,12 @@
 
 A broadphase object is built once per world and queried every step:
 
-``enqueue(aabbs, static)``
+``enqueue(aabbs, static, read_status=True)``
     enqueues the whole query (no blocking read): validation and sizes of the
     bodies, the algorithm's kernels, the ordering of the pairs, and a
-    non-blocking read of the status into pinned memory;
+    non-blocking read of the status into pinned memory (``read_status=False``:
+    none, for a caller that copies ``buffer.status`` with its own reads: a
+    small copy costs a GPU's queue as much as a launch; `check` then reads);
 ``check()``
     waits for that status copy only; raises `RbgenError` naming the first
     body with a NaN or inverted AABB; returns False, after adapting, when the
@@ -98,11 +100,12 @@ class Broadphase:
     def capacity(self) -> int:
         return 0 if self.buffer is None else self.buffer.capacity
 
-    def enqueue(self, aabbs, static=None) -> None:
+    def enqueue(self, aabbs, static=None, read_status: bool = True) -> None:
         """Enqueue one query (no blocking read); `check` tells whether it is complete."""
         aabbs, static, n = self._arguments(aabbs, static)
         if self.buffer is None:
             self.buffer = PairBuffer(self.runtime, max(1024, DEFAULT_PAIRS_PER_BODY * n))
+        self.buffer.new_query()
         self._aabbs, self.body_count = aabbs, n
         if n >= 2:
             self._start_query(aabbs, n)
@@ -111,7 +114,8 @@ class Broadphase:
             self.buffer.reset_status()
             if n == 1:
                 self._measure(aabbs, n, sizes=False)  # still validates the single box
-        self.buffer.start_status_read()
+        if read_status:
+            self.buffer.start_status_read()
 
     def check(self) -> bool:
         """True when the last query stored every pair; False after growing the buffer."""

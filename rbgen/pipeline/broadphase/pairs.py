@@ -15,7 +15,8 @@ Contract (all broadphases):
   buffer to fit and runs the query again.
 * Checking without a stall: `start_status_read` enqueues a non-blocking copy
   of the status into pinned host memory right after the query; `read_status`
-  waits for that copy only. In a simulation loop the host starts the read at
+  waits for that copy only (a query whose read was not started, because its
+  caller copies the status with its own, gets one then). In a simulation loop the host starts the read at
   the end of step k and checks it at the start of step k + 1 (by then the
   copy is long done); on overflow it grows the buffer and redoes step k.
 """
@@ -85,6 +86,8 @@ class PairBuffer:
         #: deleted, so the few last ones are kept (steps in flight) and only older,
         #: long-finished ones are dropped
         self._read_events: list = []
+        #: whether the last query's status read was started (see `new_query`)
+        self._read_started = False
         self.program = compile_spec(runtime, TEMPLATE.default_spec(runtime.traits))
         self.work_group_size = self.program.spec.values["work_group_size"]
         self._sorts: dict[tuple[int, bool], object] = {}
@@ -142,16 +145,21 @@ class PairBuffer:
         self.runtime.bound(self.program.kernel(name)).over(self.capacity, self.work_group_size,
                                                            *args)
 
+    def new_query(self) -> None:
+        """A query is being enqueued: its status read is not started yet."""
+        self._read_started = False
+
     def start_status_read(self) -> None:
         """Enqueue a non-blocking copy of the status into pinned host memory."""
         event = cl.enqueue_copy(self.runtime.queue, self._pinned, self.status.base_data,
                                 is_blocking=False)
         self._read_events = [*self._read_events[-(KEPT_READ_EVENTS - 1):], event]
+        self._read_started = True
 
     def read_status(self) -> np.void:
-        """The status of the last query whose read was started (waits for that copy only)."""
-        if not self._read_events:
-            raise RbgenError("read_status called before start_status_read")
+        """The status of the last query (waits for its read, started now if it was not)."""
+        if not self._read_started:
+            self.start_status_read()
         self._read_events[-1].wait()
         return self._pinned.view(layouts.BROADPHASE_STATUS.dtype)[0].copy()
 

@@ -113,7 +113,7 @@ class IncrementalSapBroadphase(Broadphase):
         return not self._pending_full
 
     # ------------------------------------------------------------ protocol
-    def enqueue(self, aabbs, static=None) -> None:
+    def enqueue(self, aabbs, static=None, read_status: bool = True) -> None:
         aabbs, static, n = self._arguments(aabbs, static)
         if n != self._slot_bodies:
             capacity = self._initial_capacity or max(1024, 8 * n)
@@ -124,10 +124,11 @@ class IncrementalSapBroadphase(Broadphase):
         self._target = 0 if self._current is None else 1 - self._current
         slot = self._slots[self._target]
         self.buffer = slot.pairs
+        slot.pairs.new_query()
         self._aabbs, self.body_count, self._pending_full = aabbs, n, full
         if full:
             self.full.buffer = slot.pairs
-            self.full.enqueue(aabbs, static)
+            self.full.enqueue(aabbs, static, read_status=False)
         else:
             slot.pairs.reset_status()
             self._measure(aabbs, n, sizes=False)
@@ -137,7 +138,8 @@ class IncrementalSapBroadphase(Broadphase):
                             byte_count=n * layouts.AABB.itemsize)
         if not full and n >= 2:
             self._update_pairs(aabbs, static, n, self._slots[self._current], slot)
-        slot.pairs.start_status_read()
+        if read_status:
+            slot.pairs.start_status_read()
 
     def check(self) -> bool:
         status = self.buffer.read_status()

@@ -1,7 +1,14 @@
 /* Per-body preparation before the contact solver.
  *
  * One work-item per body; a work group is responsible for ${work_group_size}
- * consecutive bodies. For every dynamic body:
+ * consecutive bodies.
+% if backup:
+ * First every body, as it is, goes to `backup` (the World's copy of the
+ * step's start, from which a step whose buffers overflowed is redone: here
+ * rather than in a copy command of its own, which costs a GPU's queue as
+ * much as a launch).
+% endif
+ * For every dynamic body:
 % if gravity:
  *   - gravity, v += g dt (here rather than in a launch of its own);
 % endif
@@ -64,6 +71,9 @@ __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void prepare_bodies(__global Body* bodies,
                     __global BodyInertia* inertia,
                     const uint body_count,
+% if backup:
+                    __global Body* backup,
+% endif
 % if gravity:
                     const float4 gravity,
 % endif
@@ -78,6 +88,9 @@ void prepare_bodies(__global Body* bodies,
     uint i = get_global_id(0);
     if (i >= body_count)
         return;
+% if backup:
+    backup[i] = bodies[i];
+% endif
     float4 q = bodies[i].orientation;
     float3 inv_local = inertia[i].inv_inertia_local.xyz;
 % if gravity:

@@ -89,6 +89,36 @@ def test_enqueue_does_not_block(runtime, rng):
     assert int(broadphase.count.get()[0]) == len(brute_force_pairs(aabbs, static))
 
 
+def test_check_reads_a_status_the_query_did_not(broadphase, rng):
+    """enqueue(read_status=False) (a caller that copies the status with its own reads)
+    makes no status copy; check() then reads it itself: an overflow is still seen and
+    grown (not for sap3, which alternates between two pair buffers: test_sap3 covers its
+    overflow), a bad body still named, and a complete query's pairs are brute force's."""
+    import pyopencl as cl
+    aabbs, static = make_aabbs(rng, 300, "clustered")
+    broadphase.find_pairs(aabbs, static)                    # build and allocate
+    copies = []
+    original = cl.enqueue_copy
+    cl.enqueue_copy = lambda *a, **k: copies.append(k.get("is_blocking")) or original(*a, **k)
+    try:
+        if broadphase.name != "sap3":
+            broadphase.buffer.allocate(1)                   # the next query overflows
+            broadphase.enqueue(aabbs, static, read_status=False)
+            assert False not in copies                      # no non-blocking status read
+            assert broadphase.check() is False and broadphase.capacity > 1
+        copies.clear()
+        broadphase.enqueue(aabbs, static, read_status=False)
+        assert False not in copies
+    finally:
+        cl.enqueue_copy = original
+    assert broadphase.check()
+    np.testing.assert_array_equal(broadphase.host_pairs(), brute_force_pairs(aabbs, static))
+    aabbs["upper"][7, 0] = np.nan
+    broadphase.enqueue(aabbs, static, read_status=False)
+    with pytest.raises(RbgenError, match="body 7 "):
+        broadphase.check()
+
+
 @pytest.mark.parametrize("bad", ["nan", "inverted"])
 def test_invalid_aabb_names_the_body(broadphase, rng, bad):
     aabbs, static = make_aabbs(rng, 50, "uniform")
