@@ -6,10 +6,11 @@
                                 [--position-iterations 4] [--relaxation 1.0]
                                 [--release-sweeps N]
 
-For each size: ms/step = the median over 10 blocks of ``--steps``/10 steps, each
-enqueued back to back and ended by one queue.finish(), after ``--warmup`` steps
-(``mean``: all the timed steps' wall time over their number), kernel launches and
-blocking reads per step, broadphase pairs, manifolds and contact points of the last step, the
+For each size, after ``--warmup`` steps: ms/step = the median over 10 blocks of
+``--steps``/10 steps, all enqueued back to back and ended by one queue.finish(),
+each block clocked by the host at its boundaries (rbgen.demo explains why that is
+the device's time; ``mean``: all the timed steps' time over their number), kernel
+launches and blocking reads per step, broadphase pairs, manifolds and contact points of the last step, the
 batches of the largest group, and a sanity line (NaNs, boxes sunk more than
 2 cm below their resting height, max speed). Imports nothing beyond numpy,
 pyopencl and mako (runs on the GPU machine as is).
