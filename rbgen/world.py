@@ -76,7 +76,8 @@ REPORT_WORDS = REPORT_ABANDONED + 1
 #: the PGS solve's last sweeps (velocity, and position) whose block solve may release
 #: points, the earlier ones taking only its all-pushing solution (see the World's
 #: release_sweeps and ContactSolver.solve). H200 BoxBox 1,000 / 8,000 / 27,000 / 111,375
-#: boxes, global batching, 10 + 4 sweeps (2026-12-04): every sweep complete 0.55 / 0.72
+#: boxes, global batching, 10 + 4 sweeps (2026-12-04, before the summed warm start and
+#: the step report, with a finish per timed block): every sweep complete 0.55 / 0.72
 #: / 1.20 / 3.70 ms a step; the last 2: 0.52 / 0.68 / 1.15 / 3.67; the last 1: 0.52 /
 #: 0.67 / 1.14 / 3.68. The 8,000-box pile's max speed at step 300: 0.000 / 0.000 / 0.003
 #: m/s; the 20-row pyramid's top over 600 steps 1.4 / 1.4 / 1.6 cm. Rows alone in the
@@ -468,8 +469,8 @@ class World:
     def _automatic_batching(self, body_count: int) -> str:
         """``global`` on NVIDIA GPUs (one colouring and one solver launch a step over every
         compute unit, grid barriers between batches: H200 BoxBox 1,000 / 8,000 / 27,000 /
-        111,375 boxes in 0.61 / 0.80 / 1.21 / 3.63 ms a step (2026-12-03), against cells'
-        2.86 / 3.52 / 4.28 / 7.51 and single's 1.75 at 1,000 in an earlier run); on other
+        111,375 boxes in 0.49 / 0.64 / 1.12 / 3.67 ms a step (2026-12-04), against cells'
+        2.86 / 3.52 / 4.28 / 7.51 and single's 1.75 at 1,000 in earlier runs); on other
         GPUs ``single`` while every body fits a resident solve (one colouring and one
         solver launch a step, velocities in local memory), else the device's default
         (cells on GPUs, slabs on CPUs)."""

@@ -47,6 +47,16 @@ colour 0, come last). Loading each lane's next constraint
 while the barrier waits (measured 2026-12-02) made every size 6-10% slower and
 was dropped.
 
+Warm start (``warm_start_mode``): ``batched``, a sweep over the batches that
+applies every constraint's old impulses; ``summed`` (the grid solve's default
+where the device has 64-bit atomics), two phases: every lane turns its
+constraints' old impulses into velocity changes and adds them to per-body
+sums of 64-bit fixed-point integers with atomics, and after one grid barrier
+every body takes its sum. Integer sums do not depend on the order of the
+additions, so the result has the same bits every run (float atomics would
+not); the grid barrier count drops from one per colour to two (H200 BoxBox
+1,000: solve_groups 0.327 -> 0.311 ms).
+
 Launches: `solve` runs the warm start, the ``iterations`` velocity sweeps
 and the ``position_iterations`` split-impulse sweeps. With the batcher's
 ``components`` mode no dynamic body is shared between groups, so ONE launch
