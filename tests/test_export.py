@@ -142,6 +142,40 @@ def test_exported_grid_solver_and_colouring_build_standalone(runtime, tmp_path):
                  "grid=True", "--param", "shape=cpu"]) == 2
 
 
+def test_exported_world_specialisations_build_standalone(runtime, tmp_path):
+    """What a World on an NVIDIA GPU runs beyond the defaults exports too: the grid solve
+    with the summed warm start (its manifest lists the per-body sums, an inout buffer,
+    and the body count between the barrier's words and the relaxation; the .cl needs
+    64-bit atomics, so it is built where the device has them) and the body preparation
+    that writes the step's backup (an out buffer after the body count)."""
+    solver_args = ["export", "--out", str(tmp_path / "solver"), "--kernel", "solver",
+                   "--device", runtime.device.name.strip(), "--param", "grid=True",
+                   "--param", "shape=gpu", "--param", "work_group_size=32",
+                   "--param", "warm_start_mode=summed"]
+    assert main(solver_args) == 0
+    entry = json.loads((tmp_path / "solver" / "manifest.json").read_text())["files"][0]
+    assert entry["params"]["warm_start_mode"] == "summed"
+    solve = next(k for k in entry["kernels"] if k["name"] == "solve_groups")
+    names = [a["name"] for a in solve["args"]]
+    at = names.index("relaxation")
+    assert names[at - 3:at] == ["sync", "warm_sums", "body_count"]
+    assert next(a for a in solve["args"] if a["name"] == "warm_sums")["role"] == "inout"
+    if "cl_khr_int64_base_atomics" in runtime.device.extensions:
+        program = cl.Program(runtime.context,
+                             (tmp_path / "solver" / entry["file"]).read_text()).build()
+        assert program.solve_groups.num_args == len(solve["args"])
+    assert main(["export", "--out", str(tmp_path / "prepare"), "--kernel", "gyroscopic",
+                 "--device", runtime.device.name.strip(), "--param", "backup=True"]) == 0
+    entry = json.loads((tmp_path / "prepare" / "manifest.json").read_text())["files"][0]
+    prepare = next(k for k in entry["kernels"] if k["name"] == "prepare_bodies")
+    names = [a["name"] for a in prepare["args"]]
+    assert names[names.index("body_count") + 1] == "backup"
+    assert next(a for a in prepare["args"] if a["name"] == "backup")["role"] == "out"
+    program = cl.Program(runtime.context,
+                         (tmp_path / "prepare" / entry["file"]).read_text()).build()
+    assert program.prepare_bodies.num_args == len(prepare["args"])
+
+
 @pytest.mark.parametrize("grid", [False, True])
 def test_exported_jacobi_solver_builds_standalone(runtime, tmp_path, grid):
     """The Jacobi solver exports in both launch variants: the .cl builds outside rbgen's
