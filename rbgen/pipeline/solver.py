@@ -122,9 +122,7 @@ def fast_math_param() -> Param:
 
 def fast_math_options(values: dict) -> tuple[str, ...]:
     """The build options of a solver specialisation (its ``fast_math`` value)."""
-    import os  # EXPERIMENT
-    extra = tuple(os.environ.get("RBGEN_VARIANT", "").split())
-    return (FAST_MATH_OPTIONS if values["fast_math"] else ()) + extra
+    return FAST_MATH_OPTIONS if values["fast_math"] else ()
 
 
 def default_fast_math(traits: DeviceTraits) -> bool:
