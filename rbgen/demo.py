@@ -101,7 +101,7 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
         world.step(dt)
     queue.finish()
     block = max(1, int(steps) // TIMING_BLOCKS)
-    block_ms = []   # ms/step of each block of `block` steps (the last may be shorter)
+    blocks = []     # (seconds, steps) of each block (the last may be shorter)
     block_start = time.perf_counter()
     for s in range(int(steps)):
         world.step(dt)
@@ -109,15 +109,15 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
             if s + 1 == steps:
                 queue.finish()
             now = time.perf_counter()
-            block_ms.append(1e3 * (now - block_start) / ((s % block) + 1))
+            blocks.append((now - block_start, s % block + 1))
             if progress:  # (the read-back after the block's clock stopped)
                 speed = np.linalg.norm(world.linear_velocities[ids], axis=1).max()
-                print(f"  step {s + 1:5d}: {block_ms[-1]:8.2f} ms/step, "
+                print(f"  step {s + 1:5d}: {1e3 * blocks[-1][0] / blocks[-1][1]:8.2f} ms/step, "
                       f"max speed {speed:.3f} m/s", flush=True)
                 now = time.perf_counter()
             block_start = now
-    # (the blocks' sum: without the progress read-backs)
-    elapsed = sum(ms * n for ms, n in zip(block_ms, _block_sizes(int(steps), block))) / 1e3
+    block_ms = [1e3 * seconds / count for seconds, count in blocks]
+    elapsed = sum(seconds for seconds, _ in blocks)  # (without the progress read-backs)
     stats = world.statistics()
     positions = world.positions[ids]
     speeds = np.linalg.norm(world.linear_velocities[ids], axis=1)
@@ -139,11 +139,6 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
     if progress:
         print(format_summary(summary), flush=True)
     return summary
-
-
-def _block_sizes(steps: int, block: int) -> list[int]:
-    """The number of steps in each timing block of `run_scene`."""
-    return [block] * (steps // block) + ([steps % block] if steps % block else [])
 
 
 def format_summary(s: dict) -> str:

@@ -420,7 +420,9 @@ class ContactSolver(PushVelocities):
             kernel.launch(size, wg)
 
     def _warm_sum_buffer(self, body_capacity: int):
-        """The summed warm start's zeroed per-body sums (the kernel leaves them zero)."""
+        """The summed warm start's zeroed per-body sums (the kernel leaves them zero; a
+        launch whose grid barrier gave up may leave some behind, and the World then
+        stops using this grid solver)."""
         words = WARM_SUM_WORDS * body_capacity
         if self._warm_sums is None or len(self._warm_sums) < words:
             self._warm_sums = cl_array.zeros(self.runtime.queue, words, np.int64)
