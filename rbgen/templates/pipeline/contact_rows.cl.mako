@@ -3,8 +3,12 @@
   the Gauss-Seidel solver (solver.cl.mako) and the Jacobi solver with mass
   splitting (jacobi.cl.mako). The including template supplies the parameters
   friction, normal_solve and split_impulse, the structs Body, BodyInertia,
-  ContactConstraint, and common/inline_math.cl.mako.
+  ContactConstraint, and common/inline_math.cl.mako; it may pass
+  constraint_space, the address space of the constraint the solve functions
+  read and update (default __private: a copy the caller loaded; __global: the
+  constraint in place, for the CPU shape, see solver.cl.mako).
 </%doc>
+<%page args="constraint_space='__private'"/>
 inline float positive_part(float x)
 {
     return x > 0.0f ? x : 0.0f;
@@ -74,7 +78,7 @@ inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, floa
  * (false when it does not hold): a cheaper sweep, exact and order-free for
  * faces resting on faces, that leaves the other faces to the rows. */
 bool solve_face_points(const uint count, const float3 n, const float3 t1, const float3 t2,
-                       __private const float4* r_a, __private const float4* r_b,
+                       ${constraint_space} const float4* r_a, ${constraint_space} const float4* r_b,
                        const float relaxation,
                        float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
                        float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
@@ -251,7 +255,7 @@ bool solve_face_points(const uint count, const float3 n, const float3 t1, const 
  * changing nothing, when the two points (nearly) coincide in K (det below
  * FLAT_SPREAD_RATIO of the diagonal's product): the rows decide. */
 bool solve_two_points(const uint count, const float3 n,
-                      __private const float4* r_a, __private const float4* r_b,
+                      ${constraint_space} const float4* r_a, ${constraint_space} const float4* r_b,
                       const float relaxation,
                       float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
                       float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
@@ -321,7 +325,7 @@ bool solve_two_points(const uint count, const float3 n,
  * would release one (see solve_face_points): the caller then solves the rows
  * one after another. Updates the velocities in place. */
 bool solve_normal_block(const uint count, const float3 n, const float3 t1, const float3 t2,
-                        __private const float4* r_a, __private const float4* r_b,
+                        ${constraint_space} const float4* r_a, ${constraint_space} const float4* r_b,
                         const float relaxation,
                         float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
                         float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
@@ -411,8 +415,8 @@ inline void apply_row(const Row* row, float impulse, __private ContactBodies* p)
  * the rows was half of the solve). Always inlined and unrolled, so that the
  * rows and speeds stay in registers. */
 __attribute__((always_inline))
-inline void solve_normal_rows(const uint count, const float3 n, __private const float4* r_a,
-                              __private const float4* r_b, const float mass[4],
+inline void solve_normal_rows(const uint count, const float3 n, ${constraint_space} const float4* r_a,
+                              ${constraint_space} const float4* r_b, const float mass[4],
                               const float target[4], const float relaxation, const bool reverse,
                               float impulse[4], __private ContactBodies* p)
 {
@@ -499,7 +503,7 @@ inline void reverse4(float a[4])
 
 /* Apply last step's accumulated impulses of one constraint (warm start) to
  * its bodies' velocities in *p. */
-void warm_start_contact(const __private ContactConstraint* c, __private ContactBodies* p)
+void warm_start_contact(const ${constraint_space} ContactConstraint* c, __private ContactBodies* p)
 {
     uint count = c->point_count;
     float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
@@ -529,7 +533,7 @@ void warm_start_contact(const __private ContactConstraint* c, __private ContactB
 /* Solve all rows of one constraint, updating its impulses and its bodies'
  * velocities in *p; `releases`: the block solve may release points (see
  * solve_normal_block; normal_solve block only). */
-void solve_contact(__private ContactConstraint* c, __private ContactBodies* p,
+void solve_contact(${constraint_space} ContactConstraint* c, __private ContactBodies* p,
                    const float relaxation, const bool reverse, const bool releases)
 {
     uint count = c->point_count;
@@ -611,7 +615,7 @@ void solve_contact(__private ContactConstraint* c, __private ContactBodies* p,
 
 /* Normal rows of one constraint on its bodies' push velocities in *p (split
  * impulse); `releases` as in solve_contact. */
-void solve_push(__private ContactConstraint* c, __private ContactBodies* p, const float relaxation,
+void solve_push(${constraint_space} ContactConstraint* c, __private ContactBodies* p, const float relaxation,
                 const bool releases)
 {
     uint count = c->point_count;

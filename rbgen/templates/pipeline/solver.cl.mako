@@ -120,7 +120,14 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
     shared = "volatile __global" if grid else "__global"
 %>\
 
-<%include file="/pipeline/contact_rows.cl.mako"/>
+<%
+    # The CPU shape solves each constraint in place: a private copy (the GPU
+    # shape's way to issue every load at once) is a 352-byte memcpy a visit on
+    # PoCL, whose fields are then read back through failed store forwarding
+    # (PoCL BoxBox 8,000: the copy and those reads were ~10% of the solve).
+    constraint_space = "__global" if shape == "cpu" else "__private"
+%>\
+<%include file="/pipeline/contact_rows.cl.mako" args="constraint_space=constraint_space"/>
 
 inline void load_bodies(__private ContactBodies* p, ${shared} const Body* bodies,
                         __global const BodyInertia* inertia, uint a, uint b)
@@ -235,10 +242,15 @@ inline void store_resident(const __private ContactBodies* p, __local float* velo
 %>\
 <%def name="visit(solves)">\
 {
+% if shape == "cpu":
+                /* in place (see constraint_space) */
+                __global ContactConstraint* c = &constraints[order[i]];
+% else:
                 /* a private copy: every load is issued at once, none is repeated */
                 const uint index = order[i];
                 ContactConstraint constraint = constraints[index];
                 __private ContactConstraint* c = &constraint;
+% endif
                 uint a = c->body_a, b = c->body_b;
 % for k, (name, when, action, source, results) in enumerate(solves):
 % if k == 0:
@@ -264,7 +276,7 @@ inline void store_resident(const __private ContactBodies* p, __local float* velo
 % for guard, name, action, source, results in guarded:
                 ${guard}{
                     store_${source}(&${name}, ${memory[source]}, a, b);
-% for field in results:
+% for field in (results if shape == "gpu" else ()):
                     constraints[index].${field} = c->${field};
 % endfor
                 }
