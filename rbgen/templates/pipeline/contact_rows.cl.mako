@@ -502,7 +502,9 @@ inline void reverse4(float a[4])
 }
 
 /* Apply last step's accumulated impulses of one constraint (warm start) to
- * its bodies' velocities in *p. */
+ * its bodies' velocities in *p: their sum and its moment about each body's
+ * centre first, then one velocity change a body (one inverse-inertia product
+ * a body instead of one a point and row). */
 void warm_start_contact(const ${constraint_space} ContactConstraint* c, __private ContactBodies* p)
 {
     uint count = c->point_count;
@@ -511,23 +513,37 @@ void warm_start_contact(const ${constraint_space} ContactConstraint* c, __privat
     unpack4(c->normal_impulse, normal_impulse);
     unpack4(c->tangent1_impulse, tangent1_impulse);
     unpack4(c->tangent2_impulse, tangent2_impulse);
+    float3 impulse = (float3)(0.0f), moment_a = (float3)(0.0f), moment_b = (float3)(0.0f);
 % if friction == "point":
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-        float3 impulse = n * normal_impulse[k] + t1 * tangent1_impulse[k]
-                       + t2 * tangent2_impulse[k];
-        apply_impulse(impulse, c->r_a[k].xyz, c->r_b[k].xyz, p);
+        float3 point_impulse = n * normal_impulse[k] + t1 * tangent1_impulse[k]
+                             + t2 * tangent2_impulse[k];
+        impulse += point_impulse;
+        moment_a += cross3(c->r_a[k].xyz, point_impulse);
+        moment_b += cross3(c->r_b[k].xyz, point_impulse);
     }
 % else:
+    /* the normal impulses at their points, the friction pair at their centre
+     * and the twist about n (tangent1 slot 1) */
     float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-        apply_impulse(n * normal_impulse[k], c->r_a[k].xyz, c->r_b[k].xyz, p);
+        float3 point_impulse = n * normal_impulse[k];
+        impulse += point_impulse;
+        moment_a += cross3(c->r_a[k].xyz, point_impulse);
+        moment_b += cross3(c->r_b[k].xyz, point_impulse);
         ra += c->r_a[k].xyz, rb += c->r_b[k].xyz;
     }
     float share = count > 0 ? 1.0f / (float)count : 0.0f;
-    apply_impulse(t1 * tangent1_impulse[0] + t2 * tangent2_impulse[0], ra * share, rb * share, p);
-    Row twist = twist_row(n, p);
-    apply_row(&twist, tangent1_impulse[1], p);
+    float3 friction = t1 * tangent1_impulse[0] + t2 * tangent2_impulse[0];
+    float3 twist = n * tangent1_impulse[1];
+    impulse += friction;
+    moment_a += cross3(ra * share, friction) + twist;
+    moment_b += cross3(rb * share, friction) + twist;
 % endif
+    p->va -= impulse * p->inv_mass_a;
+    p->wa -= mul_rows(p->inv_inertia_a, moment_a);
+    p->vb += impulse * p->inv_mass_b;
+    p->wb += mul_rows(p->inv_inertia_b, moment_b);
 }
 
 /* Solve all rows of one constraint, updating its impulses and its bodies'
