@@ -16,8 +16,12 @@ point by point, the impulses of the old point with the same feature id, else
 of the nearest old point within ``match_distance`` (the narrowphase's feature
 ids change when it swaps the reference face of a flat face-face contact,
 which happens all the time on stacked boxes). Constraint buffers and tables rotate in a
-ring of three, so nothing is copied back to the host and a step redone after
-an overflow still finds the generation it warm-started from.
+ring of four, so nothing is copied back to the host and a step redone after
+an overflow (the World redoes up to two) still finds the generation it
+warm-started from. The setup kernel also clears the table of the generation
+after its own (the oldest, which no redo needs), so that a step has no clearing
+launch of its own: a generation's table is empty whenever a call starts writing
+it (fresh, cleared by the call before, or cleared by `undo`).
 """
 from __future__ import annotations
 
@@ -34,8 +38,9 @@ FRICTION_MODELS = ("point", "manifold")
 
 PENETRATION_MODES = ("baumgarte", "split")
 
-#: constraint buffers kept in a ring (this step's, and two before it)
-GENERATIONS = 3
+#: constraint buffers kept in a ring: this step's, the two before it (a redo of up to two
+#: steps warm-starts from them) and the next one, whose table this step's setup clears
+GENERATIONS = 4
 
 TEMPLATE = KernelTemplate(
     "pipeline/constraints.cl.mako",
@@ -99,7 +104,8 @@ class ContactConstraints:
                                   warm_start=self.warm_start, friction=friction)
         program = compile_spec(runtime, self.spec)
         self.setup_kernel = runtime.bound(program.kernel("setup_contact_constraints"))
-        self.clear_kernel = runtime.bound(program.kernel("clear_pair_table"))
+        #: a stand-in for the next generation's table before that generation exists
+        self._no_table = cl_array.zeros(runtime.queue, 1, np.uint32)
         self.restitution_threshold = 0.5
         self.penetration_slop = 0.005
         self.penetration_recovery = 0.2
@@ -131,10 +137,19 @@ class ContactConstraints:
 
     def undo(self, calls: int = 1) -> None:
         """Forget the last ``calls`` calls (their steps are being redone): the generation
-        before them is again the one the next call warm-starts from."""
-        if not 0 <= calls < GENERATIONS:
-            raise RbgenError(f"can undo at most {GENERATIONS - 1} calls, asked {calls}")
+        before them is again the one the next call warm-starts from, and the table the
+        next call writes (an undone call's) is cleared."""
+        if not 0 <= calls < GENERATIONS - 1:
+            raise RbgenError(f"can undo at most {GENERATIONS - 2} calls, asked {calls}")
+        if calls == 0:
+            return
         self._current = (self._current - calls) % GENERATIONS
+        self._clear(self._generations[(self._current + 1) % GENERATIONS])
+
+    def _clear(self, gen: _Buffers | None) -> None:
+        """Empty one generation's table (a launch: only off the step's normal path)."""
+        if gen is not None:
+            gen.table.fill(np.uint32(layouts.SOLVER_NONE), queue=self.runtime.queue)
 
     def __call__(self, manifolds, manifold_count, bodies, inertia, capacity: int, dt: float):
         """Set up min(``manifold_count[0]``, ``capacity``) constraints (count: a device
@@ -147,13 +162,16 @@ class ContactConstraints:
         gen = self._generations[self._current]
         if gen is None or gen.capacity < capacity:
             gen = self._generations[self._current] = _Buffers(queue, capacity)
-        table_size = gen.mask + 1
-        self.clear_kernel.over(table_size, wg, gen.table, np.uint32(table_size))
+        following = self._generations[(self._current + 1) % GENERATIONS]
         if capacity == 0:
             self.count.fill(np.uint32(0), queue=queue)
+            self._clear(following)
             return None
+        # (the next call's table, cleared by this setup; a one-slot table without one)
+        next_table = self._no_table if following is None else following.table
         args = [manifolds, manifold_count, bodies, inertia, np.uint32(capacity),
-                gen.constraints, self.count, gen.table, np.uint32(gen.mask)]
+                gen.constraints, self.count, gen.table, np.uint32(gen.mask),
+                next_table, np.uint32(0 if following is None else following.mask + 1)]
         if self.warm_start:
             args += [gen.count, previous.constraints, previous.count, previous.table,
                      np.uint32(previous.mask),

@@ -324,3 +324,67 @@ def test_overflowing_manifold_count_is_clamped_to_capacity(runtime):
     rig.setup(d_manifolds, count, rig.bodies, rig.inertia, 5, 1 / 60)
     assert int(rig.setup.count.get()[0]) == 5
     assert sorted(rig.setup.constraints.get()["body_b"][:5]) == [1, 2, 3, 4, 5]
+
+
+def test_warm_start_follows_the_ring_through_shrinking_pair_sets_and_undo(runtime, rng):
+    """Every call warm-starts from the call before it (after ``undo(k)``: the call before
+    the k undone ones), pair by pair, and finds nothing for a pair that call lacked, even
+    when an older call that reused the same buffers had it (its table entry must be gone,
+    not found past the newer count). Calls with shrinking, reordered pair sets and undos
+    of one and two calls go round the ring of generations several times; each call's
+    warm-started impulses are compared with the final impulses of the call it follows."""
+    n_pairs = 24
+    positions = np.zeros((n_pairs + 1, 3))
+    positions[1:, 0] = np.arange(n_pairs) * 3.0
+    positions[1:, 1] = 0.5
+    bodies = make_bodies(positions, np.r_[0.0, np.ones(n_pairs)],
+                         velocities=np.r_[[[0, 0, 0]], np.tile([0, -2.0, 0], (n_pairs, 1))])
+    rig = ContactRig(runtime, bodies, np.r_[[[0, 0, 0]], np.ones((n_pairs, 3))])
+    corners = np.array([[.3, .5, .3], [-.3, .5, .3], [.3, .5, -.3], [-.3, .5, -.3]])
+    manifolds = layouts.CONTACT_MANIFOLD.zeros(n_pairs)
+    for i in range(n_pairs):
+        manifolds[i] = make_manifold(0, i + 1, [0, 1, 0], positions[i + 1] - corners,
+                                     [-0.01] * 4)
+
+    def call(pairs, speed):
+        """Set up and solve the manifolds of ``pairs`` (in that order), the boxes falling
+        at ``speed`` (a new one each call, so that each call's impulses differ): the
+        warm-started and the final impulses by body_b."""
+        bodies["linear_velocity"][1:, 1] = -speed
+        bodies["angular_velocity"] = 0.0
+        rig.bodies.set(bodies)
+        started = rig.constraints(manifolds[pairs])
+        cons = rig.setup.constraints
+        rig.batcher(cons, rig.setup.count, rig.bodies, rig.body_count, rig.capacity)
+        rig.solver.solve_velocities(cons, rig.batcher, rig.bodies, rig.inertia, rig.body_count,
+                                    iterations=3)
+        final = cons.get()[: len(pairs)]
+        impulses = lambda cs: {int(c["body_b"]): np.r_[c["normal_impulse"], c["tangent1_impulse"],
+                                                       c["tangent2_impulse"]] for c in cs}
+        return impulses(started), impulses(final)
+
+    history = []  # final impulses of the calls in effect, oldest first
+    everything = np.arange(n_pairs)
+    # (a redo with fewer pairs than the undone call it replaces, then all pairs again: an
+    # undone call's table entries must not survive into the redo's generation)
+    schedule = [everything, everything, everything, everything, everything[: n_pairs // 3],
+                rng.permutation(n_pairs), rng.permutation(n_pairs), "undo 2",
+                rng.permutation(n_pairs)[: n_pairs // 2], everything, "undo 1",
+                rng.permutation(n_pairs), everything[::2], rng.permutation(n_pairs), everything]
+    found = missing = 0
+    for number, entry in enumerate(schedule):
+        if isinstance(entry, str):
+            undone = int(entry.split()[1])
+            rig.setup.undo(undone)
+            del history[-undone:]
+            continue
+        started, final = call(entry, 1.0 + 0.25 * number)
+        before = history[-1] if history else {}
+        for body, impulses in started.items():
+            expected = before.get(body, np.zeros(12))
+            np.testing.assert_allclose(impulses, expected, rtol=1e-5, atol=1e-7,
+                                       err_msg=f"warm start of the pair (0, {body})")
+            found, missing = found + (body in before), missing + (body not in before)
+        history.append(final)
+        assert all(np.all(v[:4] > 0) for v in final.values())  # every call carries impulses
+    assert found > 100 and missing > 20  # both cases were exercised

@@ -55,15 +55,6 @@ inline void tangent_basis(float3 n, float3* t1, float3* t2)
     *t2 = cross3(n, *t1);
 }
 
-/* One work-item per warm-starting table slot: mark it empty. A work group is
- * responsible for ${work_group_size} consecutive slots. */
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void clear_pair_table(__global uint* table, const uint table_size)
-{
-    uint i = get_global_id(0);
-    if (i < table_size)
-        table[i] = RB_SOLVER_NONE;
-}
 % if warm_start:
 
 /* Index of the previous step's constraint of body pair (a, b), or
@@ -137,8 +128,9 @@ inline void insert_pair(__global uint* table, const uint mask, uint a, uint b, u
 }
 
 /* One work-item per manifold: build its constraint; work-item 0 also writes
- * the constraint count. A work group is responsible for ${work_group_size}
- * consecutive manifolds. */
+ * the constraint count, and every work-item empties its share of the next
+ * call's table (next_table_size slots; 0: none). A work group is responsible
+ * for ${work_group_size} consecutive manifolds. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void setup_contact_constraints(__global const ContactManifold* manifolds,
                                __global const uint* manifold_count,
@@ -149,6 +141,8 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
                                __global uint* constraint_count,
                                __global uint* table,
                                const uint table_mask,
+                               __global uint* next_table,
+                               const uint next_table_size,
 % if warm_start:
                                __global uint* kept_count,
                                __global const ContactConstraint* previous,
@@ -167,6 +161,9 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
      * (the World then grows the buffers and redoes the step) */
     uint i = get_global_id(0), count = manifold_count[0];
     count = count < capacity ? count : capacity;
+    /* the next call's table, emptied here rather than by a launch of its own */
+    for (uint slot = i; slot < next_table_size; slot += get_global_size(0))
+        next_table[slot] = RB_SOLVER_NONE;
     if (i == 0)
         constraint_count[0] = count;
 % if warm_start:
