@@ -7,7 +7,7 @@ median wall time (enqueue to completed status read), launches per query, the
 pairs found and the reference count from a numpy grid (``grid_pairs``), with
 ``ok`` when the device pair list equals the reference exactly.
 
-An algorithm may carry options: ``grid:emission=owner`` (the GPU default),
+An algorithm may carry options: ``grid:emission=slot`` (the default is owner),
 ``sap:shape=gpu``, ``sap3:full=sap``.
 
 sap3 is measured in steady state (the same boxes every query, as in a resting
