@@ -35,7 +35,7 @@ Two levels, after Harada's two-level solver:
      marks in local memory (``batching_single.cl.mako``: one launch), for a
      resident solve (`rbgen.pipeline.solver`) that keeps every velocity in
      local memory: one launch for the whole solve. A 1,000-box scene keeps
-     one compute unit busy, but its step is 15 launches instead of 117.
+     one compute unit busy, but its step is 14 launches instead of 116.
    * ``columns``: cells infinite along gravity (``column_axes``: two unit
      vectors spanning the horizontal plane), 4 colours of their parities: 5
      launches per sweep, and a stack stays whole in one group. For low piles

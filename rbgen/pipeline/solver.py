@@ -13,7 +13,7 @@ Two shapes (template parameter ``shape``, chosen by the device kind):
 Resident solve (``resident_bodies`` > 0, gpu shape, over ``single``
 batching): one work group keeps every body's velocity in local memory for the
 whole solve and sends them home once; a batch step then waits on no global
-velocity. A BoxBox step of 1,000 boxes is then 15 launches instead of 117 (the
+velocity. A BoxBox step of 1,000 boxes is then 14 launches instead of 116 (the
 README has the times).
 
 Grid solve (``grid``, gpu shape, over ``global`` batching, the NVIDIA
