@@ -76,26 +76,29 @@ class BoundKernel:
 
     def bind(self, *args) -> "BoundKernel":
         """Set every argument in order (only the changed ones reach the driver)."""
-        given = self._given
-        if len(args) != len(given):
-            raise TypeError(f"kernel {self.kernel.function_name} takes {len(given)} "
+        if len(args) != len(self._given):
+            raise TypeError(f"kernel {self.kernel.function_name} takes {len(self._given)} "
                             f"arguments, got {len(args)}")
-        for index, value in enumerate(args):
-            if value is not given[index]:
-                self.set(index, value)
-        return self
+        return self._bind_from(0, args)
 
     def bind_first(self, *args) -> "BoundKernel":
         """Set the first ``len(args)`` arguments (the rest stay as they are)."""
-        for index, value in enumerate(args):
-            self.set(index, value)
-        return self
+        return self._bind_from(0, args)
 
     def bind_last(self, *args) -> "BoundKernel":
         """Set the last ``len(args)`` arguments (the rest stay as they are)."""
-        first = len(self._values) - len(args)
-        for index, value in enumerate(args):
-            self.set(first + index, value)
+        return self._bind_from(len(self._values) - len(args), args)
+
+    def _bind_from(self, first: int, args) -> "BoundKernel":
+        """`set` arguments first, first + 1, ... to ``args``, skipping the call for the
+        object last passed and for a scalar made afresh with the same value (what `set`
+        would find itself; a step passes dozens of those)."""
+        given = self._given
+        for index, value in enumerate(args, first):
+            old = given[index]
+            if value is not old and not (type(value) is type(old) and type(value) in _SCALARS
+                                         and value == old):
+                self.set(index, value)
         return self
 
     def forget(self) -> None:
@@ -118,6 +121,10 @@ class BoundKernel:
         if args:
             self.bind(*args)
         return self.launch(max(1, -(-int(count) // local_size)) * local_size, local_size)
+
+
+#: the numpy scalar types `bind` compares by value inline (those the launchers pass)
+_SCALARS = frozenset((np.uint32, np.int32, np.float32, np.uint64, np.int64))
 
 
 class _Unset:

@@ -265,6 +265,9 @@ class World:
         #: the step report on the device (REPORT_*; word REPORT_NEEDED is the
         #: narrowphase's overflow word)
         self._report = cla.zeros(rt.queue, REPORT_WORDS, np.uint32)
+        #: its narrowphase overflow word, as the view the narrowphase writes (made once: a
+        #: pyopencl slice is a new Array, ~10 us of host time a step)
+        self._report_needed = self._report[REPORT_NEEDED:REPORT_NEEDED + 1]
         self.last_step_counters = {"launches": 0, "blocking_reads": 0}
         self.steps = 0
         #: steps redone because a buffer overflowed (each grew the buffer)
@@ -572,7 +575,7 @@ class World:
         self._broadphase.enqueue(self._aabbs, self._static, read_status=False)  # (the report)
         self._narrowphase.enqueue(self._bodies, self._packed, self._broadphase.pairs,
                                   self._broadphase.count, self._manifolds, self._manifold_count,
-                                  self._report[REPORT_NEEDED:REPORT_NEEDED + 1], margin)
+                                  self._report_needed, margin)
         capacity = self._manifold_capacity
         self._constraints(self._manifolds, self._manifold_count, self._bodies, self._inertia,
                           capacity, h)

@@ -106,6 +106,32 @@ def test_only_changed_arguments_are_set(runtime, program, rng):
         bk.bind(x, y)
 
 
+def test_partial_binds_skip_unchanged_arguments_too(runtime, program):
+    """bind_first / bind_last reach the driver only for changed arguments, and the
+    values they skip are still those the driver holds (a later full bind agrees)."""
+    queue = runtime.queue
+    bk = BoundKernel(runtime, program.axpy)
+    counting = _Counting(bk)
+    bk.kernel = counting.proxy
+    x, y = (cla.zeros(queue, 8, np.float32) for _ in range(2))
+    shift = np.zeros(4, np.float32)
+    bk.bind_first(x, y, np.float32(1))
+    bk.bind_last(np.uint32(8), shift)
+    assert sorted(counting.calls) == [0, 1, 2, 3, 4]
+    counting.calls.clear()
+    bk.bind_first(x, y, np.float32(1))  # a fresh scalar of the same value
+    bk.bind_last(np.uint32(8), shift.copy())
+    assert counting.calls == []
+    bk.bind_last(np.uint32(7), shift)
+    assert counting.calls == [3]
+    counting.calls.clear()
+    bk.bind_first(x, y, np.int32(1))  # another type (4 bytes all the same): set
+    assert counting.calls == [2]
+    counting.calls.clear()
+    bk.bind(x, y, np.int32(1), np.uint32(7), shift)
+    assert counting.calls == []
+
+
 def test_one_cache_per_kernel_object(runtime, program):
     """Two owners of one kernel object share its cache; an `instance` has its own."""
     kernel = program.axpy
