@@ -255,6 +255,26 @@ def test_slow_speculative_contact_only_closes_the_gap(runtime):
     assert c["velocity_target"][0] == pytest.approx(-0.1 * 60, rel=1e-5)
 
 
+def boxes_on_ground(n_pairs, features=None):
+    """A static ground (body 0) and n_pairs unit-mass boxes in a row, 3 m apart, falling at
+    2 m/s, each touching the ground at its four lower corners (1 cm deep): the bodies,
+    the inverse inertias and one manifold a box (features: the four ids of each, else
+    0..3)."""
+    positions = np.zeros((n_pairs + 1, 3))
+    positions[1:, 0] = np.arange(n_pairs) * 3.0
+    positions[1:, 1] = 0.5
+    bodies = make_bodies(positions, np.r_[0.0, np.ones(n_pairs)],
+                         velocities=np.r_[[[0, 0, 0]], np.tile([0, -2.0, 0], (n_pairs, 1))])
+    inv_inertia = np.r_[[[0, 0, 0]], np.ones((n_pairs, 3))]
+    corners = np.array([[.3, .5, .3], [-.3, .5, .3], [.3, .5, -.3], [-.3, .5, -.3]])
+    manifolds = layouts.CONTACT_MANIFOLD.zeros(n_pairs)
+    for i in range(n_pairs):
+        manifolds[i] = make_manifold(0, i + 1, [0, 1, 0], positions[i + 1] - corners,
+                                     [-0.01] * 4,
+                                     features=None if features is None else features[i])
+    return bodies, inv_inertia, manifolds
+
+
 @pytest.mark.parametrize("warm_start", [True, False])
 @pytest.mark.parametrize("reorder", [True, False])
 def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start, reorder):
@@ -265,19 +285,9 @@ def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start, reorder):
     too, as the next colouring's inherited colour; none without warm starting or after a
     reset."""
     n_pairs = 37
-    positions = np.zeros((n_pairs + 1, 3))
-    positions[1:, 0] = np.arange(n_pairs) * 3.0
-    positions[1:, 1] = 0.5
-    bodies = make_bodies(positions, np.r_[0.0, np.ones(n_pairs)],
-                         velocities=np.r_[[[0, 0, 0]], np.tile([0, -2.0, 0], (n_pairs, 1))])
-    inv_inertia = np.r_[[[0, 0, 0]], np.ones((n_pairs, 3))]
-    rig = ContactRig(runtime, bodies, inv_inertia, warm_start=warm_start)
     features = [rng.permutation(50)[:4] for _ in range(n_pairs)]
-    corners = np.array([[.3, .5, .3], [-.3, .5, .3], [.3, .5, -.3], [-.3, .5, -.3]])
-    manifolds = layouts.CONTACT_MANIFOLD.zeros(n_pairs)
-    for i in range(n_pairs):
-        manifolds[i] = make_manifold(0, i + 1, [0, 1, 0], positions[i + 1] - corners, [-0.01] * 4,
-                                     features=features[i])
+    bodies, inv_inertia, manifolds = boxes_on_ground(n_pairs, features)
+    rig = ContactRig(runtime, bodies, inv_inertia, warm_start=warm_start)
     order = rng.permutation(n_pairs)
     _, first = rig.solve(manifolds[order], iterations=5)
     first_by_body = {int(c["body_b"]): c for c in first}
@@ -334,17 +344,8 @@ def test_warm_start_follows_the_ring_through_shrinking_pair_sets_and_undo(runtim
     of one and two calls go round the ring of generations several times; each call's
     warm-started impulses are compared with the final impulses of the call it follows."""
     n_pairs = 24
-    positions = np.zeros((n_pairs + 1, 3))
-    positions[1:, 0] = np.arange(n_pairs) * 3.0
-    positions[1:, 1] = 0.5
-    bodies = make_bodies(positions, np.r_[0.0, np.ones(n_pairs)],
-                         velocities=np.r_[[[0, 0, 0]], np.tile([0, -2.0, 0], (n_pairs, 1))])
-    rig = ContactRig(runtime, bodies, np.r_[[[0, 0, 0]], np.ones((n_pairs, 3))])
-    corners = np.array([[.3, .5, .3], [-.3, .5, .3], [.3, .5, -.3], [-.3, .5, -.3]])
-    manifolds = layouts.CONTACT_MANIFOLD.zeros(n_pairs)
-    for i in range(n_pairs):
-        manifolds[i] = make_manifold(0, i + 1, [0, 1, 0], positions[i + 1] - corners,
-                                     [-0.01] * 4)
+    bodies, inv_inertia, manifolds = boxes_on_ground(n_pairs)
+    rig = ContactRig(runtime, bodies, inv_inertia)
 
     def call(pairs, speed):
         """Set up and solve the manifolds of ``pairs`` (in that order), the boxes falling
