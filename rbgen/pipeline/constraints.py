@@ -167,7 +167,8 @@ class ContactConstraints:
             self.count.fill(np.uint32(0), queue=queue)
             self._clear(following)
             return None
-        # (the next call's table, cleared by this setup; a one-slot table without one)
+        # (the next call's table, which this setup clears; before that generation exists,
+        # a one-word stand-in and a size of 0: nothing to clear)
         next_table = self._no_table if following is None else following.table
         args = [manifolds, manifold_count, bodies, inertia, np.uint32(capacity),
                 gen.constraints, self.count, gen.table, np.uint32(gen.mask),

@@ -20,11 +20,6 @@ inline void load_inertia(__global const BodyInertia* inertia, uint body, float3 
         rows[r] = inertia[body].inv_inertia_world[r].xyz;
 }
 
-inline float3 relative_velocity(float3 ra, float3 rb, float3 va, float3 wa, float3 vb, float3 wb)
-{
-    return vb + cross3(wb, rb) - va - cross3(wa, ra);
-}
-
 % if normal_solve == "block":
 /* a released point counts as approaching beyond its target, and a pushing
  * point's target as missed, above this fraction of the largest right-hand side
@@ -350,15 +345,6 @@ typedef struct {
     float3 inv_inertia_a[3], inv_inertia_b[3];
     float3 va, wa, vb, wb;
 } ContactBodies;
-
-/* Impulse p at lever arms ra (on A, as -p) and rb (on B, as +p). */
-inline void apply_impulse(float3 p, float3 ra, float3 rb, __private ContactBodies* q)
-{
-    q->va -= p * q->inv_mass_a;
-    q->wa -= mul_rows(q->inv_inertia_a, cross3(ra, p));
-    q->vb += p * q->inv_mass_b;
-    q->wb += mul_rows(q->inv_inertia_b, cross3(rb, p));
-}
 
 /* One row: impulse along `direction` at lever arms ra, rb (or a pure torque
  * about `direction` when `linear` is 0). arm_*: lever arm x direction;
