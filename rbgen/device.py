@@ -25,6 +25,9 @@ import pyopencl as cl
 from .errors import DeviceNotFoundError
 
 ENV_DEVICE = "RBGEN_DEVICE"
+#: the extension of 64-bit integer atomics (the chained scan's tile flags, the summed
+#: warm start's per-body sums)
+INT64_ATOMICS = "cl_khr_int64_base_atomics"
 
 #: Wavefront (lock-step SIMD group) widths by vendor. We never rely on
 #: lock-step execution for correctness; the width sizes tiles and sub-scans.
@@ -251,6 +254,11 @@ class Runtime:
         return cl.enqueue_nd_range_kernel(self.queue, kernel, (int(global_size),),
                                           None if local_size is None else (int(local_size),),
                                           wait_for=wait_for)
+
+    def has_extension(self, name: str) -> bool:
+        """Whether the device lists the OpenCL extension ``name`` (a whole token of its
+        extension string)."""
+        return name in self.device.extensions.split()
 
     def read(self, device_array, host_array=None):
         """Blocking read of a device buffer or pyopencl array, counted."""

@@ -304,6 +304,11 @@ GRID_ABANDONED = constant("RB_GRID_ABANDONED", 3,
                           "grid barrier: nonzero once a group gave up (reset by the host)")
 GRID_SYNC_WORDS = constant("RB_GRID_SYNC_WORDS", 4, "grid barrier: words of its state")
 
+#: int64 words of a body's summed warm start (solver.cl.mako): its linear and angular
+#: velocity change in fixed point
+WARM_SUM_WORDS = constant("RB_WARM_SUM_WORDS", 6,
+                          "summed warm start: int64 words a body (linear, angular velocity change)")
+
 CONTACT_CONSTRAINT = declare("ContactConstraint", [
     ("normal", "float4", "unit normal from A to B (world); w: friction coefficient"),
     ("tangent1", "float4", "first friction direction, unit, orthogonal to normal"),

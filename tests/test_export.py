@@ -10,6 +10,7 @@ import pytest
 
 from rbgen import layouts
 from rbgen.cli import main
+from rbgen.device import INT64_ATOMICS
 from rbgen.errors import RbgenError
 from rbgen.export import default_specs, export_kernels
 from rbgen.pipeline.integrate import Integrator
@@ -160,7 +161,7 @@ def test_exported_world_specialisations_build_standalone(runtime, tmp_path):
     at = names.index("relaxation")
     assert names[at - 3:at] == ["sync", "warm_sums", "body_count"]
     assert next(a for a in solve["args"] if a["name"] == "warm_sums")["role"] == "inout"
-    if "cl_khr_int64_base_atomics" in runtime.device.extensions:
+    if runtime.has_extension(INT64_ATOMICS):
         program = cl.Program(runtime.context,
                              (tmp_path / "solver" / entry["file"]).read_text()).build()
         assert program.solve_groups.num_args == len(solve["args"])

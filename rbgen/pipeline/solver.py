@@ -90,7 +90,7 @@ import pyopencl.array as cl_array
 
 from .. import layouts
 from ..codegen import compile_spec, KernelTemplate, Param, power_of_two, work_group_size_param
-from ..device import DeviceTraits, Runtime
+from ..device import INT64_ATOMICS, DeviceTraits, Runtime
 from ..errors import RbgenError
 from ..launch import instance
 from .batching import SINGLE_MAX_BODIES
@@ -102,8 +102,6 @@ FRICTION_MODELS = ("point", "manifold")
 NORMAL_SOLVES = ("block", "sequential")
 #: how the warm start reaches the velocities (see the template parameter "warm_start_mode")
 WARM_START_MODES = ("batched", "summed")
-#: the OpenCL extension the summed warm start's 64-bit atomic sums need
-INT64_ATOMICS = "cl_khr_int64_base_atomics"
 #: kernel shapes (see the template parameter "shape")
 SHAPES = ("gpu", "cpu")
 #: the build options of a fast_math solver. The solver relies on no infinity or NaN (a
@@ -242,19 +240,10 @@ APPLY_WORK_GROUP_SIZE = 64
 WARM_START_PASS, FIRST_REVERSED = 1, 2
 
 
-#: int64 words of a body's warm-start sums (linear and angular velocity change)
-WARM_SUM_WORDS = 6
-
-
-def has_int64_atomics(runtime: Runtime) -> bool:
-    """Whether the device offers 64-bit integer atomics (the summed warm start's sums)."""
-    return INT64_ATOMICS in runtime.device.extensions
-
-
 def default_warm_start_mode(runtime: Runtime, grid: bool) -> str:
     """summed for a grid solve on a device with 64-bit atomics (two phases instead of a
     batch step per colour), else batched."""
-    return "summed" if grid and has_int64_atomics(runtime) else "batched"
+    return "summed" if grid and runtime.has_extension(INT64_ATOMICS) else "batched"
 
 
 def check_release_sweeps(release_sweeps) -> None:
@@ -324,7 +313,7 @@ class ContactSolver(PushVelocities):
             raise RbgenError(f"normal_solve must be one of {NORMAL_SOLVES}, got {normal_solve!r}")
         if warm_start_mode is None:
             warm_start_mode = default_warm_start_mode(runtime, bool(grid))
-        elif warm_start_mode == "summed" and not has_int64_atomics(runtime):
+        elif warm_start_mode == "summed" and not runtime.has_extension(INT64_ATOMICS):
             raise RbgenError(f"warm_start_mode='summed' needs the device extension "
                              f"{INT64_ATOMICS}, which {runtime.traits.device_name} lacks")
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, max_batches=int(max_batches),
@@ -423,7 +412,7 @@ class ContactSolver(PushVelocities):
         """The summed warm start's zeroed per-body sums (the kernel leaves them zero; a
         launch whose grid barrier gave up may leave some behind, and the World then
         stops using this grid solver)."""
-        words = WARM_SUM_WORDS * body_capacity
+        words = layouts.WARM_SUM_WORDS * body_capacity
         if self._warm_sums is None or len(self._warm_sums) < words:
             self._warm_sums = cl_array.zeros(self.runtime.queue, words, np.int64)
         return self._warm_sums

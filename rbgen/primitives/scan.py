@@ -26,7 +26,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from ..codegen import Param, power_of_two
-from ..device import DeviceTraits
+from ..device import INT64_ATOMICS, DeviceTraits
 from ..errors import RbgenError
 from ._base import (ceil_div, check_array, cl_type, clamp_wavefront, default_work_items,
                     device_check, Primitive, PrimitiveTemplate, resolve_count,
@@ -283,7 +283,7 @@ def check_chained_params(params: dict) -> None:
 
 
 #: the extension the chained scan's 64-bit tile words need
-CHAINED_EXTENSION = "cl_khr_int64_base_atomics"
+CHAINED_EXTENSION = INT64_ATOMICS
 
 
 def chained_scan_works(runtime, params: dict) -> bool:
@@ -295,7 +295,7 @@ def chained_scan_works(runtime, params: dict) -> bool:
 
 
 def _probe_chained(runtime, params: dict) -> tuple[bool, str]:
-    if CHAINED_EXTENSION not in runtime.device.extensions.split():
+    if not runtime.has_extension(CHAINED_EXTENSION):
         return False, f"no {CHAINED_EXTENSION}"
     tile = params["work_group_size"] * params["items_per_thread"]
     rng = np.random.default_rng(12345)

@@ -24,6 +24,7 @@ import numpy as np
 import pyopencl.array as cl_array
 import pytest
 
+from rbgen.device import INT64_ATOMICS
 from rbgen.errors import RbgenError
 from rbgen.pipeline.batching import ConstraintBatcher
 from rbgen.pipeline.gyroscopic import BodyPreparation, inertia_records
@@ -390,8 +391,7 @@ def test_summed_warm_start_needs_a_grid_solve_and_int64_atomics(runtime):
     it for a grid solve on a device with 64-bit atomics."""
     with pytest.raises(RbgenError, match="warm_start_mode='summed' needs grid=True"):
         ContactSolver(runtime, shape="gpu", warm_start_mode="summed")
-    expected = "summed" if "cl_khr_int64_base_atomics" in runtime.device.extensions \
-        else "batched"
+    expected = "summed" if runtime.has_extension(INT64_ATOMICS) else "batched"
     assert ContactSolver(runtime, shape="gpu", grid=True).spec.values["warm_start_mode"] \
         == expected
     assert ContactSolver(runtime, shape="gpu").spec.values["warm_start_mode"] == "batched"

@@ -106,7 +106,6 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
 #pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
 /* the summed warm start's fixed point: units of 2^-32 m/s (rad/s) */
 #define WARM_SUM_ONE 4294967296.0f
-#define WARM_SUM_WORDS 6
 % endif
 
 <%include file="/common/inline_math.cl.mako"/>
@@ -461,19 +460,19 @@ void solve_groups(__global ContactConstraint* constraints,
             state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
             warm_start_contact(c, &state);
             if (state.inv_mass_a > 0.0f)
-                add_warm_sum(warm_sums + WARM_SUM_WORDS * a, state.va, state.wa);
+                add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * a, state.va, state.wa);
             if (state.inv_mass_b > 0.0f)
-                add_warm_sum(warm_sums + WARM_SUM_WORDS * b, state.vb, state.wb);
+                add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * b, state.vb, state.wb);
         }
         ${batch_barrier}
         /* 2. every body takes its sum, and clears it for the next step */
         for (uint body = lane; grid_ok && body < body_count; body += ${lanes}) {
-            volatile __global long* sums = warm_sums + WARM_SUM_WORDS * body;
+            volatile __global long* sums = warm_sums + RB_WARM_SUM_WORDS * body;
             if (bodies[body].inv_mass > 0.0f) {
                 float3 linear = warm_sum_vector(sums), angular = warm_sum_vector(sums + 3);
                 bodies[body].linear_velocity = (float4)(bodies[body].linear_velocity.xyz + linear, 0.0f);
                 bodies[body].angular_velocity = (float4)(bodies[body].angular_velocity.xyz + angular, 0.0f);
-                for (uint k = 0; k < WARM_SUM_WORDS; ++k)
+                for (uint k = 0; k < RB_WARM_SUM_WORDS; ++k)
                     sums[k] = 0;
             }
         }
