@@ -48,7 +48,8 @@ def main(argv=None) -> int:
                         help="successive over-relaxation of every row (World setting)")
     parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"],
                         help="a manifold's normal rows as one block or one by one (default: "
-                             "block with cells batching, else one by one)")
+                             "the World's: one by one for the cpu shape with components, "
+                             "columns or slabs batching, else block)")
     parser.add_argument("--release-sweeps", type=int, default=None,
                         help="PGS with the block solve: the last N velocity (and position) "
                              "sweeps may release points, the earlier ones take the block's "
@@ -73,8 +74,9 @@ def main(argv=None) -> int:
             print(f"device: {s['device']}; {args.scene}, {args.steps} steps after {args.warmup} "
                   f"warm-up, dt 1/60, {args.iterations} iterations, "
                   f"{args.position_iterations} position iterations, relaxation "
-                  f"{args.relaxation}, solver {args.solver}, release sweeps "
-                  f"{'every' if s['release_sweeps'] is None else s['release_sweeps']}")
+                  f"{args.relaxation}, solver {args.solver}, normal solve {s['normal_solve']}"
+                  + (f", release sweeps {'every' if s['release_sweeps'] is None else s['release_sweeps']}"
+                     if s["normal_solve"] == "block" else ""))
             print(f"{'boxes':>8} {'ms/step':>9} {'mean':>6} {'launch':>7} {'reads':>6} {'pairs':>9} "
                   f"{'manifolds':>10} {'points':>9} {'batches':>8} {'batching':>10} | sanity")
         print(f"{s['bodies']:>8,} {s['ms_per_step']:>9.2f} {s['ms_per_step_mean']:>6.2f} "

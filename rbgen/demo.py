@@ -88,7 +88,8 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
     The summary: device, bodies, steps, ms_per_step (the median of the ms/step of
     `TIMING_BLOCKS` blocks of steps; ms_per_step_mean: the mean of all), launches and
     blocking_reads per step (of the last step), pairs / manifolds / contacts / batches of the last
-    step, overflows (redone steps), and sanity: nans, sunk (boxes whose
+    step, the batching, solver and normal solve it used with the release sweeps (0 for a
+    sequential normal solve, None: every sweep), overflows (redone steps), and sanity: nans, sunk (boxes whose
     centre is more than 2 cm below its resting height), max_speed (m/s), and
     last_box_moved (m; the top box of a pyramid).
     """
@@ -129,7 +130,9 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
         "pairs": stats["pairs"], "manifolds": stats["manifolds"], "contacts": stats["contacts"],
         "batches": stats["batches"], "groups_used": stats["groups_used"],
         "batching": stats["batching"], "solver": stats["solver"],
-        "release_sweeps": world.release_sweeps,
+        "normal_solve": stats["normal_solve"],
+        # (only a block normal solve releases points; a sequential one has no release sweeps)
+        "release_sweeps": world.release_sweeps if stats["normal_solve"] == "block" else 0,
         "overflows": world.overflows,
         "nans": int(np.isnan(positions).any(axis=1).sum()),
         "sunk": int((positions[:, 1] < ground_top + half - 0.02).sum()),

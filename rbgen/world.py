@@ -261,7 +261,7 @@ class World:
         #: enqueued steps whose overflow status is not checked yet (oldest first)
         self._in_flight: list[_InFlight] = []
         self._serial = 0                # steps enqueued, picks the backup slot
-        self._status_pinned: dict = {}  # slot -> (pinned buffer, mapped uint32 words)
+        self._report_pinned: dict = {}  # slot -> (pinned buffer, mapped uint32 words)
         #: the step report on the device (REPORT_*; word REPORT_NEEDED is the
         #: narrowphase's overflow word)
         self._report = cla.zeros(rt.queue, REPORT_WORDS, np.uint32)
@@ -640,13 +640,13 @@ class World:
 
     # ------------------------------------------------------------- statistics
     def statistics(self) -> dict:
-        """Counts of the last step and the batching mode it used (blocking reads: call
-        outside the timed loop)."""
+        """Counts of the last step, the batching mode and the normal solve it used (blocking
+        reads: call outside the timed loop)."""
         self._finish_pending()
         if self._device_stale or self.body_count == 0:
             return {"bodies": self.body_count, "pairs": 0, "manifolds": 0, "contacts": 0,
                     "batches": 0, "groups_used": 0, "batching": self._batching,
-                    "solver": self.solver, **self.last_step_counters}
+                    "solver": self.solver, "normal_solve": None, **self.last_step_counters}
         read = self.runtime.read
         pairs = int(read(self._broadphase.count)[0])
         manifolds = int(read(self._constraints.count)[0])
@@ -657,7 +657,8 @@ class World:
                 "contacts": int(points.sum()), "batches": int(batch_counts.max(initial=0)),
                 "groups_used": int((batch_counts > 0).sum()),
                 "batching": self._batcher.mode if self._batcher is not None else None,
-                "solver": self.solver, **self.last_step_counters}
+                "solver": self.solver, "normal_solve": self._solver.spec.values["normal_solve"],
+                **self.last_step_counters}
 
 
 class _InFlight:
@@ -667,8 +668,8 @@ class _InFlight:
     memory, and deleting one waits for its copy (dropping it at once drained the whole
     queue every step)."""
 
-    def __init__(self, h, slot, host, events):
-        self.h, self.slot, self.host, self.events = h, slot, host, events
+    def __init__(self, h, slot, host, copied):
+        self.h, self.slot, self.host, self.copied = h, slot, host, copied
 
     @classmethod
     def start(cls, world: "World", h: float, slot: int) -> "_InFlight":
@@ -683,21 +684,20 @@ class _InFlight:
         if grid is not None:
             cl.enqueue_copy(queue, report.data, grid.data, byte_count=4,
                             src_offset=ABANDONED_OFFSET, dst_offset=4 * REPORT_ABANDONED)
-        pinned = world._status_pinned.get(slot)
+        pinned = world._report_pinned.get(slot)
         if pinned is None:
             buffer = cl.Buffer(world.runtime.context, cl.mem_flags.ALLOC_HOST_PTR,
                                4 * REPORT_WORDS)
             host, _ = cl.enqueue_map_buffer(queue, buffer, cl.map_flags.READ | cl.map_flags.WRITE,
                                             0, (REPORT_WORDS,), np.uint32)
-            pinned = world._status_pinned[slot] = (buffer, host)
+            pinned = world._report_pinned[slot] = (buffer, host)
         host = pinned[1]
-        events = [cl.enqueue_copy(queue, host, report.data, is_blocking=False)]
-        return cls(h, slot, host, events)
+        return cls(h, slot, host, cl.enqueue_copy(queue, host, report.data, is_blocking=False))
 
     def problem(self, world: "World"):
         """None when the step was complete, else (pairs found, manifolds needed, whether a
         grid launch gave up)."""
-        cl.wait_for_events(self.events)
+        self.copied.wait()
         status = self.host[REPORT_BROADPHASE:REPORT_ABANDONED].view(
             layouts.BROADPHASE_STATUS.dtype)[0]
         pairs_found = int(status["pairs_found"])

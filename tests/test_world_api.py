@@ -171,3 +171,19 @@ def test_release_sweeps_is_checked_and_reaches_the_solve(runtime):
     world.release_sweeps = -3
     with pytest.raises(RbgenError, match="release_sweeps"):
         world.step(1 / 60)
+
+
+def test_statistics_report_the_normal_solve_used(runtime):
+    """statistics()["normal_solve"] is the normal solve the step ran: block under cells
+    batching on any device, and with the automatic batching sequential for the cpu shape's
+    slabs but block for the gpu shape (see rbgen.world._default_normal_solve); None before
+    any step."""
+    def used(**options):
+        world = World(runtime, **options)
+        world.add_static(rbgen.Box((20, 1, 20)), position=(0, -1, 0))
+        world.add_bodies(BOX, positions=grid(8) + [0, 0.01, 0])
+        before = world.statistics()["normal_solve"]
+        world.step(1 / 60)
+        return before, world.statistics()["normal_solve"]
+    assert used(batching="cells") == (None, "block")
+    assert used()[1] == ("sequential" if runtime.traits.kind == "cpu" else "block")
