@@ -83,8 +83,9 @@ def test_tipped_column_stops_rocking(batching):
 @pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
 def test_tipped_column_sway_stays_bounded_with_position_correction(batching):
     """With the default split-impulse position sweeps the same column may keep swaying:
-    an open defect (issue #6). The pushes that lift an interface's deeper edge raise the
-    column without taking the speed that sank it, so they feed energy into the sway
+    a known defect, not fixed (reported with issue #6 for later work). The pushes that
+    lift an interface's deeper edge raise the column without taking the speed that sank
+    it, so they feed energy into the sway
     (measured on PoCL, components, exact block solve: the column's total energy rises by
     ~35 mJ per 20 steps between landings, against a steady loss of 1-8 mJ without pushes),
     and with 10 velocity iterations it can settle into a sway of the top at ~0.27 m/s

@@ -69,8 +69,9 @@ def test_dropped_grid_comes_to_rest(runtime, batching, fast_math):
     """A fixed jitter (seed 1). Measured over seeds 0-7 on PoCL (max speed at step 300):
     components and slabs 0.000 for all eight; cells (cpu shape, block solve) 0.088 and
     0.244 for seeds 0 and 6, 0.000 for the others: a box at a stack top can keep rocking
-    under the block solve there (open, issue #6), so this miniature is a regression
-    check of one scene, not proof that every jitter settles."""
+    under the block solve there (a known limit of that non-default mode, reported with
+    issue #6 for later work), so this miniature is a regression check of one scene, not
+    proof that every jitter settles."""
     world = World(runtime, batching=batching, fast_math=fast_math)
     ids = drop_grid(world)
     for _ in range(300):
