@@ -117,14 +117,14 @@ def test_automatic_batching_follows_the_body_count(runtime):
     the local memory, "cells" once bodies are added past it; on a CPU "slabs". The mode
     used is reported by statistics(), and a step in it solves falling boxes (they land at
     rest on the ground)."""
-    from rbgen.pipeline.grid import grid_validated
+    from rbgen.pipeline.device_barrier import persistent_launch_validated
     from rbgen.pipeline.solver import resident_capacity
     world = World(runtime)
     world.add_static(rbgen.Box((60, 1, 60)), position=(0, -1, 0))
     world.add_bodies(BOX, positions=grid(40) + [0, 0.2, 0])
     for _ in range(60):
         world.step(1 / 60)
-    gpu, grid_mode = runtime.traits.is_gpu, grid_validated(runtime.traits)
+    gpu, grid_mode = runtime.traits.is_gpu, persistent_launch_validated(runtime.traits)
     small = "global" if grid_mode else "single" if gpu else "slabs"
     assert world.statistics()["batching"] == small
     assert np.abs(world.linear_velocities).max() < 0.05  # landed and resting

@@ -132,7 +132,7 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
         "batching": stats["batching"], "solver": stats["solver"],
         "normal_solve": stats["normal_solve"],
         # (only a block normal solve releases points; a sequential one has no release sweeps)
-        "release_sweeps": world.release_sweeps if stats["normal_solve"] == "block" else 0,
+        "release_sweeps": world.release_sweeps, "plan": world.plan.describe(),
         "overflows": world.overflows,
         "nans": int(np.isnan(positions).any(axis=1).sum()),
         "sunk": int((positions[:, 1] < ground_top + half - 0.02).sum()),
