@@ -64,18 +64,15 @@ def build_scene(name: str, n: int, device=None, **world_options):
         ids = world.add_bodies(Box(scene.half_extents), mass=scene.mass, positions=scene.positions)
         return world, ids, float(scene.ground_offset), float(scene.half_extents[1])
     if name == "box_pile":
-        layers = min(PILE_LAYERS, int(n))
-        side = int(np.ceil(np.sqrt(n / layers)))
-        i, j, k = np.meshgrid(np.arange(side), np.arange(layers), np.arange(side), indexing="ij")
-        positions = np.stack([1.5 * i, 1.0 + 1.5 * j, 1.5 * k], -1).reshape(-1, 3)[:n]
-        positions = positions + np.random.default_rng(0).uniform(-0.01, 0.01, positions.shape)
+        positions = scene_data.pile_positions(int(n), PILE_LAYERS)
+        side = int(np.ceil(np.sqrt(n / min(PILE_LAYERS, int(n)))))
         extent = 1.5 * side / 2 + 10
-        world.add_static(Box((extent, 1, extent)), position=(1.5 * (side - 1) / 2, -1, 1.5 * (side - 1) / 2))
+        world.add_static(Box((extent, 1, extent)),
+                         position=(1.5 * (side - 1) / 2, -1, 1.5 * (side - 1) / 2))
         ids = world.add_bodies(Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
         return world, ids, 0.0, 0.5
     rows = int(n)
-    positions = np.array([[(i - (rows - r - 1) / 2) * 1.02, 0.5 + r, 0.0]
-                          for r in range(rows) for i in range(rows - r)])
+    positions = scene_data.pyramid_positions(rows)
     world.add_static(Box((rows + 10, 1, 10)), position=(0, -1, 0))
     ids = world.add_bodies(Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
     return world, ids, 0.0, 0.5

@@ -165,16 +165,20 @@ def derive_plan(traits: DeviceTraits, options: dict, shape_types=(), *,
         return default
 
     solver = options["solver"]
+    if solver == "jacobi" and options["batching"] is not None:
+        raise RbgenError(f"batching={options['batching']!r} needs solver='pgs': the Jacobi "
+                         f"solver colours nothing")
     sources["solver"] = "option" if solver != "pgs" else "default"
     reasons["solver"] = ("Gauss-Seidel over colours holds stacks at the default sweeps"
                          if solver == "pgs" else "set by the World's options")
     validated = persistent_launch_validated(traits) and not persistent_failed
     batching = solve_form = warm_start_mode = None
     if solver == "pgs":
+        capable = persistent_launch_validated(traits)
         batching = pick("batching", options["batching"],
-                        "global" if validated else ("cells" if traits.is_gpu else "slabs"),
+                        "global" if capable else ("cells" if traits.is_gpu else "slabs"),
                         "one colouring and one solver launch a step over every compute unit"
-                        if validated else
+                        if capable else
                         ("cells spread any pile over the device's compute units"
                          if traits.is_gpu else
                          "slabs keep stacks whole for a serial solve, over every core"),
@@ -214,9 +218,14 @@ def derive_plan(traits: DeviceTraits, options: dict, shape_types=(), *,
     fast_math = pick("fast_math", options["fast_math"], traits.is_gpu,
                      "a shorter dependent chain per lane on GPUs; exact arithmetic keeps CPU "
                      "results the reference")
-    release_sweeps = pick("release_sweeps", None, 2,
-                          "the last two sweeps remove the rows' point-order residual; the "
-                          "earlier ones are cheaper", tunable=True)
+    if solver == "pgs":
+        release_sweeps = pick("release_sweeps", None, 2,
+                              "the last two sweeps remove the rows' point-order residual; the "
+                              "earlier ones are cheaper", tunable=True)
+    else:
+        release_sweeps = None
+        sources["release_sweeps"] = "default"
+        reasons["release_sweeps"] = "the Jacobi solver solves the complete block every sweep"
     ordered_rounds = pick("ordered_rounds", None, ORDERED_ROUNDS,
                           "enough index-order rounds to reach the fewest colours over a few "
                           "steps", tunable=True)
