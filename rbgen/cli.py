@@ -137,8 +137,16 @@ def cmd_tune(args) -> int:
         print("the autotuner is not available in this build", file=sys.stderr)
         return 1
     from .device import Runtime
+    from .plan_tuning import tune_plan
 
-    tuning.tune_all(Runtime(args.device, profiling=True), progress=True, quick=args.quick)
+    runtime = Runtime(args.device, profiling=True)
+    if args.what in ("all", "primitives"):
+        tuning.tune_all(runtime, progress=True, quick=args.quick)
+    if args.what in ("all", "plan"):
+        print("tuning the plan (whole World steps of a standard scene)", file=sys.stderr)
+        entry = tune_plan(runtime, quick=args.quick,
+                          progress=lambda line: print(line, file=sys.stderr, flush=True))
+        print(f"plan: {entry['values']} ({entry['scene']})")
     return 0
 
 
@@ -242,9 +250,12 @@ def main(argv=None) -> int:
     p.add_argument("--iterations", type=int, default=None, help="velocity sweeps a step")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("tune", help="autotune every kernel family for a device")
+    p = sub.add_parser("tune", help="autotune the kernel families and the plan for a device")
     p.add_argument("--device", default=None)
     p.add_argument("--quick", action="store_true", help="fewer sizes and repeats")
+    p.add_argument("--what", default="all", choices=("all", "primitives", "plan"),
+                   help="the primitives' parameters, the plan's (batching, release sweeps, "
+                        "colouring rounds, group counts: whole World steps), or both")
     p.set_defaults(func=cmd_tune)
 
     p = sub.add_parser("export", help="write .cl kernels, manifest.json and the C header")

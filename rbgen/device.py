@@ -253,7 +253,7 @@ class Runtime:
         self.queue = cl.CommandQueue(self.context, self.device, properties=props)
         self.profiling = profiling
         #: launches and blocking reads issued through `launch` and `read`;
-        #: benchmarks report them per step (each costs ~15 us on NVIDIA).
+        #: benchmarks report them per step (on a GPU each costs as much as a small kernel).
         self.counters = {"launches": 0, "blocking_reads": 0}
         #: active spec logs (`rbgen.codegen.SpecLog`): every compile_spec adds to each
         self.spec_logs: list[dict] = []

@@ -19,8 +19,8 @@ host's clock at the block boundaries (in steady state the host is the same
 number of steps ahead at every boundary, so a block's time is the device's);
 ms/step is the median block's time per step, robust to a block that a
 neighbour on the machine slowed, and the mean of all is kept too. A
-``queue.finish()`` per block would cost each block a refill of the pipeline
-(~0.03 ms a step at 1,000 boxes on an H200). With ``progress`` a line after
+``queue.finish()`` per block would cost each block a refill of the pipeline,
+which small scenes on a GPU would show. With ``progress`` a line after
 each block reads the velocities back, which drains the queue; its time is
 left out of both blocks.
 Warm-up steps build and load the kernels.
