@@ -217,7 +217,7 @@ class BatchingStage(Stage):
 
     def __init__(self, runtime: Runtime, plan: Plan, constraints: ConstraintStage):
         options = {"ordered_rounds": plan.ordered_rounds} if plan.batching == "global" else \
-            {"group_count": plan.group_count}
+            {"group_count": plan.group_count, "solve_form": plan.solve_form}
         self.batcher = make_batcher(runtime, plan.batching, **options)
         self.constraints = constraints
 
