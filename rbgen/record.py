@@ -132,7 +132,7 @@ class Recorder:
         finally:
             _remove(self._temp)
 
-    def __enter__(self) -> "Recorder":
+    def __enter__(self):
         return self
 
     def __exit__(self, kind, value, tb) -> None:
@@ -145,7 +145,7 @@ class Recorder:
         if not getattr(self, "_closed", True):
             try:
                 self.abort()
-            except Exception:  # noqa: BLE001 - interpreter shutdown; best effort
+            except Exception:  # noqa: BLE001, S110 - interpreter shutdown; best effort
                 pass
 
 

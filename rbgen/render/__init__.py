@@ -25,7 +25,7 @@ from .camera import Camera, coerce_camera
 from .meshes import Mesh, mesh_for
 from .scene import Bodies, Frame, bodies_of, frame_of
 
-__all__ = ["Bodies", "Camera", "Frame", "Mesh", "Renderer", "bodies_of", "frame_of",
+__all__ = ["Bodies", "Camera", "Frame", "Mesh", "Renderer", "bodies_of", "coerce_camera", "frame_of",
            "mesh_for", "render_world"]
 
 

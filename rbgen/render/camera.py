@@ -79,7 +79,7 @@ class Camera:
     # ------------------------------------------------------------- framing
     @classmethod
     def fit(cls, lower, upper, direction=DEFAULT_DIRECTION, up=(0.0, 1.0, 0.0),
-            fov: float = 40.0, aspect: float = 16 / 9, margin: float = 1.05) -> "Camera":
+            fov: float = 40.0, aspect: float = 16 / 9, margin: float = 1.05) -> Camera:
         """A camera that sees the box [lower, upper] whole from ``direction``.
 
         The eye lies along ``direction`` (target to eye) from the box's centre, at the

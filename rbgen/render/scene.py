@@ -44,7 +44,7 @@ class Bodies:
         return len(self.shape_index)
 
     @classmethod
-    def make(cls, shapes, shape_index, static=None, colours=None) -> "Bodies":
+    def make(cls, shapes, shape_index, static=None, colours=None) -> Bodies:
         """Validated `Bodies`; colours default to `default_colours`."""
         shapes = tuple(shapes)
         for k, shape in enumerate(shapes):
@@ -84,7 +84,7 @@ class Frame:
     orientations: np.ndarray
 
     @classmethod
-    def make(cls, positions, orientations, count: int) -> "Frame":
+    def make(cls, positions, orientations, count: int) -> Frame:
         p = np.ascontiguousarray(positions, np.float32)
         q = np.ascontiguousarray(orientations, np.float32)
         if p.shape != (count, 3):
