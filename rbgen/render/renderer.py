@@ -20,7 +20,7 @@ from ..errors import RbgenError
 from ..shapes import Plane
 from .camera import Camera
 from .meshes import mesh_for
-from .scene import Bodies, Frame, scene_bounds
+from .scene import Bodies, Frame, rotate, scene_bounds
 
 #: background colour (sRGB, 0-1): a light sky grey that boxes of every palette colour stand out on
 BACKGROUND = (0.86, 0.89, 0.93)
@@ -187,7 +187,15 @@ class Renderer:
                 bodies.shape_index == k].all())):
             count = int(counts[k])
             if count:
-                entry = self._mesh(bodies.shapes[k], plane_size, plane_centre)
+                centre = plane_centre
+                if isinstance(bodies.shapes[k], Plane):
+                    # the square's centre in the plane body's frame (of its first body: a
+                    # World has one body per plane)
+                    first = order[starts[k]]
+                    q = frame.orientations[first].astype(float)
+                    conjugate = np.r_[-q[:3], q[3]]
+                    centre = rotate(conjugate, np.asarray(plane_centre) - frame.positions[first])
+                entry = self._mesh(bodies.shapes[k], plane_size, centre)
                 chunk = data[starts[k]:starts[k] + count]
                 if entry["instances"].size < chunk.nbytes:
                     entry["instances"].orphan(max(chunk.nbytes, 2 * entry["instances"].size))
@@ -259,7 +267,8 @@ def _light_matrix(light_dir, lower, upper, size):
     view = np.eye(4)
     view[0, :3], view[1, :3], view[2, :3] = right, up, back
     view[:3, 3] = -view[:3, :3] @ eye
-    near, far = radius * 0.5, radius * 3.5
+    # casters lie within the sphere about the bodies; receivers (a ground) may lie far beyond
+    near, far = radius * 0.5, radius * 12.0 + 100.0
     proj = np.diag([1 / radius, 1 / radius, -2 / (far - near), 1.0])
     proj[2, 3] = -(far + near) / (far - near)
     return proj @ view, 2 * radius / size
