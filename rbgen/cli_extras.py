@@ -33,7 +33,7 @@ def add_record_options(parser: argparse.ArgumentParser, demo: bool = False) -> N
     parser.add_argument("--record-every", type=int, default=None, metavar="K",
                         help=f"a frame every K steps (default {DEMO_EVERY if demo else 2})")
     parser.add_argument("--record-size", default=None, metavar="WxH",
-                        help="image size (default %dx%d)" % (DEMO_SIZE if demo else (640, 360)))
+                        help="image size (default {}x{})".format(*(DEMO_SIZE if demo else (640, 360))))
     parser.add_argument("--fps", type=float, default=None,
                         help="frames per second (default: real time, 60 / K)")
 

@@ -148,13 +148,13 @@ def test_thousands_of_bodies_render(renderer):
 
 
 @pytest.mark.parametrize("fields, named", [
-    (dict(eye=(float("nan"), 1, 1)), "eye"),
-    (dict(eye=(1, 2, 3), target=(1, 2, 3)), "view direction is zero"),
-    (dict(eye=(0, 5, 0), target=(0, 0, 0), up=(0, 1, 0)), "parallel"),
-    (dict(target=(0, float("inf"), 0)), "target"),
-    (dict(fov=0.0), "fov"),
-    (dict(fov=float("nan")), "fov"),
-    (dict(near=-1.0), "near"),
+    ({"eye": (float("nan"), 1, 1)}, "eye"),
+    ({"eye": (1, 2, 3), "target": (1, 2, 3)}, "view direction is zero"),
+    ({"eye": (0, 5, 0), "target": (0, 0, 0), "up": (0, 1, 0)}, "parallel"),
+    ({"target": (0, float("inf"), 0)}, "target"),
+    ({"fov": 0.0}, "fov"),
+    ({"fov": float("nan")}, "fov"),
+    ({"near": -1.0}, "near"),
 ])
 def test_bad_camera_is_refused_naming_the_field(fields, named):
     with pytest.raises(RbgenError, match=named):
