@@ -1,0 +1,115 @@
+"""What recording costs a simulation step: a recorder against a bare copy of the transforms.
+
+    python benchmarks/record_overhead.py [--device D] [--sizes 1000 8000] [--steps 300]
+                                         [--every 2 10] [--out benchmarks/results]
+
+For each BoxBox size and recording interval K, the same run (rbgen.demo.run_scene,
+``--steps`` timed steps after 10 warm-up steps) four ways:
+
+``none``         no hook: the plain ms/step;
+``copy``         every K steps one read of the transforms (World.positions and
+                 .orientations, which copy the body buffer to the host once) and
+                 nothing else: the baseline, the least any recording can cost;
+``usd``          every K steps a USD recorder captures the frame (kept in memory,
+                 written at the end);
+``mp4``          every K steps an MP4 recorder in a background process captures the
+                 frame (rendering and encoding off the simulation's thread).
+
+A recording keeps its promise when ``usd`` and ``mp4`` cost about what ``copy``
+costs (their ms/step minus ``none``'s, times K: ms per recorded frame). Writes
+JSON (rbgen.bench's form; each recorder's baseline is ``copy`` at the same K)
+and a Markdown table under ``--out``. ``mp4`` is left out, with the reason, where
+no headless OpenGL context can be made.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
+from rbgen import bench  # noqa: E402
+from rbgen.demo import run_scene  # noqa: E402
+from rbgen.record import Recorder, record_hook  # noqa: E402
+from rbgen.render.scene import frame_of  # noqa: E402
+
+WARMUP = 10
+
+
+def copy_hook(every: int):
+    def on_step(world, step):
+        if step % every == 0:
+            frame_of(world)
+    return on_step
+
+
+def measure(n, steps, device, on_step=None) -> dict:
+    return run_scene("boxbox", n, steps, device=device, progress=False, warmup=WARMUP,
+                     on_step=on_step)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", default=None)
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 8000])
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--every", type=int, nargs="+", default=[2, 10])
+    parser.add_argument("--out", default=str(bench.RESULTS_DIR))
+    args = parser.parse_args(argv)
+    try:
+        from rbgen.render.renderer import gl_context
+        gl = gl_context().info["GL_RENDERER"]
+        no_gl = None
+    except Exception as err:  # noqa: BLE001 - reported, mp4 left out
+        gl, no_gl = None, str(err)
+    print(f"BoxBox, {args.steps} steps after {WARMUP} warm-up; OpenGL: {gl or no_gl}")
+    results = []
+    with tempfile.TemporaryDirectory() as scratch:
+        for n in args.sizes:
+            none = measure(n, args.steps, args.device)
+            print(f"{n:>7,} boxes, no recording: {none['ms_per_step']:.3f} ms/step "
+                  f"({none['device']})", flush=True)
+            for every in args.every:
+                copy = measure(n, args.steps, args.device, copy_hook(every))
+                base = {"name": f"transform copy every {every}", "ms": copy["ms_per_step"],
+                        "ms_spread": _spread(copy)}
+                line = (f"  every {every:>3}: copy {copy['ms_per_step']:.3f} ms/step "
+                        f"(+{_per_frame(copy, none, every):.3f} ms a frame)")
+                for kind in ("usd", "mp4"):
+                    if kind == "mp4" and no_gl:
+                        continue
+                    recorder = Recorder(os.path.join(scratch, f"r.{kind}"),
+                                        background=kind == "mp4")
+                    run = measure(n, args.steps, args.device, record_hook([recorder], every))
+                    recorder.close()
+                    results.append({"name": f"boxbox {n} {kind} every {every}", "bodies": n,
+                                    "every": every, "recorder": kind,
+                                    "ms": run["ms_per_step"], "ms_spread": _spread(run),
+                                    "ms_no_recording": none["ms_per_step"],
+                                    "ms_per_frame": _per_frame(run, none, every),
+                                    "copy_ms_per_frame": _per_frame(copy, none, every),
+                                    "frames": recorder.frames, "baseline": base})
+                    line += (f"; {kind} {run['ms_per_step']:.3f} ms/step "
+                             f"(+{_per_frame(run, none, every):.3f} ms a frame)")
+                print(line, flush=True)
+    device = bench.device_record(args.device)
+    record = bench.make_record("benchmarks/record_overhead.py", results, device, {
+        "scene": "boxbox", "steps": args.steps, "warmup": WARMUP, "gl_renderer": gl,
+        "mp4_left_out": no_gl})
+    print(f"wrote {bench.write_results(record, args.out)}")
+    return 0
+
+
+def _spread(summary) -> list:
+    blocks = summary["ms_per_step_blocks"]
+    return [min(blocks), max(blocks)]
+
+
+def _per_frame(run, none, every) -> float:
+    return (run["ms_per_step"] - none["ms_per_step"]) * every
+
+
+if __name__ == "__main__":
+    sys.exit(main())
