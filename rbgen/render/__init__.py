@@ -37,15 +37,18 @@ def __getattr__(name):
     raise AttributeError(name)
 
 
-def render_world(world, path, camera=None, width: int = 960, height: int = 540):
+def render_world(world, path, camera=None, width: int = 960, height: int = 540,
+                 samples: int = 4):
     """Write a picture (PNG, or any `rbgen.record` format as one frame) of ``world`` now.
 
-    ``camera``: a `Camera`, a dict of its fields, or None to frame the dynamic bodies.
-    Reads the World's transforms once; writes ``path`` atomically (a temporary file
-    renamed), so a failure leaves no partial file. Returns the path written.
+    ``camera``: a `Camera`, a dict of its fields, or None to frame the dynamic bodies;
+    ``samples``: multisamples per pixel (a still can afford smooth edges). Reads the
+    World's transforms once; writes ``path`` atomically (a temporary file renamed), so a
+    failure leaves no partial file. Returns the path written.
     """
     from ..record import Recorder
 
-    with Recorder(path, camera=camera, width=width, height=height) as recorder:
+    with Recorder(path, camera=camera, width=width, height=height,
+                  samples=samples) as recorder:
         recorder.capture(world)
     return recorder.path

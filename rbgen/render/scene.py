@@ -68,9 +68,14 @@ class Bodies:
 def default_colours(static) -> np.ndarray:
     """Palette colours by body index (neighbours in a lattice differ), grey for static."""
     static = np.asarray(static, bool)
-    index = np.arange(len(static))
-    # a multiplicative hash of the index, so that rows and layers do not repeat a colour
-    picks = (index * 2654435761 >> 7) % len(PALETTE)
+    # a mixing hash of the index (murmur3's finaliser), so that rows, layers and
+    # diagonals of a lattice show no colour pattern
+    h = np.arange(len(static), dtype=np.uint64)
+    mask = np.uint64(0xFFFFFFFF)
+    h = (h ^ (h >> np.uint64(16))) * np.uint64(0x85EBCA6B) & mask
+    h = (h ^ (h >> np.uint64(13))) * np.uint64(0xC2B2AE35) & mask
+    h ^= h >> np.uint64(16)
+    picks = (h % np.uint64(len(PALETTE))).astype(np.int64)
     colours = PALETTE[picks].copy()
     colours[static] = STATIC_COLOUR
     return colours
