@@ -204,3 +204,39 @@ def test_frame_of_the_wrong_size_is_refused(tmp_path):
         recorder.add(Frame.make(np.zeros((2, 3)), np.zeros((6, 4)), 6), bodies)
     recorder.abort()
     assert os.listdir(tmp_path) == []
+
+
+def test_rbgen_run_records_every_k_steps(tmp_path, capsys):
+    """`rbgen run --record` (twice): frames at step 0 and every K steps, paths printed."""
+    from PIL import Image
+    from pxr import Usd
+
+    from rbgen.cli import main
+
+    gif, usd = tmp_path / "p.gif", tmp_path / "p.usda"
+    assert main(["run", "pyramid", "--n", "3", "--steps", "6", "--record", str(gif),
+                 "--record", str(usd), "--record-every", "2", "--record-size", "64x48"]) == 0
+    out = capsys.readouterr().out
+    assert f"wrote {gif.resolve()} (4 frames)" in out and str(usd.resolve()) in out
+    with Image.open(gif) as image:
+        assert image.n_frames == 4
+    assert Usd.Stage.Open(str(usd)).GetEndTimeCode() == 3
+
+
+def test_rbgen_demo_writes_its_animation_and_says_where(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    from rbgen.cli import main
+
+    assert main(["demo", "--n", "10", "--steps", "10", "--record-size", "64x48"]) == 0
+    out = capsys.readouterr().out
+    assert f"wrote {(tmp_path / 'rbgen-demo.mp4').resolve()} (3 frames)" in out
+
+
+def test_rbgen_run_refuses_a_bad_record_path_before_simulating(tmp_path, capsys):
+    from rbgen.cli import main
+
+    assert main(["run", "pyramid", "--n", "3", "--steps", "6",
+                 "--record", str(tmp_path / "p.webm")]) == 2
+    err = capsys.readouterr()
+    assert ".webm" in err.err and "pyramid" not in err.out
+    assert os.listdir(tmp_path) == []
