@@ -288,7 +288,11 @@ class _BackgroundSink:
         import sys
         import threading
 
-        self._process = subprocess.Popen([sys.executable, "-m", "rbgen.record"],
+        # the worker imports this rbgen, wherever it was imported from
+        env = dict(os.environ)
+        root = str(Path(__file__).resolve().parent.parent)
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+        self._process = subprocess.Popen([sys.executable, "-m", "rbgen.record"], env=env,
                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         self._queue: queue_module.Queue = queue_module.Queue(BACKGROUND_QUEUE)
         self._bodies_sent = None
