@@ -7,6 +7,7 @@ basis, perspective divide, pixel rows from the top), independently of
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -180,3 +181,29 @@ def test_bad_image_size_is_refused_naming_it():
         Renderer(0, 10)
     with pytest.raises(RbgenError, match="height"):
         Renderer(10, 100000)
+
+
+def test_render_world_writes_a_png_of_a_world(tmp_path):
+    """A World's picture: a PNG of the size asked, the bodies in view; a bad path or camera
+    leaves nothing behind."""
+    import warnings
+
+    from PIL import Image
+
+    import rbgen
+    from rbgen.render import render_world
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        world = rbgen.World()
+    world.add_static(rbgen.Plane((0, 1, 0), 0.0))
+    world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), positions=[[0, 0.5, 0], [0, 1.5, 0]])
+    path = render_world(world, tmp_path / "w.png", width=96, height=64)
+    with Image.open(path) as image:
+        assert image.size == (96, 64)
+        assert (~background_mask(np.asarray(image.convert("RGB")))).mean() > 0.3
+    with pytest.raises(RbgenError, match="view direction is zero"):
+        render_world(world, tmp_path / "v.png", camera={"eye": (1, 1, 1), "target": (1, 1, 1)})
+    with pytest.raises(RbgenError, match="missing"):
+        render_world(world, tmp_path / "missing" / "w.png")
+    assert sorted(os.listdir(tmp_path)) == ["w.png"]
