@@ -660,6 +660,14 @@ class World:
                 "solver": self.solver, "normal_solve": self._solver.spec.values["normal_solve"],
                 **self.last_step_counters}
 
+    def render(self, path, camera=None, width: int = 960, height: int = 540):
+        """Write a picture of the World now to ``path`` (PNG; see `rbgen.render.render_world`:
+        ``camera`` a `rbgen.render.Camera`, a dict of its fields, or None to frame the moving
+        bodies). One read of the transforms; returns the path written."""
+        from .render import render_world
+
+        return render_world(self, path, camera=camera, width=width, height=height)
+
 
 class _InFlight:
     """One enqueued step: its dt, backup slot, and a pinned copy of its step report.
