@@ -184,8 +184,8 @@ def test_bad_image_size_is_refused_naming_it():
 
 
 def test_render_world_writes_a_png_of_a_world(tmp_path):
-    """A World's picture: a PNG of the size asked, the bodies in view; a bad path or camera
-    leaves nothing behind."""
+    """A World's picture (render_world, World.render): a PNG of the size asked, the bodies
+    in view; a bad path or camera leaves nothing behind."""
     import warnings
 
     from PIL import Image
@@ -199,6 +199,7 @@ def test_render_world_writes_a_png_of_a_world(tmp_path):
     world.add_static(rbgen.Plane((0, 1, 0), 0.0))
     world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), positions=[[0, 0.5, 0], [0, 1.5, 0]])
     path = render_world(world, tmp_path / "w.png", width=96, height=64)
+    assert world.render(tmp_path / "m.png", width=96, height=64) == tmp_path / "m.png"
     with Image.open(path) as image:
         assert image.size == (96, 64)
         assert (~background_mask(np.asarray(image.convert("RGB")))).mean() > 0.3
@@ -206,4 +207,4 @@ def test_render_world_writes_a_png_of_a_world(tmp_path):
         render_world(world, tmp_path / "v.png", camera={"eye": (1, 1, 1), "target": (1, 1, 1)})
     with pytest.raises(RbgenError, match="missing"):
         render_world(world, tmp_path / "missing" / "w.png")
-    assert sorted(os.listdir(tmp_path)) == ["w.png"]
+    assert sorted(os.listdir(tmp_path)) == ["m.png", "w.png"]
