@@ -40,7 +40,7 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=300)
     args = parser.parse_args(argv)
 
-    world, ids, _, _ = build_scene("box_pile", 8000, args.device)
+    world, _, _, _ = build_scene("box_pile", 8000, args.device)
     for _ in range(args.steps):
         world.step(1 / 60)
     path = os.path.join(HERE, "box_pile_8000.png")
@@ -49,7 +49,7 @@ def main(argv=None) -> int:
     shrink(path)
     print(f"wrote {path} ({os.path.getsize(path):,} bytes) after {args.steps} steps")
 
-    world, ids, _, _ = build_scene("boxbox", 8000, args.device)
+    world, _, _, _ = build_scene("boxbox", 8000, args.device)
     path = os.path.join(HERE, "boxbox.png")
     render_world(world, path, camera=Camera(eye=(82.0, 70.0, 96.0), target=(21.0, 17.0, 21.0),
                                             fov=35.0))
