@@ -1,7 +1,8 @@
 """What recording costs a simulation step: a recorder against a bare copy of the transforms.
 
     python benchmarks/record_overhead.py [--device D] [--sizes 1000 8000] [--steps 300]
-                                         [--every 2 10] [--out benchmarks/results]
+                                         [--every 2 10] [--formats usd mp4]
+                                         [--out benchmarks/results]
 
 For each BoxBox size and recording interval K, the same run (rbgen.demo.run_scene,
 ``--steps`` timed steps after 10 warm-up steps) four ways:
@@ -12,14 +13,14 @@ For each BoxBox size and recording interval K, the same run (rbgen.demo.run_scen
                  nothing else: the baseline, the least any recording can cost;
 ``usd``          every K steps a USD recorder captures the frame (kept in memory,
                  written at the end);
-``mp4``          every K steps an MP4 recorder in a background process captures the
+``mp4``, ``gif`` every K steps a recorder in a background process captures the
                  frame (rendering and encoding off the simulation's thread).
 
 A recording keeps its promise when ``usd`` and ``mp4`` cost about what ``copy``
 costs (their ms/step minus ``none``'s, times K: ms per recorded frame). Writes
 JSON (rbgen.bench's form; each recorder's baseline is ``copy`` at the same K)
-and a Markdown table under ``--out``. ``mp4`` is left out, with the reason, where
-no headless OpenGL context can be made.
+and a Markdown table under ``--out``. A format whose needs are missing (an OpenGL
+context, imageio-ffmpeg for MP4, usd-core for USD) is left out, with the reason.
 """
 from __future__ import annotations
 
@@ -56,15 +57,25 @@ def main(argv=None) -> int:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 8000])
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--every", type=int, nargs="+", default=[2, 10])
+    parser.add_argument("--formats", nargs="+", default=["usd", "mp4"],
+                        choices=["usd", "mp4", "gif"])
     parser.add_argument("--out", default=str(bench.RESULTS_DIR))
     args = parser.parse_args(argv)
+    gl, left_out = None, {}
     try:
         from rbgen.render.renderer import gl_context
         gl = gl_context().info["GL_RENDERER"]
-        no_gl = None
-    except Exception as err:  # noqa: BLE001 - reported, mp4 left out
-        gl, no_gl = None, str(err)
-    print(f"BoxBox, {args.steps} steps after {WARMUP} warm-up; OpenGL: {gl or no_gl}")
+    except Exception as err:  # noqa: BLE001 - reported, the rendered formats left out
+        left_out.update({f: str(err) for f in ("mp4", "gif")})
+    for kind, module in (("usd", "pxr"), ("mp4", "imageio_ffmpeg")):
+        try:
+            __import__(module)
+        except ImportError as err:
+            left_out.setdefault(kind, str(err))
+    formats = [f for f in args.formats if f not in left_out]
+    print(f"BoxBox, {args.steps} steps after {WARMUP} warm-up; OpenGL: {gl}; recording "
+          f"{formats}" + "".join(f"; {f} left out: {left_out[f]}" for f in args.formats
+                                if f in left_out))
     results = []
     with tempfile.TemporaryDirectory() as scratch:
         for n in args.sizes:
@@ -77,11 +88,9 @@ def main(argv=None) -> int:
                         "ms_spread": _spread(copy)}
                 line = (f"  every {every:>3}: copy {copy['ms_per_step']:.3f} ms/step "
                         f"(+{_per_frame(copy, none, every):.3f} ms a frame)")
-                for kind in ("usd", "mp4"):
-                    if kind == "mp4" and no_gl:
-                        continue
+                for kind in formats:
                     recorder = Recorder(os.path.join(scratch, f"r.{kind}"),
-                                        background=kind == "mp4")
+                                        background=kind != "usd")
                     run = measure(n, args.steps, args.device, record_hook([recorder], every))
                     recorder.close()
                     results.append({"name": f"boxbox {n} {kind} every {every}", "bodies": n,
@@ -97,7 +106,7 @@ def main(argv=None) -> int:
     device = bench.device_record(args.device)
     record = bench.make_record("benchmarks/record_overhead.py", results, device, {
         "scene": "boxbox", "steps": args.steps, "warmup": WARMUP, "gl_renderer": gl,
-        "mp4_left_out": no_gl})
+        "every": args.every, "formats": formats, "left_out": left_out})
     print(f"wrote {bench.write_results(record, args.out)}")
     return 0
 
