@@ -21,13 +21,10 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 
 def measure(runtime, name: str, aabbs, static, reference, repeats: int) -> dict:

@@ -20,8 +20,6 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
-
 
 def measure(device, cache_root: Path, template_names):
     from rbgen.codegen import ProgramCache

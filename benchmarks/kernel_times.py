@@ -9,20 +9,17 @@ a step slowed by other processes on a shared CPU), and its launches per step.
 from __future__ import annotations
 
 import argparse
-import sys
 from collections import defaultdict
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
-import numpy as np  # noqa: E402
-import pyopencl as cl  # noqa: E402
+import numpy as np
+import pyopencl as cl
 
-from rbgen.pipeline.batching import MODES as BATCHING_MODES  # noqa: E402
+from rbgen.pipeline.batching import MODES as BATCHING_MODES
 
 
 def main() -> None:
-    from rbgen.demo import build_scene
+    from rbgen.harness import build_scene
     from rbgen.device import Runtime
 
     parser = argparse.ArgumentParser()

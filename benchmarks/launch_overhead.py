@@ -11,15 +11,12 @@ usage: python benchmarks/launch_overhead.py [--device D]
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
-import numpy as np  # noqa: E402
-import pyopencl as cl  # noqa: E402
-import pyopencl.array as cla  # noqa: E402
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
 
 SOURCE = """
 __kernel void probe(__global float* a, __global float* b, __global float* c,

@@ -22,20 +22,17 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
-import numpy as np  # noqa: E402
-import pyopencl as cl  # noqa: E402
-import pyopencl.array as cla  # noqa: E402
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
 
-from rbgen import Runtime, layouts  # noqa: E402
-from rbgen.pipeline.narrowphase import Narrowphase  # noqa: E402
-from rbgen.scenes import standard_boxbox_scene  # noqa: E402
-from rbgen.shapes import Box, Plane, ShapeTable  # noqa: E402
+from rbgen import Runtime, layouts
+from rbgen.pipeline.narrowphase import Narrowphase
+from rbgen.scenes import standard_boxbox_scene
+from rbgen.shapes import Box, Plane, ShapeTable
 
 
 def grid_pairs(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:

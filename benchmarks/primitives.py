@@ -34,7 +34,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -42,12 +41,11 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import rbgen  # noqa: E402
-from rbgen import tuning  # noqa: E402
-from rbgen.primitives import BoundSearch, Compact, Fill, RadixSort, Reduce, Scan  # noqa: E402
-from rbgen.primitives import radix_sort  # noqa: E402
+import rbgen
+from rbgen import tuning
+from rbgen.primitives import BoundSearch, Compact, Fill, RadixSort, Reduce, Scan
+from rbgen.primitives import radix_sort
 
 COPY_SOURCE = """
 __kernel void copy_float4(__global const float4* src, __global float4* dst, const uint count)

@@ -7,15 +7,11 @@ from __future__ import annotations
 import argparse
 import cProfile
 import pstats
-import sys
 import time
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
 
 def main() -> None:
-    from rbgen.demo import build_scene
+    from rbgen.harness import build_scene
 
     parser = argparse.ArgumentParser()
     parser.add_argument("--device", default=None)

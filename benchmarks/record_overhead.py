@@ -4,7 +4,7 @@
                                          [--every 2 10] [--formats usd mp4]
                                          [--out benchmarks/results]
 
-For each BoxBox size and recording interval K, the same run (rbgen.demo.run_scene,
+For each BoxBox size and recording interval K, the same run (rbgen.harness.run_scene,
 ``--steps`` timed steps after 10 warm-up steps) four ways:
 
 ``none``         no hook: the plain ms/step;
@@ -29,12 +29,10 @@ import os
 import sys
 import tempfile
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-
-from rbgen import bench  # noqa: E402
-from rbgen.demo import run_scene  # noqa: E402
-from rbgen.record import Recorder, record_hook  # noqa: E402
-from rbgen.render.scene import frame_of  # noqa: E402
+from rbgen import bench
+from rbgen.harness import run_scene
+from rbgen.record import Recorder, record_hook
+from rbgen.render.scene import frame_of
 
 WARMUP = 10
 

@@ -20,15 +20,13 @@ import statistics
 import sys
 import time
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from rbgen import bench  # noqa: E402
-from rbgen.render import Bodies, Frame  # noqa: E402
-from rbgen.render.renderer import Renderer, gl_context  # noqa: E402
-from rbgen.scenes import boxbox_scene  # noqa: E402
-from rbgen.shapes import Box, Capsule, ConvexHull, Plane, Sphere  # noqa: E402
+from rbgen import bench
+from rbgen.render import Bodies, Frame
+from rbgen.render.renderer import Renderer, gl_context
+from rbgen.scenes import boxbox_scene
+from rbgen.shapes import Box, Capsule, ConvexHull, Plane, Sphere
 
 
 def boxbox(n: int):

@@ -8,7 +8,7 @@
 
 For each size, after ``--warmup`` steps: ms/step = the median over 10 blocks of
 ``--steps``/10 steps, all enqueued back to back and ended by one queue.finish(),
-each block clocked by the host at its boundaries (rbgen.demo explains why that is
+each block clocked by the host at its boundaries (rbgen.harness explains why that is
 the device's time; ``mean``: all the timed steps' time over their number), kernel
 launches and blocking reads per step, broadphase pairs, manifolds and contact points of the last step, the
 batches of the largest group, and a sanity line (NaNs, boxes sunk more than
@@ -20,15 +20,13 @@ benchmarks/results; ``--out ''`` writes nothing).
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from rbgen import bench  # noqa: E402
-from rbgen.demo import run_scene  # noqa: E402
-from rbgen.pipeline.batching import MODES as BATCHING_MODES  # noqa: E402
-from rbgen.world import SOLVERS  # noqa: E402
+from rbgen import bench
+from rbgen.harness import run_scene
+from rbgen.pipeline.batching import MODES as BATCHING_MODES
+from rbgen.pipeline.solvers import SOLVERS
 
 
 def main(argv=None) -> int:
@@ -40,8 +38,8 @@ def main(argv=None) -> int:
     parser.add_argument("--scene", default="boxbox", choices=["boxbox", "box_pile", "pyramid"],
                         help="pyramid: --sizes are its rows")
     parser.add_argument("--batching", default=None, choices=BATCHING_MODES,
-                        help="batching mode (default: the World's: global on NVIDIA GPUs, single "
-                             "then cells on other GPUs, slabs on CPUs)")
+                        help="batching (default: the plan's: global on NVIDIA GPUs, cells on "
+                             "other GPUs, slabs on CPUs)")
     parser.add_argument("--solver", default="pgs", choices=SOLVERS,
                         help="contact solver: pgs (batched Gauss-Seidel, the default) or jacobi "
                              "(mass splitting, no batching)")
@@ -51,12 +49,11 @@ def main(argv=None) -> int:
                         help="successive over-relaxation of every row (World setting)")
     parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"],
                         help="a manifold's normal rows as one block or one by one (default: "
-                             "the World's: one by one for the cpu shape with components, "
-                             "columns or slabs batching, else block)")
+                             "the plan's: block where lanes solve a batch, else one by one)")
     parser.add_argument("--release-sweeps", type=int, default=None,
                         help="PGS with the block solve: the last N velocity (and position) "
                              "sweeps may release points, the earlier ones take the block's "
-                             "all-pushing solution or the rows (default: the World's; >= "
+                             "all-pushing solution or the rows (default: the plan's; >= "
                              "--iterations: every sweep)")
     parser.add_argument("--out", default=str(bench.RESULTS_DIR),
                         help="directory of the JSON and Markdown results ('' for none)")
@@ -67,7 +64,7 @@ def main(argv=None) -> int:
     if args.normal_solve:
         options["normal_solve"] = args.normal_solve
     if args.release_sweeps is not None:
-        options["release_sweeps"] = args.release_sweeps
+        options["plan"] = {"release_sweeps": args.release_sweeps}
     if args.batching:
         options["batching"] = args.batching
     rows = []
@@ -79,9 +76,7 @@ def main(argv=None) -> int:
             print(f"device: {s['device']}; {args.scene}, {args.steps} steps after {args.warmup} "
                   f"warm-up, dt 1/60, {args.iterations} iterations, "
                   f"{args.position_iterations} position iterations, relaxation "
-                  f"{args.relaxation}, solver {args.solver}, normal solve {s['normal_solve']}"
-                  + (f", release sweeps {'every' if s['release_sweeps'] is None else s['release_sweeps']}"
-                     if s["normal_solve"] == "block" else ""))
+                  f"{args.relaxation}; plan: {s['plan']}")
             print(f"{'boxes':>8} {'ms/step':>9} {'mean':>6} {'launch':>7} {'reads':>6} {'pairs':>9} "
                   f"{'manifolds':>10} {'points':>9} {'batches':>8} {'batching':>10} | sanity")
         print(f"{s['bodies']:>8,} {s['ms_per_step']:>9.2f} {s['ms_per_step_mean']:>6.2f} "

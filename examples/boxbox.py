@@ -5,12 +5,10 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from rbgen.demo import run_scene  # noqa: E402
+from rbgen.harness import run_scene
 
 
 def main(argv=None) -> int:

@@ -1,7 +1,7 @@
 """``rbgen bench``: the standard scenes timed on a device, written down as JSON and Markdown.
 
 A run times each scene of `STANDARD_SCENES` (or `QUICK_SCENES`) with
-`rbgen.demo.run_scene`, the same harness as ``rbgen run`` and
+`rbgen.harness.run_scene`, the same harness as ``rbgen run`` and
 ``benchmarks/scenes.py``, and writes one JSON file and one Markdown table
 under ``benchmarks/results/``. A time counts only for a scene that holds:
 each result carries its sanity (NaNs, boxes sunk, boxes displaced sideways
@@ -68,7 +68,7 @@ def run(device=None, quick: bool = False, scenes=None, steps: int | None = None,
     ``out_dir``. ``scenes`` narrows to scene names; ``steps`` overrides every scene's
     step count. Returns the JSON path and the record."""
     from . import progress as progress_module
-    from .demo import run_scene
+    from .harness import run_scene
 
     plan = [case for case in (QUICK_SCENES if quick else STANDARD_SCENES)
             if not scenes or case[0] in scenes]
@@ -93,7 +93,7 @@ def run(device=None, quick: bool = False, scenes=None, steps: int | None = None,
     record = make_record("scenes", results, traits, {
         "quick": bool(quick), "dt": 1 / 60, "steps_override": steps,
         "world_options": {k: v for k, v in world_options.items()},
-        "timing": "median of 10 blocks of steps enqueued back to back (rbgen.demo)"})
+        "timing": "median of 10 blocks of steps enqueued back to back (rbgen.harness)"})
     path = write_results(record, out_dir)
     return path, record
 

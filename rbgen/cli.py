@@ -57,8 +57,18 @@ def cmd_info(args) -> int:
 
 def cmd_export(args) -> int:
     from .device import Runtime
-    from .export import default_specs, export_kernels
+    from .export import default_specs, export_kernels, export_world
 
+    if args.world:
+        world = _world_for_export(args.world, args.n, args.device)
+        manifest = export_world(world, args.out)
+        for entry in manifest["files"]:
+            names = ", ".join(k["name"] for k in entry["kernels"])
+            print(f"  {args.out}/{entry['file']}: {names}")
+        print(f"wrote the {len(manifest['files'])} kernel files this World runs, plan.json, "
+              f"manifest.json and {manifest['header']} to {args.out} (for "
+              f"{world.runtime.traits.device_name}; plan: {world.plan.describe()})")
+        return 0
     runtime = Runtime(args.device)
     overrides = {}
     for item in args.param or []:
@@ -76,6 +86,36 @@ def cmd_export(args) -> int:
     print(f"wrote {len(manifest['files'])} kernel files, manifest.json and "
           f"{manifest['header']} to {args.out} (for {runtime.traits.device_name})")
     return 0
+
+
+def _world_for_export(scene: str, n: int | None, device):
+    """The World of a preset scene (``rbgen.harness.SCENES``) or of a Python file whose
+    ``build(device)`` returns one, stepped once so that its kernels are built."""
+    from pathlib import Path
+
+    from .errors import RbgenError
+    from .harness import SCENES, build_scene
+    from .world import World
+
+    if scene in SCENES:
+        world = build_scene(scene, n or 1000, device)[0]
+    elif scene.endswith(".py") and Path(scene).is_file():
+        namespace: dict = {"__name__": "rbgen_export_scene", "__file__": scene}
+        exec(compile(Path(scene).read_text(), scene, "exec"), namespace)  # noqa: S102
+        build = namespace.get("build")
+        if not callable(build):
+            raise RbgenError(f"export --world {scene}: the file defines no build(device) "
+                             f"function returning a World")
+        world = build(device)
+        if not isinstance(world, World):
+            raise RbgenError(f"export --world {scene}: build(device) returned "
+                             f"{type(world).__name__}, not an rbgen.World")
+    else:
+        raise RbgenError(f"export --world: {scene!r} is neither a scene ({', '.join(SCENES)}) "
+                         f"nor a Python file with build(device)")
+    world.step(1 / 60)
+    world.statistics()  # (waits for the step: its kernels are built and run)
+    return world
 
 
 def _parse_value(text: str):
@@ -97,13 +137,21 @@ def cmd_tune(args) -> int:
         print("the autotuner is not available in this build", file=sys.stderr)
         return 1
     from .device import Runtime
+    from .plan_tuning import tune_plan
 
-    tuning.tune_all(Runtime(args.device, profiling=True), progress=True, quick=args.quick)
+    runtime = Runtime(args.device, profiling=True)
+    if args.what in ("all", "primitives"):
+        tuning.tune_all(runtime, progress=True, quick=args.quick)
+    if args.what in ("all", "plan"):
+        print("tuning the plan (whole World steps of a standard scene)", file=sys.stderr)
+        entry = tune_plan(runtime, quick=args.quick,
+                          progress=lambda line: print(line, file=sys.stderr, flush=True))
+        print(f"plan: {entry['values']} ({entry['scene']})")
     return 0
 
 
 def cmd_run(args) -> int:
-    demo = _optional("rbgen.demo")
+    demo = _optional("rbgen.harness")
     if demo is None or not hasattr(demo, "run_scene"):
         print("scene simulation needs the World (not available in this build)", file=sys.stderr)
         return 1
@@ -117,7 +165,7 @@ def cmd_run(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    demo = _optional("rbgen.demo")
+    demo = _optional("rbgen.harness")
     if demo is not None and hasattr(demo, "run_scene"):
         from .cli_extras import run_scene_recorded
 
@@ -211,15 +259,22 @@ def main(argv=None) -> int:
     cli_extras.add_record_options(p)
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("tune", help="autotune every kernel family for a device")
+    p = sub.add_parser("tune", help="autotune the kernel families and the plan for a device")
     p.add_argument("--device", default=None)
     p.add_argument("--quick", action="store_true", help="fewer sizes and repeats")
+    p.add_argument("--what", default="all", choices=("all", "primitives", "plan"),
+                   help="the primitives' parameters, the plan's (batching, release sweeps, "
+                        "colouring rounds, group counts: whole World steps), or both")
     p.set_defaults(func=cmd_tune)
 
     cli_extras.add_bench_parser(sub)
 
     p = sub.add_parser("export", help="write .cl kernels, manifest.json and the C header")
     p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--world", default=None,
+                   help="export exactly what this World runs: a scene name (box_pile, boxbox, "
+                        "pyramid; size --n) or a Python file whose build(device) returns a World")
+    p.add_argument("--n", type=int, default=None, help="the --world scene's size")
     p.add_argument("--device", default=None, help="device whose specialisations to export")
     p.add_argument("--kernel", action="append",
                    help="template path or substring (repeatable; default: all)")

@@ -51,11 +51,11 @@ def _size(text: str | None, default) -> tuple[int, int]:
 
 def run_scene_recorded(args, scene: str, n: int, steps: int, demo: bool = False,
                        **options) -> dict:
-    """`rbgen.demo.run_scene` with the recordings and progress bar that ``args`` ask for;
+    """`rbgen.harness.run_scene` with the recordings and progress bar that ``args`` ask for;
     prints each recording's path. Recorders are made (and their paths checked) before
     anything is simulated."""
     from . import progress
-    from .demo import run_scene
+    from .harness import run_scene
     from .record import Recorder, record_hook
 
     paths = list(args.record or [])

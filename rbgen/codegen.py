@@ -375,7 +375,32 @@ def compile_spec(runtime: Runtime, spec: KernelSpec, options: Iterable[str] = ()
     c = _COMPILED.get(key)
     if c is None or c.runtime is not runtime:
         c = _COMPILED[key] = Compiled(runtime, spec, options)
+    for log in runtime.spec_logs:
+        log.setdefault((spec, options), None)
     return c
+
+
+class SpecLog:
+    """Every (spec, build options) compiled on one runtime for one owner, in first-use
+    order.
+
+    While active (``with log:``), each `compile_spec` on that runtime adds its spec and
+    options, cached builds included: so the log holds exactly what the owner runs
+    (`rbgen export --world` writes it)."""
+
+    def __init__(self, runtime: Runtime):
+        self.runtime = runtime
+        self.entries: dict[tuple, None] = {}
+
+    def __enter__(self) -> "SpecLog":
+        self.runtime.spec_logs.append(self.entries)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.runtime.spec_logs.remove(self.entries)
+
+    def specs(self) -> list[tuple[KernelSpec, tuple[str, ...]]]:
+        return list(self.entries)
 
 
 # --------------------------------------------------------------------------

@@ -49,6 +49,13 @@ class DeviceTraits:
     max_work_group_size: int
     driver_version: str
     opencl_version: str
+    #: the OpenCL extensions the device lists (plans choose by them; not part of the
+    #: fingerprint, which the driver version already separates)
+    extensions: tuple[str, ...] = dataclasses.field(default=(), metadata={"fingerprint": False})
+
+    def has_extension(self, name: str) -> bool:
+        """Whether the device lists the OpenCL extension ``name``."""
+        return name in self.extensions
 
     @property
     def is_cpu(self) -> bool:
@@ -66,7 +73,8 @@ class DeviceTraits:
         Readable prefix plus a short hash of every field, so two drivers of the
         same device never share cached binaries or tuning results.
         """
-        text = "|".join(str(getattr(self, f.name)) for f in dataclasses.fields(self))
+        text = "|".join(str(getattr(self, f.name)) for f in dataclasses.fields(self)
+                        if f.metadata.get("fingerprint", True))
         digest = hashlib.sha256(text.encode()).hexdigest()[:12]
         slug = "".join(c if c.isalnum() else "-" for c in self.device_name.lower())
         slug = "-".join(part for part in slug.split("-") if part)[:40]
@@ -87,6 +95,7 @@ class DeviceTraits:
             max_work_group_size=int(device.max_work_group_size),
             driver_version=device.driver_version.strip(),
             opencl_version=device.version.strip(),
+            extensions=tuple(sorted(device.extensions.split())),
         )
 
     def describe(self) -> str:
@@ -244,8 +253,10 @@ class Runtime:
         self.queue = cl.CommandQueue(self.context, self.device, properties=props)
         self.profiling = profiling
         #: launches and blocking reads issued through `launch` and `read`;
-        #: benchmarks report them per step (each costs ~15 us on NVIDIA).
+        #: benchmarks report them per step (on a GPU each costs as much as a small kernel).
         self.counters = {"launches": 0, "blocking_reads": 0}
+        #: active spec logs (`rbgen.codegen.SpecLog`): every compile_spec adds to each
+        self.spec_logs: list[dict] = []
 
     def launch(self, kernel: cl.Kernel, global_size: int, local_size: int | None,
                wait_for=None) -> cl.Event:
@@ -258,7 +269,7 @@ class Runtime:
     def has_extension(self, name: str) -> bool:
         """Whether the device lists the OpenCL extension ``name`` (a whole token of its
         extension string)."""
-        return name in self.device.extensions.split()
+        return self.traits.has_extension(name)
 
     def read(self, device_array, host_array=None):
         """Blocking read of a device buffer or pyopencl array, counted."""

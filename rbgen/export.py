@@ -1,6 +1,7 @@
 """Export generated kernels for programs that do not run Python.
 
-`export_kernels` writes, into one directory:
+`export_kernels` writes, into one directory (`export_world`: a World's own kernels and
+its plan, exactly what it compiled):
 
 * one ``.cl`` file per specialisation: self-contained OpenCL C (structs and
   constants included), exactly the source rbgen builds;
@@ -9,7 +10,9 @@
 * ``manifest.json``: for every file its template, specialisation parameters,
   build options, source hash, and per kernel the argument names, C types and
   roles (input / output / inout / scalar / local) and the recommended local size;
-  plus the fingerprint of the device the specialisations were chosen for.
+  plus the fingerprint of the device the specialisations were chosen for;
+* ``plan.json`` (a World's export): its `rbgen.plan.Plan`, every choice with its source
+  and reason.
 
 A C++ host reads the manifest, builds the ``.cl`` with ``clBuildProgram`` and
 sets arguments in the listed order using the structs of the header.
@@ -50,11 +53,11 @@ def _json_value(value):
     return value
 
 
-def _file_name(spec: KernelSpec, taken: set[str]) -> str:
+def _file_name(spec: KernelSpec, options: tuple[str, ...], taken: set[str]) -> str:
     stem = spec.path.removesuffix(".cl.mako").replace("/", "_")
     name = f"{stem}.cl"
     if name in taken:
-        digest = hashlib.sha256(repr(spec.params).encode()).hexdigest()[:8]
+        digest = hashlib.sha256(repr((spec.params, options)).encode()).hexdigest()[:8]
         name = f"{stem}_{digest}.cl"
     taken.add(name)
     return name
@@ -65,10 +68,14 @@ def _local_sizes(source: str) -> dict[str, int]:
     return {m.group(2): int(m.group(1)) for m in pattern.finditer(source)}
 
 
-def export_kernels(specs: Iterable[KernelSpec], out_dir: str | Path,
+def export_kernels(specs: Iterable, out_dir: str | Path,
                    traits: DeviceTraits | None = None,
-                   build_options: Iterable[str] = ()) -> dict:
-    """Write the specs' sources, the layouts header and the manifest; return the manifest."""
+                   build_options: Iterable[str] = (), plan=None) -> dict:
+    """Write the specs' sources, the layouts header and the manifest; return the manifest.
+
+    ``specs``: `KernelSpec`s, or (spec, build options) pairs as a World compiled them
+    (the options then replace the spec's own plus ``build_options``). ``plan``: a
+    `rbgen.plan.Plan` to write as plan.json and into the manifest."""
     specs = list(specs)
     if not specs:
         raise RbgenError("export: no kernel specs given")
@@ -77,11 +84,15 @@ def export_kernels(specs: Iterable[KernelSpec], out_dir: str | Path,
     (out / HEADER_NAME).write_text(layouts.c_header())
     taken: set[str] = set()
     entries = []
-    for spec in specs:
+    for item in specs:
+        spec, options = item if isinstance(item, tuple) else (item, None)
         if not isinstance(spec, KernelSpec):
             raise RbgenError(f"export: expected KernelSpec, got {type(spec).__name__}")
+        if options is None:
+            options = (*spec.build_options,
+                       *(o for o in build_options if o not in spec.build_options))
         source = spec.source
-        fname = _file_name(spec, taken)
+        fname = _file_name(spec, tuple(options), taken)
         (out / fname).write_text(source)
         roles = spec.template.roles if spec.template is not None else {}
         local = _local_sizes(source)
@@ -89,8 +100,7 @@ def export_kernels(specs: Iterable[KernelSpec], out_dir: str | Path,
             "file": fname,
             "template": spec.path,
             "params": {k: _json_value(v) for k, v in spec.params},
-            "build_options": [*spec.build_options,
-                              *(o for o in build_options if o not in spec.build_options)],
+            "build_options": list(options),
             "source_sha256": hashlib.sha256(source.encode()).hexdigest(),
             "kernels": [
                 {"name": name, "args": args, "local_size": local.get(name)}
@@ -113,8 +123,22 @@ def export_kernels(specs: Iterable[KernelSpec], out_dir: str | Path,
                     for l in layouts.all_layouts()},
         "files": entries,
     }
+    if plan is not None:
+        manifest["plan"] = json.loads(plan.to_json())
+        (out / "plan.json").write_text(plan.to_json() + "\n")
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
     return manifest
+
+
+def export_world(world, out_dir: str | Path) -> dict:
+    """Write every kernel specialisation ``world`` compiled, with the build options it used,
+    its plan, the header and the manifest (what a C++ host needs to run what the World runs).
+    The World must have stepped once (its kernels are built at its first step)."""
+    specs = world.kernel_specs()
+    if not specs:
+        raise RbgenError("export: the World has compiled no kernels yet; step it once first "
+                         "(kernels are built for its scene at the first step)")
+    return export_kernels(specs, out_dir, world.runtime.traits, plan=world.plan)
 
 
 def default_specs(traits: DeviceTraits, names: Iterable[str] | None = None) -> list[KernelSpec]:

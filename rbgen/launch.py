@@ -1,14 +1,14 @@
 """Kernel launches that set an argument only when its value changed.
 
-Why: a World step is ~70-140 launches, and on NVIDIA's OpenCL driver the host
-cost of pyopencl's ``set_args`` (37 us for 9 arguments; 12 us for ONE scalar
-through the generic ``set_arg``) dwarfs the enqueue itself (10 us). Most
+Why: a World step is tens of launches, and on some drivers (NVIDIA's) the host cost
+of setting arguments through pyopencl (``set_args``, or ``set_arg`` for one scalar)
+exceeds the enqueue itself. Most
 arguments are the same buffers and the same scalars step after step, so a
 `BoundKernel` remembers what it last set per argument index and calls the
 driver only for those that differ: a buffer by identity (re-set after a
 reallocation), a scalar or small numpy array by value. Scalars are passed to
 the driver as raw bytes (pyopencl's own generated invokers do the same),
-which costs 0.1 us instead of the generic path's several.
+a fraction of the generic path's cost.
 
 OpenCL kernel arguments belong to the ``cl.Kernel`` object, and one kernel
 object may be used by several owners (programs are cached per source): the

@@ -295,14 +295,14 @@ SPLIT_VELOCITY = declare("SplitVelocity", [
 #: Marks an empty slot of the warm-starting hash table and an unassigned batch.
 SOLVER_NONE = constant("RB_SOLVER_NONE", 0xFFFFFFFF, "empty table slot / unassigned batch")
 
-# The words of a grid barrier's state (common/grid_barrier.cl.mako, rbgen.pipeline.grid)
-GRID_ARRIVALS = constant("RB_GRID_ARRIVALS", 0, "grid barrier: arrivals since the launch began")
-GRID_DEPARTURES = constant("RB_GRID_DEPARTURES", 1, "grid barrier: groups that have left")
-GRID_SPIN_LIMIT = constant("RB_GRID_SPIN_LIMIT", 2,
-                           "grid barrier: polls before a waiting group gives up (set by the host)")
-GRID_ABANDONED = constant("RB_GRID_ABANDONED", 3,
-                          "grid barrier: nonzero once a group gave up (reset by the host)")
-GRID_SYNC_WORDS = constant("RB_GRID_SYNC_WORDS", 4, "grid barrier: words of its state")
+# The words of a device-wide barrier's state (common/device_barrier.cl.mako, rbgen.pipeline.device_barrier)
+BARRIER_ARRIVALS = constant("RB_BARRIER_ARRIVALS", 0, "device-wide barrier: arrivals since the launch began")
+BARRIER_DEPARTURES = constant("RB_BARRIER_DEPARTURES", 1, "device-wide barrier: groups that have left")
+BARRIER_SPIN_LIMIT = constant("RB_BARRIER_SPIN_LIMIT", 2,
+                           "device-wide barrier: polls before a waiting group gives up (set by the host)")
+BARRIER_ABANDONED = constant("RB_BARRIER_ABANDONED", 3,
+                          "device-wide barrier: nonzero once a group gave up (reset by the host)")
+BARRIER_WORDS = constant("RB_BARRIER_WORDS", 4, "device-wide barrier: words of its state")
 
 #: int64 words of a body's summed warm start (solver.cl.mako): its linear and angular
 #: velocity change in fixed point

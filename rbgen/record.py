@@ -150,7 +150,7 @@ class Recorder:
 
 
 def record_hook(recorders, every: int = 1):
-    """``on_step(world, step)`` for `rbgen.demo.run_scene`: at step 0 and every ``every``
+    """``on_step(world, step)`` for `rbgen.harness.run_scene`: at step 0 and every ``every``
     steps, one read of the transforms feeds every recorder."""
     if not isinstance(every, (int, np.integer)) or every < 1:
         raise RbgenError(f"record every must be a positive integer, got {every!r}")

@@ -1,7 +1,7 @@
 """Whether a box scene holds: measures of where its boxes went.
 
 A time counts only for a scene that holds, so every timed scene reports
-these beside its ms/step (`rbgen.demo.run_scene`, `rbgen.bench`):
+these beside its ms/step (`rbgen.harness.run_scene`, `rbgen.bench`):
 
 ``displaced``   boxes whose centre moved more than `DISPLACED` sideways
                 (across gravity, the y axis here) from where it started: a

@@ -1,4 +1,4 @@
-"""Standard benchmark scenes as plain numpy data.
+"""Standard scenes as plain numpy data: BoxBox, the dropped pile, the pyramid.
 
 Examples, tests, benchmarks and the World all build the same scenes from here,
 so a number measured in one place means the same scene everywhere.
@@ -117,3 +117,22 @@ def scene_aabbs(scene: BoxScene, ground: bool = True) -> tuple[np.ndarray, np.nd
     aabbs["lower"][:, :3] = lower
     aabbs["upper"][:, :3] = upper
     return aabbs, static
+
+
+def pile_positions(n: int, layers: int = 5, pitch: float = 1.5, jitter: float = 0.01,
+                   seed: int = 0) -> np.ndarray:
+    """Centres of ``n`` unit boxes dropped in a loose grid: ``layers`` layers (fewer for
+    small n) at ``pitch`` from y = 1, the square side just large enough, jittered by up
+    to ``jitter`` in every axis (``seed``); they land in columns of ``layers``."""
+    layers = min(layers, int(n))
+    side = int(np.ceil(np.sqrt(n / layers)))
+    i, j, k = np.meshgrid(np.arange(side), np.arange(layers), np.arange(side), indexing="ij")
+    positions = np.stack([pitch * i, 1.0 + pitch * j, pitch * k], -1).reshape(-1, 3)[:n]
+    return positions + np.random.default_rng(seed).uniform(-jitter, jitter, positions.shape)
+
+
+def pyramid_positions(rows: int, gap: float = 0.02) -> np.ndarray:
+    """Centres of a 2-D pyramid of unit boxes with ``rows`` rows on the ground (y = 0),
+    ``gap`` between neighbours of a row; the last box is the top."""
+    return np.array([[(i - (rows - r - 1) / 2) * (1 + gap), 0.5 + r, 0.0]
+                     for r in range(rows) for i in range(rows - r)]).reshape(-1, 3)

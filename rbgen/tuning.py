@@ -122,6 +122,22 @@ def lookup(traits: DeviceTraits, family: str, variant: str, bucket: int) -> dict
     return dict(best) if best is not None else None
 
 
+#: the cache entry holding a device's tuned plan parameters (`rbgen.plan.TUNABLES`)
+PLAN_ENTRY = "plan"
+#: the plan entry's format; an entry of another version is ignored
+PLAN_VERSION = 1
+
+
+def lookup_plan(traits: DeviceTraits) -> dict:
+    """The tuned plan parameters of a device (empty when untuned): what `rbgen tune`
+    measured fastest among the scenes that held, by parameter name."""
+    entry = load_cache(traits)["entries"].get(PLAN_ENTRY)
+    if not isinstance(entry, dict) or entry.get("plan_version") != PLAN_VERSION:
+        return {}
+    values = entry.get("values")
+    return dict(values) if isinstance(values, dict) else {}
+
+
 def describe_cache(traits: DeviceTraits) -> list[str]:
     """One line per tuned entry of a device's cache (``rbgen info`` prints them)."""
     from . import primitives  # noqa: F401 - registers the families
@@ -129,6 +145,10 @@ def describe_cache(traits: DeviceTraits) -> list[str]:
     entries = load_cache(traits, reload=True)["entries"]
     for key in sorted(entries):
         e = entries[key]
+        if key == PLAN_ENTRY:
+            values = ", ".join(f"{k}={v}" for k, v in sorted((e.get("values") or {}).items()))
+            lines.append(f"{key}: {values} (scene {e.get('scene', '?')})")
+            continue
         params = dict(e.get("params", {}))
         shape = params.pop("shape", "?")
         stale = e.get("source_hash") != _current_hash(e.get("family", ""), shape)

@@ -59,10 +59,12 @@ def test_a_specs_build_options_reach_its_program_and_the_manifest(runtime, tmp_p
     manifest entry says so, so that a host building the file alone builds the same program;
     an exact one has no options."""
     from rbgen.codegen import compile_spec
-    from rbgen.pipeline import solver
+    from rbgen.pipeline.solvers import pgs
 
-    fast = solver.TEMPLATE.default_spec(runtime.traits, fast_math=True)
-    exact = solver.TEMPLATE.default_spec(runtime.traits, fast_math=False)
+    fast = pgs.TEMPLATE.default_spec(runtime.traits, fast_math=True, persistent=False,
+                                     warm_start_mode="batched")
+    exact = pgs.TEMPLATE.default_spec(runtime.traits, fast_math=False, persistent=False,
+                                      warm_start_mode="batched")
     assert fast.build_options == ("-cl-fast-relaxed-math",) and exact.build_options == ()
     built = compile_spec(runtime, fast).program.get_build_info(
         runtime.device, cl.program_build_info.OPTIONS)
@@ -99,60 +101,42 @@ def test_export_param_override_and_bad_names(runtime, tmp_path):
     assert main(["export", "--out", str(tmp_path), "--kernel", "warp_drive"]) == 2
 
 
-def test_exported_resident_solver_builds_standalone(runtime, tmp_path):
-    """The resident solve (velocities in local memory, the GPU default for small worlds)
-    exports like any specialisation: its .cl builds outside rbgen's loader, and the
-    manifest lists the body count it takes after the relaxation."""
-    assert main(["export", "--out", str(tmp_path), "--kernel", "solver", "--device",
-                 runtime.device.name.strip(), "--param", "resident_bodies=64",
-                 "--param", "shape=gpu", "--param", "work_group_size=32"]) == 0
-    entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
-    assert entry["params"]["resident_bodies"] == 64
-    program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
-    solve = next(k for k in entry["kernels"] if k["name"] == "solve_groups")
-    names = [a["name"] for a in solve["args"]]
-    assert names[names.index("relaxation") + 1] == "body_count"
-    assert program.solve_groups.num_args == len(solve["args"])
-    # the cpu shape cannot be resident: refused by name, before any rendering
-    assert main(["export", "--out", str(tmp_path), "--kernel", "solver", "--param",
-                 "resident_bodies=64", "--param", "shape=cpu"]) == 2
-
-
-def test_exported_grid_solver_and_colouring_build_standalone(runtime, tmp_path):
-    """The global mode's kernels (the grid solve and its colouring, the NVIDIA default)
-    export like any specialisation: each .cl builds outside rbgen's loader, the solver's
-    manifest lists the grid barrier's words before the relaxation, and a grid solver of
-    the cpu shape is refused by name."""
-    assert main(["export", "--out", str(tmp_path), "--kernel", "solver", "--device",
-                 runtime.device.name.strip(), "--param", "grid=True", "--param", "shape=gpu",
+def test_exported_persistent_solver_and_colouring_build_standalone(runtime, tmp_path):
+    """Global batching's kernels (the persistent solve and its colouring, the NVIDIA
+    default) export like any specialisation: each .cl builds outside rbgen's loader, the
+    solver's manifest lists the barrier's words before the relaxation, and a persistent
+    solver of the serial form is refused by name."""
+    assert main(["export", "--out", str(tmp_path), "--kernel", "solvers/pgs", "--device",
+                 runtime.device.name.strip(), "--param", "persistent=True",
+                 "--param", "solve_form=lanes", "--param", "warm_start_mode=batched",
                  "--param", "work_group_size=32"]) == 0
     entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
-    assert entry["params"]["grid"] is True
+    assert entry["params"]["persistent"] is True
     program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
     solve = next(k for k in entry["kernels"] if k["name"] == "solve_groups")
     names = [a["name"] for a in solve["args"]]
     assert names[names.index("relaxation") - 1] == "sync"
     assert program.solve_groups.num_args == len(solve["args"])
-    assert main(["export", "--out", str(tmp_path), "--kernel", "batching_global", "--device",
+    assert main(["export", "--out", str(tmp_path), "--kernel", "global_colouring", "--device",
                  runtime.device.name.strip()]) == 0
     entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
     program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
     colour = next(k for k in entry["kernels"] if k["name"] == "colour_global")
     assert program.colour_global.num_args == len(colour["args"])
-    assert main(["export", "--out", str(tmp_path), "--kernel", "solver", "--param",
-                 "grid=True", "--param", "shape=cpu"]) == 2
+    assert main(["export", "--out", str(tmp_path), "--kernel", "solvers/pgs", "--param",
+                 "persistent=True", "--param", "solve_form=serial"]) == 2
 
 
 def test_exported_world_specialisations_build_standalone(runtime, tmp_path):
-    """What a World on an NVIDIA GPU runs beyond the defaults exports too: the grid solve
+    """What a World on an NVIDIA GPU runs exports on any device: the persistent solve
     with the summed warm start (its manifest lists the per-body sums, an inout buffer,
     and the body count between the barrier's words and the relaxation; the .cl needs
     64-bit atomics, so it is built where the device has them) and the body preparation
     that writes the step's backup (an out buffer after the body count)."""
-    solver_args = ["export", "--out", str(tmp_path / "solver"), "--kernel", "solver",
-                   "--device", runtime.device.name.strip(), "--param", "grid=True",
-                   "--param", "shape=gpu", "--param", "work_group_size=32",
-                   "--param", "warm_start_mode=summed"]
+    solver_args = ["export", "--out", str(tmp_path / "solver"), "--kernel", "solvers/pgs",
+                   "--device", runtime.device.name.strip(), "--param", "persistent=True",
+                   "--param", "solve_form=lanes", "--param", "work_group_size=32",
+                   "--param", "warm_start_mode=summed", "--param", "normal_solve=block"]
     assert main(solver_args) == 0
     entry = json.loads((tmp_path / "solver" / "manifest.json").read_text())["files"][0]
     assert entry["params"]["warm_start_mode"] == "summed"
@@ -165,7 +149,7 @@ def test_exported_world_specialisations_build_standalone(runtime, tmp_path):
         program = cl.Program(runtime.context,
                              (tmp_path / "solver" / entry["file"]).read_text()).build()
         assert program.solve_groups.num_args == len(solve["args"])
-    assert main(["export", "--out", str(tmp_path / "prepare"), "--kernel", "gyroscopic",
+    assert main(["export", "--out", str(tmp_path / "prepare"), "--kernel", "pipeline/prepare",
                  "--device", runtime.device.name.strip(), "--param", "backup=True"]) == 0
     entry = json.loads((tmp_path / "prepare" / "manifest.json").read_text())["files"][0]
     prepare = next(k for k in entry["kernels"] if k["name"] == "prepare_bodies")
@@ -177,25 +161,77 @@ def test_exported_world_specialisations_build_standalone(runtime, tmp_path):
     assert program.prepare_bodies.num_args == len(prepare["args"])
 
 
-@pytest.mark.parametrize("grid", [False, True])
-def test_exported_jacobi_solver_builds_standalone(runtime, tmp_path, grid):
+@pytest.mark.parametrize("persistent", [False, True])
+def test_exported_jacobi_solver_builds_standalone(runtime, tmp_path, persistent):
     """The Jacobi solver exports in both launch variants: the .cl builds outside rbgen's
     loader; the phase variant's kernels all take one argument list (a C++ caller binds
-    the buffers once and launches the phases in order), the grid variant's one kernel
-    takes the barrier's words before the relaxation."""
+    the buffers once and launches the phases in order), the persistent variant's one
+    kernel takes the barrier's words before the relaxation."""
     assert main(["export", "--out", str(tmp_path), "--kernel", "jacobi", "--device",
-                 runtime.device.name.strip(), "--param", f"grid={grid}",
+                 runtime.device.name.strip(), "--param", f"persistent={persistent}",
                  "--param", "work_group_size=32"]) == 0
     entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
-    assert entry["params"]["grid"] is grid
+    assert entry["params"]["persistent"] is persistent
     program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
     names = {k["name"]: [a["name"] for a in k["args"]] for k in entry["kernels"]}
     for name, args in names.items():
         assert getattr(program, name).num_args == len(args)
-    if grid:
+    if persistent:
         assert list(names) == ["solve_jacobi"]
         args = names["solve_jacobi"]
         assert args[args.index("relaxation") - 1] == "sync"
     else:
         assert {"jacobi_clear", "jacobi_sweep", "jacobi_average", "jacobi_push"} <= set(names)
         assert len({tuple(args) for args in names.values()}) == 1
+
+
+@pytest.mark.parametrize("options", [{}, {"solver": "jacobi"}, {"batching": "cells"}])
+def test_world_export_is_exactly_what_the_world_compiled(runtime, tmp_path, options):
+    """`rbgen export --world` = what runs: every source the World handed the compiler
+    (recorded as it compiled, through its spec log) is exported byte for byte, with the
+    same build options, nothing more, and the exported plan is the World's."""
+    from rbgen.codegen import SpecLog
+    from rbgen.export import export_world
+    from rbgen.harness import build_scene
+
+    compiled = SpecLog(runtime)
+    with compiled:  # an independent record of every compile_spec while the World is made
+        world = build_scene("boxbox", 64, runtime, **options)[0]
+        world.step(1 / 60)
+        world.step(1 / 60)
+        world.statistics()
+    manifest = export_world(world, tmp_path)
+    exported = {(json.dumps(e["params"], sort_keys=True), e["template"]):
+                ((tmp_path / e["file"]).read_text(), tuple(e["build_options"]))
+                for e in manifest["files"]}
+    recorded = {(json.dumps({k: list(v) if isinstance(v, tuple) else v
+                             for k, v in spec.params}, sort_keys=True), spec.path):
+                (spec.source, options) for spec, options in compiled.specs()}
+    assert exported == recorded
+    plan = json.loads((tmp_path / "plan.json").read_text())
+    assert plan["choices"]["batching"] == world.plan.batching
+    assert manifest["plan"]["choices"]["solver"] == world.plan.solver
+    for entry in manifest["files"]:  # and every exported file builds standalone
+        cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build(
+            options=entry["build_options"])
+
+
+def test_export_world_from_the_command_line(runtime, tmp_path):
+    """`rbgen export --world SCENE` (a scene name, or a Python file with build(device))
+    writes the kernels, plan.json and the manifest; an unknown scene is refused by name."""
+    device = runtime.device.name.strip()
+    assert main(["export", "--out", str(tmp_path / "a"), "--world", "pyramid", "--n", "5",
+                 "--device", device]) == 0
+    assert (tmp_path / "a" / "plan.json").is_file()
+    script = tmp_path / "scene.py"
+    script.write_text("import rbgen\n"
+                      "def build(device):\n"
+                      "    w = rbgen.World(device)\n"
+                      "    w.add_static(rbgen.Plane((0, 1, 0)))\n"
+                      "    w.add_body(rbgen.Sphere(0.5), position=(0, 0.4, 0))\n"
+                      "    return w\n")
+    assert main(["export", "--out", str(tmp_path / "b"), "--world", str(script),
+                 "--device", device]) == 0
+    manifest = json.loads((tmp_path / "b" / "manifest.json").read_text())
+    assert manifest["plan"]["choices"]["shape_types"] == ["plane", "sphere"]
+    assert main(["export", "--out", str(tmp_path / "c"), "--world", "warp_drive"]) == 2

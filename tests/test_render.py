@@ -97,15 +97,15 @@ def test_box_covers_the_pixels_its_projected_corners_bound(renderer):
                          ids=["sphere", "box", "capsule", "hull"])
 def test_every_shape_kind_draws_inside_its_bounding_sphere(renderer, shape):
     """Each kind covers pixels, all of them inside the projected disc of its bounding sphere."""
-    from rbgen.world import bounding_radius
-
     eye, target, up, fov = (3.0, 2.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 30.0
     image = renderer.render(Bodies.make([shape], [0]), Frame.make([[0, 0, 0]], [[0, 0, 0, 1]], 1),
                             Camera(eye=eye, target=target, up=up, fov=fov))
     drawn = ~background_mask(image)
     assert drawn.sum() > 200
     # the sphere's outline is within its projected radius of the projected centre (+ margin)
-    r = bounding_radius(shape)
+    r = {Sphere: lambda s: s.radius, Capsule: lambda s: s.radius + s.half_height,
+         Box: lambda s: float(np.linalg.norm(s.half_extents)),
+         ConvexHull: lambda s: float(np.linalg.norm(s.vertices, axis=1).max())}[type(shape)](shape)
     dist = np.linalg.norm(eye)
     radius_px = math.tan(math.asin(r / dist)) / math.tan(math.radians(fov) / 2) * H / 2
     centre = project([[0, 0, 0]], eye, target, up, fov, W, H)[0]

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 import rbgen
-from rbgen.world import SOLVERS, World
+from rbgen.pipeline.solvers import SOLVERS
+from rbgen.world import World
 
 DT = 1 / 60
 G = 9.81
@@ -25,10 +26,9 @@ def ground(world, friction=0.6, restitution=0.0, orientation=(0, 0, 0, 1), posit
 
 @pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
-@pytest.mark.parametrize("penetration", ["baumgarte", "split"])
-def test_box_resting_on_ground_does_not_drift(runtime, penetration, solver, fast_math):
+def test_box_resting_on_ground_does_not_drift(runtime, solver, fast_math):
     """A unit box placed on the ground stays put: drift < 1 mm over 600 steps."""
-    world = World(runtime, penetration=penetration, solver=solver, fast_math=fast_math)
+    world = World(runtime, solver=solver, fast_math=fast_math)
     ground(world)
     world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0.3, 0.5, -0.2))
     start = world.positions[1]
@@ -37,10 +37,10 @@ def test_box_resting_on_ground_does_not_drift(runtime, penetration, solver, fast
     assert np.linalg.norm(world.positions[1] - start) < 1e-3
 
 
-def _incline(runtime, mu, steps, friction_model="point", solver="pgs", fast_math=False):
+def _incline(runtime, mu, steps, solver="pgs", fast_math=False):
     theta = np.radians(30)
     q = (0, 0, np.sin(theta / 2), np.cos(theta / 2))  # ramp rising towards -x
-    world = World(runtime, friction_model=friction_model, solver=solver, fast_math=fast_math)
+    world = World(runtime, solver=solver, fast_math=fast_math)
     ground(world, friction=mu, orientation=q, position=(0, 0, 0))
     normal = np.array([-np.sin(theta), np.cos(theta), 0])
     start = 1.0 * normal + 0.5 * normal  # box centre 0.5 above the slab's top face (half 1)
@@ -54,20 +54,18 @@ def _incline(runtime, mu, steps, friction_model="point", solver="pgs", fast_math
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
-@pytest.mark.parametrize("friction_model", ["point", "manifold"])
-def test_box_on_incline_sticks_with_high_friction(runtime, friction_model, solver):
+def test_box_on_incline_sticks_with_high_friction(runtime, solver):
     """30 degree incline, mu = 0.7 > tan 30 = 0.577: the box moves < 1 mm over 300 steps."""
-    positions, _ = _incline(runtime, 0.7, 300, friction_model, solver)
+    positions, _ = _incline(runtime, 0.7, 300, solver)
     assert np.linalg.norm(positions[-1] - positions[0]) < 1e-3
 
 
 @pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
-@pytest.mark.parametrize("friction_model", ["point", "manifold"])
-def test_box_slides_down_incline_with_low_friction(runtime, friction_model, solver, fast_math):
+def test_box_slides_down_incline_with_low_friction(runtime, solver, fast_math):
     """mu = 0.3: the box slides with a = g (sin 30 - mu cos 30) (within 5%), fitted from
     the distance travelled, s = a t^2 / 2, between steps 60 and 180."""
-    positions, theta = _incline(runtime, 0.3, 180, friction_model, solver, fast_math)
+    positions, theta = _incline(runtime, 0.3, 180, solver, fast_math)
     down = np.array([-np.cos(theta), -np.sin(theta), 0])
     s = (positions - positions[0]) @ down
     t = np.arange(len(s)) * DT

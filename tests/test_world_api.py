@@ -111,79 +111,77 @@ def test_empty_world_steps(runtime):
     assert world.statistics()["contacts"] == 0
 
 
-def test_automatic_batching_follows_the_body_count(runtime):
-    """batching=None: on an NVIDIA GPU "global" whatever the body count; on another GPU
-    "single" (a resident solve, two solver-side launches a step) while every body fits
-    the local memory, "cells" once bodies are added past it; on a CPU "slabs". The mode
-    used is reported by statistics(), and a step in it solves falling boxes (they land at
-    rest on the ground)."""
-    from rbgen.pipeline.grid import grid_validated
-    from rbgen.pipeline.solver import resident_capacity
+def test_the_planned_batching_runs_and_solves(runtime):
+    """batching=None: the World runs the batching its plan chose for the device (the plan's
+    table is tested in tests/test_plan.py), reports it in statistics(), and a step in it
+    solves falling boxes (they land at rest on the ground)."""
     world = World(runtime)
     world.add_static(rbgen.Box((60, 1, 60)), position=(0, -1, 0))
     world.add_bodies(BOX, positions=grid(40) + [0, 0.2, 0])
     for _ in range(60):
         world.step(1 / 60)
-    gpu, grid_mode = runtime.traits.is_gpu, grid_validated(runtime.traits)
-    small = "global" if grid_mode else "single" if gpu else "slabs"
-    assert world.statistics()["batching"] == small
+    assert world.statistics()["batching"] == world.plan.batching is not None
     assert np.abs(world.linear_velocities).max() < 0.05  # landed and resting
-    if not gpu:
-        return
-    capacity = resident_capacity(runtime.traits)
-    side = int(np.ceil(np.sqrt(capacity))) + 1
-    spread = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2) * 3.0
-    world.add_bodies(BOX, positions=np.c_[spread[:, 0] - 90, np.full(len(spread), 5.0),
-                                          spread[:, 1] - 90])
-    assert world.body_count > capacity
-    world.step(1 / 60)
-    assert world.statistics()["batching"] == ("global" if grid_mode else "cells")
 
 
-def test_fast_math_must_be_a_bool_or_none(runtime):
-    """World(fast_math=...) takes None (the device's default), True or False; anything else
-    is refused when the World is made, naming the parameter."""
-    with pytest.raises(RbgenError, match="fast_math"):
-        World(runtime, fast_math="yes")
-    assert World(runtime, fast_math=True)._solver_options["fast_math"] is True
+@pytest.mark.parametrize("option,bad", [
+    ("iterations", -3), ("iterations", 2.5), ("iterations", True), ("position_iterations", -1),
+    ("relaxation", 0.0), ("relaxation", 2.0), ("relaxation", float("nan")),
+    ("warm_start", "yes"), ("contact_margin", -0.01), ("restitution_threshold", -1.0),
+    ("penetration_slop", float("inf")), ("penetration_recovery", 1.5),
+    ("linear_damping", 1.0), ("angular_damping", -0.1), ("gravity", (0, 1)),
+    ("gravity", (0, np.nan, 0)), ("solver", "gauss"), ("batching", "components"),
+    ("normal_solve", "both"), ("broadphase", "octree"), ("fast_math", "yes"),
+    ("gyroscopic", 1), ("manifold_capacity", 0), ("pair_capacity", -5), ("plan", [1]),
+    ("plan", {"release_sweeps": -1}), ("plan", {"colours": 3}),
+])
+def test_every_option_is_checked_when_the_world_is_made(runtime, option, bad):
+    """A bad option value is refused at construction, naming the option (and nothing is
+    built); the step settings are checked the same way when set later, and a refused set
+    leaves the old value."""
+    with pytest.raises(RbgenError, match=option if option != "plan" else "plan"):
+        World(runtime, **{option: bad})
 
 
-def test_release_sweeps_is_checked_and_reaches_the_solve(runtime):
-    """World(release_sweeps=...): None is the PGS default (DEFAULT_RELEASE_SWEEPS), an integer
-    >= 0 is kept; a negative, fractional or boolean value is refused when the World is
-    made, naming the parameter, and so is any value with the Jacobi solver (which solves
-    the block on every sweep). The World's value is the one its steps pass to the solve
-    (a one-box step with release_sweeps left at an illegal value after construction fails
-    naming it)."""
-    from rbgen.world import DEFAULT_RELEASE_SWEEPS
-    assert World(runtime).release_sweeps == DEFAULT_RELEASE_SWEEPS
-    assert World(runtime, release_sweeps=0).release_sweeps == 0
-    assert World(runtime, solver="jacobi").release_sweeps is None
-    for bad in (-1, 1.5, True, "2"):
-        with pytest.raises(RbgenError, match="release_sweeps"):
-            World(runtime, release_sweeps=bad)
-    with pytest.raises(RbgenError, match="release_sweeps"):
-        World(runtime, solver="jacobi", release_sweeps=2)
-    world = World(runtime, batching="components")
-    world.add_body(rbgen.Box((0.5, 0.5, 0.5)), position=(0, 0.45, 0))
+def test_step_settings_are_checked_when_set(runtime):
+    world = World(runtime)
+    world.iterations = 20
+    assert world.iterations == 20 and world.settings.iterations == 20
+    with pytest.raises(RbgenError, match="iterations=-3"):
+        world.iterations = -3
+    assert world.iterations == 20
+    with pytest.raises(RbgenError, match="unknown World option"):
+        World(runtime, iteration=3)
+
+
+def test_plan_parameters_reach_the_solve(runtime):
+    """World(plan={...}) overrides a tuned plan parameter; the PGS solve the World builds
+    takes it (its release sweeps), and the Jacobi solver, which solves the complete block
+    every sweep, plans none."""
+    world = World(runtime, plan={"release_sweeps": 0}, normal_solve="block")
+    assert world.plan.release_sweeps == 0 and world.plan.sources["release_sweeps"] == "option"
     world.add_static(rbgen.Box((5, 0.5, 5)), position=(0, -0.5, 0))
+    world.add_body(BOX, position=(0, 0.45, 0))
     world.step(1 / 60)
-    world.release_sweeps = -3
-    with pytest.raises(RbgenError, match="release_sweeps"):
-        world.step(1 / 60)
+    assert world._pipeline.solve.solver.release_sweeps == 0
+    assert World(runtime, solver="jacobi").plan.release_sweeps is None
+
+
+def test_fast_math_reaches_the_plan(runtime):
+    """World(fast_math=...) takes None (the device's default), True or False; the plan,
+    whose choice the solver is built with, says which and why."""
+    assert World(runtime, fast_math=True).plan.fast_math is True
+    assert World(runtime, fast_math=False).plan.sources["fast_math"] == "option"
+    assert World(runtime).plan.sources["fast_math"] == "default"
 
 
 def test_statistics_report_the_normal_solve_used(runtime):
-    """statistics()["normal_solve"] is the normal solve the step ran: block under cells
-    batching on any device, and with the automatic batching sequential for the cpu shape's
-    slabs but block for the gpu shape (see rbgen.world._default_normal_solve); None before
-    any step."""
-    def used(**options):
-        world = World(runtime, **options)
-        world.add_static(rbgen.Box((20, 1, 20)), position=(0, -1, 0))
-        world.add_bodies(BOX, positions=grid(8) + [0, 0.01, 0])
-        before = world.statistics()["normal_solve"]
-        world.step(1 / 60)
-        return before, world.statistics()["normal_solve"]
-    assert used(batching="cells") == (None, "block")
-    assert used()[1] == ("sequential" if runtime.traits.kind == "cpu" else "block")
+    """statistics()["normal_solve"] is the plan's normal solve: block under cells batching
+    on any device (a column's rows split between colour launches need it)."""
+    world = World(runtime, batching="cells")
+    world.add_static(rbgen.Box((20, 1, 20)), position=(0, -1, 0))
+    world.add_bodies(BOX, positions=grid(8) + [0, 0.01, 0])
+    world.step(1 / 60)
+    stats = world.statistics()
+    assert stats["normal_solve"] == "block" and stats["batching"] == "cells"
+    assert stats["contacts"] > 0

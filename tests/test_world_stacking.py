@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 import rbgen
-from rbgen.scenes import boxbox_scene
+from rbgen.pipeline.batching import MODES as BATCHINGS
+from rbgen.scenes import boxbox_scene, pile_positions, pyramid_positions
 from rbgen.world import World
 
 DT = 1 / 60
@@ -27,15 +28,8 @@ DT = 1 / 60
 
 #: (batching, fast_math): every mode with the device's default build (None), and the
 #: GPU's and the CPU's default modes with the fast-math build
-STACKING_CASES = ([(mode, None) for mode in ("components", "cells", "columns", "slabs", "single",
-                                             "global")]
-                  + [("global", True), ("slabs", True)])
+STACKING_CASES = ([(mode, None) for mode in BATCHINGS] + [("global", True), ("slabs", True)])
 STACKING_IDS = [f"{mode}-{'fast' if fast else 'default'}" for mode, fast in STACKING_CASES]
-
-
-def pyramid_positions(rows: int, gap: float = 0.02) -> np.ndarray:
-    return np.array([[(i - (rows - r - 1) / 2) * (1 + gap), 0.5 + r, 0.0]
-                     for r in range(rows) for i in range(rows - r)])
 
 
 @pytest.mark.parametrize("batching, fast_math", STACKING_CASES, ids=STACKING_IDS)
@@ -48,7 +42,7 @@ def test_pyramid_of_20_rows_holds(runtime, batching, fast_math):
     for _ in range(600):
         world.step(DT)
     assert np.linalg.norm(world.positions[top] - start) < 0.05
-    if batching in ("components", "single", "global"):
+    if batching == "global":
         assert world.statistics()["groups_used"] == 1  # one connected pile: one work group
     else:
         assert world.statistics()["groups_used"] > 1
@@ -56,11 +50,8 @@ def test_pyramid_of_20_rows_holds(runtime, batching, fast_math):
 
 def drop_grid(world, seed=1):
     """The ground and 4 x 4 x 4 unit boxes at 1.5 m pitch, +-5 cm jitter: the boxes' ids."""
-    rng = np.random.default_rng(seed)
     world.add_static(rbgen.Box((50, 1, 50)), position=(0, -1, 0))
-    i, j, k = np.meshgrid(np.arange(4), np.arange(4), np.arange(4), indexing="ij")
-    positions = np.stack([1.5 * i, 1.0 + 1.5 * j, 1.5 * k], -1).reshape(-1, 3)
-    positions += rng.uniform(-0.05, 0.05, positions.shape)
+    positions = pile_positions(64, layers=4, jitter=0.05, seed=seed)
     return world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
 
 

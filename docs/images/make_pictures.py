@@ -2,7 +2,7 @@
 
     python docs/images/make_pictures.py [--device D] [--steps 300]
 
-box_pile_8000.png: the 8,000-box pile (rbgen.demo's box_pile) after ``--steps``
+box_pile_8000.png: the 8,000-box pile (rbgen.harness's box_pile) after ``--steps``
 steps of 1/60 s, settled; boxbox.png: the 8,000-box BoxBox lattice at its start.
 Both 960x540 with 4 samples a pixel, reduced to 256 colours when a full-colour
 PNG would pass 300 KB.
@@ -13,10 +13,8 @@ import argparse
 import os
 import sys
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
-
-from rbgen.demo import build_scene  # noqa: E402
-from rbgen.render import Camera, render_world  # noqa: E402
+from rbgen.harness import build_scene
+from rbgen.render import Camera, render_world
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 LIMIT = 300_000

@@ -1,12 +1,11 @@
 """Contact constraints from narrowphase manifolds, with warm starting.
 
-One `ContactConstraint` per `ContactManifold`: every point gets a normal row
-and two friction rows (a fixed tangent frame chosen from the normal), the
-manifold's combined friction and restitution, a restitution threshold
-velocity, and penetration recovery, either Baumgarte (a bias on the normal
-velocity target: simple, adds energy) or split impulse (a separate push
-velocity solved after the velocity iterations and thrown away after moving
-the bodies: no bounce from recovery).
+One `ContactConstraint` per `ContactManifold`: every point gets a normal row, the
+manifold a friction pair at the centre of its points and a twist row (a fixed
+tangent frame chosen from the normal), the manifold's combined friction and
+restitution, a restitution threshold velocity, and split-impulse penetration
+recovery (a separate push velocity solved beside the velocity sweeps and thrown away
+after moving the bodies: recovery adds no momentum, so nothing bounces from it).
 
 Warm starting: each step's constraints are recorded in a hash table keyed by
 body pair; the next step looks its pair up first at its own index (the
@@ -33,11 +32,6 @@ from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 
-#: friction models (see the template parameter "friction")
-FRICTION_MODELS = ("point", "manifold")
-
-PENETRATION_MODES = ("baumgarte", "split")
-
 #: constraint buffers kept in a ring: this step's, the two before it (a redo of up to two
 #: steps warm-starts from them) and the next one, whose table this step's setup clears
 GENERATIONS = 4
@@ -47,17 +41,13 @@ TEMPLATE = KernelTemplate(
     [
         work_group_size_param(
             "manifolds per work group; memory-bound, any size that fills a CU works"),
-        Param("penetration", PENETRATION_MODES,
-              "Baumgarte biases the velocity rows; split impulse solves separate push rows"),
         Param("warm_start", (True, False),
               "emit the previous-step lookup only when warm starting is on"),
-        Param("friction", FRICTION_MODELS,
-              "point: two tangent rows per contact point; manifold: one tangent pair at the "
-              "points' centre plus a twist row (fewer rows, Bullet3's GPU choice)"),
     ],
-    doc="Contact constraints (normal + two friction rows per point) from contact manifolds.",
-    defaults=lambda traits: {"friction": "point", "work_group_size": default_work_group_size(traits),
-                             "penetration": "split", "warm_start": True},
+    doc="Contact constraints (a normal row per point, a friction pair and a twist row per "
+        "manifold) from contact manifolds.",
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "warm_start": True},
 )
 
 
@@ -90,18 +80,13 @@ class ContactConstraints:
     body B, passes its impulses on when no feature id matches).
     """
 
-    def __init__(self, runtime: Runtime, *, penetration: str = "split", warm_start: bool = True,
-                 friction: str = "point", work_group_size: int | None = None):
-        if penetration not in PENETRATION_MODES:
-            raise RbgenError(f"penetration must be one of {PENETRATION_MODES}, got {penetration!r}")
+    def __init__(self, runtime: Runtime, *, warm_start: bool = True,
+                 work_group_size: int | None = None):
         self.runtime = runtime
-        self.penetration, self.warm_start = penetration, bool(warm_start)
+        self.warm_start = bool(warm_start)
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
-        if friction not in FRICTION_MODELS:
-            raise RbgenError(f"friction must be one of {FRICTION_MODELS}, got {friction!r}")
-        self.friction = friction
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, penetration=penetration,
-                                  warm_start=self.warm_start, friction=friction)
+        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
+                                  warm_start=self.warm_start)
         program = compile_spec(runtime, self.spec)
         self.setup_kernel = runtime.bound(program.kernel("setup_contact_constraints"))
         #: a stand-in for the next generation's table before that generation exists

@@ -174,9 +174,8 @@ class RadixSort(Primitive):
     @classmethod
     def default_params(cls, traits: DeviceTraits, shape: str | None = None):
         """Heuristics. GPUs get `GPU_DEFAULT_SHAPE`: "split" sorts 8-bit digits
-        (four passes over 32-bit keys) in tiles of 256 x 8 keys (H200, 16M
-        key-value pairs: 1.28 ms, against 1.87 ms for 256 x 16, whose 45 KiB of
-        local memory leaves one work group per SM); "onesweep" tiles of 256 x 16
+        (four passes over 32-bit keys) in tiles of 256 x 8 keys (256 x 16 needs 45 KiB
+        of local memory, which leaves one work group per compute unit); "onesweep" tiles of 256 x 16
         where they fit in local memory, else 256 x 8 (its
         look-back needs a work-item per digit: 4-bit digits on devices whose
         work groups hold fewer than 256); "gpu" 4-bit digits over tiles of

@@ -157,9 +157,8 @@ class Scan(Primitive):
         """Heuristics: GPU tiles of 256 x 8 = 2048 elements (8 KiB of local memory,
         few tile sums); CPU four chunks per compute unit (load balance, tiny
         chunk-sum scan); chained tiles of 256 x 32 = 8192 on GPUs (32 elements
-        in registers per work-item: eight 16-byte loads in flight each; the
-        fastest of 8-32 on the H200) looking back a wavefront of tiles per step
-        (H200, 16M: 0.067 ms = 73% of copy, against 0.076 ms looking back 256),
+        in registers per work-item: eight 16-byte loads in flight each) looking back a
+        wavefront of tiles per step (fewer polls than a look-back of 256),
         tiles by ticket (safe in any dispatch order); 16384 (L2-sized) on CPUs."""
         shape = shape or traits.kind
         if shape == "chained":

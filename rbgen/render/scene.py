@@ -101,7 +101,10 @@ class Frame:
 
 def bodies_of(world) -> Bodies:
     """The `Bodies` of a World (static bodies: those of zero inverse mass)."""
-    table = world._host  # the World's host mirror of its body records
+    # the World's host mirror of its body records (its BodyStore's; the one place here
+    # that knows where the World keeps it)
+    store = getattr(world, "_bodies", None)
+    table = store.host if hasattr(store, "host") else world._host
     return Bodies.make(world.shapes.shapes, table["shape"], table["inv_mass"] == 0)
 
 

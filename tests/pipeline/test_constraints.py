@@ -19,7 +19,7 @@ import pytest
 from rbgen import layouts
 from rbgen.pipeline.batching import ConstraintBatcher
 from rbgen.pipeline.constraints import ContactConstraints
-from rbgen.pipeline.gyroscopic import BodyPreparation, inertia_records
+from rbgen.pipeline.prepare import BodyPreparation, inertia_records
 from rbgen.pipeline.solver import ContactSolver
 
 

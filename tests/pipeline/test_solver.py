@@ -27,7 +27,7 @@ import pytest
 from rbgen.device import INT64_ATOMICS
 from rbgen.errors import RbgenError
 from rbgen.pipeline.batching import ConstraintBatcher
-from rbgen.pipeline.gyroscopic import BodyPreparation, inertia_records
+from rbgen.pipeline.prepare import BodyPreparation, inertia_records
 from rbgen.pipeline.integrate import Integrator
 from rbgen.pipeline.solver import ContactSolver
 from tests.pipeline.test_constraints import ContactRig, make_bodies, make_manifold

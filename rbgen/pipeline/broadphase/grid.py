@@ -97,7 +97,7 @@ LARGE_ROWS = 8
 BUCKETS_PER_BODY = 2
 #: Most work groups of ``measure_grid_bodies``: every work group of the
 #: classification sums all their partial sums, so they are few; 512 still
-#: give each of an H200's 132 CUs several groups.
+#: give each compute unit of a large GPU several groups.
 MEASURE_GROUPS = 512
 #: Bucketings each emission can use.
 BUCKETINGS = {"owner": ("list",), "slot": ("sort", "count")}
@@ -105,11 +105,8 @@ BUCKETINGS = {"owner": ("list",), "slot": ("sort", "count")}
 
 def default_emission(traits) -> str:
     """Owner emission everywhere: on GPUs six launches and no global pair sort; on CPUs
-    too it beats slot emission (which visits half the cells but counts and writes in two
-    passes, then sorts): PoCL on 2 cores (Intel Xeon, 2026-12-04), BoxBox AABBs of a
-    World step, 1,000 / 8,000 / 27,000 boxes: 0.95 / 5.16 / 11.2 ms a query with slot
-    emission and radix-sorted buckets, 0.80 / 5.10 / 10.1 with counted buckets, 0.57 /
-    3.10 / 5.49 with owner emission (the same pairs)."""
+    too it beats slot emission, which visits half the cells but counts and writes in two
+    passes, then sorts (benchmarks/broadphase.py compares them)."""
     return "owner"
 
 

@@ -1,23 +1,15 @@
 /* Contact manifolds -> contact constraints (one per manifold, up to four
  * points, each with a normal row and two friction rows).
  *
-% if friction == "point":
- * Friction: per point, two tangent rows each.
-% else:
  * Friction: per manifold, one tangent pair at the centre of the points (slot
  * 0 of the tangent arrays) and a twist row about the normal (slot 1 of
  * tangent1).
-% endif
  *
  * For every point: lever arms, effective masses of its rows, the normal
  * velocity target (restitution above a threshold velocity, speculative
  * approach for points still apart,
-% if penetration == "baumgarte":
- * Baumgarte push-out of penetration beyond the slop),
-% else:
  * and a separate split-impulse target that pushes out of penetration
  * beyond the slop without adding momentum),
-% endif
 % if warm_start:
  * and the previous step's accumulated impulses, found through a hash table
  * keyed by body pair and matched per point by feature id, else by distance
@@ -32,7 +24,7 @@ ${cl_constants()}
 ${cl_structs("Body", "BodyInertia", "ContactManifold", "ContactConstraint")}
 
 <%include file="/common/inline_math.cl.mako"/>
-<%include file="/pipeline/contact_masses.cl.mako"/>
+<%include file="/pipeline/solvers/contact_masses.cl.mako"/>
 
 /* Slot of a body pair in the warm-starting table (linear probing from here). */
 inline uint pair_slot(uint a, uint b, uint mask)
@@ -101,21 +93,13 @@ inline void warm_start_from(__global const ContactConstraint* old, const float m
         if (match == RB_SOLVER_NONE)
             continue;
         ((float*)&c->normal_impulse)[k] = ((__global const float*)&old->normal_impulse)[match];
-% if friction == "point":
-        float3 friction = old->tangent1.xyz * ((__global const float*)&old->tangent1_impulse)[match]
-                        + old->tangent2.xyz * ((__global const float*)&old->tangent2_impulse)[match];
-        ((float*)&c->tangent1_impulse)[k] = dot3(friction, c->tangent1.xyz);
-        ((float*)&c->tangent2_impulse)[k] = dot3(friction, c->tangent2.xyz);
-% endif
     }
-% if friction == "manifold":
     /* the manifold's friction pair (slot 0) and twist (tangent1 slot 1) */
     float3 friction = old->tangent1.xyz * old->tangent1_impulse.x
                     + old->tangent2.xyz * old->tangent2_impulse.x;
     c->tangent1_impulse.x = dot3(friction, c->tangent1.xyz);
     c->tangent2_impulse.x = dot3(friction, c->tangent2.xyz);
     c->tangent1_impulse.y = old->tangent1_impulse.y;
-% endif
 }
 % endif
 
@@ -218,17 +202,11 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
         else
             target = bounce;
         float push = penetration_recovery / dt * max1(-separation - penetration_slop, 0.0f);
-% if penetration == "baumgarte":
-        /* push > 0 only when penetrating beyond the slop; a speculative
-         * (negative) target of a contact still apart must survive as is */
-        velocity_target[k] = push > 0.0f ? max1(target, push) : target;
-% else:
         velocity_target[k] = target;
         /* a point still apart may close (part of) its gap while the others
          * push out: a target of 0 there would make an exactly solved push
          * lift a tilted box whole instead of levelling it, and towers sway */
         position_target[k] = separation > 0.0f ? -penetration_recovery / dt * separation : push;
-% endif
     }
     set_row_masses(&c, inv_mass_a, inv_inertia_a, inv_mass_b, inv_inertia_b);
     c.velocity_target = (float4)(velocity_target[0], velocity_target[1], velocity_target[2], velocity_target[3]);

@@ -22,7 +22,7 @@ from ..errors import RbgenError
 from .aabbs import SHAPE_TYPE_NAMES
 
 TEMPLATE = KernelTemplate(
-    "pipeline/gyroscopic.cl.mako",
+    "pipeline/prepare.cl.mako",
     [
         work_group_size_param(
             "bodies per work group; memory-bound, so any size that fills a CU works"),

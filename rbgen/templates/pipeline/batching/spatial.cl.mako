@@ -1,13 +1,5 @@
 /* Two-level constraint batching (after Harada's two-level solver).
  *
-% if mode == "components":
- * Level 1 splits the constraints into G groups (one solver work group each)
- * such that no dynamic body is touched by two groups: the contact graph's
- * connected components over dynamic bodies are found with a lock-free
- * union-find (static bodies join nothing), and each component goes whole to
- * the group its root hashes to. The solver then needs no synchronisation
- * between work groups: one launch per step. A single pile is one group.
-% else:
  * Level 1 splits space into cells of at least the largest dynamic body's
  * size; a constraint belongs to the cell of its first contact point. Cells
  * get one of 8 colours by the parity of their coordinates, and each colour's
@@ -17,13 +9,6 @@
  * that loses a claim (a body wider than a cell) goes to the leftover group,
  * solved alone after the 8 colours, so correctness never depends on sizes.
  * The solver launches once per colour and once for the leftovers.
-% if mode == "columns":
- *
- * Columns: the cells are infinite along gravity (the two axes column_u and
- * column_v span the horizontal plane), coloured by the parity of their two
- * coordinates (4 colours): a stack stays whole in one group, and a sweep is
- * 5 launches instead of 9.
-% endif
 % if mode == "slabs":
  *
  * Slabs: the cells are slabs across slab_axis (infinite along the other
@@ -32,9 +17,8 @@
  * whose constraints one work-item then solves in index order (for piles
  * built bottom-up, from the ground up), which cells split over colours.
 % endif
-% endif
  *
-% if shape == "gpu":
+% if solve_form == "lanes":
  * Level 2 colours each group's constraints into batches inside one work group
  * (batch_groups): a batch is a maximal set of constraints that share no dynamic
  * body, grown by rounds of "local minimum priority wins" (Luby) with barriers
@@ -43,7 +27,7 @@
  * dropped. Bodies are marked in per-colour copies of the stamp arrays, since
  * one body may be in a group of every colour.
 % else:
- * CPU shape: no level 2. The solver solves a group's constraints one after
+ * Serial solve form: no level 2. The solver solves a group's constraints one after
  * another in one work-item, so a group is one batch: list_groups (a single
  * work-item, a few passes over a compact array) writes each group's
  * constraints in index order, which keeps the solve deterministic.
@@ -62,9 +46,6 @@ ${cl_structs("ContactConstraint", "Body")}
 % if mode == "cells":
 /* cell colours (parity of the cell coordinates) */
 #define CELL_COLOURS 8
-% elif mode == "columns":
-/* column colours (parities of the two horizontal coordinates) */
-#define CELL_COLOURS 4
 % elif mode == "slabs":
 /* Slab k's group among `groups`: the van der Corput sequence (k's bits
  * reversed, read as a fraction) scaled to the groups, so that consecutive
@@ -88,10 +69,7 @@ inline uint spread_slot(uint k, uint groups)
 /* slab colours (parity of the slab index) */
 #define CELL_COLOURS 2
 % endif
-% if shape == "gpu" and mode == "components":
-/* one set of level-2 batching marks: groups never share a dynamic body */
-#define BATCH_COLOURS 1
-% elif shape == "gpu":
+% if solve_form == "lanes":
 /* a set of level-2 batching marks per cell colour and one for the leftover group */
 #define BATCH_COLOURS (CELL_COLOURS + 1)
 % endif
@@ -103,19 +81,15 @@ inline bool is_dynamic(__global const Body* bodies, uint body)
     return bodies[body].inv_mass > 0.0f;
 }
 
-/* One work-item per body mark (and per group counter): ${"batching marks of every colour cleared, " if shape == "gpu" else ""}${"every body its own component" if mode == "components" else "cell claims released"}. A work group is
+/* One work-item per body mark (and per group counter): ${"batching marks of every colour cleared, " if solve_form == "lanes" else ""}cell claims released. A work group is
  * responsible for ${work_group_size} consecutive marks. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void reset_batching(
-% if shape == "gpu":
+% if solve_form == "lanes":
                     __global uint* body_stamp,
                     __global uint* body_taken,
 % endif
-% if mode == "components":
-                    __global uint* parent,
-% else:
                     __global uint* body_owner,
-% endif
                     __global uint* group_counts,
                     const uint body_count,
                     const uint group_count)
@@ -123,23 +97,18 @@ void reset_batching(
     uint i = get_global_id(0);
     if (i < group_count)
         group_counts[i] = 0;
-% if shape == "gpu":
+% if solve_form == "lanes":
     if (i < BATCH_COLOURS * body_count) {
         body_stamp[i] = RB_SOLVER_NONE;
         body_taken[i] = RB_SOLVER_NONE;
     }
 % endif
-% if mode == "components":
-    if (i < body_count)
-        parent[i] = i;
-% else:
     if (i < CELL_COLOURS * body_count)
         body_owner[i] = RB_SOLVER_NONE;
-% endif
 }
 
 <%def name="group_outputs(indent)">\
-% if shape == "gpu":
+% if solve_form == "lanes":
 ${indent}volatile __global uint* group_counts,
 ${indent}__global uint* constraint_slot,
 % else:
@@ -148,79 +117,12 @@ ${indent}__global uint* constraint_group,
 </%def>
 <%def name="note_group()">\
     constraints[i].group = group;
-% if shape == "gpu":
+% if solve_form == "lanes":
     constraint_slot[i] = atomic_inc(&group_counts[group]);
 % else:
     constraint_group[i] = group;
 % endif
 </%def>
-% if mode == "components":
-/* Root of x's component; parents only ever point to smaller indices, and the
- * path-halving stores are benign races (ECL-CC). */
-inline uint find_root(volatile __global uint* parent, uint x)
-{
-    uint current = parent[x];
-    if (current != x) {
-        uint previous = x, next;
-        while (current > (next = parent[current])) {
-            parent[previous] = next;
-            previous = current;
-            current = next;
-        }
-    }
-    return current;
-}
-
-/* One work-item per constraint: join the components of its two dynamic
- * bodies, hooking the larger root under the smaller with compare-and-swap.
- * A work group is responsible for ${work_group_size} consecutive constraints. */
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void link_bodies(__global const ContactConstraint* constraints,
-                 __global const uint* constraint_count,
-                 __global const Body* bodies,
-                 volatile __global uint* parent)
-{
-    uint i = get_global_id(0);
-    if (i >= constraint_count[0])
-        return;
-    uint a = constraints[i].body_a, b = constraints[i].body_b;
-    if (!is_dynamic(bodies, a) || !is_dynamic(bodies, b))
-        return;
-    uint root_a = find_root(parent, a), root_b = find_root(parent, b);
-    while (root_a != root_b) {
-        uint high = root_a > root_b ? root_a : root_b, low = root_a ^ root_b ^ high;
-        uint seen = atomic_cmpxchg(&parent[high], high, low);
-        if (seen == high)
-            break;
-        /* someone hooked `high` first: retry from its new parent */
-        if (high == root_a)
-            root_a = seen, root_b = low;
-        else
-            root_b = seen, root_a = low;
-    }
-}
-
-/* One work-item per constraint: its group is the hash of its component's
- * root; ${"it takes a slot in that group's list" if shape == "gpu" else "it is noted in a compact array for list_groups"}. A work group is responsible for
- * ${work_group_size} consecutive constraints. */
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void assign_groups(__global ContactConstraint* constraints,
-                   __global const uint* constraint_count,
-                   __global const Body* bodies,
-                   volatile __global uint* parent,
-${group_outputs(" " * 19)}
-                   const uint group_count)
-{
-    uint i = get_global_id(0);
-    if (i >= constraint_count[0])
-        return;
-    uint a = constraints[i].body_a, b = constraints[i].body_b;
-    uint owner = is_dynamic(bodies, a) ? a : b;
-    uint group = mix32(find_root(parent, owner)) % group_count;
-${note_group()}
-}
-
-% else:
 /* floor(x) as an int (|x| < 2^31), without PoCL's out-of-line floor call:
  * truncate, then step down where truncation went up (negative x). */
 inline int floor_to_int(float x)
@@ -252,7 +154,7 @@ inline bool claim_body(volatile __global uint* body_owner, uint colour, uint bod
     return held == RB_SOLVER_NONE || held == group;
 }
 
-/* One work-item per constraint: its ${"cell" if mode == "cells" else mode[:-1]} (from its first contact point)
+/* One work-item per constraint: its ${"cell" if mode == "cells" else "slab"} (from its first contact point)
  * gives a colour and a group; if another group of that colour already holds
  * one of its dynamic bodies it goes to the leftover group. A work group is
  * responsible for ${work_group_size} consecutive constraints. */
@@ -266,9 +168,6 @@ ${group_outputs(" " * 18)}
                   const uint groups_per_colour,
 % if mode == "slabs":
                   const float4 slab_axis,
-% elif mode == "columns":
-                  const float4 column_u,
-                  const float4 column_v,
 % endif
                   const float inv_cell_size)
 {
@@ -281,12 +180,6 @@ ${group_outputs(" " * 18)}
     int4 cell = cell_of(point, inv_cell_size);
     uint colour = cell_colour(cell);
     uint hash = mix32((uint)cell.x * 73856093u ^ (uint)cell.y * 19349663u ^ (uint)cell.z * 83492791u);
-    uint group = colour * groups_per_colour + hash % groups_per_colour;
-% elif mode == "columns":
-    int column_x = floor_to_int(dot3(point, column_u.xyz) * inv_cell_size);
-    int column_z = floor_to_int(dot3(point, column_v.xyz) * inv_cell_size);
-    uint colour = ((uint)column_x & 1u) | (((uint)column_z & 1u) << 1);
-    uint hash = mix32((uint)column_x * 73856093u ^ (uint)column_z * 19349663u);
     uint group = colour * groups_per_colour + hash % groups_per_colour;
 % else:
     int slab = floor_to_int(dot3(point, slab_axis.xyz) * inv_cell_size);
@@ -303,9 +196,7 @@ ${group_outputs(" " * 18)}
 ${note_group()}
 }
 
-% endif
-
-% if shape == "gpu":
+% if solve_form == "lanes":
 /* A single work-item turns the group counts into offsets (exclusive scan);
  * group_count is a few hundred at most. */
 __kernel void scan_groups(__global const uint* group_counts,

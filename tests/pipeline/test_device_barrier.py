@@ -16,7 +16,7 @@ import pytest
 
 import rbgen
 from rbgen import layouts
-from rbgen.pipeline import batching, grid, jacobi, solver
+from rbgen.pipeline import batching, device_barrier, jacobi, solver
 from rbgen.pipeline.batching import ConstraintBatcher
 from rbgen.pipeline.solver import ContactSolver
 from tests.pipeline.test_solver import stacked_columns
@@ -32,7 +32,7 @@ def oversubscribed(monkeypatch):
     def too_many(traits):
         return OVERSUBSCRIBED * max(1, int(traits.compute_units))
     for module in (batching, solver, jacobi):
-        monkeypatch.setattr(module, "grid_groups", too_many)
+        monkeypatch.setattr(module, "persistent_groups", too_many)
     monkeypatch.setattr(grid, "spin_limit", lambda traits: 1 << 12)
 
 
@@ -54,13 +54,13 @@ def test_oversubscribed_colouring_and_solve_give_up(runtime, rng, oversubscribed
     before = rig.bodies.get()
     batcher(rig.setup.constraints, rig.setup.count, rig.bodies, rig.body_count, rig.capacity)
     state = batcher.state.get()
-    assert state[layouts.GRID_ABANDONED] == 1
-    assert state[layouts.GRID_ARRIVALS] == state[layouts.GRID_DEPARTURES] == 0
+    assert state[layouts.BARRIER_ABANDONED] == 1
+    assert state[layouts.BARRIER_ARRIVALS] == state[layouts.BARRIER_DEPARTURES] == 0
     contact_solver.solve(rig.setup.constraints, batcher, rig.bodies, rig.inertia,
                          rig.body_count, iterations=4, position_iterations=2)
     assert np.array_equal(rig.bodies.get(), before)  # the solve saw the flag: no work
     grid.clear_abandoned(runtime, batcher.state)
-    assert batcher.state.get()[layouts.GRID_ABANDONED] == 0
+    assert batcher.state.get()[layouts.BARRIER_ABANDONED] == 0
 
 
 def test_oversubscribed_jacobi_gives_up(runtime, rng, oversubscribed):
@@ -71,8 +71,8 @@ def test_oversubscribed_jacobi_gives_up(runtime, rng, oversubscribed):
     jacobi_solver.solve(rig.setup.constraints, rig.setup.count, rig.capacity, rig.bodies,
                         rig.inertia, rig.body_count, iterations=4)
     sync = jacobi_solver.sync.get()
-    assert sync[layouts.GRID_ABANDONED] == 1
-    assert sync[layouts.GRID_ARRIVALS] == sync[layouts.GRID_DEPARTURES] == 0
+    assert sync[layouts.BARRIER_ABANDONED] == 1
+    assert sync[layouts.BARRIER_ARRIVALS] == sync[layouts.BARRIER_DEPARTURES] == 0
     assert np.array_equal(rig.bodies.get()["linear_velocity"], before["linear_velocity"])
 
 
@@ -89,7 +89,7 @@ def test_world_redoes_an_abandoned_step_without_grid_launches(runtime, solver_na
     """The World's grid launches give up on the first step; it warns, redoes the step in
     the automatic mode without grid barriers (Jacobi: one launch per phase) and then
     matches, bit for bit, a World that used that mode from the start."""
-    monkeypatch.setattr(jacobi, "grid_validated", lambda traits: True)
+    monkeypatch.setattr(jacobi, "persistent_launch_validated", lambda traits: True)
     options = {"batching": "global"} if solver_name == "pgs" else {"solver": "jacobi"}
     world = rbgen.World(runtime, **options)
     ids = small_pile(world)
@@ -97,7 +97,7 @@ def test_world_redoes_an_abandoned_step_without_grid_launches(runtime, solver_na
         for _ in range(20):
             world.step(1 / 60)
         positions = world.positions[ids]
-    monkeypatch.setattr(jacobi, "grid_validated", lambda traits: False)
+    monkeypatch.setattr(jacobi, "persistent_launch_validated", lambda traits: False)
     stats = world.statistics()
     if solver_name == "pgs":
         assert stats["batching"] != "global"

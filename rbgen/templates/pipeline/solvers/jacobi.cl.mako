@@ -6,7 +6,7 @@
  * constraints and one over all bodies. A body with k contacts is split into
  * k copies, one per contact, each with 1/k of its mass and inertia: a
  * constraint solves its rows (the same rows, block solve and friction as the
- * Gauss-Seidel solver, pipeline/contact_rows.cl.mako) on its copies, and the
+ * Gauss-Seidel solver, pipeline/solvers/contact_rows.cl.mako) on its copies, and the
  * body phase sets each body's velocity to the mean of its copies'. That mean
  * is the velocity plus the sum of the contacts' impulses through the whole
  * body's mass, so every contact pushes as much as it asked for, while a body
@@ -28,10 +28,10 @@
  * writes the velocity change of its two copies to `changes`) and a body
  * phase (each dynamic body adds the mean of its list's changes).
  *
-% if grid:
- * Grid variant: ONE launch runs all phases, its work groups (one per
+% if persistent:
+ * Persistent variant: ONE launch runs all phases, its work groups (one per
  * compute unit) passing a barrier across the device between phases
- * (common/grid_barrier.cl.mako); the arrays that lanes of other work groups
+ * (common/device_barrier.cl.mako); the arrays that lanes of other work groups
  * write during the launch are read through volatile pointers. A constraint
  * and a body are each handled by the lane at its index modulo the launch's
  * size in every phase, so what only that lane writes and reads back
@@ -46,26 +46,22 @@
  */
 ${cl_constants()}
 
-% if split_impulse:
 ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity")}
-% else:
-${cl_structs("Body", "BodyInertia", "ContactConstraint")}
-% endif
 
-/* `passes` of the grid kernel: whether it runs the warm start */
+/* `passes` of the persistent kernel: whether it runs the warm start */
 #define WARM_START_PASS 1u
 
 <%include file="/common/inline_math.cl.mako"/>
-% if grid:
-<%include file="/common/grid_barrier.cl.mako"/>
+% if persistent:
+<%include file="/common/device_barrier.cl.mako"/>
 % endif
-<%include file="/pipeline/contact_masses.cl.mako"/>
-<%include file="/pipeline/contact_rows.cl.mako"/>
+<%include file="/pipeline/solvers/contact_masses.cl.mako"/>
+<%include file="/pipeline/solvers/contact_rows.cl.mako"/>
 ${group.work_group_exclusive_scan("uint", work_group_size, min(32, work_group_size))}
 ${group.work_group_reduce("uint", "sum", "{a} + {b}", work_group_size)}
 <%
-    # written by lanes of other work groups during a grid launch: volatile
-    shared = "volatile __global" if grid else "__global"
+    # written by lanes of other work groups during a persistent launch: volatile
+    shared = "volatile __global" if persistent else "__global"
     segments = work_group_size // min(32, work_group_size)
 %>\
 
@@ -102,16 +98,14 @@ __global ContactConstraint* constraints,
                   const uint capacity,
                   ${shared} Body* bodies,
                   __global const BodyInertia* inertia,
-% if split_impulse:
                   ${shared} SplitVelocity* split,
-% endif
                   volatile __global uint* body_contacts,
                   ${shared} uint* body_first,
                   ${shared} uint* chunk_sums,
                   __global uint* side_slots,
                   ${shared} uint* lists,
                   ${shared} float4* changes,
-% if grid:
+% if persistent:
                   volatile __global uint* sync,
 % endif
                   const float relaxation,
@@ -257,12 +251,12 @@ __global ContactConstraint* constraints,
     velocity_results = ("normal_impulse", "tangent1_impulse", "tangent2_impulse")
     sweep = "solve_contact(c, &p, relaxation, reverse, true)"
 %>\
-% if grid:
+% if persistent:
 
 /* The whole solve of one step: the lists, the warm start (passes &
  * WARM_START_PASS), `velocity_sweeps` sweeps on the velocities and
  * `position_sweeps` on the push velocities, by every work group of the
- * launch (`sync`: the grid barrier's words). */
+ * launch (`sync`: the device-wide barrier's words). */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void solve_jacobi(${arguments()},
                   const uint passes,
@@ -270,68 +264,66 @@ void solve_jacobi(${arguments()},
                   const uint position_sweeps)
 {
 ${indices(True)}\
-    /* 0 once a grid barrier was given up: the phases that index through what
+    /* 0 once a device-wide barrier was given up: the phases that index through what
      * earlier phases wrote are skipped from then on (the scan's run on as they
      * are: they index nothing they did not bound themselves) */
-    __local uint grid_ok;
-    grid_start(sync, &grid_ok);
-    if (grid_ok) {
+    __local uint barrier_ok;
+    device_barrier_start(sync, &barrier_ok);
+    if (barrier_ok) {
 ${clear_phase()}\
     }
-    grid_barrier(sync, &grid_ok);
-    if (grid_ok) {
+    device_barrier(sync, &barrier_ok);
+    if (barrier_ok) {
 ${count_phase()}\
     }
-    grid_barrier(sync, &grid_ok);
+    device_barrier(sync, &barrier_ok);
     {
 ${chunk_sum_phase()}\
     }
-    grid_barrier(sync, &grid_ok);
+    device_barrier(sync, &barrier_ok);
     {
 ${scan_phase()}\
     }
-    grid_barrier(sync, &grid_ok);
-    if (grid_ok) {
+    device_barrier(sync, &barrier_ok);
+    if (barrier_ok) {
 ${link_phase()}\
     }
-    grid_barrier(sync, &grid_ok);
-    if (grid_ok) {
+    device_barrier(sync, &barrier_ok);
+    if (barrier_ok) {
 ${order_phase()}\
     }
     if (passes & WARM_START_PASS) {
-        if (grid_ok) {
+        if (barrier_ok) {
 ${constraint_phase("warm_start_contact(c, &p)", "bodies")}\
         }
-        grid_barrier(sync, &grid_ok);
-        if (grid_ok) {
+        device_barrier(sync, &barrier_ok);
+        if (barrier_ok) {
 ${body_phase("bodies")}\
         }
-        grid_barrier(sync, &grid_ok);
+        device_barrier(sync, &barrier_ok);
     }
     for (uint s = 0; s < velocity_sweeps; ++s) {
         const bool reverse = (s & 1) != 0;
-        if (grid_ok) {
+        if (barrier_ok) {
 ${constraint_phase(sweep, "bodies", velocity_results)}\
         }
-        grid_barrier(sync, &grid_ok);
-        if (grid_ok) {
+        device_barrier(sync, &barrier_ok);
+        if (barrier_ok) {
 ${body_phase("bodies")}\
         }
-        grid_barrier(sync, &grid_ok);
+        device_barrier(sync, &barrier_ok);
     }
-% if split_impulse:
     for (uint s = 0; s < position_sweeps; ++s) {
-        if (grid_ok) {
+        if (barrier_ok) {
 ${constraint_phase("solve_push(c, &p, relaxation, true)", "split", ("push_impulse",))}\
         }
-        grid_barrier(sync, &grid_ok);
-        if (grid_ok) {
+        device_barrier(sync, &barrier_ok);
+        if (barrier_ok) {
 ${body_phase("split")}\
         }
-        grid_barrier(sync, &grid_ok);
+        device_barrier(sync, &barrier_ok);
     }
-% endif
-    grid_leave(sync);
+    device_barrier_leave(sync);
 }
 % else:
 <%
@@ -390,7 +382,6 @@ ${indices(False, False)}\
 ${body_phase("bodies")}\
     }
 }
-% if split_impulse:
 
 /* a position sweep's constraint phase (push velocities) */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
@@ -413,5 +404,4 @@ ${indices(False, False)}\
 ${body_phase("split")}\
     }
 }
-% endif
 % endif

@@ -1,7 +1,7 @@
 /* Projected Gauss-Seidel over batched contact constraints.
  *
-% if shape == "gpu":
- * GPU shape: a work group is responsible for one level-1 group (no dynamic
+% if solve_form == "lanes":
+ * Lanes solve form: a work group is responsible for one level-1 group (no dynamic
  * body is shared with a group of the same launch) and walks its level-2
  * batches from the last to the first, with a barrier between batches (the
  * first-fit colourings give the lowest colours to the contacts of the
@@ -14,7 +14,7 @@
  * velocities without atomics. The last batch slot (${max_batches - 1}) holds any
  * remainder and is solved by lane 0 alone.
 % else:
- * CPU shape: a work-item is responsible for one level-1 group (no dynamic
+ * Serial solve form: a work-item is responsible for one level-1 group (no dynamic
  * body is shared with a group of the same launch) and solves its
  * constraints one after another (plain Gauss-Seidel: no batches, no
  * barriers, every row sees every earlier row's result).
@@ -22,11 +22,11 @@
  * One launch runs the warm start and any number of sweeps over the groups
  * it is given: all sweeps of a step when the groups are whole contact-graph
  * components, one sweep per cell colour otherwise.
-% if grid:
- * Grid variant: the one group of all constraints (single or global batching)
+% if persistent:
+ * Persistent variant: the one group of all constraints (single or global batching)
  * is solved by every work group of the launch (as many as the device runs at
  * once), a batch's constraints spread over all their lanes, with a barrier
- * across the work groups after each batch (common/grid_barrier.cl.mako):
+ * across the work groups after each batch (common/device_barrier.cl.mako):
  * the whole solve is one launch, and every compute unit takes part.
 % endif
  *
@@ -48,12 +48,8 @@
  * on alternate sweeps (always solving point 0 first biases a heavy stack's
  * base and makes the whole column wobble), then
 % endif
-% if friction == "point":
- * per point a friction pair clamped to the disc |f| <= mu * its normal impulse.
-% else:
  * one friction pair at the centre of the points, clamped to the disc
  * |f| <= mu * the total normal impulse, and a twist row about the normal.
-% endif
  * Impulses are accumulated, so warm starting applies last step's
  * totals once, for every constraint, before the first sweep.
 % if warm_start_mode == "summed":
@@ -61,14 +57,12 @@
  * constraints' old impulses into velocity changes at once, adds them to
  * per-body sums of 64-bit fixed-point integers with atomics (integer sums do
  * not depend on the order of the additions: the same bits at every run),
- * and after one grid barrier every body takes its sum: two phases instead of
+ * and after one device-wide barrier every body takes its sum: two phases instead of
  * one batch step per colour.
 % endif
-% if split_impulse:
  * The split-impulse position sweeps solve the same normal rows on separate
  * push velocities, which apply_split_velocities turns into a displacement
  * after integration and then forgets.
-% endif
  *
  * A row's Jacobian terms (lever arm x direction, and the angular velocity
  * change per unit impulse) do not depend on the velocities, so they are
@@ -85,18 +79,10 @@
  */
 ${cl_constants()}
 
-% if split_impulse:
 ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity")}
-% else:
-${cl_structs("Body", "BodyInertia", "ContactConstraint")}
-% endif
 
 #define MAX_BATCHES ${max_batches}
-% if resident_bodies:
-/* bodies whose velocities fit the local memory of a resident solve */
-#define RESIDENT_BODIES ${resident_bodies}
-% endif
-% if shape == "gpu":
+% if solve_form == "lanes":
 #define SERIAL_BATCH (MAX_BATCHES - 1)
 % endif
 /* what one solve_groups launch does before its sweeps (bit flags of `passes`) */
@@ -109,24 +95,24 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint")}
 % endif
 
 <%include file="/common/inline_math.cl.mako"/>
-% if grid:
-<%include file="/common/grid_barrier.cl.mako"/>
+% if persistent:
+<%include file="/common/device_barrier.cl.mako"/>
 % endif
 <%
-    # the velocities' address space: in the grid variant other work groups of
+    # the velocities' address space: in the persistent variant other work groups of
     # the same launch write them between batches, so they are read through
-    # volatile pointers (see common/grid_barrier.cl.mako)
-    shared = "volatile __global" if grid else "__global"
+    # volatile pointers (see common/device_barrier.cl.mako)
+    shared = "volatile __global" if persistent else "__global"
 %>\
 
 <%
-    # The CPU shape solves each constraint in place: a private copy (the GPU
-    # shape's way to issue every load at once) is a 352-byte memcpy a visit on
+    # The serial form solves each constraint in place: a private copy (the GPU
+    # lanes form's way to issue every load at once) is a 352-byte memcpy a visit on
     # PoCL, whose fields are then read back through failed store forwarding
     # (PoCL BoxBox 8,000: the copy and those reads were ~10% of the solve).
-    constraint_space = "__global" if shape == "cpu" else "__private"
+    constraint_space = "__global" if solve_form == "serial" else "__private"
 %>\
-<%include file="/pipeline/contact_rows.cl.mako" args="constraint_space=constraint_space"/>
+<%include file="/pipeline/solvers/contact_rows.cl.mako" args="constraint_space=constraint_space"/>
 
 inline void load_bodies(__private ContactBodies* p, ${shared} const Body* bodies,
                         __global const BodyInertia* inertia, uint a, uint b)
@@ -159,7 +145,6 @@ inline void store_velocities(const __private ContactBodies* p, ${shared} Body* b
         bodies[b].angular_velocity = (float4)(p->wb, 0.0f);
     }
 }
-% if split_impulse:
 
 inline void load_push(__private ContactBodies* p, ${shared} const SplitVelocity* split, uint a, uint b)
 {
@@ -178,7 +163,6 @@ inline void store_push(const __private ContactBodies* p, ${shared} SplitVelocity
         split[b].angular = (float4)(p->wb, 0.0f);
     }
 }
-% endif
 % if warm_start_mode == "summed":
 
 /* Add a velocity change to a body's fixed-point sums (linear, then angular). */
@@ -198,50 +182,17 @@ inline float3 warm_sum_vector(volatile __global const long* sums)
            * (1.0f / WARM_SUM_ONE);
 }
 % endif
-% if resident_bodies:
-
-/* Resident velocities: body i's (linear, angular) velocity at 6 i .. 6 i + 5
- * of a local float array (floats, not float4s: 24 bytes a body, so that
- * RESIDENT_BODIES of them fit the local memory). */
-inline float3 resident_vector(__local const float* velocities, uint at)
-{
-    return (float3)(velocities[at], velocities[at + 1], velocities[at + 2]);
-}
-
-inline void set_resident_vector(__local float* velocities, uint at, float3 v)
-{
-    velocities[at] = v.x, velocities[at + 1] = v.y, velocities[at + 2] = v.z;
-}
-
-inline void load_resident(__private ContactBodies* p, __local const float* velocities, uint a, uint b)
-{
-    p->va = resident_vector(velocities, 6 * a), p->wa = resident_vector(velocities, 6 * a + 3);
-    p->vb = resident_vector(velocities, 6 * b), p->wb = resident_vector(velocities, 6 * b + 3);
-}
-
-inline void store_resident(const __private ContactBodies* p, __local float* velocities, uint a, uint b)
-{
-    if (p->inv_mass_a > 0.0f) {
-        set_resident_vector(velocities, 6 * a, p->va);
-        set_resident_vector(velocities, 6 * a + 3, p->wa);
-    }
-    if (p->inv_mass_b > 0.0f) {
-        set_resident_vector(velocities, 6 * b, p->vb);
-        set_resident_vector(velocities, 6 * b + 3, p->wb);
-    }
-}
-% endif
 
 <%
     # where each kind of sweep finds its velocities (see load_velocities)
-    memory = {"velocities": "bodies", "push": "split", "resident": "resident"}
-    fence = "CLK_LOCAL_MEM_FENCE" if resident_bodies else "CLK_GLOBAL_MEM_FENCE"
-    batch_barrier = "grid_barrier(sync, &grid_ok);" if grid else f"barrier({fence});"
-    lanes = "get_global_size(0)" if grid else work_group_size
+    memory = {"velocities": "bodies", "push": "split"}
+    fence = "CLK_GLOBAL_MEM_FENCE"
+    batch_barrier = "device_barrier(sync, &barrier_ok);" if persistent else f"barrier({fence});"
+    lanes = "get_global_size(0)" if persistent else work_group_size
 %>\
 <%def name="visit(solves)">\
 {
-% if shape == "cpu":
+% if solve_form == "serial":
                 /* in place (see constraint_space) */
                 __global ContactConstraint* c = &constraints[order[i]];
 % else:
@@ -275,7 +226,7 @@ inline void store_resident(const __private ContactBodies* p, __local float* velo
 % for guard, name, action, source, results in guarded:
                 ${guard}{
                     store_${source}(&${name}, ${memory[source]}, a, b);
-% for field in (results if shape == "gpu" else ()):
+% for field in (results if solve_form == "lanes" else ()):
                     constraints[index].${field} = c->${field};
 % endfor
                 }
@@ -283,13 +234,13 @@ inline void store_resident(const __private ContactBodies* p, __local float* velo
             }\
 </%def>\
 <%def name="each_constraint(*solves)">\
-% if grid:
+% if persistent:
         for (uint step = 0; step < batch_count; ++step) {
             const uint batch = batch_count - 1 - step;  /* the highest colour first */
             const uint first = offsets[batch], end = offsets[batch + 1];
             /* an unused colour (inherited colours can leave gaps), or a launch that
              * gave up its barrier (no more work; see grid_barrier) */
-            if (first == end || !grid_ok)
+            if (first == end || !barrier_ok)
                 continue;
 % if any(solve[3] == "push" for solve in solves):
             /* (see push_lane: only while that lane has no velocity rows of this batch) */
@@ -307,11 +258,11 @@ inline void store_resident(const __private ContactBodies* p, __local float* velo
 % endfor
             ${batch_barrier}
         }
-% elif shape == "gpu":
+% elif solve_form == "lanes":
         for (uint step = 0; step < batch_count; ++step) {
             const uint batch = batch_count - 1 - step;  /* the highest colour first */
-            uint begin = ${"batch_offsets" if resident_bodies else "offsets"}[batch];
-            uint end = ${"batch_offsets" if resident_bodies else "offsets"}[batch + 1];
+            uint begin = offsets[batch];
+            uint end = offsets[batch + 1];
             uint stride = ${lanes};
             if (batch == SERIAL_BATCH)  /* the remainder: lane 0 alone, in order */
                 stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
@@ -322,24 +273,17 @@ inline void store_resident(const __private ContactBodies* p, __local float* velo
         for (uint i = begin; i < end; ++i) ${visit(solves)}
 % endif
 </%def>\
-<% velocities = "resident" if resident_bodies else "velocities" %>\
+<% velocities = "velocities" %>\
 
-% if resident_bodies:
-/* The warm start, `velocity_sweeps` and then `position_sweeps` sweeps over
- * the one group of all constraints, by one work group whose local memory
- * holds the velocities of all body_count (<= ${resident_bodies}) bodies: a
- * batch step then reads no body velocity from global memory, and the
- * velocities go home once, at the end of the velocity sweeps (the push
- * velocities start from zero there and go to `split` at the end). */
-% elif grid:
+% if persistent:
 /* The warm start, `velocity_sweeps` and then `position_sweeps` sweeps over
  * the one group of all constraints, by every work group of the launch: a
  * lane is responsible for the constraints of a batch at its index (`lane`,
  * below: the work groups' lanes interleaved) plus multiples of the launch's
  * size, and all wait for all after each
- * batch (`sync`: the grid barrier's words, shared with the global colouring
+ * batch (`sync`: the device-wide barrier's words, shared with the global colouring
  * launched before). */
-% elif shape == "gpu":
+% elif solve_form == "lanes":
 /* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
  * the groups group_offset + 0, 1, ... (one launch). A work group is
  * responsible for one level-1 group: its batches in order, a barrier after
@@ -356,10 +300,8 @@ void solve_groups(__global ContactConstraint* constraints,
                   __global const uint* group_batch_count,
                   ${shared} Body* bodies,
                   __global const BodyInertia* inertia,
-% if split_impulse:
                   ${shared} SplitVelocity* split,
-% endif
-% if grid:
+% if persistent:
                   volatile __global uint* sync,
 % endif
 % if warm_start_mode == "summed":
@@ -367,24 +309,21 @@ void solve_groups(__global ContactConstraint* constraints,
                   const uint body_count,
 % endif
                   const float relaxation,
-% if resident_bodies:
-                  const uint body_count,
-% endif
                   const uint group_offset,
-% if shape == "cpu":
+% if solve_form == "serial":
                   const uint group_end,
 % endif
                   const uint passes,
 <%
-    scalars = ["velocity_sweeps"] + (["position_sweeps"] if split_impulse else [])
+    scalars = ["velocity_sweeps", "position_sweeps"]
     if normal_solve == "block":
-        scalars += ["velocity_release_from"] + (["position_release_from"] if split_impulse else [])
+        scalars += ["velocity_release_from", "position_release_from"]
 %>\
                   ${",\n                  ".join("const uint " + name for name in scalars)})
 {
-% if grid:
-    __local uint grid_ok;
-    grid_start(sync, &grid_ok);  /* (the colouring before, on the same `sync`, may have given up) */
+% if persistent:
+    __local uint barrier_ok;
+    device_barrier_start(sync, &barrier_ok);  /* (the colouring before, on the same `sync`, may have given up) */
     /* a batch's constraints go round the work groups first (lane k: local lane
      * k / groups of group k % groups), so that a batch smaller than the launch
      * is solved by one lane or a few on every compute unit rather than by full
@@ -411,7 +350,7 @@ void solve_groups(__global ContactConstraint* constraints,
     const uint group = group_offset;
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint batch_count = group_batch_count[group];
-% elif shape == "gpu":
+% elif solve_form == "lanes":
     const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint batch_count = group_batch_count[group];
@@ -421,18 +360,6 @@ void solve_groups(__global ContactConstraint* constraints,
         return;
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint begin = offsets[0], end = offsets[group_batch_count[group]];
-% endif
-% if resident_bodies:
-    __local float resident[6 * RESIDENT_BODIES];
-    /* the batch offsets, read at every batch step, from local memory too */
-    __local uint batch_offsets[MAX_BATCHES + 1];
-    for (uint k = lane; k <= batch_count; k += ${work_group_size})
-        batch_offsets[k] = offsets[k];
-    for (uint body = lane; body < body_count; body += ${work_group_size}) {
-        set_resident_vector(resident, 6 * body, bodies[body].linear_velocity.xyz);
-        set_resident_vector(resident, 6 * body + 3, bodies[body].angular_velocity.xyz);
-    }
-    barrier(CLK_LOCAL_MEM_FENCE);
 % endif
 <%
     velocity_results = ("normal_impulse", "tangent1_impulse", "tangent2_impulse")
@@ -445,13 +372,13 @@ void solve_groups(__global ContactConstraint* constraints,
                       f"solve_contact(c, {{state}}, relaxation, reverse, {velocity_releases})",
                       velocities, velocity_results)
     push_sweep = ("push_state", "push", f"solve_push(c, {{state}}, relaxation, {push_releases})",
-                  velocities if resident_bodies else "push", ("push_impulse",))
+                  "push", ("push_impulse",))
 %>\
     if (passes & WARM_START_PASS) {
 % if warm_start_mode == "summed":
         /* 1. every constraint's old impulses as velocity changes, summed per body */
         const uint all_begin = offsets[0], all_end = offsets[batch_count];
-        for (uint i = all_begin + lane; grid_ok && i < all_end; i += ${lanes}) {
+        for (uint i = all_begin + lane; barrier_ok && i < all_end; i += ${lanes}) {
             ContactConstraint constraint = constraints[order[i]];
             __private ContactConstraint* c = &constraint;
             uint a = c->body_a, b = c->body_b;
@@ -466,7 +393,7 @@ void solve_groups(__global ContactConstraint* constraints,
         }
         ${batch_barrier}
         /* 2. every body takes its sum, and clears it for the next step */
-        for (uint body = lane; grid_ok && body < body_count; body += ${lanes}) {
+        for (uint body = lane; barrier_ok && body < body_count; body += ${lanes}) {
             volatile __global long* sums = warm_sums + RB_WARM_SUM_WORDS * body;
             if (bodies[body].inv_mass > 0.0f) {
                 float3 linear = warm_sum_vector(sums), angular = warm_sum_vector(sums + 3);
@@ -481,7 +408,6 @@ void solve_groups(__global ContactConstraint* constraints,
 ${each_constraint(warm_start)}\
 % endif
     }
-% if split_impulse and not resident_bodies:
     /* The velocity and the position sweeps at once: the push rows read only
      * push velocities and impulses, the velocity rows neither, so sweep s of
      * each sees what it would see alone, and one batch step (one barrier)
@@ -492,48 +418,10 @@ ${each_constraint(warm_start)}\
         const bool velocity = sweep < velocity_sweeps, push = sweep < position_sweeps;
 ${each_constraint(velocity_sweep, push_sweep)}\
     }
-% else:
-    for (uint sweep = 0; sweep < velocity_sweeps; ++sweep) {
-        const bool reverse = ((passes & FIRST_REVERSED) != 0) != ((sweep & 1) != 0);
-        const bool velocity = true;
-${each_constraint(velocity_sweep)}\
-    }
-% endif
-% if resident_bodies:
-    /* each lane sends home the bodies it loaded (the last barrier made every
-     * lane's updates visible) and clears them for the push velocities */
-    for (uint body = lane; body < body_count; body += ${work_group_size}) {
-        if (bodies[body].inv_mass > 0.0f) {
-            bodies[body].linear_velocity.xyz = resident_vector(resident, 6 * body);
-            bodies[body].angular_velocity.xyz = resident_vector(resident, 6 * body + 3);
-        }
-% if split_impulse:
-        set_resident_vector(resident, 6 * body, (float3)(0.0f));
-        set_resident_vector(resident, 6 * body + 3, (float3)(0.0f));
-% endif
-    }
-% if split_impulse:
-    if (position_sweeps == 0)
-        return;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    /* (the push velocities take the velocities' place in local memory: after them) */
-    for (uint sweep = 0; sweep < position_sweeps; ++sweep) {
-        const bool push = true;
-${each_constraint(push_sweep)}\
-    }
-    for (uint body = lane; body < body_count; body += ${work_group_size}) {
-        if (bodies[body].inv_mass > 0.0f) {
-            split[body].linear.xyz = resident_vector(resident, 6 * body);
-            split[body].angular.xyz = resident_vector(resident, 6 * body + 3);
-        }
-    }
-% endif
-% endif
-% if grid:
-    grid_leave(sync);
+% if persistent:
+    device_barrier_leave(sync);
 % endif
 }
-% if split_impulse:
 
 /* One work-item per body: move it by its push velocity over dt, then clear
  * the push. A work group is responsible for consecutive bodies (as many as
@@ -554,4 +442,3 @@ __kernel void apply_split_velocities(__global Body* bodies, __global SplitVeloci
     split[i].linear = (float4)(0.0f);
     split[i].angular = (float4)(0.0f);
 }
-% endif

@@ -4,22 +4,22 @@ Every constraint of a sweep is solved at once against the velocities the
 sweep started from, a body with k contacts split into k copies of 1/k its
 mass (Tonge, Benevolenski and Voroshilov, "Mass splitting for jitter-free
 parallel rigid body simulation", 2012), and each body then takes the mean of
-its copies' velocities (`templates/pipeline/jacobi.cl.mako` has the phases).
-The rows, the block normal solve and the friction models are the
-Gauss-Seidel solver's own (`templates/pipeline/contact_rows.cl.mako`).
+its copies' velocities (`templates/pipeline/solvers/jacobi.cl.mako` has the phases).
+The rows, the block normal solve and the friction are the
+Gauss-Seidel solver's own (`templates/pipeline/solvers/contact_rows.cl.mako`).
 
 Why: a Gauss-Seidel sweep is a chain of batches (12 colours in a pile) with a
-barrier across the device after each, ~9 us a batch step on an H200 even when
+barrier across the device after each, even when
 a batch is a few hundred constraints; a Jacobi sweep is two phases over all
 constraints and bodies. It needs no colouring at all. The price is slower
 convergence per sweep: what a contact does reaches the next body one sweep
 later instead of within the sweep, so a tall stack needs more sweeps (or more
 steps, through warm starting) to carry its weight down.
 
-Launches (``grid``): on devices where `rbgen.pipeline.grid.grid_validated`
-holds (NVIDIA GPUs) ONE launch a step runs every phase, its work groups
-passing a barrier across the device between phases; elsewhere one launch per
-phase: 6 to build the bodies' contact lists, then 2 per sweep.
+Launches (``persistent``): on devices where
+`rbgen.pipeline.device_barrier.persistent_launch_validated` holds ONE launch a step runs
+every phase, its work groups passing a device-wide barrier between phases; elsewhere one
+launch per phase: 6 to build the bodies' contact lists, then 2 per sweep.
 
 The constraint count stays on the device: the kernels read it and handle
 min(count, capacity) constraints, striding over them.
@@ -30,42 +30,34 @@ import numpy as np
 import pyopencl.array as cl_array
 import pyopencl.cltypes as cltypes
 
-from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
-from ..device import DeviceTraits, Runtime
-from ..errors import RbgenError
-from ..launch import instance
-from .grid import grid_groups, grid_validated, sync_buffer
-from .solver import (FRICTION_MODELS, NORMAL_SOLVES, PushVelocities, check_sweeps,
-                     default_fast_math, fast_math_options, fast_math_param,
-                     resolve_fast_math)
+from ...codegen import KernelTemplate, Param, compile_spec, work_group_size_param
+from ...device import DeviceTraits, Runtime
+from ...launch import instance
+from ..device_barrier import barrier_buffer, persistent_groups, persistent_launch_validated
+from .common import (PushVelocities, check_sweeps, fast_math_options, fast_math_param,
+                     normal_solve_param, resolve_fast_math)
 
 TEMPLATE = KernelTemplate(
-    "pipeline/jacobi.cl.mako",
+    "pipeline/solvers/jacobi.cl.mako",
     [
         work_group_size_param("lanes of a work group; each lane handles constraints and bodies "
                               "at its index plus multiples of the launch's size"),
-        Param("split_impulse", (True, False),
-              "emit the position sweeps on push velocities"),
-        Param("normal_solve", NORMAL_SOLVES,
-              "as the Gauss-Seidel solver's: a manifold's normal rows solved together "
-              "(block) or one after another (sequential)"),
-        Param("friction", FRICTION_MODELS,
-              "as the Gauss-Seidel solver's: per point, or per manifold with a twist row"),
-        Param("grid", (False, True),
-              "True: one launch runs every phase with a barrier across the work groups "
-              "between phases (they must all run at once); False: one launch per phase"),
+        normal_solve_param(),
+        Param("persistent", (False, True),
+              "True: one launch runs every phase with a device-wide barrier between phases "
+              "(the work groups must all run at once); False: one launch per phase"),
         fast_math_param(),
     ],
     doc="Jacobi sweeps with mass splitting over contact constraints.",
     roles={"constraints": "inout", "bodies": "inout", "split": "inout"},
     build_options=fast_math_options,
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "split_impulse": True, "normal_solve": "block",
-                             "friction": "manifold", "grid": grid_validated(traits),
-                             "fast_math": default_fast_math(traits)},
+                             "normal_solve": "block",
+                             "persistent": persistent_launch_validated(traits),
+                             "fast_math": resolve_fast_math(traits, None)},
 )
 
-#: the grid kernel's ``passes`` flag for the warm start (as in the template)
+#: the persistent kernel's ``passes`` flag for the warm start (as in the template)
 WARM_START_PASS = 1
 #: work groups of a phase launch per compute unit (a CPU balances the chunks better)
 PHASE_GROUPS_PER_UNIT = 4
@@ -74,41 +66,44 @@ LIST_PHASES = ("clear", "count", "chunk_sums", "scan", "link", "order")
 
 
 def default_work_group_size(traits: DeviceTraits) -> int:
-    """256 on GPUs (one group a compute unit for the grid launch: the rows' ~200 registers
-    a lane allow no more on 64k-register units), 16 on CPUs."""
+    """256 on GPUs (one group a compute unit for the persistent launch: the rows' registers
+    a lane allow no more), 16 on CPUs."""
     return min(256 if traits.is_gpu else 16, traits.max_work_group_size)
 
 
 class JacobiSolver(PushVelocities):
     """Launches the Jacobi sweeps with mass splitting (see the module docstring)."""
 
-    def __init__(self, runtime: Runtime, *, split_impulse: bool = True,
-                 friction: str = "manifold", normal_solve: str = "block",
-                 grid: bool | None = None, work_group_size: int | None = None,
+    def __init__(self, runtime: Runtime, *, normal_solve: str = "block",
+                 persistent: bool | None = None, work_group_size: int | None = None,
                  fast_math: bool | None = None):
         self.runtime = runtime
         traits = runtime.traits
-        if friction not in FRICTION_MODELS:
-            raise RbgenError(f"friction must be one of {FRICTION_MODELS}, got {friction!r}")
-        if normal_solve not in NORMAL_SOLVES:
-            raise RbgenError(f"normal_solve must be one of {NORMAL_SOLVES}, got {normal_solve!r}")
-        self.grid = grid_validated(traits) if grid is None else bool(grid)
-        self.split_impulse = bool(split_impulse)
+        self.persistent = persistent_launch_validated(traits) if persistent is None \
+            else bool(persistent)
         self.work_group_size = int(work_group_size or default_work_group_size(traits))
         self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
-                                  split_impulse=self.split_impulse, friction=friction,
-                                  normal_solve=normal_solve, grid=self.grid,
+                                  normal_solve=normal_solve, persistent=self.persistent,
                                   fast_math=resolve_fast_math(traits, fast_math))
         self._program = compile_spec(runtime, self.spec)
         #: work groups of every launch (the scan's chunks depend on it)
-        self.groups = grid_groups(traits) * (1 if self.grid else PHASE_GROUPS_PER_UNIT)
+        self.groups = persistent_groups(traits) * (1 if self.persistent
+                                                   else PHASE_GROUPS_PER_UNIT)
         q = runtime.queue
-        #: the grid barrier's words (grid variant; its abandoned flag is read by the World)
-        self.sync = sync_buffer(runtime) if self.grid else None
+        #: the device-wide barrier's words (persistent launch; the World reads its flag)
+        self.sync = barrier_buffer(runtime) if self.persistent else None
         self._chunk_sums = cl_array.zeros(q, self.groups, np.uint32)
         self._body_capacity = self._side_capacity = 0
         #: trailing scalars -> kernel object with those scalars set
         self._instances: dict = {}
+
+    @property
+    def normal_solve(self) -> str:
+        return self.spec.values["normal_solve"]
+
+    def barrier_state(self):
+        """The device-wide barrier words of its persistent launch (None: it makes none)."""
+        return self.sync
 
     # ------------------------------------------------------------- buffers
     def _ensure(self, body_count: int, capacity: int) -> None:
@@ -133,25 +128,24 @@ class JacobiSolver(PushVelocities):
 
     # ------------------------------------------------------------- solving
     def solve(self, constraints, constraint_count, capacity: int, bodies, inertia,
-              body_count: int, *, iterations: int, position_iterations: int = 0,
-              relaxation: float = 1.0, warm_start: bool = True) -> None:
-        """Warm start, ``iterations`` velocity sweeps and ``position_iterations`` push
-        sweeps (needs split_impulse=True) over min(``constraint_count[0]``, ``capacity``)
-        constraints (``constraint_count``: a device uint32 array(1)) between the first
-        ``body_count`` bodies. Rewrites the constraints' row masses for the split bodies
-        and their impulses; leaves the push velocities in `split_velocities`."""
-        check_sweeps(iterations, position_iterations, relaxation, self.split_impulse,
-                     "JacobiSolver")
+              body_count: int, sweeps) -> None:
+        """Warm start, ``sweeps.iterations`` velocity sweeps and
+        ``sweeps.position_iterations`` push sweeps over min(``constraint_count[0]``,
+        ``capacity``) constraints (``constraint_count``: a device uint32 array(1)) between
+        the first ``body_count`` bodies. Rewrites the constraints' row masses for the split
+        bodies and their impulses; leaves the push velocities in `split_velocities`."""
+        iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
+        relaxation, warm_start = sweeps.relaxation, bool(sweeps.warm_start)
+        check_sweeps(iterations, position_iterations, relaxation)
         if capacity <= 0 or body_count <= 0 or not (warm_start or iterations
                                                     or position_iterations):
             return
         self._ensure(body_count, capacity)
-        shared = [constraints, constraint_count, np.uint32(capacity), bodies, inertia]
-        if self.split_impulse:
-            shared.append(self.split_velocities(body_count))
+        shared = [constraints, constraint_count, np.uint32(capacity), bodies, inertia,
+                  self.split_velocities(body_count)]
         shared += [self._body_contacts, self._body_first, self._chunk_sums, self._side_slots,
                    self._lists, self._changes]
-        if self.grid:
+        if self.persistent:
             shared.append(self.sync)
         shared += [np.float32(relaxation), np.uint32(body_count)]
         size = self.groups * self.work_group_size
@@ -162,7 +156,7 @@ class JacobiSolver(PushVelocities):
 
     def _schedule(self, iterations: int, position_iterations: int, warm_start: bool) -> list:
         """The kernel objects of one call, in launch order."""
-        if self.grid:
+        if self.persistent:
             passes = WARM_START_PASS if warm_start else 0
             return [self._kernel("solve_jacobi", passes, iterations, position_iterations)]
         launches = [self._kernel(f"jacobi_{phase}", 0) for phase in LIST_PHASES]

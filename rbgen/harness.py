@@ -19,8 +19,8 @@ host's clock at the block boundaries (in steady state the host is the same
 number of steps ahead at every boundary, so a block's time is the device's);
 ms/step is the median block's time per step, robust to a block that a
 neighbour on the machine slowed, and the mean of all is kept too. A
-``queue.finish()`` per block would cost each block a refill of the pipeline
-(~0.03 ms a step at 1,000 boxes on an H200). With ``progress`` a line after
+``queue.finish()`` per block would cost each block a refill of the pipeline,
+which small scenes on a GPU would show. With ``progress`` a line after
 each block reads the velocities back, which drains the queue; its time is
 left out of both blocks.
 Warm-up steps build and load the kernels.
@@ -65,18 +65,15 @@ def build_scene(name: str, n: int, device=None, **world_options):
         ids = world.add_bodies(Box(scene.half_extents), mass=scene.mass, positions=scene.positions)
         return world, ids, float(scene.ground_offset), float(scene.half_extents[1])
     if name == "box_pile":
-        layers = min(PILE_LAYERS, int(n))
-        side = int(np.ceil(np.sqrt(n / layers)))
-        i, j, k = np.meshgrid(np.arange(side), np.arange(layers), np.arange(side), indexing="ij")
-        positions = np.stack([1.5 * i, 1.0 + 1.5 * j, 1.5 * k], -1).reshape(-1, 3)[:n]
-        positions = positions + np.random.default_rng(0).uniform(-0.01, 0.01, positions.shape)
+        positions = scene_data.pile_positions(int(n), PILE_LAYERS)
+        side = int(np.ceil(np.sqrt(n / min(PILE_LAYERS, int(n)))))
         extent = 1.5 * side / 2 + 10
-        world.add_static(Box((extent, 1, extent)), position=(1.5 * (side - 1) / 2, -1, 1.5 * (side - 1) / 2))
+        world.add_static(Box((extent, 1, extent)),
+                         position=(1.5 * (side - 1) / 2, -1, 1.5 * (side - 1) / 2))
         ids = world.add_bodies(Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
         return world, ids, 0.0, 0.5
     rows = int(n)
-    positions = np.array([[(i - (rows - r - 1) / 2) * 1.02, 0.5 + r, 0.0]
-                          for r in range(rows) for i in range(rows - r)])
+    positions = scene_data.pyramid_positions(rows)
     world.add_static(Box((rows + 10, 1, 10)), position=(0, -1, 0))
     ids = world.add_bodies(Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
     return world, ids, 0.0, 0.5
@@ -144,7 +141,7 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
         "batching": stats["batching"], "solver": stats["solver"],
         "normal_solve": stats["normal_solve"],
         # (only a block normal solve releases points; a sequential one has no release sweeps)
-        "release_sweeps": world.release_sweeps if stats["normal_solve"] == "block" else 0,
+        "release_sweeps": world.release_sweeps, "plan": world.plan.describe(),
         "overflows": world.overflows,
         "nans": int(np.isnan(positions).any(axis=1).sum()),
         "sunk": int((positions[:, 1] < ground_top + half - 0.02).sum()),

@@ -500,15 +500,6 @@ void warm_start_contact(const ${constraint_space} ContactConstraint* c, __privat
     unpack4(c->tangent1_impulse, tangent1_impulse);
     unpack4(c->tangent2_impulse, tangent2_impulse);
     float3 impulse = (float3)(0.0f), moment_a = (float3)(0.0f), moment_b = (float3)(0.0f);
-% if friction == "point":
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-        float3 point_impulse = n * normal_impulse[k] + t1 * tangent1_impulse[k]
-                             + t2 * tangent2_impulse[k];
-        impulse += point_impulse;
-        moment_a += cross3(c->r_a[k].xyz, point_impulse);
-        moment_b += cross3(c->r_b[k].xyz, point_impulse);
-    }
-% else:
     /* the normal impulses at their points, the friction pair at their centre
      * and the twist about n (tangent1 slot 1) */
     float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
@@ -525,7 +516,6 @@ void warm_start_contact(const ${constraint_space} ContactConstraint* c, __privat
     impulse += friction;
     moment_a += cross3(ra * share, friction) + twist;
     moment_b += cross3(rb * share, friction) + twist;
-% endif
     p->va -= impulse * p->inv_mass_a;
     p->wa -= mul_rows(p->inv_inertia_a, moment_a);
     p->vb += impulse * p->inv_mass_b;
@@ -564,27 +554,10 @@ void solve_contact(${constraint_space} ContactConstraint* c, __private ContactBo
      * keep the arrays in registers, on PoCL and on GPUs alike) */
     if (reverse) {
         reverse4(normal_impulse), reverse4(normal_mass), reverse4(target);
-% if friction == "point":
-        reverse4(tangent1_impulse), reverse4(tangent2_impulse);
-        reverse4(tangent1_mass), reverse4(tangent2_mass);
-% endif
     }
     if (!solved)
         solve_normal_rows(count, n, c->r_a, c->r_b, normal_mass, target, relaxation, reverse,
                           normal_impulse, p);
-% if friction == "point":
-    /* friction pairs: |(f1, f2)| <= mu * normal impulse (same point order) */
-    for (uint slot = 0; slot < RB_MAX_MANIFOLD_POINTS; ++slot) {
-        uint k = reverse ? RB_MAX_MANIFOLD_POINTS - 1 - slot : slot;
-        if (k < count)
-            solve_friction_pair(t1, t2, c->r_a[k].xyz, c->r_b[k].xyz, tangent1_mass[slot],
-                                tangent2_mass[slot], friction * normal_impulse[slot],
-                                relaxation, &tangent1_impulse[slot], &tangent2_impulse[slot],
-                                p);
-    }
-    if (reverse)
-        reverse4(normal_impulse), reverse4(tangent1_impulse), reverse4(tangent2_impulse);
-% else:
     if (reverse)
         reverse4(normal_impulse);
     /* one friction pair at the centre of the points: |(f1, f2)| <= mu * total normal
@@ -608,12 +581,10 @@ void solve_contact(${constraint_space} ContactConstraint* c, __private ContactBo
     twist_total = min1(max1(twist_total, -twist_limit), twist_limit);
     apply_row(&twist, twist_total - tangent1_impulse[1], p);
     tangent1_impulse[1] = twist_total;
-% endif
     c->normal_impulse = pack4(normal_impulse);
     c->tangent1_impulse = pack4(tangent1_impulse);
     c->tangent2_impulse = pack4(tangent2_impulse);
 }
-% if split_impulse:
 
 /* Normal rows of one constraint on its bodies' push velocities in *p (split
  * impulse); `releases` as in solve_contact. */
@@ -638,4 +609,3 @@ void solve_push(${constraint_space} ContactConstraint* c, __private ContactBodie
                           push_impulse, p);
     c->push_impulse = pack4(push_impulse);
 }
-% endif

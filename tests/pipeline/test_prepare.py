@@ -11,7 +11,7 @@ import pytest
 
 from rbgen import layouts
 from rbgen.errors import RbgenError
-from rbgen.pipeline.gyroscopic import BodyPreparation, inertia_records
+from rbgen.pipeline.prepare import BodyPreparation, inertia_records
 
 
 def _rotation(q):

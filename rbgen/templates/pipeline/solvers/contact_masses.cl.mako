@@ -18,12 +18,8 @@ inline float row_mass(float3 d, float3 ra, float3 rb, float inv_mass_a, float in
 /* The effective masses of every row of constraint c (its frame and lever
  * arms set) between bodies of these inverse masses and world inverse
  * inertias: per point the normal row,
-% if friction == "point":
- * and the point's two friction rows.
-% else:
  * the friction pair at the centre of the points (tangent slot 0) and the
  * twist row about the normal (tangent1 slot 1).
-% endif
  */
 void set_row_masses(__private ContactConstraint* c, float inv_mass_a,
                     const float3 inv_inertia_a[3], float inv_mass_b,
@@ -36,12 +32,7 @@ void set_row_masses(__private ContactConstraint* c, float inv_mass_a,
             continue;
         float3 ra = c->r_a[k].xyz, rb = c->r_b[k].xyz;
         normal_mass[k] = row_mass(n, ra, rb, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b);
-% if friction == "point":
-        tangent1_mass[k] = row_mass(t1, ra, rb, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b);
-        tangent2_mass[k] = row_mass(t2, ra, rb, inv_mass_a, inv_mass_b, inv_inertia_a, inv_inertia_b);
-% endif
     }
-% if friction == "manifold":
     float3 centre_a = (float3)(0.0f), centre_b = (float3)(0.0f);
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < c->point_count)
         centre_a += c->r_a[k].xyz, centre_b += c->r_b[k].xyz;
@@ -54,7 +45,6 @@ void set_row_masses(__private ContactConstraint* c, float inv_mass_a,
                                 inv_inertia_b);
     float twist = dot3(n, mul_rows(inv_inertia_a, n)) + dot3(n, mul_rows(inv_inertia_b, n));
     tangent1_mass[1] = twist > 0.0f ? 1.0f / twist : 0.0f;
-% endif
     c->normal_mass = (float4)(normal_mass[0], normal_mass[1], normal_mass[2], normal_mass[3]);
     c->tangent1_mass = (float4)(tangent1_mass[0], tangent1_mass[1], tangent1_mass[2],
                                 tangent1_mass[3]);

@@ -2,10 +2,10 @@
 /* Batching of a large world over the whole device ("global" mode).
  *
  * All constraints form one group whose batches (colours) are solved one
- * after another by every work group of the device (the solver's grid
- * variant). One launch of as many work groups as the device runs at once
+ * after another by every work group of the device (the PGS solver's persistent
+ * launch). One launch of as many work groups as the device runs at once
  * colours them, the work groups stepping through the phases together with a
- * grid barrier (common/grid_barrier.cl.mako).
+ * device-wide barrier (common/device_barrier.cl.mako).
  *
  * 1. Inherited colours. A constraint whose body pair had a constraint in the
  *    previous step starts from that constraint's colour (ContactConstraint.group,
@@ -23,7 +23,7 @@
  *    their choices cannot clash and need no atomics; the lowest bid of the
  *    round always wins, so every round colours at least one. Two bid arrays
  *    and two "some constraint lost" flags alternate between rounds (a round
- *    clears the next round's): two grid barriers a round.
+ *    clears the next round's): two device-wide barriers a round.
  *    The priority is the constraint's index for the first `ordered_rounds`
  *    rounds: the rounds then give exactly the sequential first-fit colouring
  *    in index order (a constraint is coloured after all its lower-indexed
@@ -44,7 +44,7 @@
  *
  * The arrays that lanes of other work groups write during the launch (bids,
  * colour masks, the state words, the list) are read through volatile
- * pointers (see common/grid_barrier.cl.mako); `pairs` and
+ * pointers (see common/device_barrier.cl.mako); `pairs` and
  * `constraint_colour` are read only by the lane that wrote them.
  *
  * Output: `order` (constraint indices by colour; inside a colour in any
@@ -64,13 +64,13 @@ ${cl_structs("ContactConstraint", "Body")}
 #define COLOURS ${colours}
 /* the layout of `state` (see colour_global) */
 #define STATE_SYNC 0
-#define STATE_LOST RB_GRID_SYNC_WORDS
+#define STATE_LOST RB_BARRIER_WORDS
 #define STATE_HIGHEST (STATE_LOST + 2)
 #define STATE_BATCH_SIZE (STATE_HIGHEST + 1)
 
 <%include file="/common/hash.cl.mako"/>
 <%include file="/common/colour_mask.cl.mako"/>
-<%include file="/common/grid_barrier.cl.mako"/>
+<%include file="/common/device_barrier.cl.mako"/>
 
 /* the mask words (lo, hi) and bit of colour k */
 inline uint mask_word(uint k)
@@ -105,8 +105,8 @@ inline uint bid_priority(uint c, bool ordered)
 /* Colours the first constraint_count[0] constraints (see the file comment).
  * Scratch: `pairs` (2 per constraint: its dynamic bodies, RB_SOLVER_NONE for a
  * static one), `bids` (2 per body), `used` (4 per body: the colour mask, then
- * the repeated-colour mask of step 1) and `state`: the grid barrier's
- * RB_GRID_SYNC_WORDS words (which the solver's launch after this one shares),
+ * the repeated-colour mask of step 1) and `state`: the device-wide barrier's
+ * RB_BARRIER_WORDS words (which the solver's launch after this one shares),
  * the 2 lost flags, the highest colour taken and MAX_BATCHES + 1 batch
  * counters. The first `ordered_rounds` rounds bid constraint indices. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
@@ -130,32 +130,32 @@ void colour_global(__global ContactConstraint* constraints,
     volatile __global uint* highest = state + STATE_HIGHEST;
     volatile __global uint* batch_size = state + STATE_BATCH_SIZE;
     volatile __global uint* repeated = used + 2 * body_count;
-    /* 0 once a grid barrier was given up: every later phase is skipped */
-    __local uint grid_ok;
-    grid_start(sync, &grid_ok);
-    const uint n = grid_ok ? constraint_count[0] : 0u;
+    /* 0 once a device-wide barrier was given up: every later phase is skipped */
+    __local uint barrier_ok;
+    device_barrier_start(sync, &barrier_ok);
+    const uint n = barrier_ok ? constraint_count[0] : 0u;
 
-    for (uint body = id; body < body_count && grid_ok; body += lanes) {
+    for (uint body = id; body < body_count && barrier_ok; body += lanes) {
         bids[body] = bids[body_count + body] = RB_SOLVER_NONE;
         used[2 * body] = used[2 * body + 1] = 0;
         repeated[2 * body] = repeated[2 * body + 1] = 0;
     }
-    for (uint k = id; k <= MAX_BATCHES && grid_ok; k += lanes)
+    for (uint k = id; k <= MAX_BATCHES && barrier_ok; k += lanes)
         batch_size[k] = 0;
-    if (id == 0 && grid_ok)
+    if (id == 0 && barrier_ok)
         lost[0] = lost[1] = *highest = 0;
     /* every constraint's dynamic bodies, and its inherited colour, if any */
-    for (uint c = id; c < n && grid_ok; c += lanes) {
+    for (uint c = id; c < n && barrier_ok; c += lanes) {
         uint a = constraints[c].body_a, b = constraints[c].body_b;
         uint hint = constraints[c].group;
         pairs[2 * c] = bodies[a].inv_mass > 0.0f ? a : RB_SOLVER_NONE;
         pairs[2 * c + 1] = bodies[b].inv_mass > 0.0f ? b : RB_SOLVER_NONE;
         constraint_colour[c] = hint < COLOURS ? hint : RB_SOLVER_NONE;
     }
-    grid_barrier(sync, &grid_ok);
+    device_barrier(sync, &barrier_ok);
 
     /* 1. inherited colours: mark them on the bodies, noting repeats */
-    for (uint c = id; c < n && grid_ok; c += lanes) {
+    for (uint c = id; c < n && barrier_ok; c += lanes) {
         uint k = constraint_colour[c];
         if (k == RB_SOLVER_NONE)
             continue;
@@ -166,9 +166,9 @@ void colour_global(__global ContactConstraint* constraints,
                 atomic_or(&repeated[2 * body + word], bit);
         }
     }
-    grid_barrier(sync, &grid_ok);
+    device_barrier(sync, &barrier_ok);
     /* keep the colours repeated on neither body; list the rest for the rounds */
-    for (uint c = id; c < n && grid_ok; c += lanes) {
+    for (uint c = id; c < n && barrier_ok; c += lanes) {
         uint k = constraint_colour[c];
         bool keep = k != RB_SOLVER_NONE;
         if (keep) {
@@ -184,11 +184,11 @@ void colour_global(__global ContactConstraint* constraints,
             constraint_colour[c] = RB_SOLVER_NONE;
     }
     /* the masks keep only the colours kept (a repeated colour was dropped by all) */
-    for (uint body = id; body < body_count && grid_ok; body += lanes) {
+    for (uint body = id; body < body_count && barrier_ok; body += lanes) {
         used[2 * body] &= ~repeated[2 * body];
         used[2 * body + 1] &= ~repeated[2 * body + 1];
     }
-    grid_barrier(sync, &grid_ok);
+    device_barrier(sync, &barrier_ok);
 
     /* 2. Jones-Plassmann rounds over the uncoloured constraints */
     bool more = n > 0;
@@ -198,9 +198,9 @@ void colour_global(__global ContactConstraint* constraints,
         const bool ordered = round < ordered_rounds;
         /* every uncoloured constraint bids on its dynamic bodies; the next
          * round's bids are cleared (the last round read them before its barrier) */
-        for (uint body = id; body < body_count && grid_ok; body += lanes)
+        for (uint body = id; body < body_count && barrier_ok; body += lanes)
             next_bid[body] = RB_SOLVER_NONE;
-        for (uint c = id; c < n && grid_ok; c += lanes) {
+        for (uint c = id; c < n && barrier_ok; c += lanes) {
             if (constraint_colour[c] != RB_SOLVER_NONE)
                 continue;
             uint a = pairs[2 * c], b = pairs[2 * c + 1], priority = bid_priority(c, ordered);
@@ -209,13 +209,13 @@ void colour_global(__global ContactConstraint* constraints,
             if (b != RB_SOLVER_NONE)
                 atomic_min(&bid[b], priority);
         }
-        grid_barrier(sync, &grid_ok);
+        device_barrier(sync, &barrier_ok);
         /* a constraint holding the lowest bid on all its dynamic bodies takes
          * the lowest colour free on them (no other winner touches them); the
          * next round's flag is cleared (nobody reads it now) */
-        if (id == 0 && grid_ok)
+        if (id == 0 && barrier_ok)
             lost[(round + 1) & 1] = 0;
-        for (uint c = id; c < n && grid_ok; c += lanes) {
+        for (uint c = id; c < n && barrier_ok; c += lanes) {
             if (constraint_colour[c] != RB_SOLVER_NONE)
                 continue;
             uint a = pairs[2 * c], b = pairs[2 * c + 1], priority = bid_priority(c, ordered);
@@ -238,13 +238,13 @@ void colour_global(__global ContactConstraint* constraints,
             }
             take_colour(constraints, constraint_colour, highest, batch_size, c, k, !ordered);
         }
-        grid_barrier(sync, &grid_ok);
-        more = grid_ok && lost[round & 1] != 0;
+        device_barrier(sync, &barrier_ok);
+        more = barrier_ok && lost[round & 1] != 0;
     }
 
     /* batch offsets (one lane: at most MAX_BATCHES entries), then the list */
-    const uint batch_count = n == 0 || !grid_ok ? 0 : *highest + 1;
-    if (id == 0 && grid_ok) {
+    const uint batch_count = n == 0 || !barrier_ok ? 0 : *highest + 1;
+    if (id == 0 && barrier_ok) {
         uint total = 0;
         for (uint k = 0; k <= batch_count; ++k) {
             uint size = batch_size[k];
@@ -254,15 +254,15 @@ void colour_global(__global ContactConstraint* constraints,
         }
         group_batch_count[0] = batch_count;
     }
-    grid_barrier(sync, &grid_ok);
-    for (uint c = id; c < n && grid_ok; c += lanes) {
+    device_barrier(sync, &barrier_ok);
+    for (uint c = id; c < n && barrier_ok; c += lanes) {
         uint k = constraint_colour[c];
         order[atomic_inc(&batch_size[k])] = c;
     }
     /* the serial slot is solved in list order: make it index order (insertion
      * sort by one lane; the slot holds only what 64 colours could not take) */
-    grid_barrier(sync, &grid_ok);
-    if (id == 0 && grid_ok && batch_count > SERIAL_BATCH) {
+    device_barrier(sync, &barrier_ok);
+    if (id == 0 && barrier_ok && batch_count > SERIAL_BATCH) {
         const uint begin = group_batches[SERIAL_BATCH], end = group_batches[SERIAL_BATCH + 1];
         for (uint i = begin + 1; i < end; ++i) {
             uint value = order[i], j = i;
@@ -271,5 +271,5 @@ void colour_global(__global ContactConstraint* constraints,
             order[j] = value;
         }
     }
-    grid_leave(sync);
+    device_barrier_leave(sync);
 }

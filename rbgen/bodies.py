@@ -1,0 +1,219 @@
+"""The World's bodies: the host mirror, input checks, and the device arrays.
+
+Every body, static or dynamic, has an index (returned by the World's ``add_*``) into the
+state arrays. A body's frame is its shape's principal frame (centre of mass): for
+spheres, boxes and capsules the shape's own frame, for hulls the cooked (re-centred)
+frame. The host copy and the device copy are kept apart: the host copy is authoritative
+after an add or a set (``device_stale``), the device copy after a step (``host_stale``);
+each side is brought up to date only when the other is read.
+
+Input checks (errors name the body index and the field, and leave the store as it was):
+NaN/inf positions, velocities, orientations; non-positive or non-finite mass of a dynamic
+body; friction < 0; restitution outside [0, 1]; a plane as a dynamic body. Orientations
+are normalised; one whose norm is off by more than 1e-3 is normalised with a warning, a
+zero one is refused.
+"""
+from __future__ import annotations
+
+import warnings
+from typing import Callable
+
+import numpy as np
+import pyopencl.array as cla
+
+from . import layouts
+from .errors import RbgenError
+from .pipeline.prepare import inertia_records
+from .shapes import Box, Capsule, ConvexHull, Plane, Shape, ShapeTable, Sphere
+
+#: shape classes a World can simulate (each has narrowphase kernels)
+SUPPORTED_SHAPES = (Sphere, Box, Capsule, ConvexHull, Plane)
+
+
+class DeviceBodies:
+    """The device arrays of one upload: bodies, their backups (one per step in flight: a
+    redone step starts from one), inertia records and static flags."""
+
+    def __init__(self, queue, host: np.ndarray, inv_inertia: np.ndarray, backups: int):
+        n = len(host)
+        self.count = n
+        self.bodies = cla.to_device(queue, host if n else layouts.BODY.zeros(1))
+        self.backups = [cla.empty_like(self.bodies) for _ in range(backups)]
+        self.inertia = cla.to_device(queue, inertia_records(inv_inertia if n else
+                                                            np.zeros((1, 3))))
+        self.static = cla.to_device(queue, (host["inv_mass"] == 0).astype(np.uint32)
+                                    if n else np.zeros(1, np.uint32))
+
+
+class BodyStore:
+    """Host records of every body (`layouts.BODY`) and their inverse inertia diagonals.
+
+    ``finish``: called before the host copy is read or changed (the World's: check every
+    step in flight); ``read_device``: returns the device's records (after a step).
+    """
+
+    def __init__(self, shapes: ShapeTable, finish: Callable[[], None],
+                 read_device: Callable[[], np.ndarray]):
+        self.shapes = shapes
+        self._finish = finish
+        self._read_device = read_device
+        self.host = layouts.BODY.zeros(0)
+        self.inv_inertia = np.zeros((0, 3), np.float32)
+        self.has_dynamic = False
+        self.device_stale = True   # host copy newer than the device
+        self.host_stale = False    # device newer than the host copy
+
+    @property
+    def count(self) -> int:
+        return len(self.host)
+
+    def sync_to_host(self) -> None:
+        """Bring the host copy up to date (waits for the steps in flight)."""
+        self._finish()
+        if self.host_stale:
+            self.host = self._read_device()[: self.count]
+            self.host_stale = False
+
+    def add(self, shape: Shape, positions, orientations, masses, friction, restitution,
+            linear_velocities, angular_velocities) -> np.ndarray:
+        """Append bodies of one shape (``masses`` None: static); returns their indices."""
+        if isinstance(shape, (int, np.integer)):
+            # shapes are values, never indices: an index means one World's table
+            raise RbgenError(f"shape must be an rbgen shape object (e.g. rbgen.Box(...)), got "
+                             f"the index {int(shape)}: shape indices belong to one World's "
+                             f"table, while a shape object can be added to any World")
+        if not isinstance(shape, Shape):
+            raise RbgenError(f"shape must be an rbgen shape, got {type(shape).__name__}")
+        if type(shape) not in SUPPORTED_SHAPES:
+            # the narrowphase has kernels for these pairs only: fail here, not mid-step
+            raise RbgenError(f"shape {type(shape).__name__} has no narrowphase kernels; "
+                             f"supported: {', '.join(c.__name__ for c in SUPPORTED_SHAPES)}")
+        if masses is not None and isinstance(shape, Plane):
+            raise RbgenError("a Plane can only be static: use add_static")
+        n = len(positions)
+        first = self.count
+        positions = rows(positions, n, 3, "positions", first)
+        orientations = unit_quaternions(orientations, n, first)
+        lin = rows(np.zeros((n, 3)) if linear_velocities is None else linear_velocities, n, 3,
+                   "linear_velocities", first)
+        ang = rows(np.zeros((n, 3)) if angular_velocities is None else angular_velocities, n,
+                   3, "angular_velocities", first)
+        friction = per_body(friction, n, "friction")
+        restitution = per_body(restitution, n, "restitution")
+        for values, name, ok in ((friction, "friction", friction >= 0),
+                                 (restitution, "restitution",
+                                  (restitution >= 0) & (restitution <= 1))):
+            bad = np.flatnonzero(~(np.isfinite(values) & ok))
+            if len(bad):
+                raise RbgenError(f"body {first + bad[0]}: {name}={values[bad[0]]!r} is out of "
+                                 f"range")
+        records = layouts.BODY.zeros(n)
+        inv_inertia = np.zeros((n, 3), np.float32)
+        if masses is not None:
+            bad = np.flatnonzero(~(np.isfinite(masses) & (masses > 0)))
+            if len(bad):
+                raise RbgenError(f"body {first + bad[0]}: mass must be positive and finite "
+                                 f"for a dynamic body, got {masses[bad[0]]!r}")
+            unit = shape.mass_properties(mass=1.0)
+            records["inv_mass"] = 1.0 / masses
+            inv_inertia[:] = 1.0 / (masses[:, None] * np.asarray(unit.inertia)[None, :])
+        self.sync_to_host()
+        shape_index = self.shapes.add(shape)
+        records["position"][:, :3] = positions
+        records["orientation"] = orientations
+        records["linear_velocity"][:, :3] = lin
+        records["angular_velocity"][:, :3] = ang
+        records["shape"] = shape_index
+        records["friction"], records["restitution"] = friction, restitution
+        if masses is None:
+            records["linear_velocity"] = 0
+            records["angular_velocity"] = 0
+        self.host = np.concatenate([self.host, records]).astype(layouts.BODY.dtype)
+        self.has_dynamic = bool(np.any(self.host["inv_mass"] > 0))
+        self.inv_inertia = np.concatenate([self.inv_inertia, inv_inertia])
+        self.device_stale = True
+        return np.arange(first, first + n)
+
+    def field(self, name: str, lanes: int) -> np.ndarray:
+        """A copy of one state field of every body, (N, lanes) float32."""
+        self.sync_to_host()
+        return self.host[name][:, :lanes].copy()
+
+    def set_field(self, name: str, values, lanes: int, what: str) -> None:
+        """Replace one state field of every body (static bodies keep zero velocities)."""
+        self.sync_to_host()
+        values = rows(values, self.count, lanes, what, 0)
+        if name == "orientation":
+            values = unit_quaternions(values, self.count, 0)
+        dynamic = self.host["inv_mass"] > 0
+        if name in ("linear_velocity", "angular_velocity"):
+            values = np.where(dynamic[:, None], values, 0.0)
+        self.host[name][:, :lanes] = values
+        self.device_stale = True
+
+    def upload(self, queue, backups: int) -> DeviceBodies:
+        """The device arrays of the host copy (after adds or sets)."""
+        arrays = DeviceBodies(queue, self.host, self.inv_inertia, backups)
+        self.device_stale = False
+        return arrays
+
+    def dynamic_shapes(self) -> list[Shape]:
+        """The distinct shapes of the dynamic bodies."""
+        indices = np.unique(self.host["shape"][self.host["inv_mass"] > 0])
+        return [self.shapes.shapes[int(i)] for i in indices]
+
+    def dynamic_positions(self) -> np.ndarray:
+        """(N, 3) positions of the dynamic bodies (host copy)."""
+        return self.host["position"][self.host["inv_mass"] > 0, :3]
+
+
+# ----------------------------------------------------------------- checks
+
+def per_body(value, n, what):
+    """A scalar or one value per body, as n floats; a wrong shape is refused, naming it."""
+    arr = np.asarray(value, float)
+    if arr.ndim == 0:
+        return np.full(n, float(arr))
+    if arr.shape != (n,):
+        raise RbgenError(f"{what} must be a scalar or one value per body ({n}), got shape "
+                         f"{arr.shape}")
+    return arr.astype(float)
+
+
+def rows(values, n, lanes, what, first):
+    """An (n, lanes) array of finite numbers; the first bad body is named."""
+    arr = np.asarray(values, float)
+    if arr.shape != (n, lanes):
+        raise RbgenError(f"{what} must have shape ({n}, {lanes}), got {arr.shape}")
+    bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
+    if len(bad):
+        raise RbgenError(f"body {first + bad[0]}: {what} has a NaN or infinite value "
+                         f"{arr[bad[0]].tolist()}")
+    return arr
+
+
+def unit_quaternions(values, n, first):
+    """(n, 4) unit quaternions (identity when None); see the module docstring."""
+    if values is None:
+        out = np.zeros((n, 4))
+        out[:, 3] = 1.0
+        return out
+    q = rows(values, n, 4, "orientations", first)
+    norms = np.linalg.norm(q, axis=1)
+    bad = np.flatnonzero(norms < 1e-6)
+    if len(bad):
+        raise RbgenError(f"body {first + bad[0]}: orientations has a zero quaternion")
+    off = np.flatnonzero(np.abs(norms - 1) > 1e-3)
+    if len(off):
+        warnings.warn(f"body {first + off[0]}: orientations not unit (norm "
+                      f"{norms[off[0]]:.4g}); normalised ({len(off)} bodies)", stacklevel=4)
+    return q / norms[:, None]
+
+
+def bounding_radius(shape: Shape) -> float:
+    """Radius of a sphere about the body's origin that holds the shape."""
+    if isinstance(shape, Sphere):
+        return shape.radius
+    if isinstance(shape, Capsule):
+        return shape.radius + shape.half_height
+    return float(np.linalg.norm(np.asarray(shape.local_vertices()), axis=1).max())

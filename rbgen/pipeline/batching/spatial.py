@@ -1,0 +1,191 @@
+"""Spatial batching (Harada's two-level solver): constraints grouped by the cell of a point.
+
+Level 1: a constraint belongs to the cell of its first contact point. ``cells``: cubes
+of at least the largest dynamic body's size, 8 colours by the parity of their
+coordinates; ``slabs``: slabs across one horizontal axis (``slab_axis``), 2 colours.
+Cells of one colour are a whole cell apart, so their constraints share no body and a
+colour is one solver launch over many groups; a constraint whose body another group of
+its colour has claimed (a body wider than a cell) goes to a leftover group solved
+alone, so correctness never depends on sizes. A sweep is one launch per colour plus
+one for the leftovers. Slabs hold whole stacks, which a serial solve then walks in
+index order (from the ground up for piles built bottom-up).
+
+Level 2 (solve form ``lanes``): each group is coloured into batches by one work group
+(maximal independent sets grown by rounds of lowest-priority-wins); the last batch slot
+takes any remainder and is solved by a single lane. With ``serial`` a group is one batch,
+listed in index order by a single work-item (deterministic).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl.array as cl_array
+
+from ...codegen import KernelTemplate, Param, compile_spec, power_of_two, work_group_size_param
+from ...device import DeviceTraits, Runtime
+from ...errors import RbgenError
+from . import SOLVE_FORMS, default_solve_form, read_batches
+
+#: the spatial algorithms and their colours (parity of 3 cell coordinates, or of the slab)
+COLOURS = {"cells": 8, "slabs": 2}
+
+TEMPLATE = KernelTemplate(
+    "pipeline/batching/spatial.cl.mako",
+    [
+        work_group_size_param("lanes of the batching work group (and of the per-item kernels); "
+                              "more lanes colour a large group faster"),
+        Param("max_batches", power_of_two(2, 4096),
+              "batch slots per group; the last slot holds the remainder, solved serially, "
+              "so this bounds local memory, not correctness", "a power of two from 2 to 4096"),
+        Param("mode", tuple(COLOURS),
+              "cells (8 colour launches + leftovers per sweep, piles spread over the device) "
+              "or slabs (2 colour launches + leftovers per sweep, a stack whole in a group)"),
+        Param("solve_form", SOLVE_FORMS,
+              "lanes: level-2 batches for a work group's lanes; serial: none (a group is "
+              "solved by one work-item), groups listed by a single work-item"),
+    ],
+    doc="Level-1 groups (coloured cells or slabs); level-2 batches per work group.",
+    roles={"constraints": "inout", "body_owner": "inout", "group_counts": "inout"},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
+                             "max_batches": 128, "mode": "cells" if traits.is_gpu else "slabs",
+                             "solve_form": default_solve_form(traits)},
+)
+
+
+def default_work_group_size(traits: DeviceTraits) -> int:
+    """128 on GPUs (enough lanes per batch of a pile); 16 on CPUs (few cores, cheap barriers)."""
+    return min(128 if traits.is_gpu else 16, traits.max_work_group_size)
+
+
+def default_group_count(traits: DeviceTraits) -> int:
+    """Groups per colour: two per compute unit on GPUs; eight per core on CPUs, whose groups
+    are single work-items of uneven size that PoCL's threads take in turn."""
+    return max(1, min(1024, (2 if traits.is_gpu else 8) * traits.compute_units))
+
+
+def unit4(vector, name: str) -> np.ndarray:
+    """A direction as the float4 kernel argument (unit length, w = 0); a zero or
+    non-finite one is refused, naming the setting."""
+    axis = np.zeros(4, np.float32)
+    axis[:3] = vector
+    norm = float(np.linalg.norm(axis))
+    if not np.isfinite(norm) or norm == 0.0:
+        raise RbgenError(f"{name} must be a non-zero finite vector, got {vector!r}")
+    return axis / norm
+
+
+class SpatialBatcher:
+    """Cells or slabs (see the module docstring and `rbgen.pipeline.batching.Batcher`).
+
+    ``cell_size`` must be at least the largest dynamic body's diameter plus the contact
+    margin (smaller only costs leftovers); slabs lie across ``slab_axis`` (a unit
+    vector). Both are set with `configure` before a call.
+    """
+
+    def __init__(self, runtime: Runtime, *, mode: str = "cells", group_count: int | None = None,
+                 cell_size: float | None = None, max_batches: int = 128,
+                 work_group_size: int | None = None, solve_form: str | None = None):
+        self.runtime = runtime
+        traits = runtime.traits
+        if mode not in COLOURS:
+            raise RbgenError(f"spatial batching mode must be one of {tuple(COLOURS)}, "
+                             f"got {mode!r}")
+        self.mode = mode
+        self.solve_form = solve_form or default_solve_form(traits)
+        if self.solve_form not in SOLVE_FORMS:
+            raise RbgenError(f"solve_form must be one of {SOLVE_FORMS}, got {solve_form!r}")
+        self.batches = self.solve_form == "lanes"
+        self.max_batches = int(max_batches)
+        self.cell_size = None if cell_size is None else float(cell_size)
+        self.slab_axis = (1.0, 0.0, 0.0)
+        self.cell_colours = COLOURS[mode]
+        self.work_group_size = work_group_size or default_work_group_size(traits)
+        per_colour = int(group_count or default_group_count(traits))
+        if per_colour < 1:
+            raise RbgenError(f"group_count must be >= 1, got {group_count!r}")
+        colours = self.cell_colours
+        self.groups_per_colour = per_colour
+        self.group_count = colours * per_colour + 1
+        self.colours = colours + 1
+        self.launch_plan = [(c * per_colour, per_colour) for c in range(colours)]
+        self.launch_plan.append((colours * per_colour, 1))
+        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
+                                  max_batches=self.max_batches, mode=self.mode,
+                                  solve_form=self.solve_form)
+        names = ["reset_batching", "assign_cells"]
+        names += ["scan_groups", "scatter_groups", "batch_groups"] if self.batches \
+            else ["list_groups"]
+        program = compile_spec(runtime, self.spec)
+        self._kernels = {name: runtime.bound(program.kernel(name)) for name in names}
+        self.body_capacity = self.constraint_capacity = 0
+        queue, g = runtime.queue, self.group_count
+        self.group_counts = cl_array.zeros(queue, g, np.uint32)
+        self.group_offsets = cl_array.zeros(queue, g + 1, np.uint32)
+        self.group_batches = cl_array.zeros(queue, g * (self.max_batches + 1), np.uint32)
+        self.group_batch_count = cl_array.zeros(queue, g, np.uint32)
+
+    def configure(self, *, cell_size: float, slab_axis) -> None:
+        """The cell side (m) and the slabs' axis of the scene."""
+        self.cell_size = float(cell_size)
+        self.slab_axis = tuple(float(v) for v in slab_axis)
+
+    def ensure_capacity(self, body_capacity: int, constraint_capacity: int) -> None:
+        """Grow the per-body and per-constraint scratch (never shrinks)."""
+        queue = self.runtime.queue
+        if body_capacity > self.body_capacity:
+            self.body_capacity = int(body_capacity)
+            n = max(1, self.body_capacity)
+            if self.batches:  # level-2 marks, one set per colour
+                self.body_stamp = cl_array.empty(queue, self.colours * n, np.uint32)
+                self.body_taken = cl_array.empty(queue, self.colours * n, np.uint32)
+            self.body_owner = cl_array.empty(queue, self.cell_colours * n, np.uint32)
+        if constraint_capacity > self.constraint_capacity:
+            self.constraint_capacity = int(constraint_capacity)
+            n = max(1, self.constraint_capacity)
+            self.order = cl_array.empty(queue, n, np.uint32)
+            #: per constraint: its slot in its group's list (lanes) or its group (serial)
+            self.constraint_slot = cl_array.empty(queue, n, np.uint32)
+            if self.batches:
+                (self.constraint_batch, self.constraint_blocked,
+                 self.group_list) = (cl_array.empty(queue, n, np.uint32) for _ in range(3))
+
+    def __call__(self, constraints, constraint_count, bodies, body_count: int,
+                 constraint_capacity: int) -> None:
+        """Batch the first ``constraint_count[0]`` constraints (a device uint32 array(1));
+        ``constraint_capacity`` bounds the count and sizes the launches."""
+        if not self.cell_size:
+            raise RbgenError(f"batching mode {self.mode!r} needs a positive cell_size")
+        self.ensure_capacity(body_count, constraint_capacity)
+        k, wg = self._kernels, self.work_group_size
+        g, n = self.group_count, self.body_capacity
+        marks = max(self.cell_colours * n, self.colours * n if self.batches else 0)
+        marks_buffers = (self.body_stamp, self.body_taken) if self.batches else ()
+        k["reset_batching"].over(max(marks, g), wg, *marks_buffers, self.body_owner,
+                                 self.group_counts, np.uint32(n), np.uint32(g))
+        # lanes: atomic slots in the group lists; serial: each constraint's group
+        outputs = (self.group_counts, self.constraint_slot) if self.batches else \
+            (self.constraint_slot,)
+        if constraint_capacity > 0:
+            axis = (unit4(self.slab_axis, "slab_axis"),) if self.mode == "slabs" else ()
+            k["assign_cells"].over(constraint_capacity, wg, constraints, constraint_count,
+                                   bodies, self.body_owner, *outputs, np.uint32(n),
+                                   np.uint32(self.groups_per_colour), *axis,
+                                   np.float32(1.0 / self.cell_size))
+        if not self.batches:
+            k["list_groups"].bind(constraint_count, self.constraint_slot, self.group_counts,
+                                  self.group_offsets, self.order, self.group_batches,
+                                  self.group_batch_count, np.uint32(constraint_capacity),
+                                  np.uint32(g)).launch(1, 1)
+            return
+        k["scan_groups"].bind(self.group_counts, self.group_offsets, np.uint32(g)).launch(1, 1)
+        if constraint_capacity > 0:
+            k["scatter_groups"].over(constraint_capacity, wg, constraints, constraint_count,
+                                     self.constraint_slot, self.group_offsets, self.group_list,
+                                     self.constraint_batch, self.constraint_blocked)
+        k["batch_groups"].bind(constraints, bodies, self.group_offsets, self.group_list,
+                               self.body_stamp, self.body_taken, self.constraint_batch,
+                               self.constraint_blocked, self.order, self.group_batches,
+                               self.group_batch_count, np.uint32(n),
+                               np.uint32(self.groups_per_colour)).launch(g * wg, wg)
+
+    def read_batches(self):
+        return read_batches(self)

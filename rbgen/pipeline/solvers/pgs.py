@@ -1,0 +1,310 @@
+"""Projected Gauss-Seidel contact solver over a batcher's groups.
+
+Solve forms (template parameter ``solve_form``, the batcher's):
+
+* ``lanes``: a work group per level-1 group walks its level-2 batches with a
+  barrier between them, its lanes solving the constraints of a batch at once;
+* ``serial``: a work-item per level-1 group solves the group's constraints one
+  after another (Gauss-Seidel proper, no barriers): a CPU runs many small groups
+  well, and each row sees every earlier row's result.
+
+Persistent solve (``persistent``, lanes form, over ``global`` batching): the one group
+of all constraints is solved by one work group per compute unit, a batch's
+constraints spread over all their lanes, with a device-wide barrier after each batch
+(`rbgen.pipeline.device_barrier`): one launch for the whole solve at any size, every
+compute unit busy. A batch's constraints go round the work groups first, so that a
+small batch is a lane or two on every compute unit, not full warps on a few.
+
+Warm start (``warm_start_mode``): ``batched``, a sweep over the batches that applies
+every constraint's old impulses; ``summed`` (persistent solves on devices with 64-bit
+atomics), two phases: every constraint's old impulses become velocity changes summed
+per body in 64-bit fixed point (order-free integer sums: the same bits every run), then
+every body takes its sum.
+
+Sweeps: `solve` runs the warm start, ``iterations`` velocity sweeps and
+``position_iterations`` split-impulse sweeps; position sweep k is solved in the same
+batch steps as velocity sweep k (its rows touch only push velocities and impulses).
+With one launch in the batcher's plan (global batching) every sweep runs in that one
+launch; otherwise a sweep is one launch per colour and the warm start a sweep of its
+own. Odd velocity sweeps visit each manifold's points backwards. With the block normal
+solve, only the last ``release_sweeps`` sweeps solve each manifold's complete block;
+the earlier ones take its all-pushing solution where it holds (a cheaper sweep).
+
+Host cost: each distinct set of trailing scalars of the launch schedule has its own
+kernel object (`rbgen.launch.instance`) with those scalars set once; buffers and
+``relaxation`` are bound once per call through `rbgen.launch.BoundKernel`.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl.array as cl_array
+
+from ... import layouts
+from ...codegen import KernelTemplate, Param, compile_spec, power_of_two, work_group_size_param
+from ...device import INT64_ATOMICS, DeviceTraits, Runtime
+from ...errors import RbgenError
+from ...launch import instance
+from ..batching import SOLVE_FORMS
+from ..device_barrier import barrier_buffer, persistent_groups, persistent_launch_validated
+from .common import (PushVelocities, check_sweeps, fast_math_options, fast_math_param,
+                     normal_solve_param, resolve_fast_math)
+
+#: how the warm start reaches the velocities (see the template parameter "warm_start_mode")
+WARM_START_MODES = ("batched", "summed")
+
+TEMPLATE = KernelTemplate(
+    "pipeline/solvers/pgs.cl.mako",
+    [
+        work_group_size_param("lanes form: lanes solving one batch at a time (a batch of a "
+                              "dense pile holds a few hundred constraints); serial form: groups "
+                              "per work group, each solved by its own work-item"),
+        Param("max_batches", power_of_two(2, 4096),
+              "must equal the batcher's max_batches (the layout of group_batches)",
+              "a power of two from 2 to 4096"),
+        Param("solve_form", SOLVE_FORMS,
+              "lanes: a work group per level-1 group, lanes over level-2 batches with barriers; "
+              "serial: a work-item per level-1 group, its constraints one after another"),
+        normal_solve_param(),
+        Param("persistent", (False, True),
+              "lanes form, one group of all constraints (global batching): every work group "
+              "of the launch (one per compute unit) takes part in each batch, with a "
+              "device-wide barrier between batches (one launch for the whole solve)"),
+        fast_math_param(),
+        Param("warm_start_mode", WARM_START_MODES,
+              "batched: the warm start is a sweep over the batches (one batch step per "
+              "colour); summed (persistent only): every constraint's old impulses are summed "
+              "per body in 64-bit fixed point with atomics, then every body takes its sum"),
+    ],
+    doc="PGS velocity sweeps and split-impulse position sweeps over batched contacts.",
+    roles={"constraints": "inout", "bodies": "inout", "split": "inout", "warm_sums": "inout"},
+    requires=lambda v: _parameter_rules(v),
+    build_options=fast_math_options,
+    defaults=lambda traits: default_values(traits,
+                                           persistent=persistent_launch_validated(traits)),
+)
+
+
+def default_values(traits: DeviceTraits, *, persistent: bool = False,
+                   solve_form: str | None = None) -> dict:
+    """The solver's parameters for a device and a batching of this solve form (the
+    template's defaults: a default World's plan on that device)."""
+    solve_form = solve_form or ("lanes" if traits.is_gpu else "serial")
+    return {"work_group_size": default_work_group_size(traits, solve_form, persistent),
+            "max_batches": 128, "solve_form": solve_form,
+            "normal_solve": default_normal_solve(solve_form, "global" if persistent else
+                                                 ("slabs" if solve_form == "serial" else
+                                                  "cells")),
+            "persistent": persistent,
+            "fast_math": resolve_fast_math(traits, None),
+            "warm_start_mode": "summed" if persistent and traits.has_extension(INT64_ATOMICS)
+            else "batched"}
+
+
+def _parameter_rules(values: dict) -> str | None:
+    """What the solver template's parameters must agree on (None: they do)."""
+    if values["persistent"] and values["solve_form"] != "lanes":
+        return "persistent needs solve_form='lanes' (the work groups share the batches)"
+    if values["warm_start_mode"] == "summed" and not values["persistent"]:
+        return "warm_start_mode='summed' needs persistent=True (its two phases are " \
+               "separated by a device-wide barrier)"
+    return None
+
+
+def default_normal_solve(solve_form: str, batching: str | None = None) -> str:
+    """sequential for a serial solve over slabs: Gauss-Seidel proper over whole stacks
+    holds them with the cheaper rows (the block costs several times more there); block
+    otherwise: lanes solve a batch's manifolds side by side, so a sequential solve's
+    point-order torque is not corrected by rows solved after it and columns lean, and
+    cells split a column between launches."""
+    return "sequential" if solve_form == "serial" and batching == "slabs" else "block"
+
+
+def default_work_group_size(traits: DeviceTraits, solve_form: str | None = None,
+                            persistent: bool = False) -> int:
+    """lanes form: 64 (two warps / one wavefront per batch step), 256 for a persistent
+    solve (one work group a compute unit does all; the block solve's registers a lane
+    allow no more); serial form: 1 (one group per work group, so that PoCL hands groups to
+    its threads one at a time)."""
+    if (solve_form or ("lanes" if traits.is_gpu else "serial")) == "serial":
+        return 1
+    return min(256 if persistent else 64, traits.max_work_group_size)
+
+
+#: bodies per work group of apply_split_velocities: enough to amortise a work group's
+#: start on a CPU, two warps on a GPU
+APPLY_WORK_GROUP_SIZE = 64
+
+#: bit flags of a `solve_groups` launch's ``passes`` argument (as in the template)
+WARM_START_PASS, FIRST_REVERSED = 1, 2
+
+
+def check_release_sweeps(release_sweeps) -> None:
+    """Refuse a ``release_sweeps`` that is neither None nor an integer >= 0, naming it."""
+    if release_sweeps is not None and (isinstance(release_sweeps, bool)
+                                       or not isinstance(release_sweeps, (int, np.integer))
+                                       or release_sweeps < 0):
+        raise RbgenError(f"release_sweeps must be None (every sweep) or an integer >= 0, "
+                         f"got {release_sweeps!r}")
+
+
+def first_release_sweep(sweeps: int, release_sweeps: int | None) -> int:
+    """The first of ``sweeps`` sweeps whose block solve may release points: the last
+    ``release_sweeps`` of them (None: all)."""
+    return 0 if release_sweeps is None else max(0, sweeps - release_sweeps)
+
+
+class PgsSolver(PushVelocities):
+    """Launches the PGS sweeps over the groups of its batcher (see the module docstring).
+
+    ``batcher``: the `rbgen.pipeline.batching.Batcher` whose arrays each `solve` reads
+    (the caller runs the batcher before); its solve form and max_batches are the solver's.
+    ``persistent``: one launch over every compute unit (global batching only).
+    ``release_sweeps`` (block normal solve): how many of the last velocity sweeps, and of
+    the last position sweeps, solve the complete block (None: every sweep).
+    """
+
+    def __init__(self, runtime: Runtime, batcher, *, normal_solve: str | None = None,
+                 persistent: bool = False, fast_math: bool | None = None,
+                 warm_start_mode: str | None = None, work_group_size: int | None = None,
+                 release_sweeps: int | None = None):
+        self.runtime = runtime
+        self.batcher = batcher
+        traits = runtime.traits
+        persistent = bool(persistent)
+        if persistent and batcher.group_count != 1:
+            raise RbgenError(f"a persistent solve needs one group of all constraints (global "
+                             f"batching), got {batcher.group_count} groups (batching "
+                             f"{batcher.mode!r})")
+        values = default_values(traits, persistent=persistent, solve_form=batcher.solve_form)
+        if warm_start_mode == "summed" and not runtime.has_extension(INT64_ATOMICS):
+            raise RbgenError(f"warm_start_mode='summed' needs the device extension "
+                             f"{INT64_ATOMICS}, which {traits.device_name} lacks")
+        overrides = {"normal_solve": normal_solve, "warm_start_mode": warm_start_mode,
+                     "work_group_size": work_group_size,
+                     "fast_math": None if fast_math is None else resolve_fast_math(traits,
+                                                                                   fast_math)}
+        values.update({k: v for k, v in overrides.items() if v is not None})
+        values["max_batches"] = int(batcher.max_batches)
+        check_release_sweeps(release_sweeps)
+        self.release_sweeps = None if release_sweeps is None else int(release_sweeps)
+        self.spec = TEMPLATE.spec(**values)
+        self.solve_form = values["solve_form"]
+        self.work_group_size = values["work_group_size"]
+        self.persistent = persistent
+        self.max_batches = values["max_batches"]
+        #: per-body fixed-point sums of the summed warm start (zero between solves)
+        self._warm_sums = None
+        #: the device-wide barrier's words over batches other than global's (which brings its own)
+        self._sync = barrier_buffer(runtime) if persistent else None
+        self._program = program = compile_spec(runtime, self.spec)
+        self.apply_kernel = runtime.bound(program.kernel("apply_split_velocities"))
+        #: trailing scalars -> kernel object with those scalars set
+        self._instances: dict = {}
+        #: (plan, sweeps, warm start) -> ([(kernel, global size)], distinct kernels)
+        self._schedules: dict = {}
+
+    @property
+    def normal_solve(self) -> str:
+        return self.spec.values["normal_solve"]
+
+    def barrier_state(self):
+        """The device-wide barrier words its persistent launch uses (None: it makes none)."""
+        if not self.persistent:
+            return None
+        state = getattr(self.batcher, "state", None)
+        return self._sync if state is None else state
+
+    def solve(self, constraints, constraint_count, constraint_capacity: int, bodies, inertia,
+              body_count: int, sweeps) -> None:
+        """Warm start (every constraint's old impulses, before any sweep),
+        ``sweeps.iterations`` velocity sweeps and ``sweeps.position_iterations``
+        split-impulse sweeps over the batches of the batcher's last call, launched as the
+        module docstring says. ``body_count``: all bodies, static ones too (indexed as in
+        ``bodies``); the count arguments are the batcher's (unused here)."""
+        iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
+        check_sweeps(iterations, position_iterations, sweeps.relaxation)
+        release = self.release_sweeps if self.normal_solve == "block" else 0
+        batcher = self.batcher
+        launches, kernels = self._schedule(batcher.launch_plan, iterations, position_iterations,
+                                           bool(sweeps.warm_start), release)
+        if not launches:
+            return
+        shared = [constraints, batcher.order, batcher.group_batches, batcher.group_batch_count,
+                  bodies, inertia, self.split_velocities(max(1, int(body_count)))]
+        if self.persistent:  # after a global colouring: its buffer (it may have given up)
+            shared.append(self.barrier_state())
+        if self.spec.values["warm_start_mode"] == "summed":
+            shared += [self._warm_sum_buffer(max(1, int(body_count))), np.uint32(body_count)]
+        shared.append(np.float32(sweeps.relaxation))
+        for kernel in kernels:
+            kernel.bind_first(*shared)
+        wg = self.work_group_size
+        for kernel, size in launches:
+            kernel.launch(size, wg)
+
+    def _warm_sum_buffer(self, body_capacity: int):
+        """The summed warm start's zeroed per-body sums (the kernel leaves them zero; a
+        launch whose barrier gave up may leave some behind, and the World then stops
+        using this persistent solver)."""
+        words = layouts.WARM_SUM_WORDS * body_capacity
+        if self._warm_sums is None or len(self._warm_sums) < words:
+            self._warm_sums = cl_array.zeros(self.runtime.queue, words, np.int64)
+        return self._warm_sums
+
+    def _schedule(self, plan, iterations: int, position_iterations: int, warm_start: bool,
+                  release_sweeps: int | None):
+        """Every launch of one call (kernel object, global size) and the distinct
+        kernel objects, computed once per plan and settings."""
+        key = (tuple(plan), iterations, position_iterations, warm_start, release_sweeps)
+        schedule = self._schedules.get(key)
+        if schedule is not None:
+            return schedule
+        warm = WARM_START_PASS if warm_start else 0
+        velocity_from = first_release_sweep(iterations, release_sweeps)
+        position_from = first_release_sweep(position_iterations, release_sweeps)
+        # (passes, velocity sweeps, position sweeps, and the first of each that may release)
+        if len(plan) == 1:  # one launch: every sweep in it
+            passes = [(warm, iterations, position_iterations, velocity_from, position_from)]
+        else:  # one launch per colour and sweep; the warm start is a sweep of its own
+            passes = [(warm, 0, 0, 0, 0)] if warm else []
+            passes += [(FIRST_REVERSED if s % 2 else 0, int(s < iterations),
+                        int(s < position_iterations), int(s < velocity_from),
+                        int(s < position_from))
+                       for s in range(max(iterations, position_iterations))]
+        passes = [p for p in passes if p[:3] != (0, 0, 0)]
+        launches = [self._launch(first, count, *p) for p in passes for first, count in plan]
+        kernels = list({id(k): k for k, _ in launches}.values())
+        schedule = self._schedules[key] = (launches, kernels)
+        return schedule
+
+    def _launch(self, first: int, count: int, passes: int, velocity_sweeps: int,
+                position_sweeps: int, velocity_release_from: int, position_release_from: int):
+        """(kernel object, global size) of one launch over groups first .. first + count - 1;
+        its sweeps from velocity_release_from (position_release_from) on may release points."""
+        wg = self.work_group_size
+        scalars = [first]
+        if self.solve_form == "serial":  # a work-item per group, the last work group partly idle
+            scalars.append(first + count)
+            size = -(-count // wg) * wg
+        elif self.persistent:  # every compute unit, whatever the group count (1)
+            size = persistent_groups(self.runtime.traits) * wg
+        else:
+            size = count * wg
+        scalars += [passes, velocity_sweeps, position_sweeps]
+        if self.normal_solve == "block":
+            scalars += [velocity_release_from, position_release_from]
+        key = tuple(scalars)
+        kernel = self._instances.get(key)
+        if kernel is None:
+            kernel = self._instances[key] = instance(self.runtime, self._program, "solve_groups")
+            kernel.bind_last(*(np.uint32(v) for v in scalars))
+        return kernel, size
+
+    def apply_split(self, bodies, body_count: int, dt: float) -> None:
+        """Move bodies by their push velocities (after integration) and clear them."""
+        if body_count == 0:
+            return
+        split = self.split_velocities(body_count)
+        wg = min(APPLY_WORK_GROUP_SIZE, self.runtime.traits.max_work_group_size)
+        self.apply_kernel.over(body_count, wg, bodies, split, np.uint32(body_count),
+                               np.float32(dt))

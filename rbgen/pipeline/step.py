@@ -1,0 +1,361 @@
+"""The step pipeline written as data: the stages of a World step, in order.
+
+    prepare -> broadphase -> narrowphase -> constraints -> [batching] -> solve -> integrate
+
+`StepPipeline.stages` is that list; a step walks it, each stage enqueuing its kernels
+(no blocking read). Every stage owns the buffers it writes (the prepare stage the AABBs,
+the broadphase the pairs, the narrowphase the manifolds, ...) and reads its inputs from
+the stages before it, which it is given at construction. A stage that can fail a step
+(a buffer too small, a persistent launch that gave up) declares the words it adds to
+the step report (`report_words`, `report`, `problem`) and how to recover (`recover`);
+`rbgen.guard.StepGuard` checks them and redoes the step. A new stage (a midphase
+between the broadphase and the narrowphase, a joint stage beside the constraints) is
+one class here and one entry in `build_stages`.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from .. import layouts
+from ..bodies import DeviceBodies, bounding_radius
+from ..device import Runtime
+from ..plan import Plan
+from ..shapes import PackedShapes
+from .batching import make_batcher
+from .broadphase import make_broadphase
+from .constraints import ContactConstraints
+from .device_barrier import ABANDONED_OFFSET, clear_abandoned
+from .integrate import Integrator
+from .narrowphase import Narrowphase
+from .prepare import BodyPreparation
+from .solvers.jacobi import JacobiSolver
+from .solvers.pgs import PgsSolver
+
+#: manifolds reserved per body before the first overflow (grown on demand)
+MANIFOLDS_PER_BODY = 4
+
+
+@dataclasses.dataclass
+class StepContext:
+    """What one enqueued step reads: its dt, its backup slot, the World's step settings,
+    the device bodies and shapes."""
+
+    dt: float
+    slot: int
+    settings: object
+    bodies: DeviceBodies
+    shapes: PackedShapes
+
+
+class Stage:
+    """A step stage: ``enqueue(step)`` and, for stages that report, the hooks below."""
+
+    name = "stage"
+    #: uint32 words this stage adds to the step report
+    report_words = 0
+    #: whether a kernel of the stage writes its report words itself (given a view of the
+    #: report at its offset by `attach_report`); those words come first in the report, so
+    #: that the view starts at offset 0 (device arrays with an offset cannot be bound)
+    writes_report = False
+
+    def resize(self, body_count: int) -> None:
+        """The body count changed (an upload): size per-body buffers."""
+
+    def enqueue(self, step: StepContext) -> None:
+        raise NotImplementedError
+
+    def attach_report(self, report, offset: int) -> None:
+        """(stages that write their report words themselves) The report and their offset."""
+
+    def report(self, queue, report, offset: int) -> None:
+        """Enqueue copies of this stage's status into the report at word ``offset``."""
+
+    def problem(self, words: np.ndarray):
+        """What went wrong in a step, from its report words (None: nothing)."""
+        return None
+
+    def recover(self, problem) -> None:
+        """Make the redo succeed (grow a buffer); the queue is drained."""
+
+
+class PrepareStage(Stage):
+    """Gravity, world inverse inertia, the gyroscopic term, world AABBs and the body
+    backup of the step, in one launch (`rbgen.pipeline.prepare`)."""
+
+    name = "prepare"
+
+    def __init__(self, runtime: Runtime, plan: Plan):
+        self.runtime = runtime
+        self.kernel = BodyPreparation(runtime, gyroscopic=plan.gyroscopic, gravity=True,
+                                      shape_types=plan.shape_types, backup=True)
+        self.aabbs = None
+
+    def resize(self, body_count: int) -> None:
+        self.aabbs = cla.empty(self.runtime.queue, max(1, body_count), layouts.AABB.dtype)
+
+    def enqueue(self, step: StepContext) -> None:
+        b = step.bodies
+        self.kernel(b.bodies, b.inertia, b.count, step.dt, step.settings.gravity,
+                    aabbs=(step.shapes.shapes, step.shapes.vertices, self.aabbs,
+                           step.settings.contact_margin),
+                    backup=b.backups[step.slot])
+
+
+class BroadphaseStage(Stage):
+    """Overlapping AABB pairs (`rbgen.pipeline.broadphase`); reports its status."""
+
+    name = "broadphase"
+    report_words = layouts.BROADPHASE_STATUS.itemsize // 4
+
+    def __init__(self, runtime: Runtime, plan: Plan, prepare: PrepareStage,
+                 pair_capacity: int | None):
+        self.runtime = runtime
+        self.prepare = prepare
+        options = {} if pair_capacity is None else {"capacity": int(pair_capacity)}
+        self.broadphase = make_broadphase(runtime, plan.broadphase, **options)
+
+    def enqueue(self, step: StepContext) -> None:
+        # (the World reads the status through the step report)
+        self.broadphase.enqueue(self.prepare.aabbs, step.bodies.static, read_status=False)
+
+    def report(self, queue, report, offset: int) -> None:
+        status = self.broadphase.buffer.status
+        cl.enqueue_copy(queue, report.data, status.data, byte_count=status.nbytes,
+                        dst_offset=4 * offset)
+
+    def problem(self, words):
+        status = words.view(layouts.BROADPHASE_STATUS.dtype)[0]
+        pairs_found = int(status["pairs_found"])
+        retry = int(status["retry"]) if "retry" in status.dtype.names else 0
+        if (status["bad_body"] != layouts.BP_NO_BODY or retry
+                or pairs_found > self.broadphase.capacity):
+            return pairs_found
+        return None
+
+    def recover(self, pairs_found) -> None:
+        self.broadphase.check()  # raises for a NaN body, grows the pair buffer
+        self.broadphase.buffer.grow_for(pairs_found)
+
+
+class NarrowphaseStage(Stage):
+    """Contact manifolds of the pairs (`rbgen.pipeline.narrowphase`); owns the manifold
+    buffer, whose overflow the narrowphase writes into its report word itself."""
+
+    name = "narrowphase"
+    report_words = 1
+    writes_report = True
+
+    def __init__(self, runtime: Runtime, shapes, broadphase: BroadphaseStage,
+                 manifold_capacity: int | None):
+        self.runtime = runtime
+        self.narrowphase = Narrowphase(runtime, shapes)
+        self.broadphase = broadphase
+        self.initial_capacity = manifold_capacity
+        self.capacity = 0
+        self.needed_word = None  # the report word the kernel writes (set by the guard)
+
+    def resize(self, body_count: int) -> None:
+        self.ensure(self.initial_capacity or MANIFOLDS_PER_BODY * max(body_count, 16))
+
+    def ensure(self, capacity: int) -> None:
+        """Grow the manifold buffer to ``capacity`` (never shrinks)."""
+        if capacity <= self.capacity:
+            return
+        queue = self.runtime.queue
+        self.capacity = int(capacity)
+        self.manifolds = cla.empty(queue, self.capacity, layouts.CONTACT_MANIFOLD.dtype)
+        self.count = cla.zeros(queue, 1, np.uint32)
+
+    def attach_report(self, report, offset: int) -> None:
+        # a view made once: a pyopencl slice is a new Array, host time every step
+        self.needed_word = report[offset:offset + 1]
+
+    def enqueue(self, step: StepContext) -> None:
+        bp = self.broadphase.broadphase
+        self.narrowphase.enqueue(step.bodies.bodies, step.shapes, bp.pairs, bp.count,
+                                 self.manifolds, self.count, self.needed_word,
+                                 step.settings.contact_margin)
+
+    def problem(self, words):
+        needed = int(words[0])
+        return needed or None
+
+    def recover(self, needed) -> None:
+        self.ensure(int(needed * 1.25) + 16)
+
+
+class ConstraintStage(Stage):
+    """Contact constraints with warm starting (`rbgen.pipeline.constraints`)."""
+
+    name = "constraints"
+
+    def __init__(self, runtime: Runtime, narrowphase: NarrowphaseStage, warm_start: bool):
+        self.constraints = ContactConstraints(runtime, warm_start=warm_start)
+        self.narrowphase = narrowphase
+
+    @property
+    def capacity(self) -> int:
+        return self.narrowphase.capacity
+
+    def enqueue(self, step: StepContext) -> None:
+        c, s, b = self.constraints, step.settings, step.bodies
+        c.restitution_threshold = s.restitution_threshold
+        c.penetration_slop = s.penetration_slop
+        c.penetration_recovery = s.penetration_recovery
+        c(self.narrowphase.manifolds, self.narrowphase.count, b.bodies, b.inertia,
+          self.capacity, step.dt)
+
+
+class BatchingStage(Stage):
+    """The PGS solver's colouring (`rbgen.pipeline.batching`)."""
+
+    name = "batching"
+
+    def __init__(self, runtime: Runtime, plan: Plan, constraints: ConstraintStage):
+        options = {"ordered_rounds": plan.ordered_rounds} if plan.batching == "global" else \
+            {"group_count": plan.group_count}
+        self.batcher = make_batcher(runtime, plan.batching, **options)
+        self.constraints = constraints
+
+    def configure(self, bodies, gravity, contact_margin: float) -> None:
+        """Scene geometry of spatial batching (from the host copy of the bodies)."""
+        radius = max((bounding_radius(s) for s in bodies.dynamic_shapes()), default=0.0)
+        self.batcher.configure(cell_size=2.0 * radius + 2.0 * contact_margin + 1e-3,
+                               slab_axis=slab_axis(bodies.dynamic_positions(), gravity))
+
+    def enqueue(self, step: StepContext) -> None:
+        c = self.constraints
+        self.batcher(c.constraints.constraints, c.constraints.count, step.bodies.bodies,
+                     step.bodies.count, c.capacity)
+
+
+def slab_axis(positions: np.ndarray, gravity) -> tuple:
+    """Slabs lie across the coordinate axis, of the two least along gravity, on which the
+    dynamic bodies spread widest (a pile then spreads over most slabs)."""
+    candidates = np.argsort(np.abs(np.asarray(gravity, float)))[:2]
+    if len(positions) == 0:
+        return tuple(float(i == candidates[0]) for i in range(3))
+    spread = positions.max(axis=0) - positions.min(axis=0)
+    best = max(candidates, key=lambda axis: spread[axis])
+    return tuple(float(i == best) for i in range(3))
+
+
+class SolveStage(Stage):
+    """The contact solver's sweeps (`rbgen.pipeline.solvers`); a persistent launch reports
+    whether its device-wide barrier gave up."""
+
+    name = "solve"
+
+    def __init__(self, runtime: Runtime, plan: Plan, constraints: ConstraintStage,
+                 batching: BatchingStage | None):
+        self.runtime = runtime
+        self.constraints = constraints
+        if plan.solver == "pgs":
+            self.solver = PgsSolver(runtime, batching.batcher, normal_solve=plan.normal_solve,
+                                    persistent=plan.persistent, fast_math=plan.fast_math,
+                                    warm_start_mode=plan.warm_start_mode,
+                                    release_sweeps=plan.release_sweeps)
+        else:
+            self.solver = JacobiSolver(runtime, normal_solve=plan.normal_solve,
+                                       persistent=plan.persistent, fast_math=plan.fast_math)
+        self.report_words = 1 if self.solver.barrier_state() is not None else 0
+
+    def enqueue(self, step: StepContext) -> None:
+        c, b = self.constraints, step.bodies
+        self.solver.solve(c.constraints.constraints, c.constraints.count, c.capacity,
+                          b.bodies, b.inertia, b.count, step.settings)
+
+    def report(self, queue, report, offset: int) -> None:
+        cl.enqueue_copy(queue, report.data, self.solver.barrier_state().data, byte_count=4,
+                        src_offset=ABANDONED_OFFSET, dst_offset=4 * offset)
+
+    def problem(self, words):
+        return bool(words[0]) or None
+
+    def clear_abandoned(self) -> None:
+        clear_abandoned(self.runtime, self.solver.barrier_state())
+
+
+class IntegrateStage(Stage):
+    """Positions and orientations from the velocities, with damping and the push
+    velocities of the split impulse (`rbgen.pipeline.integrate`)."""
+
+    name = "integrate"
+
+    def __init__(self, runtime: Runtime, solve: SolveStage):
+        self.integrator = Integrator(runtime, gravity=False, damping=True)
+        self.solve = solve
+
+    def enqueue(self, step: StepContext) -> None:
+        s, b = step.settings, step.bodies
+        split = self.solve.solver.split_velocities(b.count) if s.position_iterations > 0 \
+            else None
+        self.integrator(b.bodies, b.count, step.dt, linear_damping=s.linear_damping,
+                        angular_damping=s.angular_damping, split=split)
+
+
+class StepPipeline:
+    """The stages of one plan, in step order (see the module docstring).
+
+    `replan` rebuilds only the stages a new plan changes: a new set of shape types
+    rebuilds the collision stages, a new solver choice the batching and solve stages;
+    the constraint stage, with its warm-start history, survives both.
+    """
+
+    def __init__(self, runtime: Runtime, plan: Plan, shapes, *, pair_capacity=None,
+                 manifold_capacity=None, warm_start: bool = True):
+        self.runtime, self.shapes = runtime, shapes
+        self.pair_capacity, self.manifold_capacity = pair_capacity, manifold_capacity
+        self.plan = plan
+        self._build_collision(plan)
+        self.constraints = ConstraintStage(runtime, self.narrowphase, warm_start)
+        self._build_solve(plan)
+
+    def _build_collision(self, plan: Plan) -> None:
+        rt = self.runtime
+        self.prepare = PrepareStage(rt, plan)
+        self.broadphase = BroadphaseStage(rt, plan, self.prepare, self.pair_capacity)
+        self.narrowphase = NarrowphaseStage(rt, self.shapes, self.broadphase,
+                                            self.manifold_capacity)
+
+    def _build_solve(self, plan: Plan) -> None:
+        rt = self.runtime
+        self.batching = BatchingStage(rt, plan, self.constraints) \
+            if plan.solver == "pgs" else None
+        self.solve = SolveStage(rt, plan, self.constraints, self.batching)
+        self.integrate = IntegrateStage(rt, self.solve)
+        self._assemble()
+
+    def _assemble(self) -> None:
+        self.stages: list[Stage] = [s for s in (
+            self.prepare, self.broadphase, self.narrowphase, self.constraints, self.batching,
+            self.solve, self.integrate) if s is not None]
+        self.by_name = {s.name: s for s in self.stages}
+
+    def replan(self, plan: Plan) -> None:
+        """Rebuild the stages whose choices differ in ``plan`` (call `resize` after)."""
+        old, self.plan = self.plan, plan
+        if (old.shape_types, old.broadphase, old.gyroscopic) != \
+                (plan.shape_types, plan.broadphase, plan.gyroscopic):
+            self._build_collision(plan)
+            self.constraints.narrowphase = self.narrowphase
+        solve_choices = ("solver", "batching", "persistent", "normal_solve", "fast_math",
+                         "warm_start_mode", "release_sweeps", "ordered_rounds", "group_count")
+        if any(getattr(old, c) != getattr(plan, c) for c in solve_choices):
+            self._build_solve(plan)
+        self._assemble()
+
+    def __getitem__(self, name: str) -> Stage:
+        return self.by_name[name]
+
+    def resize(self, body_count: int) -> None:
+        for stage in self.stages:
+            stage.resize(body_count)
+
+    def enqueue(self, step: StepContext) -> None:
+        for stage in self.stages:
+            stage.enqueue(step)

@@ -1,0 +1,109 @@
+"""The plan: the documented default of every choice per device class, where each came
+from, the fallback after a persistent launch gave up, and overrides (no device needed:
+plans are derived from traits)."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from rbgen import RbgenError
+from rbgen.device import INT64_ATOMICS, DeviceTraits
+from rbgen.plan import TUNABLES, derive_plan
+from rbgen.settings import split_options
+
+
+def traits(vendor: str, gpu: bool, extensions=(INT64_ATOMICS,)) -> DeviceTraits:
+    return DeviceTraits(platform_name="p", device_name=f"{vendor} device", vendor=vendor,
+                        is_gpu=gpu, compute_units=8, wavefront=32 if gpu else 1,
+                        local_mem_size=48 * 1024, max_work_group_size=1024,
+                        driver_version="1", opencl_version="OpenCL 3.0",
+                        extensions=tuple(extensions))
+
+
+NVIDIA = traits("NVIDIA Corporation", True)
+AMD = traits("Advanced Micro Devices, Inc.", True)
+CPU = traits("GenuineIntel", False)
+
+
+def plan(device, tuned=None, **options):
+    return derive_plan(device, split_options(options)[1], ("box",), tuned=tuned or {})
+
+
+# device -> the README's table of defaults
+EXPECTED = {
+    "nvidia": (NVIDIA, dict(solver="pgs", batching="global", solve_form="lanes",
+                            persistent=True, normal_solve="block", warm_start_mode="summed",
+                            fast_math=True, release_sweeps=2)),
+    "other gpu": (AMD, dict(solver="pgs", batching="cells", solve_form="lanes",
+                            persistent=False, normal_solve="block", warm_start_mode="batched",
+                            fast_math=True, release_sweeps=2)),
+    "cpu": (CPU, dict(solver="pgs", batching="slabs", solve_form="serial", persistent=False,
+                      normal_solve="sequential", warm_start_mode="batched", fast_math=False,
+                      release_sweeps=2)),
+}
+
+
+@pytest.mark.parametrize("name", list(EXPECTED))
+def test_defaults_per_device_class(name):
+    device, expected = EXPECTED[name]
+    p = plan(device)
+    assert {k: getattr(p, k) for k in expected} == expected
+    assert set(p.sources.values()) == {"default"}
+    assert all(p.reasons[k] for k in expected)  # a reason for every choice
+    choices = json.loads(p.to_json())["choices"]
+    assert choices["batching"] == expected["batching"] and choices["shape_types"] == ["box"]
+
+
+def test_a_persistent_launch_without_64_bit_atomics_warm_starts_batched():
+    p = plan(traits("NVIDIA Corporation", True, extensions=()))
+    assert (p.batching, p.persistent, p.warm_start_mode) == ("global", True, "batched")
+
+
+def test_fallback_after_a_persistent_launch_gave_up():
+    """No persistent launch is planned on a device where one gave up: GPUs fall back to
+    cells, and an explicit batching='global' is overruled, saying why."""
+    for options in ({}, {"batching": "global"}):
+        p = derive_plan(NVIDIA, split_options(options)[1], ("box",), tuned={},
+                        persistent_failed=True)
+        assert (p.batching, p.persistent) == ("cells", False)
+        assert p.sources["batching"] == "fallback"
+    jacobi = derive_plan(NVIDIA, split_options({"solver": "jacobi"})[1], (), tuned={},
+                         persistent_failed=True)
+    assert jacobi.persistent is False and jacobi.batching is None
+
+
+def test_options_tuned_values_and_overrides_in_that_order():
+    """A World option beats a plan override, which beats the tuning cache, which beats the
+    hand-set default; each choice records its source."""
+    tuned = {"batching": "cells", "release_sweeps": 1}
+    p = plan(NVIDIA, tuned=tuned)
+    assert (p.batching, p.release_sweeps) == ("cells", 1)
+    assert p.sources["batching"] == p.sources["release_sweeps"] == "tuned"
+    p = plan(NVIDIA, tuned=tuned, plan={"release_sweeps": 3})
+    assert p.release_sweeps == 3 and p.sources["release_sweeps"] == "option"
+    p = plan(NVIDIA, tuned=tuned, batching="slabs")
+    assert p.batching == "slabs" and p.sources["batching"] == "option"
+    assert p.solve_form == "lanes"  # the device's form for spatial batching on a GPU
+
+
+def test_bad_plan_overrides_name_the_parameter():
+    with pytest.raises(RbgenError, match="unknown plan parameter"):
+        plan(CPU, plan={"colours": 4})
+    with pytest.raises(RbgenError, match="ordered_rounds"):
+        plan(NVIDIA, plan={"ordered_rounds": -1})
+
+
+def test_every_tunable_lists_its_default_first():
+    """The hand-set default is the first candidate, so that an untuned device and a tie in
+    `rbgen tune` both keep it."""
+    for device in (NVIDIA, AMD, CPU):
+        p = plan(device)
+        for name, tunable in TUNABLES.items():
+            assert tunable.candidates(device)[0] == getattr(p, name), (device.vendor, name)
+
+
+def test_jacobi_plans_no_batching():
+    p = plan(NVIDIA, solver="jacobi")
+    assert p.batching is None and p.persistent and p.normal_solve == "block"
+    assert plan(CPU, solver="jacobi").persistent is False
