@@ -12,8 +12,10 @@ each block clocked by the host at its boundaries (rbgen.harness explains why tha
 the device's time; ``mean``: all the timed steps' time over their number), kernel
 launches and blocking reads per step, broadphase pairs, manifolds and contact points of the last step, the
 batches of the largest group, and a sanity line (NaNs, boxes sunk more than
-2 cm below their resting height, max speed). Imports nothing beyond numpy,
-pyopencl and mako (runs on the GPU machine as is).
+2 cm below their resting height, boxes displaced more than 0.5 m sideways, max
+speed). The rows are also written as JSON and Markdown (rbgen.bench's form, kind
+"benchmarks/scenes.py"; no baseline) under ``--out`` (default
+benchmarks/results; ``--out ''`` writes nothing).
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ import argparse
 import sys
 
 
+from rbgen import bench
 from rbgen.harness import run_scene
 from rbgen.pipeline.batching import MODES as BATCHING_MODES
 from rbgen.pipeline.solvers import SOLVERS
@@ -52,6 +55,8 @@ def main(argv=None) -> int:
                              "sweeps may release points, the earlier ones take the block's "
                              "all-pushing solution or the rows (default: the plan's; >= "
                              "--iterations: every sweep)")
+    parser.add_argument("--out", default=str(bench.RESULTS_DIR),
+                        help="directory of the JSON and Markdown results ('' for none)")
     args = parser.parse_args(argv)
 
     options = {"iterations": args.iterations, "position_iterations": args.position_iterations,
@@ -78,9 +83,16 @@ def main(argv=None) -> int:
               f"{s['launches_per_step']:>7} "
               f"{s['blocking_reads_per_step']:>6} {s['pairs']:>9,} {s['manifolds']:>10,} "
               f"{s['contacts']:>9,} {s['batches']:>8} {s['batching'] or '-':>10} | NaN {s['nans']}, "
-              f"sunk {s['sunk']}, "
+              f"sunk {s['sunk']}, displaced {s['displaced']}, "
               f"max speed {s['max_speed']:.3f} m/s, top box moved {100 * s['last_box_moved']:.1f} cm, "
               f"redone steps {s['overflows']}", flush=True)
+    if args.out:
+        settings = {"scene": args.scene, "steps": args.steps, "warmup": args.warmup, "dt": 1 / 60,
+                    "world_options": options}
+        record = bench.make_record("benchmarks/scenes.py",
+                                   [bench.scene_result(s, args.warmup) for s in rows],
+                                   bench.device_record(args.device), settings)
+        print(f"wrote {bench.write_results(record, args.out)}")
     return 0
 
 

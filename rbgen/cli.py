@@ -1,4 +1,4 @@
-"""The ``rbgen`` command: info, demo, run, tune, export."""
+"""The ``rbgen`` command: info, demo, run, tune, bench, export."""
 from __future__ import annotations
 
 import argparse
@@ -157,15 +157,20 @@ def cmd_run(args) -> int:
         return 1
     options = {k: v for k, v in (("solver", args.solver), ("iterations", args.iterations))
                if v is not None}
-    demo.run_scene(args.scene, args.n, args.steps, device=args.device, progress=True, **options)
+    from .cli_extras import run_scene_recorded
+
+    run_scene_recorded(args, args.scene, args.n, args.steps, device=args.device, progress=True,
+                       **options)
     return 0
 
 
 def cmd_demo(args) -> int:
     demo = _optional("rbgen.harness")
     if demo is not None and hasattr(demo, "run_scene"):
-        demo.run_scene("box_pile", args.n or 1000, args.steps or 300, device=args.device,
-                       progress=True)
+        from .cli_extras import run_scene_recorded
+
+        run_scene_recorded(args, "box_pile", args.n or 1000, args.steps or 300, demo=True,
+                           device=args.device, progress=True)
         return 0
     return integrate_demo(args.n or 100_000, args.steps or 60, args.device)
 
@@ -226,6 +231,8 @@ def integrate_demo(n: int, steps: int, device=None) -> int:
 
 
 def main(argv=None) -> int:
+    from . import cli_extras
+
     parser = argparse.ArgumentParser(prog="rbgen", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -237,6 +244,7 @@ def main(argv=None) -> int:
     p.add_argument("--device", default=None)
     p.add_argument("--n", type=int, default=None)
     p.add_argument("--steps", type=int, default=None)
+    cli_extras.add_record_options(p, demo=True)
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser("run", help="simulate a named scene")
@@ -248,6 +256,7 @@ def main(argv=None) -> int:
                    help="contact solver (default pgs: batched Gauss-Seidel; jacobi: mass "
                         "splitting, no batching, softer tall stacks at equal sweeps)")
     p.add_argument("--iterations", type=int, default=None, help="velocity sweeps a step")
+    cli_extras.add_record_options(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("tune", help="autotune the kernel families and the plan for a device")
@@ -257,6 +266,8 @@ def main(argv=None) -> int:
                    help="the primitives' parameters, the plan's (batching, release sweeps, "
                         "colouring rounds, group counts: whole World steps), or both")
     p.set_defaults(func=cmd_tune)
+
+    cli_extras.add_bench_parser(sub)
 
     p = sub.add_parser("export", help="write .cl kernels, manifest.json and the C header")
     p.add_argument("--out", required=True, help="output directory")

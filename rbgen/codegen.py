@@ -28,6 +28,7 @@ from mako.lookup import TemplateLookup
 from . import layouts
 from .device import Runtime
 from .errors import KernelBuildError, TemplateParameterError
+from .progress import build_feedback
 
 TEMPLATE_DIR = Path(__file__).parent / "templates"
 ENV_CACHE_DIR = "RBGEN_CACHE_DIR"
@@ -269,7 +270,8 @@ class ProgramCache:
         if program is not None:
             self.stats["disk_hits"] += 1
         else:
-            program = self._from_source(runtime, source, options, spec)
+            with build_feedback(spec.path if spec is not None else "generated source"):
+                program = self._from_source(runtime, source, options, spec)
             self.stats["builds"] += 1
             self._to_disk(program, key)
         with self._lock:

@@ -31,6 +31,7 @@ import time
 
 import numpy as np
 
+from . import sanity
 from . import scenes as scene_data
 from .errors import RbgenError
 from .shapes import Box
@@ -79,7 +80,7 @@ def build_scene(name: str, n: int, device=None, **world_options):
 
 
 def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True, *,
-              warmup: int = 0, dt: float = 1 / 60, **world_options) -> dict:
+              warmup: int = 0, dt: float = 1 / 60, on_step=None, **world_options) -> dict:
     """Build scene ``name`` of size ``n``, run ``warmup`` then ``steps`` steps; return a summary.
 
     The summary: device, bodies, steps, ms_per_step (the median of the ms/step of
@@ -88,11 +89,18 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
     step, the batching, solver and normal solve it used with the release sweeps (0 for a
     sequential normal solve, None: every sweep), overflows (redone steps), and sanity: nans, sunk (boxes whose
     centre is more than 2 cm below its resting height), max_speed (m/s), and
-    last_box_moved (m; the top box of a pyramid).
+    last_box_moved (m; the top box of a pyramid), with displaced and layer_drop
+    (`rbgen.sanity.settling`); ms_per_step_blocks: each block's ms/step.
+
+    ``on_step(world, step)``, if given, is called before the first timed step (step 0)
+    and after each timed step (step 1, 2, ...), inside the timing blocks, so that what
+    it costs (a recorder's copy of the transforms, `rbgen.record.record_hook`) shows in
+    ms_per_step.
     """
     world, ids, ground_top, half = build_scene(name, n, device, **world_options)
     queue = world.runtime.queue
-    top_start = world.positions[ids[-1]] if len(ids) else np.zeros(3)
+    start = world.positions[ids]
+    top_start = start[-1] if len(ids) else np.zeros(3)
     if progress:
         print(f"{name}: {len(ids):,} boxes on {world.runtime.traits.describe()}", flush=True)
     for _ in range(int(warmup)):
@@ -100,9 +108,13 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
     queue.finish()
     block = max(1, int(steps) // TIMING_BLOCKS)
     blocks = []     # (seconds, steps) of each block (the last may be shorter)
+    if on_step is not None:
+        on_step(world, 0)
     block_start = time.perf_counter()
     for s in range(int(steps)):
         world.step(dt)
+        if on_step is not None:
+            on_step(world, s + 1)
         if (s + 1) % block == 0 or s + 1 == steps:
             if s + 1 == steps:
                 queue.finish()
@@ -135,6 +147,8 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
         "sunk": int((positions[:, 1] < ground_top + half - 0.02).sum()),
         "max_speed": float(speeds.max()) if len(speeds) else 0.0,
         "last_box_moved": float(np.linalg.norm(positions[-1] - top_start)) if len(ids) else 0.0,
+        "ms_per_step_blocks": block_ms,
+        **sanity.settling(start, positions),  # displaced, layer_drop
     }
     if progress:
         print(format_summary(summary), flush=True)
@@ -149,5 +163,5 @@ def format_summary(s: dict) -> str:
             + (f"{s['batches']} batches in the largest group ({s['batching']} batching)"
                if s["solver"] == "pgs" else "Jacobi solver, no batching")
             + f"; sanity: NaNs {s['nans']}, "
-            f"sunk {s['sunk']}, max speed {s['max_speed']:.3f} m/s, overflows {s['overflows']}, "
+            f"sunk {s['sunk']}, displaced {s.get('displaced', 0)}, max speed {s['max_speed']:.3f} m/s, overflows {s['overflows']}, "
             f"last box moved {100 * s['last_box_moved']:.2f} cm")

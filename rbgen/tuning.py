@@ -28,7 +28,6 @@ import dataclasses
 import json
 import os
 import statistics
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -339,15 +338,19 @@ def tune_sizes(traits: DeviceTraits, quick: bool = False) -> tuple[int, ...]:
 def tune_all(runtime: Runtime, progress: bool = True, quick: bool = False) -> list[dict]:
     """Tune every family and variant at `tune_sizes`; lines go to stderr."""
     from . import primitives  # noqa: F401 - registers the families
-    say = (lambda line: print(line, file=sys.stderr, flush=True)) if progress else None
+    from .progress import bar, say as say_above_bar
+    say = say_above_bar if progress else None
     sizes = tune_sizes(runtime.traits, quick)
     jobs = [(fam, v, n) for fam in FAMILIES.values() for v in fam.variants for n in sizes]
     entries = []
-    for j, (fam, variant, n) in enumerate(jobs):
-        if say:
-            say(f"[{j + 1}/{len(jobs)}] tuning {fam.name}[{variant}] at n={n} "
-                f"on {runtime.traits.device_name}")
-        entries.append(tune(runtime, fam, variant, n, repeats=3 if quick else 7, progress=say))
+    with bar(total=len(jobs), desc="tuning", unit="job", show=progress) as jobs_bar:
+        for j, (fam, variant, n) in enumerate(jobs):
+            if say:
+                say(f"[{j + 1}/{len(jobs)}] tuning {fam.name}[{variant}] at n={n} "
+                    f"on {runtime.traits.device_name}")
+            entries.append(tune(runtime, fam, variant, n, repeats=3 if quick else 7,
+                                progress=say))
+            jobs_bar.update(1)
     if say:
         say(f"tuning cache: {cache_path(runtime.traits)}")
     return entries

@@ -265,3 +265,11 @@ class World:
         return {**summary, "pairs": pairs, "manifolds": manifolds,
                 "contacts": int(points.sum()), "batches": int(batch_counts.max(initial=0)),
                 "groups_used": int((batch_counts > 0).sum())}
+
+    def render(self, path, camera=None, width: int = 960, height: int = 540):
+        """Write a picture of the World now to ``path`` (PNG; see `rbgen.render.render_world`:
+        ``camera`` a `rbgen.render.Camera`, a dict of its fields, or None to frame the moving
+        bodies). One read of the transforms; returns the path written."""
+        from .render import render_world
+
+        return render_world(self, path, camera=camera, width=width, height=height)

@@ -1,0 +1,103 @@
+"""rbgen bench: the JSON it writes follows the schema, its sanity measures are right, and the
+README's table is regenerated between its markers."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from rbgen import bench, sanity
+from rbgen.cli import main
+from rbgen.errors import RbgenError
+
+
+@pytest.fixture(scope="module")
+def quick_record(tmp_path_factory):
+    """What `rbgen bench --quick` writes (with 20 steps, two a timing block: CI's time is
+    short)."""
+    out = tmp_path_factory.mktemp("results")
+    assert main(["bench", "--quick", "--steps", "20", "--out", str(out)]) == 0
+    files = sorted(out.glob("*.json"))
+    assert len(files) == 1 and files[0].with_suffix(".md").is_file()
+    return out, json.loads(files[0].read_text())
+
+
+def test_quick_bench_json_follows_the_schema(quick_record):
+    _, record = quick_record
+    assert bench.validate(record) is record
+    assert record["schema"] == bench.SCHEMA and record["kind"] == "scenes"
+    assert record["settings"]["quick"] is True
+    for key in bench.DEVICE_KEYS:
+        assert isinstance(record["device"][key], (str, int)), key
+    assert [(r["scene"], r["steps"]) for r in record["results"]] == \
+        [(scene, 20) for scene, *_ in bench.QUICK_SCENES]
+    for r in record["results"]:
+        assert r["ms"] > 0 and r["ms_spread"][0] <= r["ms"] <= r["ms_spread"][1]
+        assert len(r["ms_blocks"]) == 10
+        assert isinstance(r["launches_per_step"], int) and r["blocking_reads_per_step"] == 0
+        s = r["sanity"]
+        assert set(bench.SANITY_KEYS) <= set(s)
+        assert all(isinstance(d, float) for d in s["layer_drop"]) and s["layer_drop"]
+        assert r["holds"] is (r["problems"] == [])
+        if r["scene"] != "box_pile":  # (20 steps in, the pile is still landing)
+            assert s["nans"] == 0 and s["sunk"] == 0 and s["displaced"] == 0
+            assert r["holds"] is True
+    boxbox = record["results"][0]
+    assert boxbox["bodies"] == 1000 and len(boxbox["sanity"]["layer_drop"]) == 10
+
+
+def test_readme_table_is_regenerated_between_markers(quick_record, tmp_path):
+    out, record = quick_record
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# x\n\nbefore\n{bench.TABLE_BEGIN}\nold table\n{bench.TABLE_END}\nafter\n")
+    assert main(["bench", "--no-run", "--out", str(out), "--readme", str(readme)]) == 0
+    text = readme.read_text()
+    assert "old table" not in text and text.startswith("# x\n\nbefore\n")
+    assert text.endswith(f"{bench.TABLE_END}\nafter\n")
+    for r in record["results"]:
+        assert f"| {r['scene']} | {r['bodies']:,} | {bench._time(r)} |" in text
+    assert bench.update_readme(readme, out) is False  # the same results: unchanged
+
+
+def test_readme_without_markers_is_refused(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text("# no table here\n")
+    with pytest.raises(RbgenError, match="markers"):
+        bench.update_readme(readme, tmp_path)
+
+
+def test_a_scene_that_does_not_hold_has_its_time_struck_out():
+    result = {"scene": "boxbox", "bodies": 8, "steps": 100, "warmup": 0, "ms": 1.5,
+              "ms_spread": [1.4, 1.6], "launches_per_step": 9, "blocking_reads_per_step": 0,
+              "sanity": {"nans": 0, "sunk": 3, "displaced": 1, "layer_drop": [0.0, 0.05],
+                         "max_speed": 0.0, "overflows": 0, "last_box_moved": 0.0}}
+    ok, problems = bench.holds(result)
+    assert not ok and problems == ["3 sunk", "1 displaced"]
+    result["holds"], result["problems"] = ok, problems
+    assert "~~1.50~~" in bench._time(result) and "does not hold" in bench._sanity(result)
+
+
+def test_validate_names_what_is_missing():
+    with pytest.raises(RbgenError, match="lacks"):
+        bench.validate({"schema": bench.SCHEMA})
+    record = bench.make_record("benchmarks/render.py", [{"name": "x", "ms": 1.0,
+                                                          "ms_spread": [2.0, 1.0],
+                                                          "baseline": None}], None, {})
+    with pytest.raises(RbgenError, match=r"results\[0\].ms_spread"):
+        bench.validate(record)
+
+
+def test_settling_counts_displaced_boxes_and_layer_drops():
+    """Two layers (y = 1 and y = 3): one box slides 0.6 m sideways (displaced), one 0.4 m
+    (not); the upper layer's boxes fall 0.1 and 0.3 m (median 0.2), the lower's 0."""
+    start = np.array([[0, 1, 0], [2, 1, 0], [0, 3, 0], [2, 3, 0]], float)
+    end = start + np.array([[0.6, 0, 0], [0, 0, 0.4], [0, -0.1, 0], [0, -0.3, 0]])
+    result = sanity.settling(start, end)
+    assert result["displaced"] == 1
+    assert np.allclose(result["layer_drop"], [0.0, 0.2])
+    nan_end = end.copy()
+    nan_end[0] = np.nan
+    assert sanity.settling(start, nan_end)["displaced"] == 1
+    assert sanity.settling(np.zeros((0, 3)), np.zeros((0, 3))) == {"displaced": 0,
+                                                                   "layer_drop": []}
