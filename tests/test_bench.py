@@ -41,8 +41,8 @@ def test_quick_bench_json_follows_the_schema(quick_record):
         assert all(isinstance(d, float) for d in s["layer_drop"]) and s["layer_drop"]
         assert r["holds"] is (r["problems"] == [])
         if r["scene"] != "box_pile":  # (20 steps in, the pile is still landing)
-            assert s["nans"] == 0 and s["sunk"] == 0 and s["displaced"] == 0
-            assert r["holds"] is True
+            assert s["nans"] == 0 and s["sunk"] == 0
+            assert r["holds"] is (s["displaced"] <= bench.DISPLACED_FRACTION * r["bodies"])
     boxbox = record["results"][0]
     assert boxbox["bodies"] == 1000 and len(boxbox["sanity"]["layer_drop"]) == 10
 
@@ -73,7 +73,7 @@ def test_a_scene_that_does_not_hold_has_its_time_struck_out():
               "sanity": {"nans": 0, "sunk": 3, "displaced": 1, "layer_drop": [0.0, 0.05],
                          "max_speed": 0.0, "overflows": 0, "last_box_moved": 0.0}}
     ok, problems = bench.holds(result)
-    assert not ok and problems == ["3 sunk", "1 displaced"]
+    assert not ok and problems == ["3 sunk", "1 displaced", "top layer dropped 5.0 cm"]
     result["holds"], result["problems"] = ok, problems
     assert "~~1.50~~" in bench._time(result) and "does not hold" in bench._sanity(result)
 
