@@ -281,7 +281,7 @@ CONTACT_MANIFOLD = declare("ContactManifold", [
 
 # --------------------------------------------------------------------------
 # Contact solver (owner: constraint solver / World; rbgen/pipeline/constraints.py,
-# batching.py, solver.py, gyroscopic.py).
+# batching/, solvers/, prepare.py).
 BODY_INERTIA = declare("BodyInertia", [
     ("inv_inertia_local", "float4", "principal inverse inertia diagonal (body frame); 0 for static"),
     ("inv_inertia_world", "float4", 3, "rows of R diag(inv_inertia_local) R^T, updated every step"),
