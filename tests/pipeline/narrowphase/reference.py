@@ -50,6 +50,14 @@ def make_bodies(shape_ids, positions, orientations=None, inv_mass=1.0) -> np.nda
     return bodies
 
 
+def pair_records(pairs, sub=0) -> np.ndarray:
+    """`Pair` records of (a, b) body index pairs, all with sub-feature ``sub``."""
+    idx = np.asarray(pairs, np.int64).reshape(-1, 2)
+    records = layouts.PAIR.zeros(len(idx))
+    records["a"], records["b"], records["sub"] = idx[:, 0], idx[:, 1], sub
+    return records
+
+
 @dataclasses.dataclass
 class Placed:
     """A cooked convex shape in world placement (float64)."""

@@ -15,7 +15,7 @@ from rbgen.errors import RbgenError
 from rbgen.pipeline.narrowphase import Narrowphase, find_contacts, kinds_for
 from rbgen.shapes import Box, Capsule, ConvexHull, Plane, ShapeTable, Sphere
 
-from .reference import axis_angle, make_bodies, quat_matrix
+from .reference import axis_angle, make_bodies, pair_records, quat_matrix
 
 ATOL = 2e-5  # float32 positions of size ~1
 
@@ -316,7 +316,7 @@ def test_no_pairs_give_no_manifolds(runtime):
     q = runtime.queue
     packed = table.pack_all().to_device(q)
     bodies = cla.to_device(q, make_bodies([cube, cube], [(0, 0, 0), (1.9, 0, 0)]))
-    pairs = cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype))
+    pairs = cla.to_device(q, pair_records([(0, 1)]))
     assert len(narrowphase.find_contacts(bodies, packed, pairs, 1)) == 1
     count, overflow = cla.to_device(q, np.array([7], np.uint32)), cla.to_device(q, np.array([7], np.uint32))
     manifolds = cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype)
@@ -343,7 +343,7 @@ def test_cached_axis_follows_the_bodies(runtime):
     narrowphase = Narrowphase(runtime, table)
     q = runtime.queue
     packed = table.pack_all().to_device(q)
-    pairs = cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype))
+    pairs = cla.to_device(q, pair_records([(0, 1)]))
     for gap, expected in [(-0.01, 1), (0.5, 0), (0.5, 0), (-0.02, 1), (0.3, 0)]:
         bodies = make_bodies([cube, cube], [(0, 0, 0), (2 + gap, 0.1, 0)])
         m = narrowphase.find_contacts(cla.to_device(q, bodies), packed, pairs, 1)
@@ -365,7 +365,7 @@ def test_enqueue_never_blocks_and_features_persist(runtime, routing, expected_la
     narrowphase = Narrowphase(runtime, table, routing=routing)
     q = runtime.queue
     packed = table.pack_all().to_device(q)
-    pairs = cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype))
+    pairs = cla.to_device(q, pair_records([(0, 1)]))
     pair_count = cla.to_device(q, np.array([1], np.uint32))
     manifolds = cla.empty(q, 4, layouts.CONTACT_MANIFOLD.dtype)
     count, overflow = cla.zeros(q, 1, np.uint32), cla.zeros(q, 1, np.uint32)
@@ -442,7 +442,7 @@ def test_larger_faces_added_later_rebuild_the_clipping(runtime):
     sixteen = table.add(ConvexHull(prism_points(16, 1.0, 0.25), name="sixteen"))
     q = runtime.queue
     bodies = make_bodies([slab, octagon, sixteen], [(0, 0, 0), (-1.5, 0.74, 0), (1.5, 0.74, 0)])
-    pairs = cla.to_device(q, np.array([(0, 1), (0, 2)], layouts.PAIR.dtype))
+    pairs = cla.to_device(q, pair_records([(0, 1), (0, 2)]))
     m = narrowphase.find_contacts(cla.to_device(q, bodies), table.pack_all().to_device(q), pairs, 2)
     assert narrowphase.max_face_vertices == 16
     assert list(m["point_count"]) == [4, 4]
@@ -521,7 +521,7 @@ def test_world_of_planes_reports_no_contacts(runtime):
     count = cla.to_device(q, np.array([5], np.uint32))
     narrowphase.enqueue(cla.to_device(q, make_bodies([0, 1], np.zeros((2, 3)))),
                         table.pack_all().to_device(q),
-                        cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype)),
+                        cla.to_device(q, pair_records([(0, 1)])),
                         cla.to_device(q, np.array([1], np.uint32)),
                         cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype), count,
                         cla.zeros(q, 1, np.uint32))

@@ -213,6 +213,7 @@ inline void remember_axis(__global SatCacheEntry* entry, Pair pair, uint feature
 {
     entry->a = pair.a;
     entry->b = pair.b;
+    entry->sub = pair.sub;
     entry->feature = feature;
 }
 
@@ -225,7 +226,7 @@ inline bool separating_axis_test(const ConvexPair* g, Pair pair, __global SatCac
                                  float4* best, uint* best_feature)
 {
     SatCacheEntry cached = *entry;
-    if (cached.a == pair.a && cached.b == pair.b && cached.feature != (uint)RB_NO_FEATURE) {
+    if (cached.a == pair.a && cached.b == pair.b && cached.sub == pair.sub && cached.feature != (uint)RB_NO_FEATURE) {
         float4 s = feature_separation(g, cached.feature, hull_faces, ${edges_arg}, hull_vertices);
         if (s.w > margin)
             return false;  /* last step's axis still separates: the entry stays */

@@ -144,6 +144,7 @@ inline void remember_axis(__global SatCacheEntry* entry, Pair pair, uint feature
 {
     entry->a = pair.a;
     entry->b = pair.b;
+    entry->sub = pair.sub;
     entry->feature = feature;
 }
 
@@ -153,7 +154,7 @@ inline bool box_box_test(const BoxPair* g, Pair pair, __global SatCacheEntry* en
                          float4* best, uint* best_feature)
 {
     SatCacheEntry cached = *entry;
-    if (cached.a == pair.a && cached.b == pair.b && cached.feature != (uint)RB_NO_FEATURE
+    if (cached.a == pair.a && cached.b == pair.b && cached.sub == pair.sub && cached.feature != (uint)RB_NO_FEATURE
             && feature_gap(g, cached.feature) > margin)
         return false;  /* last step's axis still separates: the entry stays */
 
