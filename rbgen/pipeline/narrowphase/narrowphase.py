@@ -5,7 +5,7 @@ A step enqueues a fixed sequence of launches with no blocking read:
 1. ``classify_pairs`` routes every pair to the queue of its shape-type pair
    ("kind", see `templates.ALL_KINDS`) and clears its contact flag (a world
    whose only kind is a convex one, e.g. boxes only, skips it: that kind's
-   separating-axis kernel reads the pair list directly, ``routing="auto"``);
+   separating-axis kernel reads the pair list directly);
 2. one kernel per primitive kind (sphere-sphere, sphere-plane, sphere-convex,
    sphere-capsule, capsule-capsule, capsule-plane, capsule-convex,
    convex-plane) writes the pair's manifold slot;
@@ -14,8 +14,7 @@ A step enqueues a fixed sequence of launches with no blocking read:
    at a separating axis): ``find_separating_axis`` (one launch per convex
    kind) appends the touching pairs to a clipping queue;
    ``clip_incident_face`` runs over that queue and reduces each pair's
-   points to at most four itself (by default, ``reduce_in_clip``), or leaves
-   that to a third kernel, ``reduce_contacts``;
+   points to at most four;
 4. ``scatter_manifolds`` writes the manifolds in pair order (deterministic):
    every kernel that stores a manifold also counts it in its placement tile
    (a fixed run of pairs, one atomic increment), so each work group of the
@@ -58,11 +57,6 @@ from .templates import (ALL_KINDS, CAPSULE_CONVEX, CAPSULE_CONVEX_KIND, CLIP, CO
 from .templates import default_placement_tile, default_work_group_size
 
 SUPPORTED_TYPES = ("box", "capsule", "hull", "plane", "sphere")
-#: box_box: box pairs get the closed-form 15-axis kernel; box: the generic test with
-#: boxes projected in closed form; hull: boxes treated as hulls (benchmarks compare them)
-BOX_PATHS = ("box_box", "box", "hull")
-#: auto: a world with one convex kind reads its pair list directly; queues: always classify
-ROUTINGS = ("auto", "queues")
 
 
 def kinds_for(shape_types) -> tuple[str, ...]:
@@ -108,25 +102,18 @@ class Narrowphase:
 
     ``shapes`` is the world's `ShapeTable` (or a tuple of shape type names,
     then give ``max_face_vertices``). A shape pair without a kernel raises here,
-    at construction, never during a step. ``box_path`` (see `BOX_PATHS`):
-    "box_box" (default) runs box pairs through a closed-form 15-axis kernel,
-    "box" through the generic test with boxes projected in closed form, "hull"
-    treats boxes as hulls (the benchmark compares them). ``edge_axes`` maps a
-    convex kind to "directions" or "gauss_map" (the edge-edge axes of its
-    separating-axis test); by default hull-hull tests use the Gauss map, tests
-    with a box the box's three directions. A world whose shapes cannot touch
-    each other (only planes) gets a narrowphase that reports no contacts.
-    ``placement_tile`` (pairs per scatter work group, a multiple of the work-group
-    size; default per device), ``reduce_in_clip`` (False: a separate
-    reduce_contacts launch) and ``routing`` ("queues": always classify_pairs;
-    "auto": the pair list read directly when the only kind is convex) choose
-    kernel shapes; results are the same.
+    at construction, never during a step. Box pairs run through a closed-form
+    15-axis kernel; the edge-edge axes of the other convex tests are the
+    unique edge directions when a box is involved (three of them) and the
+    Gauss-map edge pairs for hull pairs (which scale to large hulls). A world
+    whose shapes cannot touch each other (only planes) gets a narrowphase
+    that reports no contacts. ``work_group_size`` and ``placement_tile`` (pairs
+    per scatter work group, a multiple of the work-group size; default per
+    device) choose kernel shapes; results are the same.
     """
 
     def __init__(self, runtime: Runtime, shapes, *, max_face_vertices: int | None = None,
-                 box_path: str = "box_box", work_group_size: int | None = None,
-                 edge_axes: dict | None = None, placement_tile: int | None = None,
-                 reduce_in_clip: bool = True, routing: str = "auto"):
+                 work_group_size: int | None = None, placement_tile: int | None = None):
         #: a table given here is watched: when shapes with larger faces are added later,
         #: the clipping kernel is rebuilt for them before the next launch
         self.table = shapes if isinstance(shapes, ShapeTable) else None
@@ -137,21 +124,12 @@ class Narrowphase:
             self._table_size = len(shapes.shapes)
         else:
             types = tuple(shapes)
-        edge_axes_for = dict(edge_axes or {})
-        unknown = sorted(set(edge_axes_for) - set(CONVEX_KINDS))
-        if unknown:
-            raise RbgenError(f"edge_axes: {unknown} are not convex kinds {list(CONVEX_KINDS)}")
-        if box_path not in BOX_PATHS:
-            raise RbgenError(f"box_path must be one of {BOX_PATHS}, got {box_path!r}")
         self.runtime = runtime
         self.kinds = kinds_for(types)
         self.kind_index = {k: i for i, k in enumerate(self.kinds)}
-        if routing not in ROUTINGS:
-            raise RbgenError(f"routing must be one of {ROUTINGS}, got {routing!r}")
         #: one convex kind (same shape type on both sides): its separating-axis kernel
         #: reads the pair list itself and no classify_pairs runs
-        self.direct = (routing == "auto" and len(self.kinds) == 1
-                       and self.kinds[0] in CONVEX_KINDS)
+        self.direct = len(self.kinds) == 1 and self.kinds[0] in CONVEX_KINDS
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
         wg = self.work_group_size
         self.placement_tile = tile = placement_tile or default_placement_tile(runtime.traits, wg)
@@ -176,25 +154,21 @@ class Narrowphase:
             self.primitive_kernels[CAPSULE_CONVEX_KIND] = capsule_convex
         self.sat_kernels, self.sat_edge_axes = {}, {}
         for kind in (k for k in self.kinds if k in CONVEX_KINDS):
-            if kind == "box_box" and box_path == "box_box" and "box_box" not in edge_axes_for:
+            if kind == "box_box":
                 prog = compile_spec(runtime, SAT_BOX_BOX.spec(work_group_size=wg,
                                                               direct=self.direct))
                 self.sat_kernels[kind] = runtime.bound(prog.kernel("find_separating_axis"))
                 self.sat_edge_axes[kind] = "closed_form"
                 continue
             first, second = kind.split("_")
-            if box_path == "hull":
-                first, second = "hull", "hull"
             # unique directions win when a box is involved (3 of them); hull pairs prune
             # their edge pairs on the Gauss map instead
-            edge_axes = edge_axes_for.get(kind) or ("gauss_map" if (first, second) == ("hull", "hull")
-                                                    else "directions")
+            edge_axes = "gauss_map" if (first, second) == ("hull", "hull") else "directions"
             prog = compile_spec(runtime, SAT.spec(work_group_size=wg, first=first, second=second,
                                                   edge_axes=edge_axes, direct=self.direct))
             self.sat_kernels[kind] = runtime.bound(prog.kernel("find_separating_axis"))
             self.sat_edge_axes[kind] = edge_axes
-        self.reduce_in_clip = bool(reduce_in_clip)
-        self.k_clip = self.k_reduce = None
+        self.k_clip = None
         self._build_clip()
         self.capacity = 0
         self._counters_clear = True  # queue counters hold zeros (see enqueue)
@@ -204,11 +178,8 @@ class Narrowphase:
             return
         clip = compile_spec(self.runtime, CLIP.spec(work_group_size=self.work_group_size,
                                                     placement_tile=self.placement_tile,
-                                                    max_face_vertices=self.max_face_vertices,
-                                                    reduce_in_clip=self.reduce_in_clip))
+                                                    max_face_vertices=self.max_face_vertices))
         self.k_clip = self.runtime.bound(clip.kernel("clip_incident_face"))
-        if not self.reduce_in_clip:
-            self.k_reduce = self.runtime.bound(clip.kernel("reduce_contacts"))
 
     def _follow_table(self) -> None:
         """Rebuild for faces larger than the clipping buffers (shapes added since)."""
@@ -223,7 +194,6 @@ class Narrowphase:
         if needed > self.max_face_vertices:
             self.max_face_vertices = needed
             self._build_clip()
-            self.capacity = 0  # clipping scratch is sized by the face size
 
     # ------------------------------------------------------------------ buffers
     def _ensure(self, pair_capacity: int) -> None:
@@ -231,8 +201,6 @@ class Narrowphase:
             return
         q = self.runtime.queue
         cap = int(pair_capacity)
-        scratch = self.sat_kernels and not self.reduce_in_clip  # clipped points between kernels
-        clip_cap = cap * 2 * self.max_face_vertices if scratch else 1
         self._counters_clear = True  # fresh zeros (scatter_manifolds clears them after use)
         self.contact_flags = cla.zeros(q, cap, np.uint32)
         self.tile_count = -(-cap // self.placement_tile)
@@ -243,9 +211,6 @@ class Narrowphase:
         self.sat_count = cla.zeros(q, 2, np.uint32)  # [running count, last call's count]
         self.sat_cache = cla.zeros(q, cap, layouts.SAT_CACHE_ENTRY.dtype)
         self.sat_results = cla.zeros(q, cap if self.sat_kernels else 1, layouts.SAT_RESULT.dtype)
-        self.clip_points = cla.zeros(q, (clip_cap, 4), np.float32)
-        self.clip_features = cla.zeros(q, clip_cap, np.uint32)
-        self.clip_counts = cla.zeros(q, cap if scratch else 1, np.uint32)
         self.capacity = cap
 
     # ------------------------------------------------------------------ step
@@ -311,14 +276,9 @@ class Narrowphase:
                     self.sat_cache, self.sat_results, result_count, margin)
             hulls = (shapes.vertices, shapes.faces, shapes.face_indices, shapes.edges,
                      shapes.adjacency)
-            scratch = (self.clip_points, self.clip_features, self.clip_counts)
             out = (self.slots, self.contact_flags, self.tile_counts)
             events["clip"] = self.k_clip.over(
-                size, wg, *common, *hulls, self.sat_results, result_count,
-                *(out if self.reduce_in_clip else scratch), margin)
-            if not self.reduce_in_clip:
-                events["reduce"] = self.k_reduce.over(
-                    size, wg, pairs, self.sat_results, result_count, *scratch, *out)
+                size, wg, *common, *hulls, self.sat_results, result_count, *out, margin)
         events["scatter"] = self.k_scatter.over(
             self.tile_count * wg, wg, self.slots, self.contact_flags, self.tile_counts, pair_count,
             np.uint32(pair_capacity), bodies, manifolds, np.uint32(manifolds.size), manifold_count,

@@ -105,12 +105,8 @@ CLIP = KernelTemplate(
     [_WORK_GROUP, _PLACEMENT_TILE,
      Param("max_face_vertices", lambda v: isinstance(v, int) and 3 <= v <= 32,
            "sizes the private clipping buffers (2x): the world's largest face",
-           "an int from 3 to 32 (rbgen.hull.MAX_FACE_VERTICES)"),
-     Param("reduce_in_clip", (True, False),
-           "True: clip_incident_face reduces its points and stores the manifold (one launch, "
-           "no scratch round trip); False: a separate reduce_contacts kernel does (two smaller "
-           "kernels, for devices where the fused one spills)")],
+           "an int from 3 to 32 (rbgen.hull.MAX_FACE_VERTICES)")],
     doc="Clip incident faces against reference faces; reduce to at most 4 points.",
     roles={"slots": "inout", "contact_flags": "inout", "tile_counts": "inout"},
-    defaults=lambda traits: {**_sizes(traits), "max_face_vertices": 4, "reduce_in_clip": True},
+    defaults=lambda traits: {**_sizes(traits), "max_face_vertices": 4},
 )

@@ -272,16 +272,14 @@ def test_unsupported_shapes_fail_at_construction(runtime):
         Narrowphase(runtime, ("box", "mesh"))
 
 
-@pytest.mark.parametrize("work_group_size,placement_tile,reduce_in_clip", [
-    (1, None, True), (64, None, True), (1, 1, True), (16, 16, False), (64, 256, True),
-    (32, 1024, False)])
+@pytest.mark.parametrize("work_group_size,placement_tile", [
+    (1, None), (64, None), (1, 1), (16, 16), (64, 256), (32, 1024)])
 def test_mixed_world_is_independent_of_work_group_size(runtime, rng, work_group_size,
-                                                       placement_tile, reduce_in_clip):
+                                                       placement_tile):
     """Spheres, capsules, boxes and hulls on a plane (every kind), 301 random pairs: the same
-    manifolds, in the same order, as with the default work-group size, placement tile and
-    clipping kernels (queues are filled by group-aggregated atomics; manifolds are placed
-    per tile of pairs, from 1 pair to more than all of them; convex pairs reduced in the
-    clipping kernel or by reduce_contacts)."""
+    manifolds, in the same order, as with the default work-group size and placement tile
+    (queues are filled by group-aggregated atomics; manifolds are placed per tile of
+    pairs, from 1 pair to more than all of them)."""
     table = ShapeTable()
     kinds = [table.add(Plane()), table.add(Sphere(0.5)), table.add(Box((0.5, 0.4, 0.3))),
              table.add(ConvexHull(rng.normal(size=(12, 3)) * 0.5, name="pebble")),
@@ -297,7 +295,7 @@ def test_mixed_world_is_independent_of_work_group_size(runtime, rng, work_group_
     pairs = candidates[:301]
     reference = find_contacts(runtime, table, bodies, pairs, margin=0.01)
     other = find_contacts(runtime, table, bodies, pairs, margin=0.01, work_group_size=work_group_size,
-                          placement_tile=placement_tile, reduce_in_clip=reduce_in_clip)
+                          placement_tile=placement_tile)
     assert len(reference) > 20
     np.testing.assert_array_equal(other["body_a"], reference["body_a"])
     np.testing.assert_array_equal(other["body_b"], reference["body_b"])
@@ -324,11 +322,9 @@ def test_no_pairs_give_no_manifolds(runtime):
     assert count.get()[0] == 0 and overflow.get()[0] == 0
 
 
-def test_placement_tile_and_routing_are_checked(runtime):
+def test_placement_tile_is_checked_and_one_convex_kind_reads_pairs_directly(runtime):
     with pytest.raises(RbgenError, match="placement_tile"):
         Narrowphase(runtime, ("box",), work_group_size=64, placement_tile=32)
-    with pytest.raises(RbgenError, match="routing"):
-        Narrowphase(runtime, ("box",), routing="direct")
     assert Narrowphase(runtime, ("box",)).direct
     assert not Narrowphase(runtime, ("box", "plane")).direct  # two kinds: queues
     assert not Narrowphase(runtime, ("sphere",)).direct  # a primitive kind stores at once
@@ -353,16 +349,21 @@ def test_cached_axis_follows_the_bodies(runtime):
             np.testing.assert_allclose(m[0]["points"][:4, 3], gap, atol=1e-5)
 
 
-@pytest.mark.parametrize("routing,expected_launches", [("auto", 3), ("queues", 4)])
-def test_enqueue_never_blocks_and_features_persist(runtime, routing, expected_launches):
+@pytest.mark.parametrize("with_sphere,expected_launches", [(False, 3), (True, 6)])
+def test_enqueue_never_blocks_and_features_persist(runtime, with_sphere, expected_launches):
     """`enqueue` issues a fixed number of launches (box pairs only: separating axis straight
-    from the pair list, clip with reduction, scatter with placement; classify_pairs first
-    with routing="queues") and no blocking read; a box resting on a box that moves by 1e-3
-    keeps its four feature ids (warm-starting keys)."""
+    from the pair list, clip with reduction, scatter with placement; a table that also has
+    a sphere, which no body uses, adds classify_pairs and the sphere_sphere and
+    sphere_convex kernels: the box pair then comes through its queue) and no blocking
+    read; a box resting on a box that moves by 1e-3 keeps its four feature ids
+    (warm-starting keys)."""
     import pyopencl.array as cla
     table = ShapeTable()
     wide, cube = table.add(Box((2, 0.5, 2))), table.add(Box((0.5, 0.5, 0.5)))
-    narrowphase = Narrowphase(runtime, table, routing=routing)
+    if with_sphere:
+        table.add(Sphere(0.5))
+    narrowphase = Narrowphase(runtime, table)
+    assert narrowphase.direct == (not with_sphere)
     q = runtime.queue
     packed = table.pack_all().to_device(q)
     pairs = cla.to_device(q, pair_records([(0, 1)]))
@@ -526,8 +527,6 @@ def test_world_of_planes_reports_no_contacts(runtime):
                         cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype), count,
                         cla.zeros(q, 1, np.uint32))
     assert count.get()[0] == 0
-    with pytest.raises(RbgenError, match="edge_axes"):
-        Narrowphase(runtime, table, edge_axes={"sphere_sphere": "directions"})
 
 
 def test_capsule_on_a_box(runtime):

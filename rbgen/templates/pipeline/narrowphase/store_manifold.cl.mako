@@ -1,4 +1,4 @@
-/* ---- Writing a pair's manifold slot (pair kernels and reduce_contacts) ---- */
+/* ---- Writing a pair's manifold slot (pair kernels and clip_incident_face) ---- */
 
 /* Pairs per placement tile: scatter_manifolds places one tile per work group
  * and needs the number of manifolds in every earlier tile (tile_counts). */
