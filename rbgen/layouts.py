@@ -8,7 +8,9 @@ A `Layout` is a list of typed fields. From it we derive, never by hand:
 * the C header for host programs that use exported kernels, with static
   asserts on every size and offset.
 
-Constants (shape type codes, flags) live here too, rendered as ``#define``.
+Constants (flags, sentinels) live here too, rendered as ``#define``; shape
+type codes are declared through `constant` by their shape classes
+(`rbgen.shapes`), so they reach the same ``#define`` list and C header.
 Add a struct by calling `declare`; look one up with `layout`. An unknown struct
 or field name raises `RbgenError` naming it.
 """
@@ -212,14 +214,11 @@ typedef struct {{ RB_ALIGN(16) uint32_t s[4]; }} rb_uint4;
 
 
 # --------------------------------------------------------------------------
-# Shape type codes (one per collision shape kind).
-SHAPE_SPHERE = constant("RB_SHAPE_SPHERE", 0, "extents.x = radius")
-SHAPE_BOX = constant("RB_SHAPE_BOX", 1, "extents.xyz = half extents")
-SHAPE_HULL = constant("RB_SHAPE_HULL", 2, "vertices in the hull vertex array")
-SHAPE_PLANE = constant("RB_SHAPE_PLANE", 3, "extents.xyz = normal, extents.w = offset; static only")
-SHAPE_CAPSULE = constant("RB_SHAPE_CAPSULE", 4, "extents.x = radius, extents.y = half height (y axis)")
-SHAPE_COMPOUND = constant("RB_SHAPE_COMPOUND", 5, "children in the compound child array")
-SHAPE_MESH = constant("RB_SHAPE_MESH", 6, "static triangle mesh with a BVH")
+# Shape type codes: each shape type's class declares its RB_SHAPE_<NAME> constant
+# (rbgen.shapes.register_shape_type). These codes are reserved for types to come;
+# their entries declare the same name and value.
+SHAPE_COMPOUND = constant("RB_SHAPE_COMPOUND", 5, "reserved: children in the compound child array")
+SHAPE_MESH = constant("RB_SHAPE_MESH", 6, "reserved: static triangle mesh with a BVH")
 
 # --------------------------------------------------------------------------
 # Core structs.
@@ -236,7 +235,7 @@ BODY = declare("Body", [
 
 SHAPE = declare("Shape", [
     ("extents", "float4", "per type: radius, half extents, plane normal+offset"),
-    ("type", "uint", "RB_SHAPE_*"),
+    ("type", "uint", "RB_SHAPE_* (rbgen.shapes: the shape type's code)"),
     ("vertex_offset", "uint", "hull: first vertex in the hull vertex array"),
     ("vertex_count", "uint", "hull: number of vertices"),
     ("face_offset", "uint", "hull: first face"),

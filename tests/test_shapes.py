@@ -21,8 +21,9 @@ def test_table_deduplicates_and_packs_topology(rng):
     packed = table.pack_all()
     records = packed.shapes
     assert records.dtype == layouts.SHAPE.dtype and packed.faces.dtype == layouts.HULL_FACE.dtype
-    assert list(records["type"][[box, ball, rock, ground]]) == [layouts.SHAPE_BOX, layouts.SHAPE_SPHERE,
-                                                               layouts.SHAPE_HULL, layouts.SHAPE_PLANE]
+    assert list(records["type"][[box, ball, rock, ground]]) == [Box.type_code, Sphere.type_code,
+                                                               ConvexHull.type_code,
+                                                               Plane.type_code]
     np.testing.assert_allclose(records["extents"][ground], (0, 1, 0, 1.0))
     for index in (box, rock):
         shape, rec = table.shapes[index], records[index]
