@@ -73,6 +73,8 @@ class Shape:
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
+        if "type_code" in cls.__dict__:
+            register_shape_type(cls)
         init = cls.__dict__.get("__init__")
         if init is None:
             return
@@ -87,8 +89,6 @@ class Shape:
                 object.__setattr__(self, "_frozen", True)
 
         cls.__init__ = init_then_freeze
-        if "type_code" in cls.__dict__:
-            register_shape_type(cls)
 
     def __setattr__(self, name, value):
         if self.__dict__.get("_frozen", False):

@@ -48,8 +48,17 @@ _PLACEMENT_TILE = Param(
     "pairs whose manifolds one scatter_manifolds work group places: kernels that store a "
     "manifold count it in its tile, so placement needs no separate prefix-sum launches",
     "a power of two from 1 to 65536, a multiple of work_group_size")
-_PAIR_ROLES = {"slots": "inout", "contact_flags": "inout", "tile_counts": "inout"}
+#: argument roles of kernels that store manifolds (KernelTemplate ``roles``)
+PAIR_ROLES = {"slots": "inout", "contact_flags": "inout", "tile_counts": "inout"}
 _SAT_ROLES = {"cache": "inout", "result_count": "inout"}
+
+
+def pair_kernel_params(template_path: str) -> list[Param]:
+    """The parameters of a template whose pair kernels store manifolds themselves:
+    ``work_group_size``, ``kinds`` (which of the kernels declared with it to emit) and
+    ``placement_tile`` (store_manifold.cl.mako counts manifolds per tile)."""
+    return [_WORK_GROUP, _kinds_param(template_path), _PLACEMENT_TILE]
+
 
 DISPATCH = KernelTemplate(
     "pipeline/narrowphase/dispatch.cl.mako",
@@ -61,10 +70,9 @@ DISPATCH = KernelTemplate(
 
 PRIMITIVE_PAIRS_PATH = "pipeline/narrowphase/primitive_pairs.cl.mako"
 PRIMITIVE_PAIRS = KernelTemplate(
-    PRIMITIVE_PAIRS_PATH,
-    [_WORK_GROUP, _kinds_param(PRIMITIVE_PAIRS_PATH), _PLACEMENT_TILE],
+    PRIMITIVE_PAIRS_PATH, pair_kernel_params(PRIMITIVE_PAIRS_PATH),
     doc="Contacts of pairs with a sphere, a capsule or a plane (closed forms, one kernel each).",
-    roles=_PAIR_ROLES,
+    roles=PAIR_ROLES,
     defaults=lambda traits: {**_sizes(traits), "kinds": (
         "sphere_sphere", "sphere_plane", "sphere_convex", "sphere_capsule", "capsule_capsule",
         "capsule_plane", "convex_plane")},
@@ -83,7 +91,7 @@ CAPSULE_CONVEX = KernelTemplate(
     "pipeline/narrowphase/capsule_convex.cl.mako",
     [_WORK_GROUP, _PLACEMENT_TILE],
     doc="Capsule against box or hull: segment separating axes, closest points, face clipping.",
-    roles=_PAIR_ROLES,
+    roles=PAIR_ROLES,
     defaults=_sizes,
 )
 register_pair_kernel(PairKernel("capsule_convex", [("capsule", "box"), ("capsule", "hull")],
@@ -128,6 +136,6 @@ CLIP = KernelTemplate(
            "sizes the private clipping buffers (2x): the world's largest face",
            "an int from 3 to 32 (rbgen.hull.MAX_FACE_VERTICES)")],
     doc="Clip incident faces against reference faces; reduce to at most 4 points.",
-    roles=_PAIR_ROLES,
+    roles=PAIR_ROLES,
     defaults=lambda traits: {**_sizes(traits), "max_face_vertices": 4},
 )
