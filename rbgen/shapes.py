@@ -254,7 +254,8 @@ class Capsule(Shape):
     aabb_template = "shapes/capsule.cl.mako"
 
     def __init__(self, radius: float, half_height: float):
-        if not (np.isfinite(radius) and radius > 0 and np.isfinite(half_height) and half_height >= 0):
+        if not (np.isfinite(radius) and radius > 0 and np.isfinite(half_height)
+                and half_height >= 0):
             raise RbgenError(f"Capsule needs radius > 0 and half_height >= 0, got "
                              f"radius={radius!r}, half_height={half_height!r}")
         self.radius, self.half_height = float(radius), float(half_height)
@@ -301,7 +302,8 @@ class ConvexHull(Shape):
         if vertices is None:
             raise RbgenError(f"ConvexHull.from_trimesh expects a trimesh.Trimesh, "
                              f"got {type(mesh).__name__}")
-        label = name or f"ConvexHull.from_trimesh({getattr(mesh, 'metadata', {}).get('name', 'mesh')})"
+        mesh_name = getattr(mesh, "metadata", {}).get("name", "mesh")
+        label = name or f"ConvexHull.from_trimesh({mesh_name})"
         return cls(np.asarray(vertices, np.float64), name=label)
 
     def pack(self, record, hull_vertices):

@@ -91,12 +91,12 @@ def sat(a: Placed, b: Placed) -> SatAnswer:
         axes.append(-n), is_edge.append(False)
     for ea in a.edges:
         for eb in b.edges:
-            l = np.cross(ea, eb)
-            s = np.linalg.norm(l)
+            cross = np.cross(ea, eb)
+            s = np.linalg.norm(cross)
             if s < 1e-4:
                 continue
-            axes.append(l / s), is_edge.append(True)
-            axes.append(-l / s), is_edge.append(True)
+            axes.append(cross / s), is_edge.append(True)
+            axes.append(-cross / s), is_edge.append(True)
     axes = np.array(axes)
     is_edge = np.array(is_edge)
     separations = (b.vertices @ axes.T).min(axis=0) - (a.vertices @ axes.T).max(axis=0)

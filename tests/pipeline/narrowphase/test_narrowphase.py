@@ -140,7 +140,8 @@ def test_sphere_cases(runtime, rng):
     local_centres = [(0, 0.8 + 0.45, 0), (1.2, 0.95, 0.1), (1.3, 1.0, 0.75), (0.2, 0.35, -0.1)]
     box_at = np.array([5.0, 5.0, 5.0])
     # sphere-sphere: 0-1; sphere-plane: 2-3; sphere-box: box 4, spheres 5..8
-    positions = [(0, 0, 0), (0.3, 0.85, -0.2), tuple(plane.normal * (0.3 + 0.47)), (0, 0, 0), box_at]
+    positions = [(0, 0, 0), (0.3, 0.85, -0.2), tuple(plane.normal * (0.3 + 0.47)), (0, 0, 0),
+                 box_at]
     positions += [tuple(box_at + r @ c) for c in local_centres]
     shapes = [ball, ball, ball, ground, cube] + [ball] * 4
     orient = [(0, 0, 0, 1)] * 4 + [q] + [(0, 0, 0, 1)] * 4
@@ -211,7 +212,8 @@ def test_many_boxes_on_plane(runtime, rng, count):
     expected = np.nonzero(depth <= 0.02)[0] + 1
     np.testing.assert_array_equal(m["body_b"], expected)
     assert np.all(m["point_count"] == 4)
-    np.testing.assert_allclose(m["points"][:, :, 3], np.repeat(depth[expected - 1], 4).reshape(-1, 4),
+    np.testing.assert_allclose(m["points"][:, :, 3],
+                               np.repeat(depth[expected - 1], 4).reshape(-1, 4),
                                atol=2e-5)
     np.testing.assert_allclose(m["friction"], 0.5, rtol=1e-6)
 
@@ -291,11 +293,12 @@ def test_mixed_world_is_independent_of_work_group_size(runtime, rng, work_group_
                                       for a in rng.uniform(0, np.pi, n)]])
     bodies = make_bodies(shapes, positions, quats)
     candidates = [(0, i) for i in range(1, n + 1)]
-    candidates += sorted({tuple(sorted(p)) for p in rng.integers(1, n + 1, (400, 2)) if p[0] != p[1]})
+    candidates += sorted({tuple(sorted(p)) for p in rng.integers(1, n + 1, (400, 2))
+                          if p[0] != p[1]})
     pairs = candidates[:301]
     reference = find_contacts(runtime, table, bodies, pairs, margin=0.01)
-    other = find_contacts(runtime, table, bodies, pairs, margin=0.01, work_group_size=work_group_size,
-                          placement_tile=placement_tile)
+    other = find_contacts(runtime, table, bodies, pairs, margin=0.01,
+                          work_group_size=work_group_size, placement_tile=placement_tile)
     assert len(reference) > 20
     np.testing.assert_array_equal(other["body_a"], reference["body_a"])
     np.testing.assert_array_equal(other["body_b"], reference["body_b"])
@@ -316,9 +319,11 @@ def test_no_pairs_give_no_manifolds(runtime):
     bodies = cla.to_device(q, make_bodies([cube, cube], [(0, 0, 0), (1.9, 0, 0)]))
     pairs = cla.to_device(q, pair_records([(0, 1)]))
     assert len(narrowphase.find_contacts(bodies, packed, pairs, 1)) == 1
-    count, overflow = cla.to_device(q, np.array([7], np.uint32)), cla.to_device(q, np.array([7], np.uint32))
+    count = cla.to_device(q, np.array([7], np.uint32))
+    overflow = cla.to_device(q, np.array([7], np.uint32))
     manifolds = cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype)
-    narrowphase.enqueue(bodies, packed, pairs, cla.zeros(q, 1, np.uint32), manifolds, count, overflow)
+    narrowphase.enqueue(bodies, packed, pairs, cla.zeros(q, 1, np.uint32), manifolds, count,
+                        overflow)
     assert count.get()[0] == 0 and overflow.get()[0] == 0
 
 
@@ -506,7 +511,8 @@ def test_capsule_pairs(runtime, rng):
     np.testing.assert_allclose(points(m)[0], (30, 0.3 - d, 0, -d), atol=2e-5)
     m = found[(8, 9)]  # parallel along x, shifted by 0.2: overlap [-0.6, 0.8] around x = 40
     assert m["point_count"] == 2
-    assert same_point_sets(points(m)[:, :3], [(40 - 0.6, 0.3 - d, 0), (40.8, 0.3 - d, 0)], atol=1e-5)
+    assert same_point_sets(points(m)[:, :3], [(40 - 0.6, 0.3 - d, 0), (40.8, 0.3 - d, 0)],
+                           atol=1e-5)
     np.testing.assert_allclose(points(m)[:, 3], -d, atol=2e-5)
 
 
@@ -544,7 +550,8 @@ def test_capsule_on_a_box(runtime):
         [slab, rod, slab, rod, slab, rod, slab, rod],
         [(0, 0, 0), (0.5, 0.8 - d, 0.2), (10, 0, 0), (10.3, 0.5 + 1.1 - d, 0),
          (20, 0, 0), (20, 0.5 - 0.1, 0), (30, 0, 0), (33 + offset[0], 0.5 + offset[1], 0)],
-        [(0, 0, 0, 1), lying, (0, 0, 0, 1), (0, 0, 0, 1), (0, 0, 0, 1), lying, (0, 0, 0, 1), along_z])
+        [(0, 0, 0, 1), lying, (0, 0, 0, 1), (0, 0, 0, 1), (0, 0, 0, 1), lying, (0, 0, 0, 1),
+         along_z])
     found = contacts(runtime, table, bodies, [(0, 1), (2, 3), (4, 5), (6, 7)])
     m = found[(0, 1)]
     assert m["point_count"] == 2

@@ -32,7 +32,7 @@ from rbgen.pipeline.narrowphase.templates import DISPATCH, PAIR_ROLES, pair_kern
 from rbgen.shapes import (Box, Plane, Shape, ShapeTable, Sphere, shape_type, shape_type_names,
                           shape_types)
 
-from .reference import make_bodies, pair_records
+from .reference import make_bodies
 
 BALL_AABB = """/* ---- Ball (a test's shape type): world AABB ---- */
 

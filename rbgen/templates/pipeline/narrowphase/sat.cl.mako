@@ -10,15 +10,16 @@
  * are the first shape's outward face normals, the second's (negated), and
 % if edge_axes == "directions":
  * the cross products of their unique edge directions (oriented whichever way
- * separates more). The axis
+ * separates more).
 % else:
  * the cross products of the edge pairs whose Gauss-map arcs intersect (the
  * pairs that form a face of the Minkowski difference A - B; any other pair
- * costs four dot products), oriented away from the first centre. The axis
-% endif of greatest separation is the contact normal
+ * costs four dot products), oriented away from the first centre.
+% endif
+ * The axis of greatest separation is the contact normal
  * (least penetration). The test stops at the first axis that separates the
  * shapes by more than `margin`, and starts with the axis that was best for
- * this pair last step (the per-pair cache, keyed by the pair's bodies), which
+ * this pair last step (the per-pair cache, keyed by the pair (a, b, sub)), which
  * is usually still separating. Pairs within the margin are appended, with
  * their axis and feature, to the clipping queue (group-aggregated atomics).
  */

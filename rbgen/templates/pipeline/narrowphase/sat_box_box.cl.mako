@@ -10,7 +10,7 @@
  * 6 + the face of the second, then 12 + 3i + j for axis i of the first
  * crossed with axis j of the second. Like the generic test, it stops at the
  * first axis that separates by more than `margin`, tries last step's best
- * axis first (per-pair cache keyed by the bodies), and appends touching pairs
+ * axis first (per-pair cache keyed by (a, b, sub)), and appends touching pairs
  * to the clipping queue with group-aggregated atomics.
  */
 ${cl_constants()}
