@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from ...codegen import KernelTemplate, Param, work_group_size_param
 from ...device import DeviceTraits
-from .kinds import PairKernel, kinds_param_check, register_pair_kernel
+from .kinds import PairKernel, kinds_param_check, pair_kernels, register_pair_kernel
 
 
 def default_work_group_size(traits: DeviceTraits) -> int:
@@ -73,9 +73,8 @@ PRIMITIVE_PAIRS = KernelTemplate(
     PRIMITIVE_PAIRS_PATH, pair_kernel_params(PRIMITIVE_PAIRS_PATH),
     doc="Contacts of pairs with a sphere, a capsule or a plane (closed forms, one kernel each).",
     roles=PAIR_ROLES,
-    defaults=lambda traits: {**_sizes(traits), "kinds": (
-        "sphere_sphere", "sphere_plane", "sphere_convex", "sphere_capsule", "capsule_capsule",
-        "capsule_plane", "convex_plane")},
+    defaults=lambda traits: {**_sizes(traits), "kinds": tuple(
+        k.name for k in pair_kernels() if k.template.path == PRIMITIVE_PAIRS_PATH)},
 )
 for _name, _pairs in (
         ("sphere_sphere", [("sphere", "sphere")]),
