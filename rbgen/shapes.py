@@ -32,6 +32,7 @@ from . import layouts
 from . import mass as mass_props
 from .errors import RbgenError
 
+
 def _finite_vector(value, n: int, what: str) -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64).reshape(-1)
     if arr.shape != (n,) or not np.all(np.isfinite(arr)):
@@ -173,6 +174,7 @@ def shape_types() -> tuple[type[Shape], ...]:
 
 
 def shape_type_names() -> tuple[str, ...]:
+    """The registered shape types' names, in registration order."""
     return tuple(_SHAPE_TYPES)
 
 
