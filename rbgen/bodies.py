@@ -9,7 +9,9 @@ each side is brought up to date only when the other is read.
 
 Input checks (errors name the body index and the field, and leave the store as it was):
 NaN/inf positions, velocities, orientations; non-positive or non-finite mass of a dynamic
-body; friction < 0; restitution outside [0, 1]; a plane as a dynamic body. Orientations
+body; friction < 0; restitution outside [0, 1]; a static-only shape (a plane) as a dynamic
+body; a shape that is not a registered shape type, or whose pairs with the world's other
+types have no narrowphase kernel (`supported_shapes`). Orientations
 are normalised; one whose norm is off by more than 1e-3 is normalised with a warning, a
 zero one is refused.
 """
@@ -23,11 +25,32 @@ import pyopencl.array as cla
 
 from . import layouts
 from .errors import RbgenError
+from .pipeline.narrowphase.kinds import missing_pairs
 from .pipeline.prepare import inertia_records
-from .shapes import Box, Capsule, ConvexHull, Plane, Shape, ShapeTable, Sphere
+from .shapes import Shape, ShapeTable, registered_type, shape_type_names, shape_types
 
-#: shape classes a World can simulate (each has narrowphase kernels)
-SUPPORTED_SHAPES = (Sphere, Box, Capsule, ConvexHull, Plane)
+
+def supported_shapes() -> tuple[type[Shape], ...]:
+    """The registered shape types that have a narrowphase kernel for their pairs with every
+    registered type (so a World may mix them freely)."""
+    names = shape_type_names()
+    return tuple(t for t in shape_types()
+                 if not any(t.type_name in pair for pair in missing_pairs(names)))
+
+
+def check_supported(shape: Shape, world_types) -> None:
+    """Refuse a shape a World cannot simulate beside shapes of ``world_types`` (names): one
+    that is no registered shape type, or whose pairs with them have no kernel."""
+    cls = registered_type(shape)
+    if cls is None:
+        raise RbgenError(f"shape {type(shape).__name__} has no narrowphase kernels; "
+                         f"supported: {', '.join(c.__name__ for c in supported_shapes())}")
+    missing = [pair for pair in missing_pairs({*world_types, cls.type_name})
+               if cls.type_name in pair]
+    if missing:
+        # the narrowphase has kernels for declared pairs only: fail here, not mid-step
+        raise RbgenError(f"shape {type(shape).__name__} has no narrowphase kernel for the "
+                         f"shape-type pairs {missing} of this World")
 
 
 class DeviceBodies:
@@ -84,12 +107,9 @@ class BodyStore:
                              f"table, while a shape object can be added to any World")
         if not isinstance(shape, Shape):
             raise RbgenError(f"shape must be an rbgen shape, got {type(shape).__name__}")
-        if type(shape) not in SUPPORTED_SHAPES:
-            # the narrowphase has kernels for these pairs only: fail here, not mid-step
-            raise RbgenError(f"shape {type(shape).__name__} has no narrowphase kernels; "
-                             f"supported: {', '.join(c.__name__ for c in SUPPORTED_SHAPES)}")
-        if masses is not None and isinstance(shape, Plane):
-            raise RbgenError("a Plane can only be static: use add_static")
+        check_supported(shape, self.shapes.type_names())
+        if masses is not None and type(shape).static_only:
+            raise RbgenError(f"a {type(shape).__name__} can only be static: use add_static")
         n = len(positions)
         first = self.count
         positions = rows(positions, n, 3, "positions", first)
@@ -211,9 +231,6 @@ def unit_quaternions(values, n, first):
 
 
 def bounding_radius(shape: Shape) -> float:
-    """Radius of a sphere about the body's origin that holds the shape."""
-    if isinstance(shape, Sphere):
-        return shape.radius
-    if isinstance(shape, Capsule):
-        return shape.radius + shape.half_height
-    return float(np.linalg.norm(np.asarray(shape.local_vertices()), axis=1).max())
+    """Radius of a sphere about the body's origin that holds the shape (its type's
+    `Shape.bounding_radius`)."""
+    return shape.bounding_radius()

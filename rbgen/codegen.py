@@ -211,14 +211,17 @@ _USES = re.compile(r'<%(?:include|namespace)\b[^>]*?\bfile="/?([^"]+)"')
 
 def template_sources(path: str) -> list[str]:
     """A template and every template it includes or imports, directly or not (paths under
-    the template directory, each once, the template first)."""
+    the template directory, each once, the template first). An include whose file is an
+    expression (``file="/${...}"``: a shape type's file, chosen by a parameter) cannot be
+    followed here; the rendered source, and so its hash, still contains it."""
     seen, pending = [], [path]
     while pending:
         current = pending.pop(0)
         if current in seen:
             continue
         seen.append(current)
-        pending += _USES.findall((TEMPLATE_DIR / current).read_text(encoding="utf-8"))
+        text = (TEMPLATE_DIR / current).read_text(encoding="utf-8")
+        pending += [used for used in _USES.findall(text) if "${" not in used]
     return seen
 
 

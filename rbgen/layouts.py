@@ -8,7 +8,9 @@ A `Layout` is a list of typed fields. From it we derive, never by hand:
 * the C header for host programs that use exported kernels, with static
   asserts on every size and offset.
 
-Constants (shape type codes, flags) live here too, rendered as ``#define``.
+Constants (flags, sentinels) live here too, rendered as ``#define``; shape
+type codes are declared through `constant` by their shape classes
+(`rbgen.shapes`), so they reach the same ``#define`` list and C header.
 Add a struct by calling `declare`; look one up with `layout`. An unknown struct
 or field name raises `RbgenError` naming it.
 """
@@ -212,14 +214,11 @@ typedef struct {{ RB_ALIGN(16) uint32_t s[4]; }} rb_uint4;
 
 
 # --------------------------------------------------------------------------
-# Shape type codes (one per collision shape kind).
-SHAPE_SPHERE = constant("RB_SHAPE_SPHERE", 0, "extents.x = radius")
-SHAPE_BOX = constant("RB_SHAPE_BOX", 1, "extents.xyz = half extents")
-SHAPE_HULL = constant("RB_SHAPE_HULL", 2, "vertices in the hull vertex array")
-SHAPE_PLANE = constant("RB_SHAPE_PLANE", 3, "extents.xyz = normal, extents.w = offset; static only")
-SHAPE_CAPSULE = constant("RB_SHAPE_CAPSULE", 4, "extents.x = radius, extents.y = half height (y axis)")
-SHAPE_COMPOUND = constant("RB_SHAPE_COMPOUND", 5, "children in the compound child array")
-SHAPE_MESH = constant("RB_SHAPE_MESH", 6, "static triangle mesh with a BVH")
+# Shape type codes: each shape type's class declares its RB_SHAPE_<NAME> constant
+# (rbgen.shapes.register_shape_type). These codes are reserved for types to come;
+# their entries declare the same name and value.
+SHAPE_COMPOUND = constant("RB_SHAPE_COMPOUND", 5, "reserved: children in the compound child array")
+SHAPE_MESH = constant("RB_SHAPE_MESH", 6, "reserved: static triangle mesh with a BVH")
 
 # --------------------------------------------------------------------------
 # Core structs.
@@ -236,7 +235,7 @@ BODY = declare("Body", [
 
 SHAPE = declare("Shape", [
     ("extents", "float4", "per type: radius, half extents, plane normal+offset"),
-    ("type", "uint", "RB_SHAPE_*"),
+    ("type", "uint", "RB_SHAPE_* (rbgen.shapes: the shape type's code)"),
     ("vertex_offset", "uint", "hull: first vertex in the hull vertex array"),
     ("vertex_count", "uint", "hull: number of vertices"),
     ("face_offset", "uint", "hull: first face"),
@@ -253,10 +252,17 @@ AABB = declare("Aabb", [
     ("upper", "float4", "maximum corner; w unused"),
 ], "An axis-aligned bounding box in the world frame.")
 
+#: `Pair.sub` (and the keys that copy it) of a pair of whole bodies
+WHOLE_BODY = constant("RB_WHOLE_BODY", 0, "sub-feature id of a pair of whole bodies")
+
 PAIR = declare("Pair", [
     ("a", "uint", "lower body index"),
     ("b", "uint", "higher body index"),
-], "A broadphase pair of overlapping bodies, a < b.")
+    ("sub", "uint", "sub-feature of the pair: RB_WHOLE_BODY for whole bodies (what the "
+                    "broadphase writes), else a nonzero id, unique within (a, b), of a "
+                    "compound child or mesh triangle pair (assigned by a midphase)"),
+], "A candidate pair of bodies, a < b; (a, b, sub) is unique in a pair list, which is "
+   "sorted by (a, b, sub) so that everything computed per pair is in a deterministic order.")
 
 # --------------------------------------------------------------------------
 # Narrowphase output (consumed by the solver). Conventions, tested:
@@ -265,7 +271,9 @@ PAIR = declare("Pair", [
 #    points[k].w the signed separation along the normal (negative when the
 #    bodies penetrate), for k < point_count <= 4;
 #  * features[k] identifies the feature pair that produced point k, stable
-#    across steps while the contact persists (warm-starting key).
+#    across steps while the contact persists (warm-starting key);
+#  * (body_a, body_b, sub) is the pair's key (`Pair`): a body pair may have one
+#    manifold per sub-feature, and warm starting matches manifolds by that key.
 MAX_MANIFOLD_POINTS = constant("RB_MAX_MANIFOLD_POINTS", 4, "contact points per manifold")
 
 CONTACT_MANIFOLD = declare("ContactManifold", [
@@ -274,6 +282,7 @@ CONTACT_MANIFOLD = declare("ContactManifold", [
     ("features", "uint", 4, "feature id per point, stable across steps"),
     ("body_a", "uint", "first body (index into Body)"),
     ("body_b", "uint", "second body"),
+    ("sub", "uint", "sub-feature of the pair (Pair.sub; RB_WHOLE_BODY for whole bodies)"),
     ("point_count", "uint", "valid points, 1..4"),
     ("friction", "float", "combined friction coefficient"),
     ("restitution", "float", "combined restitution coefficient"),
@@ -331,6 +340,8 @@ CONTACT_CONSTRAINT = declare("ContactConstraint", [
     ("group", "uint", "level-1 batching group (work group of the solver); global batching: "
                       "the colour, which the next step's constraint of the pair starts from "
                       "(RB_SOLVER_NONE: none)"),
+    ("sub", "uint", "sub-feature of the manifold (ContactManifold.sub): with body_a and "
+                    "body_b the warm-starting key"),
 ], "One contact manifold prepared for the solver: up to four normal and eight friction rows.")
 
 # --------------------------------------------------------------------------
@@ -362,8 +373,10 @@ SAT_EDGE_PAIR = constant("RB_SAT_EDGE_PAIR", 0x80000000,
 SAT_CACHE_ENTRY = declare("SatCacheEntry", [
     ("a", "uint", "body a of the pair this entry belongs to (key)"),
     ("b", "uint", "body b (key)"),
+    ("sub", "uint", "sub-feature of the pair (key, Pair.sub)"),
     ("feature", "uint", "best axis found last step (face/edge code) or RB_NO_FEATURE"),
-], "Previous step's best separating axis, one entry per pair-list index, keyed by (a, b).")
+], "Previous step's best separating axis, one entry per pair-list index, keyed by "
+   "(a, b, sub).")
 
 SAT_RESULT = declare("SatResult", [
     ("axis", "float4", "unit axis from the kernel's first shape to its second (world); "

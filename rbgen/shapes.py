@@ -1,4 +1,4 @@
-"""Collision shapes and their packing into device arrays.
+"""Collision shapes, the registry of shape types, and their packing into device arrays.
 
 Shapes are immutable host objects in their local frame, which is also their
 principal frame of inertia (hulls are re-centred and rotated when cooked; see
@@ -7,14 +7,26 @@ the `Shape` layout plus the shared hull arrays (vertices, faces, face indices,
 edge directions), deduplicating identical shapes so that 100k boxes of one
 size share one entry. Boxes carry their hull topology too, so every
 convex-convex kernel can treat them as hulls.
+
+Shape types: a `Shape` subclass that declares a ``type_code`` is a shape type,
+and its class is the type's one entry in the registry (`shape_types`): code,
+name, what its `Shape` record holds, the template of its world-AABB function,
+mass properties, bounding radius, whether it is static only. The narrowphase's
+pair kernels declare the pairs of type names they handle
+(`rbgen.pipeline.narrowphase.kinds`). Every list of shape types (the AABB
+kernel's cases, the narrowphase's queues and programs, which shapes a World
+accepts) is derived from these two registries, so a new type is its class,
+its AABB template (``rbgen/templates/shapes/``) and its pair kernels.
 """
 from __future__ import annotations
 
 import dataclasses
 import functools
+import re
 
 import numpy as np
 
+from . import codegen
 from . import hull as hull_cooking
 from . import layouts
 from . import mass as mass_props
@@ -29,7 +41,7 @@ def _finite_vector(value, n: int, what: str) -> np.ndarray:
 
 
 class Shape:
-    """Base class; subclasses set ``type_code`` and fill `pack`.
+    """Base class of collision shapes; a subclass that sets ``type_code`` is a shape type.
 
     A shape is an immutable value: once its constructor has validated it, its
     attributes cannot be set and its arrays are read-only. So one shape object
@@ -37,13 +49,33 @@ class Shape:
     `ShapeTable`), and a shape already added cannot change under a World
     behind its back (its dedup key, mass properties and device record would
     disagree). Make a new shape instead of changing one.
+
+    A shape type's class declares (checked by `register_shape_type`):
+    ``type_name``, the registry key and the name kind names ("box_hull"),
+    `ShapeTable.type_names` and template parameters use (lower-case letters and
+    digits); ``type_code``, its `Shape.type` on the device, declared as the
+    constant ``RB_SHAPE_<TYPE_NAME>`` (``type_constant``) with ``extents_doc``
+    (what `pack` puts in the record's extents); ``aabb_template``, a template
+    under ``rbgen/templates/`` that defines ``<type_name>_world_aabb`` (see
+    ``templates/shapes/box.cl.mako``); ``static_only`` (no dynamic bodies, so
+    a pair of two such types needs no kernel); and the methods `pack`, `key`,
+    `mass_properties`, `bounding_radius` (and `cooked` for polygon topology).
     """
 
-    type_code: int = -1
     type_name: str = "shape"
+    #: the type in error messages (type_name when empty)
+    label: str = ""
+    type_code: int = -1
+    #: set by `register_shape_type`: the name of the type code's constant
+    type_constant: str = ""
+    extents_doc: str = ""
+    aabb_template: str = ""
+    static_only: bool = False
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
+        if "type_code" in cls.__dict__:
+            register_shape_type(cls)
         init = cls.__dict__.get("__init__")
         if init is None:
             return
@@ -72,9 +104,19 @@ class Shape:
         """Identity for deduplication in a `ShapeTable`."""
         raise NotImplementedError
 
+    @classmethod
+    def what(cls) -> str:
+        """The type's name in messages."""
+        return cls.label or cls.type_name
+
     def local_vertices(self) -> np.ndarray:
         """Vertices whose convex hull is the shape (boxes, hulls); tests use it."""
-        raise RbgenError(f"{self.type_name} has no vertex representation")
+        raise RbgenError(f"{self.what()} has no vertex representation")
+
+    def bounding_radius(self) -> float:
+        """Radius of a sphere about the shape's origin (the body's centre of mass) that
+        holds the shape; by default the farthest of `local_vertices`."""
+        return float(np.linalg.norm(np.asarray(self.local_vertices()), axis=1).max())
 
     def cooked(self) -> "hull_cooking.CookedHull | None":
         """Polygon topology for the convex-convex kernels (boxes and hulls), else None."""
@@ -88,19 +130,74 @@ class Shape:
         shape is principal, so ``com`` and ``rotation`` say where that frame
         sits in the frame the shape was described in (identity except for hulls).
         """
-        raise RbgenError(f"{self.type_name} has no mass (static only)")
+        raise RbgenError(f"{self.what()} has no mass (static only)")
 
     def _solid(self, volume, unit_inertia, density, mass, com=(0.0, 0.0, 0.0),
                rotation=mass_props.IDENTITY_QUATERNION) -> mass_props.MassProperties:
-        m = mass_props.resolve_mass(volume, density, mass, self.type_name)
+        m = mass_props.resolve_mass(volume, density, mass, self.what())
         return mass_props.MassProperties(m, tuple(float(c) for c in com),
                                          tuple(float(m * i) for i in unit_inertia),
                                          tuple(float(c) for c in rotation))
 
 
+_SHAPE_TYPES: dict[str, type[Shape]] = {}
+
+
+def register_shape_type(cls: type[Shape]) -> type[Shape]:
+    """Enter a shape type's class into the registry (done for every `Shape` subclass
+    that sets ``type_code``) and declare its ``RB_SHAPE_<TYPE_NAME>`` constant."""
+    name = cls.type_name
+    if not re.fullmatch(r"[a-z][a-z0-9]*", name or ""):
+        raise RbgenError(f"shape type {cls.__name__}: type_name {name!r} must be lower-case "
+                         f"letters and digits (it is part of kind names such as 'box_hull')")
+    if _SHAPE_TYPES.get(name, cls) is not cls:
+        raise RbgenError(f"shape type {cls.__name__}: type_name {name!r} is already "
+                         f"{_SHAPE_TYPES[name].__name__}'s")
+    constant = f"RB_SHAPE_{name.upper()}"
+    taken = [k for k, v in layouts.constants().items()
+             if k.startswith("RB_SHAPE_") and k != constant and v == cls.type_code]
+    if taken or not (isinstance(cls.type_code, int) and 0 <= cls.type_code < 2**31):
+        raise RbgenError(f"shape type {cls.__name__}: type_code {cls.type_code!r} must be a "
+                         f"small non-negative int that no other type uses (taken: {taken})")
+    if not (codegen.TEMPLATE_DIR / cls.aabb_template).is_file():
+        raise RbgenError(f"shape type {cls.__name__}: aabb_template {cls.aabb_template!r} is "
+                         f"not a file under {codegen.TEMPLATE_DIR}")
+    layouts.constant(constant, cls.type_code, cls.extents_doc)
+    cls.type_constant = constant
+    _SHAPE_TYPES[name] = cls
+    return cls
+
+
+def shape_types() -> tuple[type[Shape], ...]:
+    """Every registered shape type, in registration order."""
+    return tuple(_SHAPE_TYPES.values())
+
+
+def shape_type_names() -> tuple[str, ...]:
+    """The registered shape types' names, in registration order."""
+    return tuple(_SHAPE_TYPES)
+
+
+def shape_type(name: str) -> type[Shape]:
+    """The registered shape type called ``name``."""
+    try:
+        return _SHAPE_TYPES[name]
+    except (KeyError, TypeError):
+        raise RbgenError(f"no shape type named {name!r}; registered: "
+                         f"{list(_SHAPE_TYPES)}") from None
+
+
+def registered_type(shape: Shape) -> type[Shape] | None:
+    """The registered type a shape object is an instance of (None: not a shape type)."""
+    cls = _SHAPE_TYPES.get(type(shape).type_name)
+    return cls if cls is not None and isinstance(shape, cls) else None
+
+
 class Sphere(Shape):
-    type_code = layouts.SHAPE_SPHERE
     type_name = "sphere"
+    type_code = 0
+    extents_doc = "extents.x = radius"
+    aabb_template = "shapes/sphere.cl.mako"
 
     def __init__(self, radius: float):
         radius = float(radius)
@@ -118,10 +215,15 @@ class Sphere(Shape):
         volume = 4.0 / 3.0 * np.pi * self.radius ** 3
         return self._solid(volume, mass_props.sphere_unit_inertia(self.radius), density, mass)
 
+    def bounding_radius(self):
+        return self.radius
+
 
 class Box(Shape):
-    type_code = layouts.SHAPE_BOX
     type_name = "box"
+    type_code = 1
+    extents_doc = "extents.xyz = half extents"
+    aabb_template = "shapes/box.cl.mako"
 
     def __init__(self, half_extents):
         he = _finite_vector(half_extents, 3, "Box half_extents")
@@ -148,11 +250,14 @@ class Box(Shape):
 
 
 class Capsule(Shape):
-    type_code = layouts.SHAPE_CAPSULE
     type_name = "capsule"
+    type_code = 4
+    extents_doc = "extents.x = radius, extents.y = half height (y axis)"
+    aabb_template = "shapes/capsule.cl.mako"
 
     def __init__(self, radius: float, half_height: float):
-        if not (np.isfinite(radius) and radius > 0 and np.isfinite(half_height) and half_height >= 0):
+        if not (np.isfinite(radius) and radius > 0 and np.isfinite(half_height)
+                and half_height >= 0):
             raise RbgenError(f"Capsule needs radius > 0 and half_height >= 0, got "
                              f"radius={radius!r}, half_height={half_height!r}")
         self.radius, self.half_height = float(radius), float(half_height)
@@ -168,6 +273,9 @@ class Capsule(Shape):
         return self._solid(volume, mass_props.capsule_unit_inertia(self.radius, self.half_height),
                            density, mass)
 
+    def bounding_radius(self):
+        return self.radius + self.half_height
+
 
 class ConvexHull(Shape):
     """Convex hull of a point cloud, cooked into polygons in its principal frame.
@@ -178,8 +286,11 @@ class ConvexHull(Shape):
     ``name`` appears in error messages (degenerate input, limits exceeded).
     """
 
-    type_code = layouts.SHAPE_HULL
-    type_name = "convex hull"
+    type_name = "hull"
+    label = "convex hull"
+    type_code = 2
+    extents_doc = "vertices and polygons in the hull arrays (Shape.vertex_*, face_*, edge_*)"
+    aabb_template = "shapes/hull.cl.mako"
 
     def __init__(self, points, name: str = "ConvexHull"):
         self.name = str(name)
@@ -193,7 +304,8 @@ class ConvexHull(Shape):
         if vertices is None:
             raise RbgenError(f"ConvexHull.from_trimesh expects a trimesh.Trimesh, "
                              f"got {type(mesh).__name__}")
-        label = name or f"ConvexHull.from_trimesh({getattr(mesh, 'metadata', {}).get('name', 'mesh')})"
+        mesh_name = getattr(mesh, "metadata", {}).get("name", "mesh")
+        label = name or f"ConvexHull.from_trimesh({mesh_name})"
         return cls(np.asarray(vertices, np.float64), name=label)
 
     def pack(self, record, hull_vertices):
@@ -216,8 +328,11 @@ class ConvexHull(Shape):
 class Plane(Shape):
     """Static half-space n.x <= offset (solid below); the normal is normalised."""
 
-    type_code = layouts.SHAPE_PLANE
     type_name = "plane"
+    type_code = 3
+    extents_doc = "extents.xyz = normal, extents.w = offset; static only"
+    aabb_template = "shapes/plane.cl.mako"
+    static_only = True
 
     def __init__(self, normal=(0, 1, 0), offset: float = 0.0):
         n = _finite_vector(normal, 3, "Plane normal")
@@ -252,9 +367,8 @@ class ShapeTable:
         return self._index[key]
 
     def type_names(self) -> tuple[str, ...]:
-        """Template names of the shape types present, e.g. ("box", "plane")."""
-        names = {Sphere: "sphere", Box: "box", Capsule: "capsule", ConvexHull: "hull", Plane: "plane"}
-        return tuple(sorted({names[type(s)] for s in self.shapes}))
+        """The sorted type names of the shapes present, e.g. ("box", "plane")."""
+        return tuple(sorted({type(s).type_name for s in self.shapes}))
 
     def max_face_vertices(self) -> int:
         """Most vertices on one face of any box or hull (sizes the clipping buffers)."""
@@ -328,6 +442,12 @@ def _float4(chunks) -> np.ndarray:
     return out
 
 
+#: the name every kernel gives each array of `PackedShapes` (kernels bind them by name)
+KERNEL_ARGUMENTS = {"shapes": "shapes", "vertices": "hull_vertices", "faces": "hull_faces",
+                    "face_indices": "face_indices", "edges": "hull_edges",
+                    "adjacency": "hull_adjacency"}
+
+
 @dataclasses.dataclass
 class PackedShapes:
     """Host arrays of a `ShapeTable` (each has at least one element for OpenCL)."""
@@ -338,6 +458,11 @@ class PackedShapes:
     face_indices: np.ndarray  # uint32 polygon vertex indices (relative to vertex_offset)
     edges: np.ndarray         # (E, 4) float32 unique edge directions, w unused
     adjacency: np.ndarray     # HullEdge records: every edge with its two faces
+
+    def kernel_arguments(self) -> dict:
+        """The arrays by the names kernels give them (`KERNEL_ARGUMENTS`)."""
+        return {KERNEL_ARGUMENTS[f.name]: getattr(self, f.name)
+                for f in dataclasses.fields(self)}
 
     def to_device(self, queue) -> "PackedShapes":
         """The same arrays as pyopencl arrays on ``queue``'s device."""

@@ -48,7 +48,8 @@ def test_hull_frame_reproduces_the_input_inertia(rng):
     r = quat_matrix(props.rotation)
     np.testing.assert_allclose(props.com, ref["center_mass"], atol=1e-10)
     tensor = r @ np.diag(props.inertia) @ r.T
-    np.testing.assert_allclose(tensor, ref["inertia"] * 5.0 / ref["mass"], atol=1e-9 * np.abs(tensor).max())
+    np.testing.assert_allclose(tensor, ref["inertia"] * 5.0 / ref["mass"],
+                               atol=1e-9 * np.abs(tensor).max())
     mapped = hull.vertices @ r.T + props.com
     d = np.linalg.norm(mapped[:, None] - pts[None], axis=-1)
     assert np.all(d.min(axis=1) < 1e-9)

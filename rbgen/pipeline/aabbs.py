@@ -1,8 +1,10 @@
 """World AABB stage: one box per body from its shape and transform.
 
-The per-body code lives in ``templates/pipeline/world_aabb.cl.mako``; a World
-runs it inside `gyroscopic.BodyPreparation` (one launch for both), and
-`WorldAabbs` launches it on its own for other callers.
+The per-body code lives in ``templates/pipeline/world_aabb.cl.mako``, which
+calls each shape type's ``<type>_world_aabb`` (its registry entry's
+``aabb_template``, see `rbgen.shapes`); a World runs it inside
+`prepare.BodyPreparation` (one launch for both), and `WorldAabbs` launches it on
+its own for other callers.
 """
 from __future__ import annotations
 
@@ -10,19 +12,27 @@ import numpy as np
 
 from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
 from ..device import DeviceTraits, Runtime
+from ..shapes import shape_type_names
 
-SHAPE_TYPE_NAMES = ("box", "capsule", "hull", "plane", "sphere")
+
+def shape_types_param(doc: str, *, empty: bool) -> Param:
+    """The ``shape_types`` parameter of templates that include world_aabb.cl.mako: sorted,
+    distinct registered shape type names (``empty``: the empty tuple is allowed too)."""
+    return Param(
+        "shape_types",
+        lambda v: (isinstance(v, tuple) and (empty or len(v) > 0)
+                   and set(v) <= set(shape_type_names()) and tuple(sorted(set(v))) == v),
+        doc, "a sorted tuple of distinct registered shape type names (rbgen.shapes)"
+             + (", empty for none" if empty else ", not empty"))
+
 
 TEMPLATE = KernelTemplate(
     "pipeline/world_aabbs.cl.mako",
     [
         work_group_size_param(
             "bodies per work group; memory-bound, so any size that fills a CU works"),
-        Param("shape_types",
-              lambda v: isinstance(v, tuple) and len(v) > 0 and set(v) <= set(SHAPE_TYPE_NAMES)
-              and tuple(sorted(set(v))) == v,
-              "emit a branch only for the shape types present, keeping the kernel small",
-              f"a sorted, non-empty tuple of distinct names from {SHAPE_TYPE_NAMES}"),
+        shape_types_param("emit a case only for the shape types present, keeping the kernel "
+                          "small", empty=False),
     ],
     doc="World-space AABB of every body.",
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),

@@ -8,7 +8,8 @@ recovery (a separate push velocity solved beside the velocity sweeps and thrown 
 after moving the bodies: recovery adds no momentum, so nothing bounces from it).
 
 Warm starting: each step's constraints are recorded in a hash table keyed by
-body pair; the next step looks its pair up first at its own index (the
+(body a, body b, sub-feature) (`ContactManifold.sub`: one manifold per compound
+child or mesh triangle pair); the next step looks its key up first at its own index (the
 narrowphase lists pairs in a stable order, so a scene at rest finds them
 there, reading the old constraints in order), else in the table, and copies,
 point by point, the impulses of the old point with the same feature id, else

@@ -19,7 +19,7 @@ from .. import layouts
 from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
-from .aabbs import SHAPE_TYPE_NAMES
+from .aabbs import shape_types_param
 
 TEMPLATE = KernelTemplate(
     "pipeline/prepare.cl.mako",
@@ -30,12 +30,8 @@ TEMPLATE = KernelTemplate(
               "emit the implicit gyroscopic update only when the world enables it"),
         Param("gravity", (True, False),
               "add g dt to dynamic bodies here, saving the World a separate gravity launch"),
-        Param("shape_types",
-              lambda v: isinstance(v, tuple) and set(v) <= set(SHAPE_TYPE_NAMES)
-              and tuple(sorted(set(v))) == v,
-              "write world AABBs here for these shape types, saving the World the AABB launch; "
-              "() writes none",
-              f"a sorted tuple of distinct names from {SHAPE_TYPE_NAMES} (empty: no AABBs)"),
+        shape_types_param("write world AABBs here for these shape types, saving the World "
+                          "the AABB launch; () writes none", empty=True),
         Param("backup", (False, True),
               "copy every body to a backup array first, saving the World a copy command"),
     ],

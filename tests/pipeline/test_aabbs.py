@@ -95,6 +95,24 @@ def test_ground_plane_is_bounded_on_its_normal_axis(runtime):
     assert got["lower"][0, 1] < -1e29 and got["upper"][0, 0] > 1e29 and got["lower"][0, 2] < -1e29
 
 
+def test_posed_plane_is_bounded_where_the_narrowphase_puts_it(runtime):
+    """Plane n.x <= 0.5 (n = +y) on a body at (1, 2, 3): turned -90 deg about z its world
+    normal is +x and its offset 0.5 + n.(1, 2, 3) = 1.5 (upper x); turned 180 deg about x
+    the normal is -y and the offset 0.5 - 2 = -1.5 (lower y = 1.5); unbounded elsewhere."""
+    table = ShapeTable()
+    ground = table.add(Plane((0, 1, 0), 0.5))
+    bodies = layouts.BODY.zeros(2)
+    bodies["shape"] = ground
+    bodies["position"][:, :3] = (1, 2, 3)
+    bodies["orientation"] = [(0, 0, -np.sin(np.pi / 4), np.cos(np.pi / 4)), (1, 0, 0, 0)]
+    got = run_aabbs(runtime, table, bodies)
+    assert got["upper"][0, 0] == pytest.approx(1.5, abs=1e-6)
+    assert got["lower"][1, 1] == pytest.approx(1.5, abs=1e-6)
+    unbounded = np.concatenate([got["lower"][0, :3], got["upper"][0, 1:3], got["lower"][1, [0, 2]],
+                                got["upper"][1, :3]])
+    assert np.all(np.abs(unbounded) > 1e29)
+
+
 def test_shape_type_parameter_is_validated(runtime):
     with pytest.raises(TemplateParameterError, match="shape_types"):
         WorldAabbs(runtime, ("box", "torus"))

@@ -2,7 +2,7 @@
 
 Every algorithm reads the world AABBs (`Aabb` layout) and optional uint32
 static flags (1 = static), and fills the same pair buffer (see `pairs`): `Pair`
-records (a, b) with a < b, sorted by (a, b), never two static bodies, with the
+records (a, b, RB_WHOLE_BODY) with a < b, sorted by (a, b), never two static bodies, with the
 count on the device and an overflow protocol that never drops a pair.
 
 Touching rule: boxes are closed. Two AABBs overlap when, on every axis,

@@ -2,25 +2,28 @@
 
 A step enqueues a fixed sequence of launches with no blocking read:
 
-1. ``classify_pairs`` routes every pair to the queue of its shape-type pair
-   ("kind", see `templates.ALL_KINDS`) and clears its contact flag (a world
-   whose only kind is a convex one, e.g. boxes only, skips it: that kind's
-   separating-axis kernel reads the pair list directly, ``routing="auto"``);
-2. one kernel per primitive kind (sphere-sphere, sphere-plane, sphere-convex,
-   sphere-capsule, capsule-capsule, capsule-plane, capsule-convex,
-   convex-plane) writes the pair's manifold slot;
+1. ``classify_pairs`` routes every pair to the queue of its pair kernel
+   ("kind", a `kinds.PairKernel`: the kernel declared for its two shape types)
+   and clears its contact flag (a world whose only kind is a separating-axis
+   one, e.g. boxes only, skips it: that kernel reads the pair list directly);
+2. each kind that finds its contacts in one kernel (sphere and capsule pairs,
+   convex-plane, capsule-convex) writes the manifold slots of its pairs;
 3. convex pairs (box-box, box-hull, hull-hull) go through two kernels
    instead of one large one (which would diverge on GPUs: most pairs stop
    at a separating axis): ``find_separating_axis`` (one launch per convex
    kind) appends the touching pairs to a clipping queue;
    ``clip_incident_face`` runs over that queue and reduces each pair's
-   points to at most four itself (by default, ``reduce_in_clip``), or leaves
-   that to a third kernel, ``reduce_contacts``;
+   points to at most four;
 4. ``scatter_manifolds`` writes the manifolds in pair order (deterministic):
    every kernel that stores a manifold also counts it in its placement tile
    (a fixed run of pairs, one atomic increment), so each work group of the
    scatter finds its tile's start by summing the counts before it, with no
    prefix-sum launches of its own.
+
+The kinds a world needs, and the programs built for them, follow from the shape
+types present (`kinds.kinds_for`). Kernel arguments are bound by name: each
+kernel's C signature names what it takes from `ARGUMENTS`, so a new pair kernel
+reads whichever shape arrays it declares and needs no launch code of its own.
 
 Counts stay on the device: the pair count, the queue lengths, the manifold
 count (the clipping queue's length of the last call stays in
@@ -32,12 +35,16 @@ The host reads ``overflow`` without stalling (e.g. a non-blocking copy
 checked at the start of the next step), then grows the buffer and redoes the
 step; nothing is dropped silently. `find_contacts` does this synchronously.
 
+Sub-features: a pair's key is (a, b, sub) (`Pair`); every manifold carries its
+pair's ``sub``, so one body pair may have several manifolds (compound children,
+mesh triangles), each warm-started on its own.
+
 Separating-axis cache: one `SatCacheEntry` per pair-list index, keyed by the
-pair's bodies (a, b). When the broadphase's sorted pair list keeps a pair at
-the same index (the common case at rest), last step's best axis is tried
-first and usually ends the test for separated pairs; a mismatched key only
-costs the full test. The cache survives between calls and is cleared when
-the pair capacity grows.
+pair (a, b, sub). When the broadphase's sorted pair list keeps a pair at the
+same index (the common case at rest), last step's best axis is tried first and
+usually ends the test for separated pairs; a mismatched key only costs the
+full test. The cache survives between calls and is cleared when the pair
+capacity grows.
 
 Margin: points with separation up to ``+margin`` are reported (resting
 contacts persist between steps).
@@ -49,58 +56,54 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from ... import layouts
-from ...codegen import compile_spec
+from ...codegen import compile_spec, kernel_signatures
 from ...device import Runtime
 from ...errors import RbgenError
-from ...shapes import PackedShapes, ShapeTable
-from .templates import (ALL_KINDS, CAPSULE_CONVEX, CAPSULE_CONVEX_KIND, CLIP, CONVEX_KINDS,
-                        DISPATCH, PRIMITIVE_KINDS, PRIMITIVE_PAIRS, SAT, SAT_BOX_BOX)
-from .templates import default_placement_tile, default_work_group_size
+from ...shapes import KERNEL_ARGUMENTS, PackedShapes, ShapeTable
+from .kinds import kinds_for, pair_kernel
+from .templates import CLIP, DISPATCH, default_placement_tile, default_work_group_size
 
-SUPPORTED_TYPES = ("box", "capsule", "hull", "plane", "sphere")
-#: box_box: box pairs get the closed-form 15-axis kernel; box: the generic test with
-#: boxes projected in closed form; hull: boxes treated as hulls (benchmarks compare them)
-BOX_PATHS = ("box_box", "box", "hull")
-#: auto: a world with one convex kind reads its pair list directly; queues: always classify
-ROUTINGS = ("auto", "queues")
-
-
-def kinds_for(shape_types) -> tuple[str, ...]:
-    """The kinds (kernel shape-type pairs) needed by a world with these shape types."""
-    types = set(shape_types)
-    unsupported = sorted(types - set(SUPPORTED_TYPES))
-    if unsupported:
-        raise RbgenError(f"narrowphase: shape type(s) {unsupported} are not supported "
-                         f"(supported: {list(SUPPORTED_TYPES)})")
-    convex = types & {"box", "hull"}
-    wanted = set()
-    if "capsule" in types:
-        wanted.add("capsule_capsule")
-        if convex:
-            wanted.add(CAPSULE_CONVEX_KIND)
-        if "sphere" in types:
-            wanted.add("sphere_capsule")
-        if "plane" in types:
-            wanted.add("capsule_plane")
-    if "sphere" in types:
-        wanted.add("sphere_sphere")
-        if "plane" in types:
-            wanted.add("sphere_plane")
-        if convex:
-            wanted.add("sphere_convex")
-    if convex and "plane" in types:
-        wanted.add("convex_plane")
-    if "box" in types:
-        wanted.add("box_box")
-        if "hull" in types:
-            wanted.add("box_hull")
-    if "hull" in types:
-        wanted.add("hull_hull")
-    return tuple(k for k in ALL_KINDS if k in wanted)
+#: every argument the stage gives its kernels, by name (what it is)
+ARGUMENTS = {
+    **{name: f"PackedShapes.{field}" for field, name in KERNEL_ARGUMENTS.items()},
+    "bodies": "Body records",
+    "pairs": "Pair records of the call",
+    "pair_count": "device uint: pairs in the list",
+    "pair_list_size": "uint: the pair list's size (no count reaches past it)",
+    "pair_capacity": "uint: entries per queue (the stage's pair capacity)",
+    "queues": "one queue per kind: pair indices | RB_PAIR_SWAPPED",
+    "queue_counts": "device uint per kind: its queue's length",
+    "kind": "uint: the launched kernel's queue",
+    "contact_flags": "device uint per pair: 1 when its slot holds a manifold",
+    "slots": "ContactManifold per pair index",
+    "tile_counts": "device uint per placement tile: manifolds stored in it",
+    "tile_count": "uint: placement tiles",
+    "cache": "SatCacheEntry per pair index",
+    "results": "SatResult queue of clip_incident_face",
+    "result_count": "device uint[2]: its length (running, last call's)",
+    "sat_count": "the same array as result_count",
+    "margin": "float: largest separation reported",
+    "manifolds": "ContactManifold output",
+    "manifold_capacity": "uint: its size",
+    "manifold_count": "device uint: manifolds found",
+    "overflow": "device uint: the capacity needed, 0 when they fit",
+}
 
 
 def _data(a):
     return a.data if hasattr(a, "data") else a
+
+
+class _Launch:
+    """A bound kernel with the names of its arguments, in order."""
+
+    __slots__ = ("kernel", "names", "work_group_size")
+
+    def __init__(self, kernel, names: tuple[str, ...], work_group_size: int):
+        self.kernel, self.names, self.work_group_size = kernel, names, work_group_size
+
+    def __call__(self, count: int, values: dict):
+        return self.kernel.over(count, self.work_group_size, *[values[n] for n in self.names])
 
 
 class Narrowphase:
@@ -108,25 +111,19 @@ class Narrowphase:
 
     ``shapes`` is the world's `ShapeTable` (or a tuple of shape type names,
     then give ``max_face_vertices``). A shape pair without a kernel raises here,
-    at construction, never during a step. ``box_path`` (see `BOX_PATHS`):
-    "box_box" (default) runs box pairs through a closed-form 15-axis kernel,
-    "box" through the generic test with boxes projected in closed form, "hull"
-    treats boxes as hulls (the benchmark compares them). ``edge_axes`` maps a
-    convex kind to "directions" or "gauss_map" (the edge-edge axes of its
-    separating-axis test); by default hull-hull tests use the Gauss map, tests
-    with a box the box's three directions. A world whose shapes cannot touch
-    each other (only planes) gets a narrowphase that reports no contacts.
-    ``placement_tile`` (pairs per scatter work group, a multiple of the work-group
-    size; default per device), ``reduce_in_clip`` (False: a separate
-    reduce_contacts launch) and ``routing`` ("queues": always classify_pairs;
-    "auto": the pair list read directly when the only kind is convex) choose
-    kernel shapes; results are the same.
+    at construction, never during a step. Each pair kernel's choices are fixed
+    by its declaration (`templates`): box pairs run through a closed-form
+    15-axis kernel; the edge-edge axes of the other convex tests are the unique
+    edge directions when a box is involved (three of them) and the Gauss-map
+    edge pairs for hull pairs (which scale to large hulls). A world whose
+    shapes cannot touch each other (only planes) gets a narrowphase that
+    reports no contacts. ``work_group_size`` and ``placement_tile`` (pairs per
+    scatter work group, a multiple of the work-group size; default per device)
+    choose kernel shapes; results are the same.
     """
 
     def __init__(self, runtime: Runtime, shapes, *, max_face_vertices: int | None = None,
-                 box_path: str = "box_box", work_group_size: int | None = None,
-                 edge_axes: dict | None = None, placement_tile: int | None = None,
-                 reduce_in_clip: bool = True, routing: str = "auto"):
+                 work_group_size: int | None = None, placement_tile: int | None = None):
         #: a table given here is watched: when shapes with larger faces are added later,
         #: the clipping kernel is rebuilt for them before the next launch
         self.table = shapes if isinstance(shapes, ShapeTable) else None
@@ -137,78 +134,74 @@ class Narrowphase:
             self._table_size = len(shapes.shapes)
         else:
             types = tuple(shapes)
-        edge_axes_for = dict(edge_axes or {})
-        unknown = sorted(set(edge_axes_for) - set(CONVEX_KINDS))
-        if unknown:
-            raise RbgenError(f"edge_axes: {unknown} are not convex kinds {list(CONVEX_KINDS)}")
-        if box_path not in BOX_PATHS:
-            raise RbgenError(f"box_path must be one of {BOX_PATHS}, got {box_path!r}")
         self.runtime = runtime
         self.kinds = kinds_for(types)
         self.kind_index = {k: i for i, k in enumerate(self.kinds)}
-        if routing not in ROUTINGS:
-            raise RbgenError(f"routing must be one of {ROUTINGS}, got {routing!r}")
-        #: one convex kind (same shape type on both sides): its separating-axis kernel
-        #: reads the pair list itself and no classify_pairs runs
-        self.direct = (routing == "auto" and len(self.kinds) == 1
-                       and self.kinds[0] in CONVEX_KINDS)
+        declared = [pair_kernel(k) for k in self.kinds]
+        #: one separating-axis kind with one shape type on both sides: its kernel reads the
+        #: pair list itself and no classify_pairs runs
+        only = declared[0] if len(declared) == 1 else None
+        self.direct = (only is not None and "direct" in only.template.params
+                       and all(first == second for first, second in only.handles(types)))
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
         wg = self.work_group_size
         self.placement_tile = tile = placement_tile or default_placement_tile(runtime.traits, wg)
         if tile % wg:
-            raise RbgenError(f"placement_tile ({tile}) must be a multiple of work_group_size ({wg})")
+            raise RbgenError(f"placement_tile ({tile}) must be a multiple of work_group_size "
+                             f"({wg})")
         self.max_face_vertices = max(3, int(max_face_vertices or 4))
-        self.k_classify = self.k_scatter = None
+        self._classify = self._scatter = self._clip = None
         if self.kinds:
-            dispatch = compile_spec(runtime, DISPATCH.spec(work_group_size=wg, kinds=self.kinds,
-                                                           placement_tile=tile))
-            self.k_classify = runtime.bound(dispatch.kernel("classify_pairs"))
-            self.k_scatter = runtime.bound(dispatch.kernel("scatter_manifolds"))
-        primitive = tuple(k for k in self.kinds if k in PRIMITIVE_KINDS)
-        self.primitive_kernels = {}
-        if primitive:
-            prog = compile_spec(runtime, PRIMITIVE_PAIRS.spec(work_group_size=wg, kinds=primitive,
-                                                               placement_tile=tile))
-            self.primitive_kernels = {k: runtime.bound(prog.kernel(k)) for k in primitive}
-        if CAPSULE_CONVEX_KIND in self.kinds:
-            prog = compile_spec(runtime, CAPSULE_CONVEX.spec(work_group_size=wg, placement_tile=tile))
-            capsule_convex = runtime.bound(prog.kernel("capsule_convex"))
-            self.primitive_kernels[CAPSULE_CONVEX_KIND] = capsule_convex
-        self.sat_kernels, self.sat_edge_axes = {}, {}
-        for kind in (k for k in self.kinds if k in CONVEX_KINDS):
-            if kind == "box_box" and box_path == "box_box" and "box_box" not in edge_axes_for:
-                prog = compile_spec(runtime, SAT_BOX_BOX.spec(work_group_size=wg,
-                                                              direct=self.direct))
-                self.sat_kernels[kind] = runtime.bound(prog.kernel("find_separating_axis"))
-                self.sat_edge_axes[kind] = "closed_form"
-                continue
-            first, second = kind.split("_")
-            if box_path == "hull":
-                first, second = "hull", "hull"
-            # unique directions win when a box is involved (3 of them); hull pairs prune
-            # their edge pairs on the Gauss map instead
-            edge_axes = edge_axes_for.get(kind) or ("gauss_map" if (first, second) == ("hull", "hull")
-                                                    else "directions")
-            prog = compile_spec(runtime, SAT.spec(work_group_size=wg, first=first, second=second,
-                                                  edge_axes=edge_axes, direct=self.direct))
-            self.sat_kernels[kind] = runtime.bound(prog.kernel("find_separating_axis"))
-            self.sat_edge_axes[kind] = edge_axes
-        self.reduce_in_clip = bool(reduce_in_clip)
-        self.k_clip = self.k_reduce = None
+            dispatch = DISPATCH.spec(work_group_size=wg, kinds=self.kinds, placement_tile=tile)
+            self._classify = self._launch(dispatch, "classify_pairs")
+            self._scatter = self._launch(dispatch, "scatter_manifolds")
+        launches = self._build_pair_kernels(declared)
+        #: (kind, launch) of the kinds that store their manifolds, then of the
+        #: separating-axis kinds (whose results clip_incident_face turns into manifolds)
+        self._contact = [(k.name, launches[k.name]) for k in declared if not k.separating_axis]
+        self._separating = [(k.name, launches[k.name]) for k in declared if k.separating_axis]
         self._build_clip()
         self.capacity = 0
         self._counters_clear = True  # queue counters hold zeros (see enqueue)
 
+    def _launch(self, spec, kernel_name: str) -> _Launch:
+        """Build ``spec`` (programs are cached) and bind one of its kernels by argument name."""
+        program = compile_spec(self.runtime, spec)
+        names = tuple(a["name"] for a in kernel_signatures(spec.source)[kernel_name])
+        unknown = [n for n in names if n not in ARGUMENTS]
+        if unknown:
+            raise RbgenError(f"narrowphase: kernel {kernel_name} of {spec.path} takes {unknown}, "
+                             f"which the stage does not provide (it provides {list(ARGUMENTS)})")
+        return _Launch(self.runtime.bound(program.kernel(kernel_name)), names,
+                       self.work_group_size)
+
+    def _build_pair_kernels(self, declared) -> dict:
+        """One program per template and parameter set (a template with a ``kinds``
+        parameter holds several kernels); the launch of each kind."""
+        shared = {"work_group_size": self.work_group_size, "placement_tile": self.placement_tile,
+                  "direct": self.direct}
+        programs: dict[tuple, list] = {}
+        for kind in declared:
+            programs.setdefault((kind.template.path, kind.params), []).append(kind)
+        launches = {}
+        for group in programs.values():
+            template = group[0].template
+            values = {k: v for k, v in shared.items() if k in template.params}
+            values.update(group[0].params)
+            if "kinds" in template.params:
+                values["kinds"] = tuple(kind.name for kind in group)
+            spec = template.spec(**values)
+            for kind in group:
+                launches[kind.name] = self._launch(spec, kind.kernel)
+        return launches
+
     def _build_clip(self) -> None:
-        if not self.sat_kernels:
+        if not self._separating:
             return
-        clip = compile_spec(self.runtime, CLIP.spec(work_group_size=self.work_group_size,
-                                                    placement_tile=self.placement_tile,
-                                                    max_face_vertices=self.max_face_vertices,
-                                                    reduce_in_clip=self.reduce_in_clip))
-        self.k_clip = self.runtime.bound(clip.kernel("clip_incident_face"))
-        if not self.reduce_in_clip:
-            self.k_reduce = self.runtime.bound(clip.kernel("reduce_contacts"))
+        self._clip = self._launch(CLIP.spec(work_group_size=self.work_group_size,
+                                            placement_tile=self.placement_tile,
+                                            max_face_vertices=self.max_face_vertices),
+                                  "clip_incident_face")
 
     def _follow_table(self) -> None:
         """Rebuild for faces larger than the clipping buffers (shapes added since)."""
@@ -223,7 +216,6 @@ class Narrowphase:
         if needed > self.max_face_vertices:
             self.max_face_vertices = needed
             self._build_clip()
-            self.capacity = 0  # clipping scratch is sized by the face size
 
     # ------------------------------------------------------------------ buffers
     def _ensure(self, pair_capacity: int) -> None:
@@ -231,8 +223,6 @@ class Narrowphase:
             return
         q = self.runtime.queue
         cap = int(pair_capacity)
-        scratch = self.sat_kernels and not self.reduce_in_clip  # clipped points between kernels
-        clip_cap = cap * 2 * self.max_face_vertices if scratch else 1
         self._counters_clear = True  # fresh zeros (scatter_manifolds clears them after use)
         self.contact_flags = cla.zeros(q, cap, np.uint32)
         self.tile_count = -(-cap // self.placement_tile)
@@ -242,10 +232,7 @@ class Narrowphase:
         self.queue_counts = cla.zeros(q, len(self.kinds), np.uint32)
         self.sat_count = cla.zeros(q, 2, np.uint32)  # [running count, last call's count]
         self.sat_cache = cla.zeros(q, cap, layouts.SAT_CACHE_ENTRY.dtype)
-        self.sat_results = cla.zeros(q, cap if self.sat_kernels else 1, layouts.SAT_RESULT.dtype)
-        self.clip_points = cla.zeros(q, (clip_cap, 4), np.float32)
-        self.clip_features = cla.zeros(q, clip_cap, np.uint32)
-        self.clip_counts = cla.zeros(q, cap if scratch else 1, np.uint32)
+        self.sat_results = cla.zeros(q, cap if self._separating else 1, layouts.SAT_RESULT.dtype)
         self.capacity = cap
 
     # ------------------------------------------------------------------ step
@@ -258,71 +245,48 @@ class Narrowphase:
         ``manifold_count`` (uint32 array(1), written) and ``overflow`` (uint32
         array(1), set to the needed capacity when it is exceeded, else to 0)
         are pyopencl arrays; ``shapes`` are `PackedShapes` on the device.
+        Events: "classify", each kind by name (separating-axis kinds as
+        "sat_<kind>"), "clip", "scatter".
         """
         if not (np.isfinite(margin) and margin >= 0):
             raise RbgenError(f"margin must be a non-negative finite number, got {margin!r}")
         self._follow_table()
-        rt, wg = self.runtime, self.work_group_size
+        rt = self.runtime
         if not self.kinds:  # nothing can touch: no manifolds, no overflow
             cl.enqueue_fill_buffer(rt.queue, _data(overflow), np.uint32(0), 0, 4)
             return {"clear": cl.enqueue_fill_buffer(rt.queue, _data(manifold_count), np.uint32(0),
                                                      0, 4)}
-        pair_capacity = int(pairs.size)
-        self._ensure(max(1, pair_capacity))
-        cap = np.uint32(self.capacity)
-        size = max(1, pair_capacity)
-        margin = np.float32(margin)
-        events = {}
+        pair_list_size = int(pairs.size)
+        self._ensure(max(1, pair_list_size))
+        size = max(1, pair_list_size)
         if not self._counters_clear:  # a call that stopped before its scatter_manifolds
             for counters in (self.queue_counts, self.sat_count):
                 cl.enqueue_fill_buffer(rt.queue, counters.data, np.uint32(0), 0, counters.nbytes)
         self._counters_clear = False
-        common = (pairs, bodies, shapes.shapes)
-        tiles = (self.tile_counts, np.uint32(self.tile_count))
-        if self.direct:  # the separating-axis kernel reads the pairs and clears for classify
-            queue_args = (pair_count, self.contact_flags, *tiles)
-        else:
-            events["classify"] = self.k_classify.over(
-                size, wg, pairs, pair_count, bodies, shapes.shapes, self.contact_flags,
-                self.queues, self.queue_counts, cap, *tiles)
-            queue_args = (self.queues, self.queue_counts, cap)
-        out_args = (self.slots, self.contact_flags, self.tile_counts, margin)
-        for kind, kernel in self.primitive_kernels.items():
-            args = [*common, self.queues, self.queue_counts, cap, np.uint32(self.kind_index[kind]),
-                    *out_args]
-            if kind == "sphere_convex":
-                args += [shapes.vertices, shapes.faces, shapes.face_indices]
-            elif kind == CAPSULE_CONVEX_KIND:
-                args += [shapes.vertices, shapes.faces, shapes.face_indices, shapes.edges]
-            elif kind == "convex_plane":
-                args += [shapes.vertices]
-            events[kind] = kernel.over(size, wg, *args)
-        if self.sat_kernels:
-            result_count = self.sat_count
-            for kind, kernel in self.sat_kernels.items():
-                edge_axes = self.sat_edge_axes[kind]
-                hull_args = []
-                if edge_axes != "closed_form":
-                    edges = shapes.edges if edge_axes == "directions" else shapes.adjacency
-                    hull_args = [shapes.vertices, shapes.faces, edges]
-                kind_arg = () if self.direct else (np.uint32(self.kind_index[kind]),)
-                events["sat_" + kind] = kernel.over(
-                    size, wg, *common, *hull_args, *queue_args, *kind_arg,
-                    self.sat_cache, self.sat_results, result_count, margin)
-            hulls = (shapes.vertices, shapes.faces, shapes.face_indices, shapes.edges,
-                     shapes.adjacency)
-            scratch = (self.clip_points, self.clip_features, self.clip_counts)
-            out = (self.slots, self.contact_flags, self.tile_counts)
-            events["clip"] = self.k_clip.over(
-                size, wg, *common, *hulls, self.sat_results, result_count,
-                *(out if self.reduce_in_clip else scratch), margin)
-            if not self.reduce_in_clip:
-                events["reduce"] = self.k_reduce.over(
-                    size, wg, pairs, self.sat_results, result_count, *scratch, *out)
-        events["scatter"] = self.k_scatter.over(
-            self.tile_count * wg, wg, self.slots, self.contact_flags, self.tile_counts, pair_count,
-            np.uint32(pair_capacity), bodies, manifolds, np.uint32(manifolds.size), manifold_count,
-            overflow, self.queue_counts, self.sat_count)
+        values = {
+            **shapes.kernel_arguments(), "bodies": bodies, "pairs": pairs,
+            "pair_count": pair_count, "pair_list_size": np.uint32(pair_list_size),
+            "pair_capacity": np.uint32(self.capacity), "queues": self.queues,
+            "queue_counts": self.queue_counts, "kind": np.uint32(0),
+            "contact_flags": self.contact_flags, "slots": self.slots,
+            "tile_counts": self.tile_counts, "tile_count": np.uint32(self.tile_count),
+            "cache": self.sat_cache, "results": self.sat_results, "result_count": self.sat_count,
+            "sat_count": self.sat_count, "margin": np.float32(margin), "manifolds": manifolds,
+            "manifold_capacity": np.uint32(manifolds.size), "manifold_count": manifold_count,
+            "overflow": overflow,
+        }
+        events = {}
+        if not self.direct:  # (else the separating-axis kernel reads the pairs and clears)
+            events["classify"] = self._classify(size, values)
+        for kind, launch in self._contact:
+            values["kind"] = np.uint32(self.kind_index[kind])
+            events[kind] = launch(size, values)
+        for kind, launch in self._separating:
+            values["kind"] = np.uint32(self.kind_index[kind])
+            events["sat_" + kind] = launch(size, values)
+        if self._separating:
+            events["clip"] = self._clip(size, values)
+        events["scatter"] = self._scatter(self.tile_count * self.work_group_size, values)
         self._counters_clear = True
         return events
 

@@ -1,21 +1,16 @@
-"""The narrowphase's kernel templates and their parameters (one per template file).
+"""The narrowphase's kernel templates, their parameters, and the pair kernels each declares.
 
-Kept together because they share the kind names and the work-group default;
-each `KernelTemplate` sits beside its file in
-``rbgen/templates/pipeline/narrowphase/``.
+Kept together because they share the work-group default and the placement
+tile; each `KernelTemplate` sits beside its file in
+``rbgen/templates/pipeline/narrowphase/``, followed by the `PairKernel`s whose
+kernels it holds (the shape-type pairs each handles; see `kinds`). "convex"
+in a kind name is a box or a hull (both carry cooked polygons).
 """
 from __future__ import annotations
 
 from ...codegen import KernelTemplate, Param, work_group_size_param
 from ...device import DeviceTraits
-
-#: Shape-type pairs with a kernel; each names the kernel's (first, second) shape
-#: order. "convex" is a box or a hull (both carry cooked polygons).
-PRIMITIVE_KINDS = ("sphere_sphere", "sphere_plane", "sphere_convex", "sphere_capsule",
-                   "capsule_capsule", "capsule_plane", "convex_plane")
-CAPSULE_CONVEX_KIND = "capsule_convex"
-CONVEX_KINDS = ("box_box", "box_hull", "hull_hull")
-ALL_KINDS = PRIMITIVE_KINDS + (CAPSULE_CONVEX_KIND,) + CONVEX_KINDS
+from .kinds import PairKernel, kinds_param_check, pair_kernels, register_pair_kernel
 
 
 def default_work_group_size(traits: DeviceTraits) -> int:
@@ -30,11 +25,12 @@ def default_placement_tile(traits: DeviceTraits, work_group_size: int) -> int:
     return max(256 if traits.is_gpu else 1024, work_group_size)
 
 
-def _kinds_param(allowed):
-    return Param("kinds", lambda v: isinstance(v, tuple) and len(v) > 0 and set(v) <= set(allowed)
-                 and tuple(sorted(set(v), key=allowed.index)) == v,
-                 "emit code only for the shape-type pairs the world has",
-                 f"a non-empty tuple of distinct names from {allowed}, in that order")
+def _kinds_param(template_path: str | None) -> Param:
+    return Param("kinds", kinds_param_check(template_path),
+                 "emit code only for the pair kernels (kinds) the world needs",
+                 "a non-empty tuple of distinct names of pair kernels declared "
+                 + ("for any template" if template_path is None else f"with {template_path}")
+                 + ", in declaration order")
 
 
 def _sizes(traits: DeviceTraits) -> dict:
@@ -52,30 +48,63 @@ _PLACEMENT_TILE = Param(
     "pairs whose manifolds one scatter_manifolds work group places: kernels that store a "
     "manifold count it in its tile, so placement needs no separate prefix-sum launches",
     "a power of two from 1 to 65536, a multiple of work_group_size")
+#: argument roles of kernels that store manifolds (KernelTemplate ``roles``)
+PAIR_ROLES = {"slots": "inout", "contact_flags": "inout", "tile_counts": "inout"}
+_SAT_ROLES = {"cache": "inout", "result_count": "inout"}
+
+
+def pair_kernel_params(template_path: str) -> list[Param]:
+    """The parameters of a template whose pair kernels store manifolds themselves:
+    ``work_group_size``, ``kinds`` (which of the kernels declared with it to emit) and
+    ``placement_tile`` (store_manifold.cl.mako counts manifolds per tile)."""
+    return [_WORK_GROUP, _kinds_param(template_path), _PLACEMENT_TILE]
+
 
 DISPATCH = KernelTemplate(
     "pipeline/narrowphase/dispatch.cl.mako",
-    [_WORK_GROUP, _kinds_param(ALL_KINDS), _PLACEMENT_TILE],
+    [_WORK_GROUP, _kinds_param(None), _PLACEMENT_TILE],
     doc="Route broadphase pairs to per-kind queues; gather flagged manifold slots.",
     roles={"queue_counts": "inout"},
     defaults=lambda traits: {**_sizes(traits), "kinds": ("convex_plane", "box_box")},
 )
 
+PRIMITIVE_PAIRS_PATH = "pipeline/narrowphase/primitive_pairs.cl.mako"
 PRIMITIVE_PAIRS = KernelTemplate(
-    "pipeline/narrowphase/primitive_pairs.cl.mako",
-    [_WORK_GROUP, _kinds_param(PRIMITIVE_KINDS), _PLACEMENT_TILE],
+    PRIMITIVE_PAIRS_PATH, pair_kernel_params(PRIMITIVE_PAIRS_PATH),
     doc="Contacts of pairs with a sphere, a capsule or a plane (closed forms, one kernel each).",
-    roles={"slots": "inout", "contact_flags": "inout", "tile_counts": "inout"},
-    defaults=lambda traits: {**_sizes(traits), "kinds": PRIMITIVE_KINDS},
+    roles=PAIR_ROLES,
+    defaults=lambda traits: {**_sizes(traits), "kinds": tuple(
+        k.name for k in pair_kernels() if k.template.path == PRIMITIVE_PAIRS_PATH)},
 )
+for _name, _pairs in (
+        ("sphere_sphere", [("sphere", "sphere")]),
+        ("sphere_plane", [("sphere", "plane")]),
+        ("sphere_convex", [("sphere", "box"), ("sphere", "hull")]),
+        ("sphere_capsule", [("sphere", "capsule")]),
+        ("capsule_capsule", [("capsule", "capsule")]),
+        ("capsule_plane", [("capsule", "plane")]),
+        ("convex_plane", [("box", "plane"), ("hull", "plane")])):
+    register_pair_kernel(PairKernel(_name, _pairs, PRIMITIVE_PAIRS))
 
 CAPSULE_CONVEX = KernelTemplate(
     "pipeline/narrowphase/capsule_convex.cl.mako",
     [_WORK_GROUP, _PLACEMENT_TILE],
     doc="Capsule against box or hull: segment separating axes, closest points, face clipping.",
-    roles={"slots": "inout", "contact_flags": "inout", "tile_counts": "inout"},
+    roles=PAIR_ROLES,
     defaults=_sizes,
 )
+register_pair_kernel(PairKernel("capsule_convex", [("capsule", "box"), ("capsule", "hull")],
+                                CAPSULE_CONVEX))
+
+SAT_BOX_BOX = KernelTemplate(
+    "pipeline/narrowphase/sat_box_box.cl.mako",
+    [_WORK_GROUP, _DIRECT],
+    doc="Separating-axis test of box pairs in closed form (15 axes, no array reads).",
+    roles=_SAT_ROLES,
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "direct": False},
+)
+register_pair_kernel(PairKernel("box_box", [("box", "box")], SAT_BOX_BOX,
+                                kernel="find_separating_axis", separating_axis=True))
 
 SAT = KernelTemplate(
     "pipeline/narrowphase/sat.cl.mako",
@@ -87,30 +116,25 @@ SAT = KernelTemplate(
            "(cheap for boxes: 3 x 3); gauss_map: only edge pairs whose Gauss-map arcs cross, "
            "measured between the edges (scales to large hulls)")],
     doc="Separating-axis test of convex pairs with a per-pair best-axis cache.",
-    roles={"cache": "inout", "result_count": "inout"},
+    roles=_SAT_ROLES,
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "direct": False,
-                             "first": "box", "second": "box", "edge_axes": "directions"},
+                             "first": "box", "second": "hull", "edge_axes": "directions"},
 )
-
-SAT_BOX_BOX = KernelTemplate(
-    "pipeline/narrowphase/sat_box_box.cl.mako",
-    [_WORK_GROUP, _DIRECT],
-    doc="Separating-axis test of box pairs in closed form (15 axes, no array reads).",
-    roles={"cache": "inout", "result_count": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "direct": False},
-)
+# a box brings its three edge directions; hull pairs prune their edge pairs on the Gauss map
+register_pair_kernel(PairKernel("box_hull", [("box", "hull")], SAT,
+                                dict(first="box", second="hull", edge_axes="directions"),
+                                kernel="find_separating_axis", separating_axis=True))
+register_pair_kernel(PairKernel("hull_hull", [("hull", "hull")], SAT,
+                                dict(first="hull", second="hull", edge_axes="gauss_map"),
+                                kernel="find_separating_axis", separating_axis=True))
 
 CLIP = KernelTemplate(
     "pipeline/narrowphase/clip.cl.mako",
     [_WORK_GROUP, _PLACEMENT_TILE,
      Param("max_face_vertices", lambda v: isinstance(v, int) and 3 <= v <= 32,
            "sizes the private clipping buffers (2x): the world's largest face",
-           "an int from 3 to 32 (rbgen.hull.MAX_FACE_VERTICES)"),
-     Param("reduce_in_clip", (True, False),
-           "True: clip_incident_face reduces its points and stores the manifold (one launch, "
-           "no scratch round trip); False: a separate reduce_contacts kernel does (two smaller "
-           "kernels, for devices where the fused one spills)")],
+           "an int from 3 to 32 (rbgen.hull.MAX_FACE_VERTICES)")],
     doc="Clip incident faces against reference faces; reduce to at most 4 points.",
-    roles={"slots": "inout", "contact_flags": "inout", "tile_counts": "inout"},
-    defaults=lambda traits: {**_sizes(traits), "max_face_vertices": 4, "reduce_in_clip": True},
+    roles=PAIR_ROLES,
+    defaults=lambda traits: {**_sizes(traits), "max_face_vertices": 4},
 )

@@ -12,7 +12,8 @@
  * beyond the slop without adding momentum),
 % if warm_start:
  * and the previous step's accumulated impulses, found through a hash table
- * keyed by body pair and matched per point by feature id, else by distance
+ * keyed by (body a, body b, sub-feature) and matched per point by feature id,
+ * else by distance
  * (friction impulses are carried as a world vector and re-projected onto the
  * new tangents).
 % else:
@@ -26,10 +27,11 @@ ${cl_structs("Body", "BodyInertia", "ContactManifold", "ContactConstraint")}
 <%include file="/common/inline_math.cl.mako"/>
 <%include file="/pipeline/solvers/contact_masses.cl.mako"/>
 
-/* Slot of a body pair in the warm-starting table (linear probing from here). */
-inline uint pair_slot(uint a, uint b, uint mask)
+/* Slot of a manifold's key (body a, body b, sub-feature) in the warm-starting
+ * table (linear probing from here). */
+inline uint pair_slot(uint a, uint b, uint sub, uint mask)
 {
-    uint h = a * 0x9e3779b1u ^ (b + 0x7f4a7c15u) * 0x85ebca77u;
+    uint h = a * 0x9e3779b1u ^ (b + 0x7f4a7c15u) * 0x85ebca77u ^ sub * 0xc2b2ae35u;
     h ^= h >> 15;
     h *= 0x2c1b3c6du;
     h ^= h >> 13;
@@ -49,26 +51,32 @@ inline void tangent_basis(float3 n, float3* t1, float3* t2)
 
 % if warm_start:
 
-/* Index of the previous step's constraint of body pair (a, b), or
+/* Is the previous step's constraint c the one of key (a, b, sub)? */
+inline bool has_key(__global const ContactConstraint* c, uint a, uint b, uint sub)
+{
+    return c->body_a == a && c->body_b == b && c->sub == sub;
+}
+
+/* Index of the previous step's constraint of key (a, b, sub), or
  * RB_SOLVER_NONE: first at this constraint's own index i (the narrowphase
  * lists its pairs in a stable order, so a scene at rest finds them there,
  * reading the previous constraints in order), else through the table. */
 inline uint find_previous(__global const ContactConstraint* previous, const uint previous_count,
                           __global const uint* previous_table, const uint previous_mask,
-                          uint i, uint a, uint b)
+                          uint i, uint a, uint b, uint sub)
 {
-    if (i < previous_count && previous[i].body_a == a && previous[i].body_b == b)
+    if (i < previous_count && has_key(&previous[i], a, b, sub))
         return i;
-    uint slot = pair_slot(a, b, previous_mask);
+    uint slot = pair_slot(a, b, sub, previous_mask);
     for (uint probe = 0; probe <= previous_mask; ++probe, slot = (slot + 1) & previous_mask) {
         uint j = previous_table[slot];
-        if (j == RB_SOLVER_NONE || (previous[j].body_a == a && previous[j].body_b == b))
+        if (j == RB_SOLVER_NONE || has_key(&previous[j], a, b, sub))
             return j;
     }
     return RB_SOLVER_NONE;
 }
 
-/* Copy the impulses of the previous step's constraint j (same body pair): per
+/* Copy the impulses of the previous step's constraint j (same key): per
  * point, those of the old point with the same feature id, else of the
  * nearest old point (relative to B) within match_distance (feature ids change
  * when the narrowphase swaps its reference face on a flat contact). */
@@ -103,10 +111,10 @@ inline void warm_start_from(__global const ContactConstraint* old, const float m
 }
 % endif
 
-/* Record constraint i under its body pair for the next step's warm start. */
-inline void insert_pair(__global uint* table, const uint mask, uint a, uint b, uint i)
+/* Record constraint i under its key (a, b, sub) for the next step's warm start. */
+inline void insert_pair(__global uint* table, const uint mask, uint a, uint b, uint sub, uint i)
 {
-    uint slot = pair_slot(a, b, mask);
+    uint slot = pair_slot(a, b, sub, mask);
     while (atomic_cmpxchg(&table[slot], RB_SOLVER_NONE, i) != RB_SOLVER_NONE)
         slot = (slot + 1) & mask;
 }
@@ -157,7 +165,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     if (i >= count)
         return;
     __global const ContactManifold* m = &manifolds[i];
-    uint a = m->body_a, b = m->body_b;
+    uint a = m->body_a, b = m->body_b, sub = m->sub;
     float inv_mass_a = bodies[a].inv_mass, inv_mass_b = bodies[b].inv_mass;
     float3 xa = bodies[a].position.xyz, xb = bodies[b].position.xyz;
     float3 va = bodies[a].linear_velocity.xyz, vb = bodies[b].linear_velocity.xyz;
@@ -176,6 +184,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     c.tangent2 = (float4)(t2, 0.0f);
     c.body_a = a;
     c.body_b = b;
+    c.sub = sub;
     uint point_count = m->point_count;
     c.point_count = point_count < RB_MAX_MANIFOLD_POINTS ? point_count : RB_MAX_MANIFOLD_POINTS;
     c.group = RB_SOLVER_NONE;  /* no inherited colour (see below) */
@@ -212,7 +221,8 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     c.velocity_target = (float4)(velocity_target[0], velocity_target[1], velocity_target[2], velocity_target[3]);
     c.position_target = (float4)(position_target[0], position_target[1], position_target[2], position_target[3]);
 % if warm_start:
-    uint old = find_previous(previous, previous_count[0], previous_table, previous_mask, i, a, b);
+    uint old = find_previous(previous, previous_count[0], previous_table, previous_mask, i, a, b,
+                             sub);
     if (old != RB_SOLVER_NONE) {
         warm_start_from(&previous[old], match_distance, &c);
         c.group = previous[old].group;  /* global batching starts from the old colour */
@@ -222,5 +232,5 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     c.tangent2_impulse *= warm_start_factor;
 % endif
     constraints[i] = c;
-    insert_pair(table, table_mask, a, b, i);
+    insert_pair(table, table_mask, a, b, sub, i);
 }

@@ -50,6 +50,14 @@ def make_bodies(shape_ids, positions, orientations=None, inv_mass=1.0) -> np.nda
     return bodies
 
 
+def pair_records(pairs, sub=0) -> np.ndarray:
+    """`Pair` records of (a, b) body index pairs, all with sub-feature ``sub``."""
+    idx = np.asarray(pairs, np.int64).reshape(-1, 2)
+    records = layouts.PAIR.zeros(len(idx))
+    records["a"], records["b"], records["sub"] = idx[:, 0], idx[:, 1], sub
+    return records
+
+
 @dataclasses.dataclass
 class Placed:
     """A cooked convex shape in world placement (float64)."""
@@ -83,12 +91,12 @@ def sat(a: Placed, b: Placed) -> SatAnswer:
         axes.append(-n), is_edge.append(False)
     for ea in a.edges:
         for eb in b.edges:
-            l = np.cross(ea, eb)
-            s = np.linalg.norm(l)
+            cross = np.cross(ea, eb)
+            s = np.linalg.norm(cross)
             if s < 1e-4:
                 continue
-            axes.append(l / s), is_edge.append(True)
-            axes.append(-l / s), is_edge.append(True)
+            axes.append(cross / s), is_edge.append(True)
+            axes.append(-cross / s), is_edge.append(True)
     axes = np.array(axes)
     is_edge = np.array(is_edge)
     separations = (b.vertices @ axes.T).min(axis=0) - (a.vertices @ axes.T).max(axis=0)

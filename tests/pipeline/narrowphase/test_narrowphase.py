@@ -15,7 +15,7 @@ from rbgen.errors import RbgenError
 from rbgen.pipeline.narrowphase import Narrowphase, find_contacts, kinds_for
 from rbgen.shapes import Box, Capsule, ConvexHull, Plane, ShapeTable, Sphere
 
-from .reference import axis_angle, make_bodies, quat_matrix
+from .reference import axis_angle, make_bodies, pair_records, quat_matrix
 
 ATOL = 2e-5  # float32 positions of size ~1
 
@@ -140,7 +140,8 @@ def test_sphere_cases(runtime, rng):
     local_centres = [(0, 0.8 + 0.45, 0), (1.2, 0.95, 0.1), (1.3, 1.0, 0.75), (0.2, 0.35, -0.1)]
     box_at = np.array([5.0, 5.0, 5.0])
     # sphere-sphere: 0-1; sphere-plane: 2-3; sphere-box: box 4, spheres 5..8
-    positions = [(0, 0, 0), (0.3, 0.85, -0.2), tuple(plane.normal * (0.3 + 0.47)), (0, 0, 0), box_at]
+    positions = [(0, 0, 0), (0.3, 0.85, -0.2), tuple(plane.normal * (0.3 + 0.47)), (0, 0, 0),
+                 box_at]
     positions += [tuple(box_at + r @ c) for c in local_centres]
     shapes = [ball, ball, ball, ground, cube] + [ball] * 4
     orient = [(0, 0, 0, 1)] * 4 + [q] + [(0, 0, 0, 1)] * 4
@@ -211,7 +212,8 @@ def test_many_boxes_on_plane(runtime, rng, count):
     expected = np.nonzero(depth <= 0.02)[0] + 1
     np.testing.assert_array_equal(m["body_b"], expected)
     assert np.all(m["point_count"] == 4)
-    np.testing.assert_allclose(m["points"][:, :, 3], np.repeat(depth[expected - 1], 4).reshape(-1, 4),
+    np.testing.assert_allclose(m["points"][:, :, 3],
+                               np.repeat(depth[expected - 1], 4).reshape(-1, 4),
                                atol=2e-5)
     np.testing.assert_allclose(m["friction"], 0.5, rtol=1e-6)
 
@@ -272,16 +274,14 @@ def test_unsupported_shapes_fail_at_construction(runtime):
         Narrowphase(runtime, ("box", "mesh"))
 
 
-@pytest.mark.parametrize("work_group_size,placement_tile,reduce_in_clip", [
-    (1, None, True), (64, None, True), (1, 1, True), (16, 16, False), (64, 256, True),
-    (32, 1024, False)])
+@pytest.mark.parametrize("work_group_size,placement_tile", [
+    (1, None), (64, None), (1, 1), (16, 16), (64, 256), (32, 1024)])
 def test_mixed_world_is_independent_of_work_group_size(runtime, rng, work_group_size,
-                                                       placement_tile, reduce_in_clip):
+                                                       placement_tile):
     """Spheres, capsules, boxes and hulls on a plane (every kind), 301 random pairs: the same
-    manifolds, in the same order, as with the default work-group size, placement tile and
-    clipping kernels (queues are filled by group-aggregated atomics; manifolds are placed
-    per tile of pairs, from 1 pair to more than all of them; convex pairs reduced in the
-    clipping kernel or by reduce_contacts)."""
+    manifolds, in the same order, as with the default work-group size and placement tile
+    (queues are filled by group-aggregated atomics; manifolds are placed per tile of
+    pairs, from 1 pair to more than all of them)."""
     table = ShapeTable()
     kinds = [table.add(Plane()), table.add(Sphere(0.5)), table.add(Box((0.5, 0.4, 0.3))),
              table.add(ConvexHull(rng.normal(size=(12, 3)) * 0.5, name="pebble")),
@@ -293,11 +293,12 @@ def test_mixed_world_is_independent_of_work_group_size(runtime, rng, work_group_
                                       for a in rng.uniform(0, np.pi, n)]])
     bodies = make_bodies(shapes, positions, quats)
     candidates = [(0, i) for i in range(1, n + 1)]
-    candidates += sorted({tuple(sorted(p)) for p in rng.integers(1, n + 1, (400, 2)) if p[0] != p[1]})
+    candidates += sorted({tuple(sorted(p)) for p in rng.integers(1, n + 1, (400, 2))
+                          if p[0] != p[1]})
     pairs = candidates[:301]
     reference = find_contacts(runtime, table, bodies, pairs, margin=0.01)
-    other = find_contacts(runtime, table, bodies, pairs, margin=0.01, work_group_size=work_group_size,
-                          placement_tile=placement_tile, reduce_in_clip=reduce_in_clip)
+    other = find_contacts(runtime, table, bodies, pairs, margin=0.01,
+                          work_group_size=work_group_size, placement_tile=placement_tile)
     assert len(reference) > 20
     np.testing.assert_array_equal(other["body_a"], reference["body_a"])
     np.testing.assert_array_equal(other["body_b"], reference["body_b"])
@@ -316,19 +317,19 @@ def test_no_pairs_give_no_manifolds(runtime):
     q = runtime.queue
     packed = table.pack_all().to_device(q)
     bodies = cla.to_device(q, make_bodies([cube, cube], [(0, 0, 0), (1.9, 0, 0)]))
-    pairs = cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype))
+    pairs = cla.to_device(q, pair_records([(0, 1)]))
     assert len(narrowphase.find_contacts(bodies, packed, pairs, 1)) == 1
-    count, overflow = cla.to_device(q, np.array([7], np.uint32)), cla.to_device(q, np.array([7], np.uint32))
+    count = cla.to_device(q, np.array([7], np.uint32))
+    overflow = cla.to_device(q, np.array([7], np.uint32))
     manifolds = cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype)
-    narrowphase.enqueue(bodies, packed, pairs, cla.zeros(q, 1, np.uint32), manifolds, count, overflow)
+    narrowphase.enqueue(bodies, packed, pairs, cla.zeros(q, 1, np.uint32), manifolds, count,
+                        overflow)
     assert count.get()[0] == 0 and overflow.get()[0] == 0
 
 
-def test_placement_tile_and_routing_are_checked(runtime):
+def test_placement_tile_is_checked_and_one_convex_kind_reads_pairs_directly(runtime):
     with pytest.raises(RbgenError, match="placement_tile"):
         Narrowphase(runtime, ("box",), work_group_size=64, placement_tile=32)
-    with pytest.raises(RbgenError, match="routing"):
-        Narrowphase(runtime, ("box",), routing="direct")
     assert Narrowphase(runtime, ("box",)).direct
     assert not Narrowphase(runtime, ("box", "plane")).direct  # two kinds: queues
     assert not Narrowphase(runtime, ("sphere",)).direct  # a primitive kind stores at once
@@ -343,7 +344,7 @@ def test_cached_axis_follows_the_bodies(runtime):
     narrowphase = Narrowphase(runtime, table)
     q = runtime.queue
     packed = table.pack_all().to_device(q)
-    pairs = cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype))
+    pairs = cla.to_device(q, pair_records([(0, 1)]))
     for gap, expected in [(-0.01, 1), (0.5, 0), (0.5, 0), (-0.02, 1), (0.3, 0)]:
         bodies = make_bodies([cube, cube], [(0, 0, 0), (2 + gap, 0.1, 0)])
         m = narrowphase.find_contacts(cla.to_device(q, bodies), packed, pairs, 1)
@@ -353,19 +354,24 @@ def test_cached_axis_follows_the_bodies(runtime):
             np.testing.assert_allclose(m[0]["points"][:4, 3], gap, atol=1e-5)
 
 
-@pytest.mark.parametrize("routing,expected_launches", [("auto", 3), ("queues", 4)])
-def test_enqueue_never_blocks_and_features_persist(runtime, routing, expected_launches):
+@pytest.mark.parametrize("with_sphere,expected_launches", [(False, 3), (True, 6)])
+def test_enqueue_never_blocks_and_features_persist(runtime, with_sphere, expected_launches):
     """`enqueue` issues a fixed number of launches (box pairs only: separating axis straight
-    from the pair list, clip with reduction, scatter with placement; classify_pairs first
-    with routing="queues") and no blocking read; a box resting on a box that moves by 1e-3
-    keeps its four feature ids (warm-starting keys)."""
+    from the pair list, clip with reduction, scatter with placement; a table that also has
+    a sphere, which no body uses, adds classify_pairs and the sphere_sphere and
+    sphere_convex kernels: the box pair then comes through its queue) and no blocking
+    read; a box resting on a box that moves by 1e-3 keeps its four feature ids
+    (warm-starting keys)."""
     import pyopencl.array as cla
     table = ShapeTable()
     wide, cube = table.add(Box((2, 0.5, 2))), table.add(Box((0.5, 0.5, 0.5)))
-    narrowphase = Narrowphase(runtime, table, routing=routing)
+    if with_sphere:
+        table.add(Sphere(0.5))
+    narrowphase = Narrowphase(runtime, table)
+    assert narrowphase.direct == (not with_sphere)
     q = runtime.queue
     packed = table.pack_all().to_device(q)
-    pairs = cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype))
+    pairs = cla.to_device(q, pair_records([(0, 1)]))
     pair_count = cla.to_device(q, np.array([1], np.uint32))
     manifolds = cla.empty(q, 4, layouts.CONTACT_MANIFOLD.dtype)
     count, overflow = cla.zeros(q, 1, np.uint32), cla.zeros(q, 1, np.uint32)
@@ -442,7 +448,7 @@ def test_larger_faces_added_later_rebuild_the_clipping(runtime):
     sixteen = table.add(ConvexHull(prism_points(16, 1.0, 0.25), name="sixteen"))
     q = runtime.queue
     bodies = make_bodies([slab, octagon, sixteen], [(0, 0, 0), (-1.5, 0.74, 0), (1.5, 0.74, 0)])
-    pairs = cla.to_device(q, np.array([(0, 1), (0, 2)], layouts.PAIR.dtype))
+    pairs = cla.to_device(q, pair_records([(0, 1), (0, 2)]))
     m = narrowphase.find_contacts(cla.to_device(q, bodies), table.pack_all().to_device(q), pairs, 2)
     assert narrowphase.max_face_vertices == 16
     assert list(m["point_count"]) == [4, 4]
@@ -505,7 +511,8 @@ def test_capsule_pairs(runtime, rng):
     np.testing.assert_allclose(points(m)[0], (30, 0.3 - d, 0, -d), atol=2e-5)
     m = found[(8, 9)]  # parallel along x, shifted by 0.2: overlap [-0.6, 0.8] around x = 40
     assert m["point_count"] == 2
-    assert same_point_sets(points(m)[:, :3], [(40 - 0.6, 0.3 - d, 0), (40.8, 0.3 - d, 0)], atol=1e-5)
+    assert same_point_sets(points(m)[:, :3], [(40 - 0.6, 0.3 - d, 0), (40.8, 0.3 - d, 0)],
+                           atol=1e-5)
     np.testing.assert_allclose(points(m)[:, 3], -d, atol=2e-5)
 
 
@@ -521,13 +528,11 @@ def test_world_of_planes_reports_no_contacts(runtime):
     count = cla.to_device(q, np.array([5], np.uint32))
     narrowphase.enqueue(cla.to_device(q, make_bodies([0, 1], np.zeros((2, 3)))),
                         table.pack_all().to_device(q),
-                        cla.to_device(q, np.array([(0, 1)], layouts.PAIR.dtype)),
+                        cla.to_device(q, pair_records([(0, 1)])),
                         cla.to_device(q, np.array([1], np.uint32)),
                         cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype), count,
                         cla.zeros(q, 1, np.uint32))
     assert count.get()[0] == 0
-    with pytest.raises(RbgenError, match="edge_axes"):
-        Narrowphase(runtime, table, edge_axes={"sphere_sphere": "directions"})
 
 
 def test_capsule_on_a_box(runtime):
@@ -545,7 +550,8 @@ def test_capsule_on_a_box(runtime):
         [slab, rod, slab, rod, slab, rod, slab, rod],
         [(0, 0, 0), (0.5, 0.8 - d, 0.2), (10, 0, 0), (10.3, 0.5 + 1.1 - d, 0),
          (20, 0, 0), (20, 0.5 - 0.1, 0), (30, 0, 0), (33 + offset[0], 0.5 + offset[1], 0)],
-        [(0, 0, 0, 1), lying, (0, 0, 0, 1), (0, 0, 0, 1), (0, 0, 0, 1), lying, (0, 0, 0, 1), along_z])
+        [(0, 0, 0, 1), lying, (0, 0, 0, 1), (0, 0, 0, 1), (0, 0, 0, 1), lying, (0, 0, 0, 1),
+         along_z])
     found = contacts(runtime, table, bodies, [(0, 1), (2, 3), (4, 5), (6, 7)])
     m = found[(0, 1)]
     assert m["point_count"] == 2

@@ -24,7 +24,7 @@ import pytest
 
 from rbgen import layouts
 from rbgen.pipeline.narrowphase import Narrowphase
-from rbgen.shapes import Box, ConvexHull, ShapeTable
+from rbgen.shapes import Box, ConvexHull, ShapeTable, Sphere
 
 from .reference import Placed, make_bodies, quat_matrix, random_quaternions, sat
 
@@ -34,9 +34,13 @@ UNDECIDED = 1e-4
 FLOAT32_ABS = 4e-6
 
 
-def random_world(rng, kind: str, n: int):
+def random_world(rng, kind: str, n: int, boxes_as_hulls: bool = False):
+    """n random pairs of one kind; ``boxes_as_hulls``: the boxes are ConvexHulls of their
+    corners (the generic hull-hull test on box geometry)."""
     table = ShapeTable()
-    boxes = [table.add(Box(rng.uniform(0.2, 1.2, 3))) for _ in range(6)]
+    box = (lambda he: ConvexHull(Box(he).local_vertices(), name="box hull")) if boxes_as_hulls \
+        else Box
+    boxes = [table.add(box(rng.uniform(0.2, 1.2, 3))) for _ in range(6)]
     hulls = [table.add(ConvexHull(rng.normal(size=(int(rng.integers(8, 20)), 3))
                                   * rng.uniform(0.3, 1.0, 3), name=f"random hull {k}"))
              for k in range(4)] if kind != "box_box" else []
@@ -58,19 +62,17 @@ def random_world(rng, kind: str, n: int):
     return table, bodies, pairs
 
 
-@pytest.mark.parametrize("kind,n,box_path,edge_axes", [
-    ("box_box", 2001, "box_box", None), ("box_box", 500, "box", None),
-    ("box_box", 500, "hull", "directions"), ("box_box", 300, "hull", "gauss_map"),
-    ("box_hull", 700, "box_box", None), ("hull_hull", 700, "box_box", None),
-    ("hull_hull", 300, "box_box", "directions")])
-def test_sat_matches_reference(runtime, rng, kind, n, box_path, edge_axes):
-    """box_path: "box_box" (default) is the closed-form box-box kernel, "box" the generic test
-    with closed-form box projection, "hull" boxes through the generic hull projection;
-    edge_axes: unique edge directions or Gauss-map edge pairs (None: the default)."""
-    table, bodies, pairs = random_world(rng, kind, n)
+@pytest.mark.parametrize("kind,n,boxes_as_hulls", [
+    ("box_box", 2001, False), ("box_box", 300, True), ("box_hull", 700, False),
+    ("hull_hull", 700, False)])
+def test_sat_matches_reference(runtime, rng, kind, n, boxes_as_hulls):
+    """box_box: the closed-form box-box kernel; box_hull: the generic test with closed-form
+    box projection and the box's edge directions; hull_hull: the generic test with
+    Gauss-map edge pairs, also on boxes cooked as hulls (``boxes_as_hulls``)."""
+    table, bodies, pairs = random_world(rng, kind, n, boxes_as_hulls)
     q = runtime.queue
-    narrowphase = Narrowphase(runtime, table, box_path=box_path,
-                              edge_axes={kind: edge_axes} if edge_axes else None)
+    narrowphase = Narrowphase(runtime, table)
+    assert (narrowphase.kinds == ("hull_hull",)) if boxes_as_hulls else (kind in narrowphase.kinds)
     packed = table.pack_all().to_device(q)
     d_bodies, d_pairs = cla.to_device(q, bodies), cla.to_device(q, pairs)
     manifolds = narrowphase.find_contacts(d_bodies, packed, d_pairs, n)
@@ -124,26 +126,29 @@ def test_sat_matches_reference(runtime, rng, kind, n, box_path, edge_axes):
     np.testing.assert_allclose(again["normal"], manifolds["normal"], atol=1e-6)
 
 
-@pytest.mark.parametrize("box_path", ["box_box", "hull"])
+@pytest.mark.parametrize("boxes_as_hulls", [False, True])
 @pytest.mark.parametrize("work_group_size,placement_tile", [(None, None), (64, 256), (1, 1)])
-def test_boxes_only_read_the_pair_list_directly(runtime, rng, box_path, work_group_size,
-                                                placement_tile):
-    """A world of boxes only has one kind: its separating-axis kernel reads the pair list
-    and clears the flags itself (no classify_pairs). Same manifolds, in the same order, as
-    through the queues, on 1001 random pairs (about half touching), called twice (the
-    second call finds flags, counters and the axis cache left by the first)."""
-    table, bodies, pairs = random_world(rng, "box_box", 1001)
+def test_one_kind_reads_the_pair_list_directly(runtime, rng, boxes_as_hulls, work_group_size,
+                                               placement_tile):
+    """A world of boxes only (or hulls only) has one kind: its separating-axis kernel reads
+    the pair list and clears the flags itself (no classify_pairs). Same manifolds, in the
+    same order, as through the queues (the same table with a sphere that no body uses, so
+    that classify_pairs runs), on 1001 random pairs (about half touching), called twice
+    (the second call finds flags, counters and the axis cache left by the first)."""
+    table, bodies, pairs = random_world(rng, "box_box", 1001, boxes_as_hulls)
     q = runtime.queue
-    packed = table.pack_all().to_device(q)
     d_bodies, d_pairs = cla.to_device(q, bodies), cla.to_device(q, pairs)
     results = {}
-    for routing in ("auto", "queues"):
-        narrowphase = Narrowphase(runtime, table, box_path=box_path, routing=routing,
-                                  work_group_size=work_group_size, placement_tile=placement_tile)
-        assert narrowphase.direct == (routing == "auto")
+    for queued in (False, True):
+        if queued:
+            table.add(Sphere(1.0))
+        packed = table.pack_all().to_device(q)
+        narrowphase = Narrowphase(runtime, table, work_group_size=work_group_size,
+                                  placement_tile=placement_tile)
+        assert narrowphase.direct == (not queued)
         first = narrowphase.find_contacts(d_bodies, packed, d_pairs, len(pairs))
         second = narrowphase.find_contacts(d_bodies, packed, d_pairs, len(pairs))
         np.testing.assert_array_equal(second, first)
-        results[routing] = first
-    assert 200 < len(results["auto"]) < 900
-    np.testing.assert_array_equal(results["auto"], results["queues"])
+        results[queued] = first
+    assert 200 < len(results[False]) < 900
+    np.testing.assert_array_equal(results[False], results[True])

@@ -187,6 +187,7 @@ inline void store_owned_pair(__global Pair* pairs, uint capacity, uint at, uint 
         Pair pair;
         pair.a = owner;
         pair.b = partner;
+        pair.sub = RB_WHOLE_BODY;  /* the broadphase pairs whole bodies */
         pairs[at] = pair;
     }
 }

@@ -36,6 +36,7 @@ void split_pair_keys(__global const uint* keys,
     Pair pair;
     pair.a = keys[k] / body_count;
     pair.b = keys[k] % body_count;
+    pair.sub = RB_WHOLE_BODY;  /* the broadphase pairs whole bodies */
     pairs[k] = pair;
 }
 
@@ -51,5 +52,6 @@ void interleave_pairs(__global const uint* pairs_a,
     Pair pair;
     pair.a = pairs_a[k];
     pair.b = pairs_b[k];
+    pair.sub = RB_WHOLE_BODY;  /* the broadphase pairs whole bodies */
     pairs[k] = pair;
 }

@@ -209,6 +209,7 @@ void gather_unique_changes(__global const uint* changes_a,
     Pair change;
     change.a = changes_a[unique_index[m]];
     change.b = changes_b[unique_index[m]];
+    change.sub = RB_WHOLE_BODY;  /* the broadphase pairs whole bodies */
     unique_changes[m] = change;
 }
 

@@ -13,14 +13,8 @@
  * Reduction: at most four of the clipped points are kept (the deepest; the
  * farthest from it in the contact plane; the extremes on both sides of the
  * line through those two) and the manifold is stored in the pair's slot.
-% if reduce_in_clip:
- * clip_incident_face does this itself, from its private points.
-% else:
- * clip_incident_face writes its points to a scratch buffer and a second
- * kernel, reduce_contacts (one work-item per separating-axis result; a work
- * group is responsible for ${work_group_size} of them), reduces them: two
- * smaller kernels for devices where one large one spills registers.
-% endif
+ * The reduction works on the clipped points in private memory, so the points
+ * never make a round trip through global memory.
  *
  * Feature ids: face contacts are reference face | incident face << 11 |
  * point << 22 | (reference on the second shape) << 29, where point is the
@@ -191,7 +185,7 @@ inline void supporting_edge(const Placement* p, Shape s, float3 direction, float
 }
 
 /* Keep at most four of the n candidate points of a manifold with this
- * normal (see reduce_contacts); returns how many, their indices in chosen. */
+ * normal (see the header); returns how many, their indices in chosen. */
 inline uint choose_contacts(const float4* candidates, uint n, float3 normal, uint* chosen)
 {
     if (n <= 4) {
@@ -264,15 +258,9 @@ void clip_incident_face(__global const Pair* pairs,
                         __global const HullEdge* hull_adjacency,
                         __global const SatResult* results,
                         __global const uint* result_count,
-% if reduce_in_clip:
                         __global ContactManifold* slots,
                         __global uint* contact_flags,
                         __global uint* tile_counts,
-% else:
-                        __global float4* clip_points,
-                        __global uint* clip_features,
-                        __global uint* clip_counts,
-% endif
                         const float margin)
 {
     uint slot = get_global_id(0);
@@ -323,40 +311,5 @@ void clip_incident_face(__global const Pair* pairs,
         out_features[0] = EDGE_CONTACT | ((i & 0x7FFFu) << 15) | (j & 0x7FFFu);
         count = 1;
     }
-% if reduce_in_clip:
     reduce_and_store(r, out_points, out_features, count, pairs, slots, contact_flags, tile_counts);
-% else:
-    for (uint k = 0; k < count; ++k) {
-        clip_points[slot * MAX_CLIP_POINTS + k] = out_points[k];
-        clip_features[slot * MAX_CLIP_POINTS + k] = out_features[k];
-    }
-    clip_counts[slot] = count;
-% endif
 }
-% if not reduce_in_clip:
-
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void reduce_contacts(__global const Pair* pairs,
-                     __global const SatResult* results,
-                     __global const uint* result_count,
-                     __global const float4* clip_points,
-                     __global const uint* clip_features,
-                     __global const uint* clip_counts,
-                     __global ContactManifold* slots,
-                     __global uint* contact_flags,
-                     __global uint* tile_counts)
-{
-    uint slot = get_global_id(0);
-    if (slot >= result_count[0])
-        return;
-    uint n = clip_counts[slot];
-    float4 candidates[MAX_CLIP_POINTS];
-    uint candidate_features[MAX_CLIP_POINTS];
-    for (uint k = 0; k < n; ++k) {
-        candidates[k] = clip_points[slot * MAX_CLIP_POINTS + k];
-        candidate_features[k] = clip_features[slot * MAX_CLIP_POINTS + k];
-    }
-    reduce_and_store(results[slot], candidates, candidate_features, n, pairs, slots,
-                     contact_flags, tile_counts);
-}
-% endif

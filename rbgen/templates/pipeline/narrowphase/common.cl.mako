@@ -57,6 +57,7 @@ typedef struct {
     uint index;     /* into the pair list and the per-pair manifold slots */
     uint first;     /* body with the kind's first shape type */
     uint second;    /* body with the kind's second shape type */
+    uint sub;       /* the pair's sub-feature (Pair.sub), copied into its manifold */
     bool swapped;   /* first is the pair's body b */
 } QueuedPair;
 
@@ -68,5 +69,6 @@ inline QueuedPair decode_queue_entry(uint entry, __global const Pair* pairs)
     Pair pair = pairs[q.index];
     q.first = q.swapped ? pair.b : pair.a;
     q.second = q.swapped ? pair.a : pair.b;
+    q.sub = pair.sub;
     return q;
 }

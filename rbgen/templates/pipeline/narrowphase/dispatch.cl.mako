@@ -1,15 +1,6 @@
-<%
-    # shape-type test per name in a kind ("convex" covers boxes and hulls)
-    type_tests = {
-        "sphere": "{v} == RB_SHAPE_SPHERE",
-        "plane": "{v} == RB_SHAPE_PLANE",
-        "box": "{v} == RB_SHAPE_BOX",
-        "hull": "{v} == RB_SHAPE_HULL",
-        "capsule": "{v} == RB_SHAPE_CAPSULE",
-        "convex": "({v} == RB_SHAPE_BOX || {v} == RB_SHAPE_HULL)",
-    }
-    def test(type_name, var):
-        return type_tests[type_name].format(v=var)
+<%!
+    from rbgen.pipeline.narrowphase.kinds import pair_kernel
+    from rbgen.shapes import shape_type
 %>/* Narrowphase dispatch and output.
  *
  * classify_pairs: one work-item per broadphase pair; a work group is
@@ -51,17 +42,19 @@ ${cl_structs("Body", "Shape", "Pair", "ContactManifold")}
 inline uint kind_of(uint ta, uint tb, bool* swapped)
 {
 % for k, name in enumerate(kinds):
-<% first, second = name.split("_") %>\
-    if (${test(first, "ta")} && ${test(second, "tb")}) {
+% for first, second in pair_kernel(name).pairs:
+<% f, s = shape_type(first).type_constant, shape_type(second).type_constant %>\
+    if (ta == ${f} && tb == ${s}) {
         *swapped = false;
         return ${k};  /* ${name} */
     }
 % if first != second:
-    if (${test(first, "tb")} && ${test(second, "ta")}) {
+    if (ta == ${s} && tb == ${f}) {
         *swapped = true;
         return ${k};  /* ${name}, bodies swapped */
     }
 % endif
+% endfor
 % endfor
     *swapped = false;
     return NO_KIND;  /* not a supported pair: Narrowphase construction rejects such worlds */

@@ -10,15 +10,16 @@
  * are the first shape's outward face normals, the second's (negated), and
 % if edge_axes == "directions":
  * the cross products of their unique edge directions (oriented whichever way
- * separates more). The axis
+ * separates more).
 % else:
  * the cross products of the edge pairs whose Gauss-map arcs intersect (the
  * pairs that form a face of the Minkowski difference A - B; any other pair
- * costs four dot products), oriented away from the first centre. The axis
-% endif of greatest separation is the contact normal
+ * costs four dot products), oriented away from the first centre.
+% endif
+ * The axis of greatest separation is the contact normal
  * (least penetration). The test stops at the first axis that separates the
  * shapes by more than `margin`, and starts with the axis that was best for
- * this pair last step (the per-pair cache, keyed by the pair's bodies), which
+ * this pair last step (the per-pair cache, keyed by the pair (a, b, sub)), which
  * is usually still separating. Pairs within the margin are appended, with
  * their axis and feature, to the clipping queue (group-aggregated atomics).
  */
@@ -26,16 +27,11 @@ ${cl_constants()}
 
 ${cl_structs("Body", "Shape", "Pair", "HullFace", "HullEdge", "SatCacheEntry", "SatResult")}
 
+<%namespace name="shared" file="/pipeline/narrowphase/find_separating_axis.cl.mako"/>
 <%include file="/common/quaternion.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 
-/* A face of the second shape wins over one of the first, and an edge pair over
- * the faces, only when better by these distances: a stable choice between
- * near-equal axes keeps the reference face (and the points) from flickering. */
-#define FACE_TOLERANCE 1e-4f
-#define EDGE_TOLERANCE 1e-4f
-/* Edges closer to parallel than this (sine of the angle, squared) give no axis. */
-#define PARALLEL_SIN2 1e-8f
+${shared.definitions()}
 
 /* The two shapes of a pair, placed in the world. */
 typedef struct {
@@ -209,13 +205,6 @@ inline float4 feature_separation(const ConvexPair* g, uint feature, __global con
 % endif
 }
 
-inline void remember_axis(__global SatCacheEntry* entry, Pair pair, uint feature)
-{
-    entry->a = pair.a;
-    entry->b = pair.b;
-    entry->feature = feature;
-}
-
 /* True when the shapes are within `margin`: then *best is the axis of least
  * penetration (w: separation) and *best_feature its code. */
 inline bool separating_axis_test(const ConvexPair* g, Pair pair, __global SatCacheEntry* entry,
@@ -225,7 +214,7 @@ inline bool separating_axis_test(const ConvexPair* g, Pair pair, __global SatCac
                                  float4* best, uint* best_feature)
 {
     SatCacheEntry cached = *entry;
-    if (cached.a == pair.a && cached.b == pair.b && cached.feature != (uint)RB_NO_FEATURE) {
+    if (cached_axis_of(cached, pair)) {
         float4 s = feature_separation(g, cached.feature, hull_faces, ${edges_arg}, hull_vertices);
         if (s.w > margin)
             return false;  /* last step's axis still separates: the entry stays */
@@ -311,53 +300,8 @@ inline bool separating_axis_test(const ConvexPair* g, Pair pair, __global SatCac
     return true;
 }
 
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void find_separating_axis(__global const Pair* pairs,
-                          __global const Body* bodies,
-                          __global const Shape* shapes,
-                          __global const float4* hull_vertices,
-                          __global const HullFace* hull_faces,
-                          ${edges_decl},
-% if direct:
-                          __global const uint* pair_count,
-                          __global uint* contact_flags,
-                          __global uint* tile_counts,
-                          const uint tile_count,
-% else:
-                          __global const uint* queues,
-                          __global const uint* queue_counts,
-                          const uint pair_capacity,
-                          const uint kind,
-% endif
-                          __global SatCacheEntry* cache,
-                          __global SatResult* results,
-                          __global uint* result_count,
-                          const float margin)
-{
-    __local uint group_count, group_base;
-    uint slot = get_global_id(0);
-% if direct:
-    /* the world's only kind: its queue is the pair list itself, and this kernel,
-     * the stage's first, clears the pairs' contact flags and the placement counts */
-    uint queued = pair_count[0];
-    if (slot < queued)
-        contact_flags[slot] = 0u;
-    if (slot < tile_count)
-        tile_counts[slot] = 0u;
-% else:
-    uint queued = queue_counts[kind];
-% endif
-    if (get_local_id(0) == 0)
-        group_count = 0;
-    barrier(CLK_LOCAL_MEM_FENCE);
-
-    bool touching = false;
-    float4 axis = (float4)(0.0f);
-    uint feature = 0, entry = 0;
-    if (slot < queued) {
-        entry = ${"slot" if direct else "queues[kind * pair_capacity + slot]"};
-        QueuedPair q = decode_queue_entry(entry, pairs);
-        Body a = bodies[q.first], b = bodies[q.second];
+<%call expr="shared.find_separating_axis(shape_arrays=(
+        '__global const float4* hull_vertices', '__global const HullFace* hull_faces', edges_decl))">\
         ConvexPair g;
         g.a = placement_of(a);
         g.b = placement_of(b);
@@ -365,17 +309,4 @@ void find_separating_axis(__global const Pair* pairs,
         g.shape_b = shapes[b.shape];
         touching = separating_axis_test(&g, pairs[q.index], &cache[q.index], hull_faces, ${edges_arg},
                                         hull_vertices, margin, &axis, &feature);
-    }
-    uint ticket = touching ? atomic_inc(&group_count) : 0u;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    if (get_local_id(0) == 0 && group_count > 0)
-        group_base = atomic_add(result_count, group_count);
-    barrier(CLK_LOCAL_MEM_FENCE);
-    if (touching) {
-        SatResult r;
-        r.axis = axis;
-        r.pair = entry;
-        r.feature = feature;
-        results[group_base + ticket] = r;
-    }
-}
+</%call>

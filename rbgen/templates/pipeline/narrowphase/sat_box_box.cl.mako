@@ -10,20 +10,19 @@
  * 6 + the face of the second, then 12 + 3i + j for axis i of the first
  * crossed with axis j of the second. Like the generic test, it stops at the
  * first axis that separates by more than `margin`, tries last step's best
- * axis first (per-pair cache keyed by the bodies), and appends touching pairs
+ * axis first (per-pair cache keyed by (a, b, sub)), and appends touching pairs
  * to the clipping queue with group-aggregated atomics.
  */
 ${cl_constants()}
 
 ${cl_structs("Body", "Shape", "Pair", "SatCacheEntry", "SatResult")}
 
+<%namespace name="shared" file="/pipeline/narrowphase/find_separating_axis.cl.mako"/>
 <%include file="/common/quaternion.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 
-/* See the generic test: preferences between near-equal axes. */
-#define FACE_TOLERANCE 1e-4f
-#define EDGE_TOLERANCE 1e-4f
-#define PARALLEL_SIN2 1e-8f
+${shared.definitions()}
+/* Feature code of the first edge-edge axis (after the 6 + 6 faces). */
 #define FIRST_EDGE_FEATURE 12u
 
 /* Two boxes seen from the first one. Every axis is measured from the nine
@@ -140,21 +139,13 @@ inline float3 feature_axis(const BoxPair* g, uint feature)
     return d >= 0.0f ? axis : -axis;
 }
 
-inline void remember_axis(__global SatCacheEntry* entry, Pair pair, uint feature)
-{
-    entry->a = pair.a;
-    entry->b = pair.b;
-    entry->feature = feature;
-}
-
 /* True when the boxes are within `margin`: then *best is the axis of least
  * penetration (w: separation) and *best_feature its code. */
 inline bool box_box_test(const BoxPair* g, Pair pair, __global SatCacheEntry* entry, float margin,
                          float4* best, uint* best_feature)
 {
     SatCacheEntry cached = *entry;
-    if (cached.a == pair.a && cached.b == pair.b && cached.feature != (uint)RB_NO_FEATURE
-            && feature_gap(g, cached.feature) > margin)
+    if (cached_axis_of(cached, pair) && feature_gap(g, cached.feature) > margin)
         return false;  /* last step's axis still separates: the entry stays */
 
     float face_a = -INFINITY, face_b = -INFINITY, edge = -INFINITY;
@@ -206,63 +197,7 @@ inline bool box_box_test(const BoxPair* g, Pair pair, __global SatCacheEntry* en
     return true;
 }
 
-__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void find_separating_axis(__global const Pair* pairs,
-                          __global const Body* bodies,
-                          __global const Shape* shapes,
-% if direct:
-                          __global const uint* pair_count,
-                          __global uint* contact_flags,
-                          __global uint* tile_counts,
-                          const uint tile_count,
-% else:
-                          __global const uint* queues,
-                          __global const uint* queue_counts,
-                          const uint pair_capacity,
-                          const uint kind,
-% endif
-                          __global SatCacheEntry* cache,
-                          __global SatResult* results,
-                          __global uint* result_count,
-                          const float margin)
-{
-    __local uint group_count, group_base;
-    uint slot = get_global_id(0);
-% if direct:
-    /* the world's only kind: its queue is the pair list itself, and this kernel,
-     * the stage's first, clears the pairs' contact flags and the placement counts */
-    uint queued = pair_count[0];
-    if (slot < queued)
-        contact_flags[slot] = 0u;
-    if (slot < tile_count)
-        tile_counts[slot] = 0u;
-% else:
-    uint queued = queue_counts[kind];
-% endif
-    if (get_local_id(0) == 0)
-        group_count = 0;
-    barrier(CLK_LOCAL_MEM_FENCE);
-
-    bool touching = false;
-    float4 axis = (float4)(0.0f);
-    uint feature = 0, entry = 0;
-    if (slot < queued) {
-        entry = ${"slot" if direct else "queues[kind * pair_capacity + slot]"};
-        QueuedPair q = decode_queue_entry(entry, pairs);
-        Body a = bodies[q.first], b = bodies[q.second];
+<%call expr="shared.find_separating_axis(shape_arrays=())">\
         BoxPair g = box_pair(a, shapes[a.shape].extents.xyz, b, shapes[b.shape].extents.xyz);
         touching = box_box_test(&g, pairs[q.index], &cache[q.index], margin, &axis, &feature);
-    }
-    uint ticket = touching ? atomic_inc(&group_count) : 0u;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    if (get_local_id(0) == 0 && group_count > 0)
-        group_base = atomic_add(result_count, group_count);
-    barrier(CLK_LOCAL_MEM_FENCE);
-    if (touching) {
-        SatResult r;
-        r.axis = axis;
-        r.pair = entry;
-        r.feature = feature;
-        results[group_base + ticket] = r;
-    }
-}
+</%call>

@@ -1,4 +1,4 @@
-/* ---- Writing a pair's manifold slot (pair kernels and reduce_contacts) ---- */
+/* ---- Writing a pair's manifold slot (pair kernels and clip_incident_face) ---- */
 
 /* Pairs per placement tile: scatter_manifolds places one tile per work group
  * and needs the number of manifolds in every earlier tile (tile_counts). */
@@ -25,6 +25,7 @@ inline void store_manifold(__global ContactManifold* slots, __global uint* conta
     m->normal = (float4)(q.swapped ? -normal : normal, 0.0f);
     m->body_a = q.swapped ? q.second : q.first;
     m->body_b = q.swapped ? q.first : q.second;
+    m->sub = q.sub;
     m->point_count = count;
     contact_flags[q.index] = 1u;
     atomic_inc(&tile_counts[q.index / PLACEMENT_TILE]);
