@@ -91,6 +91,11 @@ class ContactConstraints:
         self.setup_kernel = runtime.bound(program.kernel("setup_contact_constraints"))
         #: a stand-in for the next generation's table before that generation exists
         self._no_table = cl_array.zeros(runtime.queue, 1, np.uint32)
+        #: an empty previous generation (a count of 0 and a table with no entry): what a
+        #: call that must not warm-start reads, so that it finds nothing
+        self._no_count = cl_array.zeros(runtime.queue, 1, np.uint32)
+        self._empty_table = cl_array.to_device(runtime.queue,
+                                               np.full(1, layouts.SOLVER_NONE, np.uint32))
         self.restitution_threshold = 0.5
         self.penetration_slop = 0.005
         self.penetration_recovery = 0.2
@@ -136,9 +141,13 @@ class ContactConstraints:
         if gen is not None:
             gen.table.fill(np.uint32(layouts.SOLVER_NONE), queue=self.runtime.queue)
 
-    def __call__(self, manifolds, manifold_count, bodies, inertia, capacity: int, dt: float):
+    def __call__(self, manifolds, manifold_count, bodies, inertia, capacity: int, dt: float,
+                 warm_start: bool = True):
         """Set up min(``manifold_count[0]``, ``capacity``) constraints (count: a device
-        uint32 array(1)); that number is written to ``self.count`` on the device."""
+        uint32 array(1)); that number is written to ``self.count`` on the device.
+        ``warm_start=False`` (a World whose warm_start setting is off): this call finds no
+        previous constraint, so its impulses start from zero and no colour is inherited,
+        as a setup built without warm starting does."""
         queue, wg = self.runtime.queue, self.work_group_size
         previous = self._generations[self._current]
         if previous is None:
@@ -159,8 +168,9 @@ class ContactConstraints:
                 gen.constraints, self.count, gen.table, np.uint32(gen.mask),
                 next_table, np.uint32(0 if following is None else following.mask + 1)]
         if self.warm_start:
-            args += [gen.count, previous.constraints, previous.count, previous.table,
-                     np.uint32(previous.mask),
+            found = (previous.count, previous.table, previous.mask) if warm_start else \
+                (self._no_count, self._empty_table, 0)
+            args += [gen.count, previous.constraints, found[0], found[1], np.uint32(found[2]),
                      np.float32(self.warm_start_factor), np.float32(self.match_distance)]
         args += [np.float32(dt), np.float32(self.restitution_threshold),
                  np.float32(self.penetration_slop), np.float32(self.penetration_recovery)]

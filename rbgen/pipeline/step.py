@@ -207,7 +207,7 @@ class ConstraintStage(Stage):
         c.penetration_slop = s.penetration_slop
         c.penetration_recovery = s.penetration_recovery
         c(self.narrowphase.manifolds, self.narrowphase.count, b.bodies, b.inertia,
-          self.capacity, step.dt)
+          self.capacity, step.dt, warm_start=s.warm_start)
 
 
 class BatchingStage(Stage):

@@ -211,7 +211,8 @@ class PgsSolver(PushVelocities):
         """The device-wide barrier words its persistent launch uses (None: it makes none)."""
         if not self.persistent:
             return None
-        return getattr(self.batcher, "state", None) or self._sync
+        state = getattr(self.batcher, "state", None)  # (a device array has no truth value)
+        return self._sync if state is None else state
 
     def solve(self, constraints, constraint_count, constraint_capacity: int, bodies, inertia,
               body_count: int, sweeps) -> None:
