@@ -211,7 +211,7 @@ class ConstraintStage(Stage):
 
 
 class BatchingStage(Stage):
-    """The PGS solver's colouring (`rbgen.pipeline.batching`)."""
+    """The PGS solver's colouring of the step's constraint edges (`rbgen.pipeline.batching`)."""
 
     name = "batching"
 
@@ -228,9 +228,9 @@ class BatchingStage(Stage):
                                slab_axis=slab_axis(bodies.dynamic_positions(), gravity))
 
     def enqueue(self, step: StepContext) -> None:
-        c = self.constraints
-        self.batcher(c.constraints.constraints, c.constraints.count, step.bodies.bodies,
-                     step.bodies.count, c.capacity)
+        c = self.constraints.constraints
+        self.batcher(c.edges, c.edge_count, step.bodies.bodies, step.bodies.count,
+                     c.first_contact_edge + self.constraints.capacity)
 
 
 def slab_axis(positions: np.ndarray, gravity) -> tuple:
