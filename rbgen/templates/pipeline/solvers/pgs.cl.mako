@@ -36,6 +36,7 @@
  * whole solve is one launch, and every compute unit takes part.
 % endif
 % if not serial:
+ *
  * Batches are walked from the highest colour to the lowest: first-fit
  * colourings give the lowest colours to the constraints of the lowest-indexed
  * bodies, so a ground added first has all its contacts in batch 0, which
@@ -55,6 +56,7 @@
  * The warm start applies the previous step's accumulated impulses once,
  * before the first sweep, batch by batch as a sweep solves them.
 % endif
+ *
  * A sweep solves the velocity rows (contact_rows.cl.mako) and, in the same
  * batch steps, the split-impulse push rows on the push velocities: the two
  * touch disjoint velocities and impulses, so sweep s of each sees what it
