@@ -69,7 +69,8 @@ class _Buffers:
 
     def __init__(self, queue, capacity: int, first_contact_edge: int):
         self.capacity = int(capacity)
-        self.constraints = cl_array.zeros(queue, max(1, self.capacity), layouts.CONTACT_CONSTRAINT.dtype)
+        self.constraints = cl_array.zeros(queue, max(1, self.capacity),
+                                          layouts.CONTACT_CONSTRAINT.dtype)
         #: the generation's edges: first_contact_edge joint edges, then one a contact
         self.first_contact_edge = int(first_contact_edge)
         self.edges = cl_array.zeros(queue, max(1, self.first_contact_edge + self.capacity),

@@ -449,8 +449,9 @@ def test_warm_start_follows_the_ring_through_shrinking_pair_sets_and_undo(runtim
         started = rig.constraints(manifolds[pairs])
         rig.sweep(iterations=3)
         final = rig.setup.constraints.get()[: len(pairs)]
-        impulses = lambda cs: {int(c["body_b"]): np.r_[c["normal_impulse"], c["tangent1_impulse"],
-                                                       c["tangent2_impulse"]] for c in cs}
+        def impulses(cs):
+            return {int(c["body_b"]): np.r_[c["normal_impulse"], c["tangent1_impulse"],
+                                            c["tangent2_impulse"]] for c in cs}
         return impulses(started), impulses(final)
 
     history = []  # final impulses of the calls in effect, oldest first

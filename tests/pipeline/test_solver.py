@@ -74,8 +74,9 @@ def test_bounce_off_static_plane(runtime, rng, restitution, speed, variant):
                          velocities=np.r_[[[0, 0, 0]], np.tile([0, -speed, 0], (n_boxes, 1))])
     inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(0.5, 3.0, (n_boxes, 3))]
     rig = ContactRig(runtime, bodies, inv_inertia, variant=variant, warm_start=False)
-    manifolds = np.array([make_manifold(0, i + 1, [0, 1, 0], positions[i + 1] + SQUARE - [0, 0.5, 0],
-                                        [0.0] * 4, restitution=restitution)
+    manifolds = np.array([make_manifold(0, i + 1, [0, 1, 0],
+                                        positions[i + 1] + SQUARE - [0, 0.5, 0], [0.0] * 4,
+                                        restitution=restitution)
                           for i in range(n_boxes)])
     out, _ = rig.solve(manifolds, iterations=60)
     expected = restitution * speed if speed > rig.setup.restitution_threshold else 0.0

@@ -89,7 +89,7 @@ TEMPLATE = KernelTemplate(
         fast_math_param(),
     ],
     doc="Jacobi sweeps with mass splitting over contact constraints.",
-    roles={"constraints": "inout", "bodies": "inout", "split": "inout"},
+    roles={"constraints": "inout", "bodies": "inout", "split": "inout", "sync": "inout"},
     build_options=fast_math_options,
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
                              "normal_solve": "block",

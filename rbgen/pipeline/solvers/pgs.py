@@ -30,9 +30,20 @@ own. Odd velocity sweeps visit each manifold's points backwards. With the block 
 solve, only the last ``release_sweeps`` sweeps solve each manifold's complete block;
 the earlier ones take its all-pushing solution where it holds (a cheaper sweep).
 
-Host cost: each distinct set of trailing scalars of the launch schedule has its own
-kernel object (`rbgen.launch.instance`) with those scalars set once; buffers and
-``relaxation`` are bound once per call through `rbgen.launch.BoundKernel`.
+Constraint kinds: the batcher's ``order`` lists constraint-edge items
+(`layouts.CONSTRAINT_EDGE`); a contact's item is its index in the constraints, and
+contacts are the only kind the template visits. A joint kind joins by bringing its rows
+(a template beside ``contact_rows.cl.mako``), its buffer as a declared argument of
+``SOLVE_GROUPS`` (with the condition of the plans that have that kind), and a case in the
+item visits of ``pgs.cl.mako`` (``solve_copy``/``solve_rows`` and the warm starts pick
+the kind from the item's high bits, emitted only when the plan has that kind).
+
+Arguments: ``SOLVE_GROUPS`` declares solve_groups' arguments once; the template renders
+them and `PgsSolver` binds them by name through it (`rbgen.codegen.Signature`), so the
+two cannot disagree. Host cost: each distinct set of trailing scalars of the launch
+schedule has its own kernel object (`rbgen.launch.instance`) with those scalars set once;
+buffers and ``relaxation`` are bound once per call, only the changed ones reaching the
+driver.
 """
 from __future__ import annotations
 
@@ -133,7 +144,8 @@ TEMPLATE = KernelTemplate(
               "per body in 64-bit fixed point with atomics, then every body takes its sum"),
     ],
     doc="PGS velocity sweeps and split-impulse position sweeps over batched contacts.",
-    roles={"constraints": "inout", "bodies": "inout", "split": "inout", "warm_sums": "inout"},
+    roles={"constraints": "inout", "bodies": "inout", "split": "inout", "sync": "inout",
+           "warm_sums": "inout"},
     requires=lambda v: _parameter_rules(v),
     build_options=fast_math_options,
     defaults=lambda traits: default_values(traits,
