@@ -54,7 +54,7 @@
  * after one device-wide barrier every body takes its sum.
 % else:
  * The warm start applies the previous step's accumulated impulses once,
- * before the first sweep, batch by batch as a sweep solves them.
+ * before the first sweep, visiting the constraints as a sweep does.
 % endif
  *
  * A sweep solves the velocity rows (contact_rows.cl.mako) and, in the same
@@ -149,7 +149,7 @@ typedef struct {
     bool velocity;           /* its velocity rows (a velocity sweep) */
     bool push;               /* its push rows (a position sweep) */
     bool reverse;            /* a manifold's points backwards */
-    bool velocity_releases;  /* the block solve may release points (solve_normal_block) */
+    bool velocity_releases;  /* the block normal solve may release points */
     bool push_releases;
 } Sweep;
 
