@@ -5,6 +5,12 @@ its parameters (each with the values it allows and why it exists). Calling
 ``template.spec(**values)`` validates them and returns a `KernelSpec`: a pure,
 hashable description whose rendered source is always the same text.
 
+A kernel's arguments may be declared once, in Python, as a `Signature` (an ordered
+list of typed `Arg` entries, each with the specialisations that have it, as pyopencl
+declares a kernel's arguments): the template renders it as the kernel's parameter list
+(``void name(${signature("name")})``) and the launcher binds values to it by name
+(`Signature.binder`), so the signature and the binding cannot disagree.
+
 `build` turns a spec into a `cl.Program` once per (source, device, options):
 programs are cached in memory and their binaries on disk (``RBGEN_CACHE_DIR``,
 default ``~/.cache/rbgen``), so a second process starts without compiling. A
@@ -81,6 +87,114 @@ def work_group_size_param(doc: str) -> Param:
     return Param("work_group_size", power_of_two(1, 1024), doc, "a power of two from 1 to 1024")
 
 
+@dataclasses.dataclass(frozen=True)
+class Arg:
+    """One kernel argument: its OpenCL C type, its name, and the specialisations that
+    have it. ``ctype``: the type's text, or a function of the template values that
+    returns it (an address space that depends on a parameter); ``when``: a predicate on
+    the template values (None: every specialisation has the argument)."""
+
+    ctype: str | Callable[[Mapping[str, Any]], str]
+    name: str
+    when: Callable[[Mapping[str, Any]], bool] | None = None
+
+    def wanted(self, values: Mapping[str, Any]) -> bool:
+        return self.when is None or bool(self.when(values))
+
+    def type_for(self, values: Mapping[str, Any]) -> str:
+        return self.ctype(values) if callable(self.ctype) else self.ctype
+
+
+class Signature:
+    """The arguments of one kernel, in order, declared once (see the module docstring).
+
+    `render` writes the parameter list a specialisation's template puts between the
+    kernel's parentheses; `binder` makes the launcher's setter of a set of arguments, by
+    name, at their positions in that list. Both read the same declaration.
+    """
+
+    def __init__(self, kernel: str, args: Iterable[Arg]):
+        self.kernel = kernel
+        self.declared = tuple(args)
+        names = [a.name for a in self.declared]
+        if len(set(names)) != len(names):
+            raise TemplateParameterError(f"kernel {kernel}: an argument is declared twice "
+                                         f"in {names}")
+        self._cache: dict[tuple, tuple[Arg, ...]] = {}
+
+    def args(self, values: Mapping[str, Any]) -> tuple[Arg, ...]:
+        """The arguments a specialisation with these template values has, in order."""
+        key = tuple(sorted(values.items()))
+        found = self._cache.get(key)
+        if found is None:
+            found = self._cache[key] = tuple(a for a in self.declared if a.wanted(values))
+        return found
+
+    def render(self, values: Mapping[str, Any]) -> str:
+        """The parameter list, one argument a line, aligned under the first (the template
+        writes ``void <kernel>(`` at the start of a line, then this)."""
+        indent = "\n" + " " * len(f"void {self.kernel}(")
+        return ("," + indent).join(f"{a.type_for(values)} {a.name}" for a in self.args(values))
+
+    def binder(self, spec: "KernelSpec", *names: str) -> "Binder":
+        """A setter of the arguments ``names`` (in that order) of ``spec``'s kernel. A name
+        the declaration lacks, or that this specialisation does not have, is refused,
+        naming it."""
+        values = spec.values
+        args = self.args(values)
+        position = {a.name: i for i, a in enumerate(args)}
+        for name in names:
+            if name not in position:
+                known = [a.name for a in self.declared]
+                why = (f"is not an argument of this specialisation ({spec})" if name in known
+                       else f"is not declared; arguments: {known}")
+                raise TemplateParameterError(f"kernel {self.kernel}: {name!r} {why}")
+        return Binder(self.kernel, len(args), [position[n] for n in names])
+
+    def check_bound(self, spec: "KernelSpec", *binders: "Binder") -> None:
+        """Refuse a set of binders that leaves an argument of ``spec``'s kernel unset (the
+        launcher's whole binding, checked once, when it is built)."""
+        bound = {i for b in binders for i in b.positions}
+        args = self.args(spec.values)
+        missing = [a.name for i, a in enumerate(args) if i not in bound]
+        if missing:
+            raise TemplateParameterError(f"kernel {self.kernel}: the launcher never sets "
+                                         f"{missing} ({spec})")
+
+
+class Binder:
+    """Sets some arguments of a kernel at their declared positions (`Signature.binder`):
+    ``binder(kernel, *values)`` with a `rbgen.launch.BoundKernel`, values in the order
+    of the binder's names; only the changed ones reach the driver."""
+
+    __slots__ = ("kernel_name", "arg_count", "positions", "_runs")
+
+    def __init__(self, kernel_name: str, arg_count: int, positions: list[int]):
+        self.kernel_name = kernel_name
+        self.arg_count = arg_count
+        self.positions = tuple(positions)
+        # runs of consecutive positions: (first position, first value, value count)
+        runs: list[list[int]] = []
+        for k, p in enumerate(positions):
+            if runs and p == runs[-1][0] + runs[-1][2]:
+                runs[-1][2] += 1
+            else:
+                runs.append([p, k, 1])
+        self._runs = tuple(tuple(r) for r in runs)
+
+    def __call__(self, kernel, *values) -> None:
+        if len(values) != len(self.positions):
+            raise TypeError(f"kernel {self.kernel_name}: {len(self.positions)} values "
+                            f"expected, got {len(values)}")
+        if kernel.num_args != self.arg_count:
+            raise TemplateParameterError(
+                f"kernel {self.kernel_name} was built with {kernel.num_args} arguments, its "
+                f"declaration has {self.arg_count}: its template does not render the "
+                f"declared signature")
+        for first, start, count in self._runs:
+            kernel.bind_at(first, *values[start:start + count])
+
+
 #: every KernelTemplate by path (filled as modules are imported; export uses it)
 TEMPLATES: dict[str, "KernelTemplate"] = {}
 
@@ -92,7 +206,8 @@ class KernelTemplate:
                  roles: Mapping[str, str] | None = None,
                  defaults: Callable[[Any], dict] | None = None,
                  requires: Callable[[dict], str | None] | None = None,
-                 build_options: Callable[[dict], Iterable[str]] | None = None):
+                 build_options: Callable[[dict], Iterable[str]] | None = None,
+                 signatures: Iterable[Signature] = ()):
         self.path = path
         self.params = {p.name: p for p in params}
         self.doc = doc
@@ -107,6 +222,9 @@ class KernelTemplate:
         #: (part of the program cache key and of the export manifest, so that a program
         #: built outside rbgen is the one rbgen runs)
         self._build_options = build_options
+        #: kernel name -> its declared arguments (the template renders them with
+        #: ``${signature("name")}``)
+        self.signatures = {sig.kernel: sig for sig in signatures}
         if not (TEMPLATE_DIR / path).is_file():
             raise TemplateParameterError(f"template {path!r} not found under {TEMPLATE_DIR}")
         TEMPLATES[path] = self
@@ -194,8 +312,23 @@ def _render_globals() -> dict[str, Any]:
 def render(path: str, params: tuple[tuple[str, Any], ...]) -> str:
     """Render a template with parameters; pure and cached."""
     template = _lookup().get_template(path)
-    text = template.render(**_render_globals(), **dict(params))
+    values = dict(params)
+    text = template.render(**_render_globals(), signature=_signature_renderer(path, values),
+                           **values)
     return _tidy(text)
+
+
+def _signature_renderer(path: str, values: dict) -> Callable[[str], str]:
+    """The template's ``signature(kernel)``: the parameter list of a kernel its
+    KernelTemplate declares (an undeclared kernel fails at render time, naming it)."""
+    declared = TEMPLATES[path].signatures if path in TEMPLATES else {}
+
+    def signature(kernel: str) -> str:
+        if kernel not in declared:
+            raise TemplateParameterError(f"template {path} declares no signature for kernel "
+                                         f"{kernel!r}; declared: {sorted(declared)}")
+        return declared[kernel].render(values)
+    return signature
 
 
 def _tidy(text: str) -> str:

@@ -85,6 +85,16 @@ class BoundKernel:
         """Set the first ``len(args)`` arguments (the rest stay as they are)."""
         return self._bind_from(0, args)
 
+    def bind_at(self, first: int, *args) -> "BoundKernel":
+        """Set arguments ``first``, ``first + 1``, ... to ``args`` (the rest stay as they
+        are; `rbgen.codegen.Binder` sets declared arguments through it)."""
+        return self._bind_from(first, args)
+
+    @property
+    def num_args(self) -> int:
+        """The kernel's argument count."""
+        return len(self._given)
+
     def bind_last(self, *args) -> "BoundKernel":
         """Set the last ``len(args)`` arguments (the rest stay as they are)."""
         return self._bind_from(len(self._values) - len(args), args)

@@ -289,8 +289,8 @@ CONTACT_MANIFOLD = declare("ContactManifold", [
 ], "Up to four contact points between two bodies sharing one normal.")
 
 # --------------------------------------------------------------------------
-# Contact solver (owner: constraint solver / World; rbgen/pipeline/constraints.py,
-# batching/, solvers/, prepare.py).
+# Contact solver (owner: constraint solver; rbgen/pipeline/constraints.py, batching/,
+# solvers/, prepare.py).
 BODY_INERTIA = declare("BodyInertia", [
     ("inv_inertia_local", "float4", "principal inverse inertia diagonal (body frame); 0 for static"),
     ("inv_inertia_world", "float4", 3, "rows of R diag(inv_inertia_local) R^T, updated every step"),
@@ -313,7 +313,7 @@ BARRIER_ABANDONED = constant("RB_BARRIER_ABANDONED", 3,
                           "device-wide barrier: nonzero once a group gave up (reset by the host)")
 BARRIER_WORDS = constant("RB_BARRIER_WORDS", 4, "device-wide barrier: words of its state")
 
-#: int64 words of a body's summed warm start (solver.cl.mako): its linear and angular
+#: int64 words of a body's summed warm start (solvers/pgs.cl.mako): its linear and angular
 #: velocity change in fixed point
 WARM_SUM_WORDS = constant("RB_WARM_SUM_WORDS", 6,
                           "summed warm start: int64 words a body (linear, angular velocity change)")
@@ -337,12 +337,31 @@ CONTACT_CONSTRAINT = declare("ContactConstraint", [
     ("body_a", "uint", "first body"),
     ("body_b", "uint", "second body"),
     ("point_count", "uint", "valid points, 0..4 (0: inactive)"),
-    ("group", "uint", "level-1 batching group (work group of the solver); global batching: "
-                      "the colour, which the next step's constraint of the pair starts from "
-                      "(RB_SOLVER_NONE: none)"),
     ("sub", "uint", "sub-feature of the manifold (ContactManifold.sub): with body_a and "
                     "body_b the warm-starting key"),
 ], "One contact manifold prepared for the solver: up to four normal and eight friction rows.")
+
+# The constraint-edge list: what batching colours (contacts and, later, joints alike).
+# Edge e of a step: joints first, at fixed indices (a joint stage writes edges
+# [0, first_contact_edge)), then one edge per contact constraint, written by the
+# constraint setup; the count stays on the device. An edge's item names its constraint:
+# kind << RB_EDGE_KIND_SHIFT | index into that kind's own array. The contact kind is 0,
+# so a contact's item is its constraint index.
+EDGE_KIND_SHIFT = constant("RB_EDGE_KIND_SHIFT", 28,
+                           "ConstraintEdge.item: kind << shift | index in the kind's array")
+EDGE_INDEX_MASK = constant("RB_EDGE_INDEX_MASK", (1 << 28) - 1,
+                           "ConstraintEdge.item: the index bits")
+EDGE_CONTACT = constant("RB_EDGE_CONTACT", 0, "constraint kind: a ContactConstraint")
+
+CONSTRAINT_EDGE = declare("ConstraintEdge", [
+    ("body_a", "uint", "first body"),
+    ("body_b", "uint", "second body"),
+    ("item", "uint", "the constraint: kind << RB_EDGE_KIND_SHIFT | index in the kind's array"),
+    ("colour", "uint", "global batching: the colour the next step's edge of this constraint "
+                       "starts from (RB_SOLVER_NONE: none)"),
+    ("point", "float4", "a world point of the constraint (a contact's first point), whose "
+                        "cell spatial batching groups it by; w unused"),
+], "One constraint as batching sees it: its two bodies, its kind and index, its colour.")
 
 # --------------------------------------------------------------------------
 # Narrowphase and hull cooking (owner: narrowphase; rbgen/hull.py,

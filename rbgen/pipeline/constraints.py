@@ -1,4 +1,4 @@
-"""Contact constraints from narrowphase manifolds, with warm starting.
+"""Contact constraints from narrowphase manifolds, with warm starting, and their edges.
 
 One `ContactConstraint` per `ContactManifold`: every point gets a normal row, the
 manifold a friction pair at the centre of its points and a twist row (a fixed
@@ -6,6 +6,14 @@ tangent frame chosen from the normal), the manifold's combined friction and
 restitution, a restitution threshold velocity, and split-impulse penetration
 recovery (a separate push velocity solved beside the velocity sweeps and thrown away
 after moving the bodies: recovery adds no momentum, so nothing bounces from it).
+
+Constraint edges: batching colours a list of `ConstraintEdge` records (two bodies, a
+kind-tagged item, an inherited colour, a point), not the constraints themselves, so
+that any constraint kind can join the colours. The setup writes contact i's edge at
+``first_contact_edge + i`` (the edges before it are reserved for joints, written by a
+joint stage at fixed indices; none yet: ``first_contact_edge`` is 0) and the edge count
+``first_contact_edge + count`` on the device. A warm-started contact's edge inherits
+the previous edge's colour (global batching starts from it).
 
 Warm starting: each step's constraints are recorded in a hash table keyed by
 (body a, body b, sub-feature) (`ContactManifold.sub`: one manifold per compound
@@ -58,11 +66,16 @@ def default_work_group_size(traits: DeviceTraits) -> int:
 
 
 class _Buffers:
-    """One generation of constraints and its pair table."""
+    """One generation of constraints, their edges and its pair table."""
 
-    def __init__(self, queue, capacity: int):
+    def __init__(self, queue, capacity: int, first_contact_edge: int):
         self.capacity = int(capacity)
-        self.constraints = cl_array.zeros(queue, max(1, self.capacity), layouts.CONTACT_CONSTRAINT.dtype)
+        self.constraints = cl_array.zeros(queue, max(1, self.capacity),
+                                          layouts.CONTACT_CONSTRAINT.dtype)
+        #: the generation's edges: first_contact_edge joint edges, then one a contact
+        self.first_contact_edge = int(first_contact_edge)
+        self.edges = cl_array.zeros(queue, max(1, self.first_contact_edge + self.capacity),
+                                    layouts.CONSTRAINT_EDGE.dtype)
         table_size = 1 << max(4, int(2 * max(1, self.capacity) - 1).bit_length())
         self.table = cl_array.to_device(queue, np.full(table_size, layouts.SOLVER_NONE, np.uint32))
         self.mask = table_size - 1
@@ -92,6 +105,11 @@ class ContactConstraints:
         self.setup_kernel = runtime.bound(program.kernel("setup_contact_constraints"))
         #: a stand-in for the next generation's table before that generation exists
         self._no_table = cl_array.zeros(runtime.queue, 1, np.uint32)
+        #: an empty previous generation (a count of 0 and a table with no entry): what a
+        #: call that must not warm-start reads, so that it finds nothing
+        self._no_count = cl_array.zeros(runtime.queue, 1, np.uint32)
+        self._empty_table = cl_array.to_device(runtime.queue,
+                                               np.full(1, layouts.SOLVER_NONE, np.uint32))
         self.restitution_threshold = 0.5
         self.penetration_slop = 0.005
         self.penetration_recovery = 0.2
@@ -99,6 +117,10 @@ class ContactConstraints:
         self.match_distance = 0.02
         #: device uint32 array(1): constraints built by the last call (<= capacity)
         self.count = cl_array.zeros(runtime.queue, 1, np.uint32)
+        #: edges before the contacts' (reserved for joints: none yet)
+        self.first_contact_edge = 0
+        #: device uint32 array(1): edges of the last call (first_contact_edge + count)
+        self.edge_count = cl_array.zeros(runtime.queue, 1, np.uint32)
         #: generations in a ring: the current one, and the ones before it that a redone
         #: step (the World redoes up to two) may need again for its warm start
         self._generations: list[_Buffers | None] = [None] * GENERATIONS
@@ -110,9 +132,20 @@ class ContactConstraints:
         return self._generations[self._current].constraints
 
     @property
+    def edges(self):
+        """Device array of this step's constraint edges (valid after a call)."""
+        return self._generations[self._current].edges
+
+    @property
     def capacity(self) -> int:
         gen = self._generations[self._current]
         return 0 if gen is None else gen.capacity
+
+    @property
+    def edge_capacity(self) -> int:
+        """Edges this step's array holds (joint edges, then a contact's each)."""
+        gen = self._generations[self._current]
+        return 0 if gen is None else gen.first_contact_edge + gen.capacity
 
     def reset(self) -> None:
         """Forget the previous step (e.g. after teleporting bodies)."""
@@ -137,31 +170,41 @@ class ContactConstraints:
         if gen is not None:
             gen.table.fill(np.uint32(layouts.SOLVER_NONE), queue=self.runtime.queue)
 
-    def __call__(self, manifolds, manifold_count, bodies, inertia, capacity: int, dt: float):
+    def __call__(self, manifolds, manifold_count, bodies, inertia, capacity: int, dt: float,
+                 warm_start: bool = True):
         """Set up min(``manifold_count[0]``, ``capacity``) constraints (count: a device
-        uint32 array(1)); that number is written to ``self.count`` on the device."""
+        uint32 array(1)); that number is written to ``self.count`` on the device.
+        ``warm_start=False`` (a World whose warm_start setting is off): this call finds no
+        previous constraint, so its impulses start from zero and no colour is inherited,
+        as a setup built without warm starting does."""
         queue, wg = self.runtime.queue, self.work_group_size
         previous = self._generations[self._current]
+        first = self.first_contact_edge
         if previous is None:
-            previous = self._generations[self._current] = _Buffers(queue, 0)
+            previous = self._generations[self._current] = _Buffers(queue, 0, first)
         self._current = (self._current + 1) % GENERATIONS
         gen = self._generations[self._current]
-        if gen is None or gen.capacity < capacity:
-            gen = self._generations[self._current] = _Buffers(queue, capacity)
+        if gen is None or gen.capacity < capacity or gen.first_contact_edge != first:
+            gen = self._generations[self._current] = _Buffers(queue, capacity, first)
         following = self._generations[(self._current + 1) % GENERATIONS]
         if capacity == 0:
             self.count.fill(np.uint32(0), queue=queue)
+            self.edge_count.fill(np.uint32(first), queue=queue)
             self._clear(following)
             return None
         # (the next call's table, which this setup clears; before that generation exists,
         # a one-word stand-in and a size of 0: nothing to clear)
         next_table = self._no_table if following is None else following.table
         args = [manifolds, manifold_count, bodies, inertia, np.uint32(capacity),
-                gen.constraints, self.count, gen.table, np.uint32(gen.mask),
+                gen.constraints, self.count, gen.edges, self.edge_count, np.uint32(first),
+                gen.table, np.uint32(gen.mask),
                 next_table, np.uint32(0 if following is None else following.mask + 1)]
         if self.warm_start:
-            args += [gen.count, previous.constraints, previous.count, previous.table,
-                     np.uint32(previous.mask),
+            found = (previous.count, previous.table, previous.mask) if warm_start else \
+                (self._no_count, self._empty_table, 0)
+            args += [gen.count, previous.constraints, previous.edges,
+                     np.uint32(previous.first_contact_edge), found[0], found[1],
+                     np.uint32(found[2]),
                      np.float32(self.warm_start_factor), np.float32(self.match_distance)]
         args += [np.float32(dt), np.float32(self.restitution_threshold),
                  np.float32(self.penetration_slop), np.float32(self.penetration_recovery)]

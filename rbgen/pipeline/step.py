@@ -207,11 +207,11 @@ class ConstraintStage(Stage):
         c.penetration_slop = s.penetration_slop
         c.penetration_recovery = s.penetration_recovery
         c(self.narrowphase.manifolds, self.narrowphase.count, b.bodies, b.inertia,
-          self.capacity, step.dt)
+          self.capacity, step.dt, warm_start=s.warm_start)
 
 
 class BatchingStage(Stage):
-    """The PGS solver's colouring (`rbgen.pipeline.batching`)."""
+    """The PGS solver's colouring of the step's constraint edges (`rbgen.pipeline.batching`)."""
 
     name = "batching"
 
@@ -228,9 +228,9 @@ class BatchingStage(Stage):
                                slab_axis=slab_axis(bodies.dynamic_positions(), gravity))
 
     def enqueue(self, step: StepContext) -> None:
-        c = self.constraints
-        self.batcher(c.constraints.constraints, c.constraints.count, step.bodies.bodies,
-                     step.bodies.count, c.capacity)
+        c = self.constraints.constraints
+        self.batcher(c.edges, c.edge_count, step.bodies.bodies, step.bodies.count,
+                     c.first_contact_edge + self.constraints.capacity)
 
 
 def slab_axis(positions: np.ndarray, gravity) -> tuple:

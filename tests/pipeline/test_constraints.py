@@ -1,26 +1,37 @@
-"""Contact constraint setup: effective masses, velocity targets, warm starting.
+"""Contact constraint setup: effective masses, velocity targets, warm starting, edges.
 
 Closed forms: for a point contact on a body with inverse mass m and inverse
 world inertia I at lever arm r, the normal row's effective mass is
 1 / (m + (r x n) . I (r x n)); an approaching body (normal speed v above the
-threshold) gets the target -e v; a penetration d gets the Baumgarte push
-beta / dt * (d - slop). Warm starting copies the impulses of the previous
+threshold) gets the target -e v; a penetration d gets the split-impulse push
+target beta / dt * (d - slop). Warm starting copies the impulses of the previous
 step's point with the same body pair and feature id. Every field of the setup
 is also checked against a float64 numpy reference on random manifolds (random
-normals, 1-4 points, full inertia tensors) for both friction models and both
-penetration modes, over boundary sizes including 0.
+normals, 1-4 points, full inertia tensors) over boundary sizes including 0. Each
+constraint gets one constraint edge (its bodies, its item: the contact kind and its
+index, its first point, the colour inherited from the previous step's edge).
 """
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 import pyopencl.array as cl_array
 import pytest
 
 from rbgen import layouts
-from rbgen.pipeline.batching import ConstraintBatcher
+from rbgen.pipeline.batching import make_batcher
 from rbgen.pipeline.constraints import ContactConstraints
 from rbgen.pipeline.prepare import BodyPreparation, inertia_records
-from rbgen.pipeline.solver import ContactSolver
+from rbgen.pipeline.solvers.pgs import PgsSolver
+
+#: the solver variants a ContactRig can run: (batching, solve form, persistent launch).
+#: serial: a work-item walks each spatial group in order (the CPU form); lanes: a work
+#: group's lanes solve a batch together (the GPU form); one_group: global batching's one
+#: group of everything, solved by one work group's lanes; persistent: global batching
+#: solved by the persistent launch over every compute unit.
+VARIANTS = {"serial": ("cells", "serial", False), "lanes": ("cells", "lanes", False),
+            "one_group": ("global", "lanes", False), "persistent": ("global", "lanes", True)}
 
 
 def make_bodies(positions, inv_mass, velocities=None, angular=None):
@@ -49,24 +60,40 @@ def make_manifold(a, b, normal, points, separations, features=None, friction=0.5
     return m
 
 
-class ContactRig:
-    """Bodies + manifolds on the device, through setup, batching and the solver (no integration)."""
+def make_batcher_for(runtime, variant="serial", batching=None, group_count=3, **options):
+    """The batcher of a rig variant (VARIANTS), ``batching`` overriding its algorithm;
+    spatial ones with cells of 2.5 m and slabs across x."""
+    mode, solve_form, _ = VARIANTS[variant]
+    mode = batching or mode
+    if mode == "global":
+        return make_batcher(runtime, "global", **options)
+    batcher = make_batcher(runtime, mode, group_count=group_count, solve_form=solve_form,
+                           **options)
+    batcher.configure(cell_size=2.5, slab_axis=(1.0, 0.0, 0.0))
+    return batcher
 
-    def __init__(self, runtime, bodies, inv_inertia, *, penetration="split", warm_start=True,
-                 group_count=3, solver_work_group_size=None, batching="components",
-                 friction="point"):
+
+class ContactRig:
+    """Bodies + manifolds on the device, through setup, batching and the PGS solver of one
+    of the VARIANTS (no integration); the block normal solve unless ``normal_solve`` says
+    otherwise, the device's fast_math and warm-start mode unless given."""
+
+    def __init__(self, runtime, bodies, inv_inertia, *, warm_start=True, variant="serial",
+                 batching=None, group_count=3, work_group_size=None, normal_solve="block",
+                 fast_math=None, warm_start_mode=None, batcher_options=None):
         self.runtime = runtime
         queue = runtime.queue
         self.body_count = len(bodies)
         self.bodies = cl_array.to_device(queue, bodies)
         self.inertia = cl_array.to_device(queue, inertia_records(inv_inertia))
         self.prepare = BodyPreparation(runtime, gyroscopic=False)
-        self.setup = ContactConstraints(runtime, penetration=penetration, warm_start=warm_start,
-                                        friction=friction)
-        self.batcher = ConstraintBatcher(runtime, group_count=group_count, mode=batching,
-                                         cell_size=2.5)
-        self.solver = ContactSolver(runtime, split_impulse=penetration == "split",
-                                    work_group_size=solver_work_group_size, friction=friction)
+        self.setup = ContactConstraints(runtime, warm_start=warm_start)
+        self.batcher = make_batcher_for(runtime, variant, batching, group_count,
+                                        **(batcher_options or {}))
+        self.solver = PgsSolver(runtime, self.batcher, persistent=VARIANTS[variant][2],
+                                normal_solve=normal_solve, fast_math=fast_math,
+                                warm_start_mode=warm_start_mode,
+                                work_group_size=work_group_size)
         self.warm_start = warm_start
 
     def constraints(self, manifolds, dt=1 / 60, capacity_slack=3):
@@ -82,47 +109,60 @@ class ContactRig:
         self.setup(self.manifolds, self.count, self.bodies, self.inertia, capacity, dt)
         return self.setup.constraints.get()[:n]
 
+    def batch(self):
+        """Batch the constraints' edges (after `constraints`)."""
+        setup = self.setup
+        self.batcher(setup.edges, setup.edge_count, self.bodies, self.body_count,
+                     setup.first_contact_edge + self.capacity)
+
+    def sweep(self, iterations=20, position_iterations=0, relaxation=1.0, warm_start=None,
+              release_sweeps=None):
+        """Batch and solve the constraints set up last (warm start: the rig's setting)."""
+        self.batch()
+        self.solver.release_sweeps = release_sweeps
+        sweeps = SimpleNamespace(iterations=iterations, position_iterations=position_iterations,
+                                 relaxation=relaxation,
+                                 warm_start=self.warm_start if warm_start is None else warm_start)
+        setup = self.setup
+        self.solver.solve(setup.constraints, setup.count, self.capacity, self.bodies,
+                          self.inertia, self.body_count, sweeps)
+
     def solve(self, manifolds, dt=1 / 60, iterations=20, position_iterations=0, relaxation=1.0,
               release_sweeps=None):
+        """Set up, batch and solve the manifolds; apply the push velocities over dt: (the
+        bodies, the constraints after the solve)."""
         self.constraints(manifolds, dt)
-        cons = self.setup.constraints
-        self.batcher(cons, self.setup.count, self.bodies, self.body_count, self.capacity)
-        self.solver.solve_velocities(cons, self.batcher, self.bodies, self.inertia,
-                                     self.body_count, iterations=iterations, relaxation=relaxation,
-                                     warm_start=self.warm_start, release_sweeps=release_sweeps)
+        self.sweep(iterations, position_iterations, relaxation, release_sweeps=release_sweeps)
         if position_iterations:
-            self.solver.solve_positions(cons, self.batcher, self.bodies, self.inertia,
-                                        self.body_count, iterations=position_iterations,
-                                        release_sweeps=release_sweeps)
             self.solver.apply_split(self.bodies, self.body_count, dt)
-        return self.bodies.get(), cons.get()[: len(manifolds)]
+        return self.bodies.get(), self.setup.constraints.get()[: len(manifolds)]
 
 
 def test_effective_masses_and_targets(runtime, rng):
-    """Normal/tangent masses match 1/(m + (r x d).I(r x d)); bounce and Baumgarte targets."""
+    """Normal/tangent masses match 1/(m + (r x d).I(r x d)); bounce and push targets."""
     inv_inertia = np.array([[0, 0, 0], rng.uniform(0.5, 2.0, 3)])
     speed, e, dt = 3.0, 0.4, 1 / 60
     bodies = make_bodies([[0, 0, 0], [0, 1, 0]], [0.0, 0.5], velocities=[[0, 0, 0], [0, -speed, 0]])
     points = np.array([[0.3, 0.0, 0.2], [-0.4, 0.0, 0.1], [0.1, 0.0, -0.3]])
     depth = np.array([-0.05, 0.0, 0.02])
-    rig = ContactRig(runtime, bodies, inv_inertia, penetration="baumgarte", warm_start=False)
+    rig = ContactRig(runtime, bodies, inv_inertia, warm_start=False)
     m = make_manifold(0, 1, [0, 1, 0], points, depth, restitution=e)
     c = rig.constraints(np.array([m]), dt)[0]
     n = np.array([0, 1.0, 0])
     slop, beta = rig.setup.penetration_slop, rig.setup.penetration_recovery
+    centre = points.mean(0) - [0, 1, 0]
+    for direction, field in ((c["tangent1"][:3], "tangent1_mass"),
+                             (c["tangent2"][:3], "tangent2_mass")):
+        rc = np.cross(centre, direction)  # the friction pair acts at the points' centre
+        assert c[field][0] == pytest.approx(1 / (0.5 + rc @ (inv_inertia[1] * rc)), rel=1e-4)
     for k in range(3):
-        r = points[k] - [0, 1, 0]
-        for direction, field in ((n, "normal_mass"), (c["tangent1"][:3], "tangent1_mass"),
-                                 (c["tangent2"][:3], "tangent2_mass")):
-            rc = np.cross(r, direction)
-            expected = 1 / (0.5 + rc @ (inv_inertia[1] * rc))
-            assert c[field][k] == pytest.approx(expected, rel=1e-4)
-        bounce = e * speed
-        if depth[k] > 0:  # apart but crossed within the step: bounce
-            expected = bounce
-        else:
-            expected = max(bounce, beta / dt * max(-depth[k] - slop, 0.0))
-        assert c["velocity_target"][k] == pytest.approx(expected, rel=1e-4)
+        rc = np.cross(points[k] - [0, 1, 0], n)
+        assert c["normal_mass"][k] == pytest.approx(1 / (0.5 + rc @ (inv_inertia[1] * rc)),
+                                                    rel=1e-4)
+        bounce = e * speed  # apart but crossed within the step, or touching: bounce
+        assert c["velocity_target"][k] == pytest.approx(bounce, rel=1e-4)
+        push = beta / dt * (-depth[k] if depth[k] > 0 else max(-depth[k] - slop, 0.0))
+        assert c["position_target"][k] == pytest.approx(push, rel=1e-4, abs=1e-6)
     t1, t2 = c["tangent1"][:3], c["tangent2"][:3]
     assert abs(t1 @ n) < 1e-6 and abs(t2 @ n) < 1e-6 and abs(t1 @ t2) < 1e-6
     assert np.linalg.norm(t1) == pytest.approx(1, abs=1e-6)
@@ -135,7 +175,7 @@ def tangent_basis_reference(n):
     return t1, np.cross(n, t1)
 
 
-def setup_reference(manifold, bodies, inv_inertia, dt, setup, friction, penetration):
+def setup_reference(manifold, bodies, inv_inertia, dt, setup):
     """float64 constraint of one manifold: masses, targets (see the module docstring)."""
     a, b = int(manifold["body_a"]), int(manifold["body_b"])
     count = min(int(manifold["point_count"]), 4)
@@ -160,9 +200,6 @@ def setup_reference(manifold, bodies, inv_inertia, dt, setup, friction, penetrat
         ra, rb = p - x[a], p - x[b]
         ras.append(ra), rbs.append(rb)
         out["normal_mass"][k] = row_mass(n, ra, rb)
-        if friction == "point":
-            out["tangent1_mass"][k] = row_mass(t1, ra, rb)
-            out["tangent2_mass"][k] = row_mass(t2, ra, rb)
         approach = (v[b] + np.cross(w[b], rb) - v[a] - np.cross(w[a], ra)) @ n
         bounce = -manifold["restitution"] * approach if approach < -setup.restitution_threshold \
             else 0.0
@@ -170,13 +207,10 @@ def setup_reference(manifold, bodies, inv_inertia, dt, setup, friction, penetrat
             target = bounce if bounce > 0 and approach * dt < -separation else -separation / dt
         else:
             target = bounce
-        push = beta / dt * max(-separation - slop, 0.0)
-        if penetration == "baumgarte":
-            out["velocity_target"][k] = max(target, push) if push > 0 else target
-        else:
-            out["velocity_target"][k] = target
-            out["position_target"][k] = -beta / dt * separation if separation > 0 else push
-    if friction == "manifold" and count:
+        out["velocity_target"][k] = target
+        out["position_target"][k] = -beta / dt * separation if separation > 0 else \
+            beta / dt * max(-separation - slop, 0.0)
+    if count:  # the friction pair at the points' centre, the twist about the normal
         centre_a, centre_b = np.mean(ras, axis=0), np.mean(rbs, axis=0)
         out["tangent1_mass"][0] = row_mass(t1, centre_a, centre_b)
         out["tangent2_mass"][0] = row_mass(t2, centre_a, centre_b)
@@ -204,14 +238,11 @@ def random_manifolds(rng, n_manifolds, n_bodies, static):
     return manifolds
 
 
-@pytest.mark.parametrize("friction", ["point", "manifold"])
-@pytest.mark.parametrize("penetration", ["split", "baumgarte"])
-@pytest.mark.parametrize("n_manifolds", [0, 1, 17, 130])
-def test_setup_matches_float64_reference(runtime, rng, friction, penetration, n_manifolds):
-    """Every field of every constraint against `setup_reference` (random bodies, some static,
-    random orientations so that the world inverse inertia is a full matrix)."""
-    n_bodies = 23
-    static = np.arange(n_bodies) < 3
+def random_scene(rng, n_manifolds, n_bodies=23, statics=3):
+    """Random bodies (the first ``statics`` static, random orientations so that the world
+    inverse inertia is a full matrix) and random manifolds between them: (bodies, inverse
+    inertia diagonals, manifolds)."""
+    static = np.arange(n_bodies) < statics
     quaternions = rng.normal(size=(n_bodies, 4))
     bodies = make_bodies(rng.uniform(-3, 3, (n_bodies, 3)),
                          np.where(static, 0.0, rng.uniform(0.2, 2.0, n_bodies)),
@@ -219,17 +250,22 @@ def test_setup_matches_float64_reference(runtime, rng, friction, penetration, n_
                          angular=rng.uniform(-3, 3, (n_bodies, 3)))
     bodies["orientation"] = quaternions / np.linalg.norm(quaternions, axis=1)[:, None]
     inv_inertia_diag = np.where(static[:, None], 0.0, rng.uniform(0.5, 3.0, (n_bodies, 3)))
-    rig = ContactRig(runtime, bodies, inv_inertia_diag, penetration=penetration,
-                     warm_start=False, friction=friction)
-    manifolds = random_manifolds(rng, n_manifolds, n_bodies, static)
+    return bodies, inv_inertia_diag, random_manifolds(rng, n_manifolds, n_bodies, static)
+
+
+@pytest.mark.parametrize("n_manifolds", [0, 1, 17, 130])
+def test_setup_matches_float64_reference(runtime, rng, n_manifolds):
+    """Every field of every constraint against `setup_reference` (random bodies, some static,
+    random orientations so that the world inverse inertia is a full matrix)."""
+    bodies, inv_inertia_diag, manifolds = random_scene(rng, n_manifolds)
+    rig = ContactRig(runtime, bodies, inv_inertia_diag, warm_start=False)
     dt = 1 / 60
     got = rig.constraints(manifolds, dt)
     assert int(rig.setup.count.get()[0]) == n_manifolds
     prepared = rig.bodies.get()  # the velocities and inertias the setup read
     inv_inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
     for m, c in zip(manifolds, got):
-        expected = setup_reference(m, prepared, inv_inertia, dt, rig.setup, friction,
-                                   penetration)
+        expected = setup_reference(m, prepared, inv_inertia, dt, rig.setup)
         count = int(m["point_count"])
         assert (c["body_a"], c["body_b"], c["point_count"]) == (m["body_a"], m["body_b"], count)
         assert list(c["features"][:count]) == list(m["features"][:count])
@@ -244,6 +280,30 @@ def test_setup_matches_float64_reference(runtime, rng, friction, penetration, n_
                                        err_msg=field)
         for field in ("normal_impulse", "tangent1_impulse", "tangent2_impulse", "push_impulse"):
             assert not c[field].any()
+
+
+@pytest.mark.parametrize("first_contact_edge", [0, 5])
+@pytest.mark.parametrize("n_manifolds", [0, 1, 17, 130])
+def test_edges_describe_the_constraints(runtime, rng, n_manifolds, first_contact_edge):
+    """Contact i's edge is edge first_contact_edge + i (the edges before it are the joints',
+    left alone): its bodies, its item (the contact kind, index i), its first point (the
+    manifold's, in the world), no inherited colour without warm starting; the edge count
+    first_contact_edge + n is on the device."""
+    bodies, inv_inertia, manifolds = random_scene(rng, n_manifolds)
+    rig = ContactRig(runtime, bodies, inv_inertia, warm_start=False)
+    rig.setup.first_contact_edge = first_contact_edge
+    rig.constraints(manifolds)
+    assert int(rig.setup.edge_count.get()[0]) == first_contact_edge + n_manifolds
+    assert rig.setup.edge_capacity == first_contact_edge + rig.capacity
+    edges = rig.setup.edges.get()
+    assert not edges[:first_contact_edge].view(np.uint8).any()  # the joints' edges untouched
+    edges = edges[first_contact_edge:first_contact_edge + n_manifolds]
+    assert np.array_equal(edges["body_a"], manifolds["body_a"])
+    assert np.array_equal(edges["body_b"], manifolds["body_b"])
+    assert np.array_equal(edges["item"], layouts.EDGE_CONTACT << layouts.EDGE_KIND_SHIFT
+                          | np.arange(n_manifolds))
+    assert np.all(edges["colour"] == layouts.SOLVER_NONE)
+    np.testing.assert_allclose(edges["point"][:, :3], manifolds["points"][:, 0, :3], atol=1e-5)
 
 
 def test_slow_speculative_contact_only_closes_the_gap(runtime):
@@ -281,9 +341,9 @@ def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start, reorder):
     """Impulses carry over for the same body pair, per point: from the old point with the
     same feature id, else from an old point within match_distance (relative to B), else 0;
     whether the pairs come in the same order (found at their own index) or another (found
-    through the table). The pair's old ``group`` (global batching: its colour) comes along
-    too, as the next colouring's inherited colour; none without warm starting or after a
-    reset."""
+    through the table). The old edge's colour (global batching's, set by hand here to a
+    value per pair) comes along too, as the next colouring's inherited colour; none
+    without warm starting or after a reset."""
     n_pairs = 37
     features = [rng.permutation(50)[:4] for _ in range(n_pairs)]
     bodies, inv_inertia, manifolds = boxes_on_ground(n_pairs, features)
@@ -291,6 +351,9 @@ def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start, reorder):
     order = rng.permutation(n_pairs)
     _, first = rig.solve(manifolds[order], iterations=5)
     first_by_body = {int(c["body_b"]): c for c in first}
+    edges = rig.setup.edges.get()
+    edges["colour"][:n_pairs] = 1000 + edges["body_b"][:n_pairs]  # a colour per pair
+    rig.setup.edges.set(edges)
     # Next step, pairs in another order: point 0 keeps its feature and moves 5 cm,
     # point 1 gets a new feature id at the same place, point 2 a new id and moves 5 cm.
     changed = manifolds.copy()
@@ -299,8 +362,9 @@ def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start, reorder):
         changed[i]["points"][0, 0] += 0.05
         changed[i]["points"][2, 0] += 0.05
     second = rig.constraints(changed[rng.permutation(n_pairs) if reorder else order])
+    second_edges = rig.setup.edges.get()[:n_pairs]
     assert rig.setup.match_distance < 0.05
-    for c in second:
+    for c, edge in zip(second, second_edges):
         old = first_by_body[int(c["body_b"])]
         for k in range(4):
             if not warm_start or k == 2:
@@ -311,13 +375,40 @@ def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start, reorder):
                             old["tangent2_impulse"][j])
             got = (c["normal_impulse"][k], c["tangent1_impulse"][k], c["tangent2_impulse"][k])
             np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-7)
-        assert c["group"] == (old["group"] if warm_start else layouts.SOLVER_NONE)
+        assert edge["body_b"] == c["body_b"]
+        assert edge["colour"] == (1000 + c["body_b"] if warm_start else layouts.SOLVER_NONE)
     assert not warm_start or np.all(second["normal_impulse"][:, [0, 1, 3]] > 0)
-    assert len(set(first["group"].tolist())) > 1  # the groups carried are not all one value
     rig.setup.reset()  # forgets the previous step, found at its index or through the table
     fresh = rig.constraints(changed[order])
     assert not fresh["normal_impulse"].any()
-    assert np.all(fresh["group"] == layouts.SOLVER_NONE)
+    assert np.all(rig.setup.edges.get()[:n_pairs]["colour"] == layouts.SOLVER_NONE)
+
+
+def test_warm_start_off_for_one_call(runtime, rng):
+    """A call with warm_start=False (a World whose warm_start setting is off) finds no
+    previous constraint: zero impulses and no inherited colour, as a setup built without
+    warm starting gives; the next call warm-starts again, from that call."""
+    n_pairs = 9
+    bodies, inv_inertia, manifolds = boxes_on_ground(n_pairs)
+    rig = ContactRig(runtime, bodies, inv_inertia)
+    reference = ContactRig(runtime, bodies, inv_inertia, warm_start=False)
+    rig.solve(manifolds, iterations=5)
+    edges = rig.setup.edges.get()
+    edges["colour"][:n_pairs] = 7
+    rig.setup.edges.set(edges)
+    rig.bodies.set(bodies)  # falling again, so that every call has impulses to carry
+    rig.prepare(rig.bodies, rig.inertia, rig.body_count, 1 / 60)
+    rig.setup(rig.manifolds, rig.count, rig.bodies, rig.inertia, rig.capacity, 1 / 60,
+              warm_start=False)
+    off = rig.setup.constraints.get()[:n_pairs]
+    assert np.array_equal(off, reference.constraints(manifolds))
+    assert np.all(rig.setup.edges.get()[:n_pairs]["colour"] == layouts.SOLVER_NONE)
+    rig.sweep(iterations=5)
+    solved = rig.setup.constraints.get()[:n_pairs]
+    rig.bodies.set(bodies)
+    again = rig.constraints(manifolds)
+    np.testing.assert_allclose(again["normal_impulse"], solved["normal_impulse"], rtol=1e-6)
+    assert again["normal_impulse"].min() > 0
 
 
 def test_overflowing_manifold_count_is_clamped_to_capacity(runtime):
@@ -332,8 +423,9 @@ def test_overflowing_manifold_count_is_clamped_to_capacity(runtime):
     count = cl_array.to_device(queue, np.array([9], np.uint32))
     rig.prepare(rig.bodies, rig.inertia, 6, 1 / 60)
     rig.setup(d_manifolds, count, rig.bodies, rig.inertia, 5, 1 / 60)
-    assert int(rig.setup.count.get()[0]) == 5
+    assert int(rig.setup.count.get()[0]) == 5 == int(rig.setup.edge_count.get()[0])
     assert sorted(rig.setup.constraints.get()["body_b"][:5]) == [1, 2, 3, 4, 5]
+    assert sorted(rig.setup.edges.get()["body_b"][:5]) == [1, 2, 3, 4, 5]
 
 
 def test_warm_start_follows_the_ring_through_shrinking_pair_sets_and_undo(runtime, rng):
@@ -355,13 +447,11 @@ def test_warm_start_follows_the_ring_through_shrinking_pair_sets_and_undo(runtim
         bodies["angular_velocity"] = 0.0
         rig.bodies.set(bodies)
         started = rig.constraints(manifolds[pairs])
-        cons = rig.setup.constraints
-        rig.batcher(cons, rig.setup.count, rig.bodies, rig.body_count, rig.capacity)
-        rig.solver.solve_velocities(cons, rig.batcher, rig.bodies, rig.inertia, rig.body_count,
-                                    iterations=3)
-        final = cons.get()[: len(pairs)]
-        impulses = lambda cs: {int(c["body_b"]): np.r_[c["normal_impulse"], c["tangent1_impulse"],
-                                                       c["tangent2_impulse"]] for c in cs}
+        rig.sweep(iterations=3)
+        final = rig.setup.constraints.get()[: len(pairs)]
+        def impulses(cs):
+            return {int(c["body_b"]): np.r_[c["normal_impulse"], c["tangent1_impulse"],
+                                            c["tangent2_impulse"]] for c in cs}
         return impulses(started), impulses(final)
 
     history = []  # final impulses of the calls in effect, oldest first

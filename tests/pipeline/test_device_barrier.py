@@ -1,26 +1,29 @@
-"""Grid launches whose work groups cannot all run at once give up instead of hanging.
+"""Persistent launches whose work groups cannot all run at once give up instead of hanging.
 
 A launch of many more work groups than the device runs side by side (64 per
-compute unit, where a grid launch has one) can never pass a barrier across all
+compute unit, where a persistent launch has one) can never pass a barrier across all
 of them: the groups that run wait, give up after the spin limit (made small
 here), set the abandoned flag and leave; the groups started later see the flag
 and leave at once. Checked: every such launch returns, the flag is set, the
 barrier's counters are back to zero, a later kernel on the same buffer does
-nothing, and a World redoes the step without grid barriers, with a warning,
+nothing, and a World redoes the step without persistent launches, with a warning,
 ending exactly where a World that never tried them ends.
 """
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 import rbgen
+import rbgen.plan
 from rbgen import layouts
-from rbgen.pipeline import batching, device_barrier, jacobi, solver
-from rbgen.pipeline.batching import ConstraintBatcher
-from rbgen.pipeline.solver import ContactSolver
-from tests.pipeline.test_solver import stacked_columns
+from rbgen.pipeline import device_barrier
+from rbgen.pipeline.batching import global_colouring
+from rbgen.pipeline.solvers import jacobi, pgs
 from tests.pipeline.test_constraints import ContactRig, make_bodies
+from tests.pipeline.test_solver import stacked_columns
 
 #: work groups per compute unit of the oversubscribed launches
 OVERSUBSCRIBED = 64
@@ -28,12 +31,13 @@ OVERSUBSCRIBED = 64
 
 @pytest.fixture
 def oversubscribed(monkeypatch):
-    """Grid launches of OVERSUBSCRIBED groups per compute unit, giving up after 4,096 polls."""
+    """Persistent launches of OVERSUBSCRIBED groups per compute unit, giving up after 4,096
+    polls."""
     def too_many(traits):
         return OVERSUBSCRIBED * max(1, int(traits.compute_units))
-    for module in (batching, solver, jacobi):
+    for module in (global_colouring, pgs, jacobi):
         monkeypatch.setattr(module, "persistent_groups", too_many)
-    monkeypatch.setattr(grid, "spin_limit", lambda traits: 1 << 12)
+    monkeypatch.setattr(device_barrier, "spin_limit", lambda traits: 1 << 12)
 
 
 def column_rig(runtime, rng):
@@ -43,33 +47,34 @@ def column_rig(runtime, rng):
     bodies = make_bodies(positions, np.r_[0.0, rng.uniform(0.5, 2, n - 1)],
                          velocities=np.r_[[[0, 0, 0]], rng.uniform(-1, 1, (n - 1, 3))])
     inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(2, 8, (n - 1, 3))]
-    return ContactRig(runtime, bodies, inv_inertia), np.array(manifolds)
+    return ContactRig(runtime, bodies, inv_inertia, variant="persistent",
+                      work_group_size=32), np.array(manifolds)
 
 
 def test_oversubscribed_colouring_and_solve_give_up(runtime, rng, oversubscribed):
     rig, manifolds = column_rig(runtime, rng)
     rig.constraints(manifolds)
-    batcher = ConstraintBatcher(runtime, mode="global", shape="gpu")
-    contact_solver = ContactSolver(runtime, shape="gpu", grid=True, work_group_size=32)
     before = rig.bodies.get()
-    batcher(rig.setup.constraints, rig.setup.count, rig.bodies, rig.body_count, rig.capacity)
-    state = batcher.state.get()
+    rig.batch()
+    state = rig.batcher.state.get()
     assert state[layouts.BARRIER_ABANDONED] == 1
     assert state[layouts.BARRIER_ARRIVALS] == state[layouts.BARRIER_DEPARTURES] == 0
-    contact_solver.solve(rig.setup.constraints, batcher, rig.bodies, rig.inertia,
-                         rig.body_count, iterations=4, position_iterations=2)
+    assert rig.solver.barrier_state() is rig.batcher.state  # the solve shares its words
+    rig.sweep(iterations=4, position_iterations=2)
     assert np.array_equal(rig.bodies.get(), before)  # the solve saw the flag: no work
-    grid.clear_abandoned(runtime, batcher.state)
-    assert batcher.state.get()[layouts.BARRIER_ABANDONED] == 0
+    device_barrier.clear_abandoned(runtime, rig.batcher.state)
+    assert rig.batcher.state.get()[layouts.BARRIER_ABANDONED] == 0
 
 
 def test_oversubscribed_jacobi_gives_up(runtime, rng, oversubscribed):
     rig, manifolds = column_rig(runtime, rng)
     rig.constraints(manifolds)
     before = rig.bodies.get()
-    jacobi_solver = jacobi.JacobiSolver(runtime, grid=True, work_group_size=32)
+    jacobi_solver = jacobi.JacobiSolver(runtime, persistent=True, work_group_size=32)
     jacobi_solver.solve(rig.setup.constraints, rig.setup.count, rig.capacity, rig.bodies,
-                        rig.inertia, rig.body_count, iterations=4)
+                        rig.inertia, rig.body_count,
+                        SimpleNamespace(iterations=4, position_iterations=0, relaxation=1.0,
+                                        warm_start=True))
     sync = jacobi_solver.sync.get()
     assert sync[layouts.BARRIER_ABANDONED] == 1
     assert sync[layouts.BARRIER_ARRIVALS] == sync[layouts.BARRIER_DEPARTURES] == 0
@@ -84,30 +89,31 @@ def small_pile(world):
 
 
 @pytest.mark.parametrize("solver_name", ["pgs", "jacobi"])
-def test_world_redoes_an_abandoned_step_without_grid_launches(runtime, solver_name,
-                                                              oversubscribed, monkeypatch):
-    """The World's grid launches give up on the first step; it warns, redoes the step in
-    the automatic mode without grid barriers (Jacobi: one launch per phase) and then
-    matches, bit for bit, a World that used that mode from the start."""
-    monkeypatch.setattr(jacobi, "persistent_launch_validated", lambda traits: True)
+def test_world_redoes_an_abandoned_step_without_persistent_launches(runtime, solver_name,
+                                                                    oversubscribed,
+                                                                    monkeypatch):
+    """The World's persistent launches give up on the first step; it warns, redoes the
+    step with a plan without them (PGS: spatial batching; Jacobi: one launch per phase)
+    and then matches, bit for bit, a World that used that plan from the start."""
+    monkeypatch.setattr(rbgen.plan, "persistent_launch_validated", lambda traits: True)
     options = {"batching": "global"} if solver_name == "pgs" else {"solver": "jacobi"}
     world = rbgen.World(runtime, **options)
     ids = small_pile(world)
-    with pytest.warns(RuntimeWarning, match="gave up waiting at a barrier"):
+    with pytest.warns(RuntimeWarning, match="gave up waiting at a device-wide barrier"):
         for _ in range(20):
             world.step(1 / 60)
         positions = world.positions[ids]
-    monkeypatch.setattr(jacobi, "persistent_launch_validated", lambda traits: False)
+    monkeypatch.setattr(rbgen.plan, "persistent_launch_validated", lambda traits: False)
     stats = world.statistics()
+    assert not world.plan.persistent
     if solver_name == "pgs":
         assert stats["batching"] != "global"
         reference = rbgen.World(runtime, batching=stats["batching"])
     else:
-        assert not world._solver.grid
         reference = rbgen.World(runtime, solver="jacobi")
     small_pile(reference)
     for _ in range(20):
         reference.step(1 / 60)
     assert np.array_equal(positions, reference.positions[ids])
-    assert world.overflows == 0  # nothing overflowed: only the grid launches were redone
+    assert world.overflows == 0  # nothing overflowed: only the persistent launches were redone
     assert positions[:, 1].min() > 0.45  # the pile stands

@@ -2,27 +2,43 @@
 
 * Random contact graphs (bodies with up to ~10 contacts, static bodies among
   them, sizes that are not multiples of the work-group size): the warm start,
-  velocity sweeps (sequential normal rows, point friction, odd sweeps
-  backwards) and push sweeps match a float64 reference of the same method:
-  each body's share 1/k of its mass per contact, every constraint solved on
-  the sweep's starting velocities, each body then moved by the mean of its
-  copies' changes. Both launch variants (grid: one launch; phases: one launch
-  per phase) and both friction models' mass rewrite.
+  velocity sweeps (sequential normal rows, odd sweeps backwards, the manifold's
+  friction pair at its points' centre and its twist row) and push sweeps match a
+  float64 reference of the same method: each body's share 1/k of its mass per
+  contact, every constraint solved on the sweep's starting velocities, each body
+  then moved by the mean of its copies' changes. Both launch variants (persistent:
+  one launch; phases: one launch per phase) and the row masses rewritten for split
+  bodies.
 * A body in one contact is not split: where no body has two contacts, Jacobi
-  is Gauss-Seidel (block normal solve, manifold friction), to float round-off.
+  is Gauss-Seidel (block normal solve), to float round-off.
 * Total linear and angular momentum of free bodies is conserved.
 * No constraints: nothing changes.
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from rbgen.errors import RbgenError
-from rbgen.pipeline.jacobi import JacobiSolver
+from rbgen.pipeline.solvers.jacobi import JacobiSolver
 from tests.pipeline.test_constraints import ContactRig, make_bodies, make_manifold
 
-VARIANTS = [(False, 16), (False, 64), (True, 32), (True, 64)]  # (grid, work-group size)
+VARIANTS = [(False, 16), (False, 64), (True, 32), (True, 64)]  # (persistent, work-group size)
+
+
+def sweeps(iterations=1, position_iterations=0, relaxation=1.0, warm_start=True):
+    """The sweep settings a solver reads (the World's settings object)."""
+    return SimpleNamespace(iterations=iterations, position_iterations=position_iterations,
+                           relaxation=relaxation, warm_start=warm_start)
+
+
+def run_jacobi(rig, solver, **settings):
+    """Solve the rig's constraints (set up last) with ``solver``."""
+    setup = rig.setup
+    solver.solve(setup.constraints, setup.count, rig.capacity, rig.bodies, rig.inertia,
+                 rig.body_count, sweeps(**settings))
 
 
 def random_scene(rng, bodies=37, statics=3, manifolds=101):
@@ -61,9 +77,10 @@ def rows_of(c, k):
 
 def reference_jacobi(cons, bodies, world_inv_inertia, *, iterations, position_iterations,
                      relaxation, warm_start):
-    """Float64 Jacobi with mass splitting, sequential normal rows and point friction (the
-    kernels' arithmetic in the template's order): (velocities, angular velocities, push
-    linear, push angular, constraints with their impulses)."""
+    """Float64 Jacobi with mass splitting, sequential normal rows and the manifold's
+    friction pair and twist row (the kernels' arithmetic in the template's order):
+    (velocities, angular velocities, push linear, push angular, constraints with their
+    impulses)."""
     cons = cons.copy()
     inv_mass = bodies["inv_mass"].astype(np.float64)
     dynamic = inv_mass > 0
@@ -80,6 +97,11 @@ def reference_jacobi(cons, bodies, world_inv_inertia, *, iterations, position_it
         k = split_mass[a] + split_mass[b] + ca @ split_inertia[a] @ ca + cb @ split_inertia[b] @ cb
         return 1.0 / k if k > 0 else 0.0
 
+    def centres(c):
+        count = c["point_count"]
+        return (c["r_a"][:count, :3].astype(np.float64).mean(0),
+                c["r_b"][:count, :3].astype(np.float64).mean(0))
+
     for c in cons:  # the row masses between the split bodies
         a, b = c["body_a"], c["body_b"]
         if max(contacts[a], contacts[b]) <= 1:
@@ -87,8 +109,12 @@ def reference_jacobi(cons, bodies, world_inv_inertia, *, iterations, position_it
         for k in range(c["point_count"]):
             ra, rb, n, t1, t2 = rows_of(c, k)
             c["normal_mass"][k] = row_mass(n, ra, rb, a, b)
-            c["tangent1_mass"][k] = row_mass(t1, ra, rb, a, b)
-            c["tangent2_mass"][k] = row_mass(t2, ra, rb, a, b)
+        ra, rb = centres(c)
+        _, _, n, t1, t2 = rows_of(c, 0)
+        c["tangent1_mass"][0] = row_mass(t1, ra, rb, a, b)
+        c["tangent2_mass"][0] = row_mass(t2, ra, rb, a, b)
+        twist = n @ split_inertia[a] @ n + n @ split_inertia[b] @ n
+        c["tangent1_mass"][1] = 1.0 / twist if twist > 0 else 0.0
 
     def apply(state, a, b, impulse, ra, rb):
         va, wa, vb, wb = state
@@ -96,6 +122,10 @@ def reference_jacobi(cons, bodies, world_inv_inertia, *, iterations, position_it
         wa -= split_inertia[a] @ np.cross(ra, impulse)
         vb += impulse * split_mass[b]
         wb += split_inertia[b] @ np.cross(rb, impulse)
+
+    def twist_about(state, a, b, n, impulse):
+        state[1] -= split_inertia[a] @ n * impulse
+        state[3] += split_inertia[b] @ n * impulse
 
     def speed(state, d, ra, rb):
         va, wa, vb, wb = state
@@ -119,8 +149,10 @@ def reference_jacobi(cons, bodies, world_inv_inertia, *, iterations, position_it
     def warm(c, state, a, b):
         for k in range(c["point_count"]):
             ra, rb, n, t1, t2 = rows_of(c, k)
-            apply(state, a, b, n * c["normal_impulse"][k] + t1 * c["tangent1_impulse"][k]
-                  + t2 * c["tangent2_impulse"][k], ra, rb)
+            apply(state, a, b, n * c["normal_impulse"][k], ra, rb)
+        ra, rb = centres(c)
+        apply(state, a, b, t1 * c["tangent1_impulse"][0] + t2 * c["tangent2_impulse"][0], ra, rb)
+        twist_about(state, a, b, n, float(c["tangent1_impulse"][1]))
 
     def solve(reverse):
         def action(c, state, a, b):
@@ -133,17 +165,28 @@ def reference_jacobi(cons, bodies, world_inv_inertia, *, iterations, position_it
                             * (c["velocity_target"][k] - speed(state, n, ra, rb)))
                 apply(state, a, b, n * (total - old), ra, rb)
                 c["normal_impulse"][k] = total
-            for k in order:
-                ra, rb, _, t1, t2 = rows_of(c, k)
-                old1, old2 = float(c["tangent1_impulse"][k]), float(c["tangent2_impulse"][k])
-                f1 = old1 - relaxation * c["tangent1_mass"][k] * speed(state, t1, ra, rb)
-                f2 = old2 - relaxation * c["tangent2_mass"][k] * speed(state, t2, ra, rb)
-                limit = c["normal"][3] * c["normal_impulse"][k]
-                length = np.hypot(f1, f2)
-                if length > limit:
-                    f1, f2 = f1 * limit / length, f2 * limit / length
-                apply(state, a, b, t1 * (f1 - old1) + t2 * (f2 - old2), ra, rb)
-                c["tangent1_impulse"][k], c["tangent2_impulse"][k] = f1, f2
+            # the friction pair at the points' centre, within mu times the total impulse
+            _, _, n, t1, t2 = rows_of(c, 0)
+            ra, rb = centres(c)
+            limit = c["normal"][3] * float(c["normal_impulse"][:count].sum())
+            old1, old2 = float(c["tangent1_impulse"][0]), float(c["tangent2_impulse"][0])
+            f1 = old1 - relaxation * c["tangent1_mass"][0] * speed(state, t1, ra, rb)
+            f2 = old2 - relaxation * c["tangent2_mass"][0] * speed(state, t2, ra, rb)
+            length = np.hypot(f1, f2)
+            if length > limit:
+                f1, f2 = f1 * limit / length, f2 * limit / length
+            apply(state, a, b, t1 * (f1 - old1) + t2 * (f2 - old2), ra, rb)
+            c["tangent1_impulse"][0], c["tangent2_impulse"][0] = f1, f2
+            # the twist about the normal, within that limit times the points' mean
+            # distance from their centre (on B)
+            radius = np.linalg.norm(c["r_b"][:count, :3].astype(np.float64) - rb, axis=1).sum()
+            twist_limit = limit * radius / count
+            old = float(c["tangent1_impulse"][1])
+            turning = n @ state[3] - n @ state[1]
+            total = min(max(old - relaxation * c["tangent1_mass"][1] * turning, -twist_limit),
+                        twist_limit)
+            twist_about(state, a, b, n, total - old)
+            c["tangent1_impulse"][1] = total
         return action
 
     def push(c, state, a, b):
@@ -167,11 +210,11 @@ def reference_jacobi(cons, bodies, world_inv_inertia, *, iterations, position_it
     return v, w, pv, pw, cons
 
 
-def device_setup(runtime, rng, friction="point", **scene):
+def device_setup(runtime, rng, **scene):
     """A ContactRig with the scene's constraints set up on the device, carrying random
     impulses (to be warm started)."""
     bodies, inv_inertia, manifolds = random_scene(rng, **scene)
-    rig = ContactRig(runtime, bodies, inv_inertia, warm_start=False, friction=friction)
+    rig = ContactRig(runtime, bodies, inv_inertia, warm_start=False)
     rig.constraints(manifolds)
     all_constraints = rig.setup.constraints.get()
     n = len(manifolds)
@@ -182,18 +225,17 @@ def device_setup(runtime, rng, friction="point", **scene):
     return rig, n
 
 
-@pytest.mark.parametrize("grid,work_group_size", VARIANTS)
-def test_sweeps_match_the_float64_reference(runtime, rng, grid, work_group_size):
+@pytest.mark.parametrize("persistent,work_group_size", VARIANTS)
+def test_sweeps_match_the_float64_reference(runtime, rng, persistent, work_group_size):
     rig, n = device_setup(runtime, rng)
     before = rig.setup.constraints.get()[:n]
     bodies = rig.bodies.get()
     world_inv_inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(np.float64)
-    solver = JacobiSolver(runtime, friction="point", normal_solve="sequential", grid=grid,
+    solver = JacobiSolver(runtime, normal_solve="sequential", persistent=persistent,
                           work_group_size=work_group_size)
     settings = {"iterations": 5, "position_iterations": 3, "relaxation": 0.9,
                 "warm_start": True}
-    solver.solve(rig.setup.constraints, rig.setup.count, rig.capacity, rig.bodies, rig.inertia,
-                 rig.body_count, **settings)
+    run_jacobi(rig, solver, **settings)
     v, w, pv, pw, cons = reference_jacobi(before, bodies, world_inv_inertia, **settings)
     got = rig.bodies.get()
     split = solver.split_velocities(rig.body_count).get()
@@ -210,14 +252,12 @@ def test_sweeps_match_the_float64_reference(runtime, rng, grid, work_group_size)
     assert (np.bincount(np.r_[before["body_a"], before["body_b"]]) > 3).any()  # shared bodies
 
 
-@pytest.mark.parametrize("grid", [False, True])
-def test_manifold_friction_masses_rewritten_for_split_bodies(runtime, rng, grid):
+@pytest.mark.parametrize("persistent", [False, True])
+def test_manifold_friction_masses_rewritten_for_split_bodies(runtime, rng, persistent):
     """The centre friction pair and the twist row get the split bodies' masses too."""
-    rig, n = device_setup(runtime, rng, friction="manifold")
+    rig, n = device_setup(runtime, rng)
     before = rig.setup.constraints.get()[:n]
-    solver = JacobiSolver(runtime, friction="manifold", grid=grid)
-    solver.solve(rig.setup.constraints, rig.setup.count, rig.capacity, rig.bodies, rig.inertia,
-                 rig.body_count, iterations=1)
+    run_jacobi(rig, JacobiSolver(runtime, persistent=persistent), iterations=1)
     after = rig.setup.constraints.get()[:n]
     inv_mass = rig.bodies.get()["inv_mass"]
     inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(np.float64)
@@ -241,11 +281,11 @@ def test_manifold_friction_masses_rewritten_for_split_bodies(runtime, rng, grid)
             assert np.array_equal(c["normal_mass"], old["normal_mass"])
 
 
-@pytest.mark.parametrize("grid", [False, True])
-def test_single_contacts_are_gauss_seidel(runtime, rng, grid):
+@pytest.mark.parametrize("persistent", [False, True])
+def test_single_contacts_are_gauss_seidel(runtime, rng, persistent):
     """Boxes each resting on the static ground by one 4-point manifold and nothing else:
     no body is split, so Jacobi's sweeps are the Gauss-Seidel solver's (block normal
-    solve, manifold friction) to float round-off."""
+    solve) to float round-off."""
     boxes = 45  # not a multiple of any work-group size
     positions = np.c_[np.arange(boxes) * 1.5, np.full(boxes, 0.5), np.zeros(boxes)]
     positions = np.r_[[[0, 0, 0]], positions]
@@ -257,23 +297,17 @@ def test_single_contacts_are_gauss_seidel(runtime, rng, grid):
     manifolds = np.array([make_manifold(0, i, [0, 1, 0], positions[i] - [0, 0.5, 0] + square,
                                         rng.uniform(-0.01, 0.0, 4)) for i in range(1, boxes + 1)])
     results = []
-    for jacobi in (False, True):
-        rig = ContactRig(runtime, bodies, inv_inertia, friction="manifold", warm_start=False)
-        if jacobi:
-            rig.constraints(manifolds)
-            solver = JacobiSolver(runtime, friction="manifold", grid=grid)
-            solver.solve(rig.setup.constraints, rig.setup.count, rig.capacity, rig.bodies,
-                         rig.inertia, rig.body_count, iterations=6, position_iterations=2)
-            results.append((rig.bodies.get(), rig.setup.constraints.get()[:boxes],
-                            solver.split_velocities(rig.body_count).get()))
+    for use_jacobi in (False, True):
+        rig = ContactRig(runtime, bodies, inv_inertia, warm_start=False)
+        rig.constraints(manifolds)
+        if use_jacobi:
+            solver = JacobiSolver(runtime, persistent=persistent)
+            run_jacobi(rig, solver, iterations=6, position_iterations=2)
         else:  # the rig's own Gauss-Seidel solver (block normal solve) and batcher
-            rig.constraints(manifolds)
-            cons = rig.setup.constraints
-            rig.batcher(cons, rig.setup.count, rig.bodies, rig.body_count, rig.capacity)
-            rig.solver.solve(cons, rig.batcher, rig.bodies, rig.inertia, rig.body_count,
-                             iterations=6, position_iterations=2)
-            results.append((rig.bodies.get(), cons.get()[:boxes],
-                            rig.solver.split_velocities(rig.body_count).get()))
+            solver = rig.solver
+            rig.sweep(iterations=6, position_iterations=2)
+        results.append((rig.bodies.get(), rig.setup.constraints.get()[:boxes],
+                        solver.split_velocities(rig.body_count).get()))
     (b_gs, c_gs, s_gs), (b_j, c_j, s_j) = results
     for field in ("linear_velocity", "angular_velocity"):
         np.testing.assert_allclose(b_j[field], b_gs[field], atol=1e-5, err_msg=field)
@@ -285,8 +319,8 @@ def test_single_contacts_are_gauss_seidel(runtime, rng, grid):
     assert c_j["normal_impulse"].max() > 0  # the boxes were pushed
 
 
-@pytest.mark.parametrize("grid", [False, True])
-def test_free_bodies_conserve_momentum(runtime, rng, grid):
+@pytest.mark.parametrize("persistent", [False, True])
+def test_free_bodies_conserve_momentum(runtime, rng, persistent):
     """No static body: every contact's impulses are equal and opposite, so total linear
     momentum and angular momentum about the origin stay as they were."""
     rig, n = device_setup(runtime, rng, statics=0, bodies=24, manifolds=60)
@@ -300,9 +334,7 @@ def test_free_bodies_conserve_momentum(runtime, rng, grid):
         spin = np.array([np.linalg.solve(i, wi) for i, wi in zip(inertia, w)])
         return (mass[:, None] * v).sum(0), (np.cross(x, mass[:, None] * v) + spin).sum(0)
 
-    JacobiSolver(runtime, friction="point", grid=grid).solve(
-        rig.setup.constraints, rig.setup.count, rig.capacity, rig.bodies, rig.inertia,
-        rig.body_count, iterations=8)
+    run_jacobi(rig, JacobiSolver(runtime, persistent=persistent), iterations=8)
     after = rig.bodies.get()
     (p0, l0), (p1, l1) = momenta(before), momenta(after)
     assert np.abs(after["linear_velocity"] - before["linear_velocity"]).max() > 0.1
@@ -310,26 +342,23 @@ def test_free_bodies_conserve_momentum(runtime, rng, grid):
     assert np.linalg.norm(l1 - l0) < 1e-4 * np.linalg.norm(l0)
 
 
-@pytest.mark.parametrize("grid", [False, True])
-def test_no_constraints_change_nothing(runtime, rng, grid):
+@pytest.mark.parametrize("persistent", [False, True])
+def test_no_constraints_change_nothing(runtime, rng, persistent):
     bodies, inv_inertia, manifolds = random_scene(rng, manifolds=5)
     rig = ContactRig(runtime, bodies, inv_inertia)
     rig.constraints(manifolds[:0])
     before = rig.bodies.get()
-    solver = JacobiSolver(runtime, grid=grid)
-    solver.solve(rig.setup.constraints, rig.setup.count, rig.capacity, rig.bodies, rig.inertia,
-                 rig.body_count, iterations=3, position_iterations=2)
+    solver = JacobiSolver(runtime, persistent=persistent)
+    run_jacobi(rig, solver, iterations=3, position_iterations=2)
     assert np.array_equal(rig.bodies.get(), before)
     assert not solver.split_velocities(rig.body_count).get()["linear"].any()
 
 
 def test_bad_settings_are_refused(runtime):
-    solver = JacobiSolver(runtime, split_impulse=False)
+    solver = JacobiSolver(runtime)
     with pytest.raises(RbgenError, match="position_iterations"):
-        solver.solve(None, None, 1, None, None, 1, iterations=1, position_iterations=1)
+        solver.solve(None, None, 1, None, None, 1, sweeps(position_iterations=-1))
     with pytest.raises(RbgenError, match="relaxation"):
-        solver.solve(None, None, 1, None, None, 1, iterations=1, relaxation=2.5)
-    with pytest.raises(RbgenError, match="friction"):
-        JacobiSolver(runtime, friction="coulomb")
+        solver.solve(None, None, 1, None, None, 1, sweeps(relaxation=2.5))
     with pytest.raises(RbgenError, match="normal_solve"):
         JacobiSolver(runtime, normal_solve="cg")

@@ -4,38 +4,43 @@
   at e v (above the threshold), 0 below it.
 * Friction: a body with no rotational freedom (zero inverse inertia) sliding
   at u with normal speed v keeps u - mu v of its tangential speed (the
-  friction impulse is clamped by mu times the normal impulse), or stops.
+  friction impulse is clamped by mu times the total normal impulse), or stops.
 * Two free bodies in contact: total linear and angular momentum conserved,
   and no contact point left approaching.
 * Split impulse moves a penetrating body out by beta (d - slop) without
-  changing its velocity; Baumgarte gives it the velocity beta / dt (d - slop).
+  changing its velocity.
 * The implicit gyroscopic term conserves the angular momentum of an
   asymmetric free spinning body.
 
-Both kernel shapes (gpu: lanes over level-2 batches; cpu: one work-item per
-group), the resident solve (gpu shape, one work group with every body's
-velocity in local memory, single-mode batching) and the grid solve (gpu shape,
-one work group per compute unit stepping through the batches together,
-global-mode batching) run on every device present.
+Every solver variant runs on every device present (tests.pipeline.test_constraints
+VARIANTS): the serial form (a work-item per spatial group), the lanes form (a work
+group's lanes over level-2 batches), global batching's one group solved by one work
+group, and the persistent launch (every compute unit stepping through the batches
+together). The kernel signatures are rendered from the Python declarations the solvers
+bind by, and a binding that disagrees with them is refused.
 """
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 import pyopencl.array as cl_array
 import pytest
 
+from rbgen import codegen
+from rbgen.codegen import Arg, Signature, kernel_signatures
 from rbgen.device import INT64_ATOMICS
-from rbgen.errors import RbgenError
-from rbgen.pipeline.batching import ConstraintBatcher
-from rbgen.pipeline.prepare import BodyPreparation, inertia_records
+from rbgen.errors import RbgenError, TemplateParameterError
+from rbgen.launch import instance
+from rbgen.pipeline.batching import make_batcher
 from rbgen.pipeline.integrate import Integrator
-from rbgen.pipeline.solver import ContactSolver
-from tests.pipeline.test_constraints import ContactRig, make_bodies, make_manifold
+from rbgen.pipeline.prepare import BodyPreparation, inertia_records
+from rbgen.pipeline.solvers import jacobi, pgs
+from rbgen.pipeline.solvers.pgs import PgsSolver
+from tests.pipeline.test_constraints import (VARIANTS, ContactRig, make_batcher_for, make_bodies,
+                                             make_manifold)
 
-#: bodies of the resident solves (fits any device's 32 KiB of local memory)
-RESIDENT_BODIES = 1024
 SQUARE = np.array([[0.5, 0, 0.5], [-0.5, 0, 0.5], [0.5, 0, -0.5], [-0.5, 0, -0.5]])
-SHAPES = ["gpu", "cpu", "resident", "grid"]
 
 
 def stacked_columns(columns, height, pitch, separations, side_contacts=False):
@@ -58,39 +63,9 @@ def stacked_columns(columns, height, pitch, separations, side_contacts=False):
     return np.array(positions), manifolds
 
 
-def shaped_rig(runtime, bodies, inv_inertia, shape, *, penetration="split", warm_start=True,
-               group_count=3, work_group_size=None, batching="components", friction="point",
-               fast_math=None, warm_start_mode=None):
-    """A ContactRig whose batcher and solver have the given kernel shape ("resident": the
-    gpu shape solving in local memory, over single-mode batches; "grid": the gpu shape
-    spread over every compute unit, over global-mode batches with hashed bids only, which
-    colour as single mode does); ``fast_math`` and ``warm_start_mode`` as ContactSolver's
-    (None: the device's default)."""
-    resident = RESIDENT_BODIES if shape == "resident" else 0
-    grid = shape == "grid"
-    if resident:
-        shape, batching = "gpu", "single"
-    if grid:
-        shape, batching = "gpu", "global"
-    rig = ContactRig(runtime, bodies, inv_inertia, penetration=penetration,
-                     warm_start=warm_start, group_count=group_count,
-                     batching="components" if resident or grid else batching,
-                     friction=friction)
-    rig.batcher = ConstraintBatcher(runtime, group_count=group_count, mode=batching,
-                                    cell_size=2.5, shape=shape,
-                                    max_bodies=resident or None,
-                                    ordered_rounds=0)  # (read by global mode only)
-    rig.solver = ContactSolver(runtime, split_impulse=penetration == "split",
-                               work_group_size=work_group_size, friction=friction,
-                               normal_solve=rig.solver.spec.values["normal_solve"], shape=shape,
-                               resident_bodies=resident, grid=grid, fast_math=fast_math,
-                               warm_start_mode=warm_start_mode)
-    return rig
-
-
-@pytest.mark.parametrize("shape", SHAPES)
+@pytest.mark.parametrize("variant", VARIANTS)
 @pytest.mark.parametrize("restitution,speed", [(0.0, 3.0), (0.5, 3.0), (1.0, 2.0), (0.8, 0.2)])
-def test_bounce_off_static_plane(runtime, rng, restitution, speed, shape):
+def test_bounce_off_static_plane(runtime, rng, restitution, speed, variant):
     """Four symmetric points under a box: v_out = e v (v above the 0.5 m/s threshold, else 0)."""
     n_boxes = 33
     positions = np.c_[np.arange(n_boxes) * 2.0, np.full(n_boxes, 0.5), np.zeros(n_boxes)]
@@ -98,9 +73,10 @@ def test_bounce_off_static_plane(runtime, rng, restitution, speed, shape):
     bodies = make_bodies(positions, np.r_[0.0, rng.uniform(0.2, 2.0, n_boxes)],
                          velocities=np.r_[[[0, 0, 0]], np.tile([0, -speed, 0], (n_boxes, 1))])
     inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(0.5, 3.0, (n_boxes, 3))]
-    rig = shaped_rig(runtime, bodies, inv_inertia, shape, warm_start=False)
-    manifolds = np.array([make_manifold(0, i + 1, [0, 1, 0], positions[i + 1] + SQUARE - [0, 0.5, 0],
-                                        [0.0] * 4, restitution=restitution)
+    rig = ContactRig(runtime, bodies, inv_inertia, variant=variant, warm_start=False)
+    manifolds = np.array([make_manifold(0, i + 1, [0, 1, 0],
+                                        positions[i + 1] + SQUARE - [0, 0.5, 0], [0.0] * 4,
+                                        restitution=restitution)
                           for i in range(n_boxes)])
     out, _ = rig.solve(manifolds, iterations=60)
     expected = restitution * speed if speed > rig.setup.restitution_threshold else 0.0
@@ -109,34 +85,30 @@ def test_bounce_off_static_plane(runtime, rng, restitution, speed, shape):
     assert np.all(out["linear_velocity"][0] == 0)  # the static body is never written
 
 
-@pytest.mark.parametrize("shape", SHAPES)
-@pytest.mark.parametrize("mu,model", [(0.1, "point"), (0.3, "point"), (2.0, "point"),
-                                      (0.3, "manifold"), (2.0, "manifold")])
-def test_friction_clamped_by_normal_impulse(runtime, rng, mu, model, shape):
-    """Translation-only body: tangential speed u becomes max(u - mu v, 0) along its direction
-    (per point or per manifold friction)."""
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("mu", [0.1, 0.3, 2.0])
+def test_friction_clamped_by_normal_impulse(runtime, rng, mu, variant):
+    """Translation-only body: tangential speed u becomes max(u - mu v, 0) along its
+    direction; the friction pair (slot 0) stays within mu times the total normal impulse."""
     u = rng.uniform(1.0, 2.0)
     direction = rng.normal(size=2)
     direction /= np.linalg.norm(direction)
     v = 2.0
     velocity = [u * direction[0], -v, u * direction[1]]
     bodies = make_bodies([[0, 0, 0], [0, 0.5, 0]], [0.0, 0.7], velocities=[[0, 0, 0], velocity])
-    rig = shaped_rig(runtime, bodies, np.zeros((2, 3)), shape, warm_start=False, friction=model)
+    rig = ContactRig(runtime, bodies, np.zeros((2, 3)), variant=variant, warm_start=False)
     m = make_manifold(0, 1, [0, 1, 0], SQUARE, [0.0] * 4, friction=mu)
     out, cons = rig.solve(np.array([m]), iterations=60)
     vel = out["linear_velocity"][1, :3]
     assert vel[1] == pytest.approx(0.0, abs=1e-4)
     expected = max(u - mu * v, 0.0)
     np.testing.assert_allclose(vel[[0, 2]], expected * direction, atol=1e-4)
-    friction = np.hypot(cons[0]["tangent1_impulse"], cons[0]["tangent2_impulse"])
-    if model == "point":
-        assert np.all(friction <= mu * cons[0]["normal_impulse"] * (1 + 1e-5) + 1e-7)
-    else:  # one pair in slot 0, against the total normal impulse
-        assert friction[0] <= mu * cons[0]["normal_impulse"].sum() * (1 + 1e-5) + 1e-7
+    friction = np.hypot(cons[0]["tangent1_impulse"][0], cons[0]["tangent2_impulse"][0])
+    assert friction <= mu * cons[0]["normal_impulse"].sum() * (1 + 1e-5) + 1e-7
 
 
-@pytest.mark.parametrize("shape", SHAPES)
-def test_two_free_bodies_conserve_momentum(runtime, rng, shape):
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_two_free_bodies_conserve_momentum(runtime, rng, variant):
     """Random masses, inertias, normal and 1-4 points: P and L conserved within 1e-4 relative
     (the issue's bound; 1000 float32 iterations of round-off); no point of a 1- or 2-point
     manifold approaching faster than its target allows."""
@@ -161,8 +133,7 @@ def test_two_free_bodies_conserve_momentum(runtime, rng, shape):
                                        friction=rng.uniform(0, 1), restitution=rng.uniform(0, 1)))
     bodies = make_bodies(np.array(positions), np.array(inv_mass), np.array(velocities),
                          np.array(angular))
-    rig = shaped_rig(runtime, bodies, np.array(inv_inertia), shape, penetration="baumgarte",
-                     warm_start=False)
+    rig = ContactRig(runtime, bodies, np.array(inv_inertia), variant=variant, warm_start=False)
     out, cons = rig.solve(np.array(manifolds), iterations=1000)
 
     def momenta(b):
@@ -190,45 +161,41 @@ def test_two_free_bodies_conserve_momentum(runtime, rng, shape):
             assert dv @ c["normal"][:3] >= target - 1e-2 * max(1.0, abs(target))
 
 
-@pytest.mark.parametrize("shape", SHAPES)
-@pytest.mark.parametrize("penetration", ["split", "baumgarte"])
-def test_penetration_recovery(runtime, penetration, shape):
-    """Resting box 5 cm deep: split moves it up beta (d - slop), Baumgarte sets v = beta/dt (d - slop)."""
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_penetration_recovery(runtime, variant):
+    """Resting box 5 cm deep: the split impulse moves it up beta (d - slop) and leaves its
+    velocity at rest."""
     depth, dt = 0.05, 1 / 60
     bodies = make_bodies([[0, 0, 0], [0, 0.45, 0]], [0.0, 1.0])
-    rig = shaped_rig(runtime, bodies, np.array([[0, 0, 0], [1, 1, 1.0]]), shape,
-                     penetration=penetration, warm_start=False)
+    rig = ContactRig(runtime, bodies, np.array([[0, 0, 0], [1, 1, 1.0]]), variant=variant,
+                     warm_start=False)
     m = make_manifold(0, 1, [0, 1, 0], SQUARE + [0, -0.05, 0], [-depth] * 4)
-    out, _ = rig.solve(np.array([m]), dt=dt, iterations=30,
-                       position_iterations=30 if penetration == "split" else 0)
+    out, _ = rig.solve(np.array([m]), dt=dt, iterations=30, position_iterations=30)
     push = rig.setup.penetration_recovery * (depth - rig.setup.penetration_slop)
-    if penetration == "split":
-        assert out["position"][1, 1] - 0.45 == pytest.approx(push, rel=1e-3)
-        assert np.abs(out["linear_velocity"][1, :3]).max() < 1e-5
-    else:
-        assert out["linear_velocity"][1, 1] == pytest.approx(push / dt, rel=1e-3)
+    assert out["position"][1, 1] - 0.45 == pytest.approx(push, rel=1e-3)
+    assert np.abs(out["linear_velocity"][1, :3]).max() < 1e-5
 
 
-@pytest.mark.parametrize("shape,work_group_size,batching", [
-    ("gpu", 1, "components"), ("gpu", 32, "components"), ("gpu", 64, "cells"), ("gpu", 1, "cells"),
-    ("gpu", 32, "slabs"), ("cpu", 1, "components"), ("cpu", 1, "cells"), ("cpu", 2, "cells"),
-    ("cpu", 1, "slabs"), ("resident", 1, "single"), ("resident", 64, "single"),
-    ("grid", 1, "global"), ("grid", 32, "global")])
-def test_stacked_columns_end_resting(runtime, rng, shape, work_group_size, batching):
-    """Columns of 6 boxes falling onto each other (one pile per column, batched):
-    after the solve every box's vertical speed is ~0 (inelastic), in both batching modes
-    (in cells mode each column spans several cells and colours) and both shapes (cpu with
-    2 groups per work group: the leftover launch has one idle); PGS converges slowly on
-    the lateral drift its point ordering creates, which friction removes (< 10% of v)."""
+@pytest.mark.parametrize("variant,work_group_size,batching", [
+    ("lanes", 1, "cells"), ("lanes", 64, "cells"), ("lanes", 32, "slabs"),
+    ("serial", 1, "cells"), ("serial", 2, "cells"), ("serial", 1, "slabs"),
+    ("one_group", 1, None), ("one_group", 32, None), ("persistent", 1, None),
+    ("persistent", 32, None)])
+def test_stacked_columns_end_resting(runtime, rng, variant, work_group_size, batching):
+    """Columns of 6 boxes falling onto each other (one pile per column, batched): after
+    the solve every box's vertical speed is ~0 (inelastic), whatever the batching (in cells
+    mode each column spans several cells and colours) and the solver form (serial with 2
+    groups per work group: the leftover launch has one idle); PGS converges slowly on the
+    lateral drift its point ordering creates, which friction removes (< 10% of v)."""
     speed = 1.0
     positions, manifolds = stacked_columns(17, 6, 3.0, lambda: [0.0] * 4)
     n = len(positions)
     velocities = np.tile([0, -speed, 0], (n, 1))
     velocities[0] = 0
     bodies = make_bodies(positions, np.r_[0.0, np.ones(n - 1)], velocities=velocities)
-    rig = shaped_rig(runtime, bodies, np.r_[[[0, 0, 0]], np.full((n - 1, 3), 6.0)], shape,
-                     warm_start=False, group_count=4, work_group_size=work_group_size,
-                     batching=batching)
+    rig = ContactRig(runtime, bodies, np.r_[[[0, 0, 0]], np.full((n - 1, 3), 6.0)],
+                     variant=variant, batching=batching, warm_start=False, group_count=4,
+                     work_group_size=work_group_size)
     manifolds = np.array(manifolds)[rng.permutation(len(manifolds))]
     out, _ = rig.solve(manifolds, iterations=200)
     assert np.abs(out["linear_velocity"][1:, 1]).max() < 5e-3 * speed
@@ -269,23 +236,19 @@ def test_gyroscopic_term_conserves_angular_momentum(runtime):
     assert largest_change > 0.5 * np.linalg.norm(w0)
 
 
-@pytest.mark.parametrize("variant,columns", [("resident", 7), ("grid", 7), ("grid", 48)])
-def test_one_group_solves_match_the_plain_one_bit_for_bit(runtime, rng, variant, columns):
-    """Over the same batches (single mode; global mode colours alike), the resident solve
-    (velocities in local memory, one work group) and the grid solve (every compute unit,
-    a barrier across them after each batch) do the plain one-work-group solve's
-    arithmetic in the same order: equal results, velocities, push velocities and
-    impulses alike, for a pile of columns with warm starting. The resident solve runs
-    its position sweeps after the velocity sweeps, the other two in the same batch steps
-    as the first velocity sweeps: equal bits say that neither set of rows sees the
-    other's. The grid solve hands a small batch's push rows to other lanes than its
-    velocity rows (solver.cl.mako: push_lane), a large one's not: 48 columns make batches
-    larger than that threshold on a device of few compute units (PoCL: 32 x 2 lanes).
-    Both solvers are exact builds (fast_math=False): -cl-fast-relaxed-math lets the
-    compiler contract and reorder each kernel's arithmetic its own way (the H200 gave
-    different bits for the resident kernel), so only exact builds promise equal bits;
-    the grid solve warm-starts batch by batch as the others do (its summed warm start
-    adds in another order: test_summed_warm_start_is_the_sum_of_the_impulses)."""
+@pytest.mark.parametrize("columns", [7, 48])
+def test_persistent_solve_matches_the_one_group_solve_bit_for_bit(runtime, rng, columns):
+    """Over the same batches (global batching's colours depend on the edges alone), the
+    persistent launch (every compute unit, a barrier across them after each batch) does
+    the one-work-group solve's arithmetic in the same order: equal results, velocities,
+    push velocities and impulses alike, for a pile of columns with warm starting. The
+    persistent launch hands a small batch's push rows to other lanes than its velocity
+    rows (pgs.cl.mako: push_lane), a large one's not: 48 columns make batches larger than
+    that threshold on a device of few compute units (PoCL: 32 x 2 lanes). Both are exact
+    builds (fast_math=False): -cl-fast-relaxed-math lets the compiler contract and reorder
+    each kernel's arithmetic its own way, so only exact builds promise equal bits; both
+    warm-start batch by batch (the summed warm start adds in another order:
+    test_summed_warm_start_is_the_sum_of_the_impulses)."""
     positions, manifolds = stacked_columns(columns, 5, 1.2, lambda: rng.uniform(-0.01, 0.0, 4),
                                            side_contacts=True)
     n = len(positions)
@@ -295,55 +258,63 @@ def test_one_group_solves_match_the_plain_one_bit_for_bit(runtime, rng, variant,
                          velocities=velocities)
     inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(2, 8, (n - 1, 3))]
     manifolds = np.array(manifolds)[rng.permutation(len(manifolds))]
+    impulses = rng.uniform(0.0, 0.3, (len(manifolds), 4)).astype(np.float32)
     results = []
-    for plain in (True, False):
-        rig = shaped_rig(runtime, bodies, inv_inertia, "resident" if plain else variant,
-                         work_group_size=32, fast_math=False,
-                         warm_start_mode="batched" if variant == "grid" else None)
-        if plain:
-            rig.solver = ContactSolver(runtime, split_impulse=True, work_group_size=32,
-                                       friction="point", shape="gpu",
-                                       normal_solve=rig.solver.spec.values["normal_solve"],
-                                       fast_math=False)
-        results.append(rig.solve(manifolds, iterations=7, position_iterations=3))
-    (bodies_g, cons_g), (bodies_r, cons_r) = results
+    for variant in ("one_group", "persistent"):
+        rig = ContactRig(runtime, bodies, inv_inertia, variant=variant, work_group_size=32,
+                         fast_math=False, warm_start_mode="batched")
+        rig.constraints(manifolds)
+        records = rig.setup.constraints.get()
+        records["normal_impulse"][:len(manifolds)] = impulses  # something to warm start
+        rig.setup.constraints.set(records)
+        rig.sweep(iterations=7, position_iterations=3)
+        rig.solver.apply_split(rig.bodies, rig.body_count, 1 / 60)
+        results.append((rig.bodies.get(), rig.setup.constraints.get()[:len(manifolds)]))
+    (bodies_g, cons_g), (bodies_p, cons_p) = results
     for field in ("linear_velocity", "angular_velocity", "position", "orientation"):
-        assert np.array_equal(bodies_g[field], bodies_r[field]), field
+        assert np.array_equal(bodies_g[field], bodies_p[field]), field
     for field in ("normal_impulse", "tangent1_impulse", "tangent2_impulse", "push_impulse"):
-        assert np.array_equal(cons_g[field], cons_r[field]), field
-    assert np.abs(bodies_r["linear_velocity"][1:, :3]).max() > 0  # something was solved
+        assert np.array_equal(cons_g[field], cons_p[field]), field
+    assert np.abs(bodies_p["linear_velocity"][1:, :3]).max() > 0  # something was solved
 
 
 def warm_started_velocities(bodies, inv_inertia, constraints):
-    """float64 reference of a warm start with point friction: every constraint's
-    accumulated impulses (normal and two tangents per point) applied at its points' lever
-    arms, v_a -= p / m_a, w_a -= I_a^-1 (r_a x p), v_b += p / m_b, w_b += I_b^-1 (r_b x p):
+    """float64 reference of a warm start: every constraint's accumulated impulses applied
+    to its bodies, v_a -= p / m_a, w_a -= I_a^-1 L_a, v_b += p / m_b, w_b += I_b^-1 L_b, with
+    p the sum of the points' normal impulses and the friction pair (slot 0 of the tangent
+    impulses) and L about each body's centre: the normal impulses at their points, the
+    friction pair at the points' centre and the twist (tangent1 slot 1) about the normal:
     (linear, angular) velocities."""
     linear = bodies["linear_velocity"][:, :3].astype(float).copy()
     angular = bodies["angular_velocity"][:, :3].astype(float).copy()
     inv_mass = bodies["inv_mass"].astype(float)
     for c in constraints:
-        a, b = int(c["body_a"]), int(c["body_b"])
-        for k in range(int(c["point_count"])):
-            p = (c["normal"][:3] * c["normal_impulse"][k] + c["tangent1"][:3]
-                 * c["tangent1_impulse"][k] + c["tangent2"][:3] * c["tangent2_impulse"][k])
-            p = p.astype(float)
-            linear[a] -= p * inv_mass[a]
-            angular[a] -= inv_inertia[a] @ np.cross(c["r_a"][k, :3].astype(float), p)
-            linear[b] += p * inv_mass[b]
-            angular[b] += inv_inertia[b] @ np.cross(c["r_b"][k, :3].astype(float), p)
+        a, b, count = int(c["body_a"]), int(c["body_b"]), int(c["point_count"])
+        n, t1, t2 = (c[f][:3].astype(float) for f in ("normal", "tangent1", "tangent2"))
+        ra, rb = c["r_a"][:count, :3].astype(float), c["r_b"][:count, :3].astype(float)
+        normal = n * c["normal_impulse"][:count, None].astype(float)
+        friction = t1 * float(c["tangent1_impulse"][0]) + t2 * float(c["tangent2_impulse"][0])
+        twist = n * float(c["tangent1_impulse"][1])
+        p = normal.sum(0) + friction
+        moment_a = np.cross(ra, normal).sum(0) + np.cross(ra.mean(0), friction) + twist
+        moment_b = np.cross(rb, normal).sum(0) + np.cross(rb.mean(0), friction) + twist
+        linear[a] -= p * inv_mass[a]
+        angular[a] -= inv_inertia[a] @ moment_a
+        linear[b] += p * inv_mass[b]
+        angular[b] += inv_inertia[b] @ moment_b
     return linear, angular
 
 
-@pytest.mark.parametrize("friction", ["point", "manifold"])
-def test_summed_warm_start_is_the_sum_of_the_impulses(runtime, rng, friction):
-    """The grid solve's summed warm start (64-bit fixed-point sums per body, then every body
-    takes its sum) against the batched one (a batch step per colour) and, with point
-    friction, the float64 sum of every constraint's impulses at its lever arms
-    (warm_started_velocities): no sweep, only the warm start, over 6 columns of 5 boxes
-    with side contacts (bodies in up to 6 manifolds) and random old impulses, odd body and
-    constraint counts. The sums are integers, so two runs give the same bits whatever the
-    order of the atomic additions."""
+def test_summed_warm_start_is_the_sum_of_the_impulses(runtime, rng):
+    """The persistent launch's summed warm start (64-bit fixed-point sums per body, then
+    every body takes its sum) against the batched one (a batch step per colour) and the
+    float64 sum of every constraint's impulses at its lever arms (warm_started_velocities):
+    no sweep, only the warm start, over 6 columns of 5 boxes with side contacts (bodies in
+    up to 6 manifolds) and random old impulses, odd body and constraint counts. The sums
+    are integers, so two runs give the same bits whatever the order of the atomic
+    additions."""
+    if not runtime.has_extension(INT64_ATOMICS):
+        pytest.skip(f"the summed warm start needs {INT64_ATOMICS}")
     positions, manifolds = stacked_columns(6, 5, 1.2, lambda: rng.uniform(-0.01, 0.0, 4),
                                            side_contacts=True)
     n = len(positions)
@@ -359,18 +330,15 @@ def test_summed_warm_start_is_the_sum_of_the_impulses(runtime, rng, friction):
                 for name in ("normal_impulse", "tangent1_impulse", "tangent2_impulse")}
     results = []
     for mode in ("summed", "summed", "batched"):
-        rig = shaped_rig(runtime, bodies, inv_inertia, "grid", friction=friction,
+        rig = ContactRig(runtime, bodies, inv_inertia, variant="persistent",
                          warm_start_mode=mode)
         assert rig.solver.spec.values["warm_start_mode"] == mode
         rig.constraints(manifolds)
-        cons = rig.setup.constraints
-        records = cons.get()
+        records = rig.setup.constraints.get()
         for name, values in impulses.items():
             records[name][:len(manifolds)] = values
-        cons.set(records)
-        rig.batcher(cons, rig.setup.count, rig.bodies, rig.body_count, rig.capacity)
-        rig.solver.solve(cons, rig.batcher, rig.bodies, rig.inertia, rig.body_count,
-                         iterations=0, warm_start=True)
+        rig.setup.constraints.set(records)
+        rig.sweep(iterations=0, warm_start=True)
         results.append(rig.bodies.get())
         inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
         constraints = records[:len(manifolds)]
@@ -380,64 +348,41 @@ def test_summed_warm_start_is_the_sum_of_the_impulses(runtime, rng, friction):
     for field in ("linear_velocity", "angular_velocity"):
         np.testing.assert_allclose(first[field], batched[field], atol=2e-6 * scale)
         assert np.abs(first[field] - bodies[field]).max() > 0.1  # the impulses moved them
-    if friction == "point":
-        linear, angular = warm_started_velocities(bodies, inertia, constraints)
-        np.testing.assert_allclose(first["linear_velocity"][:, :3], linear, atol=2e-6 * scale)
-        np.testing.assert_allclose(first["angular_velocity"][:, :3], angular, atol=2e-6 * scale)
+    linear, angular = warm_started_velocities(bodies, inertia, constraints)
+    np.testing.assert_allclose(first["linear_velocity"][:, :3], linear, atol=2e-6 * scale)
+    np.testing.assert_allclose(first["angular_velocity"][:, :3], angular, atol=2e-6 * scale)
 
 
-def test_summed_warm_start_needs_a_grid_solve_and_int64_atomics(runtime):
-    """warm_start_mode='summed' is refused without grid (naming the rule) and defaults to
-    it for a grid solve on a device with 64-bit atomics."""
-    with pytest.raises(RbgenError, match="warm_start_mode='summed' needs grid=True"):
-        ContactSolver(runtime, shape="gpu", warm_start_mode="summed")
+def test_summed_warm_start_needs_a_persistent_solve_and_int64_atomics(runtime):
+    """warm_start_mode='summed' is refused without a persistent launch (naming the rule)
+    and is the default of a persistent solve on a device with 64-bit atomics."""
+    batcher = make_batcher(runtime, "global")
+    with pytest.raises(RbgenError, match="warm_start_mode='summed' needs persistent=True"):
+        PgsSolver(runtime, batcher, warm_start_mode="summed")
     expected = "summed" if runtime.has_extension(INT64_ATOMICS) else "batched"
-    assert ContactSolver(runtime, shape="gpu", grid=True).spec.values["warm_start_mode"] \
+    assert PgsSolver(runtime, batcher, persistent=True).spec.values["warm_start_mode"] \
         == expected
-    assert ContactSolver(runtime, shape="gpu").spec.values["warm_start_mode"] == "batched"
+    assert PgsSolver(runtime, batcher).spec.values["warm_start_mode"] == "batched"
 
 
-def test_resident_solve_refuses_what_does_not_fit(runtime):
-    """A resident solver needs the gpu shape, one group (single batching) and a body
-    count within its local memory; each refusal names what is wrong."""
-    with pytest.raises(RbgenError, match="resident_bodies needs shape='gpu'"):
-        ContactSolver(runtime, shape="cpu", resident_bodies=64)
-    with pytest.raises(RbgenError, match="local memory"):
-        ContactSolver(runtime, shape="gpu", resident_bodies=1 << 16)
-    solver = ContactSolver(runtime, shape="gpu", resident_bodies=64)
-    bodies = cl_array.to_device(runtime.queue, make_bodies([[0, 0, 0]], [1.0]))
-    with pytest.raises(RbgenError, match="single"):
-        solver.solve(None, ConstraintBatcher(runtime, group_count=3, mode="components",
-                                             shape="gpu"), bodies, None, 1, iterations=1)
-    single = ConstraintBatcher(runtime, mode="single", shape="gpu", max_bodies=128)
-    with pytest.raises(RbgenError, match="100 bodies do not fit"):
-        solver.solve(None, single, bodies, None, 100, iterations=1)
+@pytest.mark.parametrize("solve_form", ["lanes", "serial"])
+def test_persistent_solve_refuses_spatial_groups(runtime, solve_form):
+    """A persistent solve needs one group of all constraints (global batching); spatial
+    batching is refused, naming it."""
+    batcher = make_batcher_for(runtime, "lanes" if solve_form == "lanes" else "serial")
+    with pytest.raises(RbgenError, match="needs one group of all constraints .* 'cells'"):
+        PgsSolver(runtime, batcher, persistent=True)
 
 
-def test_grid_solve_refuses_what_it_cannot_run(runtime):
-    """A grid solver needs the gpu shape, no resident bodies and one group of all
-    constraints (single or global batching); each refusal names what is wrong."""
-    with pytest.raises(RbgenError, match="grid needs shape='gpu'"):
-        ContactSolver(runtime, shape="cpu", grid=True)
-    with pytest.raises(RbgenError, match="grid needs shape='gpu' and no resident_bodies"):
-        ContactSolver(runtime, shape="gpu", grid=True, resident_bodies=64)
-    solver = ContactSolver(runtime, shape="gpu", grid=True)
-    bodies = cl_array.to_device(runtime.queue, make_bodies([[0, 0, 0]], [1.0]))
-    with pytest.raises(RbgenError, match="grid solve needs one group"):
-        solver.solve(None, ConstraintBatcher(runtime, group_count=3, mode="cells",
-                                             shape="gpu", cell_size=1.0), bodies, None, 1,
-                     iterations=1)
-
-
-@pytest.mark.parametrize("batching", ["components", "cells", "slabs", "single"])
+@pytest.mark.parametrize("batching", ["global", "cells", "slabs"])
 def test_launch_schedule(runtime, batching):
-    """components: the warm start and every sweep in ONE launch; cells: a warm-start sweep,
-    then one launch per colour and velocity sweep, the position sweeps riding along."""
-    batcher = ConstraintBatcher(runtime, group_count=3, mode=batching, cell_size=2.5,
-                                shape="gpu")
-    solver = ContactSolver(runtime, split_impulse=True)
+    """global: the warm start and every sweep in ONE launch; cells and slabs: a warm-start
+    sweep, then one launch per colour and velocity sweep, the position sweeps riding
+    along."""
+    batcher = make_batcher_for(runtime, "lanes", batching)
+    solver = PgsSolver(runtime, batcher)
     colours = len(batcher.launch_plan)
-    one = batching in ("components", "single")
+    one = batching == "global"
     for release_sweeps in (None, 2):  # (the release sweeps change scalars, not launches)
         launches, _ = solver._schedule(batcher.launch_plan, 10, 4, True, release_sweeps)
         assert len(launches) == (1 if one else colours * 11)
@@ -446,12 +391,66 @@ def test_launch_schedule(runtime, batching):
         assert solver._schedule(batcher.launch_plan, 0, 0, False, release_sweeps)[0] == []
 
 
-def test_gpu_solver_refuses_unbatched_groups(runtime):
-    """The gpu shape needs level-2 batches: a cpu-shaped batcher is refused, naming it."""
-    batcher = ConstraintBatcher(runtime, group_count=3, shape="cpu")
-    solver = ContactSolver(runtime, shape="gpu")
-    bodies = cl_array.to_device(runtime.queue, make_bodies([[0, 0, 0]], [1.0]))
-    with pytest.raises(RbgenError, match="shape"):
-        solver.solve(None, batcher, bodies, None, 1, iterations=1)
-    with pytest.raises(RbgenError, match="shape"):
-        ContactSolver(runtime, shape="tpu")
+def pgs_specs():
+    """Every reachable specialisation of the PGS template (exact builds), by the rules
+    between its parameters."""
+    specs = []
+    for form, persistent, warm, normal in itertools.product(
+            ("serial", "lanes"), (False, True), pgs.WARM_START_MODES, ("block", "sequential")):
+        try:
+            specs.append(pgs.TEMPLATE.spec(
+                work_group_size=1 if form == "serial" else 64, max_batches=128,
+                solve_form=form, normal_solve=normal, persistent=persistent, fast_math=False,
+                warm_start_mode=warm))
+        except TemplateParameterError:
+            continue
+    return specs
+
+
+def test_kernel_signatures_are_the_declarations():
+    """The parameter lists in the generated source of every reachable PGS specialisation
+    (and of the Jacobi kernels) are exactly the declared arguments of that
+    specialisation, names and types, in order."""
+    specs = pgs_specs()
+    assert len(specs) == 8  # serial; lanes; persistent batched; persistent summed; x 2
+    cases = [(spec, pgs.TEMPLATE) for spec in specs]
+    cases += [(jacobi.TEMPLATE.spec(work_group_size=16, normal_solve="block",
+                                    persistent=persistent, fast_math=False), jacobi.TEMPLATE)
+              for persistent in (False, True)]
+    for spec, template in cases:
+        rendered = kernel_signatures(spec.source)
+        assert rendered and set(rendered) <= set(template.signatures)  # every kernel declared
+        for name in rendered:
+            declared = [(a.name, " ".join(a.type_for(spec.values).split()))
+                        for a in template.signatures[name].args(spec.values)]
+            assert [(arg["name"], arg["type"]) for arg in rendered[name]] == declared, \
+                f"{name} of {spec}"
+
+
+def test_bindings_that_disagree_with_the_declaration_are_refused(runtime):
+    """A launcher binds by name through the declaration: a name it lacks, or one this
+    specialisation does not have, is refused, naming it; so is a set of binders that
+    leaves an argument unset, a wrong number of values, and a kernel whose built argument
+    list is not the declared one (a template that did not render it)."""
+    batcher = make_batcher(runtime, "global")
+    solver = PgsSolver(runtime, batcher, warm_start_mode="batched")
+    spec = solver.spec
+    with pytest.raises(TemplateParameterError, match="'colours' is not declared"):
+        pgs.SOLVE_GROUPS.binder(spec, "constraints", "colours")
+    with pytest.raises(TemplateParameterError, match="'warm_sums' is not an argument of this"):
+        pgs.SOLVE_GROUPS.binder(spec, "warm_sums")
+    with pytest.raises(TemplateParameterError, match=r"never sets \['passes'"):
+        names = [n for n in pgs.LAUNCH_SCALARS if n not in ("passes", "group_end")]
+        pgs.SOLVE_GROUPS.check_bound(spec, pgs.SOLVE_GROUPS.binder(spec, *names),
+                                     solver._bind_buffers)
+    kernel = instance(runtime, solver._program, "solve_groups")
+    with pytest.raises(TypeError, match="6 values expected, got 5"):
+        solver._bind_scalars(kernel, *[np.uint32(0)] * 5)
+    other = PgsSolver(runtime, make_batcher_for(runtime, "serial"))  # group_end: one more
+    with pytest.raises(TemplateParameterError,
+                       match="built with 14 arguments, its declaration has 15"):
+        other._bind_scalars(kernel, *[np.uint32(0)] * 7)
+    with pytest.raises(TemplateParameterError, match="declared twice"):
+        Signature("k", [Arg("const uint", "n"), Arg("const float", "n")])
+    with pytest.raises(TemplateParameterError, match="declares no signature for kernel 'k'"):
+        codegen._signature_renderer(pgs.TEMPLATE.path, spec.values)("k")

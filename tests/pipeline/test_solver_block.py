@@ -1,4 +1,4 @@
-"""Block solve of a manifold's normal rows (ContactSolver normal_solve="block").
+"""Block solve of a manifold's normal rows (PgsSolver normal_solve="block").
 
 Closed form: a free unit box (mass 1, inverse inertia 6) resting on static
 ground on the four corners of its bottom face, falling at speed v while
@@ -26,8 +26,6 @@ import itertools
 import numpy as np
 import pytest
 
-from rbgen.pipeline.solver import ContactSolver
-from tests.pipeline.test_solver import shaped_rig
 from tests.pipeline.test_constraints import ContactRig, make_bodies, make_manifold
 
 CORNERS = np.array([[0.5, -0.5, 0.5], [-0.5, -0.5, 0.5], [-0.5, -0.5, -0.5], [0.5, -0.5, -0.5]])
@@ -36,8 +34,8 @@ CORNERS = np.array([[0.5, -0.5, 0.5], [-0.5, -0.5, 0.5], [-0.5, -0.5, -0.5], [0.
 def solve_one_iteration(runtime, normal_solve, velocity, angular, count=4):
     bodies = make_bodies([[0, 0, 0], [0, 0.5, 0]], [0.0, 1.0], velocities=[[0, 0, 0], velocity],
                          angular=[[0, 0, 0], angular])
-    rig = ContactRig(runtime, bodies, np.array([[0, 0, 0], [6.0, 6.0, 6.0]]), warm_start=False)
-    rig.solver = ContactSolver(runtime, split_impulse=True, normal_solve=normal_solve)
+    rig = ContactRig(runtime, bodies, np.array([[0, 0, 0], [6.0, 6.0, 6.0]]), warm_start=False,
+                     normal_solve=normal_solve)
     points = CORNERS[:count] + [0, 0.5, 0]
     m = make_manifold(0, 1, [0, 1, 0], points, [0.0] * count, friction=0.0)
     out, cons = rig.solve(np.array([m]), iterations=1)
@@ -116,7 +114,6 @@ def test_block_leaves_a_corner_that_is_apart(runtime, rng):
     bodies = make_bodies([[0, 0, 0], [0, 0.5, 0]], [0.0, 1.0],
                          velocities=[[0, 0, 0], [0, -rng.uniform(0.5, 2.0), 0]])
     rig = ContactRig(runtime, bodies, np.array([[0, 0, 0], [6.0, 6.0, 6.0]]), warm_start=False)
-    rig.solver = ContactSolver(runtime, split_impulse=True, normal_solve="block")
     apart = int(rng.integers(4))
     separations = [0.0] * 4
     separations[apart] = rng.uniform(0.001, 0.003)
@@ -128,13 +125,15 @@ def test_block_leaves_a_corner_that_is_apart(runtime, rng):
     assert impulses[apart] == 0.0 and impulses.min() >= 0.0
 
 
-def random_face_pairs(runtime, rng, count, shape, pairs=7, spin=0.2, separations=(0.0, 0.0),
-                      batching="components"):
+def random_face_pairs(runtime, rng, count, variant, pairs=7, spin=0.2, separations=(0.0, 0.0),
+                      batching=None, normal_solve="block"):
     """``pairs`` pairs of free bodies with full inertia tensors, each in contact through
     ``count`` points of a random tilted face (a rectangle, an edge or a triangle about the
     line of centres, points off the contact plane by a few mm), approaching at 1-2 m/s and
     turning at up to ``spin`` rad/s, separations uniform in ``separations`` and random
-    restitution, friction 0: (rig, manifolds, constraints before solving, bodies before)."""
+    restitution, friction 0, solved by a ContactRig of ``variant`` (``batching``: its
+    algorithm, if not the variant's): (rig, manifolds, constraints before solving, bodies
+    before)."""
     positions, manifolds = [], []
     for i in range(pairs):
         normal = rng.normal(size=3)
@@ -166,9 +165,9 @@ def random_face_pairs(runtime, rng, count, shape, pairs=7, spin=0.2, separations
                          angular=rng.uniform(-spin, spin, (n_bodies, 3)))
     quaternions = rng.normal(size=(n_bodies, 4))
     bodies["orientation"] = quaternions / np.linalg.norm(quaternions, axis=1)[:, None]
-    rig = shaped_rig(runtime, bodies, rng.uniform(1.0, 6.0, (n_bodies, 3)), shape,
-                     warm_start=False, friction="manifold", batching=batching)
-    assert rig.solver.spec.values["normal_solve"] == "block"
+    rig = ContactRig(runtime, bodies, rng.uniform(1.0, 6.0, (n_bodies, 3)), variant=variant,
+                     batching=batching, warm_start=False, normal_solve=normal_solve)
+    assert rig.solver.spec.values["normal_solve"] == normal_solve
     manifolds = np.array(manifolds)
     cons = rig.constraints(manifolds)
     return rig, manifolds, cons, rig.bodies.get()
@@ -230,9 +229,9 @@ def brute_force_lcp(k_matrix, rhs):
     raise AssertionError("no active set solves the reference problem")
 
 
-@pytest.mark.parametrize("shape", ["gpu", "cpu"])
+@pytest.mark.parametrize("variant", ["lanes", "serial"])
 @pytest.mark.parametrize("count", [2, 3, 4])
-def test_pushing_points_get_the_smallest_exact_impulses(runtime, rng, shape, count):
+def test_pushing_points_get_the_smallest_exact_impulses(runtime, rng, variant, count):
     """Reference (float64): K[j][k] = m_a + m_b + (r_aj x n).I_a (r_ak x n) + (r_bj x n).I_b
     (r_bk x n) (singular for four points: three independent motions); the block's totals are
     pinv(K) (target - v_n), the smallest ones, all positive here (the bodies approach fast
@@ -240,7 +239,7 @@ def test_pushing_points_get_the_smallest_exact_impulses(runtime, rng, shape, cou
     contact plane by a few mm (the lever arms' part along n does not matter), random
     orientations (full world inertias) and restitution (targets -e v_n, one rigid motion).
     Two points (an edge): K is regular, the totals are K^-1 (target - v_n)."""
-    rig, manifolds, cons, before = random_face_pairs(runtime, rng, count, shape)
+    rig, manifolds, cons, before = random_face_pairs(runtime, rng, count, variant)
     inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
     out, solved = rig.solve(manifolds, iterations=1)
     for m, c, s in zip(manifolds, cons, solved):
@@ -253,9 +252,9 @@ def test_pushing_points_get_the_smallest_exact_impulses(runtime, rng, shape, cou
         assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total)
 
 
-@pytest.mark.parametrize("shape", ["gpu", "cpu"])
+@pytest.mark.parametrize("variant", ["lanes", "serial"])
 @pytest.mark.parametrize("count", [2, 3, 4])
-def test_block_is_the_exact_contact_solution(runtime, rng, shape, count):
+def test_block_is_the_exact_contact_solution(runtime, rng, variant, count):
     """The general case: bodies spinning at up to 4 rad/s (so that some points separate
     or the smallest all-pushing impulses would pull) and points up to 4 mm apart (targets
     that fit no rigid motion). One iteration leaves the velocities of the float64
@@ -270,7 +269,7 @@ def test_block_is_the_exact_contact_solution(runtime, rng, shape, count):
     the rows one by one instead of the block fail every seed)."""
     released = 0
     for attempt in range(3):
-        rig, manifolds, cons, before = random_face_pairs(runtime, rng, count, shape, pairs=9,
+        rig, manifolds, cons, before = random_face_pairs(runtime, rng, count, variant, pairs=9,
                                                          spin=4.0, separations=(-0.002, 0.004))
         inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
         out, solved = rig.solve(manifolds, iterations=1)
@@ -292,17 +291,16 @@ def test_block_is_the_exact_contact_solution(runtime, rng, shape, count):
     assert released > 0
 
 
-@pytest.mark.parametrize("shape", ["gpu", "cpu"])
+@pytest.mark.parametrize("variant", ["lanes", "serial"])
 @pytest.mark.parametrize("count", [2, 3, 4])
-def test_sequential_rows_are_gauss_seidel(runtime, rng, shape, count):
+def test_sequential_rows_are_gauss_seidel(runtime, rng, variant, count):
     """normal_solve="sequential" (the rows one after another, whose kernel carries the
     rows' speeds forward through K instead of re-reading the velocities): two sweeps, the
     points in order, then backwards, equal the float64 Gauss-Seidel of the normal rows,
     lambda_k = max(0, lambda_k + (target_k - speed_k) / K_kk) with the speeds updated after
     every row, and the velocities change by the impulses found. Friction 0."""
-    rig, manifolds, cons, before = random_face_pairs(runtime, rng, count, shape, spin=2.0)
-    rig.solver = ContactSolver(runtime, split_impulse=True, normal_solve="sequential",
-                               shape=shape, friction="manifold")
+    rig, manifolds, cons, before = random_face_pairs(runtime, rng, count, variant, spin=2.0,
+                                                     normal_solve="sequential")
     inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
     out, solved = rig.solve(manifolds, iterations=2)
     for m, c, s in zip(manifolds, cons, solved):
@@ -346,11 +344,12 @@ def all_pushing(k_matrix, rhs):
     return total, None
 
 
-@pytest.mark.parametrize("shape, batching", [("gpu", "components"), ("gpu", "cells"),
-                                             ("cpu", "components"), ("cpu", "cells"),
-                                             ("resident", "single"), ("grid", "global")])
-def test_release_sweeps_leave_the_releasing_faces_to_the_rows_until_the_last(runtime, rng, shape,
-                                                                             batching):
+@pytest.mark.parametrize("variant, batching", [("lanes", "cells"), ("lanes", "slabs"),
+                                               ("serial", "cells"), ("serial", "slabs"),
+                                               ("one_group", "global"),
+                                               ("persistent", "global")])
+def test_release_sweeps_leave_the_releasing_faces_to_the_rows_until_the_last(runtime, rng,
+                                                                             variant, batching):
     """release_sweeps=1 of 3 velocity and 3 position sweeps: whatever the first two did,
     the last solves the complete block, whose result is the exact contact solution: the
     velocities are those of the float64 brute-force solution (brute_force_lcp), and the
@@ -362,18 +361,18 @@ def test_release_sweeps_leave_the_releasing_faces_to_the_rows_until_the_last(run
     float64 Gauss-Seidel of three sweeps, the push rows always forwards), which misses the
     exact solution (checked, so that the first half can fail). Random faces with points
     1-4 mm apart or 2 mm deep and bodies spinning at up to 3 rad/s give both kinds, and
-    the test needs both. Components batching runs all sweeps in one launch, cells one
-    launch per colour and sweep (the pairs sit in different cells); the resident solve
-    (velocities in local memory) and the grid solve (every compute unit) have sweep loops
-    of their own."""
+    the test needs both. Global batching runs all sweeps in one launch (one work group,
+    or the persistent launch over every compute unit, whose sweep loop is its own),
+    spatial batching one launch per colour and sweep (the pairs sit in different cells
+    and slabs)."""
     kinds, missed = {True: 0, False: 0}, 0
     for attempt in range(3):
         seed = int(rng.integers(1 << 31))
         for release_sweeps in (1, 0):
             rig, manifolds, cons, before = random_face_pairs(
-                runtime, np.random.default_rng(seed), 4, shape, pairs=9, spin=3.0,
+                runtime, np.random.default_rng(seed), 4, variant, pairs=9, spin=3.0,
                 separations=(-0.002, 0.004), batching=batching)
-            assert (len(rig.batcher.launch_plan) > 1) == (batching == "cells")
+            assert (len(rig.batcher.launch_plan) > 1) == (batching != "global")
             inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
             out, solved = rig.solve(manifolds, iterations=3, position_iterations=3,
                                     release_sweeps=release_sweeps)

@@ -4,21 +4,24 @@ PGS solves constraints one after another; on a parallel device the constraints o
 one batch are solved at once, which is only correct if none of them touch the same
 dynamic body (static bodies never move, so they are ignored).
 
-A batcher lays the constraints out in **groups** (level 1: one per work group of a
-solver launch, groups of one launch share no dynamic body) made of **batches**
-(level 2: constraints of a batch share no dynamic body). After a call its device
-arrays describe the result: ``order`` (constraint indices sorted by group, then
-batch), ``group_batches`` (per group, ``max_batches + 1`` absolute offsets into
-``order``) and ``group_batch_count``; ``launch_plan`` lists the (first group, group
-count) of each solver launch of a sweep. The solver reads these directly, so every
-count stays on the device.
+A batcher colours the step's **constraint edges** (`layouts.CONSTRAINT_EDGE`: two
+bodies, an item naming the constraint by kind and index, an inherited colour, a point;
+`rbgen.pipeline.constraints` writes them), not the constraints themselves, so that
+contacts and every joint kind share the colours and the launches. It lays the edges out
+in **groups** (level 1: one per work group of a solver launch, groups of one launch
+share no dynamic body) made of **batches** (level 2: edges of a batch share no dynamic
+body). After a call its device arrays describe the result: ``order`` (the edges' items
+sorted by group, then batch), ``group_batches`` (per group, ``max_batches + 1``
+absolute offsets into ``order``) and ``group_batch_count``; ``launch_plan`` lists the
+(first group, group count) of each solver launch of a sweep. The solver reads these
+directly, so every count stays on the device.
 
 One module per algorithm, chosen by name (`make_batcher`):
 
 ``global`` (global_colouring.py)
-    One group of all constraints, coloured by one persistent launch over every
-    compute unit, each pair keeping last step's colour where it still holds; solved by
-    the PGS solver's persistent launch. Two launches a step whatever the size.
+    One group of all edges, coloured by one persistent launch over every compute unit,
+    each edge keeping last step's colour where it still holds; solved by the PGS
+    solver's persistent launch. Two launches a step whatever the size.
 ``cells``, ``slabs`` (spatial.py)
     Harada's spatial groups: cells (8 colours, any pile spreads over the device) or
     slabs across one horizontal axis (2 colours, a stack whole in one group); a
@@ -63,9 +66,9 @@ class Batcher(Protocol):
     #: (first group, group count) of each solver launch of a sweep
     launch_plan: list[tuple[int, int]]
 
-    def __call__(self, constraints, constraint_count, bodies, body_count: int,
-                 constraint_capacity: int) -> None:
-        """Enqueue the batching of the first ``constraint_count[0]`` constraints."""
+    def __call__(self, edges, edge_count, bodies, body_count: int, edge_capacity: int) -> None:
+        """Enqueue the batching of the first ``edge_count[0]`` constraint edges (a device
+        uint32 array(1)); ``edge_capacity`` bounds the count."""
 
     def configure(self, *, cell_size: float, slab_axis) -> None:
         """Scene geometry of the spatial algorithms (the others ignore it)."""
@@ -87,10 +90,9 @@ def make_batcher(runtime: Runtime, mode: str, **options) -> Batcher:
 
 
 def batch_host(body_a, body_b, dynamic) -> np.ndarray:
-    """Reference: sequential first-fit colouring; returns the batch of every constraint.
+    """Reference: sequential first-fit colouring; returns the batch of every edge.
 
-    ``dynamic`` is a boolean per body; constraints between two static bodies go
-    to batch 0.
+    ``dynamic`` is a boolean per body; edges between two static bodies go to batch 0.
     """
     body_a, body_b = np.asarray(body_a), np.asarray(body_b)
     dynamic = np.asarray(dynamic, bool)

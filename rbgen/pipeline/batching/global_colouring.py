@@ -1,12 +1,12 @@
-"""Global batching: one persistent launch over every compute unit colours all constraints.
+"""Global batching: one persistent launch over every compute unit colours all edges.
 
-All constraints form one group whose batches (colours) the PGS solver's persistent
+All constraint edges form one group whose batches (colours) the PGS solver's persistent
 launch solves one after another on every compute unit
 (``templates/pipeline/batching/global_colouring.cl.mako`` has the algorithm: the
-previous step's colour of each body pair where it still holds, then Jones-Plassmann
-rounds with global body marks, the first ``ordered_rounds`` of a step first-fit in
-index order). One colouring launch and one solver launch a step at any size: the
-choice where the device runs a persistent launch (`rbgen.pipeline.device_barrier`).
+previous step's colour of each edge where it still holds, then Jones-Plassmann rounds
+with global body marks, the first ``ordered_rounds`` of a step first-fit in index
+order). One colouring launch and one solver launch a step at any size: the choice where
+the device runs a persistent launch (`rbgen.pipeline.device_barrier`).
 """
 from __future__ import annotations
 
@@ -27,10 +27,10 @@ TEMPLATE = KernelTemplate(
               "batch slots (the solver's layout of group_batches); the last is the serial "
               "remainder", "a power of two from 2 to 4096"),
     ],
-    doc="Global batching: one launch over the whole device colours all constraints (the "
+    doc="Global batching: one launch over the whole device colours all constraint edges (the "
         "previous step's colours where they still hold, Jones-Plassmann rounds for the rest, "
         "global body marks and a device-wide barrier between phases).",
-    roles={"constraints": "inout", "constraint_colour": "inout", "pairs": "inout",
+    roles={"edges": "inout", "edge_colour": "inout", "pairs": "inout",
            "bids": "inout", "used": "inout", "state": "inout"},
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
                              "max_batches": 128},
@@ -49,8 +49,8 @@ def default_work_group_size(traits: DeviceTraits) -> int:
 
 
 class GlobalBatcher:
-    """One group of all constraints, coloured by one persistent launch (see the module
-    docstring and `rbgen.pipeline.batching.Batcher`)."""
+    """One group of all constraint edges, coloured by one persistent launch (see the
+    module docstring and `rbgen.pipeline.batching.Batcher`)."""
 
     mode = "global"
     solve_form = "lanes"
@@ -73,7 +73,7 @@ class GlobalBatcher:
         self.state = barrier_buffer(runtime, 3 + self.max_batches + 1)
         program = compile_spec(runtime, self.spec)
         self._kernel = runtime.bound(program.kernel("colour_global"))
-        self.body_capacity = self.constraint_capacity = 0
+        self.body_capacity = self.edge_capacity = 0
         queue = runtime.queue
         self.group_batches = cl_array.zeros(queue, self.max_batches + 1, np.uint32)
         self.group_batch_count = cl_array.zeros(queue, 1, np.uint32)
@@ -81,30 +81,30 @@ class GlobalBatcher:
     def configure(self, *, cell_size: float, slab_axis) -> None:
         """(no scene geometry: the colouring is topological)"""
 
-    def ensure_capacity(self, body_capacity: int, constraint_capacity: int) -> None:
-        """Grow the per-body and per-constraint scratch (never shrinks)."""
+    def ensure_capacity(self, body_capacity: int, edge_capacity: int) -> None:
+        """Grow the per-body and per-edge scratch (never shrinks)."""
         queue = self.runtime.queue
         if body_capacity > self.body_capacity:
             self.body_capacity = int(body_capacity)
             n = max(1, self.body_capacity)
             self.body_bids = cl_array.empty(queue, 2 * n, np.uint32)  # two rounds' bids
             self.body_colours = cl_array.empty(queue, 4 * n, np.uint32)  # 2 64-bit masks
-        if constraint_capacity > self.constraint_capacity:
-            self.constraint_capacity = int(constraint_capacity)
-            n = max(1, self.constraint_capacity)
+        if edge_capacity > self.edge_capacity:
+            self.edge_capacity = int(edge_capacity)
+            n = max(1, self.edge_capacity)
             self.order = cl_array.empty(queue, n, np.uint32)
-            self.constraint_batch = cl_array.empty(queue, n, np.uint32)
-            self.constraint_pairs = cl_array.empty(queue, 2 * n, np.uint32)
+            #: every edge's colour (its batch) in the last call
+            self.edge_batch = cl_array.empty(queue, n, np.uint32)
+            self.edge_pairs = cl_array.empty(queue, 2 * n, np.uint32)
 
-    def __call__(self, constraints, constraint_count, bodies, body_count: int,
-                 constraint_capacity: int) -> None:
-        """Colour the first ``constraint_count[0]`` constraints (a device uint32 array(1));
-        ``constraint_capacity`` bounds the count."""
-        self.ensure_capacity(body_count, constraint_capacity)
+    def __call__(self, edges, edge_count, bodies, body_count: int, edge_capacity: int) -> None:
+        """Colour the first ``edge_count[0]`` constraint edges (a device uint32 array(1));
+        ``edge_capacity`` bounds the count."""
+        self.ensure_capacity(body_count, edge_capacity)
         wg = self.work_group_size
-        self._kernel.bind(constraints, constraint_count, bodies, self.constraint_batch,
+        self._kernel.bind(edges, edge_count, bodies, self.edge_batch,
                           self.order, self.group_batches, self.group_batch_count,
-                          self.constraint_pairs, self.body_bids, self.body_colours,
+                          self.edge_pairs, self.body_bids, self.body_colours,
                           self.state, np.uint32(body_count), np.uint32(self.ordered_rounds)
                           ).launch(persistent_groups(self.runtime.traits) * wg, wg)
 

@@ -1,14 +1,14 @@
-"""Spatial batching (Harada's two-level solver): constraints grouped by the cell of a point.
+"""Spatial batching (Harada's two-level solver): constraint edges grouped by the cell of a point.
 
-Level 1: a constraint belongs to the cell of its first contact point. ``cells``: cubes
-of at least the largest dynamic body's size, 8 colours by the parity of their
-coordinates; ``slabs``: slabs across one horizontal axis (``slab_axis``), 2 colours.
-Cells of one colour are a whole cell apart, so their constraints share no body and a
-colour is one solver launch over many groups; a constraint whose body another group of
-its colour has claimed (a body wider than a cell) goes to a leftover group solved
-alone, so correctness never depends on sizes. A sweep is one launch per colour plus
-one for the leftovers. Slabs hold whole stacks, which a serial solve then walks in
-index order (from the ground up for piles built bottom-up).
+Level 1: an edge belongs to the cell of its point (`layouts.CONSTRAINT_EDGE`; a
+contact's first point). ``cells``: cubes of at least the largest dynamic body's size, 8
+colours by the parity of their coordinates; ``slabs``: slabs across one horizontal axis
+(``slab_axis``), 2 colours. Cells of one colour are a whole cell apart, so their edges
+share no body and a colour is one solver launch over many groups; an edge whose body
+another group of its colour has claimed (a body wider than a cell) goes to a leftover
+group solved alone, so correctness never depends on sizes. A sweep is one launch per
+colour plus one for the leftovers. Slabs hold whole stacks, which a serial solve then
+walks in index order (from the ground up for piles built bottom-up).
 
 Level 2 (solve form ``lanes``): each group is coloured into batches by one work group
 (maximal independent sets grown by rounds of lowest-priority-wins); the last batch slot
@@ -44,7 +44,7 @@ TEMPLATE = KernelTemplate(
               "solved by one work-item), groups listed by a single work-item"),
     ],
     doc="Level-1 groups (coloured cells or slabs); level-2 batches per work group.",
-    roles={"constraints": "inout", "body_owner": "inout", "group_counts": "inout"},
+    roles={"body_owner": "inout", "group_counts": "inout"},
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
                              "max_batches": 128, "mode": "cells" if traits.is_gpu else "slabs",
                              "solve_form": default_solve_form(traits)},
@@ -116,7 +116,7 @@ class SpatialBatcher:
             else ["list_groups"]
         program = compile_spec(runtime, self.spec)
         self._kernels = {name: runtime.bound(program.kernel(name)) for name in names}
-        self.body_capacity = self.constraint_capacity = 0
+        self.body_capacity = self.edge_capacity = 0
         queue, g = runtime.queue, self.group_count
         self.group_counts = cl_array.zeros(queue, g, np.uint32)
         self.group_offsets = cl_array.zeros(queue, g + 1, np.uint32)
@@ -128,8 +128,8 @@ class SpatialBatcher:
         self.cell_size = float(cell_size)
         self.slab_axis = tuple(float(v) for v in slab_axis)
 
-    def ensure_capacity(self, body_capacity: int, constraint_capacity: int) -> None:
-        """Grow the per-body and per-constraint scratch (never shrinks)."""
+    def ensure_capacity(self, body_capacity: int, edge_capacity: int) -> None:
+        """Grow the per-body and per-edge scratch (never shrinks)."""
         queue = self.runtime.queue
         if body_capacity > self.body_capacity:
             self.body_capacity = int(body_capacity)
@@ -138,52 +138,50 @@ class SpatialBatcher:
                 self.body_stamp = cl_array.empty(queue, self.colours * n, np.uint32)
                 self.body_taken = cl_array.empty(queue, self.colours * n, np.uint32)
             self.body_owner = cl_array.empty(queue, self.cell_colours * n, np.uint32)
-        if constraint_capacity > self.constraint_capacity:
-            self.constraint_capacity = int(constraint_capacity)
-            n = max(1, self.constraint_capacity)
+        if edge_capacity > self.edge_capacity:
+            self.edge_capacity = int(edge_capacity)
+            n = max(1, self.edge_capacity)
             self.order = cl_array.empty(queue, n, np.uint32)
-            #: per constraint: its slot in its group's list (lanes) or its group (serial)
-            self.constraint_slot = cl_array.empty(queue, n, np.uint32)
-            if self.batches:
-                (self.constraint_batch, self.constraint_blocked,
-                 self.group_list) = (cl_array.empty(queue, n, np.uint32) for _ in range(3))
+            #: per edge: its level-1 group
+            self.edge_group = cl_array.empty(queue, n, np.uint32)
+            if self.batches:  # per edge: its slot in its group's list, batch, blocked mark
+                (self.edge_slot, self.edge_batch, self.edge_blocked,
+                 self.group_list) = (cl_array.empty(queue, n, np.uint32) for _ in range(4))
 
-    def __call__(self, constraints, constraint_count, bodies, body_count: int,
-                 constraint_capacity: int) -> None:
-        """Batch the first ``constraint_count[0]`` constraints (a device uint32 array(1));
-        ``constraint_capacity`` bounds the count and sizes the launches."""
+    def __call__(self, edges, edge_count, bodies, body_count: int, edge_capacity: int) -> None:
+        """Batch the first ``edge_count[0]`` constraint edges (a device uint32 array(1));
+        ``edge_capacity`` bounds the count and sizes the launches."""
         if not self.cell_size:
             raise RbgenError(f"batching mode {self.mode!r} needs a positive cell_size")
-        self.ensure_capacity(body_count, constraint_capacity)
+        self.ensure_capacity(body_count, edge_capacity)
         k, wg = self._kernels, self.work_group_size
         g, n = self.group_count, self.body_capacity
         marks = max(self.cell_colours * n, self.colours * n if self.batches else 0)
         marks_buffers = (self.body_stamp, self.body_taken) if self.batches else ()
         k["reset_batching"].over(max(marks, g), wg, *marks_buffers, self.body_owner,
                                  self.group_counts, np.uint32(n), np.uint32(g))
-        # lanes: atomic slots in the group lists; serial: each constraint's group
-        outputs = (self.group_counts, self.constraint_slot) if self.batches else \
-            (self.constraint_slot,)
-        if constraint_capacity > 0:
+        # lanes: also the atomic slots in the group lists
+        slots = (self.group_counts, self.edge_slot) if self.batches else ()
+        if edge_capacity > 0:
             axis = (unit4(self.slab_axis, "slab_axis"),) if self.mode == "slabs" else ()
-            k["assign_cells"].over(constraint_capacity, wg, constraints, constraint_count,
-                                   bodies, self.body_owner, *outputs, np.uint32(n),
+            k["assign_cells"].over(edge_capacity, wg, edges, edge_count, bodies,
+                                   self.body_owner, *slots, self.edge_group, np.uint32(n),
                                    np.uint32(self.groups_per_colour), *axis,
                                    np.float32(1.0 / self.cell_size))
         if not self.batches:
-            k["list_groups"].bind(constraint_count, self.constraint_slot, self.group_counts,
+            k["list_groups"].bind(edges, edge_count, self.edge_group, self.group_counts,
                                   self.group_offsets, self.order, self.group_batches,
-                                  self.group_batch_count, np.uint32(constraint_capacity),
+                                  self.group_batch_count, np.uint32(edge_capacity),
                                   np.uint32(g)).launch(1, 1)
             return
         k["scan_groups"].bind(self.group_counts, self.group_offsets, np.uint32(g)).launch(1, 1)
-        if constraint_capacity > 0:
-            k["scatter_groups"].over(constraint_capacity, wg, constraints, constraint_count,
-                                     self.constraint_slot, self.group_offsets, self.group_list,
-                                     self.constraint_batch, self.constraint_blocked)
-        k["batch_groups"].bind(constraints, bodies, self.group_offsets, self.group_list,
-                               self.body_stamp, self.body_taken, self.constraint_batch,
-                               self.constraint_blocked, self.order, self.group_batches,
+        if edge_capacity > 0:
+            k["scatter_groups"].over(edge_capacity, wg, edge_count, self.edge_group,
+                                     self.edge_slot, self.group_offsets, self.group_list,
+                                     self.edge_batch, self.edge_blocked)
+        k["batch_groups"].bind(edges, bodies, self.group_offsets, self.group_list,
+                               self.body_stamp, self.body_taken, self.edge_batch,
+                               self.edge_blocked, self.order, self.group_batches,
                                self.group_batch_count, np.uint32(n),
                                np.uint32(self.groups_per_colour)).launch(g * wg, wg)
 

@@ -23,6 +23,10 @@ launch per phase: 6 to build the bodies' contact lists, then 2 per sweep.
 
 The constraint count stays on the device: the kernels read it and handle
 min(count, capacity) constraints, striding over them.
+
+The Jacobi solver reads the contact constraints directly, not the constraint-edge list
+that batching colours (`rbgen.pipeline.constraints`): it colours nothing, and a joint
+kind would join it as a constraint phase of its own.
 """
 from __future__ import annotations
 
@@ -30,12 +34,48 @@ import numpy as np
 import pyopencl.array as cl_array
 import pyopencl.cltypes as cltypes
 
-from ...codegen import KernelTemplate, Param, compile_spec, work_group_size_param
+from ...codegen import (Arg, KernelTemplate, Param, Signature, compile_spec,
+                        work_group_size_param)
 from ...device import DeviceTraits, Runtime
 from ...launch import instance
 from ..device_barrier import barrier_buffer, persistent_groups, persistent_launch_validated
 from .common import (PushVelocities, check_sweeps, fast_math_options, fast_math_param,
                      normal_solve_param, resolve_fast_math)
+
+def _shared_space(values) -> str:
+    """The address space of what lanes of other work groups write during a persistent
+    launch (read through volatile pointers)."""
+    return "volatile __global" if values["persistent"] else "__global"
+
+
+#: the arguments every Jacobi kernel starts with (bound once per solve), in order
+SHARED_ARGS = (
+    Arg("__global ContactConstraint*", "constraints"),
+    Arg("__global const uint*", "constraint_count"),
+    Arg("const uint", "capacity"),
+    Arg(lambda v: f"{_shared_space(v)} Body*", "bodies"),
+    Arg("__global const BodyInertia*", "inertia"),
+    Arg(lambda v: f"{_shared_space(v)} SplitVelocity*", "split"),
+    Arg("volatile __global uint*", "body_contacts"),
+    Arg(lambda v: f"{_shared_space(v)} uint*", "body_first"),
+    Arg(lambda v: f"{_shared_space(v)} uint*", "chunk_sums"),
+    Arg("__global uint*", "side_slots"),
+    Arg(lambda v: f"{_shared_space(v)} uint*", "lists"),
+    Arg(lambda v: f"{_shared_space(v)} float4*", "changes"),
+    Arg("volatile __global uint*", "sync", when=lambda v: v["persistent"]),
+    Arg("const float", "relaxation"),
+    Arg("const uint", "body_count"),
+)
+SHARED_NAMES = tuple(a.name for a in SHARED_ARGS)
+#: the phases that build the bodies' contact lists, in order (phase launches)
+LIST_PHASES = ("clear", "count", "chunk_sums", "scan", "link", "order")
+#: every kernel's trailing scalars (bound once per kernel object)
+SCALARS = {"solve_jacobi": ("passes", "velocity_sweeps", "position_sweeps"),
+           **{f"jacobi_{phase}": ("reverse",) for phase in LIST_PHASES
+              + ("warm_start", "sweep", "average", "push", "average_push")}}
+#: each kernel's arguments, declared once: the template renders them, JacobiSolver binds them
+SIGNATURES = {name: Signature(name, SHARED_ARGS + tuple(Arg("const uint", s) for s in scalars))
+              for name, scalars in SCALARS.items()}
 
 TEMPLATE = KernelTemplate(
     "pipeline/solvers/jacobi.cl.mako",
@@ -49,20 +89,19 @@ TEMPLATE = KernelTemplate(
         fast_math_param(),
     ],
     doc="Jacobi sweeps with mass splitting over contact constraints.",
-    roles={"constraints": "inout", "bodies": "inout", "split": "inout"},
+    roles={"constraints": "inout", "bodies": "inout", "split": "inout", "sync": "inout"},
     build_options=fast_math_options,
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
                              "normal_solve": "block",
                              "persistent": persistent_launch_validated(traits),
                              "fast_math": resolve_fast_math(traits, None)},
+    signatures=SIGNATURES.values(),
 )
 
 #: the persistent kernel's ``passes`` flag for the warm start (as in the template)
 WARM_START_PASS = 1
 #: work groups of a phase launch per compute unit (a CPU balances the chunks better)
 PHASE_GROUPS_PER_UNIT = 4
-#: the phases that build the bodies' contact lists, in order (phase launches)
-LIST_PHASES = ("clear", "count", "chunk_sums", "scan", "link", "order")
 
 
 def default_work_group_size(traits: DeviceTraits) -> int:
@@ -96,6 +135,8 @@ class JacobiSolver(PushVelocities):
         self._body_capacity = self._side_capacity = 0
         #: trailing scalars -> kernel object with those scalars set
         self._instances: dict = {}
+        #: kernel name -> (binder of the shared arguments, binder of its scalars)
+        self._binders: dict = {}
 
     @property
     def normal_solve(self) -> str:
@@ -118,12 +159,24 @@ class JacobiSolver(PushVelocities):
             self._lists = cl_array.zeros(q, self._side_capacity, np.uint32)
             self._changes = cl_array.zeros(q, 2 * self._side_capacity, cltypes.float4)
 
+    def _binders_of(self, name: str):
+        """The binders of kernel ``name``'s shared arguments and of its scalars."""
+        binders = self._binders.get(name)
+        if binders is None:
+            signature = SIGNATURES[name]
+            have = {a.name for a in signature.args(self.spec.values)}
+            shared = signature.binder(self.spec, *(n for n in SHARED_NAMES if n in have))
+            scalars = signature.binder(self.spec, *SCALARS[name])
+            signature.check_bound(self.spec, shared, scalars)
+            binders = self._binders[name] = (shared, scalars)
+        return binders
+
     def _kernel(self, name: str, *scalars):
         key = (name, *scalars)
         kernel = self._instances.get(key)
         if kernel is None:
             kernel = self._instances[key] = instance(self.runtime, self._program, name)
-            kernel.bind_last(*(np.uint32(v) for v in scalars))
+            self._binders_of(name)[1](kernel, *(np.uint32(v) for v in scalars))
         return kernel
 
     # ------------------------------------------------------------- solving
@@ -149,22 +202,22 @@ class JacobiSolver(PushVelocities):
             shared.append(self.sync)
         shared += [np.float32(relaxation), np.uint32(body_count)]
         size = self.groups * self.work_group_size
-        for kernel in self._schedule(int(iterations), int(position_iterations),
-                                     bool(warm_start)):
-            kernel.bind_first(*shared)
+        for name, kernel in self._schedule(int(iterations), int(position_iterations),
+                                           bool(warm_start)):
+            self._binders_of(name)[0](kernel, *shared)
             kernel.launch(size, self.work_group_size)
 
     def _schedule(self, iterations: int, position_iterations: int, warm_start: bool) -> list:
-        """The kernel objects of one call, in launch order."""
+        """The (kernel name, kernel object) of one call's launches, in launch order."""
         if self.persistent:
             passes = WARM_START_PASS if warm_start else 0
-            return [self._kernel("solve_jacobi", passes, iterations, position_iterations)]
-        launches = [self._kernel(f"jacobi_{phase}", 0) for phase in LIST_PHASES]
-        if warm_start:
-            launches += [self._kernel("jacobi_warm_start", 0), self._kernel("jacobi_average", 0)]
-        for sweep in range(iterations):
-            launches += [self._kernel("jacobi_sweep", sweep % 2),
-                         self._kernel("jacobi_average", 0)]
-        for _ in range(position_iterations):
-            launches += [self._kernel("jacobi_push", 0), self._kernel("jacobi_average_push", 0)]
-        return launches
+            calls = [("solve_jacobi", (passes, iterations, position_iterations))]
+        else:
+            calls = [(f"jacobi_{phase}", (0,)) for phase in LIST_PHASES]
+            if warm_start:
+                calls += [("jacobi_warm_start", (0,)), ("jacobi_average", (0,))]
+            for sweep in range(iterations):
+                calls += [("jacobi_sweep", (sweep % 2,)), ("jacobi_average", (0,))]
+            for _ in range(position_iterations):
+                calls += [("jacobi_push", (0,)), ("jacobi_average_push", (0,))]
+        return [(name, self._kernel(name, *scalars)) for name, scalars in calls]

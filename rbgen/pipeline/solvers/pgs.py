@@ -30,9 +30,20 @@ own. Odd velocity sweeps visit each manifold's points backwards. With the block 
 solve, only the last ``release_sweeps`` sweeps solve each manifold's complete block;
 the earlier ones take its all-pushing solution where it holds (a cheaper sweep).
 
-Host cost: each distinct set of trailing scalars of the launch schedule has its own
-kernel object (`rbgen.launch.instance`) with those scalars set once; buffers and
-``relaxation`` are bound once per call through `rbgen.launch.BoundKernel`.
+Constraint kinds: the batcher's ``order`` lists constraint-edge items
+(`layouts.CONSTRAINT_EDGE`); a contact's item is its index in the constraints, and
+contacts are the only kind the template visits. A joint kind joins by bringing its rows
+(a template beside ``contact_rows.cl.mako``), its buffer as a declared argument of
+``SOLVE_GROUPS`` (with the condition of the plans that have that kind), and a case in the
+item visits of ``pgs.cl.mako`` (``solve_copy``/``solve_rows`` and the warm starts pick
+the kind from the item's high bits, emitted only when the plan has that kind).
+
+Arguments: ``SOLVE_GROUPS`` declares solve_groups' arguments once; the template renders
+them and `PgsSolver` binds them by name through it (`rbgen.codegen.Signature`), so the
+two cannot disagree. Host cost: each distinct set of trailing scalars of the launch
+schedule has its own kernel object (`rbgen.launch.instance`) with those scalars set once;
+buffers and ``relaxation`` are bound once per call, only the changed ones reaching the
+driver.
 """
 from __future__ import annotations
 
@@ -40,7 +51,8 @@ import numpy as np
 import pyopencl.array as cl_array
 
 from ... import layouts
-from ...codegen import KernelTemplate, Param, compile_spec, power_of_two, work_group_size_param
+from ...codegen import (Arg, KernelTemplate, Param, Signature, compile_spec, power_of_two,
+                        work_group_size_param)
 from ...device import INT64_ATOMICS, DeviceTraits, Runtime
 from ...errors import RbgenError
 from ...launch import instance
@@ -51,6 +63,62 @@ from .common import (PushVelocities, check_sweeps, fast_math_options, fast_math_
 
 #: how the warm start reaches the velocities (see the template parameter "warm_start_mode")
 WARM_START_MODES = ("batched", "summed")
+
+
+def _velocity_space(values) -> str:
+    """The velocities' address space: other work groups of a persistent launch write them
+    between batches, so it reads them through volatile pointers."""
+    return "volatile __global" if values["persistent"] else "__global"
+
+
+def _persistent(values) -> bool:
+    return values["persistent"]
+
+
+def _summed(values) -> bool:
+    return values["warm_start_mode"] == "summed"
+
+
+def _serial(values) -> bool:
+    return values["solve_form"] == "serial"
+
+
+#: solve_groups' arguments, in order: the template renders them, `PgsSolver` binds them.
+#: The buffers and ``relaxation`` are bound once per solve; the trailing scalars once per
+#: kernel object (`rbgen.launch.instance`), one object per distinct set of them.
+SOLVE_GROUPS = Signature("solve_groups", [
+    Arg("__global ContactConstraint*", "constraints"),
+    Arg("__global const uint*", "order"),
+    Arg("__global const uint*", "group_batches"),
+    Arg("__global const uint*", "group_batch_count"),
+    Arg(lambda v: f"{_velocity_space(v)} Body*", "bodies"),
+    Arg("__global const BodyInertia*", "inertia"),
+    Arg(lambda v: f"{_velocity_space(v)} SplitVelocity*", "split"),
+    Arg("volatile __global uint*", "sync", when=_persistent),
+    Arg("volatile __global long*", "warm_sums", when=_summed),
+    Arg("const uint", "body_count", when=_summed),
+    Arg("const float", "relaxation"),
+    Arg("const uint", "group_offset"),
+    Arg("const uint", "group_end", when=_serial),
+    Arg("const uint", "passes"),
+    Arg("const uint", "velocity_sweeps"),
+    Arg("const uint", "position_sweeps"),
+    Arg("const uint", "velocity_release_from"),
+    Arg("const uint", "position_release_from"),
+])
+#: the buffers of a solve and ``relaxation`` (bound once per solve), in SOLVE_GROUPS' order
+SOLVE_BUFFERS = ("constraints", "order", "group_batches", "group_batch_count", "bodies",
+                 "inertia", "split", "sync", "warm_sums", "body_count", "relaxation")
+#: one launch's trailing scalars (bound once per kernel object)
+LAUNCH_SCALARS = ("group_offset", "group_end", "passes", "velocity_sweeps", "position_sweeps",
+                  "velocity_release_from", "position_release_from")
+
+APPLY_SPLIT_VELOCITIES = Signature("apply_split_velocities", [
+    Arg("__global Body*", "bodies"),
+    Arg("__global SplitVelocity*", "split"),
+    Arg("const uint", "body_count"),
+    Arg("const float", "dt"),
+])
 
 TEMPLATE = KernelTemplate(
     "pipeline/solvers/pgs.cl.mako",
@@ -76,11 +144,13 @@ TEMPLATE = KernelTemplate(
               "per body in 64-bit fixed point with atomics, then every body takes its sum"),
     ],
     doc="PGS velocity sweeps and split-impulse position sweeps over batched contacts.",
-    roles={"constraints": "inout", "bodies": "inout", "split": "inout", "warm_sums": "inout"},
+    roles={"constraints": "inout", "bodies": "inout", "split": "inout", "sync": "inout",
+           "warm_sums": "inout"},
     requires=lambda v: _parameter_rules(v),
     build_options=fast_math_options,
     defaults=lambda traits: default_values(traits,
                                            persistent=persistent_launch_validated(traits)),
+    signatures=[SOLVE_GROUPS, APPLY_SPLIT_VELOCITIES],
 )
 
 
@@ -198,6 +268,15 @@ class PgsSolver(PushVelocities):
         self._sync = barrier_buffer(runtime) if persistent else None
         self._program = program = compile_spec(runtime, self.spec)
         self.apply_kernel = runtime.bound(program.kernel("apply_split_velocities"))
+        # the arguments this specialisation has, bound by name at their declared positions
+        have = {a.name for a in SOLVE_GROUPS.args(self.spec.values)}
+        self._buffer_names = tuple(n for n in SOLVE_BUFFERS if n in have)
+        self._scalar_names = tuple(n for n in LAUNCH_SCALARS if n in have)
+        self._bind_buffers = SOLVE_GROUPS.binder(self.spec, *self._buffer_names)
+        self._bind_scalars = SOLVE_GROUPS.binder(self.spec, *self._scalar_names)
+        SOLVE_GROUPS.check_bound(self.spec, self._bind_buffers, self._bind_scalars)
+        self._bind_apply = APPLY_SPLIT_VELOCITIES.binder(self.spec, "bodies", "split",
+                                                         "body_count", "dt")
         #: trailing scalars -> kernel object with those scalars set
         self._instances: dict = {}
         #: (plan, sweeps, warm start) -> ([(kernel, global size)], distinct kernels)
@@ -211,7 +290,7 @@ class PgsSolver(PushVelocities):
         """The device-wide barrier words its persistent launch uses (None: it makes none)."""
         if not self.persistent:
             return None
-        state = getattr(self.batcher, "state", None)
+        state = getattr(self.batcher, "state", None)  # (a device array has no truth value)
         return self._sync if state is None else state
 
     def solve(self, constraints, constraint_count, constraint_capacity: int, bodies, inertia,
@@ -223,21 +302,26 @@ class PgsSolver(PushVelocities):
         ``bodies``); the count arguments are the batcher's (unused here)."""
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
         check_sweeps(iterations, position_iterations, sweeps.relaxation)
+        # (the sequential normal solve has no block to release: its release scalars are unused)
         release = self.release_sweeps if self.normal_solve == "block" else 0
         batcher = self.batcher
         launches, kernels = self._schedule(batcher.launch_plan, iterations, position_iterations,
                                            bool(sweeps.warm_start), release)
         if not launches:
             return
-        shared = [constraints, batcher.order, batcher.group_batches, batcher.group_batch_count,
-                  bodies, inertia, self.split_velocities(max(1, int(body_count)))]
+        given = {"constraints": constraints, "order": batcher.order,
+                 "group_batches": batcher.group_batches,
+                 "group_batch_count": batcher.group_batch_count, "bodies": bodies,
+                 "inertia": inertia, "split": self.split_velocities(max(1, int(body_count))),
+                 "relaxation": np.float32(sweeps.relaxation)}
         if self.persistent:  # after a global colouring: its buffer (it may have given up)
-            shared.append(self.barrier_state())
+            given["sync"] = self.barrier_state()
         if self.spec.values["warm_start_mode"] == "summed":
-            shared += [self._warm_sum_buffer(max(1, int(body_count))), np.uint32(body_count)]
-        shared.append(np.float32(sweeps.relaxation))
+            given["warm_sums"] = self._warm_sum_buffer(max(1, int(body_count)))
+            given["body_count"] = np.uint32(body_count)
+        shared = [given[name] for name in self._buffer_names]
         for kernel in kernels:
-            kernel.bind_first(*shared)
+            self._bind_buffers(kernel, *shared)
         wg = self.work_group_size
         for kernel, size in launches:
             kernel.launch(size, wg)
@@ -282,22 +366,21 @@ class PgsSolver(PushVelocities):
         """(kernel object, global size) of one launch over groups first .. first + count - 1;
         its sweeps from velocity_release_from (position_release_from) on may release points."""
         wg = self.work_group_size
-        scalars = [first]
         if self.solve_form == "serial":  # a work-item per group, the last work group partly idle
-            scalars.append(first + count)
             size = -(-count // wg) * wg
         elif self.persistent:  # every compute unit, whatever the group count (1)
             size = persistent_groups(self.runtime.traits) * wg
         else:
             size = count * wg
-        scalars += [passes, velocity_sweeps, position_sweeps]
-        if self.normal_solve == "block":
-            scalars += [velocity_release_from, position_release_from]
-        key = tuple(scalars)
+        given = {"group_offset": first, "group_end": first + count, "passes": passes,
+                 "velocity_sweeps": velocity_sweeps, "position_sweeps": position_sweeps,
+                 "velocity_release_from": velocity_release_from,
+                 "position_release_from": position_release_from}
+        key = tuple(given[name] for name in self._scalar_names)
         kernel = self._instances.get(key)
         if kernel is None:
             kernel = self._instances[key] = instance(self.runtime, self._program, "solve_groups")
-            kernel.bind_last(*(np.uint32(v) for v in scalars))
+            self._bind_scalars(kernel, *(np.uint32(v) for v in key))
         return kernel, size
 
     def apply_split(self, bodies, body_count: int, dt: float) -> None:
@@ -306,5 +389,5 @@ class PgsSolver(PushVelocities):
             return
         split = self.split_velocities(body_count)
         wg = min(APPLY_WORK_GROUP_SIZE, self.runtime.traits.max_work_group_size)
-        self.apply_kernel.over(body_count, wg, bodies, split, np.uint32(body_count),
-                               np.float32(dt))
+        self._bind_apply(self.apply_kernel, bodies, split, np.uint32(body_count), np.float32(dt))
+        self.apply_kernel.over(body_count, wg)

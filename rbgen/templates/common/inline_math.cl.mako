@@ -3,9 +3,9 @@
  * Why: PoCL as packaged for distributions (the CPU device here) builds its
  * builtin library for a generic x86-64 target and the kernel for the host
  * CPU, so LLVM will not inline the builtins: every dot, cross, fabs, fmax,
- * sqrt or normalize is an out-of-line call (~5 ns on this CPU, against
- * ~0.7 ns for the spelled-out arithmetic) that also stops PoCL vectorising
- * across work-items. GPU compilers turn these helpers into the same
+ * sqrt or normalize is an out-of-line call, several times dearer than the
+ * spelled-out arithmetic, that also stops PoCL vectorising across
+ * work-items. GPU compilers turn these helpers into the same
  * instructions as the builtins, with the same rounding (IEEE sqrt; dot as
  * multiply-adds).
  * common/quaternion.cl.mako includes this file: a template that includes

@@ -1,5 +1,6 @@
 /* Contact manifolds -> contact constraints (one per manifold, up to four
- * points, each with a normal row and two friction rows).
+ * points, each with a normal row and two friction rows), and the constraint
+ * edge of each (layouts: ConstraintEdge), which batching colours.
  *
  * Friction: per manifold, one tangent pair at the centre of the points (slot
  * 0 of the tangent arrays) and a twist row about the normal (slot 1 of
@@ -15,27 +16,25 @@
  * keyed by (body a, body b, sub-feature) and matched per point by feature id,
  * else by distance
  * (friction impulses are carried as a world vector and re-projected onto the
- * new tangents).
+ * new tangents); the edge inherits the previous edge's colour.
 % else:
  * with zero starting impulses.
 % endif
  */
 ${cl_constants()}
 
-${cl_structs("Body", "BodyInertia", "ContactManifold", "ContactConstraint")}
+${cl_structs("Body", "BodyInertia", "ContactManifold", "ContactConstraint", "ConstraintEdge")}
 
 <%include file="/common/inline_math.cl.mako"/>
 <%include file="/pipeline/solvers/contact_masses.cl.mako"/>
+
+<%include file="/common/hash.cl.mako"/>
 
 /* Slot of a manifold's key (body a, body b, sub-feature) in the warm-starting
  * table (linear probing from here). */
 inline uint pair_slot(uint a, uint b, uint sub, uint mask)
 {
-    uint h = a * 0x9e3779b1u ^ (b + 0x7f4a7c15u) * 0x85ebca77u ^ sub * 0xc2b2ae35u;
-    h ^= h >> 15;
-    h *= 0x2c1b3c6du;
-    h ^= h >> 13;
-    return h & mask;
+    return hash_pair(a, b, sub) & mask;
 }
 
 /* An orthonormal pair of tangents to unit n, chosen from n alone so that a
@@ -111,6 +110,20 @@ inline void warm_start_from(__global const ContactConstraint* old, const float m
 }
 % endif
 
+/* The edge batching colours for contact i (layouts: ConstraintEdge): its bodies,
+ * its item (the contact kind is 0: the item is the index), the colour global
+ * batching starts it from, and its first point (spatial batching's cell). */
+inline ConstraintEdge contact_edge(uint a, uint b, uint i, uint colour, float3 point)
+{
+    ConstraintEdge edge;
+    edge.body_a = a;
+    edge.body_b = b;
+    edge.item = RB_EDGE_CONTACT << RB_EDGE_KIND_SHIFT | i;
+    edge.colour = colour;
+    edge.point = (float4)(point, 0.0f);
+    return edge;
+}
+
 /* Record constraint i under its key (a, b, sub) for the next step's warm start. */
 inline void insert_pair(__global uint* table, const uint mask, uint a, uint b, uint sub, uint i)
 {
@@ -119,10 +132,11 @@ inline void insert_pair(__global uint* table, const uint mask, uint a, uint b, u
         slot = (slot + 1) & mask;
 }
 
-/* One work-item per manifold: build its constraint; work-item 0 also writes
- * the constraint count, and every work-item empties its share of the next
- * call's table (next_table_size slots; 0: none). A work group is responsible
- * for ${work_group_size} consecutive manifolds. */
+/* One work-item per manifold: build its constraint and its edge (edges
+ * first_contact_edge + i; the edges before them are the joints'); work-item 0
+ * also writes the constraint and edge counts, and every work-item empties its
+ * share of the next call's table (next_table_size slots; 0: none). A work group
+ * is responsible for ${work_group_size} consecutive manifolds. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void setup_contact_constraints(__global const ContactManifold* manifolds,
                                __global const uint* manifold_count,
@@ -131,6 +145,9 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
                                const uint capacity,
                                __global ContactConstraint* constraints,
                                __global uint* constraint_count,
+                               __global ConstraintEdge* edges,
+                               __global uint* edge_count,
+                               const uint first_contact_edge,
                                __global uint* table,
                                const uint table_mask,
                                __global uint* next_table,
@@ -138,6 +155,8 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
 % if warm_start:
                                __global uint* kept_count,
                                __global const ContactConstraint* previous,
+                               __global const ConstraintEdge* previous_edges,
+                               const uint previous_first_contact_edge,
                                __global const uint* previous_count,
                                __global const uint* previous_table,
                                const uint previous_mask,
@@ -157,7 +176,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     for (uint slot = i; slot < next_table_size; slot += get_global_size(0))
         next_table[slot] = RB_SOLVER_NONE;
     if (i == 0)
-        constraint_count[0] = count;
+        constraint_count[0] = count, edge_count[0] = first_contact_edge + count;
 % if warm_start:
     if (i == 0)
         kept_count[0] = count;  /* for the next step's warm start */
@@ -187,7 +206,6 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     c.sub = sub;
     uint point_count = m->point_count;
     c.point_count = point_count < RB_MAX_MANIFOLD_POINTS ? point_count : RB_MAX_MANIFOLD_POINTS;
-    c.group = RB_SOLVER_NONE;  /* no inherited colour (see below) */
     c.features = (uint4)(m->features[0], m->features[1], m->features[2], m->features[3]);
     c.normal_impulse = c.tangent1_impulse = c.tangent2_impulse = c.push_impulse = (float4)(0.0f);
     float velocity_target[4] = {0}, position_target[4] = {0};
@@ -218,6 +236,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
         position_target[k] = separation > 0.0f ? -penetration_recovery / dt * separation : push;
     }
     set_row_masses(&c, inv_mass_a, inv_inertia_a, inv_mass_b, inv_inertia_b);
+    uint colour = RB_SOLVER_NONE;  /* inherited from the previous step's edge, if any */
     c.velocity_target = (float4)(velocity_target[0], velocity_target[1], velocity_target[2], velocity_target[3]);
     c.position_target = (float4)(position_target[0], position_target[1], position_target[2], position_target[3]);
 % if warm_start:
@@ -225,12 +244,14 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
                              sub);
     if (old != RB_SOLVER_NONE) {
         warm_start_from(&previous[old], match_distance, &c);
-        c.group = previous[old].group;  /* global batching starts from the old colour */
+        /* global batching starts from the old colour */
+        colour = previous_edges[previous_first_contact_edge + old].colour;
     }
     c.normal_impulse *= warm_start_factor;
     c.tangent1_impulse *= warm_start_factor;
     c.tangent2_impulse *= warm_start_factor;
 % endif
     constraints[i] = c;
+    edges[first_contact_edge + i] = contact_edge(a, b, i, colour, xb + c.r_b[0].xyz);
     insert_pair(table, table_mask, a, b, sub, i);
 }

@@ -23,12 +23,7 @@ inline float grid_cell_size(float largest_small_size)
     return fmax(SMALL_SLACK * largest_small_size, FLT_MIN);
 }
 
-/* Cell of a point; saturating, so far-away points share the border cells
- * (which keeps neighbours neighbours). */
-inline int3 cell_of(float3 point, float cell_size)
-{
-    return convert_int3_sat_rtn(floor(point / cell_size));
-}
+<%include file="/common/grid_cells.cl.mako"/>
 
 /* A cell's coordinates modulo grid_dim, in [0, grid_dim). */
 inline int3 folded_cell(int3 cell, int grid_dim)

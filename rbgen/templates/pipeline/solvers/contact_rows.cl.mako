@@ -1,14 +1,25 @@
 <%doc>
   The rows of a contact constraint and how one constraint is solved, shared by
-  the Gauss-Seidel solver (solver.cl.mako) and the Jacobi solver with mass
-  splitting (jacobi.cl.mako). The including template supplies the parameters
-  friction, normal_solve and split_impulse, the structs Body, BodyInertia,
-  ContactConstraint, and common/inline_math.cl.mako; it may pass
-  constraint_space, the address space of the constraint the solve functions
-  read and update (default __private: a copy the caller loaded; __global: the
-  constraint in place, for the CPU shape, see solver.cl.mako).
+  the Gauss-Seidel solver (pgs.cl.mako) and the Jacobi solver with mass
+  splitting (jacobi.cl.mako). The including template supplies the parameter
+  normal_solve, the structs Body, BodyInertia, ContactConstraint, and
+  common/inline_math.cl.mako; it may pass constraint_space, the address space
+  of the constraint the solve functions read and update (default __private: a
+  copy the caller loaded; __global: the constraint in place, for the serial
+  form, see pgs.cl.mako).
 </%doc>
 <%page args="constraint_space='__private'"/>
+/* Contact rows: per point a normal row (impulse >= 0, drives the normal
+ * velocity to its target), per manifold a friction pair at the centre of the
+ * points, clamped to the disc |f| <= mu * the total normal impulse, and a
+ * twist row about the normal; the impulses are accumulated. A row's Jacobian
+ * terms (lever arm x direction, and the angular velocity change per unit
+ * impulse) do not depend on the velocities, so they are computed before the
+ * row reads any velocity: Gauss-Seidel is a chain of dependent row updates,
+ * and only the dot products and the update itself stay on it. Loops over a
+ * manifold's points run to the constant RB_MAX_MANIFOLD_POINTS and test the
+ * count inside, so that compilers unroll them and keep the per-point arrays
+ * in registers. */
 inline float positive_part(float x)
 {
     return x > 0.0f ? x : 0.0f;
@@ -397,9 +408,8 @@ inline void apply_row(const Row* row, float impulse, __private ContactBodies* p)
  * the velocities), and the velocities change once, at the end: the same
  * updates as applying each row to the velocities in turn, but the dependent
  * chain from row to row is a few scalar operations instead of a dot product
- * over both bodies' velocities and a store of them (on PoCL the chain of
- * the rows was half of the solve). Always inlined and unrolled, so that the
- * rows and speeds stay in registers. */
+ * over both bodies' velocities and a store of them. Always inlined and
+ * unrolled, so that the rows and speeds stay in registers. */
 __attribute__((always_inline))
 inline void solve_normal_rows(const uint count, const float3 n, ${constraint_space} const float4* r_a,
                               ${constraint_space} const float4* r_b, const float mass[4],

@@ -92,25 +92,6 @@ inline void store_changes(${shared} float4* changes, uint i, const __private Con
     }
 }
 
-<%def name="arguments()">\
-__global ContactConstraint* constraints,
-                  __global const uint* constraint_count,
-                  const uint capacity,
-                  ${shared} Body* bodies,
-                  __global const BodyInertia* inertia,
-                  ${shared} SplitVelocity* split,
-                  volatile __global uint* body_contacts,
-                  ${shared} uint* body_first,
-                  ${shared} uint* chunk_sums,
-                  __global uint* side_slots,
-                  ${shared} uint* lists,
-                  ${shared} float4* changes,
-% if persistent:
-                  volatile __global uint* sync,
-% endif
-                  const float relaxation,
-                  const uint body_count\
-</%def>
 <%def name="indices(chunks, constraints=True)">\
     const uint lane = get_global_id(0), lanes = get_global_size(0);
 % if constraints:
@@ -258,10 +239,7 @@ __global ContactConstraint* constraints,
  * `position_sweeps` on the push velocities, by every work group of the
  * launch (`sync`: the device-wide barrier's words). */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void solve_jacobi(${arguments()},
-                  const uint passes,
-                  const uint velocity_sweeps,
-                  const uint position_sweeps)
+void solve_jacobi(${signature("solve_jacobi")})
 {
 ${indices(True)}\
     /* 0 once a device-wide barrier was given up: the phases that index through what
@@ -340,8 +318,7 @@ ${body_phase("split")}\
 
 /* ${what} */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void jacobi_${name}(${arguments()},
-                  const uint reverse)
+void jacobi_${name}(${signature("jacobi_" + name)})
 {
 ${indices(name in ("chunk_sums", "scan"), name in ("count", "link"))}\
     {
@@ -352,8 +329,7 @@ ${phase()}\
 
 /* the warm start's constraint phase: every constraint's old impulses */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void jacobi_warm_start(${arguments()},
-                  const uint reverse)
+void jacobi_warm_start(${signature("jacobi_warm_start")})
 {
 ${indices(False)}\
     {
@@ -363,8 +339,7 @@ ${constraint_phase("warm_start_contact(c, &p)", "bodies")}\
 
 /* a velocity sweep's constraint phase (`reverse`: points backwards) */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void jacobi_sweep(${arguments()},
-                  const uint reverse)
+void jacobi_sweep(${signature("jacobi_sweep")})
 {
 ${indices(False)}\
     {
@@ -374,8 +349,7 @@ ${constraint_phase(sweep, "bodies", velocity_results)}\
 
 /* a velocity sweep's body phase */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void jacobi_average(${arguments()},
-                  const uint reverse)
+void jacobi_average(${signature("jacobi_average")})
 {
 ${indices(False, False)}\
     {
@@ -385,8 +359,7 @@ ${body_phase("bodies")}\
 
 /* a position sweep's constraint phase (push velocities) */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void jacobi_push(${arguments()},
-                  const uint reverse)
+void jacobi_push(${signature("jacobi_push")})
 {
 ${indices(False)}\
     {
@@ -396,8 +369,7 @@ ${constraint_phase("solve_push(c, &p, relaxation, true)", "split", ("push_impuls
 
 /* a position sweep's body phase */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void jacobi_average_push(${arguments()},
-                  const uint reverse)
+void jacobi_average_push(${signature("jacobi_average_push")})
 {
 ${indices(False, False)}\
     {

@@ -1,94 +1,85 @@
-/* Projected Gauss-Seidel over batched contact constraints.
+<%
+    serial = solve_form == "serial"
+    summed = warm_start_mode == "summed"
+    # where the velocities live: other work groups of a persistent launch write them
+    # between batches, so it reads them through volatile pointers
+    # (common/device_barrier.cl.mako)
+    velocity_space = "volatile __global" if persistent else "__global"
+    # the serial form solves each constraint in place; the lanes forms solve a private
+    # copy, whose loads are all issued at once (in place, PoCL reads the fields back
+    # through failed store forwarding; a copy there is a memcpy a visit)
+    constraint_space = "__global" if serial else "__private"
+%>\
+/* Projected Gauss-Seidel over batched constraints. solve_groups runs the
+ * warm start and the sweeps of one launch over the groups it is given, as
+ * the batcher laid them out (rbgen.pipeline.batching): every sweep of a step
+ * when one group holds all constraints, one sweep a launch per colour
+ * otherwise. apply_split_velocities moves the bodies by their push
+ * velocities after integration.
  *
-% if solve_form == "lanes":
- * Lanes solve form: a work group is responsible for one level-1 group (no dynamic
- * body is shared with a group of the same launch) and walks its level-2
- * batches from the last to the first, with a barrier between batches (the
- * first-fit colourings give the lowest colours to the contacts of the
- * lowest-indexed bodies: a ground added first has all its contacts in batch
- * 0, which then comes after the weight above has been passed down. Solved
- * first, BoxBox 27,000 sank 3 cm into the ground, last 0.1 cm; alternating
- * the direction between sweeps held the ground too, but kept boxes of a
- * dropped 4 x 4 x 4 grid rocking at 0.3 m/s); the lanes of a batch
- * solve constraints that share no dynamic body, so they may write body
- * velocities without atomics. The last batch slot (${max_batches - 1}) holds any
- * remainder and is solved by lane 0 alone.
+% if serial:
+ * Serial form: a work-item is responsible for one level-1 group (a group
+ * shares no dynamic body with another group of the same launch) and solves
+ * its constraints one after another, in place: plain Gauss-Seidel, no
+ * batches, no barriers, every row sees every earlier row's result.
+% elif not persistent:
+ * Lanes form: a work group is responsible for one level-1 group (a group
+ * shares no dynamic body with another group of the same launch) and walks
+ * its level-2 batches with a barrier after each; its lanes solve a batch's
+ * constraints, which share no dynamic body, so they write the velocities
+ * without atomics.
 % else:
- * Serial solve form: a work-item is responsible for one level-1 group (no dynamic
- * body is shared with a group of the same launch) and solves its
- * constraints one after another (plain Gauss-Seidel: no batches, no
- * barriers, every row sees every earlier row's result).
+ * Persistent launch: every work group of the launch (as many as the device
+ * runs at once) takes part in each batch of the one group of all
+ * constraints, a batch's constraints spread over all their lanes, with a
+ * device-wide barrier after each batch (common/device_barrier.cl.mako): the
+ * whole solve is one launch, and every compute unit takes part.
 % endif
- * One launch runs the warm start and any number of sweeps over the groups
- * it is given: all sweeps of a step when the groups are whole contact-graph
- * components, one sweep per cell colour otherwise.
-% if persistent:
- * Persistent variant: the one group of all constraints (single or global batching)
- * is solved by every work group of the launch (as many as the device runs at
- * once), a batch's constraints spread over all their lanes, with a barrier
- * across the work groups after each batch (common/device_barrier.cl.mako):
- * the whole solve is one launch, and every compute unit takes part.
+% if not serial:
+ *
+ * Batches are walked from the highest colour to the lowest: first-fit
+ * colourings give the lowest colours to the constraints of the lowest-indexed
+ * bodies, so a ground added first has all its contacts in batch 0, which
+ * then comes after the weight above has been passed down. The last batch
+ * slot (${max_batches - 1}) holds any remainder and is solved by one lane alone, in
+ * order. A lane solves a private copy of its constraint.
 % endif
  *
- * Rows: per contact point a normal row (impulse >= 0, drives the normal
- * velocity to its target),
-% if normal_solve == "block":
- * all points' normal rows of a manifold solved together as one block
- * (solve_normal_block: the exact contact solution, so that the result does
- * not depend on the order of the points: solving them one after another
- * leaves a residual torque that tips a symmetric column from its first step
- * and makes it lean or walk; rows one after another, forwards and backwards
- * on alternate sweeps, only for the degenerate manifolds it declines); the
- * sweeps before `velocity_release_from` of the launch (`position_release_from`
- * for the push rows) take only its all-pushing solution, which holds for a
- * face resting on a face, and leave the other manifolds to the rows: cheaper
- * sweeps, their residual removed by the complete block of the last ones, then
-% else:
- * all points' normal rows first, one after another, forwards and backwards
- * on alternate sweeps (always solving point 0 first biases a heavy stack's
- * base and makes the whole column wobble), then
-% endif
- * one friction pair at the centre of the points, clamped to the disc
- * |f| <= mu * the total normal impulse, and a twist row about the normal.
- * Impulses are accumulated, so warm starting applies last step's
- * totals once, for every constraint, before the first sweep.
-% if warm_start_mode == "summed":
- * The warm start is summed rather than batched: every lane turns its
- * constraints' old impulses into velocity changes at once, adds them to
+% if summed:
+ * The warm start applies the previous step's accumulated impulses once,
+ * before the first sweep, summed rather than batched: every lane turns its
+ * constraints' impulses into velocity changes at once and adds them to
  * per-body sums of 64-bit fixed-point integers with atomics (integer sums do
- * not depend on the order of the additions: the same bits at every run),
- * and after one device-wide barrier every body takes its sum: two phases instead of
- * one batch step per colour.
+ * not depend on the order of the additions: the same bits at every run);
+ * after one device-wide barrier every body takes its sum.
+% else:
+ * The warm start applies the previous step's accumulated impulses once,
+ * before the first sweep, visiting the constraints as a sweep does.
 % endif
- * The split-impulse position sweeps solve the same normal rows on separate
- * push velocities, which apply_split_velocities turns into a displacement
- * after integration and then forgets.
  *
- * A row's Jacobian terms (lever arm x direction, and the angular velocity
- * change per unit impulse) do not depend on the velocities, so they are
- * computed before the row reads any velocity: Gauss-Seidel is a chain of
- * dependent row updates, and only the dot products and the update itself
- * stay on it. Loops over a manifold's points run to the constant
- * RB_MAX_MANIFOLD_POINTS and test the count inside, so that compilers unroll
- * them and keep the per-point arrays in registers.
-% if fast_math:
- * Built with -cl-fast-relaxed-math (the manifest's build_options): the
- * chain is shorter with approximate reciprocals and square roots and freely
- * fused and reordered arithmetic. Nothing here relies on an infinity or a NaN.
-% endif
+ * A sweep solves the velocity rows (contact_rows.cl.mako) and, in the same
+ * batch steps, the split-impulse push rows on the push velocities: the two
+ * touch disjoint velocities and impulses, so sweep s of each sees what it
+ * would see alone. Odd sweeps visit a manifold's points backwards.
+ *
+ * `order` lists constraint-edge items (layouts: ConstraintEdge). A contact's
+ * item is its index in `constraints` (the contact kind is 0), and contacts
+ * are the only kind this solver visits. The program may be built with
+ * -cl-fast-relaxed-math: nothing here relies on an infinity or a NaN.
  */
 ${cl_constants()}
 
 ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity")}
 
 #define MAX_BATCHES ${max_batches}
-% if solve_form == "lanes":
-#define SERIAL_BATCH (MAX_BATCHES - 1)
-% endif
 /* what one solve_groups launch does before its sweeps (bit flags of `passes`) */
 #define WARM_START_PASS 1u
 #define FIRST_REVERSED 2u
-% if warm_start_mode == "summed":
+% if not serial:
+/* the remainder's batch slot, solved by one lane in order */
+#define SERIAL_BATCH (MAX_BATCHES - 1)
+% endif
+% if summed:
 #pragma OPENCL EXTENSION cl_khr_int64_base_atomics : enable
 /* the summed warm start's fixed point: units of 2^-32 m/s (rad/s) */
 #define WARM_SUM_ONE 4294967296.0f
@@ -98,23 +89,9 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity")}
 % if persistent:
 <%include file="/common/device_barrier.cl.mako"/>
 % endif
-<%
-    # the velocities' address space: in the persistent variant other work groups of
-    # the same launch write them between batches, so they are read through
-    # volatile pointers (see common/device_barrier.cl.mako)
-    shared = "volatile __global" if persistent else "__global"
-%>\
-
-<%
-    # The serial form solves each constraint in place: a private copy (the GPU
-    # lanes form's way to issue every load at once) is a 352-byte memcpy a visit on
-    # PoCL, whose fields are then read back through failed store forwarding
-    # (PoCL BoxBox 8,000: the copy and those reads were ~10% of the solve).
-    constraint_space = "__global" if solve_form == "serial" else "__private"
-%>\
 <%include file="/pipeline/solvers/contact_rows.cl.mako" args="constraint_space=constraint_space"/>
 
-inline void load_bodies(__private ContactBodies* p, ${shared} const Body* bodies,
+inline void load_bodies(__private ContactBodies* p, ${velocity_space} const Body* bodies,
                         __global const BodyInertia* inertia, uint a, uint b)
 {
     p->inv_mass_a = bodies[a].inv_mass;
@@ -123,10 +100,10 @@ inline void load_bodies(__private ContactBodies* p, ${shared} const Body* bodies
     load_inertia(inertia, b, p->inv_inertia_b);
 }
 
-/* Where a sweep reads and writes the velocities it solves for: the bodies'
- * velocities (or push velocities) in global memory, or the copies a resident
- * solve keeps in local memory. Only dynamic bodies are written back. */
-inline void load_velocities(__private ContactBodies* p, ${shared} const Body* bodies, uint a, uint b)
+/* The velocities a sweep solves for, in global memory; only dynamic bodies
+ * are written back. */
+inline void load_velocities(__private ContactBodies* p, ${velocity_space} const Body* bodies,
+                            uint a, uint b)
 {
     p->va = bodies[a].linear_velocity.xyz, p->wa = bodies[a].angular_velocity.xyz;
     p->vb = bodies[b].linear_velocity.xyz, p->wb = bodies[b].angular_velocity.xyz;
@@ -134,7 +111,8 @@ inline void load_velocities(__private ContactBodies* p, ${shared} const Body* bo
 
 /* (whole float4s, w = 0 as unused: a store of .xyz alone through a volatile
  * pointer is a read-modify-write, a round trip more per batch step) */
-inline void store_velocities(const __private ContactBodies* p, ${shared} Body* bodies, uint a, uint b)
+inline void store_velocities(const __private ContactBodies* p, ${velocity_space} Body* bodies,
+                             uint a, uint b)
 {
     if (p->inv_mass_a > 0.0f) {
         bodies[a].linear_velocity = (float4)(p->va, 0.0f);
@@ -146,13 +124,15 @@ inline void store_velocities(const __private ContactBodies* p, ${shared} Body* b
     }
 }
 
-inline void load_push(__private ContactBodies* p, ${shared} const SplitVelocity* split, uint a, uint b)
+inline void load_push(__private ContactBodies* p, ${velocity_space} const SplitVelocity* split,
+                      uint a, uint b)
 {
     p->va = split[a].linear.xyz, p->wa = split[a].angular.xyz;
     p->vb = split[b].linear.xyz, p->wb = split[b].angular.xyz;
 }
 
-inline void store_push(const __private ContactBodies* p, ${shared} SplitVelocity* split, uint a, uint b)
+inline void store_push(const __private ContactBodies* p, ${velocity_space} SplitVelocity* split,
+                       uint a, uint b)
 {
     if (p->inv_mass_a > 0.0f) {
         split[a].linear = (float4)(p->va, 0.0f);
@@ -163,7 +143,181 @@ inline void store_push(const __private ContactBodies* p, ${shared} SplitVelocity
         split[b].angular = (float4)(p->wb, 0.0f);
     }
 }
-% if warm_start_mode == "summed":
+
+/* What one sweep solves of each constraint. */
+typedef struct {
+    bool velocity;           /* its velocity rows (a velocity sweep) */
+    bool push;               /* its push rows (a position sweep) */
+    bool reverse;            /* a manifold's points backwards */
+    bool velocity_releases;  /* the block normal solve may release points */
+    bool push_releases;
+} Sweep;
+
+/* Sweep `sweep` of a launch with solve_groups' scalars. */
+inline Sweep sweep_of(uint sweep, uint passes, uint velocity_sweeps, uint position_sweeps,
+                      uint velocity_release_from, uint position_release_from)
+{
+    Sweep s;
+    s.velocity = sweep < velocity_sweeps;
+    s.push = sweep < position_sweeps;
+    s.reverse = ((passes & FIRST_REVERSED) != 0) != ((sweep & 1) != 0);
+    s.velocity_releases = sweep >= velocity_release_from;
+    s.push_releases = sweep >= position_release_from;
+    return s;
+}
+
+/* The warm start of one constraint: its accumulated impulses of the previous
+ * step applied to its bodies' velocities. */
+inline void warm_start_rows(${constraint_space} const ContactConstraint* c,
+                            ${velocity_space} Body* bodies, __global const BodyInertia* inertia)
+{
+    uint a = c->body_a, b = c->body_b;
+    ContactBodies state;
+    load_bodies(&state, bodies, inertia, a, b);
+    load_velocities(&state, bodies, a, b);
+    warm_start_contact(c, &state);
+    store_velocities(&state, bodies, a, b);
+}
+
+/* One sweep's rows of one constraint. The velocity and the push rows are
+ * loaded first, then solved, then stored: they touch disjoint velocities, so
+ * their chains overlap instead of queueing behind each other's stores. */
+inline void solve_rows(${constraint_space} ContactConstraint* c, ${velocity_space} Body* bodies,
+                       __global const BodyInertia* inertia,
+                       ${velocity_space} SplitVelocity* split, const float relaxation,
+                       const Sweep s)
+{
+    uint a = c->body_a, b = c->body_b;
+    ContactBodies state;
+    load_bodies(&state, bodies, inertia, a, b);
+    ContactBodies push_state = state;
+    if (s.velocity)
+        load_velocities(&state, bodies, a, b);
+    if (s.push)
+        load_push(&push_state, split, a, b);
+    if (s.velocity)
+        solve_contact(c, &state, relaxation, s.reverse, s.velocity_releases);
+    if (s.push)
+        solve_push(c, &push_state, relaxation, s.push_releases);
+    if (s.velocity)
+        store_velocities(&state, bodies, a, b);
+    if (s.push)
+        store_push(&push_state, split, a, b);
+}
+% if serial:
+
+/* The warm start of a group's constraints order[begin .. end - 1], in order. */
+inline void warm_start_group_serial(__global ContactConstraint* constraints,
+                                    __global const uint* order, uint begin, uint end,
+                                    __global Body* bodies, __global const BodyInertia* inertia)
+{
+    for (uint i = begin; i < end; ++i)
+        warm_start_rows(&constraints[order[i]], bodies, inertia);
+}
+
+/* One sweep over a group's constraints order[begin .. end - 1], in order. */
+inline void solve_group_serial(__global ContactConstraint* constraints,
+                               __global const uint* order, uint begin, uint end,
+                               __global Body* bodies, __global const BodyInertia* inertia,
+                               __global SplitVelocity* split, const float relaxation,
+                               const Sweep s)
+{
+    for (uint i = begin; i < end; ++i)
+        solve_rows(&constraints[order[i]], bodies, inertia, split, relaxation, s);
+}
+% else:
+
+/* One sweep's rows of the constraint at `index`, solved on a private copy
+ * (every load issued at once, none repeated); the impulses solved are
+ * written back. */
+inline void solve_copy(__global ContactConstraint* constraints, uint index,
+                       ${velocity_space} Body* bodies, __global const BodyInertia* inertia,
+                       ${velocity_space} SplitVelocity* split, const float relaxation,
+                       const Sweep s)
+{
+    ContactConstraint c = constraints[index];
+    solve_rows(&c, bodies, inertia, split, relaxation, s);
+    if (s.velocity) {
+        constraints[index].normal_impulse = c.normal_impulse;
+        constraints[index].tangent1_impulse = c.tangent1_impulse;
+        constraints[index].tangent2_impulse = c.tangent2_impulse;
+    }
+    if (s.push)
+        constraints[index].push_impulse = c.push_impulse;
+}
+
+/* The constraints order[begin], order[begin + stride], ... below `end` that
+ * lane `lane` of `lanes` solves of batch `batch` (order[first .. end - 1]):
+ * (begin, stride). The serial slot is lane 0's alone, in order. */
+inline uint2 batch_share(uint first, uint end, uint batch, uint lane, uint lanes)
+{
+    if (batch == SERIAL_BATCH)
+        return lane == 0 ? (uint2)(first, 1u) : (uint2)(end, 0u);
+    return (uint2)(first + lane, lanes);
+}
+% endif
+% if not serial and not summed:
+
+/* Lane `lane`'s share of the warm start of one batch. */
+inline void warm_start_batch(__global const ContactConstraint* constraints,
+                             __global const uint* order, uint first, uint end, uint batch,
+                             uint lane, uint lanes, ${velocity_space} Body* bodies,
+                             __global const BodyInertia* inertia)
+{
+    const uint2 share = batch_share(first, end, batch, lane, lanes);
+    for (uint i = share.x; i < end; i += share.y) {
+        ContactConstraint c = constraints[order[i]];  /* a private copy */
+        warm_start_rows(&c, bodies, inertia);
+    }
+}
+% endif
+% if not serial and not persistent:
+
+/* Lane `lane`'s share of one batch of a sweep (a work group's lanes). */
+inline void solve_batch_lanes(__global ContactConstraint* constraints, __global const uint* order,
+                              uint first, uint end, uint batch, uint lane,
+                              __global Body* bodies, __global const BodyInertia* inertia,
+                              __global SplitVelocity* split, const float relaxation,
+                              const Sweep s)
+{
+    const uint2 share = batch_share(first, end, batch, lane, ${work_group_size}u);
+    for (uint i = share.x; i < end; i += share.y)
+        solve_copy(constraints, order[i], bodies, inertia, split, relaxation, s);
+}
+% endif
+% if persistent:
+
+/* Lane `lane`'s share of one batch of a sweep over the whole launch: the
+ * velocity rows of its share, and the push rows of the share of lane
+ * `push_lane` when the batch has at most push_offset constraints, else of
+ * its own (see solve_groups). */
+inline void solve_batch_persistent(__global ContactConstraint* constraints,
+                                   __global const uint* order, uint first, uint end, uint batch,
+                                   uint lane, uint push_lane, uint push_offset,
+                                   volatile __global Body* bodies,
+                                   __global const BodyInertia* inertia,
+                                   volatile __global SplitVelocity* split,
+                                   const float relaxation, const Sweep s)
+{
+    const uint lanes = get_global_size(0);
+    const uint push_owner = end - first <= push_offset ? push_lane : lane;
+    if (s.velocity) {
+        Sweep velocity_rows = s;
+        velocity_rows.push = false;
+        const uint2 share = batch_share(first, end, batch, lane, lanes);
+        for (uint i = share.x; i < end; i += share.y)
+            solve_copy(constraints, order[i], bodies, inertia, split, relaxation, velocity_rows);
+    }
+    if (s.push) {
+        Sweep push_rows = s;
+        push_rows.velocity = false;
+        const uint2 share = batch_share(first, end, batch, push_owner, lanes);
+        for (uint i = share.x; i < end; i += share.y)
+            solve_copy(constraints, order[i], bodies, inertia, split, relaxation, push_rows);
+    }
+}
+% endif
+% if summed:
 
 /* Add a velocity change to a body's fixed-point sums (linear, then angular). */
 inline void add_warm_sum(volatile __global long* sums, float3 linear, float3 angular)
@@ -181,244 +335,163 @@ inline float3 warm_sum_vector(volatile __global const long* sums)
     return (float3)(convert_float(sums[0]), convert_float(sums[1]), convert_float(sums[2]))
            * (1.0f / WARM_SUM_ONE);
 }
-% endif
 
-<%
-    # where each kind of sweep finds its velocities (see load_velocities)
-    memory = {"velocities": "bodies", "push": "split"}
-    fence = "CLK_GLOBAL_MEM_FENCE"
-    batch_barrier = "device_barrier(sync, &barrier_ok);" if persistent else f"barrier({fence});"
-    lanes = "get_global_size(0)" if persistent else work_group_size
-%>\
-<%def name="visit(solves)">\
+/* Summed warm start, phase 1: the velocity changes of lane `lane`'s share of
+ * the constraints order[begin .. end - 1] (every lanes-th one), added to
+ * their dynamic bodies' sums. */
+inline void sum_warm_starts(__global const ContactConstraint* constraints,
+                            __global const uint* order, uint begin, uint end, uint lane,
+                            volatile __global Body* bodies, __global const BodyInertia* inertia,
+                            volatile __global long* warm_sums, const bool ok)
 {
-% if solve_form == "serial":
-                /* in place (see constraint_space) */
-                __global ContactConstraint* c = &constraints[order[i]];
-% else:
-                /* a private copy: every load is issued at once, none is repeated */
-                const uint index = order[i];
-                ContactConstraint constraint = constraints[index];
-                __private ContactConstraint* c = &constraint;
-% endif
-                uint a = c->body_a, b = c->body_b;
-% for k, (name, when, action, source, results) in enumerate(solves):
-% if k == 0:
-                ContactBodies ${name};
-                load_bodies(&${name}, bodies, inertia, a, b);
-% else:
-                ContactBodies ${name} = ${solves[0][0]};
-% endif
-% endfor
-<%
-    # the solves read first, then compute, then write: they touch disjoint
-    # velocities, so their chains overlap instead of queueing behind each
-    # other's (volatile) stores
-    guarded = [(f"if ({when}) " if when else "", name, action, source, results)
-               for name, when, action, source, results in solves]
-%>\
-% for guard, name, action, source, results in guarded:
-                ${guard}load_${source}(&${name}, ${memory[source]}, a, b);
-% endfor
-% for guard, name, action, source, results in guarded:
-                ${guard}${action.format(state="&" + name)};
-% endfor
-% for guard, name, action, source, results in guarded:
-                ${guard}{
-                    store_${source}(&${name}, ${memory[source]}, a, b);
-% for field in (results if solve_form == "lanes" else ()):
-                    constraints[index].${field} = c->${field};
-% endfor
-                }
-% endfor
-            }\
-</%def>\
-<%def name="each_constraint(*solves)">\
-% if persistent:
-        for (uint step = 0; step < batch_count; ++step) {
-            const uint batch = batch_count - 1 - step;  /* the highest colour first */
-            const uint first = offsets[batch], end = offsets[batch + 1];
-            /* an unused colour (inherited colours can leave gaps), or a launch that
-             * gave up its barrier (no more work; see grid_barrier) */
-            if (first == end || !barrier_ok)
-                continue;
-% if any(solve[3] == "push" for solve in solves):
-            /* (see push_lane: only while that lane has no velocity rows of this batch) */
-            const uint push_owner = end - first <= push_offset ? push_lane : lane;
-% endif
-% for name, when, action, source, results in solves:
-<%
-    # each kind of solve by the lanes that own it (see push_lane), a loop each
-    owner = "push_owner" if source == "push" else "lane"
-%>\
-            uint ${source}_begin = first + ${owner}, ${source}_stride = ${lanes};
-            if (batch == SERIAL_BATCH)  /* the remainder: one lane alone, in order */
-                ${source}_stride = ${owner} == 0 ? 1 : 0, ${source}_begin = ${owner} == 0 ? first : end;
-            ${f"if ({when}) " if when else ""}for (uint i = ${source}_begin; i < end; i += ${source}_stride) ${visit([(name, None, action, source, results)])}
-% endfor
-            ${batch_barrier}
-        }
-% elif solve_form == "lanes":
-        for (uint step = 0; step < batch_count; ++step) {
-            const uint batch = batch_count - 1 - step;  /* the highest colour first */
-            uint begin = offsets[batch];
-            uint end = offsets[batch + 1];
-            uint stride = ${lanes};
-            if (batch == SERIAL_BATCH)  /* the remainder: lane 0 alone, in order */
-                stride = lane == 0 ? 1 : 0, begin = lane == 0 ? begin : end;
-            for (uint i = begin + lane; i < end; i += stride) ${visit(solves)}
-            ${batch_barrier}
-        }
-% else:
-        for (uint i = begin; i < end; ++i) ${visit(solves)}
-% endif
-</%def>\
-<% velocities = "velocities" %>\
+    const uint lanes = get_global_size(0);
+    for (uint i = begin + lane; ok && i < end; i += lanes) {
+        ContactConstraint c = constraints[order[i]];  /* a private copy */
+        uint a = c.body_a, b = c.body_b;
+        ContactBodies state;
+        load_bodies(&state, bodies, inertia, a, b);
+        state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
+        warm_start_contact(&c, &state);
+        if (state.inv_mass_a > 0.0f)
+            add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * a, state.va, state.wa);
+        if (state.inv_mass_b > 0.0f)
+            add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * b, state.vb, state.wb);
+    }
+}
 
-% if persistent:
-/* The warm start, `velocity_sweeps` and then `position_sweeps` sweeps over
- * the one group of all constraints, by every work group of the launch: a
+/* Summed warm start, phase 2: every lanes-th body from `lane` takes its sums
+ * and clears them for the next step. */
+inline void take_warm_sums(volatile __global Body* bodies, volatile __global long* warm_sums,
+                           uint body_count, uint lane, const bool ok)
+{
+    const uint lanes = get_global_size(0);
+    for (uint body = lane; ok && body < body_count; body += lanes) {
+        volatile __global long* sums = warm_sums + RB_WARM_SUM_WORDS * body;
+        if (bodies[body].inv_mass > 0.0f) {
+            float3 linear = warm_sum_vector(sums), angular = warm_sum_vector(sums + 3);
+            bodies[body].linear_velocity = (float4)(bodies[body].linear_velocity.xyz + linear, 0.0f);
+            bodies[body].angular_velocity = (float4)(bodies[body].angular_velocity.xyz + angular, 0.0f);
+            for (uint k = 0; k < RB_WARM_SUM_WORDS; ++k)
+                sums[k] = 0;
+        }
+    }
+}
+% endif
+
+% if serial:
+/* The warm start (passes & WARM_START_PASS) and `velocity_sweeps` velocity
+ * sweeps (and `position_sweeps` push sweeps beside them) over the groups
+ * group_offset .. group_end - 1. A work-item is responsible for one group:
+ * its constraints one after another. */
+% elif not persistent:
+/* The warm start (passes & WARM_START_PASS) and `velocity_sweeps` velocity
+ * sweeps (and `position_sweeps` push sweeps beside them) over the groups
+ * group_offset + 0, 1, ... A work group is responsible for one group: its
+ * batches one after another, a barrier after each. */
+% else:
+/* The warm start (passes & WARM_START_PASS) and `velocity_sweeps` velocity
+ * sweeps (and `position_sweeps` push sweeps beside them) over the one group
+ * group_offset of all constraints, by every work group of the launch: a
  * lane is responsible for the constraints of a batch at its index (`lane`,
  * below: the work groups' lanes interleaved) plus multiples of the launch's
- * size, and all wait for all after each
- * batch (`sync`: the device-wide barrier's words, shared with the global colouring
- * launched before). */
-% elif solve_form == "lanes":
-/* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
- * the groups group_offset + 0, 1, ... (one launch). A work group is
- * responsible for one level-1 group: its batches in order, a barrier after
- * each. */
-% else:
-/* The warm start and `velocity_sweeps` (then `position_sweeps`) sweeps over
- * the groups group_offset .. group_end - 1 (one launch). A work-item is
- * responsible for one level-1 group: its constraints one after another. */
+ * size, and all wait for all after each batch (`sync`: the device-wide
+ * barrier's words, shared with the global colouring launched before). */
 % endif
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void solve_groups(__global ContactConstraint* constraints,
-                  __global const uint* order,
-                  __global const uint* group_batches,
-                  __global const uint* group_batch_count,
-                  ${shared} Body* bodies,
-                  __global const BodyInertia* inertia,
-                  ${shared} SplitVelocity* split,
-% if persistent:
-                  volatile __global uint* sync,
-% endif
-% if warm_start_mode == "summed":
-                  volatile __global long* warm_sums,
-                  const uint body_count,
-% endif
-                  const float relaxation,
-                  const uint group_offset,
-% if solve_form == "serial":
-                  const uint group_end,
-% endif
-                  const uint passes,
-<%
-    scalars = ["velocity_sweeps", "position_sweeps"]
-    if normal_solve == "block":
-        scalars += ["velocity_release_from", "position_release_from"]
-%>\
-                  ${",\n                  ".join("const uint " + name for name in scalars)})
+void solve_groups(${signature("solve_groups")})
 {
-% if persistent:
-    __local uint barrier_ok;
-    device_barrier_start(sync, &barrier_ok);  /* (the colouring before, on the same `sync`, may have given up) */
-    /* a batch's constraints go round the work groups first (lane k: local lane
-     * k / groups of group k % groups), so that a batch smaller than the launch
-     * is solved by one lane or a few on every compute unit rather than by full
-     * warps of the first few: a lane's constraint is a long chain of
-     * instructions, and a compute unit issues those of all its busy warps
-     * (H200 BoxBox 1,000 / 8,000 boxes: 1.01 / 1.19 -> 0.61 / 0.80 ms a step,
-     * the same trajectories) */
-    const uint lane = get_local_id(0) * get_num_groups(0) + get_group_id(0);
-    /* In a batch of at most push_offset constraints (one warp's worth of lanes on
-     * every compute unit), a constraint's push rows (split impulse) are solved by
-     * another lane than its velocity rows: the lane a warp further on the same
-     * compute unit (so that its plain loads of the constraint share that unit's
-     * cache with the owner of the other fields), idle otherwise. The two solves
-     * touch disjoint velocities and impulses, so in the sweeps that do both they
-     * run side by side as two warps' instruction streams instead of one after
-     * the other in one. Each lane solves the same constraints' rows of its kind
-     * at every sweep. Measured on the H200 (BoxBox, 2026-12-03) with the split in
-     * every batch: 1,000 / 8,000 boxes 0.61 / 0.81 -> 0.59 / 0.77 ms a step, the
-     * same trajectories, but 27,000 / 111,375 1.21 / 3.63 -> 1.27 / 3.77 (there
-     * the second lane has rows of its own, and the constraint and its bodies are
-     * loaded twice): hence the size rule, which was not timed on the GPU. */
-    const uint push_offset = min(32u, ${work_group_size}u / 2u) * get_num_groups(0);
-    const uint push_lane = (lane + push_offset) % get_global_size(0);
-    const uint group = group_offset;
-    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
-    const uint batch_count = group_batch_count[group];
-% elif solve_form == "lanes":
-    const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
-    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
-    const uint batch_count = group_batch_count[group];
-% else:
+% if serial:
     const uint group = group_offset + get_global_id(0);
     if (group >= group_end)
         return;
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint begin = offsets[0], end = offsets[group_batch_count[group]];
-% endif
-<%
-    velocity_results = ("normal_impulse", "tangent1_impulse", "tangent2_impulse")
-    # (the state's name, the flag that enables it, the call, the velocities, the results)
-    warm_start = ("state", None, "warm_start_contact(c, {state})", velocities, ())
-    # whether a sweep's block solve may release points (see the kernel's comment)
-    velocity_releases = "sweep >= velocity_release_from" if normal_solve == "block" else "false"
-    push_releases = "sweep >= position_release_from" if normal_solve == "block" else "false"
-    velocity_sweep = ("state", "velocity",
-                      f"solve_contact(c, {{state}}, relaxation, reverse, {velocity_releases})",
-                      velocities, velocity_results)
-    push_sweep = ("push_state", "push", f"solve_push(c, {{state}}, relaxation, {push_releases})",
-                  "push", ("push_impulse",))
-%>\
-    if (passes & WARM_START_PASS) {
-% if warm_start_mode == "summed":
-        /* 1. every constraint's old impulses as velocity changes, summed per body */
-        const uint all_begin = offsets[0], all_end = offsets[batch_count];
-        for (uint i = all_begin + lane; barrier_ok && i < all_end; i += ${lanes}) {
-            ContactConstraint constraint = constraints[order[i]];
-            __private ContactConstraint* c = &constraint;
-            uint a = c->body_a, b = c->body_b;
-            ContactBodies state;
-            load_bodies(&state, bodies, inertia, a, b);
-            state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
-            warm_start_contact(c, &state);
-            if (state.inv_mass_a > 0.0f)
-                add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * a, state.va, state.wa);
-            if (state.inv_mass_b > 0.0f)
-                add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * b, state.vb, state.wb);
-        }
-        ${batch_barrier}
-        /* 2. every body takes its sum, and clears it for the next step */
-        for (uint body = lane; barrier_ok && body < body_count; body += ${lanes}) {
-            volatile __global long* sums = warm_sums + RB_WARM_SUM_WORDS * body;
-            if (bodies[body].inv_mass > 0.0f) {
-                float3 linear = warm_sum_vector(sums), angular = warm_sum_vector(sums + 3);
-                bodies[body].linear_velocity = (float4)(bodies[body].linear_velocity.xyz + linear, 0.0f);
-                bodies[body].angular_velocity = (float4)(bodies[body].angular_velocity.xyz + angular, 0.0f);
-                for (uint k = 0; k < RB_WARM_SUM_WORDS; ++k)
-                    sums[k] = 0;
-            }
-        }
-        ${batch_barrier}
-% else:
-${each_constraint(warm_start)}\
-% endif
-    }
-    /* The velocity and the position sweeps at once: the push rows read only
-     * push velocities and impulses, the velocity rows neither, so sweep s of
-     * each sees what it would see alone, and one batch step (one barrier)
-     * serves both. */
+    if (passes & WARM_START_PASS)
+        warm_start_group_serial(constraints, order, begin, end, bodies, inertia);
     const uint sweeps = max(velocity_sweeps, position_sweeps);
     for (uint sweep = 0; sweep < sweeps; ++sweep) {
-        const bool reverse = ((passes & FIRST_REVERSED) != 0) != ((sweep & 1) != 0);
-        const bool velocity = sweep < velocity_sweeps, push = sweep < position_sweeps;
-${each_constraint(velocity_sweep, push_sweep)}\
+        const Sweep s = sweep_of(sweep, passes, velocity_sweeps, position_sweeps,
+                                 velocity_release_from, position_release_from);
+        solve_group_serial(constraints, order, begin, end, bodies, inertia, split, relaxation, s);
     }
-% if persistent:
+% elif not persistent:
+    const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
+    __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
+    const uint batch_count = group_batch_count[group];
+    if (passes & WARM_START_PASS) {
+        for (uint step = 0; step < batch_count; ++step) {
+            const uint batch = batch_count - 1 - step;  /* the highest colour first */
+            warm_start_batch(constraints, order, offsets[batch], offsets[batch + 1], batch, lane,
+                             ${work_group_size}u, bodies, inertia);
+            barrier(CLK_GLOBAL_MEM_FENCE);
+        }
+    }
+    const uint sweeps = max(velocity_sweeps, position_sweeps);
+    for (uint sweep = 0; sweep < sweeps; ++sweep) {
+        const Sweep s = sweep_of(sweep, passes, velocity_sweeps, position_sweeps,
+                                 velocity_release_from, position_release_from);
+        for (uint step = 0; step < batch_count; ++step) {
+            const uint batch = batch_count - 1 - step;
+            solve_batch_lanes(constraints, order, offsets[batch], offsets[batch + 1], batch, lane,
+                              bodies, inertia, split, relaxation, s);
+            barrier(CLK_GLOBAL_MEM_FENCE);
+        }
+    }
+% else:
+    __local uint barrier_ok;
+    /* (the colouring before, on the same `sync`, may have given up) */
+    device_barrier_start(sync, &barrier_ok);
+    /* A batch's constraints go round the work groups first (lane k: local lane
+     * k / groups of group k % groups), so that a batch smaller than the launch
+     * is solved by a lane or a few on every compute unit rather than by full
+     * warps of the first few: a lane's constraint is a long chain of
+     * instructions, and a compute unit issues those of all its busy warps. */
+    const uint lane = get_local_id(0) * get_num_groups(0) + get_group_id(0);
+    /* In a batch of at most push_offset constraints (one warp's worth of lanes
+     * on every compute unit), a constraint's push rows are solved by the lane a
+     * warp further on the same compute unit, idle otherwise, so that the sweeps
+     * that solve both run them side by side as two warps' instruction streams;
+     * in a larger batch that lane has rows of its own. */
+    const uint push_offset = min(32u, ${work_group_size}u / 2u) * get_num_groups(0);
+    const uint push_lane = (lane + push_offset) % get_global_size(0);
+    __global const uint* offsets = group_batches + group_offset * (MAX_BATCHES + 1);
+    const uint batch_count = group_batch_count[group_offset];
+    if (passes & WARM_START_PASS) {
+% if summed:
+        /* every constraint's impulses summed per body, then every body takes its sum */
+        sum_warm_starts(constraints, order, offsets[0], offsets[batch_count], lane, bodies, inertia,
+                        warm_sums, barrier_ok);
+        device_barrier(sync, &barrier_ok);
+        take_warm_sums(bodies, warm_sums, body_count, lane, barrier_ok);
+        device_barrier(sync, &barrier_ok);
+% else:
+        for (uint step = 0; step < batch_count; ++step) {
+            const uint batch = batch_count - 1 - step;  /* the highest colour first */
+            const uint first = offsets[batch], end = offsets[batch + 1];
+            /* an unused colour (inherited colours can leave gaps), or a launch that
+             * gave up its barrier (no more work) */
+            if (first == end || !barrier_ok)
+                continue;
+            warm_start_batch(constraints, order, first, end, batch, lane, get_global_size(0),
+                             bodies, inertia);
+            device_barrier(sync, &barrier_ok);
+        }
+% endif
+    }
+    const uint sweeps = max(velocity_sweeps, position_sweeps);
+    for (uint sweep = 0; sweep < sweeps; ++sweep) {
+        const Sweep s = sweep_of(sweep, passes, velocity_sweeps, position_sweeps,
+                                 velocity_release_from, position_release_from);
+        for (uint step = 0; step < batch_count; ++step) {
+            const uint batch = batch_count - 1 - step;
+            const uint first = offsets[batch], end = offsets[batch + 1];
+            if (first == end || !barrier_ok)  /* (as in the warm start) */
+                continue;
+            solve_batch_persistent(constraints, order, first, end, batch, lane, push_lane,
+                                   push_offset, bodies, inertia, split, relaxation, s);
+            device_barrier(sync, &barrier_ok);
+        }
+    }
     device_barrier_leave(sync);
 % endif
 }
@@ -426,8 +499,7 @@ ${each_constraint(velocity_sweep, push_sweep)}\
 /* One work-item per body: move it by its push velocity over dt, then clear
  * the push. A work group is responsible for consecutive bodies (as many as
  * the host's launch asks: the solver's work-group size does not fit here). */
-__kernel void apply_split_velocities(__global Body* bodies, __global SplitVelocity* split,
-                                     const uint body_count, const float dt)
+__kernel void apply_split_velocities(${signature("apply_split_velocities")})
 {
     uint i = get_global_id(0);
     if (i >= body_count || bodies[i].inv_mass == 0.0f)
