@@ -30,8 +30,10 @@ def test_layouts_carry_the_sub_feature_key():
     for layout in (layouts.PAIR, layouts.CONTACT_MANIFOLD, layouts.SAT_CACHE_ENTRY,
                    layouts.CONTACT_CONSTRAINT):
         assert layout.field("sub").kind == "uint"
-    # the constraint's fields before the new one keep their offsets
-    assert layouts.CONTACT_CONSTRAINT.offset("sub") > layouts.CONTACT_CONSTRAINT.offset("group")
+    # the key fields come last, after the point count (the struct stays 352 bytes)
+    c = layouts.CONTACT_CONSTRAINT
+    assert c.offset("sub") > c.offset("point_count") > c.offset("body_b")
+    assert c.itemsize == 352
 
 
 @pytest.mark.parametrize("name", sorted(BROADPHASES))
