@@ -23,7 +23,6 @@ import argparse
 import statistics
 import time
 
-
 import numpy as np
 
 

@@ -64,7 +64,7 @@ def main():
         env = dict(os.environ, POCL_KERNEL_CACHE="0")
         cmd = [sys.executable, __file__, "--child", tmp] + (["--device", args.device] if args.device else [])
         out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout
-    device = next(l[7:] for l in out.splitlines() if l.startswith("DEVICE"))
+    device = next(line[7:] for line in out.splitlines() if line.startswith("DEVICE"))
     print(f"build times on {device} (cold: empty rbgen cache, PoCL cache off; warm: binary from rbgen's disk cache)")
     print(f"{'kernel':<14}{'cold ms':>10}{'warm ms':>10}{'memory us':>11}")
     for line in out.splitlines():

@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 from collections import defaultdict
 
-
 import numpy as np
 import pyopencl as cl
 
@@ -19,8 +18,8 @@ from rbgen.pipeline.batching import MODES as BATCHING_MODES
 
 
 def main() -> None:
-    from rbgen.harness import build_scene
     from rbgen.device import Runtime
+    from rbgen.harness import build_scene
 
     parser = argparse.ArgumentParser()
     parser.add_argument("--device", default=None)
@@ -50,7 +49,7 @@ def main() -> None:
 
     cl.enqueue_nd_range_kernel = recording
     try:
-        for step in range(args.steps):
+        for _ in range(args.steps):
             world.step(1 / 60)
         runtime.queue.finish()
     finally:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import time
 
-
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
@@ -32,7 +31,7 @@ __kernel void probe(__global float* a, __global float* b, __global float* c,
 def per_call_us(fn, n=2000) -> float:
     fn()
     t0 = time.perf_counter()
-    for i in range(n):
+    for _i in range(n):
         fn()
     return (time.perf_counter() - t0) / n * 1e6
 

@@ -41,11 +41,9 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-
 import rbgen
 from rbgen import tuning
-from rbgen.primitives import BoundSearch, Compact, Fill, RadixSort, Reduce, Scan
-from rbgen.primitives import radix_sort
+from rbgen.primitives import BoundSearch, Compact, Fill, RadixSort, Reduce, Scan, radix_sort
 
 COPY_SOURCE = """
 __kernel void copy_float4(__global const float4* src, __global float4* dst, const uint count)

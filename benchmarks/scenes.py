@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-
 from rbgen import bench
 from rbgen.harness import run_scene
 from rbgen.pipeline.batching import MODES as BATCHING_MODES

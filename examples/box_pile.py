@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-
 from rbgen.harness import run_scene
 
 

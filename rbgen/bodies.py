@@ -18,7 +18,7 @@ zero one is refused.
 from __future__ import annotations
 
 import warnings
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import pyopencl.array as cla

@@ -24,9 +24,10 @@ import hashlib
 import os
 import re
 import threading
+from collections.abc import Callable, Iterable, Mapping
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any
 
 import pyopencl as cl
 from mako.lookup import TemplateLookup
@@ -136,7 +137,7 @@ class Signature:
         indent = "\n" + " " * len(f"void {self.kernel}(")
         return ("," + indent).join(f"{a.type_for(values)} {a.name}" for a in self.args(values))
 
-    def binder(self, spec: "KernelSpec", *names: str) -> "Binder":
+    def binder(self, spec: KernelSpec, *names: str) -> Binder:
         """A setter of the arguments ``names`` (in that order) of ``spec``'s kernel. A name
         the declaration lacks, or that this specialisation does not have, is refused,
         naming it."""
@@ -151,7 +152,7 @@ class Signature:
                 raise TemplateParameterError(f"kernel {self.kernel}: {name!r} {why}")
         return Binder(self.kernel, len(args), [position[n] for n in names])
 
-    def check_bound(self, spec: "KernelSpec", *binders: "Binder") -> None:
+    def check_bound(self, spec: KernelSpec, *binders: Binder) -> None:
         """Refuse a set of binders that leaves an argument of ``spec``'s kernel unset (the
         launcher's whole binding, checked once, when it is built)."""
         bound = {i for b in binders for i in b.positions}
@@ -196,7 +197,7 @@ class Binder:
 
 
 #: every KernelTemplate by path (filled as modules are imported; export uses it)
-TEMPLATES: dict[str, "KernelTemplate"] = {}
+TEMPLATES: dict[str, KernelTemplate] = {}
 
 
 class KernelTemplate:
@@ -229,14 +230,14 @@ class KernelTemplate:
             raise TemplateParameterError(f"template {path!r} not found under {TEMPLATE_DIR}")
         TEMPLATES[path] = self
 
-    def default_spec(self, traits, **overrides: Any) -> "KernelSpec":
+    def default_spec(self, traits, **overrides: Any) -> KernelSpec:
         """The heuristic specialisation for a device, with optional overrides."""
         if self._defaults is None:
             raise TemplateParameterError(f"template {self.path} declares no defaults; "
                                          f"give every parameter: {sorted(self.params)}")
         return self.spec(**{**self._defaults(traits), **overrides})
 
-    def spec(self, **values: Any) -> "KernelSpec":
+    def spec(self, **values: Any) -> KernelSpec:
         where = f"template {self.path}"
         unknown = sorted(set(values) - set(self.params))
         if unknown:
@@ -528,7 +529,7 @@ class SpecLog:
         self.runtime = runtime
         self.entries: dict[tuple, None] = {}
 
-    def __enter__(self) -> "SpecLog":
+    def __enter__(self) -> SpecLog:
         self.runtime.spec_logs.append(self.entries)
         return self
 

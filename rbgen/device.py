@@ -19,6 +19,7 @@ import hashlib
 import os
 import warnings
 from functools import cached_property
+from typing import cast
 
 import pyopencl as cl
 
@@ -81,7 +82,7 @@ class DeviceTraits:
         return f"{slug}-{digest}"
 
     @classmethod
-    def of(cls, device: cl.Device) -> "DeviceTraits":
+    def of(cls, device: cl.Device) -> DeviceTraits:
         is_gpu = bool(device.type & cl.device_type.GPU)
         vendor = device.vendor.strip()
         return cls(
@@ -249,7 +250,8 @@ class Runtime:
         self.device = select_device(device)
         self.traits = DeviceTraits.of(self.device)
         self.context = cl.Context([self.device])
-        props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
+        props = cl.command_queue_properties(
+            cl.command_queue_properties.PROFILING_ENABLE if profiling else 0)
         self.queue = cl.CommandQueue(self.context, self.device, properties=props)
         self.profiling = profiling
         #: launches and blocking reads issued through `launch` and `read`;
@@ -297,7 +299,12 @@ class Runtime:
         return f"Runtime({self.traits.describe()})"
 
 
-def coerce_runtime(runtime: "Runtime | str | cl.Device | None") -> Runtime:
+def buffer_of(array) -> cl.Buffer:
+    """The OpenCL buffer of a pyopencl array (one without an offset)."""
+    return cast(cl.Buffer, array.data)
+
+
+def coerce_runtime(runtime: Runtime | str | cl.Device | None) -> Runtime:
     """Accept a Runtime, a device choice, or None (default device)."""
     if isinstance(runtime, Runtime):
         return runtime

@@ -24,8 +24,8 @@ import importlib
 import json
 import pkgutil
 import re
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 from . import __version__, layouts
 from .codegen import TEMPLATES, KernelSpec, KernelTemplate, kernel_signatures
@@ -118,9 +118,9 @@ def export_kernels(specs: Iterable, out_dir: str | Path,
             "driver_version": traits.driver_version,
             "wavefront": traits.wavefront,
         },
-        "structs": {l.name: {"size": l.itemsize,
-                             "fields": {f.name: l.offset(f.name) for f in l.fields}}
-                    for l in layouts.all_layouts()},
+        "structs": {layout.name: {"size": layout.itemsize,
+                                  "fields": {f.name: layout.offset(f.name) for f in layout.fields}}
+                    for layout in layouts.all_layouts()},
         "files": entries,
     }
     if plan is not None:

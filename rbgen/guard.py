@@ -17,6 +17,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
+from .device import buffer_of
 from .errors import CapacityOverflowError
 
 #: enqueued steps whose report may be unchecked: a step checks the one before the last,
@@ -84,12 +85,13 @@ class StepGuard:
         pinned = self._pinned.get(slot)
         if pinned is None:
             buffer = cl.Buffer(self.runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 4 * self.words)
-            host, _ = cl.enqueue_map_buffer(queue, buffer, cl.map_flags.READ | cl.map_flags.WRITE,
-                                            0, (self.words,), np.uint32)
+            flags = cl.map_flags(cl.map_flags.READ | cl.map_flags.WRITE)
+            host, _ = cl.enqueue_map_buffer(queue, buffer, flags, 0, (self.words,),
+                                            np.dtype(np.uint32))
             pinned = self._pinned[slot] = (buffer, host)
         host = pinned[1]
         self.in_flight.append(_InFlight(dt, slot, host, cl.enqueue_copy(
-            queue, host, self.report.data, is_blocking=False)))
+            queue, host, buffer_of(self.report), is_blocking=False)))
 
     def problems(self, entry: _InFlight) -> dict:
         """The failing stages of a step and what each reported."""

@@ -89,7 +89,8 @@ def cook(points, name: str = "ConvexHull") -> CookedHull:
 
 def _polygons(pts: np.ndarray, size: float, name: str):
     """Hull vertices and merged planar polygons with their planes."""
-    from scipy.spatial import ConvexHull as QHull, QhullError
+    from scipy.spatial import ConvexHull as QHull
+    from scipy.spatial import QhullError
 
     try:
         qhull = QHull(pts)

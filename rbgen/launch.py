@@ -74,18 +74,18 @@ class BoundKernel:
         self._values[index] = value
         self._given[index] = given
 
-    def bind(self, *args) -> "BoundKernel":
+    def bind(self, *args) -> BoundKernel:
         """Set every argument in order (only the changed ones reach the driver)."""
         if len(args) != len(self._given):
             raise TypeError(f"kernel {self.kernel.function_name} takes {len(self._given)} "
                             f"arguments, got {len(args)}")
         return self._bind_from(0, args)
 
-    def bind_first(self, *args) -> "BoundKernel":
+    def bind_first(self, *args) -> BoundKernel:
         """Set the first ``len(args)`` arguments (the rest stay as they are)."""
         return self._bind_from(0, args)
 
-    def bind_at(self, first: int, *args) -> "BoundKernel":
+    def bind_at(self, first: int, *args) -> BoundKernel:
         """Set arguments ``first``, ``first + 1``, ... to ``args`` (the rest stay as they
         are; `rbgen.codegen.Binder` sets declared arguments through it)."""
         return self._bind_from(first, args)
@@ -95,11 +95,11 @@ class BoundKernel:
         """The kernel's argument count."""
         return len(self._given)
 
-    def bind_last(self, *args) -> "BoundKernel":
+    def bind_last(self, *args) -> BoundKernel:
         """Set the last ``len(args)`` arguments (the rest stay as they are)."""
         return self._bind_from(len(self._values) - len(args), args)
 
-    def _bind_from(self, first: int, args) -> "BoundKernel":
+    def _bind_from(self, first: int, args) -> BoundKernel:
         """`set` arguments first, first + 1, ... to ``args``, skipping the call for the
         object last passed and for a scalar made afresh with the same value (what `set`
         would find itself; a step passes dozens of those)."""

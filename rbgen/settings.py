@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -176,6 +177,17 @@ class Settings:
     """The step settings of one World (see `STEP_SETTINGS`): attributes checked on set."""
 
     __slots__ = tuple(STEP)
+    gravity: np.ndarray
+    iterations: int
+    position_iterations: int
+    relaxation: float
+    warm_start: bool
+    contact_margin: float
+    restitution_threshold: float
+    penetration_slop: float
+    penetration_recovery: float
+    linear_damping: float
+    angular_damping: float
 
     def __init__(self, values: dict):
         for name, value in values.items():

@@ -26,9 +26,8 @@ import re
 
 import numpy as np
 
-from . import codegen
+from . import codegen, layouts
 from . import hull as hull_cooking
-from . import layouts
 from . import mass as mass_props
 from .errors import RbgenError
 
@@ -118,7 +117,7 @@ class Shape:
         holds the shape; by default the farthest of `local_vertices`."""
         return float(np.linalg.norm(np.asarray(self.local_vertices()), axis=1).max())
 
-    def cooked(self) -> "hull_cooking.CookedHull | None":
+    def cooked(self) -> hull_cooking.CookedHull | None:
         """Polygon topology for the convex-convex kernels (boxes and hulls), else None."""
         return None
 
@@ -298,7 +297,7 @@ class ConvexHull(Shape):
         self.vertices = self._cooked.vertices
 
     @classmethod
-    def from_trimesh(cls, mesh, name: str | None = None) -> "ConvexHull":
+    def from_trimesh(cls, mesh, name: str | None = None) -> ConvexHull:
         """The convex hull of a ``trimesh.Trimesh``'s vertices."""
         vertices = getattr(mesh, "vertices", None)
         if vertices is None:
@@ -380,7 +379,7 @@ class ShapeTable:
         packed = self.pack_all()
         return packed.shapes, packed.vertices
 
-    def pack_all(self) -> "PackedShapes":
+    def pack_all(self) -> PackedShapes:
         """Every device array of the shapes: records and cooked hull topology."""
         records = layouts.SHAPE.zeros(max(1, len(self.shapes)))
         vertices, faces, indices, edges, adjacency = [], [], [], [], []
@@ -464,7 +463,7 @@ class PackedShapes:
         return {KERNEL_ARGUMENTS[f.name]: getattr(self, f.name)
                 for f in dataclasses.fields(self)}
 
-    def to_device(self, queue) -> "PackedShapes":
+    def to_device(self, queue) -> PackedShapes:
         """The same arrays as pyopencl arrays on ``queue``'s device."""
         import pyopencl.array as cla
 

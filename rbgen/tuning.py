@@ -30,8 +30,9 @@ import os
 import statistics
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pyopencl as cl
@@ -163,7 +164,7 @@ def describe_cache(traits: DeviceTraits) -> list[str]:
 # Choosing a winner (pure: tested from recorded timings)
 
 
-def pick_winner(timings: list[tuple[dict, float | None]], noise: float = NOISE):
+def pick_winner(timings: list[tuple[Any, float | None]], noise: float = NOISE) -> int | None:
     """The index of the winner among ``(params, median_ms or None if incorrect)``.
 
     The fastest correct candidate wins, except that any candidate listed
@@ -338,7 +339,8 @@ def tune_sizes(traits: DeviceTraits, quick: bool = False) -> tuple[int, ...]:
 def tune_all(runtime: Runtime, progress: bool = True, quick: bool = False) -> list[dict]:
     """Tune every family and variant at `tune_sizes`; lines go to stderr."""
     from . import primitives  # noqa: F401 - registers the families
-    from .progress import bar, say as say_above_bar
+    from .progress import bar
+    from .progress import say as say_above_bar
     say = say_above_bar if progress else None
     sizes = tune_sizes(runtime.traits, quick)
     jobs = [(fam, v, n) for fam in FAMILIES.values() for v in fam.variants for n in sizes]

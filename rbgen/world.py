@@ -134,7 +134,7 @@ class World:
     def _set_field(self, name, values, lanes, what):
         self._bodies.set_field(name, values, lanes, what)
         if self._pipeline is not None:
-            self._pipeline.constraints.constraints.reset()  # teleports forget the contacts
+            self._steps.constraints.constraints.reset()  # teleports forget the contacts
 
     positions = property(lambda s: s._bodies.field("position", 3),
                          lambda s, v: s._set_field("position", v, 3, "positions"),
@@ -149,6 +149,13 @@ class World:
                                   lambda s, v: s._set_field("angular_velocity", v, 3,
                                                             "angular_velocities"))
 
+    @property
+    def _steps(self) -> StepPipeline:
+        """The step pipeline (built at the first step, when the scene's shapes are known)."""
+        if self._pipeline is None:
+            raise RbgenError("the World has no step pipeline before its first step")
+        return self._pipeline
+
     # ------------------------------------------------------------- device
     def _upload(self) -> None:
         """Send the host bodies (after adds or sets), replan if the shape types changed,
@@ -159,18 +166,22 @@ class World:
         if self._pipeline is None:
             self._pipeline = StepPipeline(self.runtime, plan, self.shapes,
                                           pair_capacity=self.options["pair_capacity"],
-                                          manifold_capacity=self.options["manifold_capacity"],
-                                          warm_start=True)
+                                          manifold_capacity=self.options["manifold_capacity"])
         elif plan != self.plan:
             self._pipeline.replan(plan)
         self.plan = plan
         self._device = self._bodies.upload(self.runtime.queue, STEPS_IN_FLIGHT)
         self._packed = self.shapes.pack_all().to_device(self.runtime.queue)
-        self._pipeline.resize(self._bodies.count)
-        if self._pipeline.batching is not None:
-            self._pipeline.batching.configure(self._bodies, self.settings.gravity,
-                                              self.settings.contact_margin)
-        self._guard.attach(self._pipeline)
+        self._size_pipeline(self._pipeline)
+
+    def _size_pipeline(self, pipeline: StepPipeline) -> None:
+        """Size the pipeline's buffers for the bodies, set the batching's scene geometry and
+        lay out the step report."""
+        pipeline.resize(self._bodies.count)
+        if pipeline.batching is not None:
+            pipeline.batching.configure(self._bodies, self.settings.gravity,
+                                        self.settings.contact_margin)
+        self._guard.attach(pipeline)
 
     # ------------------------------------------------------------- stepping
     def step(self, dt: float, substeps: int = 1) -> None:
@@ -197,7 +208,7 @@ class World:
         if self._bodies.count == 0:
             return
         slot = self._guard.next_slot()
-        self._pipeline.enqueue(StepContext(dt, slot, self.settings, self._device, self._packed))
+        self._steps.enqueue(StepContext(dt, slot, self.settings, self._device, self._packed))
         self._guard.finish_step(dt, slot)
 
     def _finish_pending(self) -> None:
@@ -215,7 +226,7 @@ class World:
                         self._device.backups[slot].data)
 
     def _pipeline_rewind(self, steps: int) -> None:
-        self._pipeline.constraints.constraints.undo(steps)
+        self._steps.constraints.constraints.undo(steps)
 
     def _abandon_persistent(self, redo: list) -> None:
         """A persistent launch gave up its device-wide barrier (its work groups did not all
@@ -225,12 +236,8 @@ class World:
         old = self.plan
         self.plan = derive_plan(self.runtime.traits, self.options, self.shapes.type_names(),
                                 persistent_failed=True)
-        self._pipeline.replan(self.plan)
-        self._pipeline.resize(self._bodies.count)
-        if self._pipeline.batching is not None:
-            self._pipeline.batching.configure(self._bodies, self.settings.gravity,
-                                              self.settings.contact_margin)
-        self._guard.attach(self._pipeline)
+        self._steps.replan(self.plan)
+        self._size_pipeline(self._steps)
         warnings.warn(f"a persistent launch on {self.runtime.traits.device_name} gave up waiting "
                       f"at a device-wide barrier (its work groups did not all run at once: a "
                       f"GPU shared through MPS?); the step is redone, and this World plans "
@@ -255,7 +262,7 @@ class World:
         if self._bodies.device_stale or self.body_count == 0 or self._pipeline is None:
             return {**summary, "pairs": 0, "manifolds": 0, "contacts": 0, "batches": 0,
                     "groups_used": 0}
-        read, p = self.runtime.read, self._pipeline
+        read, p = self.runtime.read, self._steps
         pairs = int(read(p.broadphase.broadphase.count)[0])
         constraints = p.constraints.constraints
         manifolds = int(read(constraints.count)[0])

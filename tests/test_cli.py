@@ -61,5 +61,5 @@ def test_console_script_info_names_the_default_device():
     if script is None:
         pytest.skip("rbgen is not installed as a console script in this environment")
     result = subprocess.run([script, "info"], capture_output=True, text=True, check=True)
-    default_line = next(l for l in result.stdout.splitlines() if l.startswith("*"))
+    default_line = next(line for line in result.stdout.splitlines() if line.startswith("*"))
     assert default_device().name.strip() in default_line

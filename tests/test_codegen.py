@@ -48,7 +48,7 @@ def test_strict_undefined_in_templates(tmp_path, monkeypatch):
     try:
         t = KernelTemplate("probe/undefined.cl.mako", [])
         with pytest.raises(NameError, match="nope"):
-            t.spec().source
+            _ = t.spec().source
     finally:
         codegen.TEMPLATES.pop("probe/undefined.cl.mako", None)
         codegen._lookup.cache_clear()

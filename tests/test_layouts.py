@@ -17,11 +17,11 @@ def offsets_kernel_source() -> str:
     lines = [layouts.cl_constants(), layouts.cl_structs(),
              "__kernel void layout_offsets(__global ulong* out) {"]
     k = 0
-    for l in layouts.all_layouts():
-        lines.append(f"  {{ __global {l.name}* p = (__global {l.name}*)0;")
-        lines.append(f"    out[{k}] = sizeof({l.name});")
+    for layout in layouts.all_layouts():
+        lines.append(f"  {{ __global {layout.name}* p = (__global {layout.name}*)0;")
+        lines.append(f"    out[{k}] = sizeof({layout.name});")
         k += 1
-        for f in l.fields:
+        for f in layout.fields:
             lines.append(f"    out[{k}] = (ulong)((__global char*)&p->{f.name} - (__global char*)p);")
             k += 1
         lines.append("  }")
@@ -37,21 +37,21 @@ def test_device_offsets_equal_dtype(runtime):
     program.layout_offsets(runtime.queue, (1,), None, buf)
     cl.enqueue_copy(runtime.queue, out, buf)
     k = 0
-    for l in layouts.all_layouts():
-        assert out[k] == l.dtype.itemsize == l.itemsize, f"sizeof({l.name})"
+    for layout in layouts.all_layouts():
+        assert out[k] == layout.dtype.itemsize == layout.itemsize, f"sizeof({layout.name})"
         k += 1
-        for f in l.fields:
-            assert out[k] == l.dtype.fields[f.name][1] == l.offset(f.name), f"{l.name}.{f.name}"
+        for f in layout.fields:
+            assert out[k] == layout.dtype.fields[f.name][1] == layout.offset(f.name), f"{layout.name}.{f.name}"
             k += 1
 
 
 def test_float4_members_are_16_byte_aligned():
-    for l in layouts.all_layouts():
-        for f in l.fields:
+    for layout in layouts.all_layouts():
+        for f in layout.fields:
             if f.kind.endswith("4"):
-                assert l.offset(f.name) % 16 == 0, f"{l.name}.{f.name}"
-        if any(f.kind.endswith("4") for f in l.fields):
-            assert l.itemsize % 16 == 0, l.name
+                assert layout.offset(f.name) % 16 == 0, f"{layout.name}.{f.name}"
+        if any(f.kind.endswith("4") for f in layout.fields):
+            assert layout.itemsize % 16 == 0, layout.name
 
 
 @pytest.mark.parametrize("compiler,flag", [("gcc", "-std=c11"), ("g++", "-std=c++11")])

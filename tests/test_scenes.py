@@ -6,8 +6,13 @@ import pytest
 
 from rbgen.errors import RbgenError
 from rbgen.pipeline.broadphase.reference import brute_force_pairs
-from rbgen.scenes import (STANDARD_BOXBOX_DIMS, boxbox_scene, scene_aabbs,
-                          standard_boxbox_dims, standard_boxbox_scene)
+from rbgen.scenes import (
+    STANDARD_BOXBOX_DIMS,
+    boxbox_scene,
+    scene_aabbs,
+    standard_boxbox_dims,
+    standard_boxbox_scene,
+)
 
 
 def test_boxbox_positions_follow_the_formula():

@@ -7,8 +7,16 @@ import trimesh
 
 from rbgen import layouts
 from rbgen.errors import RbgenError
-from rbgen.shapes import (Box, Capsule, ConvexHull, Plane, ShapeTable, Sphere, shape_type,
-                          shape_types)
+from rbgen.shapes import (
+    Box,
+    Capsule,
+    ConvexHull,
+    Plane,
+    ShapeTable,
+    Sphere,
+    shape_type,
+    shape_types,
+)
 
 
 def test_table_deduplicates_and_packs_topology(rng):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
+from ..codegen import KernelTemplate, Param, compile_spec, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..shapes import shape_type_names
 

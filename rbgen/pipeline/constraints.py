@@ -37,7 +37,7 @@ import numpy as np
 import pyopencl.array as cl_array
 
 from .. import layouts
-from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
+from ..codegen import KernelTemplate, Param, compile_spec, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 

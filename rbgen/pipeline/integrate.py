@@ -7,9 +7,8 @@ does in a launch of its own).
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 
-from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
+from ..codegen import KernelTemplate, Param, compile_spec, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 

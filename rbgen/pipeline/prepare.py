@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import layouts
-from ..codegen import compile_spec, KernelTemplate, Param, work_group_size_param
+from ..codegen import KernelTemplate, Param, compile_spec, work_group_size_param
 from ..device import DeviceTraits, Runtime
 from ..errors import RbgenError
 from .aabbs import shape_types_param

@@ -22,8 +22,9 @@ import pyopencl.array as cla
 
 from .. import layouts
 from ..bodies import DeviceBodies, bounding_radius
-from ..device import Runtime
+from ..device import Runtime, buffer_of
 from ..plan import Plan
+from ..settings import Settings
 from ..shapes import PackedShapes
 from .batching import make_batcher
 from .broadphase import make_broadphase
@@ -46,7 +47,7 @@ class StepContext:
 
     dt: float
     slot: int
-    settings: object
+    settings: Settings
     bodies: DeviceBodies
     shapes: PackedShapes
 
@@ -92,7 +93,7 @@ class PrepareStage(Stage):
         self.runtime = runtime
         self.kernel = BodyPreparation(runtime, gyroscopic=plan.gyroscopic, gravity=True,
                                       shape_types=plan.shape_types, backup=True)
-        self.aabbs = None
+        self.aabbs: cla.Array | None = None
 
     def resize(self, body_count: int) -> None:
         self.aabbs = cla.empty(self.runtime.queue, max(1, body_count), layouts.AABB.dtype)
@@ -123,8 +124,9 @@ class BroadphaseStage(Stage):
         self.broadphase.enqueue(self.prepare.aabbs, step.bodies.static, read_status=False)
 
     def report(self, queue, report, offset: int) -> None:
+        assert self.broadphase.buffer is not None  # (made by the first query)
         status = self.broadphase.buffer.status
-        cl.enqueue_copy(queue, report.data, status.data, byte_count=status.nbytes,
+        cl.enqueue_copy(queue, buffer_of(report), buffer_of(status), byte_count=status.nbytes,
                         dst_offset=4 * offset)
 
     def problem(self, words):
@@ -138,6 +140,7 @@ class BroadphaseStage(Stage):
 
     def recover(self, pairs_found) -> None:
         self.broadphase.check()  # raises for a NaN body, grows the pair buffer
+        assert self.broadphase.buffer is not None
         self.broadphase.buffer.grow_for(pairs_found)
 
 
@@ -216,7 +219,8 @@ class BatchingStage(Stage):
     name = "batching"
 
     def __init__(self, runtime: Runtime, plan: Plan, constraints: ConstraintStage):
-        options = {"ordered_rounds": plan.ordered_rounds} if plan.batching == "global" else \
+        assert plan.batching is not None  # (a PGS plan)
+        options: dict = {"ordered_rounds": plan.ordered_rounds} if plan.batching == "global" else \
             {"group_count": plan.group_count, "solve_form": plan.solve_form}
         self.batcher = make_batcher(runtime, plan.batching, **options)
         self.constraints = constraints
@@ -254,7 +258,9 @@ class SolveStage(Stage):
                  batching: BatchingStage | None):
         self.runtime = runtime
         self.constraints = constraints
+        self.solver: PgsSolver | JacobiSolver
         if plan.solver == "pgs":
+            assert batching is not None
             self.solver = PgsSolver(runtime, batching.batcher, normal_solve=plan.normal_solve,
                                     persistent=plan.persistent, fast_math=plan.fast_math,
                                     warm_start_mode=plan.warm_start_mode,
@@ -270,8 +276,8 @@ class SolveStage(Stage):
                           b.bodies, b.inertia, b.count, step.settings)
 
     def report(self, queue, report, offset: int) -> None:
-        cl.enqueue_copy(queue, report.data, self.solver.barrier_state().data, byte_count=4,
-                        src_offset=ABANDONED_OFFSET, dst_offset=4 * offset)
+        cl.enqueue_copy(queue, buffer_of(report), buffer_of(self.solver.barrier_state()),
+                        byte_count=4, src_offset=ABANDONED_OFFSET, dst_offset=4 * offset)
 
     def problem(self, words):
         return bool(words[0]) or None

@@ -15,4 +15,4 @@ from .scan import Scan
 
 __all__ = ["BoundSearch", "Compact", "Fill", "RadixSort", "Reduce", "Scan",
            "float_to_sortable_uint", "sortable_uint_to_float"]
-from . import families  # registers the tuning families
+from . import families  # noqa: F401 - importing it registers the tuning families

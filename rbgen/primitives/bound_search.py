@@ -13,7 +13,7 @@ import numpy as np
 from ..codegen import Param, work_group_size_param
 from ..device import DeviceTraits
 from ..errors import RbgenError
-from ._base import PrimitiveTemplate, Primitive, ceil_div, check_array, resolve_count
+from ._base import Primitive, PrimitiveTemplate, ceil_div, check_array, resolve_count
 
 SIDES = ("lower", "upper")
 

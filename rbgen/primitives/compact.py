@@ -15,8 +15,16 @@ import pyopencl as cl
 from ..codegen import Param, power_of_two
 from ..device import DeviceTraits
 from ..errors import RbgenError
-from ._base import (ceil_div, check_array, clamp_wavefront, default_work_items, Primitive,
-                    PrimitiveTemplate, resolve_count, tiled_or_chunked_space)
+from ._base import (
+    Primitive,
+    PrimitiveTemplate,
+    ceil_div,
+    check_array,
+    clamp_wavefront,
+    default_work_items,
+    resolve_count,
+    tiled_or_chunked_space,
+)
 
 _GATHER = Param("gather_values", (True, False),
                 "write values[i] of kept elements instead of their index i")

@@ -11,7 +11,7 @@ import pyopencl as cl
 
 from ..codegen import Param, work_group_size_param
 from ..device import DeviceTraits
-from ._base import PrimitiveTemplate, Primitive, ceil_div, check_array, cl_type, resolve_count
+from ._base import Primitive, PrimitiveTemplate, ceil_div, check_array, cl_type, resolve_count
 
 TEMPLATE = PrimitiveTemplate(
     "primitives/fill.cl.mako",

@@ -29,11 +29,19 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from ..codegen import compile_spec, Param, power_of_two, work_group_size_param
+from ..codegen import Param, compile_spec, power_of_two, work_group_size_param
 from ..device import DeviceTraits
 from ..errors import RbgenError
-from ._base import (PrimitiveTemplate, Primitive, ceil_div, check_array, clamp_wavefront,
-                    device_check, resolve_count, unique_params)
+from ._base import (
+    Primitive,
+    PrimitiveTemplate,
+    ceil_div,
+    check_array,
+    clamp_wavefront,
+    device_check,
+    resolve_count,
+    unique_params,
+)
 from .scan import Scan
 
 #: the shape GPUs get by default, one place to flip it: "split" (8-bit digits

@@ -13,8 +13,15 @@ import pyopencl as cl
 from ..codegen import Param, work_group_size_param
 from ..device import DeviceTraits
 from ..errors import RbgenError
-from ._base import (PrimitiveTemplate, Primitive, ceil_div, check_array, cl_type,
-                    default_work_items, resolve_count)
+from ._base import (
+    Primitive,
+    PrimitiveTemplate,
+    ceil_div,
+    check_array,
+    cl_type,
+    default_work_items,
+    resolve_count,
+)
 
 OPS = ("sum", "min", "max")
 _DTYPE = Param("dtype", ("uint", "int", "float"), "element type")

@@ -28,9 +28,19 @@ import pyopencl.array as cla
 from ..codegen import Param, power_of_two
 from ..device import INT64_ATOMICS, DeviceTraits
 from ..errors import RbgenError
-from ._base import (ceil_div, check_array, cl_type, clamp_wavefront, default_work_items,
-                    device_check, Primitive, PrimitiveTemplate, resolve_count,
-                    tiled_or_chunked_space, unique_params)
+from ._base import (
+    Primitive,
+    PrimitiveTemplate,
+    ceil_div,
+    check_array,
+    cl_type,
+    clamp_wavefront,
+    default_work_items,
+    device_check,
+    resolve_count,
+    tiled_or_chunked_space,
+    unique_params,
+)
 
 DTYPES = ("uint", "int", "float")
 

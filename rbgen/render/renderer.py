@@ -136,7 +136,7 @@ class Renderer:
             self._shadow_fbo.clear(depth=1.0)
             ctx.polygon_offset = (2.0, 4.0)
             self._depth["light_view_proj"].write(_gl(light_view_proj))
-            for vao, count, instances in groups:
+            for vao, _count, instances in groups:
                 if instances:
                     vao["depth"].render(instances=instances)
             ctx.polygon_offset = (0.0, 0.0)
@@ -152,7 +152,7 @@ class Renderer:
         shade["shadows"].value = int(self.shadows)
         self._shadow_tex.use(location=0)
         shade["shadow_map"].value = 0
-        for vao, count, instances in groups:
+        for vao, _count, instances in groups:
             if instances:
                 vao["shade"].render(instances=instances)
         if self._resolved is not self._msaa:

@@ -37,8 +37,13 @@ from rbgen.pipeline.integrate import Integrator
 from rbgen.pipeline.prepare import BodyPreparation, inertia_records
 from rbgen.pipeline.solvers import jacobi, pgs
 from rbgen.pipeline.solvers.pgs import PgsSolver
-from tests.pipeline.test_constraints import (VARIANTS, ContactRig, make_batcher_for, make_bodies,
-                                             make_manifold)
+from tests.pipeline.test_constraints import (
+    VARIANTS,
+    ContactRig,
+    make_batcher_for,
+    make_bodies,
+    make_manifold,
+)
 
 SQUARE = np.array([[0.5, 0, 0.5], [-0.5, 0, 0.5], [0.5, 0, -0.5], [-0.5, 0, -0.5]])
 
@@ -149,7 +154,7 @@ def test_two_free_bodies_conserve_momentum(runtime, rng, variant):
     scale = np.abs(p0).max() + 1
     np.testing.assert_allclose(p1, p0, atol=1e-4 * scale)
     np.testing.assert_allclose(l1, l0, atol=1e-4 * (np.abs(l0).max() + 1))
-    for i, c in enumerate(cons):
+    for c in cons:
         a, b = c["body_a"], c["body_b"]
         if c["point_count"] > 2:
             continue  # redundant points (more than the rows' rank) converge slowly

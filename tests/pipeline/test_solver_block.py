@@ -268,7 +268,7 @@ def test_block_is_the_exact_contact_solution(runtime, rng, variant, count):
     bodies' speeds alone, 3 of 150 seeds failed with four points, at fac43a9 as well;
     the rows one by one instead of the block fail every seed)."""
     released = 0
-    for attempt in range(3):
+    for _attempt in range(3):
         rig, manifolds, cons, before = random_face_pairs(runtime, rng, count, variant, pairs=9,
                                                          spin=4.0, separations=(-0.002, 0.004))
         inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
@@ -366,7 +366,7 @@ def test_release_sweeps_leave_the_releasing_faces_to_the_rows_until_the_last(run
     spatial batching one launch per colour and sweep (the pairs sit in different cells
     and slabs)."""
     kinds, missed = {True: 0, False: 0}, 0
-    for attempt in range(3):
+    for _attempt in range(3):
         seed = int(rng.integers(1 << 31))
         for release_sweeps in (1, 0):
             rig, manifolds, cons, before = random_face_pairs(

@@ -45,7 +45,7 @@ def test_broadphases_write_whole_body_pairs(runtime, rng, name):
     n = 400
     lower = rng.uniform(0, 12, (n, 3)).astype(np.float32)
     broadphase = make_broadphase(runtime, name, capacity=8 * n)
-    for step in range(2):
+    for _step in range(2):
         aabbs = layouts.AABB.zeros(n)
         aabbs["lower"][:, :3] = lower
         aabbs["upper"][:, :3] = lower + 1.0
@@ -95,7 +95,7 @@ def test_manifolds_and_axis_cache_are_keyed_by_sub(runtime):
     assert first["point_count"] == 4
     for field in ("points", "normal", "features", "point_count"):
         np.testing.assert_array_equal(first[field], second[field])
-    for key, (m1, m2) in found.items():  # the list's order does not change a manifold
+    for _key, (m1, m2) in found.items():  # the list's order does not change a manifold
         np.testing.assert_array_equal(m1, m2)
 
 

@@ -60,7 +60,9 @@ def test_every_search_space_point(runtime, rng):
 def test_device_counts(runtime, rng):
     search = BoundSearch(runtime, "upper")
     keys, queries = random_case(rng, 4000, 3000)
-    dev = lambda c: cla.to_device(runtime.queue, np.array([c], np.uint32))
+    def dev(count):
+        return cla.to_device(runtime.queue, np.array([count], np.uint32))
+
     for n_keys, n_queries in ((dev(0), dev(3000)), (dev(1234), dev(17)), (dev(10**6), dev(10**6)),
                               (2000, dev(2999)), (dev(3999), 1500)):
         check(runtime, search, keys, queries, n_keys, n_queries, what=f"{n_keys} {n_queries}")

@@ -5,8 +5,15 @@ import pytest
 
 from rbgen.device import Runtime
 from rbgen.errors import RbgenError, TemplateParameterError
-from rbgen.primitives import (BoundSearch, Compact, Fill, RadixSort, Reduce, Scan,
-                              float_to_sortable_uint)
+from rbgen.primitives import (
+    BoundSearch,
+    Compact,
+    Fill,
+    RadixSort,
+    Reduce,
+    Scan,
+    float_to_sortable_uint,
+)
 
 
 @pytest.fixture

@@ -7,7 +7,6 @@ checked against numpy.
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
-import pytest
 
 from rbgen.primitives import BoundSearch, Compact, Fill, RadixSort, Reduce, Scan
 

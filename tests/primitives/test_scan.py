@@ -24,7 +24,6 @@ from rbgen.primitives.scan import chained_search_space, search_space
 
 from .primitive_spaces import AMD, FULL_SIZES, NVIDIA, REDUCED_SIZES, all_points, label
 
-
 DTYPES = [np.uint32, np.int32, np.float32]
 
 
@@ -386,7 +385,8 @@ def test_chained_scan_guard_falls_back(runtime, rng, monkeypatch):
 
 def test_chained_guard_needs_64_bit_atomics(runtime, monkeypatch):
     """A device without the extension fails the guard with a warning naming it."""
-    from rbgen.primitives import _base, scan as scan_module
+    from rbgen.primitives import _base
+    from rbgen.primitives import scan as scan_module
     monkeypatch.setattr(scan_module, "CHAINED_EXTENSION", "cl_khr_not_a_real_extension")
     monkeypatch.setattr(_base, "DEVICE_CHECKS", {})
     params = Scan.default_params(runtime.traits, "chained")

@@ -31,7 +31,7 @@ One module per algorithm, chosen by name (`make_batcher`):
 """
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -65,6 +65,11 @@ class Batcher(Protocol):
     group_count: int
     #: (first group, group count) of each solver launch of a sweep
     launch_plan: list[tuple[int, int]]
+    #: edge items by group then batch; per group max_batches + 1 offsets into order; and
+    #: each group's batch count (device arrays, valid after a call)
+    order: Any
+    group_batches: Any
+    group_batch_count: Any
 
     def __call__(self, edges, edge_count, bodies, body_count: int, edge_capacity: int) -> None:
         """Enqueue the batching of the first ``edge_count[0]`` constraint edges (a device

@@ -26,7 +26,7 @@ import numpy as np
 import pyopencl.array as cla
 
 from ... import layouts
-from ...codegen import compile_spec, KernelTemplate, power_of_two, work_group_size_param
+from ...codegen import KernelTemplate, compile_spec, power_of_two, work_group_size_param
 from ...device import DeviceTraits, Runtime
 from ...errors import RbgenError
 from .pairs import PairBuffer, check_capacity

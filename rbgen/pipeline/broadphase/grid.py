@@ -54,7 +54,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from ... import layouts
-from ...codegen import compile_spec, KernelTemplate, Param, power_of_two, work_group_size_param
+from ...codegen import KernelTemplate, Param, compile_spec, power_of_two, work_group_size_param
 from ...errors import RbgenError
 from .base import Broadphase, check_large_factor, default_work_group_size
 from .pairs import key_bits

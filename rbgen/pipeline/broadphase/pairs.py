@@ -27,7 +27,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from ... import layouts
-from ...codegen import compile_spec, KernelTemplate, work_group_size_param
+from ...codegen import KernelTemplate, compile_spec, work_group_size_param
 from ...device import DeviceTraits, Runtime
 from ...errors import RbgenError
 
@@ -123,7 +123,6 @@ class PairBuffer:
         """Enqueue the ordering of the stored pairs by (a, b) into ``pairs``."""
         if body_count < 2:
             return
-        program, runtime = self.program, self.runtime
         if body_count <= MAX_FOLDED_BODIES:
             self._launch("combine_pair_keys", self.pairs_a, self.pairs_b, self.status,
                          np.uint32(body_count))

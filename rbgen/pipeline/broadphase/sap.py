@@ -19,11 +19,10 @@ Step by step (all on the device, no blocking read):
 """
 from __future__ import annotations
 
-
 import numpy as np
 
 from ... import layouts
-from ...codegen import compile_spec, KernelTemplate, Param, work_group_size_param
+from ...codegen import KernelTemplate, Param, compile_spec, work_group_size_param
 from .base import Broadphase, check_large_factor, default_work_group_size
 
 TEMPLATE = KernelTemplate(

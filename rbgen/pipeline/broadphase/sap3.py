@@ -40,7 +40,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from ... import layouts
-from ...codegen import compile_spec, KernelTemplate, work_group_size_param
+from ...codegen import KernelTemplate, compile_spec, work_group_size_param
 from ...errors import RbgenError
 from .base import Broadphase, default_work_group_size
 from .pairs import PairBuffer, check_capacity, key_bits

@@ -34,13 +34,19 @@ import numpy as np
 import pyopencl.array as cl_array
 import pyopencl.cltypes as cltypes
 
-from ...codegen import (Arg, KernelTemplate, Param, Signature, compile_spec,
-                        work_group_size_param)
+from ...codegen import Arg, KernelTemplate, Param, Signature, compile_spec, work_group_size_param
 from ...device import DeviceTraits, Runtime
 from ...launch import instance
 from ..device_barrier import barrier_buffer, persistent_groups, persistent_launch_validated
-from .common import (PushVelocities, check_sweeps, fast_math_options, fast_math_param,
-                     normal_solve_param, resolve_fast_math)
+from .common import (
+    PushVelocities,
+    check_sweeps,
+    fast_math_options,
+    fast_math_param,
+    normal_solve_param,
+    resolve_fast_math,
+)
+
 
 def _shared_space(values) -> str:
     """The address space of what lanes of other work groups write during a persistent

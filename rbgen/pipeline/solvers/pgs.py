@@ -51,15 +51,28 @@ import numpy as np
 import pyopencl.array as cl_array
 
 from ... import layouts
-from ...codegen import (Arg, KernelTemplate, Param, Signature, compile_spec, power_of_two,
-                        work_group_size_param)
+from ...codegen import (
+    Arg,
+    KernelTemplate,
+    Param,
+    Signature,
+    compile_spec,
+    power_of_two,
+    work_group_size_param,
+)
 from ...device import INT64_ATOMICS, DeviceTraits, Runtime
 from ...errors import RbgenError
 from ...launch import instance
 from ..batching import SOLVE_FORMS
 from ..device_barrier import barrier_buffer, persistent_groups, persistent_launch_validated
-from .common import (PushVelocities, check_sweeps, fast_math_options, fast_math_param,
-                     normal_solve_param, resolve_fast_math)
+from .common import (
+    PushVelocities,
+    check_sweeps,
+    fast_math_options,
+    fast_math_param,
+    normal_solve_param,
+    resolve_fast_math,
+)
 
 #: how the warm start reaches the velocities (see the template parameter "warm_start_mode")
 WARM_START_MODES = ("batched", "summed")
@@ -180,7 +193,7 @@ def _parameter_rules(values: dict) -> str | None:
     return None
 
 
-def default_normal_solve(solve_form: str, batching: str | None = None) -> str:
+def default_normal_solve(solve_form: str | None, batching: str | None = None) -> str:
     """sequential for a serial solve over slabs: Gauss-Seidel proper over whole stacks
     holds them with the cheaper rows (the block costs several times more there); block
     otherwise: lanes solve a batch's manifolds side by side, so a sequential solve's

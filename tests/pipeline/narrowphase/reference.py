@@ -67,7 +67,7 @@ class Placed:
     edges: np.ndarray
 
     @classmethod
-    def of(cls, shape, position, orientation) -> "Placed":
+    def of(cls, shape, position, orientation) -> Placed:
         c = shape.cooked()
         r = quat_matrix(orientation)
         return cls(c.vertices @ r.T + np.asarray(position, np.float64), c.planes[:, :3] @ r.T,

@@ -24,13 +24,28 @@ from rbgen import shapes as shapes_module
 from rbgen.bodies import bounding_radius, check_supported, supported_shapes
 from rbgen.codegen import KernelTemplate
 from rbgen.errors import RbgenError
-from rbgen.pipeline.aabbs import TEMPLATE as WORLD_AABBS, WorldAabbs
+from rbgen.pipeline.aabbs import TEMPLATE as WORLD_AABBS
+from rbgen.pipeline.aabbs import WorldAabbs
 from rbgen.pipeline.narrowphase import Narrowphase, find_contacts, kinds
-from rbgen.pipeline.narrowphase.kinds import (PairKernel, kernel_for, kinds_for, missing_pairs,
-                                              pair_kernels, register_pair_kernel)
+from rbgen.pipeline.narrowphase.kinds import (
+    PairKernel,
+    kernel_for,
+    kinds_for,
+    missing_pairs,
+    pair_kernels,
+    register_pair_kernel,
+)
 from rbgen.pipeline.narrowphase.templates import DISPATCH, PAIR_ROLES, pair_kernel_params
-from rbgen.shapes import (Box, Plane, Shape, ShapeTable, Sphere, shape_type, shape_type_names,
-                          shape_types)
+from rbgen.shapes import (
+    Box,
+    Plane,
+    Shape,
+    ShapeTable,
+    Sphere,
+    shape_type,
+    shape_type_names,
+    shape_types,
+)
 
 from .reference import make_bodies
 
