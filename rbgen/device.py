@@ -250,8 +250,8 @@ class Runtime:
         self.device = select_device(device)
         self.traits = DeviceTraits.of(self.device)
         self.context = cl.Context([self.device])
-        props = cl.command_queue_properties(
-            cl.command_queue_properties.PROFILING_ENABLE if profiling else 0)
+        props = cast(cl.command_queue_properties,
+                     cl.command_queue_properties.PROFILING_ENABLE if profiling else 0)
         self.queue = cl.CommandQueue(self.context, self.device, properties=props)
         self.profiling = profiling
         #: launches and blocking reads issued through `launch` and `read`;
