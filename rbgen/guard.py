@@ -13,6 +13,8 @@ a new plan without persistent launches (`Replan`).
 """
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
@@ -85,7 +87,7 @@ class StepGuard:
         pinned = self._pinned.get(slot)
         if pinned is None:
             buffer = cl.Buffer(self.runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 4 * self.words)
-            flags = cl.map_flags(cl.map_flags.READ | cl.map_flags.WRITE)
+            flags = cast(cl.map_flags, cl.map_flags.READ | cl.map_flags.WRITE)
             host, _ = cl.enqueue_map_buffer(queue, buffer, flags, 0, (self.words,),
                                             np.dtype(np.uint32))
             pinned = self._pinned[slot] = (buffer, host)
