@@ -1,6 +1,6 @@
 """End states of a few scenes after a fixed number of steps, to compare two versions of rbgen.
 
-    python benchmarks/end_states.py record OUT.npz [--device D] [--quick]
+    python benchmarks/end_states.py record OUT.npz [--device D] [--quick] [--options JSON]
     python benchmarks/end_states.py compare A.npz B.npz
 
 ``record`` runs each scene with the World's defaults through the public API only (so the
@@ -12,6 +12,7 @@ must compare equal on the same device.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 
 import numpy as np
@@ -74,12 +75,14 @@ SCENES = {
 QUICK = ("boxbox_1000", "pile_1000", "pyramid_12", "mixed_400")
 
 
-def record(path: str, device=None, quick: bool = False) -> None:
+def record(path: str, device=None, quick: bool = False, extra: dict | None = None) -> None:
+    """Run the scenes (``extra``: World options added to every scene's) and save their
+    end states."""
     out = {}
     for name, (build, n, steps, options) in SCENES.items():
         if quick and name not in QUICK:
             continue
-        world = rbgen.World(device, **options)
+        world = rbgen.World(device, **options, **(extra or {}))
         build(world, n)
         for _ in range(steps):
             world.step(1 / 60)
@@ -113,12 +116,13 @@ def main(argv=None) -> int:
     p.add_argument("out")
     p.add_argument("--device", default=None)
     p.add_argument("--quick", action="store_true")
+    p.add_argument("--options", default="{}", help="World options (JSON) for every scene")
     p = sub.add_parser("compare")
     p.add_argument("a")
     p.add_argument("b")
     args = parser.parse_args(argv)
     if args.command == "record":
-        record(args.out, args.device, args.quick)
+        record(args.out, args.device, args.quick, json.loads(args.options))
         return 0
     return compare(args.a, args.b)
 
