@@ -76,9 +76,13 @@ def cmd_export(args) -> int:
         overrides[name] = _parse_value(value)
     specs = default_specs(runtime.traits, args.kernel)
     if overrides:
-        specs = [s.template.spec(**{**s.values, **{k: v for k, v in overrides.items()
-                                                   if k in s.template.params}})
-                 for s in specs]
+        overridden = []
+        for s in specs:
+            template = s.template
+            assert template is not None  # default_specs makes every spec from its template
+            overridden.append(template.spec(**{**s.values, **{k: v for k, v in overrides.items()
+                                                              if k in template.params}}))
+        specs = overridden
     manifest = export_kernels(specs, args.out, runtime.traits)
     for entry in manifest["files"]:
         names = ", ".join(k["name"] for k in entry["kernels"])

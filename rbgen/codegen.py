@@ -27,7 +27,7 @@ import threading
 from collections.abc import Callable, Iterable, Mapping
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import pyopencl as cl
 from mako.lookup import TemplateLookup
@@ -429,7 +429,7 @@ class ProgramCache:
 
     def _to_disk(self, program: cl.Program, key: str) -> None:
         try:
-            binary = program.get_info(cl.program_info.BINARIES)[0]
+            binary = cast("list[bytes]", program.get_info(cl.program_info.BINARIES))[0]
             if not binary:
                 return
             self.directory.mkdir(parents=True, exist_ok=True)
@@ -443,7 +443,8 @@ class ProgramCache:
     def _from_source(runtime, source, options, spec) -> cl.Program:
         program = cl.Program(runtime.context, source)
         try:
-            program.build(options=list(options), cache_dir=False)
+            # pyopencl's own cache takes False (off); Program.build's annotation leaves it out
+            program.build(options=list(options), cache_dir=False)  # type: ignore[arg-type]
         except cl.RuntimeError as err:
             log = _build_log(program, runtime) or str(err)
             raise KernelBuildError(_format_build_error(source, log, spec, options)) from None

@@ -47,9 +47,10 @@ def resolve_mass(volume: float, density: float | None, mass: float | None, what:
     if (density is None) == (mass is None):
         raise RbgenError(f"{what}: give exactly one of density and mass "
                          f"(got density={density!r}, mass={mass!r})")
-    value = mass if mass is not None else density * volume
-    name = "mass" if mass is not None else "density"
     given = mass if mass is not None else density
+    assert given is not None  # exactly one of density and mass is None (checked above)
+    value = mass if mass is not None else given * volume
+    name = "mass" if mass is not None else "density"
     if not (np.isfinite(given) and given > 0):
         raise RbgenError(f"{what}: {name} must be a positive finite number, got {given!r}")
     return float(value)
@@ -107,11 +108,11 @@ def quaternion_from_matrix(rot: np.ndarray) -> tuple:
     else:
         s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
         q = ((m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s)
-    q = np.array(q)
-    q /= np.linalg.norm(q)
-    if q[3] < 0:
-        q = -q
-    return tuple(float(c) for c in q)
+    quat = np.array(q)
+    quat /= np.linalg.norm(quat)
+    if quat[3] < 0:
+        quat = -quat
+    return tuple(float(c) for c in quat)
 
 
 def principal_frame(inertia_tensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -25,6 +25,7 @@ import queue as queue_module
 import tempfile
 import traceback
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -76,6 +77,7 @@ class Recorder:
         self._bodies: Bodies | None = None
         self._body_count = -1
         self._temp = _claim_temp(self.path)
+        options: dict[str, Any]  # make_sink's keyword arguments
         options = {"format": self.format, "temp": str(self._temp), "camera": self.camera,
                    "width": self.width, "height": self.height, "fps": self.fps,
                    "samples": samples}
@@ -89,6 +91,7 @@ class Recorder:
         if world.body_count != self._body_count:
             self._bodies = bodies_of(world)
             self._body_count = world.body_count
+        assert self._bodies is not None  # read at the first capture (the count starts at -1)
         self.add(frame if frame is not None else frame_of(world), self._bodies)
 
     def add(self, frame: Frame, bodies: Bodies) -> None:
@@ -323,6 +326,7 @@ class _BackgroundSink:
 
     def _outcome(self) -> str:
         self._feeder.join(timeout=5)
+        assert self._process.stdout is not None  # a pipe (Popen with stdout=PIPE)
         out = self._process.stdout.read().decode(errors="replace").strip()
         self._process.wait()
         return out or (repr(self._feed_error) if self._feed_error else

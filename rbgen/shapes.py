@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import re
+from typing import TYPE_CHECKING, Generic, TypeVar
 
 import numpy as np
 
@@ -30,6 +31,9 @@ from . import codegen, layouts
 from . import hull as hull_cooking
 from . import mass as mass_props
 from .errors import RbgenError
+
+if TYPE_CHECKING:
+    import pyopencl.array as cla
 
 
 def _finite_vector(value, n: int, what: str) -> np.ndarray:
@@ -371,15 +375,15 @@ class ShapeTable:
 
     def max_face_vertices(self) -> int:
         """Most vertices on one face of any box or hull (sizes the clipping buffers)."""
-        return max((max(len(f) for f in s.cooked().faces) for s in self.shapes
-                    if s.cooked() is not None), default=0)
+        cooked = (s.cooked() for s in self.shapes)
+        return max((max(len(f) for f in c.faces) for c in cooked if c is not None), default=0)
 
     def pack(self) -> tuple[np.ndarray, np.ndarray]:
         """(Shape records, hull vertices as float4; at least one of each for OpenCL)."""
         packed = self.pack_all()
         return packed.shapes, packed.vertices
 
-    def pack_all(self) -> PackedShapes:
+    def pack_all(self) -> PackedShapes[np.ndarray]:
         """Every device array of the shapes: records and cooked hull topology."""
         records = layouts.SHAPE.zeros(max(1, len(self.shapes)))
         vertices, faces, indices, edges, adjacency = [], [], [], [], []
@@ -447,23 +451,27 @@ KERNEL_ARGUMENTS = {"shapes": "shapes", "vertices": "hull_vertices", "faces": "h
                     "adjacency": "hull_adjacency"}
 
 
+#: the array type of a `PackedShapes`: numpy on the host, pyopencl after `to_device`
+_Arrays = TypeVar("_Arrays")
+
+
 @dataclasses.dataclass
-class PackedShapes:
+class PackedShapes(Generic[_Arrays]):
     """Host arrays of a `ShapeTable` (each has at least one element for OpenCL)."""
 
-    shapes: np.ndarray        # Shape records
-    vertices: np.ndarray      # (V, 4) float32 hull/box vertices, w unused
-    faces: np.ndarray         # HullFace records
-    face_indices: np.ndarray  # uint32 polygon vertex indices (relative to vertex_offset)
-    edges: np.ndarray         # (E, 4) float32 unique edge directions, w unused
-    adjacency: np.ndarray     # HullEdge records: every edge with its two faces
+    shapes: _Arrays        # Shape records
+    vertices: _Arrays      # (V, 4) float32 hull/box vertices, w unused
+    faces: _Arrays         # HullFace records
+    face_indices: _Arrays  # uint32 polygon vertex indices (relative to vertex_offset)
+    edges: _Arrays         # (E, 4) float32 unique edge directions, w unused
+    adjacency: _Arrays     # HullEdge records: every edge with its two faces
 
     def kernel_arguments(self) -> dict:
         """The arrays by the names kernels give them (`KERNEL_ARGUMENTS`)."""
         return {KERNEL_ARGUMENTS[f.name]: getattr(self, f.name)
                 for f in dataclasses.fields(self)}
 
-    def to_device(self, queue) -> PackedShapes:
+    def to_device(self, queue) -> PackedShapes[cla.Array]:
         """The same arrays as pyopencl arrays on ``queue``'s device."""
         import pyopencl.array as cla
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import hashlib
 import math
 import warnings
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pyopencl as cl
@@ -40,7 +40,7 @@ class PrimitiveTemplate(KernelTemplate):
     struct added elsewhere does not invalidate tuned results.
     """
 
-    INCLUDES = ("primitives/common.cl.mako",)
+    INCLUDES: tuple[str, ...] = ("primitives/common.cl.mako",)
 
     def source_hash(self) -> str:
         h = hashlib.sha256()
@@ -58,8 +58,9 @@ def cl_type(dtype, what: str) -> str:
                          f"expected one of uint32, int32, float32") from None
 
 
-def check_array(runtime: Runtime, array, name: str, dtype=None, min_size: int = 0) -> cl.Buffer:
-    """Validate a pyopencl array argument and return its buffer.
+def check_array(runtime: Runtime, array, name: str, dtype=None,
+                min_size: int = 0) -> cl.Buffer | None:
+    """Validate a pyopencl array argument and return its buffer (None for an empty one).
 
     It must be a pyopencl Array of ``dtype`` (when given), contiguous, start
     at its buffer's beginning, live in ``runtime``'s context and hold at least
@@ -79,7 +80,7 @@ def check_array(runtime: Runtime, array, name: str, dtype=None, min_size: int = 
         raise RbgenError(f"{name} belongs to another OpenCL context than this primitive's runtime")
     if array.size < min_size:
         raise RbgenError(f"{name} holds {array.size} elements, needs at least {min_size}")
-    return array.base_data if array.size else None
+    return cast(cl.Buffer, array.base_data) if array.size else None
 
 
 def resolve_count(runtime: Runtime, n, capacity: int, name: str = "n"):
@@ -138,7 +139,6 @@ class Primitive:
     and ``template_values`` (the fixed, non-tunable template parameters).
     """
 
-    family = ""
     TEMPLATES: dict[str, KernelTemplate] = {}
 
     def __init__(self, runtime: Runtime, params: dict | None = None):
@@ -149,6 +149,10 @@ class Primitive:
         if self.params_override is not None:
             self._spec_for(self.params_override)  # validate now, not at the first call
         self._programs: dict[tuple, tuple[dict, Any]] = {}
+
+    @property
+    def family(self) -> str:
+        return ""
 
     @property
     def variant(self) -> str:

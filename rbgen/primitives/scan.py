@@ -21,6 +21,8 @@ modulo 2^32 like C.
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
@@ -141,9 +143,9 @@ class Scan(Primitive):
         if params is not None and self.chained and params.get("shape") != "chained":
             raise RbgenError(f"chained=True contradicts params['shape']={params.get('shape')!r}")
         super().__init__(runtime, params)
-        self._sums = None
+        self._sums: cl.Buffer | None = None
         #: the chained scan's tile words and the epoch of its last call
-        self._state = None
+        self._state: cl.Buffer | None = None
         self._epoch = 0
 
     @property
@@ -171,6 +173,7 @@ class Scan(Primitive):
         wavefront of tiles per step (fewer polls than a look-back of 256),
         tiles by ticket (safe in any dispatch order); 16384 (L2-sized) on CPUs."""
         shape = shape or traits.kind
+        params: dict[str, Any]
         if shape == "chained":
             if traits.is_gpu:
                 wf = clamp_wavefront(traits)
@@ -283,7 +286,8 @@ def check_chained_params(params: dict) -> None:
     if wg == 1 and lb != 1:
         raise RbgenError(f"params: lookback={lb} with work_group_size 1; the serial CPU shape "
                          f"looks back one tile at a time (lookback 1)")
-    if wg != 1 and isinstance(lb, int) and isinstance(wf, int) and not wf <= lb <= wg:
+    if (wg != 1 and wg is not None and isinstance(lb, int) and isinstance(wf, int)
+            and not wf <= lb <= wg):
         raise RbgenError(f"params: lookback={lb} must lie between wavefront={wf} and "
                          f"work_group_size={wg} (one polled predecessor per work-item)")
     if wg != 1 and isinstance(ipt, int) and ipt > CHAINED_MAX_ITEMS:
@@ -321,6 +325,7 @@ def _probe_chained(runtime, params: dict) -> tuple[bool, str]:
     except (cl.Error, RbgenError) as err:  # a build or launch failure: fall back too
         return False, f"{type(err).__name__}: {err}"[:300]
     flags = np.empty(2, np.uint32)
+    assert probe._state is not None  # the chained probe calls above allocated it
     cl.enqueue_copy(runtime.queue, flags, probe._state, is_blocking=True)
     return (flags[1] == 0, "spin limit hit")
 

@@ -13,6 +13,7 @@ a given centre, because the renderer sizes it to the scene.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -44,7 +45,9 @@ def flat_polygons(vertices, faces, normals) -> Mesh:
     """A mesh of convex polygons (index lists into ``vertices``, counter-clockwise from
     outside), each with its own corners and its ``normals`` row, fan-triangulated."""
     vertices = np.asarray(vertices, float)
-    out_v, out_n, tris = [], [], []
+    out_v: list[np.ndarray] = []
+    out_n: list[Any] = []  # the rows of ``normals``, as given
+    tris: list[tuple[int, int, int]] = []
     for polygon, normal in zip(faces, normals):
         start = len(out_v)
         out_v.extend(vertices[list(polygon)])
@@ -78,18 +81,18 @@ def _round(radius: float, half_height: float, segments: int, rings: int) -> Mesh
     vertices = normals * radius
     vertices[..., 1] += shift[:, None]
     cols = len(lon)
-    tris = []
+    tris: list[tuple[int, int, int]] = []
     for r in range(len(lat) - 1):
         for s in range(segments):
             a, b = r * cols + s, (r + 1) * cols + s
             tris.append((a, b, b + 1))
             tris.append((a, b + 1, a + 1))
-    tris = np.array(tris)
+    triangles = np.array(tris)
     # drop the triangles collapsed at the poles (both their top or bottom corners coincide)
     v = vertices.reshape(-1, 3)
-    area = np.linalg.norm(np.cross(v[tris[:, 1]] - v[tris[:, 0]], v[tris[:, 2]] - v[tris[:, 0]]),
-                          axis=1)
-    return Mesh(v, normals.reshape(-1, 3), tris[area > 1e-12 * radius * radius])
+    area = np.linalg.norm(np.cross(v[triangles[:, 1]] - v[triangles[:, 0]],
+                                   v[triangles[:, 2]] - v[triangles[:, 0]]), axis=1)
+    return Mesh(v, normals.reshape(-1, 3), triangles[area > 1e-12 * radius * radius])
 
 
 def sphere_mesh(radius: float, segments: int = ROUND_SEGMENTS, rings: int = ROUND_RINGS) -> Mesh:

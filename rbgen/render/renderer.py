@@ -63,7 +63,7 @@ def gl_context():
 
 
 def _shader(name: str) -> str:
-    return resources.files("rbgen.render").joinpath("shaders", name).read_text()
+    return resources.files("rbgen.render").joinpath("shaders").joinpath(name).read_text()
 
 
 def _program(ctx, vertex: str, fragment: str):
@@ -205,6 +205,7 @@ class Renderer:
 
     def _mesh(self, shape, plane_size, plane_centre) -> dict:
         """A shape's mesh buffers, instance buffer and vertex arrays (made once)."""
+        mesh_args: tuple[float, np.ndarray] | tuple[()]
         if isinstance(shape, Plane):
             # a plane's square follows the scene; quantised so a settling scene reuses it
             size = 2.0 ** math.ceil(math.log2(plane_size))

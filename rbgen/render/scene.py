@@ -10,6 +10,7 @@ function here.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -103,7 +104,7 @@ def bodies_of(world) -> Bodies:
     """The `Bodies` of a World (static bodies: those of zero inverse mass)."""
     # the World's host mirror of its body records (its BodyStore's; the one place here
     # that knows where the World keeps it)
-    store = getattr(world, "_bodies", None)
+    store: Any = getattr(world, "_bodies", None)
     table = store.host if hasattr(store, "host") else world._host
     return Bodies.make(world.shapes.shapes, table["shape"], table["inv_mass"] == 0)
 
@@ -114,7 +115,8 @@ def frame_of(world) -> Frame:
     return Frame.make(positions, world.orientations, len(positions))
 
 
-def scene_bounds(bodies: Bodies, frame: Frame, dynamic_only: bool = False):
+def scene_bounds(bodies: Bodies, frame: Frame,
+                 dynamic_only: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
     """(lower, upper) of every bounded body (planes left out), rotated boxes bounded by
     their local bounds' corners; None when no body is bounded."""
     lows, highs = [], []
@@ -124,7 +126,9 @@ def scene_bounds(bodies: Bodies, frame: Frame, dynamic_only: bool = False):
             mask &= ~bodies.static
         if not mask.any() or isinstance(shape, Plane):
             continue
-        lo, hi = local_bounds(shape)
+        bounds = local_bounds(shape)
+        assert bounds is not None  # None for planes only, left out above
+        lo, hi = bounds
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                             for z in (lo[2], hi[2])])
         radius = float(np.linalg.norm(corners, axis=1).max())

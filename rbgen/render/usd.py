@@ -59,6 +59,7 @@ class UsdSink:
         self._frames.append(Frame(frame.positions.copy(), frame.orientations.copy()))
 
     def finish(self) -> None:
+        assert self._bodies is not None  # set by the first frame; Recorder.close needs one
         write_stage(self.temp, self._bodies, self._frames, self.fps)
 
     def cancel(self) -> None:

@@ -96,7 +96,7 @@ class SpatialBatcher:
         self.batches = self.solve_form == "lanes"
         self.max_batches = int(max_batches)
         self.cell_size = None if cell_size is None else float(cell_size)
-        self.slab_axis = (1.0, 0.0, 0.0)
+        self.slab_axis: tuple[float, ...] = (1.0, 0.0, 0.0)
         self.cell_colours = COLOURS[mode]
         self.work_group_size = work_group_size or default_work_group_size(traits)
         per_colour = int(group_count or default_group_count(traits))

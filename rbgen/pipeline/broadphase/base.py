@@ -81,7 +81,7 @@ class Broadphase:
         self._views: dict[str, cla.Array] = {}
         self._primitives: dict = {}
         self._no_static = None
-        self._aabbs = None
+        self._aabbs: cla.Array | np.ndarray | None = None
         self.body_count = 0
         self.last_count = 0
 
@@ -89,11 +89,13 @@ class Broadphase:
     @property
     def pairs(self) -> cla.Array:
         """Device `Pair` array; the first ``count`` entries are valid after a query."""
+        assert self.buffer is not None  # made by the first query at the latest
         return self.buffer.pairs
 
     @property
     def count(self) -> cla.Array:
         """Device uint32 array of one element: the number of pairs stored."""
+        assert self.buffer is not None  # made by the first query at the latest
         return self.buffer.count
 
     @property
@@ -119,6 +121,7 @@ class Broadphase:
 
     def check(self) -> bool:
         """True when the last query stored every pair; False after growing the buffer."""
+        assert self.buffer is not None  # made by the query (enqueue) that check follows
         status = self.buffer.read_status()
         if status["bad_body"] != layouts.BP_NO_BODY:
             self._raise_bad_body(int(status["bad_body"]))
@@ -141,6 +144,7 @@ class Broadphase:
 
     def host_pairs(self) -> np.ndarray:
         """The pairs of the last complete query as an (m, 2) uint32 numpy array."""
+        assert self.buffer is not None  # made by the first query at the latest
         return self.buffer.host_pairs(self.last_count)
 
     # ---------------------------------------------------------- subclasses
@@ -152,6 +156,7 @@ class Broadphase:
         """Enqueue what precedes the algorithm for n >= 2 bodies: the status reset,
         validation and the size statistics (overridden where the algorithm's first
         kernel does these itself)."""
+        assert self.buffer is not None  # enqueue made it before the query
         self.buffer.reset_status()
         self._measure(aabbs, n)
 
@@ -220,6 +225,7 @@ class Broadphase:
         """Validation, plus (``sizes``) the sum of log2 sizes in ``self.log_size_sum``."""
         from ...primitives import Reduce
         log_sizes = self.exact("log_sizes", n, np.float32)
+        assert self.buffer is not None  # enqueue made it before the query
         self.launch(self._bodies.kernel("measure_bodies"), n, aabbs.base_data, np.uint32(n),
                     log_sizes.base_data, self.buffer.status.base_data)
         if sizes:
@@ -228,6 +234,7 @@ class Broadphase:
                 log_sizes, self.log_size_sum, n=n)
 
     def _raise_bad_body(self, body: int) -> None:
+        assert self._aabbs is not None  # set by the query whose status named the body
         record = self.runtime.read(self._aabbs[body:body + 1])[0]
         lower, upper = record["lower"][:3], record["upper"][:3]
         raise RbgenError(f"body {body} has an invalid AABB (NaN or lower > upper): "

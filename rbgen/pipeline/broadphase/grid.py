@@ -54,7 +54,14 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from ... import layouts
-from ...codegen import KernelTemplate, Param, compile_spec, power_of_two, work_group_size_param
+from ...codegen import (
+    Compiled,
+    KernelTemplate,
+    Param,
+    compile_spec,
+    power_of_two,
+    work_group_size_param,
+)
 from ...errors import RbgenError
 from .base import Broadphase, check_large_factor, default_work_group_size
 from .pairs import key_bits
@@ -144,9 +151,9 @@ class GridBroadphase(Broadphase):
         if self.bucketing not in BUCKETINGS[self.emission]:
             raise RbgenError(f"bucketing={bucketing!r} does not go with emission="
                              f"{self.emission!r}; choose one of {list(BUCKETINGS[self.emission])}")
-        self._programs = {}
+        self._programs: dict[tuple[str, str], Compiled] = {}
         self._program()  # builds the kernels now
-        self._bucket_ids = None
+        self._bucket_ids: cla.Array | None = None
 
     def _program(self):
         """The program of the current emission (and bucketing)."""

@@ -28,7 +28,7 @@ import pyopencl.array as cla
 
 from ... import layouts
 from ...codegen import KernelTemplate, compile_spec, work_group_size_param
-from ...device import DeviceTraits, Runtime
+from ...device import DeviceTraits, Runtime, buffer_of
 from ...errors import RbgenError
 
 TEMPLATE = KernelTemplate(
@@ -77,7 +77,7 @@ class PairBuffer:
         self._initial.view(layouts.BROADPHASE_STATUS.dtype)["bad_body"] = layouts.BP_NO_BODY
         self._pinned_buffer = cl.Buffer(runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 4 * words)
         self._pinned, _ = cl.enqueue_map_buffer(queue, self._pinned_buffer, cl.map_flags.READ,
-                                                0, (words,), np.uint32)
+                                                0, (words,), np.dtype(np.uint32))
         self._pinned[:] = self._initial
         #: the initial status on the device: the reset is a device copy (a copy from
         #: host memory returns a pyopencl NannyEvent, whose deletion waits for it)
@@ -109,8 +109,8 @@ class PairBuffer:
 
     def reset_status(self) -> None:
         """Enqueue the status reset that starts every query (no launch, no wait)."""
-        cl.enqueue_copy(self.runtime.queue, self.status.base_data,
-                        self._initial_device.base_data)
+        cl.enqueue_copy(self.runtime.queue, buffer_of(self.status),
+                        buffer_of(self._initial_device))
 
     def _sorter(self, bits: int, with_values: bool):
         from ...primitives import RadixSort
@@ -150,7 +150,7 @@ class PairBuffer:
 
     def start_status_read(self) -> None:
         """Enqueue a non-blocking copy of the status into pinned host memory."""
-        event = cl.enqueue_copy(self.runtime.queue, self._pinned, self.status.base_data,
+        event = cl.enqueue_copy(self.runtime.queue, self._pinned, buffer_of(self.status),
                                 is_blocking=False)
         self._read_events = [*self._read_events[-(KEPT_READ_EVENTS - 1):], event]
         self._read_started = True

@@ -41,6 +41,7 @@ import pyopencl.array as cla
 
 from ... import layouts
 from ...codegen import KernelTemplate, compile_spec, work_group_size_param
+from ...device import buffer_of
 from ...errors import RbgenError
 from .base import Broadphase, default_work_group_size
 from .pairs import PairBuffer, check_capacity, key_bits
@@ -101,8 +102,8 @@ class IncrementalSapBroadphase(Broadphase):
     def reset(self) -> None:
         """Forget the history: the next query is a full one."""
         self._slots: list[_Slot | None] = [None, None]
-        self._current = None       # slot of the last complete step
-        self._target = None        # slot the pending step writes
+        self._current: int | None = None  # slot of the last complete step
+        self._target: int | None = None   # slot the pending step writes
         self._pending_full = True
         self._force_full = False   # set by check() after a degenerate step
         self._slot_bodies = -1
@@ -123,6 +124,7 @@ class IncrementalSapBroadphase(Broadphase):
         self._force_full = False
         self._target = 0 if self._current is None else 1 - self._current
         slot = self._slots[self._target]
+        assert slot is not None  # a new body count (every count after reset) made both slots
         self.buffer = slot.pairs
         slot.pairs.new_query()
         self._aabbs, self.body_count, self._pending_full = aabbs, n, full
@@ -134,14 +136,18 @@ class IncrementalSapBroadphase(Broadphase):
             self._measure(aabbs, n, sizes=False)
         if n >= 1:
             self._sort_endpoints(aabbs, n, slot)
-            cl.enqueue_copy(self.runtime.queue, slot.boxes.base_data, aabbs.base_data,
+            cl.enqueue_copy(self.runtime.queue, buffer_of(slot.boxes), aabbs.base_data,
                             byte_count=n * layouts.AABB.itemsize)
         if not full and n >= 2:
-            self._update_pairs(aabbs, static, n, self._slots[self._current], slot)
+            assert self._current is not None  # a step that is not full has a last one
+            old = self._slots[self._current]
+            assert old is not None  # made with slot
+            self._update_pairs(aabbs, static, n, old, slot)
         if read_status:
             slot.pairs.start_status_read()
 
     def check(self) -> bool:
+        assert self.buffer is not None  # the query (enqueue) that check follows set it
         status = self.buffer.read_status()
         if status["bad_body"] != layouts.BP_NO_BODY:
             self._raise_bad_body(int(status["bad_body"]))
@@ -186,7 +192,7 @@ class IncrementalSapBroadphase(Broadphase):
         changes_a = self.exact("changes_a", change_capacity)
         changes_b = self.exact("changes_b", change_capacity)
         change_count = self.exact("change_count", 1)
-        cl.enqueue_fill_buffer(runtime.queue, change_count.base_data, np.uint32(0), 0, 4)
+        cl.enqueue_fill_buffer(runtime.queue, buffer_of(change_count), np.uint32(0), 0, 4)
         self.launch(program.kernel("find_changes"), 6 * n, aabbs.base_data, old.boxes.base_data,
                     static.base_data, np.uint32(n), old.ranks.base_data, new.ranks.base_data,
                     *(s.base_data for s in old.sorted), *(s.base_data for s in new.sorted),

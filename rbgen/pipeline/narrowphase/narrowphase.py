@@ -51,13 +51,15 @@ contacts persist between steps).
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
 from ... import layouts
 from ...codegen import compile_spec, kernel_signatures
-from ...device import Runtime
+from ...device import Runtime, buffer_of
 from ...errors import RbgenError
 from ...shapes import KERNEL_ARGUMENTS, PackedShapes, ShapeTable
 from .kinds import kinds_for, pair_kernel
@@ -150,7 +152,9 @@ class Narrowphase:
             raise RbgenError(f"placement_tile ({tile}) must be a multiple of work_group_size "
                              f"({wg})")
         self.max_face_vertices = max(3, int(max_face_vertices or 4))
-        self._classify = self._scatter = self._clip = None
+        self._classify: _Launch | None = None
+        self._scatter: _Launch | None = None
+        self._clip: _Launch | None = None
         if self.kinds:
             dispatch = DISPATCH.spec(work_group_size=wg, kinds=self.kinds, placement_tile=tile)
             self._classify = self._launch(dispatch, "classify_pairs")
@@ -186,7 +190,7 @@ class Narrowphase:
         launches = {}
         for group in programs.values():
             template = group[0].template
-            values = {k: v for k, v in shared.items() if k in template.params}
+            values: dict[str, Any] = {k: v for k, v in shared.items() if k in template.params}
             values.update(group[0].params)
             if "kinds" in template.params:
                 values["kinds"] = tuple(kind.name for kind in group)
@@ -261,7 +265,8 @@ class Narrowphase:
         size = max(1, pair_list_size)
         if not self._counters_clear:  # a call that stopped before its scatter_manifolds
             for counters in (self.queue_counts, self.sat_count):
-                cl.enqueue_fill_buffer(rt.queue, counters.data, np.uint32(0), 0, counters.nbytes)
+                cl.enqueue_fill_buffer(rt.queue, buffer_of(counters), np.uint32(0), 0,
+                                       counters.nbytes)
         self._counters_clear = False
         values = {
             **shapes.kernel_arguments(), "bodies": bodies, "pairs": pairs,
@@ -275,6 +280,8 @@ class Narrowphase:
             "manifold_capacity": np.uint32(manifolds.size), "manifold_count": manifold_count,
             "overflow": overflow,
         }
+        # built with the kinds, which are not empty here
+        assert self._classify is not None and self._scatter is not None
         events = {}
         if not self.direct:  # (else the separating-axis kernel reads the pairs and clears)
             events["classify"] = self._classify(size, values)
@@ -285,6 +292,7 @@ class Narrowphase:
             values["kind"] = np.uint32(self.kind_index[kind])
             events["sat_" + kind] = launch(size, values)
         if self._separating:
+            assert self._clip is not None  # _build_clip builds it for separating-axis kinds
             events["clip"] = self._clip(size, values)
         events["scatter"] = self._scatter(self.tile_count * self.work_group_size, values)
         self._counters_clear = True

@@ -84,7 +84,7 @@ for _name, _pairs in (
         ("capsule_capsule", [("capsule", "capsule")]),
         ("capsule_plane", [("capsule", "plane")]),
         ("convex_plane", [("box", "plane"), ("hull", "plane")])):
-    register_pair_kernel(PairKernel(_name, _pairs, PRIMITIVE_PAIRS))
+    register_pair_kernel(PairKernel(_name, tuple(_pairs), PRIMITIVE_PAIRS))
 
 CAPSULE_CONVEX = KernelTemplate(
     "pipeline/narrowphase/capsule_convex.cl.mako",
@@ -93,7 +93,7 @@ CAPSULE_CONVEX = KernelTemplate(
     roles=PAIR_ROLES,
     defaults=_sizes,
 )
-register_pair_kernel(PairKernel("capsule_convex", [("capsule", "box"), ("capsule", "hull")],
+register_pair_kernel(PairKernel("capsule_convex", (("capsule", "box"), ("capsule", "hull")),
                                 CAPSULE_CONVEX))
 
 SAT_BOX_BOX = KernelTemplate(
@@ -103,7 +103,7 @@ SAT_BOX_BOX = KernelTemplate(
     roles=_SAT_ROLES,
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "direct": False},
 )
-register_pair_kernel(PairKernel("box_box", [("box", "box")], SAT_BOX_BOX,
+register_pair_kernel(PairKernel("box_box", (("box", "box"),), SAT_BOX_BOX,
                                 kernel="find_separating_axis", separating_axis=True))
 
 SAT = KernelTemplate(
@@ -121,11 +121,13 @@ SAT = KernelTemplate(
                              "first": "box", "second": "hull", "edge_axes": "directions"},
 )
 # a box brings its three edge directions; hull pairs prune their edge pairs on the Gauss map
-register_pair_kernel(PairKernel("box_hull", [("box", "hull")], SAT,
-                                dict(first="box", second="hull", edge_axes="directions"),
+register_pair_kernel(PairKernel("box_hull", (("box", "hull"),), SAT,
+                                (("first", "box"), ("second", "hull"),
+                                 ("edge_axes", "directions")),
                                 kernel="find_separating_axis", separating_axis=True))
-register_pair_kernel(PairKernel("hull_hull", [("hull", "hull")], SAT,
-                                dict(first="hull", second="hull", edge_axes="gauss_map"),
+register_pair_kernel(PairKernel("hull_hull", (("hull", "hull"),), SAT,
+                                (("first", "hull"), ("second", "hull"),
+                                 ("edge_axes", "gauss_map")),
                                 kernel="find_separating_axis", separating_axis=True))
 
 CLIP = KernelTemplate(

@@ -6,7 +6,7 @@ import pyopencl.array as cl_array
 
 from ... import layouts
 from ...codegen import Param
-from ...device import DeviceTraits
+from ...device import DeviceTraits, Runtime
 from ...errors import RbgenError
 
 #: how a manifold's normal rows are solved (see the template parameter "normal_solve")
@@ -65,6 +65,7 @@ def check_sweeps(iterations: int, position_iterations: int, relaxation: float) -
 class PushVelocities:
     """A solver's push velocities (split impulse): zero between steps, grown on demand."""
 
+    runtime: Runtime  # set by the solver that mixes this in
     _split = None
 
     def split_velocities(self, body_capacity: int):

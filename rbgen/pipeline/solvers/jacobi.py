@@ -215,6 +215,7 @@ class JacobiSolver(PushVelocities):
 
     def _schedule(self, iterations: int, position_iterations: int, warm_start: bool) -> list:
         """The (kernel name, kernel object) of one call's launches, in launch order."""
+        calls: list[tuple[str, tuple[int, ...]]]
         if self.persistent:
             passes = WARM_START_PASS if warm_start else 0
             calls = [("solve_jacobi", (passes, iterations, position_iterations))]

@@ -276,7 +276,7 @@ class PgsSolver(PushVelocities):
         self.persistent = persistent
         self.max_batches = values["max_batches"]
         #: per-body fixed-point sums of the summed warm start (zero between solves)
-        self._warm_sums = None
+        self._warm_sums: cl_array.Array | None = None
         #: the device-wide barrier's words over batches other than global's (which brings its own)
         self._sync = barrier_buffer(runtime) if persistent else None
         self._program = program = compile_spec(runtime, self.spec)
