@@ -223,14 +223,14 @@ def _data(value):
 class Expansion:
     """Count, scan, write: one expansion's output (see the module docstring)."""
 
-    def __init__(self, runtime: Runtime, spec, count: str, write: str, status_word: int,
+    def __init__(self, runtime: Runtime, name: str, spec, count: str, write: str,
                  work_group_size: int, capacity: int | None = None):
         self.runtime = runtime
-        self.name = count.removeprefix("count_").removesuffix("_pairs")
+        self.name = name
         self._count = _Launch(runtime, spec, count, work_group_size)
         self._write = _Launch(runtime, spec, write, work_group_size)
         self.scan = Scan(runtime, np.uint32, inclusive=False)
-        self.status_word = status_word
+        self.status_word = STATUS_WORDS[name]
         self.capacity = 0
         self.requested = capacity
         self.input_size = 0
@@ -302,8 +302,8 @@ class Midphase:
             spec = CHILDREN.spec(work_group_size=wg, shape_types=child_types or ("sphere",))
             self._place = _Launch(runtime, spec, "place_children", wg)
             self._resolve = _Launch(runtime, spec, "resolve_child_manifolds", wg)
-            self.children = Expansion(runtime, spec, "count_child_pairs", "write_child_pairs",
-                                      STATUS_WORDS["children"], wg, capacity)
+            self.children = Expansion(runtime, "children", spec, "count_child_pairs",
+                                      "write_child_pairs", wg, capacity)
 
     # ------------------------------------------------------------------ parameters
     def params_for(self, input_size: int) -> dict:
@@ -328,9 +328,8 @@ class Midphase:
             params = self.params_for(input_size)
             spec = TRIANGLES.spec(**params)
             old = self.triangles
-            self.triangles = Expansion(self.runtime, spec, "count_triangle_pairs",
-                                       "write_triangle_pairs", STATUS_WORDS["triangles"],
-                                       params["work_group_size"],
+            self.triangles = Expansion(self.runtime, "triangles", spec, "count_triangle_pairs",
+                                       "write_triangle_pairs", params["work_group_size"],
                                        old.capacity if old is not None else self.capacity)
             self._triangle_bucket = bucket
             self.triangle_params = params
