@@ -108,12 +108,20 @@ TERRAIN_SHARES = (0.3, 0.3, 0.15, 0.15, 0.05, 0.05)
 
 
 def _terrain_scene(n: int, device, terrain_cells: int = scene_data.TERRAIN_CELLS,
-                   **world_options):
+                   terrain_ground: str = "mesh", **world_options):
+    """The terrain scene; ``terrain_ground="plane"``: the same rain onto a plane at the
+    terrain's lowest height instead (the benchmarks' baseline)."""
     from .mesh import TriangleMesh
+    from .shapes import Plane
 
+    if terrain_ground not in ("mesh", "plane"):
+        raise RbgenError(f"terrain_ground must be 'mesh' or 'plane', got {terrain_ground!r}")
     heights = scene_data.terrain_heights(terrain_cells)
     world = World(device, **world_options)
-    world.add_static(TriangleMesh(*scene_data.height_field(heights), name="terrain"))
+    if terrain_ground == "mesh":
+        world.add_static(TriangleMesh(*scene_data.height_field(heights), name="terrain"))
+    else:
+        world.add_static(Plane((0, 1, 0), float(heights.min())))
     positions = scene_data.rain_positions(n, heights)
     kinds = np.random.default_rng(1).choice(len(TERRAIN_SHARES), n, p=TERRAIN_SHARES)
     orientations = np.random.default_rng(2).normal(size=(n, 4))
