@@ -293,3 +293,27 @@ def test_parameters_are_checked_and_the_space_is_valid(runtime):
         TRIANGLES.spec(work_group_size=16, traversal="local", subtree_nodes=0)
     with pytest.raises(rbgen.TemplateParameterError, match="must be 0"):
         TRIANGLES.spec(work_group_size=16, traversal="global", subtree_nodes=64)
+
+
+def test_the_tuner_times_both_traversals_and_the_midphase_uses_its_winner(
+        runtime, tmp_path, monkeypatch):
+    """`rbgen tune`'s family "midphase" runs its candidates on a terrain and checks each
+    against brute force; the winner it stores is what a Midphase then uses (an untuned
+    device gets the heuristic)."""
+    from rbgen import tuning
+    from rbgen.pipeline import midphase as module
+
+    monkeypatch.setenv("RBGEN_CACHE_DIR", str(tmp_path))
+    tuning.forget_loaded()
+    table = ShapeTable()
+    table.add(rbgen.TriangleMesh(*reference.terrain(4, 1.0, np.random.default_rng(0))))
+    assert Midphase(runtime, table).params_for(300) == default_params(runtime.traits)
+    candidates = [{"work_group_size": 16, "traversal": "global", "subtree_nodes": 0},
+                  {"work_group_size": 16, "traversal": "local", "subtree_nodes": 64}]
+    monkeypatch.setattr(module, "search_space", lambda traits: candidates)
+    entry = tuning.tune(runtime, "midphase", "triangles", 300, repeats=2)
+    winner = {k: v for k, v in entry["params"].items() if k != "shape"}
+    assert winner in candidates and entry["params"]["shape"] == winner["traversal"]
+    tuning.forget_loaded()
+    assert Midphase(runtime, table).params_for(300) == winner
+    tuning.forget_loaded()
