@@ -138,3 +138,20 @@ def test_compound_bodies_in_a_world_keep_their_children_apart(runtime):
     # the four legs (children 1..4) touch the plane; each its own manifold
     subs = sorted(int(s) for s in manifolds["sub"])
     assert subs == [1 + (k << layouts.SUB_CHILD_SHIFT) for k in (1, 2, 3, 4)]
+
+    # on a mesh: one manifold per (leg, triangle), sub 1 + (leg << 24 | triangle)
+    v = np.array([[-2, 0, -2], [-2, 0, 2], [2, 0, -2], [2, 0, 2]], float)
+    mesh = rbgen.TriangleMesh(v, np.array([[0, 1, 2], [2, 1, 3]]))
+    world = rbgen.World(runtime)
+    world.add_static(mesh)
+    world.add_bodies(chair, mass=1.0, positions=[(0.1, 0.6, 0.05)])
+    for _ in range(30):
+        world.step(1 / 60)
+    world.statistics()
+    narrowphase = world._pipeline.narrowphase
+    manifolds = narrowphase.manifolds.get()[:int(narrowphase.count.get()[0])]
+    legs = {(int(s) - 1) >> layouts.SUB_CHILD_SHIFT for s in manifolds["sub"]}
+    triangles = {(int(s) - 1) & ((1 << layouts.SUB_CHILD_SHIFT) - 1) for s in manifolds["sub"]}
+    assert legs == {1, 2, 3, 4} and triangles <= {0, 1}
+    assert len(set(manifolds["sub"].tolist())) == len(manifolds)
+    assert abs(world.positions[1, 1] - (chair.mass_properties(mass=1.0).com[1] + 0.05)) < 3e-3

@@ -317,3 +317,35 @@ def test_the_tuner_times_both_traversals_and_the_midphase_uses_its_winner(
     tuning.forget_loaded()
     assert Midphase(runtime, table).params_for(300) == winner
     tuning.forget_loaded()
+
+
+@pytest.mark.parametrize("params", PARAMS[::2], ids=lambda p: p["traversal"])
+def test_two_meshes_share_a_work_group(runtime, rng, params):
+    """Two meshes of different sizes (their nodes and triangles at different offsets of
+    the shared arrays), each paired with every body, the pairs interleaved so that a work
+    group walks both: the output equals brute force over each pair's own mesh."""
+    meshes = [rbgen.TriangleMesh(*reference.terrain(cells, 1.0, rng)) for cells in (7, 13)]
+    table = ShapeTable()
+    for mesh in meshes:
+        table.add(mesh)
+    shapes = [table.add(rbgen.Box(rng.uniform(0.2, 0.8, 3))), table.add(rbgen.Sphere(0.6))]
+    count = 97
+    host = reference.bodies_above(count + 1, meshes[1], shapes[0], rng)
+    host["shape"][:2] = [0, 1]
+    host["inv_mass"][:2] = 0.0
+    host["orientation"][:2] = (0, 0, 0, 1)
+    host["position"][:2] = 0.0
+    host["shape"][2:] = rng.choice(shapes, count)
+    q = runtime.queue
+    packed = table.pack_all().to_device(q)
+    bodies = cla.to_device(q, host)
+    aabbs = cla.empty(q, len(host), layouts.AABB.dtype)
+    WorldAabbs(runtime, table.type_names())(bodies, packed.shapes, packed.vertices, aabbs,
+                                            len(host))
+    pairs = layouts.PAIR.zeros(2 * count)
+    pairs["a"] = np.tile([0, 1], count)
+    pairs["b"] = np.repeat(np.arange(2, count + 2), 2)
+    found = Midphase(runtime, table, params=params, capacity=8).find_pairs(
+        bodies, len(host), packed, aabbs, cla.to_device(q, pairs), len(pairs))
+    expected = reference.brute_force({0: meshes[0], 1: meshes[1]}, host, aabbs.get(), pairs)
+    np.testing.assert_array_equal(found, expected)
