@@ -63,7 +63,8 @@ class Compound(Shape):
 
     type_name = "compound"
     type_code = layouts.SHAPE_COMPOUND
-    extents_doc = "children child_* in CompoundChild, local box vertex_offset/2 in the hull vertices"
+    extents_doc = ("children child_* in CompoundChild, local box vertex_offset/2 in the hull "
+                   "vertices")
     aabb_template = "shapes/compound.cl.mako"
     composite = True
     table_arrays = {"compound_children": "CompoundChild records of every compound"}

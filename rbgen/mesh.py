@@ -95,12 +95,13 @@ class TriangleMesh(Shape):
         self._digest = digest.hexdigest()
 
     @classmethod
-    def from_trimesh(cls, mesh, name: str | None = None) -> "TriangleMesh":
+    def from_trimesh(cls, mesh, name: str | None = None) -> TriangleMesh:
         """The triangles of a ``trimesh.Trimesh``."""
         if not (hasattr(mesh, "vertices") and hasattr(mesh, "faces")):
             raise RbgenError(f"TriangleMesh.from_trimesh expects a trimesh.Trimesh, "
                              f"got {type(mesh).__name__}")
-        label = name or f"TriangleMesh.from_trimesh({getattr(mesh, 'metadata', {}).get('name', 'mesh')})"
+        source = getattr(mesh, "metadata", {}).get("name", "mesh")
+        label = name or f"TriangleMesh.from_trimesh({source})"
         return cls(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces), name=label)
 
     @property

@@ -111,13 +111,13 @@ class Shape:
         they are: a mesh's or compound's local box)."""
         raise NotImplementedError
 
-    def parts(self) -> tuple["Shape", ...]:
+    def parts(self) -> tuple[Shape, ...]:
         """Shapes this one is made of (a compound's children): a `ShapeTable` adds them
         first, so they have records of their own."""
         return ()
 
     @classmethod
-    def pack_arrays(cls, table: "ShapeTable", records: np.ndarray) -> dict[str, np.ndarray]:
+    def pack_arrays(cls, table: ShapeTable, records: np.ndarray) -> dict[str, np.ndarray]:
         """The type's `table_arrays` for the shapes of this type in ``table`` (their
         records' offsets into them set here); none by default."""
         return {}

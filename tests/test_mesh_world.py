@@ -257,11 +257,11 @@ def test_compounds_against_compounds_planes_and_meshes(runtime):
 def test_worlds_without_meshes_or_compounds_pay_nothing(runtime):
     """A world of boxes on a plane has no midphase or children stage and no extra shape
     arrays; one with a mesh has the midphase, one with a compound both."""
-    def stages(*statics, dynamic=rbgen.Box((0.5, 0.5, 0.5))):
+    def stages(*statics, dynamic=None):
         world = rbgen.World(runtime)
         for shape in statics:
             world.add_static(shape)
-        world.add_bodies(dynamic, mass=1.0, positions=[(0, 2, 0)])
+        world.add_bodies(dynamic or rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=[(0, 2, 0)])
         world.step(1 / 60)
         return [s.name for s in world._pipeline.stages], world._packed.extra
 

@@ -35,7 +35,6 @@ untuned devices get `default_params`.
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 import pyopencl.array as cla
 
 from .. import layouts, tuning

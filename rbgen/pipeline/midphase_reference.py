@@ -66,7 +66,8 @@ def brute_force(meshes, bodies: np.ndarray, aabbs: np.ndarray, pairs: np.ndarray
         lower = (aabbs["lower"][other, :3] - p).astype(np.float32)
         upper = (aabbs["upper"][other, :3] - p).astype(np.float32)
         tri_lower, tri_upper = boxes[mesh]
-        hit = np.flatnonzero(np.all(tri_lower <= upper, axis=1) & np.all(lower <= tri_upper, axis=1))
+        hit = np.flatnonzero(np.all(tri_lower <= upper, axis=1)
+                             & np.all(lower <= tri_upper, axis=1))
         records = layouts.PAIR.zeros(len(hit))
         records["a"], records["b"], records["sub"] = a, b, hit + 1
         out.extend(records)

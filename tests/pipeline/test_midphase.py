@@ -21,7 +21,7 @@ import rbgen
 from rbgen import layouts
 from rbgen.pipeline import midphase_reference as reference
 from rbgen.pipeline.aabbs import WorldAabbs
-from rbgen.pipeline.midphase import Midphase, TRIANGLES, default_params, search_space
+from rbgen.pipeline.midphase import TRIANGLES, Midphase, default_params, search_space
 from rbgen.shapes import ShapeTable
 
 from ..reference import quat_mul, quat_to_matrix

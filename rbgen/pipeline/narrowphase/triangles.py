@@ -12,8 +12,12 @@ from __future__ import annotations
 from ... import mesh as _mesh  # noqa: F401 - registers the "mesh" shape type first
 from ...codegen import KernelTemplate, Param
 from .kinds import PairKernel, register_pair_kernel
-from .templates import PAIR_ROLES, default_placement_tile, default_work_group_size, \
-    pair_kernel_params
+from .templates import (
+    PAIR_ROLES,
+    default_placement_tile,
+    default_work_group_size,
+    pair_kernel_params,
+)
 
 PATH = "pipeline/narrowphase/triangles.cl.mako"
 
