@@ -12,10 +12,14 @@
  * capsule_triangle: the closest points of the segment and the triangle; on the face
  * normal, the part of the segment over the triangle gives up to two points (a capsule
  * lying on it).
- * convex_triangle (a box or a hull): a separating-axis test with the triangle as a
- * two-sided polygon (its normal both ways, the shape's faces, the cross products of the
- * triangle's edges and the shape's edge directions); an axis whose nearest triangle
- * feature is inactive can separate but not be the normal. A face axis clips the other
+ * box_triangle and hull_triangle (kernel convex_triangle; each in a program of its own,
+ * so that a work group holds one kind of shape): a separating-axis test with the
+ * triangle as a two-sided polygon: its normal both ways, the shape's faces, and edge
+ * pairs (a box: the triangle's edges against its three edge directions, measured on
+ * both extents; a hull: only the pairs of a hull edge and a triangle edge that form a
+ * face of the Minkowski difference, found on the Gauss map and measured between the
+ * edges, which scales to large hulls). An axis whose nearest triangle feature is
+ * inactive can separate but not be the normal. A face axis clips the other
  * side's polygon against the reference face's side planes (Sutherland-Hodgman; up to
  * ${max_clip} points: faces have at most ${max_face_vertices} vertices), an edge axis gives
  * the closest points of the two edges; at most four points are kept (the deepest, the
@@ -23,7 +27,7 @@
  */
 ${cl_constants()}
 
-${cl_structs("Body", "Shape", "Pair", "HullFace", "MeshTriangle", "ContactManifold")}
+${cl_structs("Body", "Shape", "Pair", "HullFace", "HullEdge", "MeshTriangle", "ContactManifold")}
 
 <%include file="/common/quaternion.cl.mako"/>
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
@@ -197,7 +201,7 @@ ${queued_pair()}
     store_in_world(slots, contact_flags, tile_counts, q, &frame, normal, points, features, count);
 }
 % endif
-% if "convex_triangle" in kinds:
+% if convex != "none":
 
 #define MAX_CLIP_POINTS ${max_clip}
 /* The shape's face axis wins over the triangle's normal, and an edge axis over both,
@@ -213,16 +217,16 @@ ${polygons.clip_polygon()}
 
 ${polygons.choose_contacts()}
 
-/* Extent of the convex shape (placed by `shape_in_mesh`) along a mesh-frame axis. */
+/* Extent of the ${convex} (placed by `shape_in_mesh`) along a mesh-frame axis. */
 inline float2 convex_interval(const Placement* shape_in_mesh, Shape s, __global const float4* hull_vertices,
                               float3 axis)
 {
     float3 local_axis = rotate_to_local(shape_in_mesh, axis);
     float centre = dot3(axis, shape_in_mesh->position);
-    if (s.type == RB_SHAPE_BOX) {
-        float reach = dot3(abs3(local_axis), s.extents.xyz);
-        return (float2)(centre - reach, centre + reach);
-    }
+% if convex == "box":
+    float reach = dot3(abs3(local_axis), s.extents.xyz);
+    return (float2)(centre - reach, centre + reach);
+% else:
     float lo = INFINITY, hi = -INFINITY;
     for (uint v = 0; v < s.vertex_count; ++v) {
         float d = dot3(local_axis, hull_vertices[s.vertex_offset + v].xyz);
@@ -230,6 +234,7 @@ inline float2 convex_interval(const Placement* shape_in_mesh, Shape s, __global 
         hi = max1(hi, d);
     }
     return (float2)(lo + centre, hi + centre);
+% endif
 }
 
 /* Vertex k of a face of the shape, in the mesh frame. */
@@ -239,6 +244,7 @@ inline float3 face_vertex(const Placement* shape_in_mesh, Shape s, HullFace face
     return point_to_world(shape_in_mesh, hull_vertices[s.vertex_offset + face_indices[face.index_offset + k]].xyz);
 }
 
+% if convex == "box":
 /* The shape's edge parallel to `direction` (shape frame) that reaches farthest along
  * `towards` (mesh frame); its end points in the mesh frame. */
 inline void shape_supporting_edge(const Placement* shape_in_mesh, Shape s, float3 direction, float3 towards,
@@ -263,14 +269,19 @@ inline void shape_supporting_edge(const Placement* shape_in_mesh, Shape s, float
     *e0 = point_to_world(shape_in_mesh, best0);
     *e1 = point_to_world(shape_in_mesh, best1);
 }
+% endif
 
-/* Box or hull (first) against a triangle (second); see the header. */
+/* ${"Box" if convex == "box" else "Hull"} (first) against a triangle (second); see the header. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void convex_triangle(${queue_args("convex_triangle")},
                      __global const float4* hull_vertices,
                      __global const HullFace* hull_faces,
                      __global const uint* face_indices,
+% if convex == "box":
                      __global const float4* hull_edges)
+% else:
+                     __global const HullEdge* hull_adjacency)
+% endif
 {
 ${queued_pair()}
     Shape s = shapes[a.shape];
@@ -300,9 +311,10 @@ ${queued_pair()}
         if (separation > face.w && feature_active(tri.edges, supporting_feature(&tri, m)))
             face = (float4)(m, separation), face_index = f;
     }
-    /* 3. triangle edge k x the shape's edge direction j */
     float4 edge = (float4)(0.0f, 0.0f, 0.0f, -INFINITY);
     uint edge_k = 0, edge_j = 0;
+% if convex == "box":
+    /* 3. triangle edge k x the box's edge direction j, measured on both extents */
     for (uint k = 0; k < 3u; ++k) {
         float3 e = tri.v[(k + 1u) % 3u] - tri.v[k];
         for (uint j = 0; j < s.edge_count; ++j) {
@@ -325,6 +337,46 @@ ${queued_pair()}
                 edge = (float4)(axis, separation), edge_k = k, edge_j = j;
         }
     }
+% else:
+    /* 3. hull edge j and triangle edge k, only where they form a face of the Minkowski
+     * difference: where the Gauss-map arc of edge j (between its faces' normals) crosses
+     * that of minus edge k, the half circle from -n through -side_k to n (a flat
+     * triangle's edge joins its two faces n and -n through its outward side). In the
+     * hull's frame, where its arrays are stored; the separation is the distance between
+     * the edge lines along their cross product, turned away from the hull's centre. */
+    float3 corner[3], normal_local = rotate_to_local(&shape_in_mesh, tri.normal);
+    for (uint k = 0; k < 3u; ++k)
+        corner[k] = point_to_local(&shape_in_mesh, tri.v[k]);
+    __global const float4* vertices = hull_vertices + s.vertex_offset;
+    __global const HullFace* faces = hull_faces + s.face_offset;
+    for (uint j = 0; j < s.adjacency_count; ++j) {
+        HullEdge he = hull_adjacency[s.adjacency_offset + j];
+        float3 na = faces[he.f0].plane.xyz, nb = faces[he.f1].plane.xyz;
+        float3 a0 = vertices[he.v0].xyz, a1 = vertices[he.v1].xyz;
+        for (uint k = 0; k < 3u; ++k) {
+            float3 e = corner[(k + 1u) % 3u] - corner[k];
+            float da = dot3(na, e), db = dot3(nb, e);
+            if (da * db >= 0.0f)
+                continue;  /* the arc does not cross the great circle of -edge k */
+            float3 crossing = na + (nb - na) * (da / (da - db));
+            if (dot3(crossing, cross3(e, normal_local)) >= 0.0f)
+                continue;  /* it crosses on the half circle through +side_k */
+            float3 axis = cross3(a1 - a0, e);
+            float sin2 = dot3(axis, axis);
+            if (sin2 < PARALLEL_SIN2 * dot3(a1 - a0, a1 - a0) * dot3(e, e))
+                continue;
+            axis *= 1.0f / sqrt1(sin2);
+            if (dot3(axis, a0) < 0.0f)
+                axis = -axis;
+            float separation = dot3(axis, corner[k] - a0);
+            if (separation > margin)
+                return;
+            if (separation > edge.w && feature_active(tri.edges, TRIANGLE_EDGE + k))
+                edge = (float4)(rotate_to_world(&shape_in_mesh, axis), separation), edge_k = k,
+                edge_j = j;
+        }
+    }
+% endif
     uint reference = 0u;  /* 0: the triangle's face, 1: the shape's face, 2: an edge pair */
     if (face.w > best.w + FACE_TOLERANCE)
         best = face, reference = 1u;
@@ -432,10 +484,17 @@ ${queued_pair()}
             count = 1;
         }
     } else {
-        /* edge k of the triangle and the shape's supporting edge parallel to direction j */
         float3 e0, e1, on_shape, on_triangle;
+% if convex == "box":
+        /* edge k of the triangle and the box's supporting edge parallel to direction j */
         shape_supporting_edge(&shape_in_mesh, s, hull_edges[s.edge_offset + edge_j].xyz, best.xyz,
                               hull_vertices, hull_faces, face_indices, &e0, &e1);
+% else:
+        /* edge k of the triangle and the hull's edge j */
+        HullEdge he = hull_adjacency[s.adjacency_offset + edge_j];
+        e0 = point_to_world(&shape_in_mesh, hull_vertices[s.vertex_offset + he.v0].xyz);
+        e1 = point_to_world(&shape_in_mesh, hull_vertices[s.vertex_offset + he.v1].xyz);
+% endif
         closest_points_of_segments(e0, e1, tri.v[edge_k], tri.v[(edge_k + 1u) % 3u], &on_shape, &on_triangle);
         candidates[0] = (float4)(on_triangle, best.w);
         candidate_features[0] = EDGE_CONTACT | (edge_k << 16) | edge_j;
