@@ -90,6 +90,7 @@ class TriangleMesh(Shape):
         self.source_triangles = source[tree.order]
         self.bvh = tree
         self.active_edges = active_edges(vertices, self.triangles)
+        self._device: dict = {}  # (device_arrays at vertex offset 0, made once)
         digest = hashlib.sha1(self.vertices.tobytes())
         digest.update(self.triangles.astype(np.int64).tobytes())
         self._digest = digest.hexdigest()
@@ -128,12 +129,19 @@ class TriangleMesh(Shape):
 
     def device_arrays(self, vertex_offset: int = 0):
         """(float4 vertices, MeshTriangle records with vertex indices from
-        ``vertex_offset``, BvhNode records): this mesh's part of the table arrays."""
+        ``vertex_offset``, BvhNode records): this mesh's part of the table arrays (made
+        once for offset 0, the one-mesh case: an upload then copies nothing on the host)."""
+        if vertex_offset == 0 and self._device:
+            return self._device["arrays"]
         vertices = np.zeros((len(self.vertices), 4), np.float32)
         vertices[:, :3] = self.vertices
         records = layouts.MESH_TRIANGLE.zeros(len(self.triangles))
         records["vertices"] = self.triangles + vertex_offset
         records["edges"] = self.active_edges
+        if vertex_offset == 0:
+            for array in (vertices, records):
+                array.flags.writeable = False
+            self._device["arrays"] = (vertices, records, self.bvh.nodes)
         return vertices, records, self.bvh.nodes
 
     @classmethod
@@ -149,9 +157,10 @@ class TriangleMesh(Shape):
             rec["child_offset"], rec["child_count"] = n, len(nodes)
             chunks.append((vertices, triangles, nodes))
             v, t, n = v + len(vertices), t + len(triangles), n + len(nodes)
-        return {"mesh_vertices": np.concatenate([c[0] for c in chunks]),
-                "mesh_triangles": np.concatenate([c[1] for c in chunks]),
-                "bvh_nodes": np.concatenate([c[2] for c in chunks])}
+        if len(chunks) == 1:  # (one mesh: its arrays as they are, no copy of millions)
+            return dict(zip(cls.table_arrays, chunks[0]))
+        return {name: np.concatenate([c[k] for c in chunks])
+                for k, name in enumerate(cls.table_arrays)}
 
 
 def load_mesh(path, name: str | None = None) -> TriangleMesh:
