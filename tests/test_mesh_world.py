@@ -6,8 +6,8 @@ Physics, each against its closed form or the same scene on a plane:
   the same friction (speeds within 2%), with |v_y| < 1 cm/s: no bump on the seams;
 * a sphere rolls across the seams at the constant height of its radius, its speed
   5/7 of the start (rolling without slipping), as on a plane;
-* boxes, spheres, capsules, hulls and compounds dropped on a rough terrain come to rest
-  (every speed below 5 cm/s after 4 s, none below the terrain).
+* boxes, hulls and compounds dropped on a rough terrain come to rest (every speed below
+  5 cm/s after 5 s, none below the terrain; spheres and capsules roll on, but stay on it).
 """
 from __future__ import annotations
 
@@ -199,7 +199,7 @@ def chair(scale: float = 1.0) -> rbgen.Compound:
 
 def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
     """Boxes, hulls and compounds dropped on a rough height field (2 x 24 x 24 triangles,
-    heights +-15 cm) rest after 4 s: no NaN, speeds < 5 cm/s, no centre below the terrain
+    heights +-15 cm) rest after 5 s: no NaN, speeds < 5 cm/s, no centre below the terrain
     under it. Spheres and capsules roll without resistance: one that lands on a slope
     rolls on (at most the speed of a fall down the roughness, sqrt(10/7 g 0.3) = 2 m/s),
     so they are held to that and to staying on the terrain."""
@@ -214,7 +214,7 @@ def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
         grid = np.stack(np.meshgrid(np.arange(3, 21, 3.0), [1.5 + 0.8 * k], [4.0 + 3.0 * k],
                                     indexing="ij"), -1).reshape(-1, 3)
         ids += list(world.add_bodies(shape, mass=1.0, positions=grid))
-    for _ in range(240):
+    for _ in range(300):
         world.step(1 / 60)
     p = world.positions[ids]
     speeds = np.linalg.norm(world.linear_velocities[ids], axis=1)

@@ -18,8 +18,9 @@
  * pairs (a box: the triangle's edges against its three edge directions, measured on
  * both extents; a hull: only the pairs of a hull edge and a triangle edge that form a
  * face of the Minkowski difference, found on the Gauss map and measured between the
- * edges, which scales to large hulls). An axis whose nearest triangle feature is
- * inactive can separate but not be the normal. A face axis clips the other
+ * edges, which scales to large hulls). When the best axis's nearest triangle feature
+ * is inactive, the triangle's normal is used instead (the part of the shape over the
+ * triangle; what lies beyond that feature is its neighbour's). A face axis clips the other
  * side's polygon against the reference face's side planes (Sutherland-Hodgman; up to
  * ${max_clip} points: faces have at most ${max_face_vertices} vertices), an edge axis gives
  * the closest points of the two edges; at most four points are kept (the deepest, the
@@ -301,6 +302,7 @@ ${queued_pair()}
     /* 2. the shape's faces: the triangle's least projection less the face's offset */
     float4 face = (float4)(0.0f, 0.0f, 0.0f, -INFINITY);
     uint face_index = 0;
+    bool face_active = true;
     for (uint f = 0; f < s.face_count; ++f) {
         float4 local_plane = hull_faces[s.face_offset + f].plane;
         float3 m = rotate_to_world(&shape_in_mesh, local_plane.xyz);
@@ -308,11 +310,13 @@ ${queued_pair()}
         float separation = min1(min1(dot3(m, tri.v[0]), dot3(m, tri.v[1])), dot3(m, tri.v[2])) - offset;
         if (separation > margin)
             return;
-        if (separation > face.w && feature_active(tri.edges, supporting_feature(&tri, m)))
-            face = (float4)(m, separation), face_index = f;
+        if (separation > face.w)
+            face = (float4)(m, separation), face_index = f,
+            face_active = feature_active(tri.edges, supporting_feature(&tri, m));
     }
     float4 edge = (float4)(0.0f, 0.0f, 0.0f, -INFINITY);
     uint edge_k = 0, edge_j = 0;
+    bool edge_active = true;
 % if convex == "box":
     /* 3. triangle edge k x the box's edge direction j, measured on both extents */
     for (uint k = 0; k < 3u; ++k) {
@@ -333,8 +337,9 @@ ${queued_pair()}
                 return;
             if (ahead < behind)
                 axis = -axis;
-            if (separation > edge.w && feature_active(tri.edges, supporting_feature(&tri, axis)))
-                edge = (float4)(axis, separation), edge_k = k, edge_j = j;
+            if (separation > edge.w)
+                edge = (float4)(axis, separation), edge_k = k, edge_j = j,
+                edge_active = feature_active(tri.edges, supporting_feature(&tri, axis));
         }
     }
 % else:
@@ -371,17 +376,24 @@ ${queued_pair()}
             float separation = dot3(axis, corner[k] - a0);
             if (separation > margin)
                 return;
-            if (separation > edge.w && feature_active(tri.edges, TRIANGLE_EDGE + k))
+            if (separation > edge.w)
                 edge = (float4)(rotate_to_world(&shape_in_mesh, axis), separation), edge_k = k,
-                edge_j = j;
+                edge_j = j, edge_active = feature_active(tri.edges, TRIANGLE_EDGE + k);
         }
     }
 % endif
+    float4 normal_axis = best;
     uint reference = 0u;  /* 0: the triangle's face, 1: the shape's face, 2: an edge pair */
     if (face.w > best.w + FACE_TOLERANCE)
         best = face, reference = 1u;
     if (edge.w > max1(best.w, face.w) + EDGE_TOLERANCE)
         best = edge, reference = 2u;
+    /* an axis whose nearest triangle feature is inactive (a seam of a flat or concave
+     * surface) is no normal: the triangle's own is, and the neighbours beyond that
+     * feature give the contacts beside this triangle */
+    bool on_inactive = (reference == 1u && !face_active) || (reference == 2u && !edge_active);
+    if (on_inactive)
+        best = normal_axis, reference = 0u;
 
     float3 polygon[MAX_CLIP_POINTS], clipped[MAX_CLIP_POINTS];
     uint ids[MAX_CLIP_POINTS], clipped_ids[MAX_CLIP_POINTS];
@@ -424,6 +436,8 @@ ${queued_pair()}
             candidates[count] = (float4)(p - outward * separation, separation);
             candidate_features[count++] = (incident << 8) | (in_clipped ? clipped_ids[k] : ids[k]);
         }
+        if (count == 0 && on_inactive)
+            return;  /* the shape lies beyond the inactive feature, over a neighbour */
         if (count == 0) {
             /* the face lies beside the triangle: the shape's deepest vertex */
             float3 deepest = (float3)(0.0f);
