@@ -160,14 +160,22 @@ def build(lower: np.ndarray, upper: np.ndarray, what: str = "BVH") -> Bvh:
     if not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper))):
         raise RbgenError(f"{what}: a primitive box is not finite")
     box_lower, box_upper = lower.min(axis=0), upper.max(axis=0)
-    # the quantization box: the boxes' hull, no thinner than a millionth of its largest side
-    # on any axis, then a quantum of slack on each side (see quantize)
+    # the quantization box: the boxes' hull with two quanta of slack on each side (see
+    # quantize), no thinner on any axis than a millionth of its largest side nor than
+    # 4 * QUANTA float32 steps at its coordinates (so that a quantum is at least four
+    # float32 steps there, and rounding never moves a box by one), corners in float32
     extent = box_upper - box_lower
-    floor = max(float(extent.max()) * 1e-6, 1e-6)
+    step = float(np.spacing(np.float32(max(np.abs(box_lower).max(), np.abs(box_upper).max(),
+                                           1.0))))
+    floor = max(float(extent.max()) * 1e-6, 1e-6, 4.0 * QUANTA * step)
     extent = np.maximum(extent, floor)
     quantum = extent / (QUANTA - 4)
-    q_lower = (box_lower - 2 * quantum).astype(np.float32).astype(np.float64)
-    q_upper = (q_lower + QUANTA * quantum).astype(np.float32).astype(np.float64)
+    q_lower = (box_lower - 2 * quantum).astype(np.float32)
+    q_lower = np.where(q_lower > box_lower - quantum, np.nextafter(q_lower, np.float32(-np.inf)),
+                       q_lower).astype(np.float64)
+    q_upper = (q_lower + QUANTA * quantum).astype(np.float32)
+    q_upper = np.where(q_upper < box_upper + quantum, np.nextafter(q_upper, np.float32(np.inf)),
+                       q_upper).astype(np.float64)
 
     # leaves in Morton order of their centres (ties: input order, so the build is deterministic)
     codes = morton_codes(0.5 * (lower + upper), box_lower, float(extent.max()))

@@ -120,3 +120,15 @@ def test_bad_input_is_refused():
         bvh.build(np.zeros((0, 3)), np.zeros((0, 3)), "test mesh")
     with pytest.raises(RbgenError, match="not finite"):
         bvh.build(np.array([[0, 0, np.nan]]), np.ones((1, 3)))
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e3, 1e5])
+def test_thin_boxes_far_from_the_origin_stay_inside_their_nodes(rng, offset):
+    """A flat layer (zero extent on y) of tiny boxes far from the origin: the quantization
+    box keeps float32 rounding below a quantum, so every leaf still holds its box."""
+    n = 200
+    centres = offset + rng.uniform(-5, 5, (n, 3))
+    centres[:, 1] = offset
+    half = rng.uniform(0, 1e-7, (n, 3))
+    lower, upper = centres - half, centres + half
+    check_structure(bvh.build(lower, upper), lower, upper)
