@@ -10,8 +10,9 @@ The scene is `rbgen run terrain` (rbgen.harness: a procedural height field of
 in 4 layers). After ``--warmup`` steps (long enough for the rain to come to rest), the
 timed steps are clocked as rbgen.harness clocks every scene (median of 10 blocks,
 enqueued back to back, no blocking read); then the midphase alone (the step's expansion,
-on the last step's pairs and AABBs: count walk, scan, write walk) is timed by device
-events, median of ``--repeats``, with both traversals on the same pairs. Baseline,
+on the last step's pairs and AABBs, copied to a profiling queue of its own: count walk,
+scan, write walk) is timed by device events, median of ``--repeats``, with the World's
+parameters and both traversals on the same pairs. Baseline,
 measured in the same run: the same rain on a plane at the terrain's lowest height
 (no midphase, no triangles), so the difference is what the mesh costs. Results: JSON and
 Markdown under ``--out`` (rbgen.bench, kind "benchmarks/terrain.py").
@@ -23,29 +24,42 @@ import statistics
 import sys
 
 
-def midphase_ms(world, params: dict | None, repeats: int) -> tuple[float, list[float], int]:
-    """Median device ms of the World's midphase on its last step's inputs, with
-    ``params`` (None: the World's own choice), its samples and the pairs it wrote."""
+def last_inputs(world) -> dict:
+    """The last step's midphase inputs, read back (after the timed steps)."""
+    bp = world._pipeline.broadphase.broadphase
+    count = int(world.runtime.read(bp.count)[0])
+    return {"bodies": world.runtime.read(world._device.bodies)[:world._device.count],
+            "aabbs": world.runtime.read(world._pipeline.prepare.aabbs)[:world._device.count],
+            "pairs": world.runtime.read(bp.pairs)[:max(count, 1)], "count": count,
+            "shape_indices": world._device.shape_indices, "table": world._bodies.shapes,
+            "margin": world.settings.contact_margin}
+
+
+def midphase_ms(runtime, inputs: dict, params: dict, repeats: int):
+    """Median device ms of the midphase with ``params`` on ``inputs`` (a profiling
+    ``runtime`` of its own: the World's queue is not slowed by profiling), its samples and
+    the pairs it wrote."""
+    import numpy as np
     import pyopencl as cl
+    import pyopencl.array as cla
 
     from rbgen.pipeline.midphase import Midphase
 
-    stage = world._pipeline["midphase"]
-    own = stage.midphase
-    midphase = own if params is None else Midphase(world.runtime, own.table, params=params,
-                                                   capacity=own.triangles.capacity)
-    bp = world._pipeline.broadphase.broadphase
-    device = world._device
-    call = (device.bodies, device.count, world._packed, world._pipeline.prepare.aabbs,
-            bp.pairs, bp.count, world.settings.contact_margin, device.shape_indices)
+    q = runtime.queue
+    table = inputs["table"]
+    call = (cla.to_device(q, inputs["bodies"]), len(inputs["bodies"]),
+            table.pack_all().to_device(q), cla.to_device(q, inputs["aabbs"]),
+            cla.to_device(q, inputs["pairs"]),
+            cla.to_device(q, np.array([inputs["count"]], np.uint32)), inputs["margin"],
+            inputs["shape_indices"])
+    midphase = Midphase(runtime, table, params=params, capacity=8 * max(1, inputs["count"]))
     found = midphase.find_pairs(*call)  # warm-up (builds, grows)
-    queue = world.runtime.queue
     samples = []
     for _ in range(repeats):
-        queue.finish()
-        start = cl.enqueue_marker(queue)
+        q.finish()
+        start = cl.enqueue_marker(q)
         midphase.enqueue(*call)
-        end = cl.enqueue_marker(queue)
+        end = cl.enqueue_marker(q)
         end.wait()
         samples.append(1e-6 * (end.profile.end - start.profile.start))
     return statistics.median(samples), samples, len(found)
@@ -68,7 +82,7 @@ def main(argv=None) -> int:
     from rbgen.harness import run_scene
     from rbgen.pipeline.midphase import default_params
 
-    runtime = Runtime(args.device, profiling=True)
+    runtime = Runtime(args.device)
     kept = {}
 
     def keep(world, step):
@@ -82,14 +96,17 @@ def main(argv=None) -> int:
         rows.append(summary)
         if ground == "mesh":
             world = kept["world"]
-            triangles = world._pipeline["midphase"].midphase.table.shapes[0].triangle_count
             stage = world._pipeline["midphase"].midphase
+            triangles = stage.table.shapes[0].triangle_count
             own = dict(stage.triangle_params)
-            walks = {"world's": midphase_ms(world, None, args.repeats)}
+            inputs = last_inputs(world)
+            profiling = Runtime(args.device, profiling=True)
+            walks = {"world's": midphase_ms(profiling, inputs, own, args.repeats)}
             for traversal, subtree in (("global", 0), ("local", 128)):
                 params = {"work_group_size": own["work_group_size"], "traversal": traversal,
                           "subtree_nodes": subtree}
-                walks[f"{traversal}"] = midphase_ms(world, params, args.repeats)
+                walks[f"{traversal}"] = midphase_ms(profiling, inputs, params, args.repeats)
+            del world, kept["world"]
     mesh, plane = rows
     print(f"# {runtime.traits.describe()}")
     print(f"# terrain {triangles:,} triangles, {args.bodies:,} bodies, {args.warmup} warm-up "

@@ -45,7 +45,7 @@ from ..errors import RbgenError
 from ..launch import bound
 from ..primitives import Scan
 from ..primitives._base import size_bucket
-from ..shapes import PackedShapes, ShapeTable, shape_type
+from ..shapes import Box, PackedShapes, ShapeTable, shape_type
 from .aabbs import shape_types_param
 
 #: output pairs reserved per input pair before the first overflow (grown on demand)
@@ -434,6 +434,7 @@ FAMILY = "midphase"
 
 
 def _bench_build(runtime: Runtime, variant: str, params: dict):
+    """A candidate: its template values (the bench builds its Midphase on its own scene)."""
     values = dict(params)
     values.pop("shape")
     return values
@@ -450,7 +451,7 @@ def _bench(runtime: Runtime, values: dict, n: int, rng):
     mesh = TriangleMesh(*reference.terrain(128, 1.0, rng), name="tuning terrain")
     table = ShapeTable()
     table.add(mesh)
-    box = table.add(__import__("rbgen").Box((0.4, 0.4, 0.4)))
+    box = table.add(Box((0.4, 0.4, 0.4)))
     host = reference.bodies_above(bodies_n, mesh, box, rng)
     q = runtime.queue
     packed = table.pack_all().to_device(q)

@@ -317,3 +317,16 @@ def test_a_sharp_ridge_keeps_its_edge_normal(runtime):
     for m in found:
         np.testing.assert_allclose(m["normal"][:3], (0, 1, 0), atol=1e-5)
         assert m["points"][0, 3] == pytest.approx(-0.01, abs=1e-5)
+
+
+@pytest.mark.parametrize("n", [0, 1, 17])
+def test_few_or_no_triangle_pairs(runtime, rng, n):
+    """Lists of 0, 1 and 17 triangle pairs of every kind (fewer than a work group): as
+    many manifolds as touching pairs, each keyed by its pair's sub-feature."""
+    shapes = [Sphere(0.5), Capsule(0.3, 0.3), Box((0.4, 0.3, 0.5)),
+              ConvexHull(rng.normal(size=(10, 3)) * 0.4, name="pebble")]
+    mesh, table, bodies, pairs, stored, body_shapes = triangle_world(rng, max(n, 1), shapes)
+    found = find_contacts(runtime, table, bodies, pairs[:n])
+    assert len(found) <= n
+    assert set(found["sub"].tolist()) <= set(pairs[:n]["sub"].tolist())
+    assert np.array_equal(found["sub"] - 1, found["body_b"] - 1)
