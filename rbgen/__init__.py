@@ -5,6 +5,8 @@ See DESIGN.md (shared) and README.md. The user-facing names are re-exported here
 from .device import DeviceTraits, Runtime, list_devices, select_device
 from .errors import DeviceNotFoundError, KernelBuildError, RbgenError, TemplateParameterError
 from .shapes import Box, Capsule, ConvexHull, Plane, Shape, Sphere
+from .mesh import TriangleMesh, load_mesh
+from .compound import Compound
 from .world import World
 
 __all__ = ["Box", "Capsule", "ConvexHull", "DeviceNotFoundError", "DeviceTraits",

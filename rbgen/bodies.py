@@ -66,6 +66,8 @@ class DeviceBodies:
                                                             np.zeros((1, 3))))
         self.static = cla.to_device(queue, (host["inv_mass"] == 0).astype(np.uint32)
                                     if n else np.zeros(1, np.uint32))
+        #: each body's shape index (host copy: the midphase places compound children by it)
+        self.shape_indices = host["shape"].copy()
 
 
 class BodyStore:
@@ -109,7 +111,8 @@ class BodyStore:
             raise RbgenError(f"shape must be an rbgen shape, got {type(shape).__name__}")
         check_supported(shape, self.shapes.type_names())
         if masses is not None and type(shape).static_only:
-            raise RbgenError(f"a {type(shape).__name__} can only be static: use add_static")
+            raise RbgenError(f"a {type(shape).__name__} can only be static: use add_static"
+                             + type(shape).static_only_hint)
         n = len(positions)
         first = self.count
         positions = rows(positions, n, 3, "positions", first)

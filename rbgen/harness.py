@@ -9,7 +9,12 @@ in the others. Scenes:
               columns of 5 and should be at rest by step 300;
 ``boxbox``    Bullet3's BoxBox lattice (rbgen.scenes; ``n`` one of its
               standard sizes, or any n, rounded to a cube);
-``pyramid``   a 2-D pyramid of unit boxes with ``n`` rows (2 cm gaps).
+``pyramid``   a 2-D pyramid of unit boxes with ``n`` rows (2 cm gaps);
+``terrain``   ``n`` mixed bodies (boxes, hulls, compounds, a tenth spheres and
+              capsules) rained in 4 layers onto a procedural terrain of
+              2 x 1000^2 triangles (``terrain_cells=`` among the World options picks
+              another size; rbgen.scenes.terrain_heights); its "sunk" counts bodies
+              fallen below the terrain's lowest point.
 
 Timing: the timed steps are enqueued back to back as in a simulation loop
 (the host checks a step's overflow report two steps later, so it never drains
@@ -37,7 +42,7 @@ from .errors import RbgenError
 from .shapes import Box
 from .world import World
 
-SCENES = ("box_pile", "boxbox", "pyramid")
+SCENES = ("box_pile", "boxbox", "pyramid", "terrain")
 
 #: the timed steps are clocked in this many blocks (see the module docstring);
 #: ms_per_step is the median block's (a block that a neighbour on the machine slowed
@@ -54,6 +59,8 @@ def build_scene(name: str, n: int, device=None, **world_options):
         raise RbgenError(f"unknown scene {name!r}; choose one of {list(SCENES)}")
     if not isinstance(n, (int, np.integer)) or n < 1:
         raise RbgenError(f"scene size n must be a positive integer, got {n!r}")
+    if name == "terrain":
+        return _terrain_scene(int(n), device, **world_options)
     world = World(device, **world_options)
     if name == "boxbox":
         if int(n) in scene_data.STANDARD_BOXBOX_DIMS:
@@ -77,6 +84,56 @@ def build_scene(name: str, n: int, device=None, **world_options):
     world.add_static(Box((rows + 10, 1, 10)), position=(0, -1, 0))
     ids = world.add_bodies(Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
     return world, ids, 0.0, 0.5
+
+
+def terrain_shapes() -> list:
+    """The terrain scene's bodies, in the order of their shares of the rain: a box, a
+    hull, a table (a compound of a top on four legs), a dumbbell (two spheres on a bar),
+    a sphere and a capsule."""
+    from .compound import Compound
+    from .shapes import Capsule, ConvexHull, Sphere
+
+    rng = np.random.default_rng(7)
+    legs = [(Box((0.04, 0.2, 0.04)), (x * 0.3, -0.2, z * 0.2)) for x in (-1, 1) for z in (-1, 1)]
+    return [Box((0.35, 0.25, 0.3)),
+            ConvexHull(rng.normal(size=(14, 3)) * (0.35, 0.25, 0.3), name="rock"),
+            Compound([(Box((0.4, 0.04, 0.3)), (0, 0.02, 0))] + legs, name="table"),
+            Compound([(Sphere(0.2), (-0.4, 0, 0)), (Sphere(0.2), (0.4, 0, 0)),
+                      (Box((0.35, 0.05, 0.05)), (0, 0, 0))], name="dumbbell"),
+            Sphere(0.3), Capsule(0.2, 0.25)]
+
+
+#: the shares of `terrain_shapes` in the rain (round shapes roll, so few of them)
+TERRAIN_SHARES = (0.3, 0.3, 0.15, 0.15, 0.05, 0.05)
+
+
+def _terrain_scene(n: int, device, terrain_cells: int = scene_data.TERRAIN_CELLS,
+                   terrain_ground: str = "mesh", **world_options):
+    """The terrain scene; ``terrain_ground="plane"``: the same rain onto a plane at the
+    terrain's lowest height instead (the benchmarks' baseline)."""
+    from .mesh import TriangleMesh
+    from .shapes import Plane
+
+    if terrain_ground not in ("mesh", "plane"):
+        raise RbgenError(f"terrain_ground must be 'mesh' or 'plane', got {terrain_ground!r}")
+    heights = scene_data.terrain_heights(terrain_cells)
+    world = World(device, **world_options)
+    if terrain_ground == "mesh":
+        world.add_static(TriangleMesh(*scene_data.height_field(heights), name="terrain"))
+    else:
+        world.add_static(Plane((0, 1, 0), float(heights.min())))
+    positions = scene_data.rain_positions(n, heights)
+    kinds = np.random.default_rng(1).choice(len(TERRAIN_SHARES), n, p=TERRAIN_SHARES)
+    orientations = np.random.default_rng(2).normal(size=(n, 4))
+    orientations /= np.linalg.norm(orientations, axis=1, keepdims=True)
+    ids = []
+    for k, shape in enumerate(terrain_shapes()):
+        chosen = np.flatnonzero(kinds == k)
+        if len(chosen):
+            ids.append(world.add_bodies(shape, mass=1.0, positions=positions[chosen],
+                                        orientations=orientations[chosen]))
+    ids = np.sort(np.concatenate(ids)) if ids else np.zeros(0, int)
+    return world, ids, float(heights.min()) - 1.0, 0.0
 
 
 def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True, *,

@@ -236,16 +236,20 @@ BODY = declare("Body", [
 SHAPE = declare("Shape", [
     ("extents", "float4", "per type: radius, half extents, plane normal+offset"),
     ("type", "uint", "RB_SHAPE_* (rbgen.shapes: the shape type's code)"),
-    ("vertex_offset", "uint", "hull: first vertex in the hull vertex array"),
+    ("vertex_offset", "uint", "hull: first vertex in the hull vertex array (mesh, compound: "
+                              "their local box's lower and upper corners)"),
     ("vertex_count", "uint", "hull: number of vertices"),
-    ("face_offset", "uint", "hull: first face"),
-    ("face_count", "uint", "hull: number of faces"),
+    ("face_offset", "uint", "hull: first face; mesh: first MeshTriangle"),
+    ("face_count", "uint", "hull: number of faces; mesh: number of triangles"),
     ("edge_offset", "uint", "hull: first unique edge direction"),
     ("edge_count", "uint", "hull: number of unique edge directions"),
-    ("child_offset", "uint", "compound/mesh: first child or BVH node"),
+    ("child_offset", "uint", "compound: first CompoundChild; mesh: first BvhNode"),
     ("adjacency_offset", "uint", "hull: first HullEdge (edge with its two faces)"),
     ("adjacency_count", "uint", "hull: number of HullEdge records"),
-], "A collision shape in its local (principal) frame.")
+    ("child_count", "uint", "compound: children; mesh: BVH nodes (2 triangles - 1)"),
+], "A collision shape in its local (principal) frame. A mesh's triangles are "
+   "face_offset/face_count in the MeshTriangle array and its quantization box (lower, upper "
+   "corners) vertex_offset/2 in the hull vertex array; a compound's local AABB likewise.")
 
 AABB = declare("Aabb", [
     ("lower", "float4", "minimum corner; w unused"),
@@ -403,6 +407,52 @@ SAT_RESULT = declare("SatResult", [
     ("pair", "uint", "pair index, | RB_PAIR_SWAPPED when the kernel's first shape is body b"),
     ("feature", "uint", "face of A (< faces A), face of B (next faces B), else an edge pair"),
 ], "A convex-convex pair that passed the separating-axis test, queued for clipping.")
+
+# --------------------------------------------------------------------------
+# Midphase: triangle meshes and compounds (owner: midphase; rbgen/bvh.py, rbgen/mesh.py,
+# rbgen/compound.py, rbgen/pipeline/midphase.py). A mesh is a BVH over its triangles in
+# depth-first order (rbgen.bvh): a node's box is quantized to 16 bits per axis inside the
+# mesh's quantization box, and an inner node stores minus the size of its subtree, which
+# is the offset to the node after it (its "escape"), so a walk needs no stack.
+BVH_QUANTA = constant("RB_BVH_QUANTA", 65535, "largest quantized coordinate of a BVH box")
+
+BVH_NODE = declare("BvhNode", [
+    ("bounds", "uint", 3, "quantized box: lower.x | lower.y << 16, lower.z | upper.x << 16, "
+                          "upper.y | upper.z << 16"),
+    ("index", "int", "leaf: its triangle (from the mesh's first, >= 0); inner node: minus "
+                     "the nodes of its subtree (itself included), the offset to its escape"),
+], "One node of a quantized BVH, in depth-first order.")
+
+#: `MeshTriangle.edges` bit k: edge k (vertex k to vertex k + 1) is active
+ACTIVE_EDGE_BITS = constant("RB_ACTIVE_EDGES", 7, "MeshTriangle.edges: the three active-edge bits")
+
+MESH_TRIANGLE = declare("MeshTriangle", [
+    ("vertices", "uint", 3, "indices into the mesh vertex array (float4, mesh frame), "
+                            "counter-clockwise seen from the front"),
+    ("edges", "uint", "bit k: edge from vertex k to vertex k + 1 is active (open, sharp or "
+                      "non-manifold): a contact on an inactive edge takes the face normal"),
+], "One triangle of a static mesh, in its BVH's leaf order.")
+
+COMPOUND_CHILD = declare("CompoundChild", [
+    ("position", "float4", "origin of the child's frame in the compound's (principal) frame"),
+    ("orientation", "float4", "rotation of the child's frame in the compound's (x, y, z, w)"),
+    ("shape", "uint", "the child's Shape index"),
+], "One child of a compound shape: a convex shape and where it sits.")
+
+#: Pair.sub of a sub-feature pair: 1 + (child << RB_SUB_CHILD_SHIFT | other), where child is
+#: a compound child (the first compound's) and other a triangle or the second compound's child
+SUB_CHILD_SHIFT = constant("RB_SUB_CHILD_SHIFT", 24,
+                           "Pair.sub = 1 + (compound child << shift | triangle or other child)")
+MAX_COMPOUND_CHILDREN = constant("RB_MAX_COMPOUND_CHILDREN", 256, "children of one compound")
+MAX_MESH_TRIANGLES = constant("RB_MAX_MESH_TRIANGLES", (1 << 24) - 1,
+                              "triangles of one mesh (after degenerate ones are dropped)")
+NO_SUBTREE = constant("RB_NO_SUBTREE", 0xFFFFFFFF, "midphase: no subtree requested")
+
+CHILD_PROXY = declare("ChildProxy", [
+    ("body", "uint", "the compound body"),
+    ("child", "uint", "which of its shape's children"),
+], "A compound child as the narrowphase sees it: a body of its own after the world's "
+   "bodies, placed where the child is.")
 
 # --------------------------------------------------------------------------
 # Broadphase (owner: broadphase; rbgen/pipeline/broadphase/).

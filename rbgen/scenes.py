@@ -136,3 +136,65 @@ def pyramid_positions(rows: int, gap: float = 0.02) -> np.ndarray:
     ``gap`` between neighbours of a row; the last box is the top."""
     return np.array([[(i - (rows - r - 1) / 2) * (1 + gap), 0.5 + r, 0.0]
                      for r in range(rows) for i in range(rows - r)]).reshape(-1, 3)
+
+
+# --------------------------------------------------------------------------
+# The terrain scene: a height field and a rain of bodies above it.
+
+#: cells per side of the terrain scene's default height field: 2,000,000 triangles
+TERRAIN_CELLS = 1000
+#: its cell size (m)
+TERRAIN_SPACING = 1.0
+
+
+def terrain_heights(cells: int, spacing: float = TERRAIN_SPACING, seed: int = 0) -> np.ndarray:
+    """(cells + 1, cells + 1) heights of a procedural terrain: rolling hills (four octaves of
+    sines along random directions, 4 m from trough to crest at 80 m and halving with the
+    wavelength) and 2 cm of noise; slopes stay under about 12 degrees, so that boxes rest."""
+    if not isinstance(cells, (int, np.integer)) or cells < 1:
+        raise RbgenError(f"terrain cells must be a positive integer, got {cells!r}")
+    rng = np.random.default_rng(seed)
+    x = np.arange(cells + 1) * float(spacing)
+    gx, gz = np.meshgrid(x, x, indexing="ij")
+    heights = np.zeros_like(gx)
+    for octave in range(4):
+        wavelength, amplitude = 80.0 / 2 ** octave, 1.0 / 2 ** octave
+        for _ in range(2):
+            angle, phase = rng.uniform(0, 2 * np.pi, 2)
+            along = gx * np.cos(angle) + gz * np.sin(angle)
+            heights += amplitude * np.sin(2 * np.pi * along / wavelength + phase)
+    return heights + rng.uniform(-0.01, 0.01, heights.shape)
+
+
+def height_field(heights: np.ndarray, spacing: float = TERRAIN_SPACING):
+    """(vertices, triangles) of a height field: vertex (i, j) at (i, h[i, j], j) times the
+    spacing, two triangles a cell, counter-clockwise seen from above."""
+    heights = np.asarray(heights, np.float64)
+    nx, nz = heights.shape
+    gx, gz = np.meshgrid(np.arange(nx) * spacing, np.arange(nz) * spacing, indexing="ij")
+    vertices = np.stack([gx.ravel(), heights.ravel(), gz.ravel()], axis=1)
+    i, j = np.meshgrid(np.arange(nx - 1), np.arange(nz - 1), indexing="ij")
+    v00 = (i * nz + j).ravel()
+    triangles = np.concatenate([np.stack([v00, v00 + 1, v00 + nz], 1),
+                                np.stack([v00 + nz, v00 + 1, v00 + nz + 1], 1)])
+    return vertices, triangles
+
+
+def rain_positions(n: int, heights: np.ndarray, spacing: float = TERRAIN_SPACING,
+                   pitch: float = 1.6, layers: int = 4, clearance: float = 1.0,
+                   seed: int = 0) -> np.ndarray:
+    """Centres of ``n`` bodies above the middle of a height field: a square grid of
+    ``pitch`` in ``layers`` layers (fewer for small n), the lowest ``clearance`` above the
+    highest ground under the grid, jittered by 10 cm."""
+    layers = max(1, min(layers, int(n)))
+    side = int(np.ceil(np.sqrt(n / layers)))
+    extent = (heights.shape[0] - 1) * spacing
+    start = 0.5 * (extent - pitch * (side - 1))
+    i, j, k = np.meshgrid(np.arange(side), np.arange(layers), np.arange(side), indexing="ij")
+    x, z = start + pitch * i.ravel(), start + pitch * k.ravel()
+    cells = np.clip((np.stack([x, z], 1) / spacing).astype(int), 0, heights.shape[0] - 1)
+    base = heights[cells[:, 0], cells[:, 1]].max() if len(cells) else 0.0
+    y = base + clearance + pitch * j.ravel()
+    rng = np.random.default_rng(seed)
+    positions = np.stack([x, y, z], 1)[:n]
+    return positions + rng.uniform(-0.1, 0.1, positions.shape)

@@ -74,6 +74,14 @@ class Shape:
     extents_doc: str = ""
     aabb_template: str = ""
     static_only: bool = False
+    #: appended to the refusal of a static-only shape as a dynamic body (what to use instead)
+    static_only_hint: str = ""
+    #: a composite type (a compound): the midphase turns its pairs into its children's pairs
+    #: (`parts`), so pairs with it need no narrowphase kernel of their own
+    composite: bool = False
+    #: arrays of the type's own that `pack_arrays` adds to `PackedShapes`, by the name
+    #: kernels give them (what each holds); a kernel binds them by name like the hull arrays
+    table_arrays: dict[str, str] = {}
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -101,7 +109,21 @@ class Shape:
         object.__setattr__(self, name, value)
 
     def pack(self, record: np.void, hull_vertices: list) -> None:
+        """Fill the shape's `Shape` record; a shape without cooked polygons may append
+        points to ``hull_vertices`` (its record's vertex_offset/vertex_count then say where
+        they are: a mesh's or compound's local box)."""
         raise NotImplementedError
+
+    def parts(self) -> tuple[Shape, ...]:
+        """Shapes this one is made of (a compound's children): a `ShapeTable` adds them
+        first, so they have records of their own."""
+        return ()
+
+    @classmethod
+    def pack_arrays(cls, table: ShapeTable, records: np.ndarray) -> dict[str, np.ndarray]:
+        """The type's `table_arrays` for the shapes of this type in ``table`` (their
+        records' offsets into them set here); none by default."""
+        return {}
 
     def key(self) -> tuple:
         """Identity for deduplication in a `ShapeTable`."""
@@ -365,9 +387,15 @@ class ShapeTable:
             raise RbgenError(f"expected an rbgen shape, got {type(shape).__name__}")
         key = shape.key()
         if key not in self._index:
+            for part in shape.parts():
+                self.add(part)
             self._index[key] = len(self.shapes)
             self.shapes.append(shape)
         return self._index[key]
+
+    def index_of(self, shape: Shape) -> int:
+        """The index of a shape already in the table."""
+        return self._index[shape.key()]
 
     def type_names(self) -> tuple[str, ...]:
         """The sorted type names of the shapes present, e.g. ("box", "plane")."""
@@ -391,7 +419,12 @@ class ShapeTable:
         for i, shape in enumerate(self.shapes):
             rec = records[i]
             rec["type"] = shape.type_code
-            shape.pack(rec, [])
+            points: list = []
+            shape.pack(rec, points)
+            if points:  # (a mesh's or compound's local box)
+                rec["vertex_offset"], rec["vertex_count"] = counts["v"], len(points)
+                vertices.append(np.asarray(points, np.float64).reshape(-1, 3))
+                counts["v"] += len(points)
             cooked = shape.cooked()
             if cooked is None:
                 continue
@@ -417,7 +450,11 @@ class ShapeTable:
             counts["v"] += len(cooked.vertices)
             counts["f"] += len(cooked.faces)
             counts["e"] += len(cooked.edge_directions)
+        extra: dict[str, np.ndarray] = {}
+        for cls in dict.fromkeys(type(shape) for shape in self.shapes):
+            extra.update(cls.pack_arrays(self, records))
         return PackedShapes(
+            extra=extra,
             shapes=records,
             vertices=_float4(vertices),
             faces=_records(layouts.HULL_FACE, faces),
@@ -465,11 +502,15 @@ class PackedShapes(Generic[_Arrays]):
     face_indices: _Arrays  # uint32 polygon vertex indices (relative to vertex_offset)
     edges: _Arrays         # (E, 4) float32 unique edge directions, w unused
     adjacency: _Arrays     # HullEdge records: every edge with its two faces
+    #: the arrays of shape types' own (`Shape.table_arrays`), by kernel argument name;
+    #: empty in a world without such types
+    extra: dict = dataclasses.field(default_factory=dict)
 
     def kernel_arguments(self) -> dict:
-        """The arrays by the names kernels give them (`KERNEL_ARGUMENTS`)."""
-        return {KERNEL_ARGUMENTS[f.name]: getattr(self, f.name)
-                for f in dataclasses.fields(self)}
+        """The arrays by the names kernels give them (`KERNEL_ARGUMENTS`, then `extra`)."""
+        return {**{KERNEL_ARGUMENTS[f.name]: getattr(self, f.name)
+                   for f in dataclasses.fields(self) if f.name in KERNEL_ARGUMENTS},
+                **self.extra}
 
     def to_device(self, queue) -> PackedShapes[cla.Array]:
         """The same arrays as pyopencl arrays on ``queue``'s device."""
@@ -477,4 +518,11 @@ class PackedShapes(Generic[_Arrays]):
 
         return PackedShapes(*(cla.to_device(queue, np.ascontiguousarray(a))
                               for a in (self.shapes, self.vertices, self.faces,
-                                        self.face_indices, self.edges, self.adjacency)))
+                                        self.face_indices, self.edges, self.adjacency)),
+                            extra={name: cla.to_device(queue, np.ascontiguousarray(a))
+                                   for name, a in self.extra.items()})
+
+
+def table_arguments() -> dict[str, str]:
+    """Every kernel argument name a registered shape type's `table_arrays` declares."""
+    return {name: doc for cls in shape_types() for name, doc in cls.table_arrays.items()}

@@ -89,14 +89,18 @@ def test_shape_classes_are_the_registry_entries_and_bound_their_shapes(rng):
     """Each shape class is its type's entry (code = its RB_SHAPE_<NAME> constant, the name
     ShapeTable reports, an AABB template); bounding radius about the centre of mass: a
     sphere's radius, a capsule's r + h, a box's |half extents|, a hull's farthest vertex;
-    a plane is unbounded (it has no vertices)."""
-    assert shape_types() == (Sphere, Box, Capsule, ConvexHull, Plane)
+    a plane is unbounded (it has no vertices). Meshes and compounds are entries too
+    (rbgen.mesh, rbgen.compound)."""
+    from rbgen import Compound, TriangleMesh
+
+    assert shape_types() == (Sphere, Box, Capsule, ConvexHull, Plane, TriangleMesh, Compound)
     for cls in shape_types():
         assert shape_type(cls.type_name) is cls
         assert layouts.constants()[cls.type_constant] == cls.type_code
         assert cls.type_constant == f"RB_SHAPE_{cls.type_name.upper()}"
         assert cls.aabb_template == f"shapes/{cls.type_name}.cl.mako"
-    assert [c.static_only for c in shape_types()] == [False, False, False, False, True]
+    assert [c.static_only for c in shape_types()] == [False, False, False, False, True, True,
+                                                      False]
     assert Sphere(0.7).bounding_radius() == 0.7
     assert Capsule(0.3, 1.2).bounding_radius() == pytest.approx(1.5)
     assert Box((1.0, 2.0, 2.0)).bounding_radius() == pytest.approx(3.0)

@@ -1,6 +1,7 @@
 """The step pipeline written as data: the stages of a World step, in order.
 
-    prepare -> broadphase -> narrowphase -> constraints -> [batching] -> solve -> integrate
+    prepare -> broadphase -> [midphase] -> narrowphase -> [children] -> constraints
+            -> [batching] -> solve -> integrate
 
 `StepPipeline.stages` is that list; a step walks it, each stage enqueuing its kernels
 (no blocking read). Every stage owns the buffers it writes (the prepare stage the AABBs,
@@ -31,6 +32,7 @@ from .broadphase import make_broadphase
 from .constraints import ContactConstraints
 from .device_barrier import ABANDONED_OFFSET, clear_abandoned
 from .integrate import Integrator
+from .midphase import Midphase, needs_midphase
 from .narrowphase import Narrowphase
 from .prepare import BodyPreparation
 from .solvers.jacobi import JacobiSolver
@@ -144,19 +146,51 @@ class BroadphaseStage(Stage):
         self.broadphase.buffer.grow_for(pairs_found)
 
 
+class MidphaseStage(Stage):
+    """Sub-feature pairs of the pairs with a compound or a triangle mesh: compound children
+    and mesh triangles (`rbgen.pipeline.midphase`); owns their buffers and reports their
+    overflow (a word per expansion). Only in worlds with such shapes."""
+
+    name = "midphase"
+
+    def __init__(self, runtime: Runtime, shapes, prepare: PrepareStage,
+                 broadphase: BroadphaseStage):
+        self.midphase = Midphase(runtime, shapes)
+        self.prepare, self.broadphase = prepare, broadphase
+        self.report_words = int(self.midphase.status.size)
+
+    def enqueue(self, step: StepContext) -> None:
+        bp, b = self.broadphase.broadphase, step.bodies
+        self.midphase.enqueue(b.bodies, b.count, step.shapes, self.prepare.aabbs, bp.pairs,
+                              bp.count, step.settings.contact_margin, b.shape_indices)
+
+    def report(self, queue, report, offset: int) -> None:
+        status = self.midphase.status
+        cl.enqueue_copy(queue, report.data, status.data, byte_count=status.nbytes,
+                        dst_offset=4 * offset)
+
+    def problem(self, words):
+        return self.midphase.problem(words)
+
+    def recover(self, needed) -> None:
+        self.midphase.grow(needed)
+
+
 class NarrowphaseStage(Stage):
-    """Contact manifolds of the pairs (`rbgen.pipeline.narrowphase`); owns the manifold
-    buffer, whose overflow the narrowphase writes into its report word itself."""
+    """Contact manifolds of the pairs (`rbgen.pipeline.narrowphase`): the broadphase's, or
+    the midphase's where there is one; owns the manifold buffer, whose overflow the
+    narrowphase writes into its report word itself."""
 
     name = "narrowphase"
     report_words = 1
     writes_report = True
 
     def __init__(self, runtime: Runtime, shapes, broadphase: BroadphaseStage,
-                 manifold_capacity: int | None):
+                 manifold_capacity: int | None, midphase: MidphaseStage | None = None):
         self.runtime = runtime
         self.narrowphase = Narrowphase(runtime, shapes)
         self.broadphase = broadphase
+        self.midphase = midphase
         self.initial_capacity = manifold_capacity
         self.capacity = 0
         self.needed_word = None  # the report word the kernel writes (set by the guard)
@@ -178,8 +212,9 @@ class NarrowphaseStage(Stage):
         self.needed_word = report[offset:offset + 1]
 
     def enqueue(self, step: StepContext) -> None:
-        bp = self.broadphase.broadphase
-        self.narrowphase.enqueue(step.bodies.bodies, step.shapes, bp.pairs, bp.count,
+        source = self.broadphase.broadphase if self.midphase is None else self.midphase.midphase
+        bodies = step.bodies.bodies if self.midphase is None else self.midphase.midphase.bodies
+        self.narrowphase.enqueue(bodies, step.shapes, source.pairs, source.count,
                                  self.manifolds, self.count, self.needed_word,
                                  step.settings.contact_margin)
 
@@ -189,6 +224,19 @@ class NarrowphaseStage(Stage):
 
     def recover(self, needed) -> None:
         self.ensure(int(needed * 1.25) + 16)
+
+
+class ChildrenStage(Stage):
+    """Manifolds of compound children back on their compounds, the child named in the
+    sub-feature (`rbgen.pipeline.midphase`). Only in worlds with compounds."""
+
+    name = "children"
+
+    def __init__(self, midphase: MidphaseStage, narrowphase: NarrowphaseStage):
+        self.midphase, self.narrowphase = midphase, narrowphase
+
+    def enqueue(self, step: StepContext) -> None:
+        self.midphase.midphase.resolve(self.narrowphase.manifolds, self.narrowphase.count)
 
 
 class ConstraintStage(Stage):
@@ -325,8 +373,12 @@ class StepPipeline:
         rt = self.runtime
         self.prepare = PrepareStage(rt, plan)
         self.broadphase = BroadphaseStage(rt, plan, self.prepare, self.pair_capacity)
+        self.midphase = MidphaseStage(rt, self.shapes, self.prepare, self.broadphase) \
+            if needs_midphase(plan.shape_types) else None
         self.narrowphase = NarrowphaseStage(rt, self.shapes, self.broadphase,
-                                            self.manifold_capacity)
+                                            self.manifold_capacity, self.midphase)
+        self.children = ChildrenStage(self.midphase, self.narrowphase) \
+            if self.midphase is not None and self.midphase.midphase.has_children else None
 
     def _build_solve(self, plan: Plan) -> None:
         rt = self.runtime
@@ -338,8 +390,8 @@ class StepPipeline:
 
     def _assemble(self) -> None:
         self.stages: list[Stage] = [s for s in (
-            self.prepare, self.broadphase, self.narrowphase, self.constraints, self.batching,
-            self.solve, self.integrate) if s is not None]
+            self.prepare, self.broadphase, self.midphase, self.narrowphase, self.children,
+            self.constraints, self.batching, self.solve, self.integrate) if s is not None]
         self.by_name = {s.name: s for s in self.stages}
 
     def replan(self, plan: Plan) -> None:

@@ -129,8 +129,46 @@ def plane_mesh(normal, offset: float, half_size: float, centre=(0.0, 0.0, 0.0)) 
     return flat_polygons(corners, [(0, 1, 2, 3)], [n])
 
 
+def triangle_mesh(shape) -> Mesh:
+    """A `rbgen.TriangleMesh` as it is (two-sided in the World; drawn from its front),
+    its vertices shading smooth (area-weighted normals)."""
+    vertices = np.asarray(shape.vertices, np.float64)
+    triangles = np.asarray(shape.triangles, np.int64)
+    p = vertices[triangles]
+    face = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    normals = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(normals, triangles[:, k], face)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = np.where(length > 0, normals / np.maximum(length, 1e-30), (0.0, 1.0, 0.0))
+    return Mesh(vertices, normals, triangles)
+
+
+def compound_mesh(shape) -> Mesh:
+    """A `rbgen.Compound`: its children's meshes, placed."""
+    from ..compound import _rotation
+
+    vertices, normals, triangles, start = [], [], [], 0
+    for child, position, orientation in zip(shape.children, shape.positions,
+                                            shape.orientations):
+        mesh = mesh_for(child)
+        r = _rotation(orientation)
+        vertices.append(mesh.vertices @ r.T + position)
+        normals.append(mesh.normals @ r.T)
+        triangles.append(mesh.triangles.astype(np.int64) + start)
+        start += len(mesh.vertices)
+    return Mesh(np.concatenate(vertices), np.concatenate(normals), np.concatenate(triangles))
+
+
 def mesh_for(shape: Shape, plane_half_size: float = 100.0, plane_centre=(0.0, 0.0, 0.0)) -> Mesh:
     """The mesh of any rbgen shape (a plane as a square; see `plane_mesh`)."""
+    from ..compound import Compound
+    from ..mesh import TriangleMesh
+
+    if isinstance(shape, TriangleMesh):
+        return triangle_mesh(shape)
+    if isinstance(shape, Compound):
+        return compound_mesh(shape)
     if isinstance(shape, Box):
         return box_mesh(shape.half_extents)
     if isinstance(shape, Sphere):
@@ -142,7 +180,7 @@ def mesh_for(shape: Shape, plane_half_size: float = 100.0, plane_centre=(0.0, 0.
     if isinstance(shape, Plane):
         return plane_mesh(shape.normal, shape.offset, plane_half_size, plane_centre)
     raise RbgenError(f"no mesh for shape {type(shape).__name__}; drawable: Sphere, Box, "
-                     f"Capsule, ConvexHull, Plane")
+                     f"Capsule, ConvexHull, Plane, TriangleMesh, Compound")
 
 
 def local_bounds(shape: Shape) -> tuple[np.ndarray, np.ndarray] | None:

@@ -101,10 +101,12 @@ def kernel_for(first: str, second: str) -> tuple[PairKernel, bool] | None:
 
 def missing_pairs(type_names) -> list[tuple[str, str]]:
     """Pairs of these (registered) types that no kernel handles; a pair of two static-only
-    types needs none (such bodies never touch)."""
+    types needs none (such bodies never touch), nor a pair with a composite type (the
+    midphase turns it into pairs of its children, whose types are among the world's)."""
     types = sorted(set(type_names))
     return [(a, b) for a, b in itertools.combinations_with_replacement(types, 2)
             if not (shape_type(a).static_only and shape_type(b).static_only)
+            and not (shape_type(a).composite or shape_type(b).composite)
             and kernel_for(a, b) is None]
 
 

@@ -61,7 +61,7 @@ from ... import layouts
 from ...codegen import compile_spec, kernel_signatures
 from ...device import Runtime, buffer_of
 from ...errors import RbgenError
-from ...shapes import KERNEL_ARGUMENTS, PackedShapes, ShapeTable
+from ...shapes import KERNEL_ARGUMENTS, PackedShapes, ShapeTable, table_arguments
 from .kinds import kinds_for, pair_kernel
 from .templates import CLIP, DISPATCH, default_placement_tile, default_work_group_size
 
@@ -172,7 +172,7 @@ class Narrowphase:
         """Build ``spec`` (programs are cached) and bind one of its kernels by argument name."""
         program = compile_spec(self.runtime, spec)
         names = tuple(a["name"] for a in kernel_signatures(spec.source)[kernel_name])
-        unknown = [n for n in names if n not in ARGUMENTS]
+        unknown = [n for n in names if n not in ARGUMENTS and n not in table_arguments()]
         if unknown:
             raise RbgenError(f"narrowphase: kernel {kernel_name} of {spec.path} takes {unknown}, "
                              f"which the stage does not provide (it provides {list(ARGUMENTS)})")
@@ -183,7 +183,7 @@ class Narrowphase:
         """One program per template and parameter set (a template with a ``kinds``
         parameter holds several kernels); the launch of each kind."""
         shared = {"work_group_size": self.work_group_size, "placement_tile": self.placement_tile,
-                  "direct": self.direct}
+                  "direct": self.direct, "max_face_vertices": self.max_face_vertices}
         programs: dict[tuple, list] = {}
         for kind in declared:
             programs.setdefault((kind.template.path, kind.params), []).append(kind)
@@ -220,6 +220,11 @@ class Narrowphase:
         if needed > self.max_face_vertices:
             self.max_face_vertices = needed
             self._build_clip()
+            if any("max_face_vertices" in pair_kernel(k).template.params for k in self.kinds):
+                # pair kernels that clip polygons themselves size their buffers alike
+                launches = self._build_pair_kernels([pair_kernel(k) for k in self.kinds])
+                self._contact = [(k, launches[k]) for k, _ in self._contact]
+                self._separating = [(k, launches[k]) for k, _ in self._separating]
 
     # ------------------------------------------------------------------ buffers
     def _ensure(self, pair_capacity: int) -> None:

@@ -270,8 +270,8 @@ def test_icosphere_hull_behaves_like_a_sphere(runtime, rng):
 
 def test_unsupported_shapes_fail_at_construction(runtime):
     assert kinds_for(("box", "plane")) == ("convex_plane", "box_box")
-    with pytest.raises(RbgenError, match="mesh"):
-        Narrowphase(runtime, ("box", "mesh"))
+    with pytest.raises(RbgenError, match="voxels"):
+        Narrowphase(runtime, ("box", "voxels"))
 
 
 @pytest.mark.parametrize("work_group_size,placement_tile", [

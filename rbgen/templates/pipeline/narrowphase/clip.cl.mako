@@ -32,6 +32,7 @@ ${cl_structs("Body", "Shape", "Pair", "HullFace", "HullEdge", "SatResult", "Cont
 <%include file="/pipeline/narrowphase/common.cl.mako"/>
 <%include file="/pipeline/narrowphase/store_manifold.cl.mako"/>
 <%include file="/pipeline/narrowphase/segments.cl.mako"/>
+<%namespace name="polygons" file="/pipeline/narrowphase/polygons.cl.mako"/>
 
 #define MAX_CLIP_POINTS ${max_clip}
 #define CLIPPED_BY_EDGE 32u
@@ -48,30 +49,7 @@ inline float3 polygon_vertex(const Placement* p, Shape s, HullFace face, uint k,
     return point_to_world(p, hull_vertices[s.vertex_offset + face_indices[face.index_offset + k]].xyz);
 }
 
-/* Clip a polygon (points + ids, n > 0) by the half-space dot(side, x) <= side_d
- * into (out_points, out_ids); returns the new size. New points get clip_id
- * (leaving the half-space) or clip_id + 1 (entering it). */
-inline uint clip_polygon(const float3* points, const uint* ids, uint n, float3 side, float side_d,
-                         uint clip_id, float3* out_points, uint* out_ids)
-{
-    uint m = 0;
-    float3 prev = points[n - 1];
-    float prev_d = dot3(side, prev) - side_d;
-    for (uint k = 0; k < n; ++k) {
-        float3 cur = points[k];
-        float cur_d = dot3(side, cur) - side_d;
-        if ((prev_d <= 0.0f) != (cur_d <= 0.0f) && m < MAX_CLIP_POINTS) {
-            out_points[m] = prev + (cur - prev) * (prev_d / (prev_d - cur_d));
-            out_ids[m++] = clip_id + (cur_d <= 0.0f ? 1u : 0u);
-        }
-        if (cur_d <= 0.0f && m < MAX_CLIP_POINTS) {
-            out_points[m] = cur;
-            out_ids[m++] = ids[k];
-        }
-        prev = cur, prev_d = cur_d;
-    }
-    return m;
-}
+${polygons.clip_polygon()}
 
 /* Face contact: clip the incident face of `incident` against reference face f of
  * `reference`; write points on the second shape with their separation. */
@@ -184,49 +162,7 @@ inline void supporting_edge(const Placement* p, Shape s, float3 direction, float
     *e1 = point_to_world(p, best1);
 }
 
-/* Keep at most four of the n candidate points of a manifold with this
- * normal (see the header); returns how many, their indices in chosen. */
-inline uint choose_contacts(const float4* candidates, uint n, float3 normal, uint* chosen)
-{
-    if (n <= 4) {
-        for (uint k = 0; k < n; ++k)
-            chosen[k] = k;
-        return n;
-    }
-    /* the deepest point */
-    chosen[0] = 0;
-    for (uint k = 1; k < n; ++k)
-        if (candidates[k].w < candidates[chosen[0]].w)
-            chosen[0] = k;
-    float3 p0 = candidates[chosen[0]].xyz;
-    /* the farthest from it in the contact plane */
-    float far2 = 0.0f;
-    chosen[1] = chosen[0];
-    for (uint k = 0; k < n; ++k) {
-        float3 d = candidates[k].xyz - p0;
-        d -= normal * dot3(normal, d);
-        if (dot3(d, d) > far2)
-            far2 = dot3(d, d), chosen[1] = k;
-    }
-    uint count = far2 > 0.0f ? 2 : 1;
-    /* the extremes on both sides of the line through those two */
-    float3 across = cross3(normal, candidates[chosen[1]].xyz - p0);
-    float high = 0.0f, low = 0.0f;
-    uint high_k = 0, low_k = 0;
-    for (uint k = 0; k < n; ++k) {
-        float side = dot3(across, candidates[k].xyz - p0);
-        if (side > high)
-            high = side, high_k = k;
-        if (side < low)
-            low = side, low_k = k;
-    }
-    float tolerance = 1e-6f * dot3(across, across);
-    if (count == 2 && high > tolerance)
-        chosen[count++] = high_k;
-    if (count >= 2 && low < -tolerance)
-        chosen[count++] = low_k;
-    return count;
-}
+${polygons.choose_contacts()}
 
 /* Reduce a pair's candidates to at most four points and store its manifold. */
 inline void reduce_and_store(SatResult r, const float4* candidates, const uint* candidate_features,
