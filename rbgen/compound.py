@@ -81,14 +81,16 @@ class Compound(Shape):
         if len(children) > layouts.MAX_COMPOUND_CHILDREN:
             raise RbgenError(f"{self.name}: {len(children)} children; at most "
                              f"{layouts.MAX_COMPOUND_CHILDREN} (RB_MAX_COMPOUND_CHILDREN)")
-        shapes, positions, orientations = [], [], []
+        shapes: list = []
+        positions: list = []
+        orientations: list = []
         for k, child in enumerate(children):
             shape, position, orientation = _child(k, child, self.name)
             shapes.append(shape)
             positions.append(position)
             orientations.append(orientation)
-        positions = np.asarray(positions)
-        orientations = np.asarray(orientations)
+        positions = np.asarray(positions)  # type: ignore[assignment]  # (lists -> arrays)
+        orientations = np.asarray(orientations)  # type: ignore[assignment]
 
         # unit-density sums over the children, in the frame they were given in
         volumes = np.array([s.mass_properties(density=1.0).mass for s in shapes])

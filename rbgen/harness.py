@@ -119,21 +119,21 @@ def _terrain_scene(n: int, device, terrain_cells: int = scene_data.TERRAIN_CELLS
     heights = scene_data.terrain_heights(terrain_cells)
     world = World(device, **world_options)
     if terrain_ground == "mesh":
-        world.add_static(TriangleMesh(*scene_data.height_field(heights), name="terrain"))
+        vertices, triangles = scene_data.height_field(heights)
+        world.add_static(TriangleMesh(vertices, triangles, name="terrain"))
     else:
         world.add_static(Plane((0, 1, 0), float(heights.min())))
     positions = scene_data.rain_positions(n, heights)
     kinds = np.random.default_rng(1).choice(len(TERRAIN_SHARES), n, p=TERRAIN_SHARES)
     orientations = np.random.default_rng(2).normal(size=(n, 4))
     orientations /= np.linalg.norm(orientations, axis=1, keepdims=True)
-    ids = []
+    ids: list = []
     for k, shape in enumerate(terrain_shapes()):
         chosen = np.flatnonzero(kinds == k)
         if len(chosen):
             ids.append(world.add_bodies(shape, mass=1.0, positions=positions[chosen],
                                         orientations=orientations[chosen]))
-    ids = np.sort(np.concatenate(ids)) if ids else np.zeros(0, int)
-    return world, ids, float(heights.min()) - 1.0, 0.0
+    return world, np.sort(np.concatenate(ids)) if ids else np.zeros(0, int), float(heights.min()) - 1.0, 0.0
 
 
 def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True, *,

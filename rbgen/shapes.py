@@ -516,11 +516,13 @@ class PackedShapes(Generic[_Arrays]):
         """The same arrays as pyopencl arrays on ``queue``'s device."""
         import pyopencl.array as cla
 
-        return PackedShapes(*(cla.to_device(queue, np.ascontiguousarray(a))
-                              for a in (self.shapes, self.vertices, self.faces,
-                                        self.face_indices, self.edges, self.adjacency)),
-                            extra={name: cla.to_device(queue, np.ascontiguousarray(a))
-                                   for name, a in self.extra.items()})
+        def device(array) -> cla.Array:
+            return cla.to_device(queue, np.ascontiguousarray(array))
+
+        return PackedShapes(device(self.shapes), device(self.vertices), device(self.faces),
+                            device(self.face_indices), device(self.edges),
+                            device(self.adjacency),
+                            extra={name: device(a) for name, a in self.extra.items()})
 
 
 def table_arguments() -> dict[str, str]:

@@ -290,9 +290,9 @@ class Midphase:
         self.capacity = capacity
         self.children: Expansion | None = None
         self.triangles: Expansion | None = None
-        self._triangle_bucket = None
+        self._triangle_bucket: int | None = None
         self.status = cla.zeros(runtime.queue, len(STATUS_WORDS), np.uint32)
-        self._configured = None
+        self._configured: np.ndarray | None = None
         self.pairs = self.count = self.bodies = None
         if self.has_children:
             child_types = tuple(sorted({type(c).type_name for s in table.shapes
@@ -376,6 +376,7 @@ class Midphase:
                           first_proxy=self.first_proxy, placed_bodies=self.placed_bodies,
                           placed_aabbs=self.placed_aabbs)
             self._place(body_count + self.proxy_count, values)
+            assert self.children is not None  # (made with the stage when it has compounds)
             self.children.enqueue(pairs, pair_count, values, self.status)
             pairs, pair_count = self.children.pairs, self.children.count
             values.update(bodies=self.placed_bodies, aabbs=self.placed_aabbs)
@@ -448,7 +449,8 @@ def _bench(runtime: Runtime, values: dict, n: int, rng):
     from .aabbs import WorldAabbs
 
     bodies_n = int(min(max(n, 16), 1 << 14))
-    mesh = TriangleMesh(*reference.terrain(128, 1.0, rng), name="tuning terrain")
+    vertices, triangles = reference.terrain(128, 1.0, rng)
+    mesh = TriangleMesh(vertices, triangles, name="tuning terrain")
     table = ShapeTable()
     table.add(mesh)
     box = table.add(Box((0.4, 0.4, 0.4)))

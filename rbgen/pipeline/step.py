@@ -166,7 +166,7 @@ class MidphaseStage(Stage):
 
     def report(self, queue, report, offset: int) -> None:
         status = self.midphase.status
-        cl.enqueue_copy(queue, report.data, status.data, byte_count=status.nbytes,
+        cl.enqueue_copy(queue, buffer_of(report), buffer_of(status), byte_count=status.nbytes,
                         dst_offset=4 * offset)
 
     def problem(self, words):

@@ -49,12 +49,12 @@ TRIANGLE_PAIRS = KernelTemplate(
         "kinds": ("sphere_triangle", "capsule_triangle", "hull_triangle"),
         "max_face_vertices": 4, "convex": "hull"},
 )
-register_pair_kernel(PairKernel("sphere_triangle", [("sphere", "mesh")], TRIANGLE_PAIRS,
-                                dict(convex="none")))
-register_pair_kernel(PairKernel("capsule_triangle", [("capsule", "mesh")], TRIANGLE_PAIRS,
-                                dict(convex="none")))
+register_pair_kernel(PairKernel("sphere_triangle", (("sphere", "mesh"),), TRIANGLE_PAIRS,
+                                (("convex", "none"),)))
+register_pair_kernel(PairKernel("capsule_triangle", (("capsule", "mesh"),), TRIANGLE_PAIRS,
+                                (("convex", "none"),)))
 # a box and a hull each in a program of their own: a work group holds one kind of shape
-register_pair_kernel(PairKernel("box_triangle", [("box", "mesh")], TRIANGLE_PAIRS,
-                                dict(convex="box"), kernel="convex_triangle"))
-register_pair_kernel(PairKernel("hull_triangle", [("hull", "mesh")], TRIANGLE_PAIRS,
-                                dict(convex="hull"), kernel="convex_triangle"))
+register_pair_kernel(PairKernel("box_triangle", (("box", "mesh"),), TRIANGLE_PAIRS,
+                                (("convex", "box"),), kernel="convex_triangle"))
+register_pair_kernel(PairKernel("hull_triangle", (("hull", "mesh"),), TRIANGLE_PAIRS,
+                                (("convex", "hull"),), kernel="convex_triangle"))
