@@ -1,4 +1,5 @@
 """Code generation: validation, pure rendering, build errors, program caches."""
+
 from __future__ import annotations
 
 import time
@@ -20,15 +21,17 @@ def test_rendering_is_pure_and_deterministic():
     codegen.render.cache_clear()
     assert b.source == first
     assert "linear_damping" in first
-    plain = integrate.TEMPLATE.spec(work_group_size=64, damping=False, gravity=True,
-                                    split=False).source
+    plain = integrate.TEMPLATE.spec(
+        work_group_size=64, damping=False, gravity=True, split=False
+    ).source
     assert "damping" not in plain.split("__kernel")[1], "no dead damping code when damping=False"
 
 
 def test_parameter_errors_name_the_parameter():
     t = integrate.TEMPLATE
-    with pytest.raises(TemplateParameterError,
-                       match=r"missing parameter\(s\) \['gravity', 'split'\]"):
+    with pytest.raises(
+        TemplateParameterError, match=r"missing parameter\(s\) \['gravity', 'split'\]"
+    ):
         t.spec(work_group_size=64, damping=False)
     with pytest.raises(TemplateParameterError, match=r"unknown parameter\(s\) \['colour'\]"):
         t.spec(work_group_size=64, damping=False, gravity=True, colour=3)
@@ -41,7 +44,9 @@ def test_parameter_errors_name_the_parameter():
 def test_strict_undefined_in_templates(tmp_path, monkeypatch):
     """A template that uses a name nobody passes fails at render time, naming it."""
     (tmp_path / "probe").mkdir()
-    (tmp_path / "probe" / "undefined.cl.mako").write_text("__kernel void k() { int x = ${nope}; }\n")
+    (tmp_path / "probe" / "undefined.cl.mako").write_text(
+        "__kernel void k() { int x = ${nope}; }\n"
+    )
     monkeypatch.setattr(codegen, "TEMPLATE_DIR", tmp_path)
     codegen._lookup.cache_clear()
     codegen.render.cache_clear()

@@ -4,6 +4,7 @@ Given the solver's split-impulse push velocities, the same launch also moves
 the bodies by them and clears them (what the solver's apply_split_velocities
 does in a launch of its own).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -16,20 +17,31 @@ TEMPLATE = KernelTemplate(
     "pipeline/integrate.cl.mako",
     [
         work_group_size_param(
-            "bodies per work group; memory-bound, so any size that fills a CU works"),
-        Param("damping", (True, False),
-              "emit the damping terms only when a world uses damping"),
-        Param("gravity", (True, False),
-              "True: integrate_bodies adds g dt itself (standalone use); False: a separate "
-              "apply_gravity kernel runs before the solver so contacts cancel gravity in the same step"),
-        Param("split", (True, False),
-              "also apply (and clear) the split-impulse push velocities, saving the World the "
-              "solver's apply_split_velocities launch"),
+            "bodies per work group; memory-bound, so any size that fills a CU works"
+        ),
+        Param("damping", (True, False), "emit the damping terms only when a world uses damping"),
+        Param(
+            "gravity",
+            (True, False),
+            "True: integrate_bodies adds g dt itself (standalone use); False: a separate "
+            "apply_gravity kernel runs before the solver so contacts cancel gravity in the same "
+            "step",
+        ),
+        Param(
+            "split",
+            (True, False),
+            "also apply (and clear) the split-impulse push velocities, saving the World the "
+            "solver's apply_split_velocities launch",
+        ),
     ],
     doc="Semi-implicit Euler step of body velocities and transforms.",
     roles={"bodies": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "damping": False,
-                              "gravity": True, "split": False},
+    defaults=lambda traits: {
+        "work_group_size": default_work_group_size(traits),
+        "damping": False,
+        "gravity": True,
+        "split": False,
+    },
 )
 
 #: Bullet's default clamp: at most a quarter turn per step keeps the
@@ -50,12 +62,22 @@ class Integrator:
     first use).
     """
 
-    def __init__(self, runtime: Runtime, *, damping: bool = False, gravity: bool = True,
-                 work_group_size: int | None = None):
+    def __init__(
+        self,
+        runtime: Runtime,
+        *,
+        damping: bool = False,
+        gravity: bool = True,
+        work_group_size: int | None = None,
+    ):
         self.runtime = runtime
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, damping=bool(damping),
-                                  gravity=bool(gravity), split=False)
+        self.spec = TEMPLATE.spec(
+            work_group_size=self.work_group_size,
+            damping=bool(damping),
+            gravity=bool(gravity),
+            split=False,
+        )
         self.damping, self.gravity = bool(damping), bool(gravity)
         program = compile_spec(runtime, self.spec)
         self.kernel = runtime.bound(program.kernel("integrate_bodies"))
@@ -74,25 +96,44 @@ class Integrator:
     def apply_gravity(self, bodies, body_count: int, dt: float, gravity=(0.0, -9.81, 0.0)):
         """v += g dt on dynamic bodies (only for an Integrator built with gravity=False)."""
         if self.gravity_kernel is None:
-            raise RbgenError("this Integrator applies gravity inside integrate_bodies "
-                             "(built with gravity=True)")
+            raise RbgenError(
+                "this Integrator applies gravity inside integrate_bodies (built with gravity=True)"
+            )
         if body_count == 0:
             return None
-        return self.gravity_kernel.over(body_count, self.work_group_size, bodies,
-                                        np.uint32(body_count), np.float32(dt),
-                                        np.array([*gravity, 0.0], dtype=np.float32))
+        return self.gravity_kernel.over(
+            body_count,
+            self.work_group_size,
+            bodies,
+            np.uint32(body_count),
+            np.float32(dt),
+            np.array([*gravity, 0.0], dtype=np.float32),
+        )
 
-    def __call__(self, bodies, body_count: int, dt: float, gravity=(0.0, -9.81, 0.0),
-                 linear_damping: float = 0.0, angular_damping: float = 0.0,
-                 max_angular_step: float = DEFAULT_MAX_ANGULAR_STEP, split=None):
+    def __call__(
+        self,
+        bodies,
+        body_count: int,
+        dt: float,
+        gravity=(0.0, -9.81, 0.0),
+        linear_damping: float = 0.0,
+        angular_damping: float = 0.0,
+        max_angular_step: float = DEFAULT_MAX_ANGULAR_STEP,
+        split=None,
+    ):
         """One step of ``body_count`` bodies; ``split``: push velocities to apply and clear
         (at least ``body_count`` `SplitVelocity` records), or None."""
         if not (np.isfinite(dt) and dt > 0):
             raise RbgenError(f"dt must be a positive finite number, got {dt!r}")
         if (linear_damping or angular_damping) and not self.damping:
-            raise RbgenError("this Integrator was built with damping=False; "
-                             "build it with damping=True to use damping")
-        for name, value in (("linear_damping", linear_damping), ("angular_damping", angular_damping)):
+            raise RbgenError(
+                "this Integrator was built with damping=False; "
+                "build it with damping=True to use damping"
+            )
+        for name, value in (
+            ("linear_damping", linear_damping),
+            ("angular_damping", angular_damping),
+        ):
             if not 0.0 <= value < 1.0:
                 raise RbgenError(f"{name} must be in [0, 1), got {value!r}")
         if split is not None and len(split) < body_count:
@@ -104,7 +145,10 @@ class Integrator:
             args.append(np.array([*gravity, 0.0], dtype=np.float32))
         if self.damping:
             # (1 - damping)^dt is the same for every body
-            args += [np.float32((1.0 - linear_damping) ** dt), np.float32((1.0 - angular_damping) ** dt)]
+            args += [
+                np.float32((1.0 - linear_damping) ** dt),
+                np.float32((1.0 - angular_damping) ** dt),
+            ]
         if split is not None:
             args.append(split)
         args.append(np.float32(max_angular_step))
