@@ -61,8 +61,13 @@ def cmd_export(args) -> int:
 
     if args.world:
         world, build = _world_for_export(args.world, args.n, args.device)
+        command = " ".join(["rbgen export --world", args.world,
+                            *(["--n", str(args.n)] if args.n else []),
+                            *(["--dt", repr(args.dt)] if args.dt != 1 / 60 else []),
+                            *(["--grow-rungs", str(args.grow_rungs)] if args.grow_rungs else []),
+                            "--out", args.out])
         manifest = export_world(world, args.out, build=None if args.no_schedule else build,
-                                dt=args.dt, grow_rungs=args.grow_rungs)
+                                dt=args.dt, grow_rungs=args.grow_rungs, command=command)
         for entry in manifest["files"]:
             names = ", ".join(k["name"] for k in entry["kernels"])
             print(f"  {args.out}/{entry['file']}: {names}")

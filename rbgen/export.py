@@ -134,14 +134,15 @@ def export_kernels(specs: Iterable, out_dir: str | Path,
 
 
 def export_world(world, out_dir: str | Path, *, build=None, dt: float = 1 / 60,
-                 grow_rungs: int | None = None) -> dict:
+                 grow_rungs: int | None = None, command: str | None = None) -> dict:
     """Write every kernel specialisation ``world`` compiled, with the build options it used,
     its plan, the header and the manifest (what a C++ host needs to run what the World runs).
     The World must have stepped once (its kernels are built at its first step).
 
     ``build``: a function returning a fresh, unstepped World of the same scene; given, the
     export also holds the step's launch schedule at ``dt`` (`rbgen.schedule.write`),
-    covering each capacity up to ``2 ** grow_rungs`` times its value in ``world``."""
+    covering each capacity up to ``2 ** grow_rungs`` times its value in ``world``;
+    ``command`` says how to make it again (a C++ host prints it for another device)."""
     specs = world.kernel_specs()
     if not specs:
         raise RbgenError("export: the World has compiled no kernels yet; step it once first "
@@ -150,7 +151,7 @@ def export_world(world, out_dir: str | Path, *, build=None, dt: float = 1 / 60,
         from .schedule import GROW_RUNGS
         from .schedule.write import write_schedule
 
-        return write_schedule(world, build, out_dir, dt=dt,
+        return write_schedule(world, build, out_dir, dt=dt, command=command,
                               grow_rungs=GROW_RUNGS if grow_rungs is None else grow_rungs)
     return export_kernels(specs, out_dir, world.runtime.traits, plan=world.plan)
 

@@ -676,9 +676,9 @@ struct Host::Impl {
                         (options.device.empty() ? "" : " matching '" + options.device + "'") +
                         ". Devices here:" + (available.empty() ? "\n  (none)" : available) +
                         "\nA schedule replays kernels built and tuned for one device and driver: "
-                        "rebuild it on this machine from the sources, e.g. `rbgen export "
-                        "--world SCENE --out " + dir + "` (pip install rbgen; `rbgen info` lists "
-                        "the devices).");
+                        "export it again on this machine from rbgen's sources (pip install "
+                        "rbgen; `rbgen info` lists the devices, --device picks one): " +
+                        (root.find("command") ? root["command"].str() : std::string("rbgen export --world SCENE --out DIR")));
         cl_int err = CL_SUCCESS;
         context = clCreateContext(nullptr, 1, &device, nullptr, nullptr, &err);
         check(err, "clCreateContext");

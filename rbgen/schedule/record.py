@@ -2,7 +2,8 @@
 
 A `Recorder` is active only while `rbgen export` records a schedule. It intercepts the
 OpenCL enqueues of one runtime's queue at pyopencl's boundary (``enqueue_nd_range_kernel``,
-``enqueue_fill_buffer``, ``enqueue_copy`` and ``Array.fill``), so that whatever a stage
+``enqueue_fill_buffer``, ``enqueue_copy``, ``Array.fill`` and ``Kernel.__call__``, the
+path of pyopencl's own kernels), so that whatever a stage
 enqueues, now or after a change, is recorded without the stage knowing about the
 recorder, and a World step outside recording pays nothing for it. A launch's arguments
 are read from the kernel's `rbgen.launch.BoundKernel`, through which every argument is
@@ -96,11 +97,13 @@ class Recorder:
             raise RbgenError("a schedule recording is already active in this process")
         self._saved = {"enqueue_nd_range_kernel": cl.enqueue_nd_range_kernel,
                        "enqueue_fill_buffer": cl.enqueue_fill_buffer,
-                       "enqueue_copy": cl.enqueue_copy, "fill": cla.Array.fill}
+                       "enqueue_copy": cl.enqueue_copy, "fill": cla.Array.fill,
+                       "call": cl.Kernel.__call__}
         cl.enqueue_nd_range_kernel = self._launch
         cl.enqueue_fill_buffer = self._fill
         cl.enqueue_copy = self._copy
         cla.Array.fill = _array_fill(self, self._saved["fill"])
+        cl.Kernel.__call__ = _kernel_call(self, self._saved["call"])
         cl._rbgen_recording = self  # type: ignore[attr-defined]
         return self
 
@@ -109,6 +112,7 @@ class Recorder:
         cl.enqueue_fill_buffer = self._saved["enqueue_fill_buffer"]
         cl.enqueue_copy = self._saved["enqueue_copy"]
         cla.Array.fill = self._saved["fill"]
+        cl.Kernel.__call__ = self._saved["call"]
         cl._rbgen_recording = None  # type: ignore[attr-defined]
 
     def take(self) -> list[Command]:
@@ -250,6 +254,19 @@ def _array_fill(recorder: Recorder, original):
         finally:
             recorder._inside_fill = False
     return fill
+
+
+def _kernel_call(recorder: Recorder, original):
+    """``kernel(queue, ...)``: pyopencl's own launches (its Array operations), whose
+    enqueue bypasses the module's function: refused while recording a queue of ours."""
+    def call(self, queue, *args, **kwargs):
+        if recorder._ours(queue) and not recorder._inside_fill:
+            raise RbgenError(f"kernel {self.function_name!r} was launched from a program rbgen "
+                             f"did not compile (pyopencl's own kernels, e.g. an Array "
+                             f"operation, cannot be exported): enqueue it through "
+                             f"rbgen.codegen")
+        return original(self, queue, *args, **kwargs)
+    return call
 
 
 def _from_array_module() -> bool:

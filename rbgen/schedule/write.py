@@ -21,12 +21,13 @@ def grown_capacities(world) -> dict[str, int]:
 
 
 def write_schedule(world, build, out_dir, *, dt: float = 1 / 60,
-                   grow_rungs: int = GROW_RUNGS) -> dict:
+                   grow_rungs: int = GROW_RUNGS, command: str | None = None) -> dict:
     """Export ``world`` (stepped once, so that its kernels and capacities are known) with
     its schedule, recorded from fresh Worlds that ``build()`` returns (the same scene,
     unstepped). Writes the kernels, ``rbgen_layouts.h``, ``plan.json``, ``manifest.json``,
     ``schedule.json`` and ``data/`` (the buffers' initial contents: bodies, shapes, ...).
-    Returns the manifest."""
+    ``command``: how to make this export again (a host names it when the export does not
+    fit its device). Returns the manifest."""
     from ..export import export_kernels
 
     if world._pipeline is None:
@@ -53,6 +54,8 @@ def write_schedule(world, build, out_dir, *, dt: float = 1 / 60,
         for run in runs:
             run.close()
     schedule["programs"] = programs
+    schedule["command"] = command or ("rbgen.export.export_world(world, DIR, build=...) "
+                                      "with the scene's World")
     for name, content in data.items():
         path = out / name
         path.parent.mkdir(parents=True, exist_ok=True)
