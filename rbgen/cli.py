@@ -60,13 +60,13 @@ def cmd_export(args) -> int:
     from .export import default_specs, export_kernels, export_world
 
     if args.world:
-        world, build = _world_for_export(args.world, args.n, args.device)
+        world, fresh = _world_for_export(args.world, args.n, args.device)
         command = " ".join(["rbgen export --world", args.world,
                             *(["--n", str(args.n)] if args.n else []),
                             *(["--dt", repr(args.dt)] if args.dt != 1 / 60 else []),
                             *(["--grow-rungs", str(args.grow_rungs)] if args.grow_rungs else []),
                             "--out", args.out])
-        manifest = export_world(world, args.out, build=None if args.no_schedule else build,
+        manifest = export_world(world, args.out, build=None if args.no_schedule else fresh,
                                 dt=args.dt, grow_rungs=args.grow_rungs, command=command)
         for entry in manifest["files"]:
             names = ", ".join(k["name"] for k in entry["kernels"])
@@ -113,7 +113,7 @@ def _world_for_export(scene: str, n: int | None, device):
         world = build_scene(scene, n or 1000, device)[0]
         runtime = world.runtime
 
-        def build():
+        def fresh():
             return build_scene(scene, n or 1000, runtime)[0]
     elif scene.endswith(".py") and Path(scene).is_file():
         namespace: dict = {"__name__": "rbgen_export_scene", "__file__": scene}
@@ -128,14 +128,14 @@ def _world_for_export(scene: str, n: int | None, device):
                              f"{type(world).__name__}, not an rbgen.World")
         runtime = world.runtime
 
-        def build():
+        def fresh():
             return namespace["build"](runtime)
     else:
         raise RbgenError(f"export --world: {scene!r} is neither a scene ({', '.join(SCENES)}) "
                          f"nor a Python file with build(device)")
     world.step(1 / 60)
     world.statistics()  # (waits for the step: its kernels are built and run)
-    return world, build
+    return world, fresh
 
 
 def _parse_value(text: str):

@@ -188,8 +188,9 @@ class ContactConstraints:
         previous = self._generations[self._current]
         first = self.first_contact_edge
         if previous is None:  # the first call makes the whole ring, every generation empty
-            self._generations = [_Buffers(queue, capacity, first) for _ in range(GENERATIONS)]
-            previous = self._generations[self._current]
+            whole = [_Buffers(queue, capacity, first) for _ in range(GENERATIONS)]
+            self._generations = list(whole)
+            previous = whole[self._current]
         self._current = (self._current + 1) % GENERATIONS
         gen = self._generations[self._current]
         if gen is None or gen.capacity < capacity or gen.first_contact_edge != first:

@@ -178,7 +178,7 @@ class BroadphaseStage(Stage):
         word = layouts.BROADPHASE_STATUS.offset
         fatal = [{"word": word("bad_body") // 4, "ok": layouts.BP_NO_BODY,
                   "message": "a body's bounding box is NaN or inverted (a NaN state)"}]
-        if "retry" in layouts.BROADPHASE_STATUS.dtype.names:
+        if "retry" in [f.name for f in layouts.BROADPHASE_STATUS.fields]:
             fatal.append({"word": word("retry") // 4, "ok": 0,
                           "message": "the broadphase must be redone another way (its host "
                                      "side changes its plan)"})

@@ -216,9 +216,9 @@ class Inference:
                     for j, value in enumerate(numbers):
                         self.samples.setdefault(("undo", v, i, j), []).append((value, s))
                 for k, commands in enumerate(redo.steps):
-                    got = [split(c, sizes) for c in commands]
-                    want = self.steps[self.variants(redo.first + k)]
-                    for i, ((key, _), (w, _)) in enumerate(zip(got, want)):
+                    redone = [split(c, sizes) for c in commands]
+                    expected_step = self.steps[self.variants(redo.first + k)]
+                    for i, ((key, _), (w, _)) in enumerate(zip(redone, expected_step)):
                         self._map(key, w, bmap, kmap, r, redo.first + k, v, i)
             self.values.append(run_values)
             run.logical = bmap  # (object index -> logical buffer, for the inits)
@@ -275,7 +275,7 @@ class Inference:
         self.follow: dict[str, dict] = {}
         for name in self.followers:
             leaders, at = set(self.grown), set()
-            for r, run_values in enumerate(self.values):
+            for run_values in self.values:
                 for n in range(1, len(run_values)):
                     before, after = run_values[n - 1], run_values[n]
                     if after[name] != before[name]:
@@ -289,7 +289,7 @@ class Inference:
                                  f"capacities {self.grown} alone")
             leader = leaders.pop()
             rule = {"leader": leader, "at": sorted(at)}
-            for r, run_values in enumerate(self.values):
+            for run_values in self.values:
                 value = run_values[0][leader]
                 for n, vals in enumerate(run_values):
                     if n and self.variants(n) in at and value < vals[leader]:

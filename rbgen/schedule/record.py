@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import re
 import sys
+from types import FrameType
 from typing import Any
 
 import numpy as np
@@ -99,11 +100,12 @@ class Recorder:
                        "enqueue_fill_buffer": cl.enqueue_fill_buffer,
                        "enqueue_copy": cl.enqueue_copy, "fill": cla.Array.fill,
                        "call": cl.Kernel.__call__}
-        cl.enqueue_nd_range_kernel = self._launch
+        # (replaced while recording only; mypy sees pyopencl's signatures)
+        cl.enqueue_nd_range_kernel = self._launch  # type: ignore[assignment]
         cl.enqueue_fill_buffer = self._fill
         cl.enqueue_copy = self._copy
-        cla.Array.fill = _array_fill(self, self._saved["fill"])
-        cl.Kernel.__call__ = _kernel_call(self, self._saved["call"])
+        cla.Array.fill = _array_fill(self, self._saved["fill"])  # type: ignore[method-assign]
+        cl.Kernel.__call__ = _kernel_call(self, self._saved["call"])  # type: ignore[method-assign]
         cl._rbgen_recording = self  # type: ignore[attr-defined]
         return self
 
@@ -111,8 +113,8 @@ class Recorder:
         cl.enqueue_nd_range_kernel = self._saved["enqueue_nd_range_kernel"]
         cl.enqueue_fill_buffer = self._saved["enqueue_fill_buffer"]
         cl.enqueue_copy = self._saved["enqueue_copy"]
-        cla.Array.fill = self._saved["fill"]
-        cl.Kernel.__call__ = self._saved["call"]
+        cla.Array.fill = self._saved["fill"]  # type: ignore[method-assign]
+        cl.Kernel.__call__ = self._saved["call"]  # type: ignore[method-assign]
         cl._rbgen_recording = None  # type: ignore[attr-defined]
 
     def take(self) -> list[Command]:
@@ -272,7 +274,7 @@ def _kernel_call(recorder: Recorder, original):
 def _from_array_module() -> bool:
     """Whether the enqueue was made by pyopencl's array module (an allocation's zeros or
     upload) rather than by rbgen's code."""
-    frame = sys._getframe(1)
+    frame: FrameType | None = sys._getframe(1)
     for _ in range(8):
         if frame is None:
             return False

@@ -42,7 +42,8 @@ def write_schedule(world, build, out_dir, *, dt: float = 1 / 60,
         out = Path(out_dir)
         manifest = export_kernels(specs, out, world.runtime.traits, plan=world.plan)
         files = {spec_options: entry for spec_options, entry in zip(specs, manifest["files"])}
-        programs, program_index = [], {}
+        programs: list[dict] = []
+        program_index: dict = {}
         for kernel in inference.kernels:
             key = (kernel.spec, kernel.options)
             if key not in program_index:
