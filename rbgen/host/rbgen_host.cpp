@@ -586,10 +586,13 @@ struct Host::Impl {
     long n = 0;  // the next step's index in the sequence
     int overflows = 0;
     HostTimes times;
+    bool profile = false;
+    std::vector<cl_event> profiled;  // (with profile: every command's event)
 
     ~Impl() {
         if (queue) clFinish(queue);
         for (auto& e : in_flight) clReleaseEvent(e.read);
+        for (cl_event e : profiled) clReleaseEvent(e);
         for (std::size_t i = 0; i < pinned_buffers.size(); ++i) {
             if (queue && pinned[i])
                 clEnqueueUnmapMemObject(queue, pinned_buffers[i], pinned[i], 0, nullptr, nullptr);
@@ -682,7 +685,9 @@ struct Host::Impl {
         cl_int err = CL_SUCCESS;
         context = clCreateContext(nullptr, 1, &device, nullptr, nullptr, &err);
         check(err, "clCreateContext");
-        queue = clCreateCommandQueue(context, device, 0, &err);
+        profile = options.profile;
+        queue = clCreateCommandQueue(context, device, profile ? CL_QUEUE_PROFILING_ENABLE : 0,
+                                     &err);
         check(err, "clCreateCommandQueue");
     }
 
@@ -1006,6 +1011,13 @@ struct Host::Impl {
     }
 
     void run(const Command& c) {
+        cl_event event = nullptr;
+        cl_event* timed = profile ? &event : nullptr;
+        enqueue(c, timed);
+        if (event) profiled.push_back(event);
+    }
+
+    void enqueue(const Command& c, cl_event* timed) {
         switch (c.op) {
             case Command::Op::Launch: {
                 for (cl_uint i = 0; i < c.args.size(); ++i) {
@@ -1027,7 +1039,7 @@ struct Host::Impl {
                     }
                 }
                 cl_int err = clEnqueueNDRangeKernel(queue, kernels[c.kernel], 1, nullptr, &c.g,
-                                                    c.l ? &c.l : nullptr, 0, nullptr, nullptr);
+                                                    c.l ? &c.l : nullptr, 0, nullptr, timed);
                 if (err != CL_SUCCESS)
                     check(err, "clEnqueueNDRangeKernel " + kernel_names[c.kernel] + " over " +
                                    std::to_string(c.g) + " work-items");
@@ -1037,7 +1049,7 @@ struct Host::Impl {
                 const Buffer& b = buffers[c.buffer];
                 check(clEnqueueFillBuffer(queue, b.mem, c.r_pattern.data(), c.r_pattern.size(),
                                           c.whole ? 0 : c.r_offset, c.whole ? b.bytes : c.r_size,
-                                          0, nullptr, nullptr),
+                                          0, nullptr, timed),
                       "clEnqueueFillBuffer " + b.name);
                 break;
             }
@@ -1046,14 +1058,14 @@ struct Host::Impl {
                 const Buffer& s = buffers[c.src];
                 std::size_t size = c.whole ? std::min(d.bytes, s.bytes) : c.r_size;
                 check(clEnqueueCopyBuffer(queue, s.mem, d.mem, c.whole ? 0 : c.r_src_offset,
-                                          c.whole ? 0 : c.r_dst_offset, size, 0, nullptr, nullptr),
+                                          c.whole ? 0 : c.r_dst_offset, size, 0, nullptr, timed),
                       "clEnqueueCopyBuffer " + s.name + " -> " + d.name);
                 break;
             }
             case Command::Op::Write: {
                 const Buffer& b = buffers[c.buffer];
                 check(clEnqueueWriteBuffer(queue, b.mem, CL_FALSE, c.r_offset, c.r_data.size(),
-                                           c.r_data.data(), 0, nullptr, nullptr),
+                                           c.r_data.data(), 0, nullptr, timed),
                       "clEnqueueWriteBuffer " + b.name);
                 break;
             }
@@ -1200,6 +1212,23 @@ std::string Host::device_name() const { return impl_->device_label; }
 std::string Host::plan() const { return impl_->plan; }
 double Host::dt() const { return impl_->dt; }
 const HostTimes& Host::times() const { return impl_->times; }
+
+double Host::device_seconds() {
+    if (!impl_->profile) throw Error("device_seconds needs HostOptions::profile");
+    finish();
+    double total = 0.0;
+    for (cl_event e : impl_->profiled) {
+        cl_ulong start = 0, end = 0;
+        check(clGetEventProfilingInfo(e, CL_PROFILING_COMMAND_START, sizeof start, &start, nullptr),
+              "clGetEventProfilingInfo");
+        check(clGetEventProfilingInfo(e, CL_PROFILING_COMMAND_END, sizeof end, &end, nullptr),
+              "clGetEventProfilingInfo");
+        total += 1e-9 * static_cast<double>(end - start);
+        clReleaseEvent(e);
+    }
+    impl_->profiled.clear();
+    return total;
+}
 
 std::map<std::string, long> Host::capacities() const {
     std::map<std::string, long> out;

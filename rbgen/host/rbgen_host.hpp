@@ -43,6 +43,8 @@ struct HostOptions {
     // A substring of "<platform> <device>" to choose among devices with the export's
     // fingerprint (default: the first one).
     std::string device;
+    // Time every command with OpenCL profiling events (device_seconds); costs host time.
+    bool profile = false;
 };
 
 // Seconds spent by the host in step() and in waiting for the device inside it.
@@ -79,6 +81,9 @@ public:
     std::string plan() const;       // the plan's one-line description
     double dt() const;
     const HostTimes& times() const;
+    // With HostOptions::profile: the device's time in the steps' commands (kernels, fills,
+    // copies) since the last call, from their events (finishes first).
+    double device_seconds();
 
 private:
     struct Impl;
