@@ -403,7 +403,8 @@ class SolveStage(Stage):
         return {"fatal": [{"word": 0, "ok": 0,
                            "message": "a persistent launch gave up at its device-wide barrier "
                                       "(its work groups did not all run at once); export a "
-                                      "World without persistent launches for this device"}]}
+                                      "World without persistent launches for this device "
+                                      "(batching='cells' or 'slabs')"}]}
 
     def clear_abandoned(self) -> None:
         clear_abandoned(self.runtime, self.solver.barrier_state())

@@ -33,8 +33,18 @@ def write_schedule(world, build, out_dir, *, dt: float = 1 / 60,
     if world._pipeline is None:
         raise RbgenError("export: the World has not stepped yet; step it once first")
     initial = {name: max(1, value) for name, value in grown_capacities(world).items()}
-    inference, runs = record_schedule(build, initial, dt=dt, grow_rungs=grow_rungs)
+
+    def like_world():
+        fresh = build()
+        # (a World whose persistent launch gave up plans without one from then on)
+        fresh._persistent_failed = world._persistent_failed
+        return fresh
+    inference, runs = record_schedule(like_world, initial, dt=dt, grow_rungs=grow_rungs)
     try:
+        if runs[0].world.plan != world.plan:
+            raise RbgenError(f"export: the schedule's World planned "
+                             f"{runs[0].world.plan.describe()}, the exported World "
+                             f"{world.plan.describe()} (build() must make the same World)")
         specs = list(world.kernel_specs())
         for kernel in inference.kernels:
             if (kernel.spec, kernel.options) not in specs:
