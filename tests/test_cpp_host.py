@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import rbgen
 from rbgen.export import export_world
 from rbgen.harness import build_scene
 
@@ -125,6 +126,49 @@ def test_cpp_host_grows_mid_run_keeping_the_warm_start(runtime, rbgen_run, tmp_p
     assert overflows(done.stdout) >= 1
     assert_same(dumped_state(tmp_path / "state.bin", 101),
                 python_state(runtime, "box_pile", 100, 90))
+
+
+def mesh_and_compounds(runtime):
+    """A wavy 12 x 12 triangle mesh, 18 boxes and two compounds (a box and a sphere)."""
+    world = rbgen.World(runtime)
+    k = 12
+    x, z = np.meshgrid(np.arange(k + 1) - k / 2, np.arange(k + 1) - k / 2, indexing="ij")
+    vertices = np.stack([x.ravel(), 0.1 * np.sin(x.ravel()) * np.cos(z.ravel()), z.ravel()], 1)
+    quads = [(i * (k + 1) + j, (i + 1) * (k + 1) + j) for i in range(k) for j in range(k)]
+    triangles = [t for a, c in quads for t in ((a, c, a + 1), (a + 1, c, c + 1))]
+    world.add_static(rbgen.TriangleMesh(vertices, np.array(triangles)))
+    boxes = [[i * 1.2 - 3, 1.0 + j * 1.1, 0.3 * j] for i in range(6) for j in range(3)]
+    world.add_bodies(rbgen.Box((0.4, 0.4, 0.4)), mass=1.0, positions=boxes)
+    compound = rbgen.Compound([(rbgen.Box((0.3, 0.1, 0.3)), (0, 0, 0), (0, 0, 0, 1)),
+                               (rbgen.Sphere(0.2), (0, 0.3, 0), (0, 0, 0, 1))])
+    world.add_bodies(compound, mass=1.0, positions=[[0, 5, 0], [1.5, 5, 0]])
+    return world
+
+
+def test_cpp_host_runs_meshes_and_compounds_growing_every_expansion(runtime, rbgen_run,
+                                                                     tmp_path):
+    """A World with a triangle mesh and compounds: the midphase's two expansions are
+    capacities of their own (their need in the step report); started at one pair each,
+    with one pair and one manifold, the C++ host grows all of them and still ends bit for
+    bit where Python does."""
+    world = mesh_and_compounds(runtime)
+    world.step(1 / 60)
+    world.statistics()
+    out = tmp_path / "mesh"
+    export_world(world, out, build=lambda: mesh_and_compounds(runtime))
+    schedule = json.loads((out / "schedule.json").read_text())
+    names = [c["name"] for c in schedule["capacities"]]
+    assert {"midphase.children", "midphase.triangles", "pairs", "manifolds"} == set(names)
+    options = [item for name in names for item in ("--capacity", f"{name}=0")]
+    done = run(rbgen_run, out, 60, *options, "--dump", str(tmp_path / "state.bin"))
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert overflows(done.stdout) >= len(names)
+    python = mesh_and_compounds(runtime)
+    for _ in range(60):
+        python.step(1 / 60)
+    assert_same(dumped_state(tmp_path / "state.bin", python.body_count),
+                [python.positions, python.orientations, python.linear_velocities,
+                 python.angular_velocities])
 
 
 def _edited(source: Path, target: Path, edit) -> Path:

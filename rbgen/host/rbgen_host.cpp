@@ -506,7 +506,7 @@ struct Buffer {
     Number size;
     std::string init;  // "zeros", "fill", "data"
     std::vector<uint8_t> pattern, data;
-    std::vector<int> renew_on;
+    std::vector<std::pair<int, int>> renew_on;  // (capacity, rung): reaching it reallocates
     cl_mem mem = nullptr;
     std::size_t bytes = 0;
 };
@@ -759,10 +759,13 @@ struct Host::Impl {
             } else if (buf.init != "zeros") {
                 init["kind"].fail("is not zeros, fill or data");
             }
-            for (const Json& r : b["renew_on"].array()) {
-                auto it = cap_index.find(r.str());
-                if (it == cap_index.end()) r.fail("names no capacity");
-                buf.renew_on.push_back(it->second);
+            const Json& renew = b["renew_on"];
+            if (!renew.is_object()) renew.fail("is not an object");
+            for (const auto& r : renew.fields) {
+                auto it = cap_index.find(r.first);
+                if (it == cap_index.end()) renew.fail("names no capacity " + r.first);
+                for (const Json& rung : r.second.array())
+                    buf.renew_on.emplace_back(it->second, static_cast<int>(rung.integer()));
             }
             buffers.push_back(std::move(buf));
         }
@@ -942,11 +945,15 @@ struct Host::Impl {
         resolve();
     }
 
-    // A capacity changed: the buffers Python reallocates then get new allocations.
-    void renew(int cap) {
+    // Capacity `cap` went from rung `from` to its rung now: the buffers Python reallocates
+    // when it reaches one of the rungs between get new allocations.
+    void renew(int cap, int from) {
         for (Buffer& b : buffers)
-            if (std::find(b.renew_on.begin(), b.renew_on.end(), cap) != b.renew_on.end())
-                allocate(b);
+            for (const auto& r : b.renew_on)
+                if (r.first == cap && r.second > from && r.second <= rungs[cap]) {
+                    allocate(b);
+                    break;
+                }
     }
 
     // ------------------------------------------------------------------ numbers
@@ -1084,8 +1091,9 @@ struct Host::Impl {
             if (c.leader < 0 || rungs[i] >= rungs[c.leader]) continue;
             if (std::find(c.at_variants.begin(), c.at_variants.end(), v) == c.at_variants.end())
                 continue;
+            int from = rungs[i];
             rungs[i] = rungs[c.leader];
-            renew(static_cast<int>(i));
+            renew(static_cast<int>(i), from);
             changed = true;
         }
         if (changed) resolve();
@@ -1158,8 +1166,9 @@ struct Host::Impl {
                         " (stage " + c.stage + "), more than this export covers (2^" +
                         std::to_string(c.max) + " = " + std::to_string(uint64_t(1) << c.max) +
                         "): export the World again with a larger --grow-rungs");
+        int from = rungs[cap];
         rungs[cap] = std::max(rung, rungs[cap] + 1);
-        renew(cap);
+        renew(cap, from);
     }
 
     std::vector<float> field(const char* name, int lanes) {

@@ -33,7 +33,7 @@ from .broadphase.pairs import PairBuffer
 from .constraints import ContactConstraints
 from .device_barrier import ABANDONED_OFFSET, clear_abandoned
 from .integrate import Integrator
-from .midphase import Midphase, needs_midphase
+from .midphase import STATUS_WORDS, Midphase, needs_midphase
 from .narrowphase import Narrowphase
 from .prepare import BodyPreparation
 from .solvers.jacobi import JacobiSolver
@@ -214,19 +214,28 @@ class MidphaseStage(Stage):
     def recover(self, needed) -> None:
         self.midphase.grow(needed)
 
+    def _expansion_names(self) -> list[str]:
+        """The expansions of this world (the triangles' is made at the first step)."""
+        m = self.midphase
+        return [n for n, has in (("children", m.has_children), ("triangles", m.has_triangles))
+                if has]
+
     def capacities(self) -> dict[str, int]:
         return {f"midphase.{e.name}": e.capacity for e in self.midphase.expansions()}
 
     def set_capacity(self, name: str, value: int) -> None:
-        for e in self.midphase.expansions():
-            if name == f"midphase.{e.name}":
-                e.capacity = 0  # (exactly: grow never shrinks)
-                return e.grow(value)
-        raise KeyError(name)
+        made = {f"midphase.{e.name}": e for e in self.midphase.expansions()}
+        if name in made:
+            made[name].capacity = 0  # (exactly: grow never shrinks)
+            made[name].grow(value)
+        elif name in (f"midphase.{n}" for n in self._expansion_names()):
+            self.midphase.capacity = int(value)  # (the first capacity of one not made yet)
+        else:
+            raise KeyError(name)
 
     def report_protocol(self) -> dict:
-        return {"capacities": {f"midphase.{e.name}": e.status_word
-                               for e in self.midphase.expansions()}}
+        return {"capacities": {f"midphase.{name}": STATUS_WORDS[name]
+                               for name in self._expansion_names()}}
 
 
 class NarrowphaseStage(Stage):

@@ -56,7 +56,7 @@ def assemble(inf, programs: dict) -> tuple[dict, dict[str, bytes]]:
         size = inf.number(("size", logical))
         buffers.append({"name": info.name or f"buffer{logical}", "type": info.ctype,
                         "size": size, "init": _init(info, size, new_id[logical], files),
-                        "renew_on": inf.renew_on.get(logical, [])})
+                        "renew_on": inf.renew_on.get(logical, {})})
 
     def command(key: tuple, numbers: list) -> dict:
         op = key[0]

@@ -300,31 +300,45 @@ class Inference:
             self.follow[name] = rule
 
     # ------------------------------------------------------------------ renewals
-    def _changed(self, r: int, n: int) -> set[str]:
+    def _changed(self, r: int, n: int) -> set[tuple[str, int]]:
+        """The capacities that step ``n`` of run ``r`` found changed, with their new rungs."""
         if n == 0:
             return set()
         before, after = self.values[r][n - 1], self.values[r][n]
-        return {name for name in self.vars if after[name] != before[name]}
+        return {(name, rung(after[name], name)) for name in self.vars
+                if after[name] != before[name]}
 
     def _learn_renewals(self) -> None:
-        """The capacities whose change gives each buffer a new allocation (as Python did)."""
+        """The capacity changes that give each buffer a new allocation, as Python did: a
+        capacity whose every change renewed it (the usual case), else, for what that
+        leaves unexplained, a grown capacity reaching certain rungs (a buffer remade when
+        its owner's input crosses a size bucket). Each renewal must be explained."""
         renewals: dict[int, list[set]] = {}
         quiet: dict[int, list[set]] = {}
         for (r, logical), seen in self.objects.items():
             for (n1, o1), (n2, o2) in zip(seen, seen[1:]):
                 changed = set().union(*(self._changed(r, m) for m in range(n1 + 1, n2 + 1)))
                 (renewals if o1 != o2 else quiet).setdefault(logical, []).append(changed)
-        self.renew_on: dict[int, list[str]] = {}
+        #: logical buffer -> {capacity: [rungs whose reaching renews it]}
+        self.renew_on: dict[int, dict[str, list[int]]] = {}
         for logical, intervals in renewals.items():
-            candidates = set().union(*intervals)
-            keep = {name for name in candidates
-                    if not any(name in q for q in quiet.get(logical, []))}
-            unexplained = [c for c in intervals if not c & keep]
-            if unexplained:
+            silent = quiet.get(logical, [])
+            names = {name for c in intervals for name, _ in c}
+            whole = {name for name in names if not any(name == n for q in silent for n, _ in q)}
+            unexplained = [c for c in intervals if not any(n in whole for n, _ in c)]
+            events = {e for c in unexplained for e in c if e[0] in self.grown
+                      and not any(e in q for q in silent)}
+            if any(not c & events for c in unexplained):
                 raise RbgenError(f"schedule: buffer {logical} "
                                  f"({self.buffers[logical].name or 'unnamed'}) was "
                                  f"reallocated without a capacity change that explains it")
-            self.renew_on[logical] = sorted(keep, key=self.vars.index)
+            table = {name: list(self.range_of(name))[1:] for name in whole}
+            for name, r in events:
+                table.setdefault(name, [])
+                if r not in table[name]:
+                    table[name].append(r)
+            self.renew_on[logical] = {name: sorted(table[name])
+                                      for name in sorted(table, key=self.vars.index)}
 
     # ------------------------------------------------------------------ numbers
     def range_of(self, name: str) -> range:
