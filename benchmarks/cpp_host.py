@@ -100,7 +100,7 @@ def build_host(build: Path, include: str | None, library: str | None) -> Path:
         host = ROOT / "rbgen" / "host"
         steps = [[compiler, "-O2", "-std=c++17", f"-I{host}", f"-I{include}",
                   str(host / "rbgen_host.cpp"), str(ROOT / "examples" / "cpp" / "rbgen_run.cpp"),
-                  library, "-o", str(binary)]]
+                  library, f"-Wl,-rpath,{os.path.dirname(library)}", "-o", str(binary)]]
     for command in steps:
         done = subprocess.run(command, capture_output=True, text=True)
         if done.returncode:
