@@ -46,13 +46,14 @@ MANIFOLDS_PER_BODY = 4
 @dataclasses.dataclass
 class StepContext:
     """What one enqueued step reads: its dt, its backup slot, the World's step settings,
-    the device bodies and shapes."""
+    the device bodies and shapes, and its external forces (`rbgen.forces`; None: none)."""
 
     dt: float
     slot: int
     settings: Settings
     bodies: DeviceBodies
     shapes: PackedShapes
+    forces: cla.Array | None = None
 
 
 class Stage:
@@ -87,8 +88,8 @@ class Stage:
 
 
 class PrepareStage(Stage):
-    """Gravity, world inverse inertia, the gyroscopic term, world AABBs and the body
-    backup of the step, in one launch (`rbgen.pipeline.prepare`)."""
+    """Gravity, external forces, world inverse inertia, the gyroscopic term, world AABBs
+    and the body backup of the step, in one launch (`rbgen.pipeline.prepare`)."""
 
     name = "prepare"
 
@@ -100,6 +101,7 @@ class PrepareStage(Stage):
             gravity=True,
             shape_types=plan.shape_types,
             backup=True,
+            external_forces=True,
         )
         self.aabbs: cla.Array | None = None
 
@@ -121,6 +123,7 @@ class PrepareStage(Stage):
                 step.settings.contact_margin,
             ),
             backup=b.backups[step.slot],
+            forces=step.forces,
         )
 
 

@@ -141,3 +141,43 @@ def test_aabb_inputs_must_match_the_build(runtime):
         BodyPreparation(runtime)(bodies, inertia, 1, 0.1, backup=bodies)
     with pytest.raises(Exception, match="shape_types"):
         BodyPreparation(runtime, shape_types=("box", "torus"))
+
+
+@pytest.mark.parametrize("with_forces", [True, False])
+@pytest.mark.parametrize("n", [0, 1, 67, 200])
+def test_external_forces(runtime, rng, n, with_forces):
+    """Built with external_forces, dynamic bodies gain v += F dt m^-1 and w += I_world^-1
+    (M - x cross F_lever) dt (float64 reference on fresh random inputs); static bodies and
+    a step without forces (has_forces = 0) keep their velocities bit for bit."""
+    bodies, diag = _random_bodies(rng, max(n, 1))
+    bodies["position"][:, :3] = rng.uniform(-5, 5, (max(n, 1), 3))
+    forces = layouts.EXTERNAL_FORCE.zeros(max(n, 1))
+    for name in ("force", "lever_force", "moment"):
+        forces[name][:, :3] = rng.uniform(-3, 3, (max(n, 1), 3))
+    queue = runtime.queue
+    d_bodies = cl_array.to_device(queue, bodies)
+    d_inertia = cl_array.to_device(queue, inertia_records(diag))
+    dt = 1 / 60
+    prepare = BodyPreparation(runtime, gyroscopic=False, external_forces=True)
+    prepare(
+        d_bodies,
+        d_inertia,
+        n,
+        dt,
+        forces=cl_array.to_device(queue, forces) if with_forces else None,
+    )
+    out = d_bodies.get()
+    dynamic = (bodies["inv_mass"][:n] > 0) & with_forces
+    lin = bodies["linear_velocity"][:n, :3].astype(np.float64)
+    ang = bodies["angular_velocity"][:n, :3].astype(np.float64)
+    f = {k: forces[k][:n, :3].astype(np.float64) for k in ("force", "lever_force", "moment")}
+    x = bodies["position"][:n, :3].astype(np.float64)
+    for i in np.flatnonzero(dynamic):
+        lin[i] += f["force"][i] * bodies["inv_mass"][i] * dt
+        rot = _rotation(bodies["orientation"][i].astype(np.float64))
+        torque = f["moment"][i] - np.cross(x[i], f["lever_force"][i])
+        ang[i] += rot @ np.diag(diag[i]) @ rot.T @ torque * dt
+    np.testing.assert_allclose(out["linear_velocity"][:n, :3], lin, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(out["angular_velocity"][:n, :3], ang, rtol=1e-5, atol=1e-5)
+    unchanged = ~dynamic
+    np.testing.assert_array_equal(out[:n][unchanged], bodies[:n][unchanged])

@@ -1,0 +1,138 @@
+"""Forces and torques from Python for the next step (`World.apply_forces`).
+
+`apply_forces(ids, forces, torques=None, points=None)` adds to each body's sums for the
+next step, on the host, in float64 (`numpy.add.at`: repeated ids add up in a fixed
+order, so the sums are deterministic). A force given with a point of application (world
+coordinates) adds a torque (point - x) x F about the centre of mass x; x is the body's
+position at the step's start, which only the device knows without a blocking read, so
+the host keeps sum(point x F) and sum(F) of those forces apart and the step's
+preparation kernel subtracts x x sum(F) (`layouts.EXTERNAL_FORCE`).
+
+At the step's first enqueue the sums become one `ExternalForce` array uploaded by a
+non-blocking copy, kept under the step's tag (the World's step number) while the step
+may be redone: a redone step, or the next substep of the same `World.step`, reads the
+same array again (the forces act during the whole step: each of its substeps). The
+sums then start again from zero: the forces act during one step only. A step whose
+redo could not be made (the World raised and went back to before it) takes its forces
+with it. Pending sums follow their bodies through `World.remove_bodies`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from . import layouts
+from .bodies import body_ids, floats
+from .device import buffer_of
+from .errors import RbgenError
+
+#: steps back from the newest whose uploaded forces are kept (a redo reaches back at
+#: most over the steps in flight, `rbgen.guard.STEPS_IN_FLIGHT`, each of them at most
+#: one `World.step`)
+KEEP_STEPS = 3
+
+
+def _vectors(value, n: int, what: str, ids: np.ndarray | None = None) -> np.ndarray:
+    """(n, 3) finite float64 rows, or one row (3,) for all; names the bad row's body."""
+    try:
+        arr = floats(value)
+    except (TypeError, ValueError):
+        raise RbgenError(
+            f"{what} must be numbers of shape ({n}, 3) or (3,), got {type(value).__name__}"
+        ) from None
+    if arr.shape == (3,):
+        arr = np.broadcast_to(arr, (n, 3))
+    if arr.shape != (n, 3):
+        raise RbgenError(f"{what} must have shape ({n}, 3) or (3,) for {n} ids, got {arr.shape}")
+    bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
+    if len(bad):
+        body = int(ids[bad[0]]) if ids is not None else int(bad[0])
+        raise RbgenError(f"{what}: body {body} has a NaN or infinite value {arr[bad[0]].tolist()}")
+    return arr
+
+
+class ExternalForces:
+    """The pending sums of one World and the uploaded arrays of its recent steps."""
+
+    def __init__(self, runtime):
+        self.runtime = runtime
+        self.count = 0
+        self._sums = np.zeros((0, 3, 3))  # per body: force, lever force, moment
+        self._pending = False
+        #: tag -> (device array, host array, copy event) of the steps that may be redone
+        self._steps: dict[int, tuple] = {}
+        self._spare: list = []
+
+    def resize(self, count: int) -> None:
+        """The World's body count is now ``count`` (pending sums of kept indices stay)."""
+        if count != self.count:
+            sums = np.zeros((count, 3, 3))
+            keep = min(count, self.count)
+            sums[:keep] = self._sums[:keep]
+            self._sums, self.count = sums, count
+            self._spare = []
+
+    def forget(self, tag: int) -> None:
+        """The steps from ``tag`` on were undone for good: their forces go with them."""
+        for old in [t for t in self._steps if t >= tag]:
+            self._spare.append(self._steps.pop(old))
+
+    def renumber(self, mapping: np.ndarray) -> None:
+        """Bodies were removed (``mapping[old]`` is the new index or -1): pending sums
+        follow their bodies; a removed body's are dropped."""
+        kept = mapping >= 0
+        self._sums = self._sums[: len(mapping)][kept]
+        self.count = len(self._sums)
+        self._spare = []
+
+    def drop_pending(self) -> None:
+        self._sums[:] = 0.0
+        self._pending = False
+
+    def add(self, ids, forces, torques=None, points=None) -> None:
+        """Add to the sums of bodies ``ids`` (see the module docstring); every argument
+        is checked before anything is added."""
+        ids = body_ids(ids, self.count, "ids")
+        n = len(ids)
+        force = _vectors(forces, n, "forces", ids)
+        torque = None if torques is None else _vectors(torques, n, "torques", ids)
+        point = None if points is None else _vectors(points, n, "points", ids)
+        if n == 0:
+            return
+        np.add.at(self._sums[:, 0], ids, force)
+        if point is not None:
+            np.add.at(self._sums[:, 1], ids, force)
+            np.add.at(self._sums[:, 2], ids, np.cross(point, force))
+        if torque is not None:
+            np.add.at(self._sums[:, 2], ids, torque)
+        self._pending = True
+
+    def for_step(self, tag: int):
+        """The device `ExternalForce` array of step ``tag`` (None: no forces), uploaded
+        at its first call (non-blocking) and kept for a redo."""
+        for old in [t for t in self._steps if t < tag - KEEP_STEPS]:
+            self._spare.append(self._steps.pop(old))  # (older than any redo)
+        if tag in self._steps:
+            return self._steps[tag][0]
+        if not self._pending:
+            return None
+        queue = self.runtime.queue
+        entry = None
+        while self._spare and entry is None:
+            candidate = self._spare.pop()
+            if candidate[0].size == max(1, self.count):
+                entry = candidate
+        if entry is None:
+            device = cla.empty(queue, max(1, self.count), layouts.EXTERNAL_FORCE.dtype)
+            host = layouts.EXTERNAL_FORCE.zeros(max(1, self.count))
+        else:
+            device, host, event = entry
+            event.wait()  # (long done: the step that used it is checked)
+        for k, name in enumerate(("force", "lever_force", "moment")):
+            host[name][: self.count, :3] = self._sums[:, k]
+        event = cl.enqueue_copy(queue, buffer_of(device), host, is_blocking=False)
+        self._steps[tag] = (device, host, event)
+        self.drop_pending()
+        return device
