@@ -3,6 +3,7 @@
 See DESIGN.md (shared) and README.md. The user-facing names are re-exported here.
 """
 
+from .batch import WorldBatch
 from .compound import Compound
 from .device import DeviceTraits, Runtime, list_devices, select_device
 from .errors import DeviceNotFoundError, KernelBuildError, RbgenError, TemplateParameterError
@@ -26,6 +27,7 @@ __all__ = [
     "TemplateParameterError",
     "TriangleMesh",
     "World",
+    "WorldBatch",
     "list_devices",
     "load_mesh",
     "select_device",

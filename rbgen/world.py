@@ -73,6 +73,10 @@ class World:
             read_device=lambda: self.runtime.read(self._device.bodies),
         )
         self._persistent_failed = False
+        #: the bodies whose shapes and spread size the batching's cells and slabs (None:
+        #: this World's own; a WorldBatch gives one environment's, so that its colouring
+        #: does not depend on the number of environments)
+        self._batching_scene: BodyStore | None = None
         #: the plan of the current scene (rederived when the shape types change)
         self.plan: Plan = derive_plan(self.runtime.traits, construction)
         self._pipeline: StepPipeline | None = None
@@ -356,7 +360,9 @@ class World:
         pipeline.resize(self._bodies.count)
         if pipeline.batching is not None:
             pipeline.batching.configure(
-                self._bodies, self.settings.gravity, self.settings.contact_margin
+                self._batching_scene or self._bodies,
+                self.settings.gravity,
+                self.settings.contact_margin,
             )
         self._guard.attach(pipeline)
         self._memory.record(self._bodies, self.shapes.type_names(), pipeline)

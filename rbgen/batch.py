@@ -1,0 +1,276 @@
+"""Many independent environments of one scene in one step pipeline (`WorldBatch`).
+
+A WorldBatch copies a template World (built by a ``build`` function or given) ``envs``
+times into one World: the template's static bodies once, as geometry every environment
+meets (a ground, walls), then its dynamic bodies once per environment, environment
+after environment (body j of environment k is ``shared + k * bodies + j``). One step
+is the World's launch sequence, whatever the number of environments.
+
+Environments overlap in space and never see each other: every body carries a collision
+word, env << 1 | static (`layouts.SHARED_STATIC`), and the broadphases keep a pair only
+when both bodies are in one environment or one is shared geometry (`pair_allowed`, at
+the test every broadphase already makes against two static bodies: no extra pass and
+no pair ever written for two environments); the grid also files each environment's
+bodies in cells of their own (`cells.cl.mako`), so overlapping environments do not
+crowd one cell.
+
+An environment's trajectory does not depend on the number of environments or on the
+others, bit for bit, by construction: its bodies keep their relative order whatever
+comes before them, and every stage after the broadphase keeps the relative order of
+the pairs, manifolds and constraint edges of one environment (pairs sorted by (a, b),
+manifolds in pair order, edges in manifold order); its constraints touch none of
+another environment's dynamic bodies, so a colouring in index order gives its edges
+the colours they get alone, and a serial walk or a colour solved in parallel applies
+its impulses in the same order; the batching's cell size and slab axis come from the
+template, not from the whole batch. Where a stage orders by something else -- a
+hashed priority in the GPU colourings' late rounds (global batching after its
+ordered rounds, the lanes form of spatial batching) -- two batch sizes may colour an
+environment differently; tests/test_batch.py compares end states across batch sizes
+on every device and would show it.
+
+`reset` restores environments exactly: their bodies' state, and no warm start of their
+contacts (as a fresh start has none). Observations are (envs, bodies, ...) arrays;
+`apply_forces` takes (envs, bodies, 3) arrays, for the next step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from . import layouts
+from .bodies import STATE_FIELDS, floats
+from .errors import RbgenError
+from .settings import STEP
+from .world import World
+
+#: state fields a reset restores (the initial state's, or those given)
+FIELDS = tuple(STATE_FIELDS)
+
+
+class WorldBatch:
+    """``envs`` copies of one scene, stepped together (see the module docstring).
+
+    ``WorldBatch(envs, build=None, *, template=None, device=None, **options)``:
+    ``build()`` returns the World of one environment (or pass it as ``template``); its
+    static bodies are shared by every environment, its dynamic bodies are copied into
+    each. ``device`` (None: the template's) and ``options`` (World options: they
+    replace the template's) make the batch's World, ``world``, which runs every
+    environment (its kernels, plan and statistics are the batch's).
+    """
+
+    def __init__(
+        self,
+        envs: int,
+        build: Callable[[], World] | None = None,
+        *,
+        template: World | None = None,
+        device=None,
+        **options,
+    ):
+        if isinstance(envs, (bool, np.bool_)) or not isinstance(envs, (int, np.integer)):
+            raise RbgenError(f"envs must be a positive integer, got {envs!r}")
+        if not 1 <= envs < layouts.SHARED_STATIC >> 1:
+            raise RbgenError(
+                f"envs must be from 1 to {(layouts.SHARED_STATIC >> 1) - 1}, got {envs}"
+            )
+        if (build is None) == (template is None):
+            raise RbgenError("WorldBatch needs exactly one of build (a function) and template")
+        if build is not None:
+            if not callable(build):
+                raise RbgenError(f"build must be a function returning a World, got {build!r}")
+            template = build()
+        if not isinstance(template, World):
+            raise RbgenError(
+                f"{'build must return' if build is not None else 'template must be'} an "
+                f"rbgen.World, got {type(template).__name__}"
+            )
+        self.template = template
+        bodies = template._bodies
+        bodies.sync_to_host()
+        host, inv_inertia = bodies.host.copy(), bodies.inv_inertia.copy()
+        dynamic = host["inv_mass"] > 0
+        if not np.any(dynamic):
+            raise RbgenError("the template World has no dynamic body: nothing to copy")
+        self.envs = int(envs)
+        #: dynamic bodies per environment, static bodies shared by all
+        self.bodies = int(dynamic.sum())
+        self.shared = int((~dynamic).sum())
+        settings = template.settings.as_dict()
+        self.world = World(
+            device if device is not None else template.runtime,
+            **{**settings, **template.options, **options},
+        )
+        for shape in template.shapes.shapes:
+            self.world.shapes.add(shape)
+        self._initial = host[dynamic].copy()
+        records = np.concatenate([host[~dynamic], np.tile(host[dynamic], self.envs)])
+        inertia = np.concatenate(
+            [inv_inertia[~dynamic], np.tile(inv_inertia[dynamic], (self.envs, 1))]
+        )
+        env_of = np.concatenate(
+            [
+                np.full(self.shared, layouts.SHARED_STATIC, np.uint32),
+                np.repeat(np.arange(self.envs, dtype=np.uint32), self.bodies),
+            ]
+        )
+        first_dynamic = template.shapes.shapes[int(host["shape"][dynamic][0])]
+        self.world._memory.check_add(self.world._bodies, len(records), first_dynamic, None)
+        self.world._bodies.adopt(records, inertia, env_of)
+        self.world._batching_scene = bodies
+
+    # ------------------------------------------------------------- settings
+    def __getattr__(self, name):
+        if name in STEP:
+            return getattr(self.world.settings, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def __setattr__(self, name, value):
+        if name in STEP:
+            setattr(self.world.settings, name, value)
+        else:
+            object.__setattr__(self, name, value)
+
+    @property
+    def runtime(self):
+        return self.world.runtime
+
+    @property
+    def plan(self):
+        return self.world.plan
+
+    @property
+    def overflows(self) -> int:
+        return self.world.overflows
+
+    @property
+    def last_step_counters(self) -> dict:
+        return self.world.last_step_counters
+
+    def kernel_specs(self):
+        return self.world.kernel_specs()
+
+    def statistics(self) -> dict:
+        return {**self.world.statistics(), "envs": self.envs}
+
+    # ------------------------------------------------------------- indices
+    def env_ids(self, env_ids=None) -> np.ndarray:
+        """Environment indices as int64 (None: all); refused naming ``env_ids``."""
+        if env_ids is None:
+            return np.arange(self.envs)
+        arr = np.asarray(env_ids)
+        if arr.dtype == object or arr.dtype.kind not in "iu" or arr.ndim > 1:
+            raise RbgenError(
+                f"env_ids must be an environment index or a 1-D sequence of them (integers "
+                f"from 0 to {self.envs - 1}), got {arr.dtype} of shape {arr.shape}"
+            )
+        arr = arr.reshape(-1).astype(np.int64)
+        bad = np.flatnonzero((arr < 0) | (arr >= self.envs))
+        if len(bad):
+            raise RbgenError(
+                f"env_ids: environment {int(arr[bad[0]])} does not exist (environments run "
+                f"from 0 to {self.envs - 1})"
+            )
+        return arr
+
+    def body_ids(self, env_ids=None) -> np.ndarray:
+        """(len(env_ids), bodies) indices of the environments' bodies in `world`."""
+        envs = self.env_ids(env_ids)
+        return self.shared + envs[:, None] * self.bodies + np.arange(self.bodies)[None, :]
+
+    # ------------------------------------------------------------- state
+    def _field(self, what):
+        name, lanes = STATE_FIELDS[what]
+        snapshot = self.world._bodies.field(
+            name, lanes, f"batch.reset(env_ids, state={{'{what}': ...}})"
+        )
+        return snapshot[self.shared :].reshape(self.envs, self.bodies, lanes)
+
+    positions = property(
+        lambda s: s._field("positions"), doc="(envs, bodies, 3) float32, read-only snapshot"
+    )
+    orientations = property(
+        lambda s: s._field("orientations"), doc="(envs, bodies, 4) float32 quaternions x, y, z, w"
+    )
+    linear_velocities = property(
+        lambda s: s._field("linear_velocities"), doc="(envs, bodies, 3) float32 m/s"
+    )
+    angular_velocities = property(
+        lambda s: s._field("angular_velocities"), doc="(envs, bodies, 3) float32 rad/s"
+    )
+
+    def _rows(self, value, count: int, lanes: int, what: str, envs: np.ndarray) -> np.ndarray:
+        """(count, bodies, lanes) finite numbers, or (bodies, lanes) / (lanes,) for all;
+        a bad value names its environment and body."""
+        try:
+            arr = floats(value)
+        except (TypeError, ValueError):
+            raise RbgenError(
+                f"{what} must be numbers of shape ({count}, {self.bodies}, {lanes}), got "
+                f"{type(value).__name__}"
+            ) from None
+        if arr.shape in ((lanes,), (self.bodies, lanes)):
+            arr = np.broadcast_to(arr, (count, self.bodies, lanes))
+        if arr.shape != (count, self.bodies, lanes):
+            raise RbgenError(
+                f"{what} must have shape ({count}, {self.bodies}, {lanes}) (environments, "
+                f"bodies, {lanes}), got {arr.shape}"
+            )
+        bad = np.argwhere(~np.all(np.isfinite(arr), axis=2))
+        if len(bad):
+            e, j = bad[0]
+            raise RbgenError(
+                f"{what}: environment {int(envs[e])}, body {int(j)} has a NaN or infinite "
+                f"value {arr[e, j].tolist()}"
+            )
+        return arr
+
+    def reset(self, env_ids=None, state=None) -> None:
+        """Restore the environments ``env_ids`` (None: all) between steps: to their
+        initial state, or to ``state``, a dict of the fields given (``positions``,
+        ``orientations``, ``linear_velocities``, ``angular_velocities``: each
+        (len(env_ids), bodies, k), or one (bodies, k) for them all; a field left out
+        takes its initial value). Their contacts lose their warm start, as at the start.
+        Every value is checked first (errors name the environment and body) and nothing
+        changes on an error."""
+        envs = self.env_ids(env_ids)
+        state = {} if state is None else dict(state)
+        unknown = sorted(set(state) - set(FIELDS))
+        if unknown:
+            raise RbgenError(f"state: unknown field(s) {unknown}; fields: {list(FIELDS)}")
+        values = {}
+        for what in FIELDS:
+            name, lanes = STATE_FIELDS[what]
+            if what in state:
+                values[what] = self._rows(state[what], len(envs), lanes, what, envs)
+            else:
+                initial = self._initial[name][:, :lanes]
+                values[what] = np.broadcast_to(initial, (len(envs), self.bodies, lanes))
+        if len(envs) == 0:
+            return
+        self.world.set_state(
+            self.body_ids(envs).reshape(-1),
+            **{what: np.reshape(v, (-1, v.shape[-1])) for what, v in values.items()},
+        )
+
+    # ------------------------------------------------------------- forces
+    def apply_forces(self, forces, torques=None, points=None, env_ids=None) -> None:
+        """Forces (N) on every body of the environments ``env_ids`` (None: all) during
+        the next step: ``forces`` (len(env_ids), bodies, 3); ``torques`` (N m) and
+        ``points`` (world coordinates of application) likewise or None (see
+        `World.apply_forces`). Checked first, naming the argument, environment and body."""
+        envs = self.env_ids(env_ids)
+        checked = [
+            None if v is None else self._rows(v, len(envs), 3, what, envs).reshape(-1, 3)
+            for v, what in ((forces, "forces"), (torques, "torques"), (points, "points"))
+        ]
+        assert checked[0] is not None or forces is None
+        if forces is None:
+            raise RbgenError("forces are required (an (envs, bodies, 3) array)")
+        self.world.apply_forces(self.body_ids(envs).reshape(-1), *checked)
+
+    # ------------------------------------------------------------- stepping
+    def step(self, dt: float, substeps: int = 1) -> None:
+        """Advance every environment by ``dt`` (`World.step`: no blocking read)."""
+        self.world.step(dt, substeps)
