@@ -42,11 +42,21 @@ import numpy as np
 from . import layouts
 from .bodies import STATE_FIELDS, floats
 from .errors import RbgenError
+from .pipeline.batching.global_colouring import ORDERED_ROUNDS
 from .settings import STEP
 from .world import World
 
 #: state fields a reset restores (the initial state's, or those given)
 FIELDS = tuple(STATE_FIELDS)
+
+
+def ordered_rounds_for(bodies: int, shared: int) -> int:
+    """Global batching's index-order colouring rounds for a batch: at least the most
+    whole-body pairs one environment can have, so that no environment's edges are left
+    to the hashed rounds, whose priorities would depend on the environments before it
+    (a round colours at least one link of every chain of rising indices; the loop ends
+    when every edge is coloured, so the bound costs nothing when unreached)."""
+    return max(ORDERED_ROUNDS, bodies * (bodies - 1) // 2 + bodies * shared)
 
 
 class WorldBatch:
@@ -97,10 +107,11 @@ class WorldBatch:
         #: dynamic bodies per environment, static bodies shared by all
         self.bodies = int(dynamic.sum())
         self.shared = int((~dynamic).sum())
-        settings = template.settings.as_dict()
+        merged = {**template.settings.as_dict(), **template.options, **options}
+        plan = dict(merged.get("plan") or {})
+        plan.setdefault("ordered_rounds", ordered_rounds_for(self.bodies, self.shared))
         self.world = World(
-            device if device is not None else template.runtime,
-            **{**settings, **template.options, **options},
+            device if device is not None else template.runtime, **{**merged, "plan": plan}
         )
         for shape in template.shapes.shapes:
             self.world.shapes.add(shape)
