@@ -9,6 +9,7 @@ from .device import DeviceTraits, Runtime, list_devices, select_device
 from .errors import DeviceNotFoundError, KernelBuildError, RbgenError, TemplateParameterError
 from .mesh import TriangleMesh, load_mesh
 from .shapes import Box, Capsule, ConvexHull, Plane, Shape, Sphere
+from .sweep import sweep
 from .world import World
 
 __all__ = [
@@ -31,6 +32,7 @@ __all__ = [
     "list_devices",
     "load_mesh",
     "select_device",
+    "sweep",
 ]
 
 __version__ = "0.1.0"

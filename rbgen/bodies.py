@@ -213,7 +213,7 @@ class BodyStore:
             bad = np.flatnonzero(~(np.isfinite(values) & ok))
             if len(bad):
                 raise RbgenError(
-                    f"body {first + bad[0]}: {name}={values[bad[0]]!r} is out of range"
+                    f"body {first + bad[0]}: {name}={float(values[bad[0]])!r} is out of range"
                 )
         records = layouts.BODY.zeros(n)
         inv_inertia = np.zeros((n, 3), np.float32)

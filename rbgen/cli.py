@@ -321,6 +321,7 @@ def main(argv=None) -> int:
     p.set_defaults(func=cmd_tune)
 
     cli_extras.add_bench_parser(sub)
+    cli_extras.add_sweep_parser(sub)
 
     p = sub.add_parser("export", help="write .cl kernels, manifest.json and the C header")
     p.add_argument("--out", required=True, help="output directory")
