@@ -228,8 +228,8 @@ class WorldBatch:
                 f"{what} must have shape ({count}, {self.bodies}, {lanes}) (environments, "
                 f"bodies, {lanes}), got {arr.shape}"
             )
-        bad = np.argwhere(~np.all(np.isfinite(arr), axis=2))
-        if len(bad):
+        if not np.isfinite(arr).all():
+            bad = np.argwhere(~np.all(np.isfinite(arr), axis=2))
             e, j = bad[0]
             raise RbgenError(
                 f"{what}: environment {int(envs[e])}, body {int(j)} has a NaN or infinite "
@@ -276,10 +276,11 @@ class WorldBatch:
             None if v is None else self._rows(v, len(envs), 3, what, envs).reshape(-1, 3)
             for v, what in ((forces, "forces"), (torques, "torques"), (points, "points"))
         ]
-        assert checked[0] is not None or forces is None
         if forces is None:
             raise RbgenError("forces are required (an (envs, bodies, 3) array)")
-        self.world.apply_forces(self.body_ids(envs).reshape(-1), *checked)
+        # (checked here, so the World's forces take them as they are)
+        self.world._forces.resize(self.world.body_count)
+        self.world._forces.accumulate(self.body_ids(envs).reshape(-1), *checked)
 
     # ------------------------------------------------------------- stepping
     def step(self, dt: float, substeps: int = 1) -> None:

@@ -19,6 +19,8 @@ with it. Pending sums follow their bodies through `World.remove_bodies`.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
@@ -46,32 +48,46 @@ def _vectors(value, n: int, what: str, ids: np.ndarray | None = None) -> np.ndar
         arr = np.broadcast_to(arr, (n, 3))
     if arr.shape != (n, 3):
         raise RbgenError(f"{what} must have shape ({n}, 3) or (3,) for {n} ids, got {arr.shape}")
-    bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
-    if len(bad):
+    if not np.isfinite(arr).all():
+        bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
         body = int(ids[bad[0]]) if ids is not None else int(bad[0])
         raise RbgenError(f"{what}: body {body} has a NaN or infinite value {arr[bad[0]].tolist()}")
     return arr
 
 
+#: the `ExternalForce` fields, in the order of the sums
+FIELDS = ("force", "lever_force", "moment")
+
+
 class ExternalForces:
-    """The pending sums of one World and the uploaded arrays of its recent steps."""
+    """The pending sums of one World and the uploaded arrays of its recent steps.
+
+    The sums are three (count, 3) float64 arrays (`FIELDS`); only the fields some call
+    wrote since the last step are converted and cleared (a push without torques or
+    points costs one field)."""
 
     def __init__(self, runtime):
         self.runtime = runtime
         self.count = 0
-        self._sums = np.zeros((0, 3, 3))  # per body: force, lever force, moment
-        self._pending = False
-        #: tag -> (device array, host array, copy event) of the steps that may be redone
-        self._steps: dict[int, tuple] = {}
+        self._sums = [np.zeros((0, 3)) for _ in FIELDS]
+        self._used = [False] * len(FIELDS)
+        #: tag -> [device array, pinned host array, copy event, pinned buffer, the fields
+        #: nonzero in the host array] of the steps that may be redone
+        self._steps: dict[int, list] = {}
         self._spare: list = []
+
+    @property
+    def _pending(self) -> bool:
+        return any(self._used)
 
     def resize(self, count: int) -> None:
         """The World's body count is now ``count`` (pending sums of kept indices stay)."""
         if count != self.count:
-            sums = np.zeros((count, 3, 3))
             keep = min(count, self.count)
-            sums[:keep] = self._sums[:keep]
-            self._sums, self.count = sums, count
+            for k, old in enumerate(self._sums):
+                self._sums[k] = np.zeros((count, 3))
+                self._sums[k][:keep] = old[:keep]
+            self.count = count
             self._spare = []
 
     def forget(self, tag: int) -> None:
@@ -83,13 +99,15 @@ class ExternalForces:
         """Bodies were removed (``mapping[old]`` is the new index or -1): pending sums
         follow their bodies; a removed body's are dropped."""
         kept = mapping >= 0
-        self._sums = self._sums[: len(mapping)][kept]
-        self.count = len(self._sums)
+        self._sums = [sums[: len(mapping)][kept] for sums in self._sums]
+        self.count = int(kept.sum())
         self._spare = []
 
     def drop_pending(self) -> None:
-        self._sums[:] = 0.0
-        self._pending = False
+        for k, used in enumerate(self._used):
+            if used:
+                self._sums[k][:] = 0.0
+        self._used = [False] * len(FIELDS)
 
     def add(self, ids, forces, torques=None, points=None) -> None:
         """Add to the sums of bodies ``ids`` (see the module docstring); every argument
@@ -99,15 +117,47 @@ class ExternalForces:
         force = _vectors(forces, n, "forces", ids)
         torque = None if torques is None else _vectors(torques, n, "torques", ids)
         point = None if points is None else _vectors(points, n, "points", ids)
-        if n == 0:
+        self.accumulate(ids, force, torque, point)
+
+    def accumulate(self, ids: np.ndarray, force, torque=None, point=None) -> None:
+        """`add` without its checks: ``ids`` int64 in range, the rest (len(ids), 3) finite
+        (a WorldBatch's, checked by it). Strictly increasing ids (a batch's, or any
+        list without repeats in order) add by plain indexing; others by np.add.at, which
+        sums repeats in order."""
+        if len(ids) == 0:
             return
-        np.add.at(self._sums[:, 0], ids, force)
+        if ids[-1] - ids[0] == len(ids) - 1 and bool(np.all(ids[1:] > ids[:-1])):
+            where: slice | np.ndarray | None = slice(int(ids[0]), int(ids[-1]) + 1)
+        elif bool(np.all(ids[1:] > ids[:-1])):
+            where = ids
+        else:
+            where = None  # repeats or disorder: np.add.at
+
+        def add(k: int, values) -> None:
+            if where is None:
+                np.add.at(self._sums[k], ids, values)
+            else:
+                self._sums[k][where] += values
+            self._used[k] = True
+
+        add(0, force)
         if point is not None:
-            np.add.at(self._sums[:, 1], ids, force)
-            np.add.at(self._sums[:, 2], ids, np.cross(point, force))
+            add(1, force)
+            add(2, np.cross(point, force))
         if torque is not None:
-            np.add.at(self._sums[:, 2], ids, torque)
-        self._pending = True
+            add(2, torque)
+
+    def _pinned(self, count: int) -> tuple:
+        """(a zeroed host array of ``count`` ExternalForce records in pinned memory, its
+        buffer (kept with it)): a GPU copies from it by DMA, without a staging copy."""
+        dtype = layouts.EXTERNAL_FORCE.dtype
+        buffer = cl.Buffer(
+            self.runtime.context, cl.mem_flags.ALLOC_HOST_PTR, count * dtype.itemsize
+        )
+        flags = cast(cl.map_flags, cl.map_flags.READ | cl.map_flags.WRITE)
+        host, _ = cl.enqueue_map_buffer(self.runtime.queue, buffer, flags, 0, (count,), dtype)
+        host[...] = np.zeros((), dtype)
+        return host, buffer
 
     def for_step(self, tag: int):
         """The device `ExternalForce` array of step ``tag`` (None: no forces), uploaded
@@ -126,13 +176,19 @@ class ExternalForces:
                 entry = candidate
         if entry is None:
             device = cla.empty(queue, max(1, self.count), layouts.EXTERNAL_FORCE.dtype)
-            host = layouts.EXTERNAL_FORCE.zeros(max(1, self.count))
-        else:
-            device, host, event = entry
-            event.wait()  # (long done: the step that used it is checked)
-        for k, name in enumerate(("force", "lever_force", "moment")):
-            host[name][: self.count, :3] = self._sums[:, k]
-        event = cl.enqueue_copy(queue, buffer_of(device), host, is_blocking=False)
-        self._steps[tag] = (device, host, event)
+            host, pinned = self._pinned(max(1, self.count))
+            entry = [device, host, None, pinned, set()]
+        elif entry[2] is not None:
+            entry[2].wait()  # (long done: the step that used it is checked)
+        device, host = entry[0], entry[1]
+        for k, name in enumerate(FIELDS):
+            if self._used[k]:
+                host[name][: self.count, :3] = self._sums[k]
+                entry[4].add(name)
+            elif name in entry[4]:
+                host[name] = 0.0  # (left from an earlier step)
+                entry[4].discard(name)
+        entry[2] = cl.enqueue_copy(queue, buffer_of(device), host, is_blocking=False)
+        self._steps[tag] = entry
         self.drop_pending()
         return device
