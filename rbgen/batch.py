@@ -39,10 +39,11 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import layouts
-from .bodies import STATE_FIELDS, floats
+from . import history, layouts
+from .bodies import STATE_FIELDS, floats, unit_quaternions
 from .errors import RbgenError
 from .pipeline.batching.global_colouring import ORDERED_ROUNDS
+from .pipeline.reset import EnvironmentReset
 from .settings import STEP
 from .world import World
 
@@ -130,6 +131,7 @@ class WorldBatch:
         self.world._memory.check_add(self.world._bodies, len(records), first_dynamic, None)
         self.world._bodies.adopt(records, inertia, env_of)
         self.world._batching_scene = bodies
+        self._reset: EnvironmentReset | None = None
 
     # ------------------------------------------------------------- settings
     def __getattr__(self, name):
@@ -238,32 +240,68 @@ class WorldBatch:
         return arr
 
     def reset(self, env_ids=None, state=None) -> None:
-        """Restore the environments ``env_ids`` (None: all) between steps: to their
-        initial state, or to ``state``, a dict of the fields given (``positions``,
-        ``orientations``, ``linear_velocities``, ``angular_velocities``: each
-        (len(env_ids), bodies, k), or one (bodies, k) for them all; a field left out
-        takes its initial value). Their contacts lose their warm start, as at the start.
-        Every value is checked first (errors name the environment and body) and nothing
-        changes on an error."""
+        """Restore the environments ``env_ids`` (None: all; each at most once) between
+        steps: to their initial state, or to ``state``, a dict of the fields given
+        (``positions``, ``orientations``, ``linear_velocities``, ``angular_velocities``:
+        each (len(env_ids), bodies, k), or one (bodies, k) for them all; a field left out
+        takes its initial value; orientations are normalised). Their contacts lose their
+        warm start, as at the start, and forces given for them since the last step are
+        dropped. Every value is checked first (errors name the environment and body) and
+        nothing changes on an error.
+
+        After a step this is done on the device (`rbgen.pipeline.reset`: one upload of
+        the new records, two launches, no blocking read; it waits for the steps in flight
+        to be checked, since a redone step would overwrite it); before the first step,
+        or with host edits pending, on the host copy."""
         envs = self.env_ids(env_ids)
-        state = {} if state is None else dict(state)
+        if len(np.unique(envs)) != len(envs):
+            raise RbgenError("env_ids: an environment is listed twice")
+        records = self._records(envs, {} if state is None else dict(state))
+        if len(envs) == 0:
+            return
+        world, bodies = self.world, self.world._bodies
+        ids = self.body_ids(envs).reshape(-1)
+        world._finish_pending()
+        if world._pipeline is None or world._device is None or bodies.device_stale:
+            bodies.sync_to_host()
+            bodies.host[ids] = records
+            bodies.device_stale = True
+            affected = np.zeros(bodies.count, bool)
+            affected[ids] = True
+            history.forget_bodies(world.runtime, world._pipeline, affected)
+        else:
+            with world._spec_log:
+                if self._reset is None:
+                    self._reset = EnvironmentReset(world.runtime)
+                self._reset(
+                    world._device.bodies,
+                    records,
+                    envs,
+                    self.bodies,
+                    self.shared,
+                    self.envs,
+                    world._device.static,
+                    world._steps.constraints.constraints,
+                )
+            bodies.host_stale = True  # (the device's records are newer)
+        world._forces.resize(world.body_count)
+        world._forces.drop(ids)
+
+    def _records(self, envs: np.ndarray, state: dict) -> np.ndarray:
+        """The Body records of the environments ``envs`` after a reset to ``state``."""
         unknown = sorted(set(state) - set(FIELDS))
         if unknown:
             raise RbgenError(f"state: unknown field(s) {unknown}; fields: {list(FIELDS)}")
-        values = {}
+        records = np.tile(self._initial, len(envs))
         for what in FIELDS:
+            if what not in state:
+                continue
             name, lanes = STATE_FIELDS[what]
-            if what in state:
-                values[what] = self._rows(state[what], len(envs), lanes, what, envs)
-            else:
-                initial = self._initial[name][:, :lanes]
-                values[what] = np.broadcast_to(initial, (len(envs), self.bodies, lanes))
-        if len(envs) == 0:
-            return
-        self.world.set_state(
-            self.body_ids(envs).reshape(-1),
-            **{what: np.reshape(v, (-1, v.shape[-1])) for what, v in values.items()},
-        )
+            rows = self._rows(state[what], len(envs), lanes, what, envs).reshape(-1, lanes)
+            if name == "orientation":
+                rows = unit_quaternions(rows, len(rows), ids=self.body_ids(envs).reshape(-1))
+            records[name][:, :lanes] = rows
+        return records
 
     # ------------------------------------------------------------- forces
     def apply_forces(self, forces, torques=None, points=None, env_ids=None) -> None:

@@ -104,9 +104,11 @@ def cmd_export(args) -> int:
 
 def _world_for_export(scene: str, n: int | None, device):
     """The World of a preset scene (``rbgen.harness.SCENES``) or of a Python file whose
-    ``build(device)`` returns one, stepped once so that its kernels are built."""
+    ``build(device)`` returns one (or a WorldBatch), stepped once so that its kernels are
+    built."""
     from pathlib import Path
 
+    from .batch import WorldBatch
     from .errors import RbgenError
     from .harness import SCENES, build_scene
     from .world import World
@@ -123,10 +125,10 @@ def _world_for_export(scene: str, n: int | None, device):
                 f"function returning a World"
             )
         world = build(device)
-        if not isinstance(world, World):
+        if not isinstance(world, (World, WorldBatch)):
             raise RbgenError(
                 f"export --world {scene}: build(device) returned "
-                f"{type(world).__name__}, not an rbgen.World"
+                f"{type(world).__name__}, not an rbgen.World or rbgen.WorldBatch"
             )
     else:
         raise RbgenError(

@@ -103,6 +103,12 @@ class ExternalForces:
         self.count = int(kept.sum())
         self._spare = []
 
+    def drop(self, ids: np.ndarray) -> None:
+        """Pending sums of bodies ``ids`` are dropped (their environment was reset)."""
+        for k, used in enumerate(self._used):
+            if used:
+                self._sums[k][ids] = 0.0
+
     def drop_pending(self) -> None:
         for k, used in enumerate(self._used):
             if used:
