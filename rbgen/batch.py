@@ -10,9 +10,10 @@ Environments overlap in space and never see each other: every body carries a col
 word, env << 1 | static (`layouts.SHARED_STATIC`), and the broadphases keep a pair only
 when both bodies are in one environment or one is shared geometry (`pair_allowed`, at
 the test every broadphase already makes against two static bodies: no extra pass and
-no pair ever written for two environments); the grid also files each environment's
-bodies in cells of their own (`cells.cl.mako`), so overlapping environments do not
-crowd one cell.
+no pair ever written for two environments); the grid (the default broadphase) also
+files each environment's bodies in cells of their own (`grid_owner.cl.mako`), so
+overlapping environments do not crowd one cell. The sweep-and-prune broadphases do not:
+with them, overlapping environments cost candidate tests quadratic in their number.
 
 An environment's trajectory does not depend on the number of environments or on the
 others, bit for bit, by construction: its bodies keep their relative order whatever
