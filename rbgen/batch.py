@@ -64,10 +64,13 @@ def ordered_rounds_for(bodies: int, shared: int) -> int:
 class WorldBatch:
     """``envs`` copies of one scene, stepped together (see the module docstring).
 
-    ``WorldBatch(envs, build=None, *, template=None, device=None, **options)``:
-    ``build()`` returns the World of one environment (or pass it as ``template``); its
-    static bodies are shared by every environment, its dynamic bodies are copied into
-    each. ``device`` (None: the template's) and ``options`` (World options: they
+    ``WorldBatch(envs, build=None, *, template=None, per_env=False, device=None,
+    **options)``: ``build()`` returns the World of one environment (or pass it as
+    ``template``); its static bodies are shared by every environment, its dynamic bodies
+    are copied into each. With ``per_env=True``, ``build(k)`` returns environment k's
+    own World (its masses, materials, shapes, positions), each with as many dynamic
+    bodies and the same static bodies; environment 0's settings and options are the
+    batch's. ``device`` (None: the template's) and ``options`` (World options: they
     replace the template's) make the batch's World, ``world``, which runs every
     environment (its kernels, plan and statistics are the batch's).
     """
@@ -75,9 +78,10 @@ class WorldBatch:
     def __init__(
         self,
         envs: int,
-        build: Callable[[], World] | None = None,
+        build: Callable[..., World] | None = None,
         *,
         template: World | None = None,
+        per_env: bool = False,
         device=None,
         **options,
     ):
@@ -89,23 +93,37 @@ class WorldBatch:
             )
         if (build is None) == (template is None):
             raise RbgenError("WorldBatch needs exactly one of build (a function) and template")
-        if build is not None:
-            if not callable(build):
-                raise RbgenError(f"build must be a function returning a World, got {build!r}")
-            template = build()
-        if not isinstance(template, World):
-            raise RbgenError(
-                f"{'build must return' if build is not None else 'template must be'} an "
-                f"rbgen.World, got {type(template).__name__}"
-            )
+        if per_env and build is None:
+            raise RbgenError("per_env=True needs build(env), a function of the environment")
+        if build is not None and not callable(build):
+            raise RbgenError(f"build must be a function returning a World, got {build!r}")
+        self.envs = int(envs)
+        worlds: list
+        if build is None:
+            worlds = [template]
+        elif per_env:
+            worlds = [build(k) for k in range(self.envs)]
+        else:
+            worlds = [build()]
+        for k, world in enumerate(worlds):
+            if not isinstance(world, World):
+                what = (
+                    "template must be"
+                    if build is None
+                    else (f"build({k}) must return" if per_env else "build must return")
+                )
+                raise RbgenError(f"{what} an rbgen.World, got {type(world).__name__}")
+        template = worlds[0]
+        assert template is not None  # (checked above)
         self.template = template
-        bodies = template._bodies
-        bodies.sync_to_host()
-        host, inv_inertia = bodies.host.copy(), bodies.inv_inertia.copy()
-        dynamic = host["inv_mass"] > 0
+        parts = []
+        for world in worlds:
+            world._bodies.sync_to_host()
+            host = world._bodies.host.copy()
+            parts.append((host, world._bodies.inv_inertia.copy(), host["inv_mass"] > 0, world))
+        host, inv_inertia, dynamic, _ = parts[0]
         if not np.any(dynamic):
             raise RbgenError("the template World has no dynamic body: nothing to copy")
-        self.envs = int(envs)
         #: dynamic bodies per environment, static bodies shared by all
         self.bodies = int(dynamic.sum())
         self.shared = int((~dynamic).sum())
@@ -115,23 +133,40 @@ class WorldBatch:
         self.world = World(
             device if device is not None else template.runtime, **{**merged, "plan": plan}
         )
-        for shape in template.shapes.shapes:
-            self.world.shapes.add(shape)
-        self._initial = host[dynamic].copy()
-        records = np.concatenate([host[~dynamic], np.tile(host[dynamic], self.envs)])
-        inertia = np.concatenate(
-            [inv_inertia[~dynamic], np.tile(inv_inertia[dynamic], (self.envs, 1))]
-        )
+        dynamics, inertias = [], []
+        for k, (host_k, inertia_k, dynamic_k, world) in enumerate(parts):
+            remap = np.array([self.world.shapes.add(s) for s in world.shapes.shapes], np.uint32)
+            records = host_k.copy()
+            records["shape"] = remap[records["shape"]]
+            if k == 0:
+                statics = records[~dynamic_k]
+            elif int(dynamic_k.sum()) != self.bodies or not np.array_equal(
+                records[~dynamic_k], statics
+            ):
+                raise RbgenError(
+                    f"build({k}): every environment needs {self.bodies} dynamic bodies "
+                    f"and the same static bodies as environment 0 (shared), got "
+                    f"{int(dynamic_k.sum())} dynamic and {int((~dynamic_k).sum())} static"
+                )
+            dynamics.append(records[dynamic_k])
+            inertias.append(inertia_k[dynamic_k])
+        #: initial records: one environment's (a copied scene) or each environment's
+        self._initial = dynamics[0] if len(dynamics) == 1 else np.stack(dynamics)
+        tiles = 1 if per_env else self.envs
+        records = np.concatenate([statics, *(dynamics * tiles)])
+        inertia = np.concatenate([inv_inertia[~dynamic], *(inertias * tiles)])
         env_of = np.concatenate(
             [
                 np.full(self.shared, layouts.SHARED_STATIC, np.uint32),
                 np.repeat(np.arange(self.envs, dtype=np.uint32), self.bodies),
             ]
         )
-        first_dynamic = template.shapes.shapes[int(host["shape"][dynamic][0])]
+        first_dynamic = self.world.shapes.shapes[int(dynamics[0]["shape"][0])]
         self.world._memory.check_add(self.world._bodies, len(records), first_dynamic, None)
         self.world._bodies.adopt(records, inertia, env_of)
-        self.world._batching_scene = bodies
+        # spatial batching's cells and slabs from environment 0 alone (not the batch's
+        # largest shape or spread, which would change with N)
+        self.world._batching_scene = template._bodies
         self._reset: EnvironmentReset | None = None
 
     # ------------------------------------------------------------- settings
@@ -293,7 +328,10 @@ class WorldBatch:
         unknown = sorted(set(state) - set(FIELDS))
         if unknown:
             raise RbgenError(f"state: unknown field(s) {unknown}; fields: {list(FIELDS)}")
-        records = np.tile(self._initial, len(envs))
+        if self._initial.ndim == 2:  # (each environment its own)
+            records = self._initial[envs].reshape(-1)
+        else:
+            records = np.tile(self._initial, len(envs))
         for what in FIELDS:
             if what not in state:
                 continue

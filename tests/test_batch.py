@@ -327,3 +327,45 @@ def test_a_reset_after_a_step_reads_nothing_back(runtime):
     assert not np.array_equal(runs[0][[1, 3]], runs[1][[1, 3]])
     with pytest.raises(RbgenError, match="listed twice"):
         batch.reset([2, 2])
+
+
+def varied_scene(runtime, gravity=(0, -9.81, 0), extra=None):
+    """Environment k's own World: the stack scene with masses 1 + k/4, friction
+    0.3 + k/20 and a sideways shift of k cm (``extra``: environment given one more box)."""
+
+    def build(k):
+        world = World(runtime, gravity=gravity)
+        world.add_static(rbgen.Plane((0, 1, 0), 0.0))
+        base = np.array([[0, 0.5, 0], [0, 1.5, 0], [0.1, 2.5, 0], [1.2, 0.6, 0.3]])
+        count = 5 if k == extra else 4
+        positions = np.r_[base, [[-1.0, 2.0, 0.5]]][:count] + [0.01 * k, 0, 0]
+        world.add_bodies(BOX, positions=positions, mass=1 + k / 4, friction=0.3 + k / 20)
+        return world
+
+    return build
+
+
+def test_per_environment_bodies(runtime):
+    """per_env=True: environment k is build(k)'s World (its masses and materials: a push
+    F gives v = F dt / m_k), bit for bit the same with 7 and 13 environments; a build
+    whose bodies do not match environment 0's is refused, naming it."""
+    free = rbgen.WorldBatch(5, varied_scene(runtime, gravity=(0, 0, 0)), per_env=True)
+    free.apply_forces(np.broadcast_to([0.0, 0.0, 3.0], (5, 4, 3)))
+    free.step(DT)
+    masses = 1 + np.arange(5) / 4
+    np.testing.assert_allclose(free.linear_velocities[:, 0, 2], 3.0 * DT / masses, rtol=1e-6)
+    ends = []
+    for envs in (7, 13):
+        batch = rbgen.WorldBatch(envs, varied_scene(runtime), per_env=True)
+        for s in range(30):
+            batch.apply_forces(np.stack([env_forces(k, s, 4) for k in range(envs)]))
+            batch.step(DT)
+        ends.append(end_states(batch, np.arange(7)))
+    for f in FIELDS:
+        assert np.array_equal(ends[0][f], ends[1][f]), f
+    batch.reset([3])
+    assert np.array_equal(batch.positions[3], varied_scene(runtime)(3).positions[1:])
+    with pytest.raises(RbgenError, match=r"build\(2\): every environment needs 4 dynamic"):
+        rbgen.WorldBatch(4, varied_scene(runtime, extra=2), per_env=True)
+    with pytest.raises(RbgenError, match=r"per_env=True needs build"):
+        rbgen.WorldBatch(4, template=varied_scene(runtime)(0), per_env=True)
