@@ -6,11 +6,13 @@ order, so the sums are deterministic). A force given with a point of application
 coordinates) adds a torque (point - x) x F about the centre of mass x; x is the body's
 position at the step's start, which only the device knows without a blocking read, so
 the host keeps sum(point x F) and sum(F) of those forces apart and the step's
-preparation kernel subtracts x x sum(F) (`layouts.EXTERNAL_FORCE`).
+preparation kernel subtracts x x sum(F): per body a ``force`` (sum F), a ``lever_force``
+(sum F of the forces given with points) and a ``moment`` (torques + sum point x F).
 
-At the step's first enqueue the sums become one `ExternalForce` array uploaded by a
-non-blocking copy, kept under the step's tag (the World's step number) while the step
-may be redone: a redone step, or the next substep of the same `World.step`, reads the
+At the step's first enqueue the sums written since the last step become float4 device
+arrays (one per field written: a push without torques or points uploads 16 bytes a
+body), uploaded by non-blocking copies from pinned memory and kept under the step's tag
+(the World's step number) while the step may be redone: a redone step, or the next substep of the same `World.step`, reads the
 same array again (the forces act during the whole step: each of its substeps). The
 sums then start again from zero: the forces act during one step only. A step whose
 redo could not be made (the World raised and went back to before it) takes its forces
@@ -25,7 +27,6 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from . import layouts
 from .bodies import body_ids, floats
 from .device import buffer_of
 from .errors import RbgenError
@@ -55,7 +56,7 @@ def _vectors(value, n: int, what: str, ids: np.ndarray | None = None) -> np.ndar
     return arr
 
 
-#: the `ExternalForce` fields, in the order of the sums
+#: the sums kept per body, in the order of the prepare kernel's arrays and mask bits
 FIELDS = ("force", "lever_force", "moment")
 
 
@@ -71,10 +72,10 @@ class ExternalForces:
         self.count = 0
         self._sums = [np.zeros((0, 3)) for _ in FIELDS]
         self._used = [False] * len(FIELDS)
-        #: tag -> [device array, pinned host array, copy event, pinned buffer, the fields
-        #: nonzero in the host array] of the steps that may be redone
-        self._steps: dict[int, list] = {}
-        self._spare: list = []
+        #: tag -> the uploaded forces of the steps that may be redone
+        self._steps: dict[int, StepForces] = {}
+        #: per field, uploads no step needs any more (reused: no allocation a step)
+        self._spare: list[list[_Upload]] = [[] for _ in FIELDS]
 
     @property
     def _pending(self) -> bool:
@@ -88,12 +89,12 @@ class ExternalForces:
                 self._sums[k] = np.zeros((count, 3))
                 self._sums[k][:keep] = old[:keep]
             self.count = count
-            self._spare = []
+            self._spare = [[] for _ in FIELDS]
 
     def forget(self, tag: int) -> None:
         """The steps from ``tag`` on were undone for good: their forces go with them."""
         for old in [t for t in self._steps if t >= tag]:
-            self._spare.append(self._steps.pop(old))
+            self._retire(old)
 
     def renumber(self, mapping: np.ndarray) -> None:
         """Bodies were removed (``mapping[old]`` is the new index or -1): pending sums
@@ -101,7 +102,7 @@ class ExternalForces:
         kept = mapping >= 0
         self._sums = [sums[: len(mapping)][kept] for sums in self._sums]
         self.count = int(kept.sum())
-        self._spare = []
+        self._spare = [[] for _ in FIELDS]
 
     def drop(self, ids: np.ndarray) -> None:
         """Pending sums of bodies ``ids`` are dropped (their environment was reset)."""
@@ -153,48 +154,73 @@ class ExternalForces:
         if torque is not None:
             add(2, torque)
 
-    def _pinned(self, count: int) -> tuple:
-        """(a zeroed host array of ``count`` ExternalForce records in pinned memory, its
-        buffer (kept with it)): a GPU copies from it by DMA, without a staging copy."""
-        dtype = layouts.EXTERNAL_FORCE.dtype
-        buffer = cl.Buffer(
-            self.runtime.context, cl.mem_flags.ALLOC_HOST_PTR, count * dtype.itemsize
-        )
-        flags = cast(cl.map_flags, cl.map_flags.READ | cl.map_flags.WRITE)
-        host, _ = cl.enqueue_map_buffer(self.runtime.queue, buffer, flags, 0, (count,), dtype)
-        host[...] = np.zeros((), dtype)
-        return host, buffer
+    def _upload(self, k: int) -> _Upload:
+        """A spare upload of this body count for field ``k``, or a new one."""
+        pool = self._spare[k]
+        while pool:
+            upload = pool.pop()
+            if upload.count == max(1, self.count):
+                upload.wait()
+                return upload
+        return _Upload(self.runtime, max(1, self.count))
 
-    def for_step(self, tag: int):
-        """The device `ExternalForce` array of step ``tag`` (None: no forces), uploaded
-        at its first call (non-blocking) and kept for a redo."""
+    def for_step(self, tag: int) -> StepForces | None:
+        """The device arrays of step ``tag`` (None: no forces), uploaded at its first
+        call (non-blocking, only the fields written) and kept for a redo."""
         for old in [t for t in self._steps if t < tag - KEEP_STEPS]:
-            self._spare.append(self._steps.pop(old))  # (older than any redo)
+            self._retire(old)  # (older than any redo)
         if tag in self._steps:
-            return self._steps[tag][0]
+            return self._steps[tag]
         if not self._pending:
             return None
-        queue = self.runtime.queue
-        entry = None
-        while self._spare and entry is None:
-            candidate = self._spare.pop()
-            if candidate[0].size == max(1, self.count):
-                entry = candidate
-        if entry is None:
-            device = cla.empty(queue, max(1, self.count), layouts.EXTERNAL_FORCE.dtype)
-            host, pinned = self._pinned(max(1, self.count))
-            entry = [device, host, None, pinned, set()]
-        elif entry[2] is not None:
-            entry[2].wait()  # (long done: the step that used it is checked)
-        device, host = entry[0], entry[1]
-        for k, name in enumerate(FIELDS):
-            if self._used[k]:
-                host[name][: self.count, :3] = self._sums[k]
-                entry[4].add(name)
-            elif name in entry[4]:
-                host[name] = 0.0  # (left from an earlier step)
-                entry[4].discard(name)
-        entry[2] = cl.enqueue_copy(queue, buffer_of(device), host, is_blocking=False)
-        self._steps[tag] = entry
+        uploads: list[_Upload | None] = [None] * len(FIELDS)
+        for k, used in enumerate(self._used):
+            if used:
+                upload = uploads[k] = self._upload(k)
+                upload.send(self.runtime.queue, self._sums[k], self.count)
+        step = self._steps[tag] = StepForces(uploads)
         self.drop_pending()
-        return device
+        return step
+
+    def _retire(self, tag: int) -> None:
+        for k, upload in enumerate(self._steps.pop(tag).uploads):
+            if upload is not None:
+                self._spare[k].append(upload)
+
+
+class _Upload:
+    """One field's device float4 array and the pinned host array it is copied from."""
+
+    def __init__(self, runtime, count: int):
+        self.count = count
+        self.device = cla.empty(runtime.queue, count, np.dtype((np.float32, 4)))
+        self.buffer = cl.Buffer(runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 16 * count)
+        flags = cast(cl.map_flags, cl.map_flags.READ | cl.map_flags.WRITE)
+        self.host, _ = cl.enqueue_map_buffer(
+            runtime.queue, self.buffer, flags, 0, (count, 4), np.dtype(np.float32)
+        )
+        self.host[:] = 0.0
+        self.event: cl.Event | None = None
+
+    def wait(self) -> None:
+        if self.event is not None:
+            self.event.wait()  # (long done: the step that used it is checked)
+
+    def send(self, queue, sums: np.ndarray, count: int) -> None:
+        """Copy ``sums`` ((count, 3) float64) to the device (non-blocking, by DMA from
+        pinned memory: no staging copy)."""
+        self.host[:count, :3] = sums
+        self.event = cl.enqueue_copy(queue, buffer_of(self.device), self.host, is_blocking=False)
+
+
+class StepForces:
+    """The forces of one step as the prepare kernel takes them: a device float4 array
+    per `FIELDS` entry (None: all zero, not uploaded) and the mask of those given (bit
+    k: ``FIELDS[k]``)."""
+
+    def __init__(self, uploads: list):
+        self.uploads = uploads
+        self.mask = sum(1 << k for k, u in enumerate(uploads) if u is not None)
+
+    def arrays(self) -> list:
+        return [None if u is None else u.device for u in self.uploads]

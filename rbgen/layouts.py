@@ -357,26 +357,12 @@ BODY_INERTIA = declare(
     "Inverse inertia of one body, local principal diagonal and world tensor.",
 )
 
-EXTERNAL_FORCE = declare(
-    "ExternalForce",
-    [
-        ("force", "float4", "sum of the forces on the body (N, world); w unused"),
-        (
-            "lever_force",
-            "float4",
-            "sum of the forces given with a point of application; w unused",
-        ),
-        (
-            "moment",
-            "float4",
-            "torques plus sum of point x force over the forces given with a point "
-            "(N m, about the world origin); w unused",
-        ),
-    ],
-    "External forces on one body for one step (rbgen.forces): the step applies "
-    "v += force dt / m and w += I^-1 (moment - x cross lever_force) dt, x the body's centre "
-    "of mass at the step's start.",
+#: prepare_bodies' force_terms: which external force arrays a step gives (`rbgen.forces`)
+FORCE_FORCE = constant("RB_FORCE_FORCE", 1, "external forces: the force array is given")
+FORCE_LEVER = constant(
+    "RB_FORCE_LEVER", 2, "external forces: the lever-force array (forces at points) is given"
 )
+FORCE_MOMENT = constant("RB_FORCE_MOMENT", 4, "external forces: the moment array is given")
 
 SPLIT_VELOCITY = declare(
     "SplitVelocity",

@@ -55,7 +55,14 @@ TEMPLATE = KernelTemplate(
         ),
     ],
     doc="World inverse inertia and the implicit gyroscopic term, one work-item per body.",
-    roles={"bodies": "inout", "inertia": "inout", "backup": "out", "forces": "in"},
+    roles={
+        "bodies": "inout",
+        "inertia": "inout",
+        "backup": "out",
+        "forces": "in",
+        "lever_forces": "in",
+        "moments": "in",
+    },
     defaults=lambda traits: {
         "work_group_size": default_work_group_size(traits),
         "gyroscopic": True,
@@ -135,8 +142,9 @@ class BodyPreparation:
         (shapes, hull_vertices, aabbs, margin) as `WorldAabbs` takes them, exactly
         when built with shape types; ``backup`` (a Body array of at least
         ``body_count``) exactly when built with backup=True. ``forces`` (built with
-        external_forces=True): an `ExternalForce` array of at least ``body_count``, or
-        None for a step without forces."""
+        external_forces=True): None for a step without forces, else three float4 device
+        arrays of at least ``body_count``, or None each (force, lever force, moment:
+        `rbgen.forces`; None is zero)."""
         if (gravity is not None) != self.gravity:
             raise RbgenError(
                 "gravity must be given exactly when this BodyPreparation was "
@@ -160,7 +168,9 @@ class BodyPreparation:
         if self.gravity:
             args.append(np.array([*gravity, 0.0], dtype=np.float32))
         if self.external_forces:
-            args += [bodies if forces is None else forces, np.uint32(forces is not None)]
+            arrays = [None] * 3 if forces is None else list(forces)
+            args += [bodies if a is None else a for a in arrays]
+            args.append(np.uint32(sum(1 << k for k, a in enumerate(arrays) if a is not None)))
         if aabbs is not None:
             shapes, hull_vertices, boxes, margin = aabbs
             args += [shapes, hull_vertices, boxes, np.float32(margin)]

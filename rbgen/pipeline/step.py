@@ -25,6 +25,7 @@ import pyopencl.array as cla
 from .. import layouts
 from ..bodies import DeviceBodies, bounding_radius
 from ..device import Runtime, buffer_of
+from ..forces import StepForces
 from ..plan import Plan
 from ..settings import Settings
 from ..shapes import PackedShapes
@@ -53,7 +54,7 @@ class StepContext:
     settings: Settings
     bodies: DeviceBodies
     shapes: PackedShapes
-    forces: cla.Array | None = None
+    forces: StepForces | None = None
 
 
 class Stage:
@@ -123,7 +124,7 @@ class PrepareStage(Stage):
                 step.settings.contact_margin,
             ),
             backup=b.backups[step.slot],
-            forces=step.forces,
+            forces=None if step.forces is None else step.forces.arrays(),
         )
 
 
