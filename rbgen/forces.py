@@ -12,11 +12,12 @@ preparation kernel subtracts x x sum(F): per body a ``force`` (sum F), a ``lever
 At the step's first enqueue the sums written since the last step become float4 device
 arrays (one per field written: a push without torques or points uploads 16 bytes a
 body), uploaded by non-blocking copies from pinned memory and kept under the step's tag
-(the World's step number) while the step may be redone: a redone step, or the next substep of the same `World.step`, reads the
-same array again (the forces act during the whole step: each of its substeps). The
-sums then start again from zero: the forces act during one step only. A step whose
-redo could not be made (the World raised and went back to before it) takes its forces
-with it. Pending sums follow their bodies through `World.remove_bodies`.
+(the World's step number) while the step may be redone: a redone step, or the next
+substep of the same `World.step`, reads the same arrays again (the forces act during
+the whole step: each of its substeps). The sums then start again from zero: the forces
+act during one step only. A step whose redo could not be made (the World raised and
+went back to before it) takes its forces with it. Pending sums follow their bodies
+through `World.remove_bodies`.
 """
 
 from __future__ import annotations
