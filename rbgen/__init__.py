@@ -3,11 +3,13 @@
 See DESIGN.md (shared) and README.md. The user-facing names are re-exported here.
 """
 
+from .batch import WorldBatch
 from .compound import Compound
 from .device import DeviceTraits, Runtime, list_devices, select_device
 from .errors import DeviceNotFoundError, KernelBuildError, RbgenError, TemplateParameterError
 from .mesh import TriangleMesh, load_mesh
 from .shapes import Box, Capsule, ConvexHull, Plane, Shape, Sphere
+from .sweep import sweep
 from .world import World
 
 __all__ = [
@@ -26,9 +28,11 @@ __all__ = [
     "TemplateParameterError",
     "TriangleMesh",
     "World",
+    "WorldBatch",
     "list_devices",
     "load_mesh",
     "select_device",
+    "sweep",
 ]
 
 __version__ = "0.1.0"

@@ -91,28 +91,39 @@ class StateArray(np.ndarray):
         super().__setitem__(key, value)
 
 
+def collision_words(host: np.ndarray, envs: np.ndarray) -> np.ndarray:
+    """Each body's collision word (`layouts.GROUP_STATIC`): env << 1 | static, or
+    RB_SHARED_STATIC for a static body of environment RB_SHARED_STATIC (shared geometry)."""
+    static = (host["inv_mass"] == 0).astype(np.uint32)
+    words = (envs.astype(np.uint32) << np.uint32(1)) | static
+    return np.where(envs == layouts.SHARED_STATIC, np.uint32(layouts.SHARED_STATIC), words)
+
+
 class DeviceBodies:
     """The device arrays of one upload: bodies, their backups (one per step in flight: a
-    redone step starts from one), inertia records and static flags."""
+    redone step starts from one), inertia records and collision words (``static``: the
+    broadphase's per-body word, env << 1 | static; see `collision_words`)."""
 
-    def __init__(self, queue, host: np.ndarray, inv_inertia: np.ndarray, backups: int):
+    def __init__(
+        self, queue, host: np.ndarray, inv_inertia: np.ndarray, backups: int, envs: np.ndarray
+    ):
         n = len(host)
         self.count = n
         self.bodies = cla.to_device(queue, host if n else layouts.BODY.zeros(1))
         self.backups = [cla.empty_like(self.bodies) for _ in range(backups)]
         self.inertia = cla.to_device(queue, inertia_records(inv_inertia if n else np.zeros((1, 3))))
         self.static = cla.to_device(
-            queue, (host["inv_mass"] == 0).astype(np.uint32) if n else np.zeros(1, np.uint32)
+            queue, collision_words(host, envs) if n else np.zeros(1, np.uint32)
         )
         #: each body's shape index (host copy: the midphase places compound children by it)
         self.shape_indices = host["shape"].copy()
 
-    def refill(self, queue, host: np.ndarray, inv_inertia: np.ndarray) -> None:
+    def refill(self, queue, host: np.ndarray, inv_inertia: np.ndarray, envs: np.ndarray) -> None:
         """Copy a host copy of the same body count into these arrays (a set or a removal
         followed by as many adds: no new allocation)."""
         self.bodies.set(host, queue=queue)
         self.inertia.set(inertia_records(inv_inertia), queue=queue)
-        self.static.set((host["inv_mass"] == 0).astype(np.uint32), queue=queue)
+        self.static.set(collision_words(host, envs), queue=queue)
         self.shape_indices = host["shape"].copy()
 
 
@@ -131,6 +142,8 @@ class BodyStore:
         self._read_device = read_device
         self.host = layouts.BODY.zeros(0)
         self.inv_inertia = np.zeros((0, 3), np.float32)
+        #: each body's environment (uint32; a World's are 0; `rbgen.batch` sets them)
+        self.envs = np.zeros(0, np.uint32)
         self.has_dynamic = False
         self.device_stale = True  # host copy newer than the device
         self.host_stale = False  # device newer than the host copy
@@ -200,7 +213,7 @@ class BodyStore:
             bad = np.flatnonzero(~(np.isfinite(values) & ok))
             if len(bad):
                 raise RbgenError(
-                    f"body {first + bad[0]}: {name}={values[bad[0]]!r} is out of range"
+                    f"body {first + bad[0]}: {name}={float(values[bad[0]])!r} is out of range"
                 )
         records = layouts.BODY.zeros(n)
         inv_inertia = np.zeros((n, 3), np.float32)
@@ -228,8 +241,19 @@ class BodyStore:
         self.host = np.concatenate([self.host, records])
         self.has_dynamic = bool(np.any(self.host["inv_mass"] > 0))
         self.inv_inertia = np.concatenate([self.inv_inertia, inv_inertia])
+        self.envs = np.concatenate([self.envs, np.zeros(n, np.uint32)])
         self.device_stale = True
         return np.arange(first, first + n)
+
+    def adopt(self, host: np.ndarray, inv_inertia: np.ndarray, envs: np.ndarray) -> None:
+        """Replace every body by checked records (a `rbgen.batch.WorldBatch` copies its
+        template's, already checked, and numbers their environments)."""
+        self.sync_to_host()
+        self.host = np.ascontiguousarray(host)
+        self.inv_inertia = np.ascontiguousarray(inv_inertia, np.float32)
+        self.envs = np.ascontiguousarray(envs, np.uint32)
+        self.has_dynamic = bool(np.any(self.host["inv_mass"] > 0))
+        self.device_stale = True
 
     def field(self, name: str, lanes: int, setter: str) -> StateArray:
         """A read-only snapshot of one state field of every body, (N, lanes) float32
@@ -313,6 +337,7 @@ class BodyStore:
         mapping[keep] = np.arange(int(keep.sum()))
         self.host = self.host[keep]
         self.inv_inertia = self.inv_inertia[keep]
+        self.envs = self.envs[keep]
         self.has_dynamic = bool(np.any(self.host["inv_mass"] > 0))
         self.device_stale = True
         return mapping
@@ -325,10 +350,10 @@ class BodyStore:
             and previous.count == self.count > 0
             and len(previous.backups) == backups
         ):
-            previous.refill(queue, self.host, self.inv_inertia)
+            previous.refill(queue, self.host, self.inv_inertia, self.envs)
             arrays = previous
         else:
-            arrays = DeviceBodies(queue, self.host, self.inv_inertia, backups)
+            arrays = DeviceBodies(queue, self.host, self.inv_inertia, backups, self.envs)
         self.device_stale = False
         return arrays
 

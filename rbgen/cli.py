@@ -123,10 +123,12 @@ def cmd_export(args) -> int:
 
 def _world_for_export(scene: str, n: int | None, device):
     """The World of a preset scene (``rbgen.harness.SCENES``) or of a Python file whose
-    ``build(device)`` returns one, stepped once so that its kernels are built, and a
-    function that makes a fresh one on the same runtime (the schedule's recordings)."""
+    ``build(device)`` returns one (or a WorldBatch), stepped once so that its kernels are
+    built, and a function that makes a fresh one on the same runtime (the schedule's
+    recordings)."""
     from pathlib import Path
 
+    from .batch import WorldBatch
     from .errors import RbgenError
     from .harness import SCENES, build_scene
     from .world import World
@@ -147,10 +149,10 @@ def _world_for_export(scene: str, n: int | None, device):
                 f"function returning a World"
             )
         world = build(device)
-        if not isinstance(world, World):
+        if not isinstance(world, (World, WorldBatch)):
             raise RbgenError(
                 f"export --world {scene}: build(device) returned "
-                f"{type(world).__name__}, not an rbgen.World"
+                f"{type(world).__name__}, not an rbgen.World or rbgen.WorldBatch"
             )
         runtime = world.runtime
 
@@ -349,6 +351,7 @@ def main(argv=None) -> int:
     p.set_defaults(func=cmd_tune)
 
     cli_extras.add_bench_parser(sub)
+    cli_extras.add_sweep_parser(sub)
 
     p = sub.add_parser("export", help="write .cl kernels, manifest.json and the C header")
     p.add_argument("--out", required=True, help="output directory")

@@ -143,3 +143,125 @@ def cmd_bench(args) -> int:
         changed = bench.update_readme(args.readme, out)
         print(f"{args.readme}: performance table {'updated' if changed else 'unchanged'}")
     return 0
+
+
+def add_sweep_parser(sub) -> None:
+    """The ``rbgen sweep`` subcommand (`rbgen.sweep` on Dask)."""
+    p = sub.add_parser(
+        "sweep",
+        help="run a scene for every combination of parameter values as Dask tasks",
+    )
+    p.add_argument(
+        "scene",
+        help="a scene name (box_pile, boxbox, pyramid, terrain; --param values are World "
+        "options) or a Python file whose build(**params) returns a World or WorldBatch",
+    )
+    p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=V1,V2,...",
+        help="a parameter and its values (repeatable: every combination is run)",
+    )
+    p.add_argument("--n", type=int, default=100, help="the named scene's size")
+    p.add_argument("--steps", type=int, default=300)
+    p.add_argument("--dt", type=float, default=1 / 60)
+    p.add_argument(
+        "--scheduler", default=None, help="a Dask scheduler address (default: a LocalCluster)"
+    )
+    p.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes")
+    p.add_argument(
+        "--devices",
+        default=None,
+        help="comma-separated device choices, worker rank r of a host takes the r-th "
+        "(default: the host's GPUs in order)",
+    )
+    p.add_argument("--out", default=None, help="write the table as JSON here")
+    p.set_defaults(func=cmd_sweep)
+
+
+def _value(text: str):
+    """A command-line parameter value: an int, a float, a boolean or the text."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return {"true": True, "false": False}.get(text.lower(), text)
+
+
+def parse_params(specs) -> list[dict]:
+    """Every combination of ``NAME=V1,V2`` values (``specs``: the --param strings)."""
+    import itertools
+
+    names, values = [], []
+    for spec in specs:
+        name, sep, text = spec.partition("=")
+        if not sep or not name.strip() or not text.strip():
+            raise RbgenError(f"--param must be NAME=V1,V2,..., got {spec!r}")
+        names.append(name.strip())
+        values.append([_value(v.strip()) for v in text.split(",")])
+    return [dict(zip(names, combo)) for combo in itertools.product(*values)]
+
+
+def scene_world(scene: str, n: int, **options):
+    """A named scene's World with ``options`` (a sweep's build for scene names)."""
+    from .harness import build_scene
+
+    return build_scene(scene, n, **options)[0]
+
+
+def sweep_build(scene: str, n: int):
+    """The build function of ``rbgen sweep SCENE``: a named scene, or a file's build."""
+    import functools
+    import importlib.util
+
+    if not scene.endswith(".py"):
+        return functools.partial(scene_world, scene, n)
+    path = Path(scene)
+    if not path.is_file():
+        raise RbgenError(f"sweep: no file {scene!r}")
+    spec = importlib.util.spec_from_file_location(f"rbgen_sweep_{path.stem}", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)  # (not in sys.modules: pickled by value)
+    spec.loader.exec_module(module)
+    build = getattr(module, "build", None)
+    if not callable(build):
+        raise RbgenError(f"sweep: {scene} has no function build(**params)")
+    return build
+
+
+def cmd_sweep(args) -> int:
+    import json
+
+    from .sweep import summary, sweep
+
+    params = parse_params(args.param) or [{}]
+    client = None
+    if args.scheduler:
+        import distributed
+
+        client = distributed.Client(args.scheduler)
+    devices = args.devices.split(",") if args.devices else None
+    table = sweep(
+        sweep_build(args.scene, args.n),
+        params,
+        args.steps,
+        client=client,
+        dt=args.dt,
+        measure=summary,
+        workers=args.workers,
+        devices=devices,
+    )
+    for row in table:
+        result = (
+            f"{row['mean_height']:.4f} mean height, {row['max_speed']:.4f} m/s max, "
+            f"{row['seconds']:.2f} s on {row['device']}"
+            if row["ok"]
+            else f"FAILED: {row['error'].splitlines()[0]}"
+        )
+        print(f"{row['params']}: {result}")
+    if args.out:
+        Path(args.out).write_text(json.dumps(table, indent=2, default=str))
+        print(f"wrote {args.out}")
+    return 0 if all(row["ok"] for row in table) else 1

@@ -576,7 +576,9 @@ class SpecLog:
         return self
 
     def __exit__(self, *exc) -> None:
-        self.runtime.spec_logs.remove(self.entries)
+        # by identity: two logs may hold equal entries (list.remove compares values)
+        logs = self.runtime.spec_logs
+        del logs[next(i for i, log in enumerate(logs) if log is self.entries)]
 
     def specs(self) -> list[tuple[KernelSpec, tuple[str, ...]]]:
         return list(self.entries)

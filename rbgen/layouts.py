@@ -357,6 +357,13 @@ BODY_INERTIA = declare(
     "Inverse inertia of one body, local principal diagonal and world tensor.",
 )
 
+#: prepare_bodies' force_terms: which external force arrays a step gives (`rbgen.forces`)
+FORCE_FORCE = constant("RB_FORCE_FORCE", 1, "external forces: the force array is given")
+FORCE_LEVER = constant(
+    "RB_FORCE_LEVER", 2, "external forces: the lever-force array (forces at points) is given"
+)
+FORCE_MOMENT = constant("RB_FORCE_MOMENT", 4, "external forces: the moment array is given")
+
 SPLIT_VELOCITY = declare(
     "SplitVelocity",
     [
@@ -622,6 +629,15 @@ CHILD_PROXY = declare(
 # Broadphase (owner: broadphase; rbgen/pipeline/broadphase/).
 #: `BroadphaseStatus.bad_body` when every AABB is valid.
 BP_NO_BODY = constant("RB_BP_NO_BODY", 0xFFFFFFFF, "no invalid AABB found")
+
+#: A body's collision word (the broadphase's per-body uint32 input, `rbgen.bodies`):
+#: env << 1 | static. Two bodies pair only if not both static and in one environment,
+#: or one is shared static geometry (RB_SHARED_STATIC), which meets every environment.
+#: A World's bodies are all in environment 0 (the word is its static flag).
+GROUP_STATIC = constant("RB_GROUP_STATIC", 1, "collision word: bit of a static body")
+SHARED_STATIC = constant(
+    "RB_SHARED_STATIC", 0xFFFFFFFF, "collision word of static geometry every environment meets"
+)
 
 BROADPHASE_STATUS = declare(
     "BroadphaseStatus",

@@ -27,6 +27,7 @@ from .bodies import STATE_FIELDS, BodyStore, floats, one_row, per_body
 from .codegen import KernelSpec, SpecLog
 from .device import Runtime, coerce_runtime
 from .errors import RbgenError
+from .forces import ExternalForces
 from .guard import STEPS_IN_FLIGHT, Replan, StepGuard
 from .memory import WorldMemory
 from .pipeline.step import StepContext, StepPipeline
@@ -72,11 +73,16 @@ class World:
             read_device=lambda: self.runtime.read(self._device.bodies),
         )
         self._persistent_failed = False
+        #: the bodies whose shapes and spread size the batching's cells and slabs (None:
+        #: this World's own; a WorldBatch gives one environment's, so that its colouring
+        #: does not depend on the number of environments)
+        self._batching_scene: BodyStore | None = None
         #: the plan of the current scene (rederived when the shape types change)
         self.plan: Plan = derive_plan(self.runtime.traits, construction)
         self._pipeline: StepPipeline | None = None
         self._device = None
         self._guard = StepGuard(self.runtime)
+        self._forces = ExternalForces(self.runtime)
         #: every kernel specialisation this World compiled (what `rbgen export` writes)
         self._spec_log = SpecLog(self.runtime)
         self.last_step_counters = {"launches": 0, "blocking_reads": 0}
@@ -228,7 +234,22 @@ class World:
         mapping = self._bodies.remove(ids)
         if len(mapping) != count or np.any(mapping < 0):
             history.renumber_bodies(self.runtime, self._pipeline, mapping)
+            self._forces.resize(count)
+            self._forces.renumber(mapping)
         return mapping
+
+    # ------------------------------------------------------------- forces
+    def apply_forces(self, ids, forces, torques=None, points=None) -> None:
+        """Forces (N) on the bodies ``ids`` during the next step only (`rbgen.forces`).
+
+        ``forces``: one (3,) row per id, or one row for them all; ``torques`` (N m,
+        world frame) likewise; ``points`` (world coordinates): each force acts there,
+        adding the torque (point - centre of mass) x force. Calls before a step add up;
+        a static body's forces are ignored. No blocking read: the sums go to the device
+        with the step. Bad ids, shapes or NaN/inf values raise `RbgenError` naming the
+        argument (and the body), and nothing is added."""
+        self._forces.resize(self._bodies.count)
+        self._forces.add(ids, forces, torques, points)
 
     # ------------------------------------------------------------- state
     def set_state(
@@ -339,7 +360,9 @@ class World:
         pipeline.resize(self._bodies.count)
         if pipeline.batching is not None:
             pipeline.batching.configure(
-                self._bodies, self.settings.gravity, self.settings.contact_margin
+                self._batching_scene or self._bodies,
+                self.settings.gravity,
+                self.settings.contact_margin,
             )
         self._guard.attach(pipeline)
         self._memory.record(self._bodies, self.shapes.type_names(), pipeline)
@@ -375,8 +398,13 @@ class World:
         if self._bodies.count == 0:
             return
         slot = self._guard.next_slot()
-        self._steps.enqueue(StepContext(dt, slot, self.settings, self._device, self._packed))
-        self._guard.finish_step(dt, slot, self.steps if tag is None else tag)
+        tag = self.steps if tag is None else tag
+        self._forces.resize(self._bodies.count)
+        forces = self._forces.for_step(tag)
+        self._steps.enqueue(
+            StepContext(dt, slot, self.settings, self._device, self._packed, forces)
+        )
+        self._guard.finish_step(dt, slot, tag)
 
     def _finish_pending(self) -> None:
         """Check every enqueued step (waits for their report copies only)."""
@@ -400,8 +428,10 @@ class World:
 
     def _forget_steps(self, tag: int) -> None:
         """The steps from step number ``tag`` on were undone (a redo could not be made):
-        the bodies are as they were before it, so the count goes back too."""
+        the bodies are as they were before it, so the count goes back too (and their
+        forces are dropped)."""
         self.steps = min(self.steps, tag)
+        self._forces.forget(tag)
 
     def _restore(self, slot: int) -> None:
         cl.enqueue_copy(

@@ -48,15 +48,28 @@ TEMPLATE = KernelTemplate(
             (False, True),
             "copy every body to a backup array first, saving the World a copy command",
         ),
+        Param(
+            "external_forces",
+            (False, True),
+            "apply the step's forces and torques from Python (rbgen.forces) here",
+        ),
     ],
     doc="World inverse inertia and the implicit gyroscopic term, one work-item per body.",
-    roles={"bodies": "inout", "inertia": "inout", "backup": "out"},
+    roles={
+        "bodies": "inout",
+        "inertia": "inout",
+        "backup": "out",
+        "forces": "in",
+        "lever_forces": "in",
+        "moments": "in",
+    },
     defaults=lambda traits: {
         "work_group_size": default_work_group_size(traits),
         "gyroscopic": True,
         "gravity": False,
         "shape_types": (),
         "backup": False,
+        "external_forces": False,
     },
 )
 
@@ -93,6 +106,7 @@ class BodyPreparation:
         gravity: bool = False,
         shape_types=(),
         backup: bool = False,
+        external_forces: bool = False,
         work_group_size: int | None = None,
     ):
         self.runtime = runtime
@@ -100,6 +114,7 @@ class BodyPreparation:
         self.gravity = bool(gravity)
         self.shape_types = tuple(sorted(set(shape_types)))
         self.backup = bool(backup)
+        self.external_forces = bool(external_forces)
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
         self.spec = TEMPLATE.spec(
             work_group_size=self.work_group_size,
@@ -107,17 +122,29 @@ class BodyPreparation:
             gravity=self.gravity,
             shape_types=self.shape_types,
             backup=self.backup,
+            external_forces=self.external_forces,
         )
         self.kernel = runtime.bound(compile_spec(runtime, self.spec).kernel("prepare_bodies"))
 
     def __call__(
-        self, bodies, inertia, body_count: int, dt: float, gravity=None, aabbs=None, backup=None
+        self,
+        bodies,
+        inertia,
+        body_count: int,
+        dt: float,
+        gravity=None,
+        aabbs=None,
+        backup=None,
+        forces=None,
     ):
         """Prepare ``body_count`` bodies; ``gravity`` (3 numbers) is required exactly
         when built with gravity=True (v += g dt on dynamic bodies); ``aabbs``, a tuple
         (shapes, hull_vertices, aabbs, margin) as `WorldAabbs` takes them, exactly
         when built with shape types; ``backup`` (a Body array of at least
-        ``body_count``) exactly when built with backup=True."""
+        ``body_count``) exactly when built with backup=True. ``forces`` (built with
+        external_forces=True): None for a step without forces, else three float4 device
+        arrays of at least ``body_count``, or None each (force, lever force, moment:
+        `rbgen.forces`; None is zero)."""
         if (gravity is not None) != self.gravity:
             raise RbgenError(
                 "gravity must be given exactly when this BodyPreparation was "
@@ -140,6 +167,10 @@ class BodyPreparation:
             args.append(backup)
         if self.gravity:
             args.append(np.array([*gravity, 0.0], dtype=np.float32))
+        if self.external_forces:
+            arrays = [None] * 3 if forces is None else list(forces)
+            args += [bodies if a is None else a for a in arrays]
+            args.append(np.uint32(sum(1 << k for k, a in enumerate(arrays) if a is not None)))
         if aabbs is not None:
             shapes, hull_vertices, boxes, margin = aabbs
             args += [shapes, hull_vertices, boxes, np.float32(margin)]

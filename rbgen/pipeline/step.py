@@ -25,6 +25,7 @@ import pyopencl.array as cla
 from .. import layouts
 from ..bodies import DeviceBodies, bounding_radius
 from ..device import Runtime, buffer_of
+from ..forces import StepForces
 from ..plan import Plan
 from ..settings import Settings
 from ..shapes import PackedShapes
@@ -47,13 +48,14 @@ MANIFOLDS_PER_BODY = 4
 @dataclasses.dataclass
 class StepContext:
     """What one enqueued step reads: its dt, its backup slot, the World's step settings,
-    the device bodies and shapes."""
+    the device bodies and shapes, and its external forces (`rbgen.forces`; None: none)."""
 
     dt: float
     slot: int
     settings: Settings
     bodies: DeviceBodies
     shapes: PackedShapes
+    forces: StepForces | None = None
 
 
 class Stage:
@@ -106,8 +108,8 @@ class Stage:
 
 
 class PrepareStage(Stage):
-    """Gravity, world inverse inertia, the gyroscopic term, world AABBs and the body
-    backup of the step, in one launch (`rbgen.pipeline.prepare`)."""
+    """Gravity, external forces, world inverse inertia, the gyroscopic term, world AABBs
+    and the body backup of the step, in one launch (`rbgen.pipeline.prepare`)."""
 
     name = "prepare"
 
@@ -119,6 +121,7 @@ class PrepareStage(Stage):
             gravity=True,
             shape_types=plan.shape_types,
             backup=True,
+            external_forces=True,
         )
         self.aabbs: cla.Array | None = None
 
@@ -140,6 +143,7 @@ class PrepareStage(Stage):
                 step.settings.contact_margin,
             ),
             backup=b.backups[step.slot],
+            forces=None if step.forces is None else step.forces.arrays(),
         )
 
 

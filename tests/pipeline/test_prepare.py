@@ -141,3 +141,38 @@ def test_aabb_inputs_must_match_the_build(runtime):
         BodyPreparation(runtime)(bodies, inertia, 1, 0.1, backup=bodies)
     with pytest.raises(Exception, match="shape_types"):
         BodyPreparation(runtime, shape_types=("box", "torus"))
+
+
+@pytest.mark.parametrize("terms", [(1, 1, 1), (1, 0, 0), (0, 0, 1), (0, 1, 0), (0, 0, 0)])
+@pytest.mark.parametrize("n", [0, 1, 67, 200])
+def test_external_forces(runtime, rng, n, terms):
+    """Built with external_forces, dynamic bodies gain v += F dt m^-1 and w += I_world^-1
+    (M - x cross F_lever) dt (float64 reference on fresh random inputs), each array given
+    or not (None: zero); static bodies, and every body of a step without forces, keep
+    their velocities bit for bit."""
+    count = max(n, 1)
+    bodies, diag = _random_bodies(rng, count)
+    bodies["position"][:, :3] = rng.uniform(-5, 5, (count, 3))
+    given = [rng.uniform(-3, 3, (count, 4)).astype(np.float32) if t else None for t in terms]
+    queue = runtime.queue
+    d_bodies = cl_array.to_device(queue, bodies)
+    d_inertia = cl_array.to_device(queue, inertia_records(diag))
+    dt = 1 / 60
+    prepare = BodyPreparation(runtime, gyroscopic=False, external_forces=True)
+    arrays = [None if g is None else cl_array.to_device(queue, g) for g in given]
+    prepare(d_bodies, d_inertia, n, dt, forces=arrays if any(terms) else None)
+    out = d_bodies.get()
+    dynamic = (bodies["inv_mass"][:n] > 0) & any(terms)
+    f = [np.zeros((count, 3)) if g is None else g[:, :3].astype(np.float64) for g in given]
+    lin = bodies["linear_velocity"][:n, :3].astype(np.float64)
+    ang = bodies["angular_velocity"][:n, :3].astype(np.float64)
+    x = bodies["position"][:n, :3].astype(np.float64)
+    for i in np.flatnonzero(dynamic):
+        lin[i] += f[0][i] * bodies["inv_mass"][i] * dt
+        rot = _rotation(bodies["orientation"][i].astype(np.float64))
+        torque = f[2][i] - np.cross(x[i], f[1][i])
+        ang[i] += rot @ np.diag(diag[i]) @ rot.T @ torque * dt
+    np.testing.assert_allclose(out["linear_velocity"][:n, :3], lin, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(out["angular_velocity"][:n, :3], ang, rtol=1e-5, atol=1e-5)
+    unchanged = ~dynamic
+    np.testing.assert_array_equal(out[:n][unchanged], bodies[:n][unchanged])

@@ -21,7 +21,15 @@
  *     direction to 0.5% there, and costs the same;
 % endif
  *   - the world inverse inertia tensor R diag(I^-1) R^T, which the solver
- *     reads for every contact row.
+ *     reads for every contact row;
+% if external_forces:
+ *   - the step's external forces (rbgen.forces): v += F dt / m,
+ *     w += I^-1 (M - x cross F_lever) dt, with x the centre of mass at the
+ *     step's start (the host never reads x to turn a force at a point into a
+ *     torque); force_terms says which of the three arrays were given (bits
+ *     RB_FORCE_*), the others being zero and unread. The arrays are read, not
+ *     cleared: a redone step reads the same forces again.
+% endif
  * Static bodies get a zero tensor.
 % if shape_types:
  * Every body, static or not, also gets its world AABB for the broadphase
@@ -77,6 +85,12 @@ void prepare_bodies(__global Body* bodies,
 % if gravity:
                     const float4 gravity,
 % endif
+% if external_forces:
+                    __global const float4* forces,
+                    __global const float4* lever_forces,
+                    __global const float4* moments,
+                    const uint force_terms,
+% endif
 % if shape_types:
                     __global const Shape* shapes,
                     __global const float4* hull_vertices,
@@ -114,6 +128,21 @@ void prepare_bodies(__global Body* bodies,
                                                 dot3(r1 * inv_local, r2), 0.0f);
     inertia[i].inv_inertia_world[2] = (float4)(dot3(r2 * inv_local, r0), dot3(r2 * inv_local, r1),
                                                 dot3(r2 * inv_local, r2), 0.0f);
+% if external_forces:
+    if (force_terms != 0 && bodies[i].inv_mass > 0.0f) {
+        float3 torque = (float3)(0.0f);
+        if (force_terms & RB_FORCE_FORCE)
+            bodies[i].linear_velocity.xyz += forces[i].xyz * (bodies[i].inv_mass * dt);
+        if (force_terms & RB_FORCE_MOMENT)
+            torque = moments[i].xyz;
+        if (force_terms & RB_FORCE_LEVER)
+            torque -= cross3(bodies[i].position.xyz, lever_forces[i].xyz);
+        bodies[i].angular_velocity.xyz +=
+            (float3)(dot3(inertia[i].inv_inertia_world[0].xyz, torque),
+                     dot3(inertia[i].inv_inertia_world[1].xyz, torque),
+                     dot3(inertia[i].inv_inertia_world[2].xyz, torque)) * dt;
+    }
+% endif
 % if shape_types:
     Body body = bodies[i];
     write_world_aabb(body, shapes[body.shape], r0, r1, r2, hull_vertices, margin, &aabbs[i]);

@@ -38,10 +38,15 @@ inline bool is_small(float size, float scale)
     return size * SMALL_SLACK <= scale;
 }
 
-/* A pair is kept unless both of its bodies are static. */
+/* A pair is kept unless both of its bodies are static, or they are in different
+ * environments (a WorldBatch) and neither is shared static geometry. static_flags
+ * holds each body's collision word, env << 1 | static (layouts: RB_SHARED_STATIC):
+ * the test costs no load beyond the static flags it always read. */
 inline bool pair_allowed(__global const uint* static_flags, uint a, uint b)
 {
-    return static_flags[a] == 0 || static_flags[b] == 0;
+    uint ga = static_flags[a], gb = static_flags[b];
+    return (ga & gb & RB_GROUP_STATIC) == 0
+           && ((ga >> 1) == (gb >> 1) || ga == RB_SHARED_STATIC || gb == RB_SHARED_STATIC);
 }
 
 /* Stores pair {first, second} as (a, b), a < b, at slot `at` of the pair

@@ -29,6 +29,13 @@
  * the prefix count of bit t over the bodies (work-group scans plus group
  * offsets). The order inside the bucket lists varies between runs; the pair
  * list does not.
+ *
+ * Environments (a WorldBatch: static_flags holds collision words, env << 1 |
+ * static) overlap in space, so each files its small bodies in cells displaced
+ * by a hash of its index (env_cell): overlapping environments then share few
+ * buckets, and pairs across them are rarely even visited. Shared static
+ * geometry is always large (every environment's bodies meet it in the large
+ * list).
  */
 ${cl_constants()}
 
@@ -36,6 +43,7 @@ ${cl_structs("Aabb", "Pair", "BroadphaseStatus")}
 
 <%include file="/pipeline/broadphase/common.cl.mako"/>
 <%include file="/pipeline/broadphase/cells.cl.mako"/>
+<%include file="/common/hash.cl.mako"/>
 
 #define WG ${work_group_size}
 /* Most large bodies owner emission handles (one row of masks each). */
@@ -48,6 +56,20 @@ ${group.work_group_exclusive_scan("uint", work_group_size, min(32, work_group_si
 
 /* Local memory of one group scan: two rows of WG values, the segment sums. */
 #define SCAN_SCRATCH (2 * WG + WG / ${min(32, work_group_size)} + 1)
+
+/* The cell a body of collision word `word` is filed in: its own for
+ * environment 0 (every World), else displaced by whole cells (no rounding)
+ * by a hash of the environment, so that environments sharing a region of
+ * space fall into different buckets. */
+inline int3 env_cell(int3 cell, uint word)
+{
+    uint env = word >> 1;
+    if (env == 0)
+        return cell;
+    uint h = mix32(env);
+    int3 shift = 3 * (int3)((int)(h & 1023u), (int)((h >> 10) & 1023u), (int)((h >> 20) & 1023u));
+    return add_sat(cell, shift);
+}
 
 /* Exclusive prefix sum of one uint per work-item over the group (the group's
  * sum in *total); every work-item of the group must call it. */
@@ -106,6 +128,7 @@ void measure_grid_bodies(__global const Aabb* aabbs,
  * responsible for WG consecutive bodies. */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void classify_grid_bodies(__global const Aabb* aabbs,
+                          __global const uint* static_flags,
                           const uint body_count,
                           __global const float* log_size_partials,
                           const uint partial_count,
@@ -130,7 +153,7 @@ void classify_grid_bodies(__global const Aabb* aabbs,
         if (!all(lower <= upper))
             atomic_min(&status->bad_body, i);
         float size = box_size(lower, upper);
-        bool small = is_small(size, scale);
+        bool small = is_small(size, scale) && static_flags[i] != RB_SHARED_STATIC;
         large_flags[i] = small ? 0u : 1u;
         if (small) {
             small_size = fmax(size, 0.0f);  /* an inverted box is reported, not sized */
@@ -151,6 +174,7 @@ void classify_grid_bodies(__global const Aabb* aabbs,
  * rest). A work group is responsible for WG consecutive bodies. */
 __kernel __attribute__((reqd_work_group_size(WG, 1, 1)))
 void link_bucket_bodies(__global const Aabb* aabbs,
+                        __global const uint* static_flags,
                         const uint body_count,
                         const int grid_dim,
                         __global const uint* large_flags,
@@ -162,7 +186,8 @@ void link_bucket_bodies(__global const Aabb* aabbs,
     if (i >= body_count || large_flags[i])
         return;
     float cell_size = grid_cell_size(as_float(*largest_small_bits));
-    uint bucket = bucket_of(cell_of(aabbs[i].lower.xyz, cell_size), grid_dim);
+    uint bucket = bucket_of(env_cell(cell_of(aabbs[i].lower.xyz, cell_size), static_flags[i]),
+                            grid_dim);
     next_body[i] = atomic_xchg(&bucket_heads[bucket], i);
 }
 
@@ -210,7 +235,7 @@ inline uint visit_owned_partners(__global const Aabb* aabbs,
                                  uint capacity)
 {
     float3 lower = aabbs[self].lower.xyz, upper = aabbs[self].upper.xyz;
-    int3 home = folded_cell(cell_of(lower, cell_size), grid_dim);
+    int3 home = folded_cell(env_cell(cell_of(lower, cell_size), static_flags[self]), grid_dim);
     /* The 27 list heads first: independent loads, in flight together. */
     uint heads[27];
     for (int neighbour = 0; neighbour < 27; ++neighbour)
