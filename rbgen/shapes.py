@@ -80,7 +80,8 @@ class Shape:
     under ``rbgen/templates/`` that defines ``<type_name>_world_aabb`` (see
     ``templates/shapes/box.cl.mako``); ``static_only`` (no dynamic bodies, so
     a pair of two such types needs no kernel); and the methods `pack`, `key`,
-    `mass_properties`, `bounding_radius` (and `cooked` for polygon topology).
+    `mass_properties`, `bounding_radius`, `inner_radius` (unless static only; packed into
+    ``extents.w``), and `cooked` for polygon topology.
     """
 
     type_name: str = "shape"
@@ -147,6 +148,13 @@ class Shape:
 
     def key(self) -> tuple:
         """Identity for deduplication in a `ShapeTable`."""
+        raise NotImplementedError
+
+    def inner_radius(self) -> float:
+        """The smallest distance from the body's centre to its surface: a body that moves
+        more than a fraction of it in one step gets speculative contacts (continuous
+        collision, `rbgen.pipeline.prepare`). Every type that may be dynamic defines it;
+        `ShapeTable` packs it into the record's ``extents.w``."""
         raise NotImplementedError
 
     @classmethod
@@ -274,7 +282,7 @@ class Sphere(Shape):
         self.radius = radius
 
     def pack(self, record, hull_vertices):
-        record["extents"] = (self.radius, 0, 0, 0)
+        record["extents"] = (self.radius, 0, 0, self.inner_radius())
 
     def key(self):
         return ("sphere", self.radius)
@@ -284,6 +292,9 @@ class Sphere(Shape):
         return self._solid(volume, mass_props.sphere_unit_inertia(self.radius), density, mass)
 
     def bounding_radius(self):
+        return self.radius
+
+    def inner_radius(self):
         return self.radius
 
 
@@ -301,7 +312,7 @@ class Box(Shape):
         self._cooked = hull_cooking.box_hull(he)
 
     def pack(self, record, hull_vertices):
-        record["extents"] = (*self.half_extents, 0)
+        record["extents"] = (*self.half_extents, self.inner_radius())
 
     def key(self):
         return ("box", *self.half_extents)
@@ -311,6 +322,9 @@ class Box(Shape):
 
     def cooked(self):
         return self._cooked
+
+    def inner_radius(self):
+        return float(np.min(self.half_extents))
 
     def mass_properties(self, density=None, mass=None):
         volume = 8.0 * float(np.prod(self.half_extents))
@@ -334,7 +348,7 @@ class Capsule(Shape):
         self.radius, self.half_height = float(radius), float(half_height)
 
     def pack(self, record, hull_vertices):
-        record["extents"] = (self.radius, self.half_height, 0, 0)
+        record["extents"] = (self.radius, self.half_height, 0, self.inner_radius())
 
     def key(self):
         return ("capsule", self.radius, self.half_height)
@@ -347,6 +361,9 @@ class Capsule(Shape):
 
     def bounding_radius(self):
         return self.radius + self.half_height
+
+    def inner_radius(self):
+        return self.radius
 
 
 class ConvexHull(Shape):
@@ -382,7 +399,11 @@ class ConvexHull(Shape):
         return cls(np.asarray(vertices, np.float64), name=label)
 
     def pack(self, record, hull_vertices):
-        pass  # topology and vertices are packed by ShapeTable from cooked()
+        # (topology and vertices are packed by ShapeTable from cooked())
+        record["extents"] = (0, 0, 0, self.inner_radius())
+
+    def inner_radius(self):
+        return float(np.min(self._cooked.planes[:, 3]))
 
     def key(self):
         return ("hull", self.vertices.tobytes())
