@@ -140,12 +140,9 @@ void prepare_bodies(__global Body* bodies,
     Body body = bodies[i];
     Shape shape = shapes[body.shape];
     write_world_aabb(body, shape, r0, r1, r2, hull_vertices, margin, &aabbs[i]);
-    float3 travel = body.linear_velocity.xyz * dt;
-    float speculative = speculative_distance(body, shape.extents.w, travel);
-    bodies[i].linear_velocity.w = speculative;
-    if (speculative > 0.0f) {
-        aabbs[i].lower.xyz += fmin(travel, (float3)(0.0f));
-        aabbs[i].upper.xyz += fmax(travel, (float3)(0.0f));
-    }
+    body.linear_velocity.w = speculative_distance(body, shape.extents.w,
+                                                  body.linear_velocity.xyz * dt);
+    bodies[i].linear_velocity.w = body.linear_velocity.w;
+    sweep_world_aabb(body, &aabbs[i]);
 % endif
 }
