@@ -31,8 +31,8 @@ from ..errors import RbgenError
 from .aabbs import shape_types_param
 
 #: a body is fast when one step's travel exceeds this fraction of its inner radius
-#: (Box2D v3's safety factor): slower bodies cannot pass a surface between two steps
-#: before their contacts, within the margin, catch them
+#: (Box2D v3's safety factor): a slower body's centre cannot cross a surface in one step,
+#: so the contact found at the overlap pushes it back the way it came
 FAST_FRACTION = 0.5
 
 TEMPLATE = KernelTemplate(
