@@ -42,15 +42,17 @@ def main() -> None:
 
     events = []
     original = cl.enqueue_nd_range_kernel
+    current = [0]  # the step being enqueued
 
     def recording(queue, kernel, *rest, **kw):
         event = original(queue, kernel, *rest, **kw)
-        events.append((step, kernel.function_name, event))
+        events.append((current[0], kernel.function_name, event))
         return event
 
     cl.enqueue_nd_range_kernel = recording
     try:
-        for _ in range(args.steps):
+        for step in range(args.steps):
+            current[0] = step
             world.step(1 / 60)
         runtime.queue.finish()
     finally:

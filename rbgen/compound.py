@@ -151,8 +151,12 @@ class Compound(Shape):
             )
         )
 
+    def inner_radius(self) -> float:
+        return float(min(child.inner_radius() for child in self.children))
+
     def pack(self, record, hull_vertices):
         hull_vertices.extend((self.lower, self.upper))
+        record["extents"] = (0, 0, 0, self.inner_radius())
 
     @classmethod
     def pack_arrays(cls, table: ShapeTable, records: np.ndarray) -> dict:

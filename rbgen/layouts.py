@@ -243,7 +243,12 @@ BODY = declare(
     [
         ("position", "float4", "centre of mass, world frame; w unused"),
         ("orientation", "float4", "unit quaternion x, y, z, w (body to world)"),
-        ("linear_velocity", "float4", "m/s; w unused"),
+        (
+            "linear_velocity",
+            "float4",
+            "m/s; w: the step's speculative distance (m; prepare_bodies: a fast body's "
+            "travel this step, else 0)",
+        ),
         ("angular_velocity", "float4", "rad/s, world frame; w unused"),
         ("inv_mass", "float", "0 for static bodies"),
         ("shape", "uint", "index into the Shape array"),
@@ -256,7 +261,12 @@ BODY = declare(
 SHAPE = declare(
     "Shape",
     [
-        ("extents", "float4", "per type: radius, half extents, plane normal+offset"),
+        (
+            "extents",
+            "float4",
+            "per type: radius, half extents, plane normal+offset; w, for a type that may be "
+            "dynamic: the inner radius (Shape.inner_radius)",
+        ),
         ("type", "uint", "RB_SHAPE_* (rbgen.shapes: the shape type's code)"),
         (
             "vertex_offset",

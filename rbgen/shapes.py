@@ -38,10 +38,27 @@ if TYPE_CHECKING:
 
 
 def _finite_vector(value, n: int, what: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    try:
+        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        arr = np.full(1, np.nan)  # not numbers: refused below, naming the argument
     if arr.shape != (n,) or not np.all(np.isfinite(arr)):
         raise RbgenError(f"{what} must be {n} finite numbers, got {value!r}")
     return arr
+
+
+def _finite_number(value, what: str) -> float:
+    """``value`` as a float, or RbgenError naming ``what`` (strings, None, sequences and
+    other non-numbers are refused here, not by numpy)."""
+    if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
+        raise RbgenError(f"{what} must be a finite number, got {value!r}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise RbgenError(f"{what} must be a finite number, got {value!r}") from None
+    if not np.isfinite(number):
+        raise RbgenError(f"{what} must be a finite number, got {value!r}")
+    return number
 
 
 class Shape:
@@ -63,7 +80,8 @@ class Shape:
     under ``rbgen/templates/`` that defines ``<type_name>_world_aabb`` (see
     ``templates/shapes/box.cl.mako``); ``static_only`` (no dynamic bodies, so
     a pair of two such types needs no kernel); and the methods `pack`, `key`,
-    `mass_properties`, `bounding_radius` (and `cooked` for polygon topology).
+    `mass_properties`, `bounding_radius`, `inner_radius` (unless static only; packed into
+    ``extents.w``), and `cooked` for polygon topology.
     """
 
     type_name: str = "shape"
@@ -130,6 +148,13 @@ class Shape:
 
     def key(self) -> tuple:
         """Identity for deduplication in a `ShapeTable`."""
+        raise NotImplementedError
+
+    def inner_radius(self) -> float:
+        """The smallest distance from the body's centre to its surface: a body that moves
+        more than a fraction of it in one step gets speculative contacts (continuous
+        collision, `rbgen.pipeline.prepare`). Every type that may be dynamic defines it;
+        `ShapeTable` packs it into the record's ``extents.w``."""
         raise NotImplementedError
 
     @classmethod
@@ -251,13 +276,13 @@ class Sphere(Shape):
     aabb_template = "shapes/sphere.cl.mako"
 
     def __init__(self, radius: float):
-        radius = float(radius)
-        if not np.isfinite(radius) or radius <= 0:
+        radius = _finite_number(radius, "Sphere radius")
+        if radius <= 0:
             raise RbgenError(f"Sphere radius must be a positive finite number, got {radius!r}")
         self.radius = radius
 
     def pack(self, record, hull_vertices):
-        record["extents"] = (self.radius, 0, 0, 0)
+        record["extents"] = (self.radius, 0, 0, self.inner_radius())
 
     def key(self):
         return ("sphere", self.radius)
@@ -267,6 +292,9 @@ class Sphere(Shape):
         return self._solid(volume, mass_props.sphere_unit_inertia(self.radius), density, mass)
 
     def bounding_radius(self):
+        return self.radius
+
+    def inner_radius(self):
         return self.radius
 
 
@@ -284,7 +312,7 @@ class Box(Shape):
         self._cooked = hull_cooking.box_hull(he)
 
     def pack(self, record, hull_vertices):
-        record["extents"] = (*self.half_extents, 0)
+        record["extents"] = (*self.half_extents, self.inner_radius())
 
     def key(self):
         return ("box", *self.half_extents)
@@ -294,6 +322,9 @@ class Box(Shape):
 
     def cooked(self):
         return self._cooked
+
+    def inner_radius(self):
+        return float(np.min(self.half_extents))
 
     def mass_properties(self, density=None, mass=None):
         volume = 8.0 * float(np.prod(self.half_extents))
@@ -307,9 +338,9 @@ class Capsule(Shape):
     aabb_template = "shapes/capsule.cl.mako"
 
     def __init__(self, radius: float, half_height: float):
-        if not (
-            np.isfinite(radius) and radius > 0 and np.isfinite(half_height) and half_height >= 0
-        ):
+        radius = _finite_number(radius, "Capsule radius")
+        half_height = _finite_number(half_height, "Capsule half_height")
+        if not (radius > 0 and half_height >= 0):
             raise RbgenError(
                 f"Capsule needs radius > 0 and half_height >= 0, got "
                 f"radius={radius!r}, half_height={half_height!r}"
@@ -317,7 +348,7 @@ class Capsule(Shape):
         self.radius, self.half_height = float(radius), float(half_height)
 
     def pack(self, record, hull_vertices):
-        record["extents"] = (self.radius, self.half_height, 0, 0)
+        record["extents"] = (self.radius, self.half_height, 0, self.inner_radius())
 
     def key(self):
         return ("capsule", self.radius, self.half_height)
@@ -330,6 +361,9 @@ class Capsule(Shape):
 
     def bounding_radius(self):
         return self.radius + self.half_height
+
+    def inner_radius(self):
+        return self.radius
 
 
 class ConvexHull(Shape):
@@ -365,7 +399,11 @@ class ConvexHull(Shape):
         return cls(np.asarray(vertices, np.float64), name=label)
 
     def pack(self, record, hull_vertices):
-        pass  # topology and vertices are packed by ShapeTable from cooked()
+        # (topology and vertices are packed by ShapeTable from cooked())
+        record["extents"] = (0, 0, 0, self.inner_radius())
+
+    def inner_radius(self):
+        return float(np.min(self._cooked.planes[:, 3]))
 
     def key(self):
         return ("hull", self.vertices.tobytes())
@@ -395,9 +433,8 @@ class Plane(Shape):
         length = np.linalg.norm(n)
         if length < 1e-12:
             raise RbgenError("Plane normal must not be zero")
-        if not np.isfinite(offset):
-            raise RbgenError(f"Plane offset must be finite, got {offset!r}")
-        self.normal, self.offset = n / length, float(offset)
+        offset = _finite_number(offset, "Plane offset")
+        self.normal, self.offset = n / length, offset
 
     def pack(self, record, hull_vertices):
         record["extents"] = (*self.normal, self.offset)

@@ -97,7 +97,9 @@ class _Buffers:
 class ContactConstraints:
     """Builds this step's constraints from manifolds; keeps last step's for warm starting.
 
-    ``settings`` (attributes, changeable between steps): ``restitution_threshold``
+    ``settings`` (attributes, changeable between steps): ``gravity`` (m/s^2, the
+    velocity change the step's preparation gave dynamic bodies: bounces restore the
+    approach before it), ``restitution_threshold``
     (m/s; slower impacts do not bounce), ``penetration_slop`` (m of penetration
     left alone), ``penetration_recovery`` (fraction of the penetration removed
     per step), ``warm_start_factor`` (scale of the carried impulses),
@@ -122,6 +124,9 @@ class ContactConstraints:
         self._empty_table = cl_array.to_device(
             runtime.queue, np.full(1, layouts.SOLVER_NONE, np.uint32)
         )
+        #: the step's gravity, which prepare_bodies added to the dynamic bodies' velocities
+        #: (m/s^2): a bounce restores the approach before it
+        self.gravity = (0.0, 0.0, 0.0)
         self.restitution_threshold = 0.5
         self.penetration_slop = 0.005
         self.penetration_recovery = 0.2
@@ -257,6 +262,7 @@ class ContactConstraints:
             ]
         args += [
             np.float32(dt),
+            np.array([*self.gravity, 0.0], dtype=np.float32),
             np.float32(self.restitution_threshold),
             np.float32(self.penetration_slop),
             np.float32(self.penetration_recovery),

@@ -405,6 +405,7 @@ class ConstraintStage(Stage):
 
     def enqueue(self, step: StepContext) -> None:
         c, s, b = self.constraints, step.settings, step.bodies
+        c.gravity = tuple(s.gravity)
         c.restitution_threshold = s.restitution_threshold
         c.penetration_slop = s.penetration_slop
         c.penetration_recovery = s.penetration_recovery

@@ -12,7 +12,7 @@ import pytest
 
 from rbgen import layouts
 from rbgen.errors import RbgenError
-from rbgen.pipeline.prepare import BodyPreparation, inertia_records
+from rbgen.pipeline.prepare import FAST_FRACTION, BodyPreparation, inertia_records
 
 
 def _rotation(q):
@@ -77,7 +77,12 @@ def test_fused_world_aabbs(runtime, rng, n, work_group_size):
     """Built with shape types, prepare_bodies also writes every body's world AABB: each
     holds the float64 bounds of the rotated shape (grown by the margin, within 1e-5), and
     velocities and inertia tensors are those of the pass without AABBs, bit for bit; built
-    with backup too (the World's build), it first copies every body as it was."""
+    with backup too (the World's build), it first copies every body as it was.
+
+    Continuous collision: the speeds span slow and fast bodies (up to 200 m/s); a dynamic
+    body whose travel |v| dt (after gravity) exceeds FAST_FRACTION of its inner radius
+    gets that travel as its speculative distance (linear_velocity.w) and its AABB swept
+    along it; every other body gets 0 and the plain AABB."""
     from rbgen.shapes import ShapeTable
     from tests.pipeline.test_aabbs import expected_bounds, make_shapes
 
@@ -87,7 +92,12 @@ def test_fused_world_aabbs(runtime, rng, n, work_group_size):
     bodies, diag = _random_bodies(rng, max(n, 1))
     which = rng.integers(0, len(shape_list), len(bodies))
     bodies["shape"] = ids[which]
+    inner = [shape_list[k].inner_radius() for k in which]
     bodies["position"][:, :3] = rng.uniform(-50, 50, (len(bodies), 3))
+    speed = 10.0 ** rng.uniform(-2, np.log10(200), len(bodies))
+    bodies["linear_velocity"][:, :3] *= (
+        speed / np.linalg.norm(bodies["linear_velocity"][:, :3], axis=1)
+    )[:, None]
     queue = runtime.queue
     shapes, vertices = table.pack()
     margin, dt, gravity = 0.05, 1 / 60, (0.0, -9.81, 0.0)
@@ -114,6 +124,8 @@ def test_fused_world_aabbs(runtime, rng, n, work_group_size):
         prepare(d_bodies, d_inertia, n, dt, gravity, aabbs=inputs, backup=backup if fused else None)
         outputs.append((d_bodies.get()[:n], d_inertia.get()[:n], aabbs.get()[:n], backup.get()[:n]))
     (plain_bodies, plain_inertia, _, _), (fused_bodies, fused_inertia, boxes, backup) = outputs
+    speculative = fused_bodies["linear_velocity"][:, 3].copy()
+    fused_bodies["linear_velocity"][:, 3] = plain_bodies["linear_velocity"][:, 3]
     np.testing.assert_array_equal(fused_bodies, plain_bodies)
     np.testing.assert_array_equal(fused_inertia, plain_inertia)
     np.testing.assert_array_equal(backup, bodies[:n])  # the bodies as they were
@@ -123,9 +135,16 @@ def test_fused_world_aabbs(runtime, rng, n, work_group_size):
             bodies["position"][i, :3].astype(np.float64),
             bodies["orientation"][i],
         )
+        travel = plain_bodies["linear_velocity"][i, :3].astype(np.float64) * dt
+        fast = bodies["inv_mass"][i] > 0 and np.linalg.norm(travel) > FAST_FRACTION * inner[i]
+        assert speculative[i] == pytest.approx(np.linalg.norm(travel) if fast else 0.0, rel=1e-5)
+        if fast:  # (an AABB swept along the travel)
+            lo, hi = lo + np.minimum(travel, 0), hi + np.maximum(travel, 0)
         tol = 1e-5 + 1e-6 * max(np.abs(lo).max(), np.abs(hi).max())
         np.testing.assert_allclose(boxes["lower"][i, :3], lo - margin, atol=tol)
         np.testing.assert_allclose(boxes["upper"][i, :3], hi + margin, atol=tol)
+    if n >= 67:  # both kinds present
+        assert 0 < np.count_nonzero(speculative) < n
 
 
 def test_aabb_inputs_must_match_the_build(runtime):

@@ -7,7 +7,8 @@
  * tangent1).
  *
  * For every point: lever arms, effective masses of its rows, the normal
- * velocity target (restitution above a threshold velocity, speculative
+ * velocity target (restitution above a threshold velocity, of the approach
+ * before this step's gravity, speculative
  * approach for points still apart,
  * and a separate split-impulse target that pushes out of penetration
  * beyond the slop without adding momentum),
@@ -164,6 +165,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
                                const float match_distance,
 % endif
                                const float dt,
+                               const float4 gravity,
                                const float restitution_threshold,
                                const float penetration_slop,
                                const float penetration_recovery)
@@ -189,6 +191,9 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     float3 xa = bodies[a].position.xyz, xb = bodies[b].position.xyz;
     float3 va = bodies[a].linear_velocity.xyz, vb = bodies[b].linear_velocity.xyz;
     float3 wa = bodies[a].angular_velocity.xyz, wb = bodies[b].angular_velocity.xyz;
+    /* the velocity this step's gravity gave each body */
+    float3 fall_a = inv_mass_a > 0.0f ? gravity.xyz * dt : (float3)(0.0f);
+    float3 fall_b = inv_mass_b > 0.0f ? gravity.xyz * dt : (float3)(0.0f);
     float3 inv_inertia_a[3], inv_inertia_b[3];
     for (int r = 0; r < 3; ++r) {
         inv_inertia_a[r] = inertia[a].inv_inertia_world[r].xyz;
@@ -221,7 +226,12 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
 
         /* normal velocity of B relative to A (> 0: separating) */
         float approach = dot3(vb + cross3(wb, rb) - va - cross3(wa, ra), n);
-        float bounce = approach < -restitution_threshold ? -m->restitution * approach : 0.0f;
+        /* and before this step's gravity (prepare_bodies added g dt to the dynamic
+         * bodies): a bounce returns the speed the bodies came in with, not what
+         * gravity adds in the step of the impact (Box2D v3 takes its relative
+         * velocity before gravity too) */
+        float incoming = approach - dot3(fall_b - fall_a, n);
+        float bounce = incoming < -restitution_threshold ? -m->restitution * incoming : 0.0f;
         float target;
         if (separation > 0.0f)
             /* still apart: close the gap this step, or bounce if it would be crossed */

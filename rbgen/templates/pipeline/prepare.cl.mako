@@ -1,3 +1,6 @@
+<%!
+    from rbgen.pipeline.prepare import FAST_FRACTION
+%>\
 /* Per-body preparation before the contact solver.
  *
  * One work-item per body; a work group is responsible for ${work_group_size}
@@ -34,7 +37,8 @@
 % if shape_types:
  * Every body, static or not, also gets its world AABB for the broadphase
  * (the step's positions and orientations, which this kernel does not change:
- * one launch instead of a compute_world_aabbs of its own).
+ * one launch instead of a compute_world_aabbs of its own), and its
+ * speculative distance (continuous collision, below).
 % endif
  */
 ${cl_constants()}
@@ -44,6 +48,24 @@ ${cl_structs("Body", "BodyInertia", *(("Shape", "Aabb") if shape_types else ()))
 <%include file="/common/quaternion.cl.mako"/>
 % if shape_types:
 <%include file="/pipeline/world_aabb.cl.mako"/>
+
+/* Continuous collision by speculative contacts. A dynamic body is fast when
+ * one step's travel |v| dt exceeds FAST_FRACTION of its inner radius (the
+ * shape's extents.w; Box2D v3's test): its speculative distance, kept in
+ * linear_velocity.w for this step, is then that travel, and its AABB is
+ * swept along it, so that the broadphase pairs it with what lies ahead and
+ * the narrowphase keeps the pair's points up to margin + the two bodies'
+ * speculative distances apart. The solver lets a point apart close its gap
+ * this step and no more, so a fast body stops at the surface it would have
+ * passed. Every other body gets 0: its AABB and its pairs' margin are those
+ * of a world without continuous collision. */
+#define FAST_FRACTION ${FAST_FRACTION}f
+
+inline float speculative_distance(Body body, float inner_radius, float3 travel)
+{
+    float reach = length3(travel);
+    return body.inv_mass > 0.0f && reach > FAST_FRACTION * inner_radius ? reach : 0.0f;
+}
 % endif
 
 % if gyroscopic:
@@ -145,6 +167,11 @@ void prepare_bodies(__global Body* bodies,
 % endif
 % if shape_types:
     Body body = bodies[i];
-    write_world_aabb(body, shapes[body.shape], r0, r1, r2, hull_vertices, margin, &aabbs[i]);
+    Shape shape = shapes[body.shape];
+    write_world_aabb(body, shape, r0, r1, r2, hull_vertices, margin, &aabbs[i]);
+    body.linear_velocity.w = speculative_distance(body, shape.extents.w,
+                                                  body.linear_velocity.xyz * dt);
+    bodies[i].linear_velocity.w = body.linear_velocity.w;
+    sweep_world_aabb(body, &aabbs[i]);
 % endif
 }

@@ -49,3 +49,16 @@ inline void write_world_aabb(Body body, Shape shape, float3 r0, float3 r1, float
     out->lower = (float4)(lower - margin, 0.0f);
     out->upper = (float4)(upper + margin, 0.0f);
 }
+
+/* A fast body's box swept along its travel this step: its speculative distance
+ * (linear_velocity.w, prepare_bodies: |v| dt, or 0 for a body that is not fast)
+ * along its velocity. Boxes of other bodies are left as they are. */
+inline void sweep_world_aabb(Body body, __global Aabb* out)
+{
+    float reach = body.linear_velocity.w;
+    if (reach > 0.0f) {
+        float3 travel = body.linear_velocity.xyz * (reach / length3(body.linear_velocity.xyz));
+        out->lower.xyz += fmin(travel, (float3)(0.0f));
+        out->upper.xyz += fmax(travel, (float3)(0.0f));
+    }
+}

@@ -1,7 +1,8 @@
 /* World-space AABB of every body.
  *
  * One work-item per body; a work group is responsible for ${work_group_size}
- * consecutive bodies (see write_world_aabb). A World computes its AABBs in
+ * consecutive bodies (see write_world_aabb), swept along its travel when it
+ * is fast (sweep_world_aabb). A World computes its AABBs in
  * prepare_bodies instead (one launch less per step); this kernel serves
  * callers without that stage.
  */
@@ -27,4 +28,5 @@ void compute_world_aabbs(__global const Body* bodies,
     float3 r0, r1, r2;
     quat_to_rows(body.orientation, &r0, &r1, &r2);
     write_world_aabb(body, shapes[body.shape], r0, r1, r2, hull_vertices, margin, &aabbs[i]);
+    sweep_world_aabb(body, &aabbs[i]);
 }

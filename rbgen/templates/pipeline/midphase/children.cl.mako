@@ -5,8 +5,8 @@
  * the placed arrays, which hold the world's bodies and then one proxy body per child of
  * each compound body (ChildProxy: its compound and which child). A body is copied with its
  * world AABB; a proxy is the compound's body moved to where the child is (the
- * compound's pose times the child's), with the child's shape, and its world AABB (grown
- * by the margin as every body's). The narrowphase reads the placed bodies, so every pair
+ * compound's pose times the child's), with the child's shape, its speculative distance,
+ * and its world AABB (grown by the margin and swept as every body's). The narrowphase reads the placed bodies, so every pair
  * kernel of the children's types serves compounds.
  *
  * count_child_pairs and write_child_pairs: one work-item per input pair; a work group is
@@ -58,6 +58,7 @@ void place_children(${signature("place_children")})
     float3 r0, r1, r2;
     quat_to_rows(body.orientation, &r0, &r1, &r2);
     write_world_aabb(body, shapes[body.shape], r0, r1, r2, hull_vertices, margin, &placed_aabbs[i]);
+    sweep_world_aabb(body, &placed_aabbs[i]);  /* (a fast compound's children sweep with it) */
 }
 
 /* A body of a pair: its compound's children (first proxy, count) or itself (count 0). */

@@ -161,6 +161,7 @@ void capsule_convex(__global const Pair* pairs,
         return;
     QueuedPair q = decode_queue_entry(queues[kind * pair_capacity + slot], pairs);
     Body a = bodies[q.first], b = bodies[q.second];
+    const float pair_reach = pair_margin(margin, a, b);
     float4 capsule = shapes[a.shape].extents;  /* radius, half height */
     float radius = capsule.x;
     Shape hull = shapes[b.shape];
@@ -200,7 +201,7 @@ void capsule_convex(__global const Pair* pairs,
         if (s > best && s > face_best + EDGE_TOLERANCE)
             best = s, best_edge = j, edge_axis = true, normal = forward >= backward ? axis : -axis;
     }
-    if (best - radius > margin)
+    if (best - radius > pair_reach)
         return;
 
     float4 points[2];
@@ -221,13 +222,13 @@ void capsule_convex(__global const Pair* pairs,
                 nearest = d2, on_segment = p, on_hull = h, nearest_face = f;
         }
         float distance = sqrt1(nearest);
-        if (distance - radius > margin)
+        if (distance - radius > pair_reach)
             return;
         normal = (on_hull - on_segment) / distance;
         float3 off_face = normal + faces[nearest_face].plane.xyz;
         if (dot3(off_face, off_face) < FACE_NORMAL_TOLERANCE2) {
             normal = -faces[nearest_face].plane.xyz;
-            count = points_above_face(s0, s1, faces[nearest_face], nearest_face, radius, margin,
+            count = points_above_face(s0, s1, faces[nearest_face], nearest_face, radius, pair_reach,
                                       vertices, face_indices, points, features);
         }
         if (count == 0) {
@@ -237,7 +238,7 @@ void capsule_convex(__global const Pair* pairs,
         }
     } else if (!edge_axis) {
         /* 3. the segment enters through a face: the part of it above that face */
-        count = points_above_face(s0, s1, faces[best_face], best_face, radius, margin, vertices,
+        count = points_above_face(s0, s1, faces[best_face], best_face, radius, pair_reach, vertices,
                                   face_indices, points, features);
         if (count == 0) {
             /* the segment passes beside the face: its deepest end */

@@ -205,6 +205,7 @@ void clip_incident_face(__global const Pair* pairs,
     SatResult r = results[slot];
     QueuedPair q = decode_queue_entry(r.pair, pairs);
     Body a = bodies[q.first], b = bodies[q.second];
+    const float pair_reach = pair_margin(margin, a, b);
     Shape sa = shapes[a.shape], sb = shapes[b.shape];
     Placement pa = placement_of(a), pb = placement_of(b);
     float4 out_points[MAX_CLIP_POINTS];
@@ -213,10 +214,10 @@ void clip_incident_face(__global const Pair* pairs,
     uint count;
     if (r.feature < sa.face_count) {
         count = clip_faces(&pa, sa, r.feature, &pb, sb, false, hull_vertices, hull_faces,
-                           face_indices, margin, out_points, out_features);
+                           face_indices, pair_reach, out_points, out_features);
     } else if (r.feature < sa.face_count + sb.face_count) {
         count = clip_faces(&pb, sb, r.feature - sa.face_count, &pa, sa, true, hull_vertices,
-                           hull_faces, face_indices, margin, out_points, out_features);
+                           hull_faces, face_indices, pair_reach, out_points, out_features);
     } else if (r.feature & (uint)RB_SAT_EDGE_PAIR) {
         /* an edge pair of the Gauss-map test: the edges themselves are known */
         uint e = r.feature & ~(uint)RB_SAT_EDGE_PAIR;

@@ -52,6 +52,14 @@ inline float4 plane_to_world(const Placement* p, float4 local_plane)
     return (float4)(n, local_plane.w + dot3(n, p->position));
 }
 
+/* The largest separation at which a pair's points are kept: the contact margin
+ * plus both bodies' speculative distances (Body.linear_velocity.w, written by
+ * prepare_bodies: a fast body's travel this step, else 0). */
+inline float pair_margin(float margin, Body a, Body b)
+{
+    return margin + a.linear_velocity.w + b.linear_velocity.w;
+}
+
 /* The pair a queue entry refers to, with its bodies in the kernel's shape order. */
 typedef struct {
     uint index;     /* into the pair list and the per-pair manifold slots */

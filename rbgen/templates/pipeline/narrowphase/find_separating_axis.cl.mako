@@ -5,7 +5,8 @@ What the separating-axis templates (sat.cl.mako, sat_box_box.cl.mako) share:
 def with the declarations of the shape arrays its test reads (placed after
 `shapes`) and, as the call's body, the test of one pair: the body sees
 `q` (QueuedPair), `a` and `b` (the bodies in the kind's order), `cache`,
-`pairs` and `margin`, and sets `touching`, `axis` and `feature`.
+`pairs` and `pair_reach` (the pair's margin, `pair_margin`), and sets
+`touching`, `axis` and `feature`.
 </%doc>
 <%def name="definitions()">\
 /* A face of the second shape wins over one of the first, and an edge pair over
@@ -80,6 +81,7 @@ void find_separating_axis(__global const Pair* pairs,
         entry = ${"slot" if direct else "queues[kind * pair_capacity + slot]"};
         QueuedPair q = decode_queue_entry(entry, pairs);
         Body a = bodies[q.first], b = bodies[q.second];
+        const float pair_reach = pair_margin(margin, a, b);
 ${caller.body()}\
     }
     uint ticket = touching ? atomic_inc(&group_count) : 0u;

@@ -46,11 +46,12 @@ void sphere_sphere(${queue_args("sphere_sphere")})
 {
 ${queued_pair()}
     Body a = bodies[q.first], b = bodies[q.second];
+    const float pair_reach = pair_margin(margin, a, b);
     float ra = shapes[a.shape].extents.x, rb = shapes[b.shape].extents.x;
     float3 d = b.position.xyz - a.position.xyz;
     float distance = length3(d);
     float separation = distance - ra - rb;
-    if (separation > margin)
+    if (separation > pair_reach)
         return;
     float3 normal = distance > 1e-6f * (ra + rb) ? d / distance : FALLBACK_NORMAL;
     float4 point = (float4)(b.position.xyz - normal * rb, separation);
@@ -66,12 +67,13 @@ void sphere_plane(${queue_args("sphere_plane")})
 {
 ${queued_pair()}
     Body a = bodies[q.first], b = bodies[q.second];
+    const float pair_reach = pair_margin(margin, a, b);
     float radius = shapes[a.shape].extents.x;
     Placement plane_body = placement_of(b);
     float4 plane = plane_to_world(&plane_body, shapes[b.shape].extents);
     float height = dot3(plane.xyz, a.position.xyz) - plane.w;
     float separation = height - radius;
-    if (separation > margin)
+    if (separation > pair_reach)
         return;
     float4 point = (float4)(a.position.xyz - plane.xyz * height, separation);
     uint feature = 0u;
@@ -118,6 +120,7 @@ void sphere_convex(${queue_args("sphere_convex")},
 {
 ${queued_pair()}
     Body a = bodies[q.first], b = bodies[q.second];
+    const float pair_reach = pair_margin(margin, a, b);
     float radius = shapes[a.shape].extents.x;
     Shape hull = shapes[b.shape];
     Placement hull_body = placement_of(b);
@@ -141,7 +144,7 @@ ${queued_pair()}
         surface = c + normal * deepest;
         separation = deepest - radius;
     } else {
-        if (deepest - radius > margin)
+        if (deepest - radius > pair_reach)
             return;  /* a face plane already separates by more than the margin */
         float best_distance2 = INFINITY;
         for (uint f = 0; f < hull.face_count; ++f) {
@@ -156,7 +159,7 @@ ${queued_pair()}
         normal = (surface - c) / distance;
         separation = distance - radius;
     }
-    if (separation > margin)
+    if (separation > pair_reach)
         return;
     float4 point = (float4)(point_to_world(&hull_body, surface), separation);
     store_manifold(slots, contact_flags, tile_counts, q, rotate_to_world(&hull_body, normal), &point, &feature, 1u);
@@ -190,6 +193,7 @@ void sphere_capsule(${queue_args("sphere_capsule")})
 {
 ${queued_pair()}
     Body a = bodies[q.first], b = bodies[q.second];
+    const float pair_reach = pair_margin(margin, a, b);
     float ra = shapes[a.shape].extents.x;
     float4 capsule = shapes[b.shape].extents;  /* radius, half height */
     float3 p0, p1, centre = a.position.xyz, on_centre, on_segment;
@@ -198,7 +202,7 @@ ${queued_pair()}
     float3 d = on_segment - centre;
     float distance = length3(d);
     float separation = distance - ra - capsule.x;
-    if (separation > margin)
+    if (separation > pair_reach)
         return;
     float3 normal = distance > 1e-6f * (ra + capsule.x) ? d / distance : any_perpendicular(p1 - p0);
     float4 point = (float4)(on_segment - normal * capsule.x, separation);
@@ -216,6 +220,7 @@ void capsule_capsule(${queue_args("capsule_capsule")})
 {
 ${queued_pair()}
     Body a = bodies[q.first], b = bodies[q.second];
+    const float pair_reach = pair_margin(margin, a, b);
     float4 ca = shapes[a.shape].extents, cb = shapes[b.shape].extents;
     float3 a0, a1, b0, b1, on_a, on_b;
     capsule_segment(a, ca.y, &a0, &a1);
@@ -224,7 +229,7 @@ ${queued_pair()}
     float3 d = on_b - on_a;
     float distance = length3(d);
     float separation = distance - ca.x - cb.x;
-    if (separation > margin)
+    if (separation > pair_reach)
         return;
     float3 da = a1 - a0, db = b1 - b0;
     float3 normal = distance > 1e-6f * (ca.x + cb.x) ? d / distance : any_perpendicular(da);
@@ -262,6 +267,7 @@ void capsule_plane(${queue_args("capsule_plane")})
 {
 ${queued_pair()}
     Body a = bodies[q.first], b = bodies[q.second];
+    const float pair_reach = pair_margin(margin, a, b);
     float4 capsule = shapes[a.shape].extents;
     Placement plane_body = placement_of(b);
     float4 plane = plane_to_world(&plane_body, shapes[b.shape].extents);
@@ -272,7 +278,7 @@ ${queued_pair()}
     uint count = 0;
     for (uint k = 0; k < (capsule.y > 0.0f ? 2u : 1u); ++k) {
         float height = dot3(plane.xyz, ends[k]) - plane.w;
-        if (height - capsule.x > margin)
+        if (height - capsule.x > pair_reach)
             continue;
         points[count] = (float4)(ends[k] - plane.xyz * height, height - capsule.x);
         features[count++] = k;
@@ -283,22 +289,30 @@ ${queued_pair()}
 % endif
 % if "convex_plane" in kinds:
 
-/* Box or hull (first) against plane (second): the vertices within the margin
- * of the plane, reduced to at most four (the deepest, the farthest from it,
- * then the extremes on both sides of the line through those two). The
- * vertices are streamed four times instead of stored, so any hull size works. */
+/* Box or hull (first) against plane (second): the deepest vertex, and the
+ * vertices of the incident face (the face whose normal is most opposed to the
+ * plane's: the hull's support along -n, as Jolt's GetSupportingFace) within
+ * the pair's margin of the plane, reduced to at most four (the deepest, the
+ * farthest from it, then the extremes on both sides of the line through those
+ * two). Only the face: a hull smaller than the margin has every vertex within
+ * it, and points on its far side would let it rest on its top corners and
+ * sink. The vertices are streamed, not stored, so any hull size works. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void convex_plane(${queue_args("convex_plane")},
-                  __global const float4* hull_vertices)
+                  __global const float4* hull_vertices,
+                  __global const HullFace* hull_faces,
+                  __global const uint* face_indices)
 {
 ${queued_pair()}
     Body a = bodies[q.first], b = bodies[q.second];
+    const float pair_reach = pair_margin(margin, a, b);
     Shape hull = shapes[a.shape];
     Placement hull_body = placement_of(a), plane_body = placement_of(b);
     float4 plane = plane_to_world(&plane_body, shapes[b.shape].extents);
     __global const float4* vertices = hull_vertices + hull.vertex_offset;
+    __global const HullFace* faces = hull_faces + hull.face_offset;
 
-    /* pass 1: deepest vertex */
+    /* the deepest vertex */
     uint chosen[4];
     float best = INFINITY;
     for (uint v = 0; v < hull.vertex_count; ++v) {
@@ -306,36 +320,47 @@ ${queued_pair()}
         if (s < best)
             best = s, chosen[0] = v;
     }
-    if (best > margin)
+    if (best > pair_reach)
         return;
     uint count = 1;
     float3 p0 = point_to_world(&hull_body, vertices[chosen[0]].xyz);
 
-    /* pass 2: the touching vertex farthest from the deepest, in the contact plane */
+    /* the incident face: its normal (local frame) most opposed to the plane's */
+    float3 down = rotate_to_local(&hull_body, plane.xyz);
+    HullFace face = faces[0];
+    float most_opposed = INFINITY;
+    for (uint f = 0; f < hull.face_count; ++f) {
+        float c = dot3(faces[f].plane.xyz, down);
+        if (c < most_opposed)
+            most_opposed = c, face = faces[f];
+    }
+    __global const uint* corners = face_indices + face.index_offset;
+
+    /* the face's touching vertex farthest from the deepest, in the contact plane */
     float far2 = 0.0f;
-    for (uint v = 0; v < hull.vertex_count; ++v) {
-        float3 p = point_to_world(&hull_body, vertices[v].xyz);
+    for (uint k = 0; k < face.index_count; ++k) {
+        float3 p = point_to_world(&hull_body, vertices[corners[k]].xyz);
         float3 d = p - p0;
         d -= plane.xyz * dot3(plane.xyz, d);
-        if (dot3(plane.xyz, p) - plane.w <= margin && dot3(d, d) > far2)
-            far2 = dot3(d, d), chosen[1] = v;
+        if (dot3(plane.xyz, p) - plane.w <= pair_reach && dot3(d, d) > far2)
+            far2 = dot3(d, d), chosen[1] = corners[k];
     }
     if (far2 > 0.0f) {
         count = 2;
-        /* pass 3: extremes on both sides of the line p0 p1 */
+        /* the face's extremes on both sides of the line p0 p1 */
         float3 p1 = point_to_world(&hull_body, vertices[chosen[1]].xyz);
         float3 across = cross3(plane.xyz, p1 - p0);
         float high = 0.0f, low = 0.0f;
         uint high_vertex = 0, low_vertex = 0;
-        for (uint v = 0; v < hull.vertex_count; ++v) {
-            float3 p = point_to_world(&hull_body, vertices[v].xyz);
-            if (dot3(plane.xyz, p) - plane.w > margin)
+        for (uint k = 0; k < face.index_count; ++k) {
+            float3 p = point_to_world(&hull_body, vertices[corners[k]].xyz);
+            if (dot3(plane.xyz, p) - plane.w > pair_reach)
                 continue;
             float side = dot3(across, p - p0);
             if (side > high)
-                high = side, high_vertex = v;
+                high = side, high_vertex = corners[k];
             if (side < low)
-                low = side, low_vertex = v;
+                low = side, low_vertex = corners[k];
         }
         float tolerance = 1e-6f * dot3(across, across);
         if (high > tolerance)

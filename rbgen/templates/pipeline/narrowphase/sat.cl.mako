@@ -308,5 +308,5 @@ inline bool separating_axis_test(const ConvexPair* g, Pair pair, __global SatCac
         g.shape_a = shapes[a.shape];
         g.shape_b = shapes[b.shape];
         touching = separating_axis_test(&g, pairs[q.index], &cache[q.index], hull_faces, ${edges_arg},
-                                        hull_vertices, margin, &axis, &feature);
+                                        hull_vertices, pair_reach, &axis, &feature);
 </%call>

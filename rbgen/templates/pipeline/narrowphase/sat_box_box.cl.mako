@@ -199,5 +199,6 @@ inline bool box_box_test(const BoxPair* g, Pair pair, __global SatCacheEntry* en
 
 <%call expr="shared.find_separating_axis(shape_arrays=())">\
         BoxPair g = box_pair(a, shapes[a.shape].extents.xyz, b, shapes[b.shape].extents.xyz);
-        touching = box_box_test(&g, pairs[q.index], &cache[q.index], margin, &axis, &feature);
+        touching = box_box_test(&g, pairs[q.index], &cache[q.index], pair_reach, &axis,
+                                &feature);
 </%call>

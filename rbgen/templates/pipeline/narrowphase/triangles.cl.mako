@@ -46,6 +46,7 @@ ${cl_structs("Body", "Shape", "Pair", "HullFace", "HullEdge", "MeshTriangle", "C
         return;
     QueuedPair q = decode_queue_entry(queues[kind * pair_capacity + slot], pairs);
     Body a = bodies[q.first], b = bodies[q.second];
+    const float pair_reach = pair_margin(margin, a, b);
     Shape mesh = shapes[b.shape];
     Triangle tri = load_triangle(mesh, q.sub, mesh_triangles, mesh_vertices);
     Placement frame = placement_of(b);\
@@ -96,7 +97,7 @@ ${queued_pair()}
     float3 p = closest_on_triangle(&tri, c, &feature);
     float3 d = p - c;
     float distance = length3(d);
-    if (distance - radius > margin)
+    if (distance - radius > pair_reach)
         return;
     float3 normal;
     float4 point;
@@ -107,7 +108,7 @@ ${queued_pair()}
         float height = dot3(tri.normal, c - tri.v[0]);
         normal = -facing(&tri, c) * tri.normal;
         point = (float4)(c - tri.normal * height, fabs(height) - radius);
-        if (point.w > margin)
+        if (point.w > pair_reach)
             return;
     }
     store_in_world(slots, contact_flags, tile_counts, q, &frame, normal, &point, &feature, 1u);
@@ -164,7 +165,7 @@ ${queued_pair()}
     float3 on_segment, on_triangle;
     uint feature;
     float distance = sqrt1(closest_segment_triangle(&tri, s0, s1, &on_segment, &on_triangle, &feature));
-    if (distance - radius > margin)
+    if (distance - radius > pair_reach)
         return;
     float4 points[2];
     uint features[2];
@@ -183,7 +184,7 @@ ${queued_pair()}
             float3 ends[2] = {c0, c1};
             for (uint k = 0; k < (dot3(c1 - c0, c1 - c0) > 1e-12f ? 2u : 1u); ++k) {
                 float height = dot3(tri.normal, ends[k] - tri.v[0]);
-                if (side * height - radius > margin)
+                if (side * height - radius > pair_reach)
                     continue;
                 points[count] = (float4)(ends[k] - tri.normal * height, side * height - radius);
                 features[count++] = 8u + k;
@@ -192,7 +193,7 @@ ${queued_pair()}
         if (count == 0) {
             /* beside the triangle (over an inactive edge): the closest point on the face normal */
             float height = side * dot3(tri.normal, on_segment - on_triangle);
-            if (height - radius > margin)
+            if (height - radius > pair_reach)
                 return;
             points[0] = (float4)(on_triangle, height - radius);
             features[0] = feature;
@@ -297,7 +298,7 @@ ${queued_pair()}
     float2 along_normal = convex_interval(&shape_in_mesh, s, hull_vertices, tri.normal);
     float forward = plane - along_normal.y, backward = along_normal.x - plane;
     float4 best = forward >= backward ? (float4)(tri.normal, forward) : (float4)(-tri.normal, backward);
-    if (best.w > margin)
+    if (best.w > pair_reach)
         return;
     /* 2. the shape's faces: the triangle's least projection less the face's offset */
     float4 face = (float4)(0.0f, 0.0f, 0.0f, -INFINITY);
@@ -308,7 +309,7 @@ ${queued_pair()}
         float3 m = rotate_to_world(&shape_in_mesh, local_plane.xyz);
         float offset = local_plane.w + dot3(m, shape_in_mesh.position);
         float separation = min1(min1(dot3(m, tri.v[0]), dot3(m, tri.v[1])), dot3(m, tri.v[2])) - offset;
-        if (separation > margin)
+        if (separation > pair_reach)
             return;
         if (separation > face.w)
             face = (float4)(m, separation), face_index = f,
@@ -333,7 +334,7 @@ ${queued_pair()}
             float lo = min1(min1(p0, p1), p2), hi = max1(max1(p0, p1), p2);
             float ahead = lo - shape_range.y, behind = shape_range.x - hi;
             float separation = max1(ahead, behind);
-            if (separation > margin)
+            if (separation > pair_reach)
                 return;
             if (ahead < behind)
                 axis = -axis;
@@ -374,7 +375,7 @@ ${queued_pair()}
             if (dot3(axis, a0) < 0.0f)
                 axis = -axis;
             float separation = dot3(axis, corner[k] - a0);
-            if (separation > margin)
+            if (separation > pair_reach)
                 return;
             if (separation > edge.w)
                 edge = (float4)(rotate_to_world(&shape_in_mesh, axis), separation), edge_k = k,
@@ -431,7 +432,7 @@ ${queued_pair()}
         for (uint k = 0; k < n; ++k) {
             float3 p = in_clipped ? clipped[k] : polygon[k];
             float separation = dot3(outward, p - tri.v[0]);
-            if (separation > margin)
+            if (separation > pair_reach)
                 continue;
             candidates[count] = (float4)(p - outward * separation, separation);
             candidate_features[count++] = (incident << 8) | (in_clipped ? clipped_ids[k] : ids[k]);
@@ -448,7 +449,7 @@ ${queued_pair()}
                 if (separation < lowest)
                     lowest = separation, deepest = p;
             }
-            if (lowest > margin)
+            if (lowest > pair_reach)
                 return;
             candidates[0] = (float4)(deepest - outward * lowest, lowest);
             candidate_features[0] = (incident << 8) | 127u;
@@ -478,7 +479,7 @@ ${queued_pair()}
         for (uint k = 0; k < n; ++k) {
             float3 p = in_clipped ? clipped[k] : polygon[k];
             float separation = dot3(best.xyz, p) - offset;
-            if (separation > margin)
+            if (separation > pair_reach)
                 continue;
             candidates[count] = (float4)(p, separation);
             candidate_features[count++] = REFERENCE_ON_SHAPE | (face_index << 8)
@@ -491,7 +492,7 @@ ${queued_pair()}
                 if (dot3(best.xyz, tri.v[j]) < dot3(best.xyz, tri.v[k]))
                     k = j;
             float separation = dot3(best.xyz, tri.v[k]) - offset;
-            if (separation > margin)
+            if (separation > pair_reach)
                 return;
             candidates[0] = (float4)(tri.v[k], separation);
             candidate_features[0] = REFERENCE_ON_SHAPE | (face_index << 8) | 127u;
