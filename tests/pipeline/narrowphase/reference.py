@@ -83,8 +83,13 @@ class SatAnswer:
     runner_up: float    # best separation along an axis not parallel to `axis`
 
 
-def sat(a: Placed, b: Placed) -> SatAnswer:
+def sat(a: Placed, b: Placed, face_aligned_deg: float | None = None) -> SatAnswer:
+    """The separating-axis answer of two convex shapes in float64. ``face_aligned_deg``:
+    edge-pair axes within this angle of a face normal of either shape are no axes (the
+    box-box kernel's rule: the face axis measures that direction)."""
     axes, is_edge = [], []
+    normals = np.vstack([a.normals, b.normals])
+    cos_limit = None if face_aligned_deg is None else np.cos(np.radians(face_aligned_deg))
     for n in a.normals:
         axes.append(n), is_edge.append(False)
     for n in b.normals:
@@ -94,6 +99,8 @@ def sat(a: Placed, b: Placed) -> SatAnswer:
             cross = np.cross(ea, eb)
             s = np.linalg.norm(cross)
             if s < 1e-4:
+                continue
+            if cos_limit is not None and np.abs(normals @ (cross / s)).max() > cos_limit:
                 continue
             axes.append(cross / s), is_edge.append(True)
             axes.append(-cross / s), is_edge.append(True)

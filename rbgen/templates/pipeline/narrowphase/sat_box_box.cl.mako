@@ -24,6 +24,8 @@ ${cl_structs("Body", "Shape", "Pair", "SatCacheEntry", "SatResult")}
 ${shared.definitions()}
 /* Feature code of the first edge-edge axis (after the 6 + 6 faces). */
 #define FIRST_EDGE_FEATURE 12u
+/* an edge pair's axis within 1 degree of a face normal is no edge axis (see edge_gap) */
+#define FACE_ALIGNED_COS2 0.99969541f
 
 /* Two boxes seen from the first one. Every axis is measured from the nine
  * cosines r[i][j] = a_i . b_j (a_i, b_j: the boxes' unit axes in the world)
@@ -88,17 +90,27 @@ inline float second_face_gap(const BoxPair* g, uint j)
     return abs1(second_offset(g, j)) - g->extent_b[j] - reach_a;
 }
 
-/* Separation along a_i x b_j (-INFINITY when the axes are parallel). In a's
- * frame the axis is e_i x r_j, of length sqrt(1 - r_ij^2); its products
- * with the boxes' axes and the offset are 2x2 minors of r and t. The gap is
- * the unnormalised one over that length (<= 1), so a negative unnormalised
- * gap at most `at_most` bounds the gap by it: then -INFINITY is returned
- * without the square root and division (the axis cannot win). */
+/* Separation along a_i x b_j (-INFINITY when the axes are parallel, or when
+ * the axis lies within FACE_ALIGNED_COS2 of a face normal of either box: a
+ * face axis measures the same direction, and its clipped face manifold
+ * supports a resting box at its four corners, where an edge pair chosen by a
+ * few ulps of tilt gives one point and flickers with it). In a's frame the
+ * axis is e_i x r_j, of length sqrt(1 - r_ij^2); its products with the
+ * boxes' axes and the offset are 2x2 minors of r and t. The gap is the
+ * unnormalised one over that length (<= 1), so a negative unnormalised gap at
+ * most `at_most` bounds the gap by it: then -INFINITY is returned without the
+ * square root and division (the axis cannot win). */
 inline float edge_gap(const BoxPair* g, uint i, uint j, float at_most, float* offset_along)
 {
     uint i1 = (i + 1u) % 3u, i2 = (i + 2u) % 3u, j1 = (j + 1u) % 3u, j2 = (j + 2u) % 3u;
     float sin2 = g->r[i1][j] * g->r[i1][j] + g->r[i2][j] * g->r[i2][j];
     if (sin2 < PARALLEL_SIN2)
+        return -INFINITY;
+    /* the axis along a face normal of a (components r_i1j, r_i2j) or of b
+     * (components r_ij1, r_ij2; |axis|^2 is the same sin2) */
+    float along_a = max1(g->r[i1][j] * g->r[i1][j], g->r[i2][j] * g->r[i2][j]);
+    float along_b = max1(g->r[i][j1] * g->r[i][j1], g->r[i][j2] * g->r[i][j2]);
+    if (max1(along_a, along_b) > FACE_ALIGNED_COS2 * sin2)
         return -INFINITY;
     float d = g->t[i2] * g->r[i1][j] - g->t[i1] * g->r[i2][j];
     float reach = g->extent_a[i1] * g->abs_r[i2][j] + g->extent_a[i2] * g->abs_r[i1][j]
