@@ -300,6 +300,12 @@ BODY_INERTIA = declare("BodyInertia", [
     ("inv_inertia_world", "float4", 3, "rows of R diag(inv_inertia_local) R^T, updated every step"),
 ], "Inverse inertia of one body, local principal diagonal and world tensor.")
 
+BODY_DELTA = declare("BodyDelta", [
+    ("linear", "float4", "displacement of the centre of mass since the step began; w unused"),
+    ("angular", "float4", "rotation since the step began, as the sum of angular velocity "
+                          "times substep (world frame, first order); w unused"),
+], "How far a body moved in the substeps so far: contacts update their separations from it.")
+
 SPLIT_VELOCITY = declare("SplitVelocity", [
     ("linear", "float4", "push velocity of the split-impulse position pass; w unused"),
     ("angular", "float4", "push angular velocity (world frame); w unused"),
@@ -325,14 +331,18 @@ WARM_SUM_WORDS = constant("RB_WARM_SUM_WORDS", 6,
 CONTACT_CONSTRAINT = declare("ContactConstraint", [
     ("normal", "float4", "unit normal from A to B (world); w: friction coefficient"),
     ("tangent1", "float4", "first friction direction, unit, orthogonal to normal"),
-    ("tangent2", "float4", "second friction direction, normal x tangent1"),
-    ("r_a", "float4", 4, "contact point k relative to A's centre of mass (world)"),
-    ("r_b", "float4", 4, "contact point k relative to B's centre of mass (world)"),
+    ("tangent2", "float4", "second friction direction, normal x tangent1; w: the manifold's "
+                           "restitution"),
+    ("r_a", "float4", 4, "contact point k relative to A's centre of mass (world, fixed over "
+                         "the step's substeps); w: its separation at setup (m)"),
+    ("r_b", "float4", 4, "contact point k relative to B's centre of mass (world); w: its "
+                         "bounce velocity (m/s, 0 below the restitution threshold)"),
     ("normal_mass", "float4", "per point: 1 / (J M^-1 J^T) of the normal row"),
     ("tangent1_mass", "float4", "per point: effective mass of the tangent1 row"),
     ("tangent2_mass", "float4", "per point: effective mass of the tangent2 row"),
-    ("velocity_target", "float4", "per point: normal velocity the solver drives to (bounce, bias)"),
-    ("position_target", "float4", "per point: split-impulse push velocity target"),
+    ("velocity_target", "float4", "per point: normal velocity the solver drives to (bounce, "
+                                  "speculative gap) this substep"),
+    ("position_target", "float4", "per point: split-impulse push velocity target this substep"),
     ("normal_impulse", "float4", "per point: accumulated normal impulse (warm started)"),
     ("tangent1_impulse", "float4", "per point: accumulated tangent1 impulse (warm started)"),
     ("tangent2_impulse", "float4", "per point: accumulated tangent2 impulse (warm started)"),

@@ -1,7 +1,7 @@
 """The step pipeline written as data: the stages of a World step, in order.
 
     prepare -> broadphase -> [midphase] -> narrowphase -> [children] -> constraints
-            -> [batching] -> solve -> integrate
+            -> [batching] -> solve (each substep: sweeps, then integrate)
 
 `StepPipeline.stages` is that list; a step walks it, each stage enqueuing its kernels
 (no blocking read). Every stage owns the buffers it writes (the prepare stage the AABBs,
@@ -11,7 +11,7 @@ the stages before it, which it is given at construction. A stage that can fail a
 the step report (`report_words`, `report`, `problem`) and how to recover (`recover`);
 `rbgen.guard.StepGuard` checks them and redoes the step. A new stage (a midphase
 between the broadphase and the narrowphase, a joint stage beside the constraints) is
-one class here and one entry in `build_stages`.
+one class here and one entry in the list `StepPipeline` assembles.
 """
 from __future__ import annotations
 
@@ -31,12 +31,13 @@ from .batching import make_batcher
 from .broadphase import make_broadphase
 from .constraints import ContactConstraints
 from .device_barrier import ABANDONED_OFFSET, clear_abandoned
-from .integrate import Integrator
+from .integrate import DEFAULT_MAX_ANGULAR_STEP, Integrator
 from .midphase import Midphase, needs_midphase
 from .narrowphase import Narrowphase
 from .prepare import BodyPreparation
 from .solvers.jacobi import JacobiSolver
 from .solvers.pgs import PgsSolver
+from .solvers.substeps import ContactRefresh
 
 #: manifolds reserved per body before the first overflow (grown on demand)
 MANIFOLDS_PER_BODY = 4
@@ -52,6 +53,11 @@ class StepContext:
     settings: Settings
     bodies: DeviceBodies
     shapes: PackedShapes
+
+    @property
+    def h(self) -> float:
+        """A substep: dt / settings.substeps."""
+        return self.dt / self.settings.substeps
 
 
 class Stage:
@@ -101,8 +107,10 @@ class PrepareStage(Stage):
         self.aabbs = cla.empty(self.runtime.queue, max(1, body_count), layouts.AABB.dtype)
 
     def enqueue(self, step: StepContext) -> None:
-        b = step.bodies
-        self.kernel(b.bodies, b.inertia, b.count, step.dt, step.settings.gravity,
+        b, substeps = step.bodies, step.settings.substeps
+        # (the first substep's gravity: g h = (g / substeps) dt)
+        gravity = step.settings.gravity if substeps == 1 else step.settings.gravity / substeps
+        self.kernel(b.bodies, b.inertia, b.count, step.dt, gravity,
                     aabbs=(step.shapes.shapes, step.shapes.vertices, self.aabbs,
                            step.settings.contact_margin),
                     backup=b.backups[step.slot])
@@ -258,7 +266,7 @@ class ConstraintStage(Stage):
         c.penetration_slop = s.penetration_slop
         c.penetration_recovery = s.penetration_recovery
         c(self.narrowphase.manifolds, self.narrowphase.count, b.bodies, b.inertia,
-          self.capacity, step.dt, warm_start=s.warm_start)
+          self.capacity, step.h, warm_start=s.warm_start)  # (the first substep's targets)
 
 
 class BatchingStage(Stage):
@@ -297,8 +305,11 @@ def slab_axis(positions: np.ndarray, gravity) -> tuple:
 
 
 class SolveStage(Stage):
-    """The contact solver's sweeps (`rbgen.pipeline.solvers`); a persistent launch reports
-    whether its device-wide barrier gave up."""
+    """The contact solver over the step's substeps (`rbgen.pipeline.solvers`): each
+    substep its warm start and sweeps, then the bodies integrated over the substep
+    (damping, the split-impulse push); from the second substep on, gravity first and the
+    contacts' targets refreshed from the bodies' motion (`solvers.substeps`). A persistent
+    launch reports whether its device-wide barrier gave up."""
 
     name = "solve"
 
@@ -316,12 +327,31 @@ class SolveStage(Stage):
         else:
             self.solver = JacobiSolver(runtime, normal_solve=plan.normal_solve,
                                        persistent=plan.persistent, fast_math=plan.fast_math)
+        self.integrator = Integrator(runtime, gravity=False, damping=True)
+        self._refresh: ContactRefresh | None = None  # (made at the first substepped step)
         self.report_words = 1 if self.solver.barrier_state() is not None else 0
 
     def enqueue(self, step: StepContext) -> None:
-        c, b = self.constraints, step.bodies
-        self.solver.solve(c.constraints.constraints, c.constraints.count, c.capacity,
-                          b.bodies, b.inertia, b.count, step.settings)
+        c, b, s = self.constraints, step.bodies, step.settings
+        constraints, count = c.constraints.constraints, c.constraints.count
+        substeps, h = s.substeps, step.h
+        split = self.solver.split_velocities(b.count) if s.position_iterations > 0 else None
+        deltas = None
+        if substeps > 1:
+            if self._refresh is None:
+                self._refresh = ContactRefresh(self.runtime)
+            deltas = self._refresh.body_deltas(b.count)
+        for k in range(substeps):
+            if k > 0:
+                assert self._refresh is not None
+                self.integrator.apply_gravity(b.bodies, b.count, h, s.gravity)
+                self._refresh(constraints, count, c.capacity, b.count, h, s.penetration_slop,
+                              s.penetration_recovery)
+            self.solver.solve(constraints, count, c.capacity, b.bodies, b.inertia, b.count, s)
+            self.integrator(b.bodies, b.count, h, linear_damping=s.linear_damping,
+                            angular_damping=s.angular_damping,
+                            max_angular_step=DEFAULT_MAX_ANGULAR_STEP / substeps, split=split,
+                            deltas=deltas, first_substep=k == 0)
 
     def report(self, queue, report, offset: int) -> None:
         cl.enqueue_copy(queue, buffer_of(report), buffer_of(self.solver.barrier_state()),
@@ -332,24 +362,6 @@ class SolveStage(Stage):
 
     def clear_abandoned(self) -> None:
         clear_abandoned(self.runtime, self.solver.barrier_state())
-
-
-class IntegrateStage(Stage):
-    """Positions and orientations from the velocities, with damping and the push
-    velocities of the split impulse (`rbgen.pipeline.integrate`)."""
-
-    name = "integrate"
-
-    def __init__(self, runtime: Runtime, solve: SolveStage):
-        self.integrator = Integrator(runtime, gravity=False, damping=True)
-        self.solve = solve
-
-    def enqueue(self, step: StepContext) -> None:
-        s, b = step.settings, step.bodies
-        split = self.solve.solver.split_velocities(b.count) if s.position_iterations > 0 \
-            else None
-        self.integrator(b.bodies, b.count, step.dt, linear_damping=s.linear_damping,
-                        angular_damping=s.angular_damping, split=split)
 
 
 class StepPipeline:
@@ -385,13 +397,12 @@ class StepPipeline:
         self.batching = BatchingStage(rt, plan, self.constraints) \
             if plan.solver == "pgs" else None
         self.solve = SolveStage(rt, plan, self.constraints, self.batching)
-        self.integrate = IntegrateStage(rt, self.solve)
         self._assemble()
 
     def _assemble(self) -> None:
         self.stages: list[Stage] = [s for s in (
             self.prepare, self.broadphase, self.midphase, self.narrowphase, self.children,
-            self.constraints, self.batching, self.solve, self.integrate) if s is not None]
+            self.constraints, self.batching, self.solve) if s is not None]
         self.by_name = {s.name: s for s in self.stages}
 
     def replan(self, plan: Plan) -> None:

@@ -200,7 +200,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     tangent_basis(n, &t1, &t2);
     c.normal = (float4)(n, m->friction);
     c.tangent1 = (float4)(t1, 0.0f);
-    c.tangent2 = (float4)(t2, 0.0f);
+    c.tangent2 = (float4)(t2, m->restitution);
     c.body_a = a;
     c.body_b = b;
     c.sub = sub;
@@ -216,16 +216,19 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
         float3 p = m->points[k].xyz;
         float separation = m->points[k].w;
         float3 ra = p - xa, rb = p - xb;
-        c.r_a[k] = (float4)(ra, 0.0f);
-        c.r_b[k] = (float4)(rb, 0.0f);
 
         /* normal velocity of B relative to A (> 0: separating) */
         float approach = dot3(vb + cross3(wb, rb) - va - cross3(wa, ra), n);
         float bounce = approach < -restitution_threshold ? -m->restitution * approach : 0.0f;
+        /* (the separation and the bounce kept for later substeps' targets) */
+        c.r_a[k] = (float4)(ra, separation);
+        c.r_b[k] = (float4)(rb, bounce);
         float target;
         if (separation > 0.0f)
-            /* still apart: close the gap this step, or bounce if it would be crossed */
-            target = (bounce > 0.0f && approach * dt < -separation) ? bounce : -separation / dt;
+            /* still apart: close the gap this step, or, if it would be crossed, land
+             * and bounce within the step: the bounce less (1 + e) gap / dt */
+            target = (bounce > 0.0f && approach * dt < -separation)
+                     ? bounce - (1.0f + m->restitution) * separation / dt : -separation / dt;
         else
             target = bounce;
         float push = penetration_recovery / dt * max1(-separation - penetration_slop, 0.0f);

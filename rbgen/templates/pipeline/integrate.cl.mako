@@ -23,10 +23,15 @@
  *   x  += v_push dt,  q += (w_push dt / 2, 0) q (first order), renormalised
  *   (the solver's apply_split_velocities, fused here: one launch less).
 % endif
+% if deltas:
+ *   and, for the substeps of a step, how far the body moved since the step
+ *   began (BodyDelta: restarted by the first substep), from which contacts
+ *   update their separations (solvers/substeps.cl.mako).
+% endif
  */
 ${cl_constants()}
 
-${cl_structs("Body", *(("SplitVelocity",) if split else ()))}
+${cl_structs("Body", *(("SplitVelocity",) if split else ()), *(("BodyDelta",) if deltas else ()))}
 
 <%include file="/common/quaternion.cl.mako"/>
 
@@ -72,6 +77,10 @@ void integrate_bodies(__global Body* bodies,
 % if split:
                       __global SplitVelocity* split,
 % endif
+% if deltas:
+                      __global BodyDelta* deltas,
+                      const uint first_substep,
+% endif
                       const float max_angular_step)
 {
     uint i = get_global_id(0);
@@ -95,6 +104,12 @@ void integrate_bodies(__global Body* bodies,
     body->angular_velocity.xyz = w;
     body->position.xyz += v * dt;
     body->orientation = rotate_by_angular_velocity(body->orientation, w, dt, max_angular_step);
+% if deltas:
+    float3 moved = v * dt, turned = w * dt;
+    float speed = length3(w);
+    if (speed * dt > max_angular_step)  /* (the clamp rotate_by_angular_velocity applied) */
+        turned *= max_angular_step / (dt * speed);
+% endif
 % if split:
     /* the arithmetic of the solver's apply_split_velocities, term for term (the same
      * roundings: a World steps exactly as with that kernel) */
@@ -106,6 +121,18 @@ void integrate_bodies(__global Body* bodies,
     body->orientation = normalize(q + dq);
     split[i].linear = (float4)(0.0f);
     split[i].angular = (float4)(0.0f);
+% if deltas:
+    moved += push * dt, turned += 2.0f * h;
+% endif
+% endif
+% if deltas:
+    if (first_substep) {
+        deltas[i].linear = (float4)(moved, 0.0f);
+        deltas[i].angular = (float4)(turned, 0.0f);
+    } else {
+        deltas[i].linear.xyz += moved;
+        deltas[i].angular.xyz += turned;
+    }
 % endif
 }
 % if not gravity:
