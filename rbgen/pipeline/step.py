@@ -36,7 +36,7 @@ from .midphase import Midphase, needs_midphase
 from .narrowphase import Narrowphase
 from .prepare import BodyPreparation
 from .solvers.jacobi import JacobiSolver
-from .solvers.pgs import PgsSolver
+from .solvers.pgs import PgsSolver, SubstepMotion
 from .solvers.substeps import ContactRefresh
 
 #: manifolds reserved per body before the first overflow (grown on demand)
@@ -337,10 +337,19 @@ class SolveStage(Stage):
         substeps, h = s.substeps, step.h
         split = self.solver.split_velocities(b.count) if s.position_iterations > 0 else None
         deltas = None
-        if substeps > 1:
+        if substeps > 1 or getattr(self.solver, "integrates", False):
             if self._refresh is None:
                 self._refresh = ContactRefresh(self.runtime)
             deltas = self._refresh.body_deltas(b.count)
+        if getattr(self.solver, "integrates", False):  # one launch runs every substep
+            assert isinstance(self.solver, PgsSolver)
+            motion = SubstepMotion(
+                substeps, h, s.gravity, (1.0 - s.linear_damping) ** h,
+                (1.0 - s.angular_damping) ** h, DEFAULT_MAX_ANGULAR_STEP / substeps,
+                s.penetration_slop, s.penetration_recovery, deltas)
+            self.solver.solve(constraints, count, c.capacity, b.bodies, b.inertia, b.count, s,
+                              motion=motion)
+            return
         for k in range(substeps):
             if k > 0:
                 assert self._refresh is not None

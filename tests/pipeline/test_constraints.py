@@ -159,8 +159,15 @@ def test_effective_masses_and_targets(runtime, rng):
         rc = np.cross(points[k] - [0, 1, 0], n)
         assert c["normal_mass"][k] == pytest.approx(1 / (0.5 + rc @ (inv_inertia[1] * rc)),
                                                     rel=1e-4)
-        bounce = e * speed  # apart but crossed within the step, or touching: bounce
+        # touching: the bounce; apart but crossed within the step: land at the contact,
+        # then bounce for the rest of the step, a mean velocity of bounce - (1 + e) gap / dt
+        bounce = e * speed - (1 + e) * max(depth[k], 0.0) / dt
         assert c["velocity_target"][k] == pytest.approx(bounce, rel=1e-4)
+        # what later substeps need: the separation, the bounce, the restitution
+        assert c["r_a"][k][3] == pytest.approx(depth[k], abs=1e-7)
+        assert c["r_b"][k][3] == pytest.approx(e * speed, rel=1e-5)
+    assert c["tangent2"][3] == pytest.approx(e)
+    for k in range(3):
         push = beta / dt * (-depth[k] if depth[k] > 0 else max(-depth[k] - slop, 0.0))
         assert c["position_target"][k] == pytest.approx(push, rel=1e-4, abs=1e-6)
     t1, t2 = c["tangent1"][:3], c["tangent2"][:3]
@@ -191,7 +198,7 @@ def setup_reference(manifold, bodies, inv_inertia, dt, setup):
         return 1 / k if k > 0 else 0.0
 
     out = {f: np.zeros(4) for f in ("normal_mass", "tangent1_mass", "tangent2_mass",
-                                    "velocity_target", "position_target")}
+                                    "velocity_target", "position_target", "separation", "bounce")}
     out["tangent1"], out["tangent2"] = t1, t2
     ras, rbs = [], []
     beta, slop = setup.penetration_recovery, setup.penetration_slop
@@ -203,11 +210,13 @@ def setup_reference(manifold, bodies, inv_inertia, dt, setup):
         approach = (v[b] + np.cross(w[b], rb) - v[a] - np.cross(w[a], ra)) @ n
         bounce = -manifold["restitution"] * approach if approach < -setup.restitution_threshold \
             else 0.0
-        if separation > 0:
-            target = bounce if bounce > 0 and approach * dt < -separation else -separation / dt
+        if separation > 0:  # (a gap crossed within the step: land, then bounce)
+            target = bounce - (1 + manifold["restitution"]) * separation / dt \
+                if bounce > 0 and approach * dt < -separation else -separation / dt
         else:
             target = bounce
         out["velocity_target"][k] = target
+        out["separation"][k], out["bounce"][k] = separation, bounce
         out["position_target"][k] = -beta / dt * separation if separation > 0 else \
             beta / dt * max(-separation - slop, 0.0)
     if count:  # the friction pair at the points' centre, the twist about the normal
@@ -274,6 +283,12 @@ def test_setup_matches_float64_reference(runtime, rng, n_manifolds):
             np.testing.assert_allclose(c[field][:3], expected[field], atol=1e-6)
         for field in ("r_a", "r_b"):
             np.testing.assert_allclose(c[field][:, :3], expected[field], atol=1e-5)
+        # (what later substeps need: each point's separation and bounce, the restitution)
+        np.testing.assert_allclose(c["r_a"][:count, 3], expected["separation"][:count],
+                                   atol=1e-7)
+        np.testing.assert_allclose(c["r_b"][:count, 3], expected["bounce"][:count],
+                                   rtol=1e-4, atol=1e-5)
+        assert c["tangent2"][3] == pytest.approx(m["restitution"])
         for field in ("normal_mass", "tangent1_mass", "tangent2_mass", "velocity_target",
                       "position_target"):
             np.testing.assert_allclose(c[field], expected[field], rtol=1e-4, atol=1e-5,

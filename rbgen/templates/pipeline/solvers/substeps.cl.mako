@@ -24,6 +24,8 @@ ${cl_structs("ContactConstraint", "BodyDelta")}
 
 <%include file="/common/inline_math.cl.mako"/>
 
+<%include file="/pipeline/solvers/contact_targets.cl.mako"/>
+
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void refresh_contact_targets(__global ContactConstraint* constraints,
                              __global const uint* constraint_count,
@@ -36,31 +38,8 @@ void refresh_contact_targets(__global ContactConstraint* constraints,
     uint i = get_global_id(0);
     if (i >= min(constraint_count[0], capacity))
         return;
-    __global ContactConstraint* c = &constraints[i];
-    uint a = c->body_a, b = c->body_b, count = c->point_count;
-    float3 n = c->normal.xyz;
-    float restitution = c->tangent2.w;
-    float3 moved = deltas[b].linear.xyz - deltas[a].linear.xyz;
-    float3 turned_a = deltas[a].angular.xyz, turned_b = deltas[b].angular.xyz;
-    float velocity_target[4] = {0.0f, 0.0f, 0.0f, 0.0f};
-    float position_target[4] = {0.0f, 0.0f, 0.0f, 0.0f};
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-        float4 ra = c->r_a[k], rb = c->r_b[k];
-        float separation = ra.w + dot3(n, moved) + dot3(turned_b, cross3(rb.xyz, n))
-                         - dot3(turned_a, cross3(ra.xyz, n));
-        float bounce = rb.w;
-        if (separation > 0.0f)
-            velocity_target[k] = (bounce > 0.0f && bounce * h > restitution * separation)
-                                 ? bounce - (1.0f + restitution) * separation / h
-                                 : -separation / h;
-        else
-            velocity_target[k] = bounce;
-        float push = penetration_recovery / h * max1(-separation - penetration_slop, 0.0f);
-        position_target[k] = separation > 0.0f ? -penetration_recovery / h * separation : push;
-    }
-    c->velocity_target = (float4)(velocity_target[0], velocity_target[1], velocity_target[2],
-                                  velocity_target[3]);
-    c->position_target = (float4)(position_target[0], position_target[1], position_target[2],
-                                  position_target[3]);
-    c->push_impulse = (float4)(0.0f);
+    uint a = constraints[i].body_a, b = constraints[i].body_b;
+    refresh_targets(&constraints[i], deltas[b].linear.xyz - deltas[a].linear.xyz,
+                    deltas[a].angular.xyz, deltas[b].angular.xyz, h, penetration_slop,
+                    penetration_recovery, true, true);
 }
