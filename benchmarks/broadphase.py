@@ -17,6 +17,7 @@ usage: python benchmarks/broadphase.py [--device D] [--sizes 8000 27000 111375]
                                        [--algorithms grid sap sap3] [--repeats 10]
                                        [--profile]  (adds the slowest kernels of a query)
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,8 +38,8 @@ def measure(runtime, name: str, aabbs, static, reference, repeats: int) -> dict:
         key, _, value = item.partition("=")
         options[key] = int(value) if value.isdigit() else value
     broadphase = make_broadphase(runtime, algorithm, **options)
-    count = broadphase.find_pairs(aabbs, static)           # warm-up: build, grow
-    broadphase.find_pairs(aabbs, static)                   # sap3: its incremental path too
+    count = broadphase.find_pairs(aabbs, static)  # warm-up: build, grow
+    broadphase.find_pairs(aabbs, static)  # sap3: its incremental path too
     pairs = broadphase.host_pairs()
     ok = pairs.shape == reference.shape and bool(np.array_equal(pairs, reference))
     device_ms, wall_ms, launches = [], [], []
@@ -56,9 +57,15 @@ def measure(runtime, name: str, aabbs, static, reference, repeats: int) -> dict:
         if not complete:
             raise RuntimeError(f"{name}: query incomplete after warm-up")
         device_ms.append(1e-6 * (end.profile.end - start.profile.start))
-    return {"algorithm": name, "pairs": count, "ok": ok,
-            "device_ms": statistics.median(device_ms), "wall_ms": statistics.median(wall_ms),
-            "launches": int(statistics.median(launches)), "broadphase": broadphase}
+    return {
+        "algorithm": name,
+        "pairs": count,
+        "ok": ok,
+        "device_ms": statistics.median(device_ms),
+        "wall_ms": statistics.median(wall_ms),
+        "launches": int(statistics.median(launches)),
+        "broadphase": broadphase,
+    }
 
 
 def kernel_breakdown(runtime, broadphase, aabbs, static) -> list[tuple[float, str]]:
@@ -96,8 +103,9 @@ def main(argv=None) -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[8000, 27000, 111375])
     parser.add_argument("--algorithms", nargs="+", default=["grid", "sap", "sap3"])
     parser.add_argument("--repeats", type=int, default=10)
-    parser.add_argument("--profile", action="store_true",
-                        help="also print the time per kernel of one query")
+    parser.add_argument(
+        "--profile", action="store_true", help="also print the time per kernel of one query"
+    )
     args = parser.parse_args(argv)
 
     import pyopencl.array as cla
@@ -109,8 +117,10 @@ def main(argv=None) -> None:
     runtime = Runtime(args.device, profiling=True)
     print(f"device: {runtime.traits.describe()}")
     width = max(9, *(len(a) for a in args.algorithms))
-    print(f"{'boxes':>7} {'algorithm':>{width}} {'device ms':>10} {'wall ms':>9} {'launches':>8} "
-          f"{'pairs':>8} {'reference':>9} {'ok':>3}")
+    print(
+        f"{'boxes':>7} {'algorithm':>{width}} {'device ms':>10} {'wall ms':>9} {'launches':>8} "
+        f"{'pairs':>8} {'reference':>9} {'ok':>3}"
+    )
     for size in args.sizes:
         aabbs, static = scene_aabbs(standard_boxbox_scene(size))
         reference = grid_pairs(aabbs, static)
@@ -118,12 +128,16 @@ def main(argv=None) -> None:
         device_static = cla.to_device(runtime.queue, static)
         for name in args.algorithms:
             row = measure(runtime, name, device_aabbs, device_static, reference, args.repeats)
-            print(f"{size:>7} {name:>{width}} {row['device_ms']:>10.3f} {row['wall_ms']:>9.3f} "
-                  f"{row['launches']:>8} {row['pairs']:>8} {len(reference):>9} "
-                  f"{'yes' if row['ok'] else 'NO':>3}", flush=True)
+            print(
+                f"{size:>7} {name:>{width}} {row['device_ms']:>10.3f} {row['wall_ms']:>9.3f} "
+                f"{row['launches']:>8} {row['pairs']:>8} {len(reference):>9} "
+                f"{'yes' if row['ok'] else 'NO':>3}",
+                flush=True,
+            )
             if args.profile:
-                for ms, kernel in kernel_breakdown(runtime, row["broadphase"], device_aabbs,
-                                                   device_static)[:8]:
+                for ms, kernel in kernel_breakdown(
+                    runtime, row["broadphase"], device_aabbs, device_static
+                )[:8]:
                     print(f"{'':>{width + 9}} {ms:>10.3f}  {kernel}")
 
 

@@ -9,6 +9,7 @@ memory: the same ProgramCache again.
 
 usage: python benchmarks/build_times.py [--device D]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -62,15 +63,23 @@ def main():
         return
     with tempfile.TemporaryDirectory() as tmp:
         env = dict(os.environ, POCL_KERNEL_CACHE="0")
-        cmd = [sys.executable, __file__, "--child", tmp] + (["--device", args.device] if args.device else [])
+        cmd = [sys.executable, __file__, "--child", tmp] + (
+            ["--device", args.device] if args.device else []
+        )
         out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout
     device = next(line[7:] for line in out.splitlines() if line.startswith("DEVICE"))
-    print(f"build times on {device} (cold: empty rbgen cache, PoCL cache off; warm: binary from rbgen's disk cache)")
+    print(
+        f"build times on {device} (cold: empty rbgen cache, PoCL cache off; "
+        "warm: binary from rbgen's disk cache)"
+    )
     print(f"{'kernel':<14}{'cold ms':>10}{'warm ms':>10}{'memory us':>11}")
     for line in out.splitlines():
         if line.startswith("ROW"):
             _, name, cold, warm, mem = line.split()
-            print(f"{name:<14}{float(cold) * 1e3:>10.1f}{float(warm) * 1e3:>10.1f}{float(mem) * 1e6:>11.1f}")
+            print(
+                f"{name:<14}{float(cold) * 1e3:>10.1f}{float(warm) * 1e3:>10.1f}"
+                f"{float(mem) * 1e6:>11.1f}"
+            )
 
 
 if __name__ == "__main__":

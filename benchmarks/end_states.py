@@ -9,6 +9,7 @@ velocities; ``compare`` prints, per scene, whether the two files are equal bit f
 the largest difference otherwise. A refactoring that was not meant to change the physics
 must compare equal on the same device.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,14 +33,21 @@ def _pile(world, n):
     i, j, k = np.meshgrid(np.arange(side), np.arange(5), np.arange(side), indexing="ij")
     p = np.stack([1.5 * i, 1.0 + 1.5 * j, 1.5 * k], -1).reshape(-1, 3)[:n]
     p = p + np.random.default_rng(0).uniform(-0.01, 0.01, p.shape)
-    world.add_static(rbgen.Box((1.5 * side / 2 + 10, 1, 1.5 * side / 2 + 10)),
-                     position=(1.5 * (side - 1) / 2, -1, 1.5 * (side - 1) / 2))
+    world.add_static(
+        rbgen.Box((1.5 * side / 2 + 10, 1, 1.5 * side / 2 + 10)),
+        position=(1.5 * (side - 1) / 2, -1, 1.5 * (side - 1) / 2),
+    )
     world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=p)
 
 
 def _pyramid(world, rows):
-    p = np.array([[(i - (rows - r - 1) / 2) * 1.02, 0.5 + r, 0.0]
-                  for r in range(rows) for i in range(rows - r)])
+    p = np.array(
+        [
+            [(i - (rows - r - 1) / 2) * 1.02, 0.5 + r, 0.0]
+            for r in range(rows)
+            for i in range(rows - r)
+        ]
+    )
     world.add_static(rbgen.Box((rows + 10, 1, 10)), position=(0, -1, 0))
     world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=p)
 
@@ -57,8 +65,9 @@ def _mixed(world, n):
         p = np.stack([1.1 * i - side / 2, 2.0 + 1.2 * k + 0 * i, 1.1 * j - side / 2], -1)
         p = p.reshape(-1, 3)[: n // 4] + rng.uniform(-0.05, 0.05, (n // 4, 3))
         q = rng.normal(size=(len(p), 4))
-        world.add_bodies(shape, mass=1.0 + k, positions=p, orientations=q / np.linalg.norm(
-            q, axis=1)[:, None])
+        world.add_bodies(
+            shape, mass=1.0 + k, positions=p, orientations=q / np.linalg.norm(q, axis=1)[:, None]
+        )
 
 
 #: name -> (builder, size, steps, World options)

@@ -6,6 +6,7 @@ usage: python benchmarks/kernel_times.py [--device D] [--scene boxbox] [--n 8000
 Per kernel: the median over the timed steps of its time in one step (robust to
 a step slowed by other processes on a shared CPU), and its launches per step.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -60,9 +61,11 @@ def main() -> None:
         counts[name] += 1
     totals = {name: float(np.median(ms)) for name, ms in per_step.items()}
     total = float(np.median(sum(per_step.values())))
-    print(f"{args.scene} n={args.n} on {runtime.traits.device_name}: kernel time {total:.3f} ms/step "
-          f"(medians over {args.steps} steps), {len(events) / args.steps:.0f} launches/step")
-    for name, ms in sorted(totals.items(), key=lambda kv: -kv[1])[:args.top]:
+    print(
+        f"{args.scene} n={args.n} on {runtime.traits.device_name}: kernel time {total:.3f} ms/step "
+        f"(medians over {args.steps} steps), {len(events) / args.steps:.0f} launches/step"
+    )
+    for name, ms in sorted(totals.items(), key=lambda kv: -kv[1])[: args.top]:
         print(f"  {ms:9.3f} ms  {counts[name] / args.steps:5.1f}x  {name}")
 
 

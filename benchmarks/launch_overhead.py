@@ -8,6 +8,7 @@ launch on NVIDIA's OpenCL driver).
 
 usage: python benchmarks/launch_overhead.py [--device D]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -52,14 +53,17 @@ def main() -> None:
         ("set_args (6 buffers + 3 scalars)", per_call_us(lambda: kernel.set_args(*bufs, *scalars))),
         ("set_arg, one scalar", per_call_us(lambda: kernel.set_arg(7, scalars[1]))),
         ("set_arg, one buffer", per_call_us(lambda: kernel.set_arg(0, bufs[0]))),
-        ("enqueue_nd_range_kernel", per_call_us(
-            lambda: cl.enqueue_nd_range_kernel(q, kernel, (256,), (64,)), 5000)),
+        (
+            "enqueue_nd_range_kernel",
+            per_call_us(lambda: cl.enqueue_nd_range_kernel(q, kernel, (256,), (64,)), 5000),
+        ),
     ]
     q.finish()
 
     def round_trip():
         cl.enqueue_nd_range_kernel(q, kernel, (256,), (64,))
         q.finish()
+
     rows.append(("launch + finish", per_call_us(round_trip, 500)))
     print(f"device: {rt.traits.describe()}")
     for name, us in rows:

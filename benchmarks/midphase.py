@@ -22,6 +22,7 @@ A brute-force check (every triangle box against a body's box, numpy) covers
 ``--brute-force`` random bodies. Results: JSON and Markdown under ``--out`` (rbgen.bench,
 kind "benchmarks/midphase.py").
 """
+
 from __future__ import annotations
 
 import argparse
@@ -64,8 +65,9 @@ def resting_scene(runtime, cells: int, count: int, seed: int = 0):
     packed = table.pack_all().to_device(q)
     d_bodies = cla.to_device(q, bodies)
     aabbs = cla.empty(q, len(bodies), layouts.AABB.dtype)
-    WorldAabbs(runtime, table.type_names())(d_bodies, packed.shapes, packed.vertices, aabbs,
-                                            len(bodies), 0.02)
+    WorldAabbs(runtime, table.type_names())(
+        d_bodies, packed.shapes, packed.vertices, aabbs, len(bodies), 0.02
+    )
     return mesh, table, bodies, packed, d_bodies, aabbs
 
 
@@ -83,21 +85,21 @@ def measure(runtime, midphase, args, repeats: int) -> list[float]:
     return samples
 
 
-def reuse(mesh, found: np.ndarray, pairs: np.ndarray, work_group_size: int,
-          subtree_nodes: int) -> float:
+def reuse(
+    mesh, found: np.ndarray, pairs: np.ndarray, work_group_size: int, subtree_nodes: int
+) -> float:
     """Walks that reach a staged subtree per staging, for the groups of consecutive pairs
     of the list (from the subtrees of the triangles found: what a group stages at least)."""
     subtrees = mesh.bvh.subtrees(subtree_nodes)
     index = mesh.bvh.nodes["index"]
     leaf_subtree = np.empty(mesh.triangle_count, np.int64)
     for s, (root, size) in enumerate(subtrees):
-        leaves = index[root:root + size]
+        leaves = index[root : root + size]
         leaf_subtree[leaves[leaves >= 0]] = s
     place = np.empty(len(pairs), np.int64)
     place[pairs["b"].astype(np.int64) - 1] = np.arange(len(pairs))
     pair = place[found["b"].astype(np.int64) - 1]
-    visits = np.unique(np.stack([pair, leaf_subtree[found["sub"].astype(np.int64) - 1]], 1),
-                       axis=0)
+    visits = np.unique(np.stack([pair, leaf_subtree[found["sub"].astype(np.int64) - 1]], 1), axis=0)
     groups = np.unique(np.stack([visits[:, 0] // work_group_size, visits[:, 1]], 1), axis=0)
     return len(visits) / max(1, len(groups))
 
@@ -110,8 +112,9 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--order", choices=("grid", "shuffled", "both"), default="both")
     parser.add_argument("--brute-force", type=int, default=256)
-    parser.add_argument("--out", default=None, help="results directory ('' for none; default "
-                                                    "benchmarks/results)")
+    parser.add_argument(
+        "--out", default=None, help="results directory ('' for none; default benchmarks/results)"
+    )
     args = parser.parse_args(argv)
 
     import time
@@ -128,16 +131,20 @@ def main(argv=None) -> int:
     mesh, table, bodies, packed, d_bodies, aabbs = resting_scene(runtime, args.cells, args.bodies)
     build_s = time.perf_counter() - t0
     print(f"# {runtime.traits.describe()}")
-    print(f"# terrain {mesh.triangle_count:,} triangles ({mesh.nbytes() / mesh.triangle_count:.1f} "
-          f"B/triangle on the device), {args.bodies:,} resting bodies; scene built in "
-          f"{build_s:.1f} s; device time of the whole expansion (count walk, scan, write "
-          f"walk), median of {args.repeats}")
+    print(
+        f"# terrain {mesh.triangle_count:,} triangles ({mesh.nbytes() / mesh.triangle_count:.1f} "
+        f"B/triangle on the device), {args.bodies:,} resting bodies; scene built in "
+        f"{build_s:.1f} s; device time of the whole expansion (count walk, scan, write "
+        f"walk), median of {args.repeats}"
+    )
     orders = ("grid", "shuffled") if args.order == "both" else (args.order,)
     rng = np.random.default_rng(0)
     results = []
     default = default_params(runtime.traits)
-    print(f"{'order':>8} {'traversal':>9} {'wg':>4} {'subtree':>7} {'ms':>8} {'spread':>15} "
-          f"{'x global':>8} {'pairs out':>10} {'equal':>5} {'reuse':>6}")
+    print(
+        f"{'order':>8} {'traversal':>9} {'wg':>4} {'subtree':>7} {'ms':>8} {'spread':>15} "
+        f"{'x global':>8} {'pairs out':>10} {'equal':>5} {'reuse':>6}"
+    )
     for order in orders:
         pairs = layouts.PAIR.zeros(args.bodies)
         pairs["a"], pairs["b"] = 0, np.arange(1, args.bodies + 1)
@@ -147,33 +154,51 @@ def main(argv=None) -> int:
         count = cla.to_device(runtime.queue, np.array([args.bodies], np.uint32))
         call = (d_bodies, len(bodies), packed, aabbs, d_pairs, count)
         baselines = {}
-        for params in sorted(search_space(runtime.traits),
-                             key=lambda p: (p["work_group_size"], p["traversal"] != "global",
-                                            p["subtree_nodes"])):
+        for params in sorted(
+            search_space(runtime.traits),
+            key=lambda p: (p["work_group_size"], p["traversal"] != "global", p["subtree_nodes"]),
+        ):
             midphase = Midphase(runtime, table, params=params, capacity=16 * args.bodies)
             found = midphase.find_pairs(*call)  # warm-up: builds, grows
             samples = measure(runtime, midphase, call, args.repeats)
             ms = statistics.median(samples)
-            name = (f"{order} {params['traversal']} wg={params['work_group_size']}"
-                    + (f" subtree={params['subtree_nodes']}" if params["subtree_nodes"] else ""))
+            name = f"{order} {params['traversal']} wg={params['work_group_size']}" + (
+                f" subtree={params['subtree_nodes']}" if params["subtree_nodes"] else ""
+            )
             if params["traversal"] == "global":
                 baselines[params["work_group_size"]] = (name, ms, found)
             base_name, base_ms, base_found = baselines[params["work_group_size"]]
             equal = bool(np.array_equal(found, base_found))
-            shared = reuse(mesh, found, pairs, params["work_group_size"],
-                           params["subtree_nodes"]) if params["subtree_nodes"] else None
-            results.append({"name": name, "ms": ms, "ms_spread": [min(samples), max(samples)],
-                            "params": params, "order": order, "pairs_out": len(found),
-                            "equal_to_baseline": equal, "reuse": shared,
-                            "heuristic_default": params == default,
-                            "baseline": None if params["traversal"] == "global" else
-                            {"name": base_name, "ms": base_ms}})
-            print(f"{order:>8} {params['traversal']:>9} {params['work_group_size']:>4} "
-                  f"{params['subtree_nodes'] or '-':>7} {ms:>8.3f} "
-                  f"{min(samples):>7.3f}-{max(samples):<7.3f} {base_ms / ms:>7.2f}x "
-                  f"{len(found):>10,} {'yes' if equal else 'NO':>5} "
-                  f"{'-' if shared is None else f'{shared:.1f}':>6}"
-                  + ("  (default)" if params == default else ""), flush=True)
+            shared = (
+                reuse(mesh, found, pairs, params["work_group_size"], params["subtree_nodes"])
+                if params["subtree_nodes"]
+                else None
+            )
+            results.append(
+                {
+                    "name": name,
+                    "ms": ms,
+                    "ms_spread": [min(samples), max(samples)],
+                    "params": params,
+                    "order": order,
+                    "pairs_out": len(found),
+                    "equal_to_baseline": equal,
+                    "reuse": shared,
+                    "heuristic_default": params == default,
+                    "baseline": None
+                    if params["traversal"] == "global"
+                    else {"name": base_name, "ms": base_ms},
+                }
+            )
+            print(
+                f"{order:>8} {params['traversal']:>9} {params['work_group_size']:>4} "
+                f"{params['subtree_nodes'] or '-':>7} {ms:>8.3f} "
+                f"{min(samples):>7.3f}-{max(samples):<7.3f} {base_ms / ms:>7.2f}x "
+                f"{len(found):>10,} {'yes' if equal else 'NO':>5} "
+                f"{'-' if shared is None else f'{shared:.1f}':>6}"
+                + ("  (default)" if params == default else ""),
+                flush=True,
+            )
     # brute force on a sample of the bodies: every triangle box against each one's box
     sample = np.sort(rng.choice(args.bodies, min(args.brute_force, args.bodies), replace=False))
     sample_pairs = layouts.PAIR.zeros(len(sample))
@@ -183,20 +208,29 @@ def main(argv=None) -> int:
     mine = found[np.isin(found["b"], sample + 1)]
     mine = mine[np.lexsort((mine["sub"], mine["b"]))]
     brute_ok = bool(np.array_equal(mine, expected))
-    print(f"brute force on {len(sample)} bodies: {len(expected):,} candidates, "
-          f"{'equal' if brute_ok else 'DIFFERENT'}; all {len(found):,} candidates of "
-          f"{args.bodies:,} bodies: {len(found) / args.bodies:.2f} triangles a body")
+    print(
+        f"brute force on {len(sample)} bodies: {len(expected):,} candidates, "
+        f"{'equal' if brute_ok else 'DIFFERENT'}; all {len(found):,} candidates of "
+        f"{args.bodies:,} bodies: {len(found) / args.bodies:.2f} triangles a body"
+    )
     out = bench.RESULTS_DIR if args.out is None else args.out
     if out:
-        settings = {"cells": args.cells, "triangles": mesh.triangle_count,
-                    "bodies": args.bodies, "repeats": args.repeats,
-                    "bytes_per_triangle": mesh.nbytes() / mesh.triangle_count,
-                    "scene_build_s": build_s, "brute_force_bodies": int(len(sample)),
-                    "brute_force_candidates": int(len(expected)), "brute_force_equal": brute_ok,
-                    "timing": "median device time (profiling markers) of the triangle "
-                              "expansion: count walk, scan, write walk"}
-        record = bench.make_record("benchmarks/midphase.py", results,
-                                   bench.device_record(args.device), settings)
+        settings = {
+            "cells": args.cells,
+            "triangles": mesh.triangle_count,
+            "bodies": args.bodies,
+            "repeats": args.repeats,
+            "bytes_per_triangle": mesh.nbytes() / mesh.triangle_count,
+            "scene_build_s": build_s,
+            "brute_force_bodies": int(len(sample)),
+            "brute_force_candidates": int(len(expected)),
+            "brute_force_equal": brute_ok,
+            "timing": "median device time (profiling markers) of the triangle "
+            "expansion: count walk, scan, write walk",
+        }
+        record = bench.make_record(
+            "benchmarks/midphase.py", results, bench.device_record(args.device), settings
+        )
         print(f"wrote {bench.write_results(record, out)}")
     return 0 if brute_ok and all(r["equal_to_baseline"] for r in results) else 1
 

@@ -22,6 +22,7 @@ the speed-up over the baseline. ``--hulls`` adds the hull-hull
 separating-axis stage on hulls of growing size, beside box-shaped hulls (8
 vertices) as the baseline.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -38,6 +39,7 @@ from rbgen.shapes import Box, ConvexHull, Plane, ShapeTable
 
 #: the production path and the baseline it is compared with
 PATHS = ("boxes", "hulls")
+
 
 def grid_pairs(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """(a, b) with a < b for every pair of overlapping AABBs (numpy uniform grid).
@@ -67,8 +69,11 @@ def grid_pairs(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
                 i = np.repeat(np.arange(n), counts)
                 starts = np.repeat(lo - np.cumsum(counts) + counts, counts)
                 j = order[starts + np.arange(len(i))]
-                keep = ((i < j) & np.all(lower[i] <= upper[j], axis=1)
-                        & np.all(lower[j] <= upper[i], axis=1))
+                keep = (
+                    (i < j)
+                    & np.all(lower[i] <= upper[j], axis=1)
+                    & np.all(lower[j] <= upper[i], axis=1)
+                )
                 found.append(np.column_stack([i[keep], j[keep]]))
     pairs = np.unique(np.concatenate(found), axis=0)
     return pairs
@@ -140,9 +145,11 @@ def run(runtime: Runtime, scene, repeat: int, margin: float, placement_tile=None
     result = manifolds.get()[: int(manifold_count.get()[0])]
     assert overflow.get()[0] == 0
     return {
-        "pairs": len(pairs), "manifolds": len(result),
+        "pairs": len(pairs),
+        "manifolds": len(result),
         "points": int(result["point_count"].sum()),
-        "total_ms": 1e3 * float(np.median(walls)), "launches": launches,
+        "total_ms": 1e3 * float(np.median(walls)),
+        "launches": launches,
         "stages": {k: float(np.median([s[k] for s in stages])) for k in stages[0]},
     }
 
@@ -156,17 +163,21 @@ def hull_sizes(runtime: Runtime, repeat: int) -> None:
     import trimesh
 
     rng = np.random.default_rng(1)
+
     def icosphere(subdivisions):
         return lambda k: ConvexHull.from_trimesh(trimesh.creation.icosphere(subdivisions))
 
-    makers = [("box as hull (baseline)",
-               lambda k: cuboid(rng.uniform(0.4, 0.8, 3), "hulls"), 4000),
-              ("random 16 points", lambda k: ConvexHull(rng.normal(size=(16, 3))), 4000),
-              ("icosphere(1)", icosphere(1), 500),
-              ("icosphere(2)", icosphere(2), 100)]
+    makers = [
+        ("box as hull (baseline)", lambda k: cuboid(rng.uniform(0.4, 0.8, 3), "hulls"), 4000),
+        ("random 16 points", lambda k: ConvexHull(rng.normal(size=(16, 3))), 4000),
+        ("icosphere(1)", icosphere(1), 500),
+        ("icosphere(2)", icosphere(2), 100),
+    ]
     q = runtime.queue
-    print(f"{'hulls':>24} {'V':>4} {'E':>4} {'pairs':>6} {'touch':>6} {'sat ms':>8} "
-          f"{'us/pair':>8} {'x baseline':>10}")
+    print(
+        f"{'hulls':>24} {'V':>4} {'E':>4} {'pairs':>6} {'touch':>6} {'sat ms':>8} "
+        f"{'us/pair':>8} {'x baseline':>10}"
+    )
     baseline = None
     for label, make, n in makers:
         table = ShapeTable()
@@ -184,25 +195,34 @@ def hull_sizes(runtime: Runtime, repeat: int) -> None:
         pairs = layouts.PAIR.zeros(n)
         pairs["a"], pairs["b"] = np.arange(0, 2 * n, 2), np.arange(1, 2 * n, 2)
         packed = table.pack_all().to_device(q)
-        args = (cla.to_device(q, bodies), packed, cla.to_device(q, pairs),
-                cla.to_device(q, np.array([n], np.uint32)),
-                cla.empty(q, n, layouts.CONTACT_MANIFOLD.dtype), cla.zeros(q, 1, np.uint32),
-                cla.zeros(q, 1, np.uint32), 0.0)
+        args = (
+            cla.to_device(q, bodies),
+            packed,
+            cla.to_device(q, pairs),
+            cla.to_device(q, np.array([n], np.uint32)),
+            cla.empty(q, n, layouts.CONTACT_MANIFOLD.dtype),
+            cla.zeros(q, 1, np.uint32),
+            cla.zeros(q, 1, np.uint32),
+            0.0,
+        )
         narrowphase = Narrowphase(runtime, table)
         narrowphase.enqueue(*args)
         samples = []
         for _ in range(repeat):
-            cl.enqueue_fill_buffer(q, narrowphase.sat_cache.data, np.uint32(0), 0,
-                                   narrowphase.sat_cache.nbytes)
+            cl.enqueue_fill_buffer(
+                q, narrowphase.sat_cache.data, np.uint32(0), 0, narrowphase.sat_cache.nbytes
+            )
             events = narrowphase.enqueue(*args)
             q.finish()
             samples.append(event_ms(events["sat_hull_hull"]))
         per_pair = 1e3 * float(np.median(samples)) / n
         baseline = baseline or per_pair
         c = table.shapes[ids[0]].cooked()
-        print(f"{label:>24} {len(c.vertices):>4} {len(c.edges):>4} {n:>6} "
-              f"{int(args[5].get()[0]):>6} {float(np.median(samples)):>8.2f} {per_pair:>8.3f} "
-              f"{per_pair / baseline:>10.2f}")
+        print(
+            f"{label:>24} {len(c.vertices):>4} {len(c.edges):>4} {n:>6} "
+            f"{int(args[5].get()[0]):>6} {float(np.median(samples)):>8.2f} {per_pair:>8.3f} "
+            f"{per_pair / baseline:>10.2f}"
+        )
 
 
 def main(argv=None):
@@ -210,24 +230,40 @@ def main(argv=None):
     parser.add_argument("--device", default=None, help="device choice for rbgen.Runtime")
     parser.add_argument("--sizes", type=int, nargs="+", default=[27_000, 111_375])
     parser.add_argument("--ground", choices=("box", "plane"), default="box")
-    parser.add_argument("--placement-tile", type=int, nargs="+", default=[None],
-                        help="pairs per scatter_manifolds work group (default: per device)")
+    parser.add_argument(
+        "--placement-tile",
+        type=int,
+        nargs="+",
+        default=[None],
+        help="pairs per scatter_manifolds work group (default: per device)",
+    )
     parser.add_argument("--sink", type=float, default=0.01)
     parser.add_argument("--margin", type=float, default=0.0)
     parser.add_argument("--repeat", type=int, default=10)
-    parser.add_argument("--hulls", action="store_true",
-                        help="also time the hull-hull test by hull size")
+    parser.add_argument(
+        "--hulls", action="store_true", help="also time the hull-hull test by hull size"
+    )
     args = parser.parse_args(argv)
     runtime = Runtime(args.device, profiling=True)
     print(f"# {runtime.traits.describe()}")
-    print(f"# BoxBox, ground={args.ground}, layers sunk by {args.sink} each, margin={args.margin}; "
-          f"warm median of {args.repeat}; stage times are kernel times (ms); baseline: the same "
-          f"boxes as ConvexHulls (generic separating-axis test)")
+    print(
+        f"# BoxBox, ground={args.ground}, layers sunk by {args.sink} each, margin={args.margin}; "
+        f"warm median of {args.repeat}; stage times are kernel times (ms); baseline: the same "
+        f"boxes as ConvexHulls (generic separating-axis test)"
+    )
     rows = []
     for count in args.sizes:
         for tile in args.placement_tile:
-            measured = {path: run(runtime, build(count, args.ground, args.sink, args.margin, path),
-                                  args.repeat, args.margin, tile) for path in PATHS}
+            measured = {
+                path: run(
+                    runtime,
+                    build(count, args.ground, args.sink, args.margin, path),
+                    args.repeat,
+                    args.margin,
+                    tile,
+                )
+                for path in PATHS
+            }
             for path in PATHS:
                 row = measured[path]
                 row["path"] = path if tile is None else f"{path}/{tile}"
@@ -235,13 +271,17 @@ def main(argv=None):
                 row["speedup"] = measured["hulls"]["total_ms"] / row["total_ms"]
                 rows.append(row)
     stage_names = list(dict.fromkeys(k for r in rows for k in r["stages"]))
-    header = (f"{'boxes':>7} {'path':>12} {'pairs':>7} {'manif':>7} {'points':>7} {'total':>8} "
-              f"{'vs hulls':>8} {'launch':>6} " + " ".join(f"{s[:14]:>14}" for s in stage_names))
+    header = (
+        f"{'boxes':>7} {'path':>12} {'pairs':>7} {'manif':>7} {'points':>7} {'total':>8} "
+        f"{'vs hulls':>8} {'launch':>6} " + " ".join(f"{s[:14]:>14}" for s in stage_names)
+    )
     print(header)
     for r in rows:
-        print(f"{r['count']:>7} {r['path']:>12} {r['pairs']:>7} {r['manifolds']:>7} "
-              f"{r['points']:>7} {r['total_ms']:>8.3f} {r['speedup']:>7.2f}x {r['launches']:>6} "
-              + " ".join(f"{r['stages'].get(s, float('nan')):>14.3f}" for s in stage_names))
+        print(
+            f"{r['count']:>7} {r['path']:>12} {r['pairs']:>7} {r['manifolds']:>7} "
+            f"{r['points']:>7} {r['total_ms']:>8.3f} {r['speedup']:>7.2f}x {r['launches']:>6} "
+            + " ".join(f"{r['stages'].get(s, float('nan')):>14.3f}" for s in stage_names)
+        )
     if args.hulls:
         hull_sizes(runtime, max(1, min(args.repeat, 3)))
 

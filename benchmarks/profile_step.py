@@ -2,6 +2,7 @@
 
 usage: python benchmarks/profile_step.py [--device D] [--scene boxbox] [--n 1000] [--steps 30]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -35,8 +36,11 @@ def main() -> None:
     world.runtime.queue.finish()
     total = (time.perf_counter() - t0) / args.steps
     per_step = (world.runtime.counters["launches"] - launches) / args.steps
-    print(f"{args.scene} n={args.n} on {world.runtime.traits.device_name}: host {1e3 * host:.2f} ms/step "
-          f"(profiled), with drain {1e3 * total:.2f} ms/step, {per_step:.0f} launches/step")
+    print(
+        f"{args.scene} n={args.n} on {world.runtime.traits.device_name}: "
+        f"host {1e3 * host:.2f} ms/step "
+        f"(profiled), with drain {1e3 * total:.2f} ms/step, {per_step:.0f} launches/step"
+    )
     pstats.Stats(profile).sort_stats("tottime").print_stats(args.top)
 
 

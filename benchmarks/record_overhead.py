@@ -22,6 +22,7 @@ JSON (rbgen.bench's form; each recorder's baseline is ``copy`` at the same K)
 and a Markdown table under ``--out``. A format whose needs are missing (an OpenGL
 context, imageio-ffmpeg for MP4, usd-core for USD) is left out, with the reason.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,12 +42,14 @@ def copy_hook(every: int):
     def on_step(world, step):
         if step % every == 0:
             frame_of(world)
+
     return on_step
 
 
 def measure(n, steps, device, on_step=None) -> dict:
-    return run_scene("boxbox", n, steps, device=device, progress=False, warmup=WARMUP,
-                     on_step=on_step)
+    return run_scene(
+        "boxbox", n, steps, device=device, progress=False, warmup=WARMUP, on_step=on_step
+    )
 
 
 def main(argv=None) -> int:
@@ -55,13 +58,15 @@ def main(argv=None) -> int:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 8000])
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--every", type=int, nargs="+", default=[2, 10])
-    parser.add_argument("--formats", nargs="+", default=["usd", "mp4"],
-                        choices=["usd", "mp4", "gif"])
+    parser.add_argument(
+        "--formats", nargs="+", default=["usd", "mp4"], choices=["usd", "mp4", "gif"]
+    )
     parser.add_argument("--out", default=str(bench.RESULTS_DIR))
     args = parser.parse_args(argv)
     gl, left_out = None, {}
     try:
         from rbgen.render.renderer import gl_context
+
         gl = gl_context().info["GL_RENDERER"]
     except Exception as err:  # noqa: BLE001 - reported, the rendered formats left out
         left_out.update({f: str(err) for f in ("mp4", "gif")})
@@ -71,40 +76,72 @@ def main(argv=None) -> int:
         except ImportError as err:
             left_out.setdefault(kind, str(err))
     formats = [f for f in args.formats if f not in left_out]
-    print(f"BoxBox, {args.steps} steps after {WARMUP} warm-up; OpenGL: {gl}; recording "
-          f"{formats}" + "".join(f"; {f} left out: {left_out[f]}" for f in args.formats
-                                if f in left_out))
+    print(
+        f"BoxBox, {args.steps} steps after {WARMUP} warm-up; OpenGL: {gl}; recording "
+        f"{formats}"
+        + "".join(f"; {f} left out: {left_out[f]}" for f in args.formats if f in left_out)
+    )
     results = []
     with tempfile.TemporaryDirectory() as scratch:
         for n in args.sizes:
             none = measure(n, args.steps, args.device)
-            print(f"{n:>7,} boxes, no recording: {none['ms_per_step']:.3f} ms/step "
-                  f"({none['device']})", flush=True)
+            print(
+                f"{n:>7,} boxes, no recording: {none['ms_per_step']:.3f} ms/step "
+                f"({none['device']})",
+                flush=True,
+            )
             for every in args.every:
                 copy = measure(n, args.steps, args.device, copy_hook(every))
-                base = {"name": f"transform copy every {every}", "ms": copy["ms_per_step"],
-                        "ms_spread": _spread(copy)}
-                line = (f"  every {every:>3}: copy {copy['ms_per_step']:.3f} ms/step "
-                        f"(+{_per_frame(copy, none, every):.3f} ms a frame)")
+                base = {
+                    "name": f"transform copy every {every}",
+                    "ms": copy["ms_per_step"],
+                    "ms_spread": _spread(copy),
+                }
+                line = (
+                    f"  every {every:>3}: copy {copy['ms_per_step']:.3f} ms/step "
+                    f"(+{_per_frame(copy, none, every):.3f} ms a frame)"
+                )
                 for kind in formats:
-                    recorder = Recorder(os.path.join(scratch, f"r.{kind}"),
-                                        background=kind != "usd")
+                    recorder = Recorder(
+                        os.path.join(scratch, f"r.{kind}"), background=kind != "usd"
+                    )
                     run = measure(n, args.steps, args.device, record_hook([recorder], every))
                     recorder.close()
-                    results.append({"name": f"boxbox {n} {kind} every {every}", "bodies": n,
-                                    "every": every, "recorder": kind,
-                                    "ms": run["ms_per_step"], "ms_spread": _spread(run),
-                                    "ms_no_recording": none["ms_per_step"],
-                                    "ms_per_frame": _per_frame(run, none, every),
-                                    "copy_ms_per_frame": _per_frame(copy, none, every),
-                                    "frames": recorder.frames, "baseline": base})
-                    line += (f"; {kind} {run['ms_per_step']:.3f} ms/step "
-                             f"(+{_per_frame(run, none, every):.3f} ms a frame)")
+                    results.append(
+                        {
+                            "name": f"boxbox {n} {kind} every {every}",
+                            "bodies": n,
+                            "every": every,
+                            "recorder": kind,
+                            "ms": run["ms_per_step"],
+                            "ms_spread": _spread(run),
+                            "ms_no_recording": none["ms_per_step"],
+                            "ms_per_frame": _per_frame(run, none, every),
+                            "copy_ms_per_frame": _per_frame(copy, none, every),
+                            "frames": recorder.frames,
+                            "baseline": base,
+                        }
+                    )
+                    line += (
+                        f"; {kind} {run['ms_per_step']:.3f} ms/step "
+                        f"(+{_per_frame(run, none, every):.3f} ms a frame)"
+                    )
                 print(line, flush=True)
     device = bench.device_record(args.device)
-    record = bench.make_record("benchmarks/record_overhead.py", results, device, {
-        "scene": "boxbox", "steps": args.steps, "warmup": WARMUP, "gl_renderer": gl,
-        "every": args.every, "formats": formats, "left_out": left_out})
+    record = bench.make_record(
+        "benchmarks/record_overhead.py",
+        results,
+        device,
+        {
+            "scene": "boxbox",
+            "steps": args.steps,
+            "warmup": WARMUP,
+            "gl_renderer": gl,
+            "every": args.every,
+            "formats": formats,
+            "left_out": left_out,
+        },
+    )
     print(f"wrote {bench.write_results(record, args.out)}")
     return 0
 

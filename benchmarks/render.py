@@ -12,6 +12,7 @@ the spread is the lowest and highest frame. Baseline, measured in the same
 run: the same frames without the shadow pass. Writes the results as JSON
 (rbgen.bench's form) and a Markdown table under ``--out``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,8 +34,11 @@ def boxbox(n: int):
     side = max(1, round(n ** (1 / 3)))
     scene = boxbox_scene(side, side, side)
     count = len(scene.positions)
-    bodies = Bodies.make([Box(scene.ground_half_extents), Box(scene.half_extents)],
-                         np.r_[0, np.ones(count, int)], static=np.r_[True, np.zeros(count, bool)])
+    bodies = Bodies.make(
+        [Box(scene.ground_half_extents), Box(scene.half_extents)],
+        np.r_[0, np.ones(count, int)],
+        static=np.r_[True, np.zeros(count, bool)],
+    )
     positions = np.vstack([scene.ground_position, scene.positions])
     q = np.tile([0.0, 0.0, 0.0, 1.0], (count + 1, 1))
     return bodies, Frame.make(positions, q, count + 1)
@@ -42,12 +46,20 @@ def boxbox(n: int):
 
 def heap(n: int):
     rng = np.random.default_rng(0)
-    shapes = [Plane((0, 1, 0), 0.0), Sphere(0.5), Box((0.5, 0.4, 0.3)), Capsule(0.3, 0.4),
-              ConvexHull(rng.normal(size=(20, 3)) * 0.5)]
+    shapes = [
+        Plane((0, 1, 0), 0.0),
+        Sphere(0.5),
+        Box((0.5, 0.4, 0.3)),
+        Capsule(0.3, 0.4),
+        ConvexHull(rng.normal(size=(20, 3)) * 0.5),
+    ]
     index = np.r_[0, rng.integers(1, 5, n)]
     extent = 0.6 * n ** (1 / 3) + 2
-    positions = np.c_[rng.uniform(-extent, extent, n + 1), rng.uniform(0.5, extent, n + 1),
-                      rng.uniform(-extent, extent, n + 1)]
+    positions = np.c_[
+        rng.uniform(-extent, extent, n + 1),
+        rng.uniform(0.5, extent, n + 1),
+        rng.uniform(-extent, extent, n + 1),
+    ]
     positions[0] = 0
     q = rng.normal(size=(n + 1, 4))
     q /= np.linalg.norm(q, axis=1)[:, None]
@@ -74,8 +86,10 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     width, height = (int(v) for v in args.size.split("x"))
     gl = gl_context().info
-    print(f"OpenGL: {gl['GL_RENDERER']} ({gl['GL_VERSION']}), {os.cpu_count()} CPUs, "
-          f"{width}x{height}, median of {args.frames} frames; baseline: no shadow pass")
+    print(
+        f"OpenGL: {gl['GL_RENDERER']} ({gl['GL_VERSION']}), {os.cpu_count()} CPUs, "
+        f"{width}x{height}, median of {args.frames} frames; baseline: no shadow pass"
+    )
     shaded, flat = Renderer(width, height), Renderer(width, height, shadows=False)
     results = []
     for n in args.bodies:
@@ -83,18 +97,37 @@ def main(argv=None) -> int:
             bodies, frame = make(n)
             ours = time_frames(shaded, bodies, frame, args.frames)
             base = time_frames(flat, bodies, frame, args.frames)
-            result = {"name": f"{name} {bodies.count - 1}", "bodies": bodies.count - 1,
-                      "ms": statistics.median(ours), "ms_spread": [min(ours), max(ours)],
-                      "baseline": {"name": "no shadow pass", "ms": statistics.median(base),
-                                   "ms_spread": [min(base), max(base)]}}
+            result = {
+                "name": f"{name} {bodies.count - 1}",
+                "bodies": bodies.count - 1,
+                "ms": statistics.median(ours),
+                "ms_spread": [min(ours), max(ours)],
+                "baseline": {
+                    "name": "no shadow pass",
+                    "ms": statistics.median(base),
+                    "ms_spread": [min(base), max(base)],
+                },
+            }
             results.append(result)
-            print(f"{result['name']:>28}: {result['ms']:7.1f} ms/frame "
-                  f"({min(ours):.1f}-{max(ours):.1f}); no shadow pass "
-                  f"{result['baseline']['ms']:.1f}", flush=True)
-    record = bench.make_record("benchmarks/render.py", results, None, {
-        "size": [width, height], "frames": args.frames, "gl_renderer": gl["GL_RENDERER"],
-        "gl_version": gl["GL_VERSION"], "samples": shaded._msaa.color_attachments[0].samples,
-        "llvmpipe_threads": os.environ.get("LP_NUM_THREADS")})
+            print(
+                f"{result['name']:>28}: {result['ms']:7.1f} ms/frame "
+                f"({min(ours):.1f}-{max(ours):.1f}); no shadow pass "
+                f"{result['baseline']['ms']:.1f}",
+                flush=True,
+            )
+    record = bench.make_record(
+        "benchmarks/render.py",
+        results,
+        None,
+        {
+            "size": [width, height],
+            "frames": args.frames,
+            "gl_renderer": gl["GL_RENDERER"],
+            "gl_version": gl["GL_VERSION"],
+            "samples": shaded._msaa.color_attachments[0].samples,
+            "llvmpipe_threads": os.environ.get("LP_NUM_THREADS"),
+        },
+    )
     path = bench.write_results(record, args.out)
     print(f"wrote {path}")
     return 0

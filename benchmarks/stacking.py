@@ -20,6 +20,7 @@ It prints a table (case, target, measured, ms/step, holds) and records JSON unde
 ``--out`` (benchmarks/results by default) in rbgen.bench's format. The baseline to quote
 beside a new solver is the same script on the previous commit, run in the same session.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -61,22 +62,31 @@ def lattice(device, n, options):
     result = settling(start, world.positions[ids])
     top = result["layer_drop"][-1]
     ok = result["displaced"] <= 0.005 * n and top <= 0.02
-    return (f"displaced <= {0.005 * n:.0f}, top drop <= 2 cm",
-            f"displaced {result['displaced']}, top drop {100 * top:.1f} cm", seconds, ok,
-            {"displaced": result["displaced"], "top_drop": top,
-             "layer_drop": result["layer_drop"]})
+    return (
+        f"displaced <= {0.005 * n:.0f}, top drop <= 2 cm",
+        f"displaced {result['displaced']}, top drop {100 * top:.1f} cm",
+        seconds,
+        ok,
+        {"displaced": result["displaced"], "top_drop": top, "layer_drop": result["layer_drop"]},
+    )
 
 
 def pyramid(device, rows, options, limit):
     world = rbgen.World(device, **options)
     _ground(world, rows + 10)
-    ids = world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0,
-                           positions=scenes.pyramid_positions(rows))
+    ids = world.add_bodies(
+        rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=scenes.pyramid_positions(rows)
+    )
     start = world.positions[ids[-1]]
     seconds = _run(world, 600)
     moved = float(np.linalg.norm(world.positions[ids[-1]] - start))
-    return (f"top moves < {100 * limit:.0f} cm", f"top moved {100 * moved:.2f} cm", seconds,
-            moved < limit, {"top_moved": moved})
+    return (
+        f"top moves < {100 * limit:.0f} cm",
+        f"top moved {100 * moved:.2f} cm",
+        seconds,
+        moved < limit,
+        {"top_moved": moved},
+    )
 
 
 def column(device, options, count=30, heavy=None):
@@ -106,16 +116,24 @@ def pile(device, seed, options):
     rng = np.random.default_rng(seed)
     pitch, layers, jitter, tilt = PILES[seed % len(PILES)]
     world = rbgen.World(device, **options)
-    positions = scenes.pile_positions(1000, layers=layers, pitch=pitch, jitter=jitter,
-                                      seed=seed)
+    positions = scenes.pile_positions(1000, layers=layers, pitch=pitch, jitter=jitter, seed=seed)
     _ground(world, 80)
     q = rng.normal(size=(1000, 4)) * [tilt, tilt, tilt, 1]
-    ids = world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions,
-                           orientations=q / np.linalg.norm(q, axis=1)[:, None])
+    ids = world.add_bodies(
+        rbgen.Box((0.5, 0.5, 0.5)),
+        mass=1.0,
+        positions=positions,
+        orientations=q / np.linalg.norm(q, axis=1)[:, None],
+    )
     seconds = _run(world, 300)
     speed = float(np.linalg.norm(world.linear_velocities[ids], axis=1).max())
-    return ("max speed < 0.05 m/s", f"max speed {speed:.3f} m/s", seconds, speed < 0.05,
-            {"max_speed": speed})
+    return (
+        "max speed < 0.05 m/s",
+        f"max speed {speed:.3f} m/s",
+        seconds,
+        speed < 0.05,
+        {"max_speed": speed},
+    )
 
 
 def cases(quick: bool):
@@ -124,8 +142,10 @@ def cases(quick: bool):
     out += [("pyramid_20", lambda d, o: pyramid(d, 20, o, 0.01))]
     if not quick:
         out += [("pyramid_40", lambda d, o: pyramid(d, 40, o, 0.05))]
-    out += [("column_30", lambda d, o: column(d, o)),
-            ("heavy_on_column", lambda d, o: column(d, o, count=10, heavy=100.0))]
+    out += [
+        ("column_30", lambda d, o: column(d, o)),
+        ("heavy_on_column", lambda d, o: column(d, o, count=10, heavy=100.0)),
+    ]
     out += [(f"pile_{s}", lambda d, o, s=s: pile(d, s, o)) for s in ((0,) if quick else (0, 1, 2))]
     return out
 
@@ -145,13 +165,25 @@ def main(argv=None) -> int:
         if args.only and name not in args.only:
             continue
         target, measured, seconds, ok, detail = run(args.device, options)
-        print(f"{name:18} {target:44} {measured:34} {1e3 * seconds:8.2f}  "
-              f"{'yes' if ok else 'NO'}", flush=True)
-        results.append({"name": name, "ms": 1e3 * seconds, "ms_spread": [1e3 * seconds] * 2,
-                        "baseline": None, "target": target, "measured": measured, "holds": ok,
-                        "detail": detail})
-    record = bench.make_record("stacking", results, bench.device_record(args.device),
-                               {"options": options, "dt": DT})
+        print(
+            f"{name:18} {target:44} {measured:34} {1e3 * seconds:8.2f}  {'yes' if ok else 'NO'}",
+            flush=True,
+        )
+        results.append(
+            {
+                "name": name,
+                "ms": 1e3 * seconds,
+                "ms_spread": [1e3 * seconds] * 2,
+                "baseline": None,
+                "target": target,
+                "measured": measured,
+                "holds": ok,
+                "detail": detail,
+            }
+        )
+    record = bench.make_record(
+        "stacking", results, bench.device_record(args.device), {"options": options, "dt": DT}
+    )
     print(f"wrote {bench.write_results(record, args.out)}")
     return 0 if all(r["holds"] for r in results) else 1
 

@@ -1,7 +1,8 @@
 """Boxes dropped in a loose grid onto the ground; prints progress and a summary.
 
-    python examples/box_pile.py [--n 8000] [--steps 300] [--device D]
+python examples/box_pile.py [--n 8000] [--steps 300] [--device D]
 """
+
 from __future__ import annotations
 
 import argparse

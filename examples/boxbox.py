@@ -1,7 +1,8 @@
 """Bullet3's BoxBox lattice (1000, 8000, 27000 or 111375 boxes) settling on the ground.
 
-    python examples/boxbox.py [--n 8000] [--steps 200] [--device D]
+python examples/boxbox.py [--n 8000] [--steps 200] [--device D]
 """
+
 from __future__ import annotations
 
 import argparse

@@ -1,7 +1,8 @@
 """A 2-D pyramid of unit boxes (N rows) standing on the ground; prints how far the top box moved.
 
-    python examples/pyramid.py [--n 20] [--steps 600] [--device D]
+python examples/pyramid.py [--n 20] [--steps 600] [--device D]
 """
+
 from __future__ import annotations
 
 import argparse

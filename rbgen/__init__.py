@@ -2,15 +2,33 @@
 
 See DESIGN.md (shared) and README.md. The user-facing names are re-exported here.
 """
+
+from .compound import Compound
 from .device import DeviceTraits, Runtime, list_devices, select_device
 from .errors import DeviceNotFoundError, KernelBuildError, RbgenError, TemplateParameterError
-from .shapes import Box, Capsule, ConvexHull, Plane, Shape, Sphere
 from .mesh import TriangleMesh, load_mesh
-from .compound import Compound
+from .shapes import Box, Capsule, ConvexHull, Plane, Shape, Sphere
 from .world import World
 
-__all__ = ["Box", "Capsule", "ConvexHull", "DeviceNotFoundError", "DeviceTraits",
-           "KernelBuildError", "Plane", "RbgenError", "Runtime", "Shape", "Sphere",
-           "TemplateParameterError", "World", "list_devices", "select_device"]
+__all__ = [
+    "Box",
+    "Capsule",
+    "Compound",
+    "ConvexHull",
+    "DeviceNotFoundError",
+    "DeviceTraits",
+    "KernelBuildError",
+    "Plane",
+    "RbgenError",
+    "Runtime",
+    "Shape",
+    "Sphere",
+    "TemplateParameterError",
+    "TriangleMesh",
+    "World",
+    "list_devices",
+    "load_mesh",
+    "select_device",
+]
 
 __version__ = "0.1.0"

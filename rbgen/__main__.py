@@ -1,4 +1,5 @@
 """python -m rbgen"""
+
 import sys
 
 from .cli import main

@@ -15,6 +15,7 @@ types have no narrowphase kernel (`supported_shapes`). Orientations
 are normalised; one whose norm is off by more than 1e-3 is normalised with a warning, a
 zero one is refused.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -34,8 +35,9 @@ def supported_shapes() -> tuple[type[Shape], ...]:
     """The registered shape types that have a narrowphase kernel for their pairs with every
     registered type (so a World may mix them freely)."""
     names = shape_type_names()
-    return tuple(t for t in shape_types()
-                 if not any(t.type_name in pair for pair in missing_pairs(names)))
+    return tuple(
+        t for t in shape_types() if not any(t.type_name in pair for pair in missing_pairs(names))
+    )
 
 
 def check_supported(shape: Shape, world_types) -> None:
@@ -43,14 +45,19 @@ def check_supported(shape: Shape, world_types) -> None:
     that is no registered shape type, or whose pairs with them have no kernel."""
     cls = registered_type(shape)
     if cls is None:
-        raise RbgenError(f"shape {type(shape).__name__} has no narrowphase kernels; "
-                         f"supported: {', '.join(c.__name__ for c in supported_shapes())}")
-    missing = [pair for pair in missing_pairs({*world_types, cls.type_name})
-               if cls.type_name in pair]
+        raise RbgenError(
+            f"shape {type(shape).__name__} has no narrowphase kernels; "
+            f"supported: {', '.join(c.__name__ for c in supported_shapes())}"
+        )
+    missing = [
+        pair for pair in missing_pairs({*world_types, cls.type_name}) if cls.type_name in pair
+    ]
     if missing:
         # the narrowphase has kernels for declared pairs only: fail here, not mid-step
-        raise RbgenError(f"shape {type(shape).__name__} has no narrowphase kernel for the "
-                         f"shape-type pairs {missing} of this World")
+        raise RbgenError(
+            f"shape {type(shape).__name__} has no narrowphase kernel for the "
+            f"shape-type pairs {missing} of this World"
+        )
 
 
 class DeviceBodies:
@@ -62,10 +69,10 @@ class DeviceBodies:
         self.count = n
         self.bodies = cla.to_device(queue, host if n else layouts.BODY.zeros(1))
         self.backups = [cla.empty_like(self.bodies) for _ in range(backups)]
-        self.inertia = cla.to_device(queue, inertia_records(inv_inertia if n else
-                                                            np.zeros((1, 3))))
-        self.static = cla.to_device(queue, (host["inv_mass"] == 0).astype(np.uint32)
-                                    if n else np.zeros(1, np.uint32))
+        self.inertia = cla.to_device(queue, inertia_records(inv_inertia if n else np.zeros((1, 3))))
+        self.static = cla.to_device(
+            queue, (host["inv_mass"] == 0).astype(np.uint32) if n else np.zeros(1, np.uint32)
+        )
         #: each body's shape index (host copy: the midphase places compound children by it)
         self.shape_indices = host["shape"].copy()
 
@@ -77,16 +84,17 @@ class BodyStore:
     step in flight); ``read_device``: returns the device's records (after a step).
     """
 
-    def __init__(self, shapes: ShapeTable, finish: Callable[[], None],
-                 read_device: Callable[[], np.ndarray]):
+    def __init__(
+        self, shapes: ShapeTable, finish: Callable[[], None], read_device: Callable[[], np.ndarray]
+    ):
         self.shapes = shapes
         self._finish = finish
         self._read_device = read_device
         self.host = layouts.BODY.zeros(0)
         self.inv_inertia = np.zeros((0, 3), np.float32)
         self.has_dynamic = False
-        self.device_stale = True   # host copy newer than the device
-        self.host_stale = False    # device newer than the host copy
+        self.device_stale = True  # host copy newer than the device
+        self.host_stale = False  # device newer than the host copy
 
     @property
     def count(self) -> int:
@@ -99,44 +107,71 @@ class BodyStore:
             self.host = self._read_device()[: self.count]
             self.host_stale = False
 
-    def add(self, shape: Shape, positions, orientations, masses, friction, restitution,
-            linear_velocities, angular_velocities) -> np.ndarray:
+    def add(
+        self,
+        shape: Shape,
+        positions,
+        orientations,
+        masses,
+        friction,
+        restitution,
+        linear_velocities,
+        angular_velocities,
+    ) -> np.ndarray:
         """Append bodies of one shape (``masses`` None: static); returns their indices."""
         if isinstance(shape, (int, np.integer)):
             # shapes are values, never indices: an index means one World's table
-            raise RbgenError(f"shape must be an rbgen shape object (e.g. rbgen.Box(...)), got "
-                             f"the index {int(shape)}: shape indices belong to one World's "
-                             f"table, while a shape object can be added to any World")
+            raise RbgenError(
+                f"shape must be an rbgen shape object (e.g. rbgen.Box(...)), got "
+                f"the index {int(shape)}: shape indices belong to one World's "
+                f"table, while a shape object can be added to any World"
+            )
         if not isinstance(shape, Shape):
             raise RbgenError(f"shape must be an rbgen shape, got {type(shape).__name__}")
         check_supported(shape, self.shapes.type_names())
         if masses is not None and type(shape).static_only:
-            raise RbgenError(f"a {type(shape).__name__} can only be static: use add_static"
-                             + type(shape).static_only_hint)
+            raise RbgenError(
+                f"a {type(shape).__name__} can only be static: use add_static"
+                + type(shape).static_only_hint
+            )
         n = len(positions)
         first = self.count
         positions = rows(positions, n, 3, "positions", first)
         orientations = unit_quaternions(orientations, n, first)
-        lin = rows(np.zeros((n, 3)) if linear_velocities is None else linear_velocities, n, 3,
-                   "linear_velocities", first)
-        ang = rows(np.zeros((n, 3)) if angular_velocities is None else angular_velocities, n,
-                   3, "angular_velocities", first)
+        lin = rows(
+            np.zeros((n, 3)) if linear_velocities is None else linear_velocities,
+            n,
+            3,
+            "linear_velocities",
+            first,
+        )
+        ang = rows(
+            np.zeros((n, 3)) if angular_velocities is None else angular_velocities,
+            n,
+            3,
+            "angular_velocities",
+            first,
+        )
         friction = per_body(friction, n, "friction")
         restitution = per_body(restitution, n, "restitution")
-        for values, name, ok in ((friction, "friction", friction >= 0),
-                                 (restitution, "restitution",
-                                  (restitution >= 0) & (restitution <= 1))):
+        for values, name, ok in (
+            (friction, "friction", friction >= 0),
+            (restitution, "restitution", (restitution >= 0) & (restitution <= 1)),
+        ):
             bad = np.flatnonzero(~(np.isfinite(values) & ok))
             if len(bad):
-                raise RbgenError(f"body {first + bad[0]}: {name}={values[bad[0]]!r} is out of "
-                                 f"range")
+                raise RbgenError(
+                    f"body {first + bad[0]}: {name}={values[bad[0]]!r} is out of range"
+                )
         records = layouts.BODY.zeros(n)
         inv_inertia = np.zeros((n, 3), np.float32)
         if masses is not None:
             bad = np.flatnonzero(~(np.isfinite(masses) & (masses > 0)))
             if len(bad):
-                raise RbgenError(f"body {first + bad[0]}: mass must be positive and finite "
-                                 f"for a dynamic body, got {masses[bad[0]]!r}")
+                raise RbgenError(
+                    f"body {first + bad[0]}: mass must be positive and finite "
+                    f"for a dynamic body, got {masses[bad[0]]!r}"
+                )
             unit = shape.mass_properties(mass=1.0)
             records["inv_mass"] = 1.0 / masses
             inv_inertia[:] = 1.0 / (masses[:, None] * np.asarray(unit.inertia)[None, :])
@@ -192,14 +227,16 @@ class BodyStore:
 
 # ----------------------------------------------------------------- checks
 
+
 def per_body(value, n, what):
     """A scalar or one value per body, as n floats; a wrong shape is refused, naming it."""
     arr = np.asarray(value, float)
     if arr.ndim == 0:
         return np.full(n, float(arr))
     if arr.shape != (n,):
-        raise RbgenError(f"{what} must be a scalar or one value per body ({n}), got shape "
-                         f"{arr.shape}")
+        raise RbgenError(
+            f"{what} must be a scalar or one value per body ({n}), got shape {arr.shape}"
+        )
     return arr.astype(float)
 
 
@@ -210,8 +247,9 @@ def rows(values, n, lanes, what, first):
         raise RbgenError(f"{what} must have shape ({n}, {lanes}), got {arr.shape}")
     bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
     if len(bad):
-        raise RbgenError(f"body {first + bad[0]}: {what} has a NaN or infinite value "
-                         f"{arr[bad[0]].tolist()}")
+        raise RbgenError(
+            f"body {first + bad[0]}: {what} has a NaN or infinite value {arr[bad[0]].tolist()}"
+        )
     return arr
 
 
@@ -228,8 +266,11 @@ def unit_quaternions(values, n, first):
         raise RbgenError(f"body {first + bad[0]}: orientations has a zero quaternion")
     off = np.flatnonzero(np.abs(norms - 1) > 1e-3)
     if len(off):
-        warnings.warn(f"body {first + off[0]}: orientations not unit (norm "
-                      f"{norms[off[0]]:.4g}); normalised ({len(off)} bodies)", stacklevel=4)
+        warnings.warn(
+            f"body {first + off[0]}: orientations not unit (norm "
+            f"{norms[off[0]]:.4g}); normalised ({len(off)} bodies)",
+            stacklevel=4,
+        )
     return q / norms[:, None]
 
 

@@ -19,6 +19,7 @@ grid (so a flat terrain is split in x and z first), and a node over the sorted r
 [lo, hi) splits it where the highest Morton bit that differs in the range changes (the
 binary radix tree of Karras 2012), or at the middle where the codes are all equal.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -101,15 +102,25 @@ class Bvh:
 def unpack_bounds(bounds: np.ndarray) -> np.ndarray:
     """(n, 3) packed uint32 bounds to (n, 6) ints: lower xyz, upper xyz."""
     b = np.asarray(bounds, np.uint32).astype(np.int64)
-    return np.stack([b[:, 0] & 0xFFFF, b[:, 0] >> 16, b[:, 1] & 0xFFFF,
-                     b[:, 1] >> 16, b[:, 2] & 0xFFFF, b[:, 2] >> 16], axis=1)
+    return np.stack(
+        [
+            b[:, 0] & 0xFFFF,
+            b[:, 0] >> 16,
+            b[:, 1] & 0xFFFF,
+            b[:, 1] >> 16,
+            b[:, 2] & 0xFFFF,
+            b[:, 2] >> 16,
+        ],
+        axis=1,
+    )
 
 
 def pack_bounds(q: np.ndarray) -> np.ndarray:
     """(n, 6) quantized lower xyz, upper xyz to the (n, 3) packed uint32 bounds."""
     q = np.asarray(q, np.uint32)
-    return np.stack([q[:, 0] | q[:, 1] << 16, q[:, 2] | q[:, 3] << 16,
-                     q[:, 4] | q[:, 5] << 16], axis=1).astype(np.uint32)
+    return np.stack(
+        [q[:, 0] | q[:, 1] << 16, q[:, 2] | q[:, 3] << 16, q[:, 4] | q[:, 5] << 16], axis=1
+    ).astype(np.uint32)
 
 
 def quantize_query(bvh: Bvh, lower, upper) -> tuple[np.ndarray, np.ndarray]:
@@ -165,17 +176,18 @@ def build(lower: np.ndarray, upper: np.ndarray, what: str = "BVH") -> Bvh:
     # 4 * QUANTA float32 steps at its coordinates (so that a quantum is at least four
     # float32 steps there, and rounding never moves a box by one), corners in float32
     extent = box_upper - box_lower
-    step = float(np.spacing(np.float32(max(np.abs(box_lower).max(), np.abs(box_upper).max(),
-                                           1.0))))
+    step = float(np.spacing(np.float32(max(np.abs(box_lower).max(), np.abs(box_upper).max(), 1.0))))
     floor = max(float(extent.max()) * 1e-6, 1e-6, 4.0 * QUANTA * step)
     extent = np.maximum(extent, floor)
     quantum = extent / (QUANTA - 4)
     q_lower = (box_lower - 2 * quantum).astype(np.float32)
-    q_lower = np.where(q_lower > box_lower - quantum, np.nextafter(q_lower, np.float32(-np.inf)),
-                       q_lower).astype(np.float64)
+    q_lower = np.where(
+        q_lower > box_lower - quantum, np.nextafter(q_lower, np.float32(-np.inf)), q_lower
+    ).astype(np.float64)
     q_upper = (q_lower + QUANTA * quantum).astype(np.float32)
-    q_upper = np.where(q_upper < box_upper + quantum, np.nextafter(q_upper, np.float32(np.inf)),
-                       q_upper).astype(np.float64)
+    q_upper = np.where(
+        q_upper < box_upper + quantum, np.nextafter(q_upper, np.float32(np.inf)), q_upper
+    ).astype(np.float64)
 
     # leaves in Morton order of their centres (ties: input order, so the build is deterministic)
     codes = morton_codes(0.5 * (lower + upper), box_lower, float(extent.max()))
@@ -202,8 +214,11 @@ def build(lower: np.ndarray, upper: np.ndarray, what: str = "BVH") -> Bvh:
             split[differ] = np.searchsorted(codes, prefix, side="left")
         left, right = at + 1, at + 2 * (split - lo)
         levels.append((at, left, right))
-        lo, hi, at = np.concatenate([lo, split]), np.concatenate([split, hi]), \
-            np.concatenate([left, right])
+        lo, hi, at = (
+            np.concatenate([lo, split]),
+            np.concatenate([split, hi]),
+            np.concatenate([left, right]),
+        )
     leaf_nodes = np.concatenate([a for a, _ in leaves])
     leaf_ranks = np.concatenate([r for _, r in leaves])
     index[leaf_nodes] = leaf_ranks
@@ -211,8 +226,13 @@ def build(lower: np.ndarray, upper: np.ndarray, what: str = "BVH") -> Bvh:
     # quantized boxes: the leaves' rounded outwards by a quantum, then bottom-up unions
     # (exact on integers, so a parent's box holds its children's)
     bvh_quantum = (q_upper - q_lower) / QUANTA
-    q_leaf = np.concatenate([np.floor((lower[order] - q_lower) / bvh_quantum) - 1,
-                             np.ceil((upper[order] - q_lower) / bvh_quantum) + 1], axis=1)
+    q_leaf = np.concatenate(
+        [
+            np.floor((lower[order] - q_lower) / bvh_quantum) - 1,
+            np.ceil((upper[order] - q_lower) / bvh_quantum) + 1,
+        ],
+        axis=1,
+    )
     q = np.empty((2 * n - 1, 6), np.int32)
     q[leaf_nodes] = np.clip(q_leaf, 0, QUANTA).astype(np.int32)[leaf_ranks]
     for parents, left, right in reversed(levels):
@@ -221,5 +241,9 @@ def build(lower: np.ndarray, upper: np.ndarray, what: str = "BVH") -> Bvh:
     nodes = layouts.BVH_NODE.zeros(2 * n - 1)
     nodes["bounds"] = pack_bounds(q)
     nodes["index"] = index
-    return Bvh(nodes=nodes, order=order.astype(np.int64), lower=q_lower.astype(np.float32),
-               upper=q_upper.astype(np.float32))
+    return Bvh(
+        nodes=nodes,
+        order=order.astype(np.int64),
+        lower=q_lower.astype(np.float32),
+        upper=q_upper.astype(np.float32),
+    )

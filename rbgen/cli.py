@@ -1,4 +1,5 @@
 """The ``rbgen`` command: info, demo, run, tune, bench, export."""
+
 from __future__ import annotations
 
 import argparse
@@ -48,8 +49,10 @@ def cmd_info(args) -> int:
             for line in lines:
                 print(f"          {line}")
     if chosen is None:
-        print("no device here compiles a kernel (install the system's PoCL, e.g. Debian's "
-              "pocl-opencl-icd)")
+        print(
+            "no device here compiles a kernel (install the system's PoCL, e.g. Debian's "
+            "pocl-opencl-icd)"
+        )
         return 1
     print("(* = the device rbgen uses by default; set RBGEN_DEVICE or pass --device to change)")
     return 0
@@ -65,9 +68,11 @@ def cmd_export(args) -> int:
         for entry in manifest["files"]:
             names = ", ".join(k["name"] for k in entry["kernels"])
             print(f"  {args.out}/{entry['file']}: {names}")
-        print(f"wrote the {len(manifest['files'])} kernel files this World runs, plan.json, "
-              f"manifest.json and {manifest['header']} to {args.out} (for "
-              f"{world.runtime.traits.device_name}; plan: {world.plan.describe()})")
+        print(
+            f"wrote the {len(manifest['files'])} kernel files this World runs, plan.json, "
+            f"manifest.json and {manifest['header']} to {args.out} (for "
+            f"{world.runtime.traits.device_name}; plan: {world.plan.describe()})"
+        )
         return 0
     runtime = Runtime(args.device)
     overrides = {}
@@ -80,15 +85,20 @@ def cmd_export(args) -> int:
         for s in specs:
             template = s.template
             assert template is not None  # default_specs makes every spec from its template
-            overridden.append(template.spec(**{**s.values, **{k: v for k, v in overrides.items()
-                                                              if k in template.params}}))
+            overridden.append(
+                template.spec(
+                    **{**s.values, **{k: v for k, v in overrides.items() if k in template.params}}
+                )
+            )
         specs = overridden
     manifest = export_kernels(specs, args.out, runtime.traits)
     for entry in manifest["files"]:
         names = ", ".join(k["name"] for k in entry["kernels"])
         print(f"  {args.out}/{entry['file']}: {names}")
-    print(f"wrote {len(manifest['files'])} kernel files, manifest.json and "
-          f"{manifest['header']} to {args.out} (for {runtime.traits.device_name})")
+    print(
+        f"wrote {len(manifest['files'])} kernel files, manifest.json and "
+        f"{manifest['header']} to {args.out} (for {runtime.traits.device_name})"
+    )
     return 0
 
 
@@ -108,15 +118,21 @@ def _world_for_export(scene: str, n: int | None, device):
         exec(compile(Path(scene).read_text(), scene, "exec"), namespace)  # noqa: S102
         build = namespace.get("build")
         if not callable(build):
-            raise RbgenError(f"export --world {scene}: the file defines no build(device) "
-                             f"function returning a World")
+            raise RbgenError(
+                f"export --world {scene}: the file defines no build(device) "
+                f"function returning a World"
+            )
         world = build(device)
         if not isinstance(world, World):
-            raise RbgenError(f"export --world {scene}: build(device) returned "
-                             f"{type(world).__name__}, not an rbgen.World")
+            raise RbgenError(
+                f"export --world {scene}: build(device) returned "
+                f"{type(world).__name__}, not an rbgen.World"
+            )
     else:
-        raise RbgenError(f"export --world: {scene!r} is neither a scene ({', '.join(SCENES)}) "
-                         f"nor a Python file with build(device)")
+        raise RbgenError(
+            f"export --world: {scene!r} is neither a scene ({', '.join(SCENES)}) "
+            f"nor a Python file with build(device)"
+        )
     world.step(1 / 60)
     world.statistics()  # (waits for the step: its kernels are built and run)
     return world
@@ -148,8 +164,11 @@ def cmd_tune(args) -> int:
         tuning.tune_all(runtime, progress=True, quick=args.quick)
     if args.what in ("all", "plan"):
         print("tuning the plan (whole World steps of a standard scene)", file=sys.stderr)
-        entry = tune_plan(runtime, quick=args.quick,
-                          progress=lambda line: print(line, file=sys.stderr, flush=True))
+        entry = tune_plan(
+            runtime,
+            quick=args.quick,
+            progress=lambda line: print(line, file=sys.stderr, flush=True),
+        )
         print(f"plan: {entry['values']} ({entry['scene']})")
     return 0
 
@@ -159,12 +178,14 @@ def cmd_run(args) -> int:
     if demo is None or not hasattr(demo, "run_scene"):
         print("scene simulation needs the World (not available in this build)", file=sys.stderr)
         return 1
-    options = {k: v for k, v in (("solver", args.solver), ("iterations", args.iterations))
-               if v is not None}
+    options = {
+        k: v for k, v in (("solver", args.solver), ("iterations", args.iterations)) if v is not None
+    }
     from .cli_extras import run_scene_recorded
 
-    run_scene_recorded(args, args.scene, args.n, args.steps, device=args.device, progress=True,
-                       **options)
+    run_scene_recorded(
+        args, args.scene, args.n, args.steps, device=args.device, progress=True, **options
+    )
     return 0
 
 
@@ -173,8 +194,15 @@ def cmd_demo(args) -> int:
     if demo is not None and hasattr(demo, "run_scene"):
         from .cli_extras import run_scene_recorded
 
-        run_scene_recorded(args, "box_pile", args.n or 1000, args.steps or 300, demo=True,
-                           device=args.device, progress=True)
+        run_scene_recorded(
+            args,
+            "box_pile",
+            args.n or 1000,
+            args.steps or 300,
+            demo=True,
+            device=args.device,
+            progress=True,
+        )
         return 0
     return integrate_demo(args.n or 100_000, args.steps or 60, args.device)
 
@@ -194,7 +222,9 @@ def integrate_demo(n: int, steps: int, device=None) -> int:
     t0 = time.perf_counter()
     integrator = Integrator(runtime)
     aabbs_stage = WorldAabbs(runtime, ("box",))
-    print(f"kernels ready in {time.perf_counter() - t0:.2f} s (built or loaded from the disk cache)")
+    print(
+        f"kernels ready in {time.perf_counter() - t0:.2f} s (built or loaded from the disk cache)"
+    )
 
     rng = np.random.default_rng(1)
     table = ShapeTable()
@@ -221,16 +251,27 @@ def integrate_demo(n: int, steps: int, device=None) -> int:
     q.finish()
     elapsed = time.perf_counter() - t0
     out, boxes = d_bodies.get(), d_aabbs.get()
-    expected_y = bodies["position"][:, 1] + bodies["linear_velocity"][:, 1] * steps * dt \
+    expected_y = (
+        bodies["position"][:, 1]
+        + bodies["linear_velocity"][:, 1] * steps * dt
         - 9.81 * dt * dt * steps * (steps + 1) / 2
+    )
     drift = np.abs(out["position"][:, 1] - expected_y).max()
     qnorm = np.abs(np.linalg.norm(out["orientation"], axis=1) - 1).max()
-    inside = np.all((boxes["lower"][:, :3] <= out["position"][:, :3])
-                    & (out["position"][:, :3] <= boxes["upper"][:, :3]))
-    print(f"integrated and bounded {n:,} boxes for {steps} steps: "
-          f"{1e3 * elapsed / steps:.3f} ms/step ({runtime.counters['launches'] // steps} launches/step)")
-    print(f"checks: max |y - closed form| = {drift:.2e} m, max | |q| - 1 | = {qnorm:.1e}, "
-          f"every centre inside its AABB: {bool(inside)}, NaNs: {int(np.isnan(out['position']).sum())}")
+    inside = np.all(
+        (boxes["lower"][:, :3] <= out["position"][:, :3])
+        & (out["position"][:, :3] <= boxes["upper"][:, :3])
+    )
+    print(
+        f"integrated and bounded {n:,} boxes for {steps} steps: "
+        f"{1e3 * elapsed / steps:.3f} ms/step "
+        f"({runtime.counters['launches'] // steps} launches/step)"
+    )
+    print(
+        f"checks: max |y - closed form| = {drift:.2e} m, max | |q| - 1 | = {qnorm:.1e}, "
+        f"every centre inside its AABB: {bool(inside)}, "
+        f"NaNs: {int(np.isnan(out['position']).sum())}"
+    )
     return 0 if inside and drift < 1e-2 and qnorm < 1e-5 else 1
 
 
@@ -256,9 +297,13 @@ def main(argv=None) -> int:
     p.add_argument("--n", type=int, default=1000)
     p.add_argument("--steps", type=int, default=300)
     p.add_argument("--device", default=None)
-    p.add_argument("--solver", default=None, choices=("pgs", "jacobi"),
-                   help="contact solver (default pgs: batched Gauss-Seidel; jacobi: mass "
-                        "splitting, no batching, softer tall stacks at equal sweeps)")
+    p.add_argument(
+        "--solver",
+        default=None,
+        choices=("pgs", "jacobi"),
+        help="contact solver (default pgs: batched Gauss-Seidel; jacobi: mass "
+        "splitting, no batching, softer tall stacks at equal sweeps)",
+    )
     p.add_argument("--iterations", type=int, default=None, help="velocity sweeps a step")
     cli_extras.add_record_options(p)
     p.set_defaults(func=cmd_run)
@@ -266,22 +311,30 @@ def main(argv=None) -> int:
     p = sub.add_parser("tune", help="autotune the kernel families and the plan for a device")
     p.add_argument("--device", default=None)
     p.add_argument("--quick", action="store_true", help="fewer sizes and repeats")
-    p.add_argument("--what", default="all", choices=("all", "primitives", "plan"),
-                   help="the primitives' parameters, the plan's (batching, release sweeps, "
-                        "colouring rounds, group counts: whole World steps), or both")
+    p.add_argument(
+        "--what",
+        default="all",
+        choices=("all", "primitives", "plan"),
+        help="the primitives' parameters, the plan's (batching, release sweeps, "
+        "colouring rounds, group counts: whole World steps), or both",
+    )
     p.set_defaults(func=cmd_tune)
 
     cli_extras.add_bench_parser(sub)
 
     p = sub.add_parser("export", help="write .cl kernels, manifest.json and the C header")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--world", default=None,
-                   help="export exactly what this World runs: a scene name (box_pile, boxbox, "
-                        "pyramid; size --n) or a Python file whose build(device) returns a World")
+    p.add_argument(
+        "--world",
+        default=None,
+        help="export exactly what this World runs: a scene name (box_pile, boxbox, "
+        "pyramid; size --n) or a Python file whose build(device) returns a World",
+    )
     p.add_argument("--n", type=int, default=None, help="the --world scene's size")
     p.add_argument("--device", default=None, help="device whose specialisations to export")
-    p.add_argument("--kernel", action="append",
-                   help="template path or substring (repeatable; default: all)")
+    p.add_argument(
+        "--kernel", action="append", help="template path or substring (repeatable; default: all)"
+    )
     p.add_argument("--param", action="append", help="NAME=VALUE override (repeatable)")
     p.set_defaults(func=cmd_export)
 

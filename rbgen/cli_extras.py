@@ -6,6 +6,7 @@ and ``--fps`` on ``rbgen run`` and ``rbgen demo`` (which records a short
 animation unless ``--no-record``), a progress bar on long runs, and
 ``rbgen bench``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,17 +26,31 @@ BAR_DELAY = 1.0
 
 def add_record_options(parser: argparse.ArgumentParser, demo: bool = False) -> None:
     """--record, --record-every, --record-size, --fps (and --no-record for the demo)."""
-    parser.add_argument("--record", action="append", metavar="PATH",
-                        help="write the run to PATH: .png (last frame), .gif, .mp4, .usd "
-                             "(repeatable)" + (f"; default {DEMO_RECORDING}" if demo else ""))
+    parser.add_argument(
+        "--record",
+        action="append",
+        metavar="PATH",
+        help="write the run to PATH: .png (last frame), .gif, .mp4, .usd "
+        "(repeatable)" + (f"; default {DEMO_RECORDING}" if demo else ""),
+    )
     if demo:
         parser.add_argument("--no-record", action="store_true", help="record nothing")
-    parser.add_argument("--record-every", type=int, default=None, metavar="K",
-                        help=f"a frame every K steps (default {DEMO_EVERY if demo else 2})")
-    parser.add_argument("--record-size", default=None, metavar="WxH",
-                        help="image size (default {}x{})".format(*(DEMO_SIZE if demo else (640, 360))))
-    parser.add_argument("--fps", type=float, default=None,
-                        help="frames per second (default: real time, 60 / K)")
+    parser.add_argument(
+        "--record-every",
+        type=int,
+        default=None,
+        metavar="K",
+        help=f"a frame every K steps (default {DEMO_EVERY if demo else 2})",
+    )
+    parser.add_argument(
+        "--record-size",
+        default=None,
+        metavar="WxH",
+        help="image size (default {}x{})".format(*(DEMO_SIZE if demo else (640, 360))),
+    )
+    parser.add_argument(
+        "--fps", type=float, default=None, help="frames per second (default: real time, 60 / K)"
+    )
 
 
 def _size(text: str | None, default) -> tuple[int, int]:
@@ -44,13 +59,13 @@ def _size(text: str | None, default) -> tuple[int, int]:
     try:
         width, height = (int(part) for part in text.lower().split("x"))
     except ValueError:
-        raise RbgenError(f"--record-size must be WIDTHxHEIGHT, e.g. 640x360, got {text!r}") \
-            from None
+        raise RbgenError(
+            f"--record-size must be WIDTHxHEIGHT, e.g. 640x360, got {text!r}"
+        ) from None
     return width, height
 
 
-def run_scene_recorded(args, scene: str, n: int, steps: int, demo: bool = False,
-                       **options) -> dict:
+def run_scene_recorded(args, scene: str, n: int, steps: int, demo: bool = False, **options) -> dict:
     """`rbgen.harness.run_scene` with the recordings and progress bar that ``args`` ask for;
     prints each recording's path. Recorders are made (and their paths checked) before
     anything is simulated."""
@@ -90,17 +105,25 @@ def run_scene_recorded(args, scene: str, n: int, steps: int, demo: bool = False,
 
 def add_bench_parser(sub) -> None:
     """The ``rbgen bench`` subcommand."""
-    p = sub.add_parser("bench", help="time the standard scenes; write JSON and Markdown "
-                                     "under benchmarks/results/")
+    p = sub.add_parser(
+        "bench", help="time the standard scenes; write JSON and Markdown under benchmarks/results/"
+    )
     p.add_argument("--device", default=None)
     p.add_argument("--quick", action="store_true", help="small sizes only")
     p.add_argument("--scene", action="append", help="only this scene (repeatable)")
     p.add_argument("--steps", type=int, default=None, help="timed steps of every scene")
     p.add_argument("--out", default=None, help="results directory (default benchmarks/results)")
-    p.add_argument("--readme", default=None, metavar="README.md",
-                   help="then regenerate the performance table in this README")
-    p.add_argument("--no-run", action="store_true",
-                   help="run nothing; only regenerate --readme's table from the results")
+    p.add_argument(
+        "--readme",
+        default=None,
+        metavar="README.md",
+        help="then regenerate the performance table in this README",
+    )
+    p.add_argument(
+        "--no-run",
+        action="store_true",
+        help="run nothing; only regenerate --readme's table from the results",
+    )
     p.set_defaults(func=cmd_bench)
 
 
@@ -109,8 +132,9 @@ def cmd_bench(args) -> int:
 
     out = Path(args.out) if args.out else bench.RESULTS_DIR
     if not args.no_run:
-        path, record = bench.run(args.device, quick=args.quick, scenes=args.scene,
-                                 steps=args.steps, out_dir=out)
+        path, record = bench.run(
+            args.device, quick=args.quick, scenes=args.scene, steps=args.steps, out_dir=out
+        )
         print(bench.markdown(record))
         print(f"wrote {path} and {path.with_suffix('.md')}")
     elif not args.readme:

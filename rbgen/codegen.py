@@ -17,6 +17,7 @@ default ``~/.cache/rbgen``), so a second process starts without compiling. A
 build error raises `KernelBuildError` with the spec, the compiler log and the
 offending generated lines, numbered.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -52,6 +53,7 @@ def cache_dir() -> Path:
 # --------------------------------------------------------------------------
 # Templates and specs
 
+
 @dataclasses.dataclass(frozen=True)
 class Param:
     """One specialisation parameter of a template.
@@ -74,7 +76,8 @@ class Param:
             text = f"one of {list(self.allowed)}"
         if not ok:
             raise TemplateParameterError(
-                f"{where}: parameter {self.name}={value!r} is not allowed; expected {text}")
+                f"{where}: parameter {self.name}={value!r} is not allowed; expected {text}"
+            )
 
 
 def power_of_two(lo: int = 1, hi: int = 1 << 16) -> Callable[[Any], bool]:
@@ -119,8 +122,9 @@ class Signature:
         self.declared = tuple(args)
         names = [a.name for a in self.declared]
         if len(set(names)) != len(names):
-            raise TemplateParameterError(f"kernel {kernel}: an argument is declared twice "
-                                         f"in {names}")
+            raise TemplateParameterError(
+                f"kernel {kernel}: an argument is declared twice in {names}"
+            )
         self._cache: dict[tuple, tuple[Arg, ...]] = {}
 
     def args(self, values: Mapping[str, Any]) -> tuple[Arg, ...]:
@@ -147,8 +151,11 @@ class Signature:
         for name in names:
             if name not in position:
                 known = [a.name for a in self.declared]
-                why = (f"is not an argument of this specialisation ({spec})" if name in known
-                       else f"is not declared; arguments: {known}")
+                why = (
+                    f"is not an argument of this specialisation ({spec})"
+                    if name in known
+                    else f"is not declared; arguments: {known}"
+                )
                 raise TemplateParameterError(f"kernel {self.kernel}: {name!r} {why}")
         return Binder(self.kernel, len(args), [position[n] for n in names])
 
@@ -159,8 +166,9 @@ class Signature:
         args = self.args(spec.values)
         missing = [a.name for i, a in enumerate(args) if i not in bound]
         if missing:
-            raise TemplateParameterError(f"kernel {self.kernel}: the launcher never sets "
-                                         f"{missing} ({spec})")
+            raise TemplateParameterError(
+                f"kernel {self.kernel}: the launcher never sets {missing} ({spec})"
+            )
 
 
 class Binder:
@@ -185,15 +193,18 @@ class Binder:
 
     def __call__(self, kernel, *values) -> None:
         if len(values) != len(self.positions):
-            raise TypeError(f"kernel {self.kernel_name}: {len(self.positions)} values "
-                            f"expected, got {len(values)}")
+            raise TypeError(
+                f"kernel {self.kernel_name}: {len(self.positions)} values "
+                f"expected, got {len(values)}"
+            )
         if kernel.num_args != self.arg_count:
             raise TemplateParameterError(
                 f"kernel {self.kernel_name} was built with {kernel.num_args} arguments, its "
                 f"declaration has {self.arg_count}: its template does not render the "
-                f"declared signature")
+                f"declared signature"
+            )
         for first, start, count in self._runs:
-            kernel.bind_at(first, *values[start:start + count])
+            kernel.bind_at(first, *values[start : start + count])
 
 
 #: every KernelTemplate by path (filled as modules are imported; export uses it)
@@ -203,12 +214,17 @@ TEMPLATES: dict[str, KernelTemplate] = {}
 class KernelTemplate:
     """A template file plus the parameters that specialise it."""
 
-    def __init__(self, path: str, params: Iterable[Param], doc: str = "",
-                 roles: Mapping[str, str] | None = None,
-                 defaults: Callable[[Any], dict] | None = None,
-                 requires: Callable[[dict], str | None] | None = None,
-                 build_options: Callable[[dict], Iterable[str]] | None = None,
-                 signatures: Iterable[Signature] = ()):
+    def __init__(
+        self,
+        path: str,
+        params: Iterable[Param],
+        doc: str = "",
+        roles: Mapping[str, str] | None = None,
+        defaults: Callable[[Any], dict] | None = None,
+        requires: Callable[[dict], str | None] | None = None,
+        build_options: Callable[[dict], Iterable[str]] | None = None,
+        signatures: Iterable[Signature] = (),
+    ):
         self.path = path
         self.params = {p.name: p for p in params}
         self.doc = doc
@@ -233,8 +249,10 @@ class KernelTemplate:
     def default_spec(self, traits, **overrides: Any) -> KernelSpec:
         """The heuristic specialisation for a device, with optional overrides."""
         if self._defaults is None:
-            raise TemplateParameterError(f"template {self.path} declares no defaults; "
-                                         f"give every parameter: {sorted(self.params)}")
+            raise TemplateParameterError(
+                f"template {self.path} declares no defaults; "
+                f"give every parameter: {sorted(self.params)}"
+            )
         return self.spec(**{**self._defaults(traits), **overrides})
 
     def spec(self, **values: Any) -> KernelSpec:
@@ -242,7 +260,8 @@ class KernelTemplate:
         unknown = sorted(set(values) - set(self.params))
         if unknown:
             raise TemplateParameterError(
-                f"{where}: unknown parameter(s) {unknown}; declared: {sorted(self.params)}")
+                f"{where}: unknown parameter(s) {unknown}; declared: {sorted(self.params)}"
+            )
         missing = sorted(set(self.params) - set(values))
         if missing:
             raise TemplateParameterError(f"{where}: missing parameter(s) {missing}")
@@ -297,8 +316,9 @@ class KernelSpec:
 
 @lru_cache(maxsize=1)
 def _lookup() -> TemplateLookup:
-    return TemplateLookup(directories=[str(TEMPLATE_DIR)], strict_undefined=True,
-                          input_encoding="utf-8")
+    return TemplateLookup(
+        directories=[str(TEMPLATE_DIR)], strict_undefined=True, input_encoding="utf-8"
+    )
 
 
 def _render_globals() -> dict[str, Any]:
@@ -314,8 +334,9 @@ def render(path: str, params: tuple[tuple[str, Any], ...]) -> str:
     """Render a template with parameters; pure and cached."""
     template = _lookup().get_template(path)
     values = dict(params)
-    text = template.render(**_render_globals(), signature=_signature_renderer(path, values),
-                           **values)
+    text = template.render(
+        **_render_globals(), signature=_signature_renderer(path, values), **values
+    )
     return _tidy(text)
 
 
@@ -326,9 +347,12 @@ def _signature_renderer(path: str, values: dict) -> Callable[[str], str]:
 
     def signature(kernel: str) -> str:
         if kernel not in declared:
-            raise TemplateParameterError(f"template {path} declares no signature for kernel "
-                                         f"{kernel!r}; declared: {sorted(declared)}")
+            raise TemplateParameterError(
+                f"template {path} declares no signature for kernel "
+                f"{kernel!r}; declared: {sorted(declared)}"
+            )
         return declared[kernel].render(values)
+
     return signature
 
 
@@ -373,6 +397,7 @@ def template_source_hash(path: str) -> str:
 # --------------------------------------------------------------------------
 # Building and caching programs
 
+
 class ProgramCache:
     """Built programs by (source hash, device fingerprint, options).
 
@@ -394,8 +419,13 @@ class ProgramCache:
         text = "\0".join([source, runtime.traits.fingerprint, *options])
         return hashlib.sha256(text.encode()).hexdigest()[:32]
 
-    def build(self, runtime: Runtime, source: str, options: tuple[str, ...] = (),
-              spec: KernelSpec | None = None) -> cl.Program:
+    def build(
+        self,
+        runtime: Runtime,
+        source: str,
+        options: tuple[str, ...] = (),
+        spec: KernelSpec | None = None,
+    ) -> cl.Program:
         key = self.key(runtime, source, options)
         mem_key = (key, id(runtime.context))
         with self._lock:
@@ -460,8 +490,15 @@ def _build_log(program: cl.Program, runtime: Runtime) -> str:
 
 def _format_build_error(source: str, log: str, spec, options) -> str:
     lines = source.splitlines()
-    bad = sorted({int(m.group(1)) for line in log.splitlines() if "error" in line
-                  for m in [re.search(r":(\d+):\d+:", line)] if m})
+    bad = sorted(
+        {
+            int(m.group(1))
+            for line in log.splitlines()
+            if "error" in line
+            for m in [re.search(r":(\d+):\d+:", line)]
+            if m
+        }
+    )
     shown = []
     for n in bad[:8]:
         lo, hi = max(1, n - 2), min(len(lines), n + 2)
@@ -470,9 +507,11 @@ def _format_build_error(source: str, log: str, spec, options) -> str:
             shown.append(f"{mark}{i:5d} | {lines[i - 1]}")
         shown.append("   ...")
     what = str(spec) if spec is not None else "(raw source)"
-    return (f"OpenCL build failed for {what} with options {list(options)}\n"
-            f"--- compiler log ---\n{log.strip()}\n"
-            f"--- offending generated source ---\n" + ("\n".join(shown) or "(no line numbers in log)"))
+    return (
+        f"OpenCL build failed for {what} with options {list(options)}\n"
+        f"--- compiler log ---\n{log.strip()}\n"
+        f"--- offending generated source ---\n" + ("\n".join(shown) or "(no line numbers in log)")
+    )
 
 
 PROGRAMS = ProgramCache()
@@ -492,7 +531,9 @@ class Compiled:
         if k is None:
             names = kernel_names(self.spec.source)
             if name not in names:
-                raise TemplateParameterError(f"{self.spec} has no kernel {name!r}; kernels: {names}")
+                raise TemplateParameterError(
+                    f"{self.spec} has no kernel {name!r}; kernels: {names}"
+                )
             k = self._kernels[name] = getattr(self.program, name)
         return k
 
@@ -544,8 +585,9 @@ class SpecLog:
 # --------------------------------------------------------------------------
 # Kernel signatures (for the export manifest)
 
-_KERNEL_RE = re.compile(r"__kernel\s+(?:__attribute__\s*\(\(.*?\)\)\s*)*void\s+(\w+)\s*\(([^)]*)\)",
-                        re.S)
+_KERNEL_RE = re.compile(
+    r"__kernel\s+(?:__attribute__\s*\(\(.*?\)\)\s*)*void\s+(\w+)\s*\(([^)]*)\)", re.S
+)
 
 
 def kernel_names(source: str) -> list[str]:

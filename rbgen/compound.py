@@ -18,6 +18,7 @@ step (`rbgen.pipeline.midphase`) and turns the compound's pairs into its childre
 every pair kernel of the children's types serves compounds too; a manifold's sub-feature
 names the child (`layouts.SUB_CHILD_SHIFT`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -33,9 +34,13 @@ CHILD_TYPES = (Sphere, Box, Capsule, ConvexHull)
 
 def _rotation(q) -> np.ndarray:
     x, y, z, w = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _quat_mul(a, b) -> np.ndarray:
@@ -63,8 +68,9 @@ class Compound(Shape):
 
     type_name = "compound"
     type_code = layouts.SHAPE_COMPOUND
-    extents_doc = ("children child_* in CompoundChild, local box vertex_offset/2 in the hull "
-                   "vertices")
+    extents_doc = (
+        "children child_* in CompoundChild, local box vertex_offset/2 in the hull vertices"
+    )
     aabb_template = "shapes/compound.cl.mako"
     composite = True
     table_arrays = {"compound_children": "CompoundChild records of every compound"}
@@ -74,13 +80,16 @@ class Compound(Shape):
         try:
             children = list(children)
         except TypeError:
-            raise RbgenError(f"{self.name}: children must be a list of (shape, position, "
-                             f"orientation) tuples") from None
+            raise RbgenError(
+                f"{self.name}: children must be a list of (shape, position, orientation) tuples"
+            ) from None
         if not children:
             raise RbgenError(f"{self.name}: a compound needs at least one child (got none)")
         if len(children) > layouts.MAX_COMPOUND_CHILDREN:
-            raise RbgenError(f"{self.name}: {len(children)} children; at most "
-                             f"{layouts.MAX_COMPOUND_CHILDREN} (RB_MAX_COMPOUND_CHILDREN)")
+            raise RbgenError(
+                f"{self.name}: {len(children)} children; at most "
+                f"{layouts.MAX_COMPOUND_CHILDREN} (RB_MAX_COMPOUND_CHILDREN)"
+            )
         shapes: list = []
         positions: list = []
         orientations: list = []
@@ -112,8 +121,9 @@ class Compound(Shape):
         self.children = tuple(shapes)
         self.positions = (positions - com) @ axes
         self.orientations = np.array([_quat_mul(inverse, q) for q in orientations])
-        boxes = [child_box(s, p, q) for s, p, q in
-                 zip(self.children, self.positions, self.orientations)]
+        boxes = [
+            child_box(s, p, q) for s, p, q in zip(self.children, self.positions, self.orientations)
+        ]
         self.lower = np.min([b[0] for b in boxes], axis=0)
         self.upper = np.max([b[1] for b in boxes], axis=0)
 
@@ -121,16 +131,25 @@ class Compound(Shape):
         return self.children
 
     def key(self):
-        return ("compound", tuple(child.key() for child in self.children),
-                self.positions.tobytes(), self.orientations.tobytes())
+        return (
+            "compound",
+            tuple(child.key() for child in self.children),
+            self.positions.tobytes(),
+            self.orientations.tobytes(),
+        )
 
     def mass_properties(self, density=None, mass=None):
-        return self._solid(self.volume, tuple(self._unit_inertia), density, mass, self._com,
-                           self._rotation)
+        return self._solid(
+            self.volume, tuple(self._unit_inertia), density, mass, self._com, self._rotation
+        )
 
     def bounding_radius(self) -> float:
-        return float(max(np.linalg.norm(p) + s.bounding_radius()
-                         for s, p in zip(self.children, self.positions)))
+        return float(
+            max(
+                np.linalg.norm(p) + s.bounding_radius()
+                for s, p in zip(self.children, self.positions)
+            )
+        )
 
     def pack(self, record, hull_vertices):
         hull_vertices.extend((self.lower, self.upper))
@@ -145,9 +164,9 @@ class Compound(Shape):
         for i, compound in compounds:
             n = len(compound.children)
             records[i]["child_offset"], records[i]["child_count"] = at, n
-            out["position"][at:at + n, :3] = compound.positions
-            out["orientation"][at:at + n] = compound.orientations
-            out["shape"][at:at + n] = [table.index_of(c) for c in compound.children]
+            out["position"][at : at + n, :3] = compound.positions
+            out["orientation"][at : at + n] = compound.orientations
+            out["shape"][at : at + n] = [table.index_of(c) for c in compound.children]
             at += n
         return {"compound_children": out}
 
@@ -157,19 +176,25 @@ def _child(k: int, child, name: str):
     if isinstance(child, Shape):
         child = (child, (0.0, 0.0, 0.0))
     if not isinstance(child, (tuple, list)) or len(child) not in (2, 3):
-        raise RbgenError(f"{name}: child {k} must be (shape, position) or (shape, position, "
-                         f"orientation), got {child!r}")
+        raise RbgenError(
+            f"{name}: child {k} must be (shape, position) or (shape, position, "
+            f"orientation), got {child!r}"
+        )
     shape, position = child[0], child[1]
     orientation = child[2] if len(child) == 3 and child[2] is not None else (0, 0, 0, 1)
     if not isinstance(shape, CHILD_TYPES):
         what = type(shape).__name__
-        raise RbgenError(f"{name}: child {k} is a {what}; a compound's children must be convex "
-                         f"shapes ({', '.join(c.__name__ for c in CHILD_TYPES)})")
+        raise RbgenError(
+            f"{name}: child {k} is a {what}; a compound's children must be convex "
+            f"shapes ({', '.join(c.__name__ for c in CHILD_TYPES)})"
+        )
     p = np.asarray(position, np.float64).reshape(-1)
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         raise RbgenError(f"{name}: child {k} position must be 3 finite numbers, got {position!r}")
     q = np.asarray(orientation, np.float64).reshape(-1)
     if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-6:
-        raise RbgenError(f"{name}: child {k} orientation must be a non-zero quaternion "
-                         f"(x, y, z, w), got {orientation!r}")
+        raise RbgenError(
+            f"{name}: child {k} orientation must be a non-zero quaternion "
+            f"(x, y, z, w), got {orientation!r}"
+        )
     return shape, p, q / np.linalg.norm(q)

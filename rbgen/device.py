@@ -12,6 +12,7 @@ an index ``"P:D"`` (platform, device) or a case-insensitive substring of
 `DeviceNotFoundError` listing what is available. The default passes over
 devices that cannot compile a kernel (`build_failure`), with a warning.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -74,8 +75,11 @@ class DeviceTraits:
         Readable prefix plus a short hash of every field, so two drivers of the
         same device never share cached binaries or tuning results.
         """
-        text = "|".join(str(getattr(self, f.name)) for f in dataclasses.fields(self)
-                        if f.metadata.get("fingerprint", True))
+        text = "|".join(
+            str(getattr(self, f.name))
+            for f in dataclasses.fields(self)
+            if f.metadata.get("fingerprint", True)
+        )
         digest = hashlib.sha256(text.encode()).hexdigest()[:12]
         slug = "".join(c if c.isalnum() else "-" for c in self.device_name.lower())
         slug = "-".join(part for part in slug.split("-") if part)[:40]
@@ -100,10 +104,12 @@ class DeviceTraits:
         )
 
     def describe(self) -> str:
-        return (f"{self.device_name} [{self.platform_name}] {self.kind.upper()}, "
-                f"{self.compute_units} CUs, wavefront {self.wavefront}, "
-                f"local mem {self.local_mem_size // 1024} KiB, "
-                f"max work-group {self.max_work_group_size}, driver {self.driver_version}")
+        return (
+            f"{self.device_name} [{self.platform_name}] {self.kind.upper()}, "
+            f"{self.compute_units} CUs, wavefront {self.wavefront}, "
+            f"local mem {self.local_mem_size // 1024} KiB, "
+            f"max work-group {self.max_work_group_size}, driver {self.driver_version}"
+        )
 
 
 def _wavefront_width(device: cl.Device, vendor: str, is_gpu: bool) -> int:
@@ -172,8 +178,10 @@ def build_failure(device: cl.Device) -> str | None:
             _build_failures[key] = None
         except cl.Error as err:
             lines = [line.strip() for line in str(err).splitlines()]
-            reason = next((line for line in lines if "error" in line.lower() and line != lines[0]),
-                          lines[-1] if lines else type(err).__name__)
+            reason = next(
+                (line for line in lines if "error" in line.lower() and line != lines[0]),
+                lines[-1] if lines else type(err).__name__,
+            )
             _build_failures[key] = reason
     return _build_failures[key]
 
@@ -189,21 +197,27 @@ def default_device() -> cl.Device:
     entries = list_devices()
     if not entries:
         raise DeviceNotFoundError(
-            "no OpenCL device found; install pocl-binary-distribution for a CPU device")
+            "no OpenCL device found; install pocl-binary-distribution for a CPU device"
+        )
     usable = []
     for entry in entries:
         reason = build_failure(entry.device)
         if reason is None:
             usable.append(entry)
         else:
-            warnings.warn(f"OpenCL device {entry.index} ({entry.label}) cannot compile a kernel "
-                          f"({reason}); not used by default", RuntimeWarning, stacklevel=2)
+            warnings.warn(
+                f"OpenCL device {entry.index} ({entry.label}) cannot compile a kernel "
+                f"({reason}); not used by default",
+                RuntimeWarning,
+                stacklevel=2,
+            )
     if not usable:
         listing = "\n".join(f"  {e.index}  {e.label}: {build_failure(e.device)}" for e in entries)
         raise DeviceNotFoundError(
             f"no OpenCL device here compiles a kernel:\n{listing}\n(on a CPU newer than the "
             f"PoCL bundled with pyopencl, install the system's PoCL, e.g. Debian's "
-            f"pocl-opencl-icd)")
+            f"pocl-opencl-icd)"
+        )
     for entry in usable:
         if entry.device.type & cl.device_type.GPU:
             return entry.device
@@ -234,7 +248,8 @@ def match_devices(choice: str) -> list[cl.Device]:
     if not hits:
         listing = "\n".join(f"  {e.index}  {e.label}" for e in entries) or "  (none)"
         raise DeviceNotFoundError(
-            f"device {choice!r} matches no OpenCL device; available:\n{listing}")
+            f"device {choice!r} matches no OpenCL device; available:\n{listing}"
+        )
     return hits
 
 
@@ -250,8 +265,10 @@ class Runtime:
         self.device = select_device(device)
         self.traits = DeviceTraits.of(self.device)
         self.context = cl.Context([self.device])
-        props = cast(cl.command_queue_properties,
-                     cl.command_queue_properties.PROFILING_ENABLE if profiling else 0)
+        props = cast(
+            cl.command_queue_properties,
+            cl.command_queue_properties.PROFILING_ENABLE if profiling else 0,
+        )
         self.queue = cl.CommandQueue(self.context, self.device, properties=props)
         self.profiling = profiling
         #: launches and blocking reads issued through `launch` and `read`;
@@ -260,13 +277,18 @@ class Runtime:
         #: active spec logs (`rbgen.codegen.SpecLog`): every compile_spec adds to each
         self.spec_logs: list[dict] = []
 
-    def launch(self, kernel: cl.Kernel, global_size: int, local_size: int | None,
-               wait_for=None) -> cl.Event:
+    def launch(
+        self, kernel: cl.Kernel, global_size: int, local_size: int | None, wait_for=None
+    ) -> cl.Event:
         """Enqueue a 1-D kernel whose arguments are already set, and count it."""
         self.counters["launches"] += 1
-        return cl.enqueue_nd_range_kernel(self.queue, kernel, (int(global_size),),
-                                          None if local_size is None else (int(local_size),),
-                                          wait_for=wait_for)
+        return cl.enqueue_nd_range_kernel(
+            self.queue,
+            kernel,
+            (int(global_size),),
+            None if local_size is None else (int(local_size),),
+            wait_for=wait_for,
+        )
 
     def has_extension(self, name: str) -> bool:
         """Whether the device lists the OpenCL extension ``name`` (a whole token of its
@@ -285,6 +307,7 @@ class Runtime:
         """The `rbgen.launch.BoundKernel` of ``kernel``: its argument cache, shared by every
         caller of that kernel object (arguments are set only when they change)."""
         from .launch import bound
+
         return bound(self, kernel)
 
     @cached_property
@@ -292,8 +315,9 @@ class Runtime:
         """A second queue with profiling on (for timing with events)."""
         if self.profiling:
             return self.queue
-        return cl.CommandQueue(self.context, self.device,
-                               properties=cl.command_queue_properties.PROFILING_ENABLE)
+        return cl.CommandQueue(
+            self.context, self.device, properties=cl.command_queue_properties.PROFILING_ENABLE
+        )
 
     def __repr__(self) -> str:
         return f"Runtime({self.traits.describe()})"

@@ -17,6 +17,7 @@ its plan, exactly what it compiled):
 A C++ host reads the manifest, builds the ``.cl`` with ``clBuildProgram`` and
 sets arguments in the listed order using the structs of the header.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -68,9 +69,13 @@ def _local_sizes(source: str) -> dict[str, int]:
     return {m.group(2): int(m.group(1)) for m in pattern.finditer(source)}
 
 
-def export_kernels(specs: Iterable, out_dir: str | Path,
-                   traits: DeviceTraits | None = None,
-                   build_options: Iterable[str] = (), plan=None) -> dict:
+def export_kernels(
+    specs: Iterable,
+    out_dir: str | Path,
+    traits: DeviceTraits | None = None,
+    build_options: Iterable[str] = (),
+    plan=None,
+) -> dict:
     """Write the specs' sources, the layouts header and the manifest; return the manifest.
 
     ``specs``: `KernelSpec`s, or (spec, build options) pairs as a World compiled them
@@ -89,38 +94,48 @@ def export_kernels(specs: Iterable, out_dir: str | Path,
         if not isinstance(spec, KernelSpec):
             raise RbgenError(f"export: expected KernelSpec, got {type(spec).__name__}")
         if options is None:
-            options = (*spec.build_options,
-                       *(o for o in build_options if o not in spec.build_options))
+            options = (
+                *spec.build_options,
+                *(o for o in build_options if o not in spec.build_options),
+            )
         source = spec.source
         fname = _file_name(spec, tuple(options), taken)
         (out / fname).write_text(source)
         roles = spec.template.roles if spec.template is not None else {}
         local = _local_sizes(source)
-        entries.append({
-            "file": fname,
-            "template": spec.path,
-            "params": {k: _json_value(v) for k, v in spec.params},
-            "build_options": list(options),
-            "source_sha256": hashlib.sha256(source.encode()).hexdigest(),
-            "kernels": [
-                {"name": name, "args": args, "local_size": local.get(name)}
-                for name, args in kernel_signatures(source, roles).items()
-            ],
-        })
+        entries.append(
+            {
+                "file": fname,
+                "template": spec.path,
+                "params": {k: _json_value(v) for k, v in spec.params},
+                "build_options": list(options),
+                "source_sha256": hashlib.sha256(source.encode()).hexdigest(),
+                "kernels": [
+                    {"name": name, "args": args, "local_size": local.get(name)}
+                    for name, args in kernel_signatures(source, roles).items()
+                ],
+            }
+        )
     manifest = {
         "manifest_version": MANIFEST_VERSION,
         "rbgen_version": __version__,
         "header": HEADER_NAME,
-        "device": None if traits is None else {
+        "device": None
+        if traits is None
+        else {
             "fingerprint": traits.fingerprint,
             "name": traits.device_name,
             "platform": traits.platform_name,
             "driver_version": traits.driver_version,
             "wavefront": traits.wavefront,
         },
-        "structs": {layout.name: {"size": layout.itemsize,
-                                  "fields": {f.name: layout.offset(f.name) for f in layout.fields}}
-                    for layout in layouts.all_layouts()},
+        "structs": {
+            layout.name: {
+                "size": layout.itemsize,
+                "fields": {f.name: layout.offset(f.name) for f in layout.fields},
+            }
+            for layout in layouts.all_layouts()
+        },
         "files": entries,
     }
     if plan is not None:
@@ -136,8 +151,10 @@ def export_world(world, out_dir: str | Path) -> dict:
     The World must have stepped once (its kernels are built at its first step)."""
     specs = world.kernel_specs()
     if not specs:
-        raise RbgenError("export: the World has compiled no kernels yet; step it once first "
-                         "(kernels are built for its scene at the first step)")
+        raise RbgenError(
+            "export: the World has compiled no kernels yet; step it once first "
+            "(kernels are built for its scene at the first step)"
+        )
     return export_kernels(specs, out_dir, world.runtime.traits, plan=world.plan)
 
 
@@ -152,7 +169,9 @@ def default_specs(traits: DeviceTraits, names: Iterable[str] | None = None) -> l
         for name in names:
             hits = [t for p, t in sorted(registry.items()) if p == name or name in p]
             if not hits:
-                raise RbgenError(f"export: no template matches {name!r}; templates: {sorted(registry)}")
+                raise RbgenError(
+                    f"export: no template matches {name!r}; templates: {sorted(registry)}"
+                )
             chosen += [t for t in hits if t not in chosen]
     else:
         chosen = [t for _, t in sorted(registry.items())]

@@ -11,6 +11,7 @@ kernel wrote, the constraint history is rewound, and the steps are enqueued agai
 no pair or contact is ever dropped. A persistent launch that gave up asks the World for
 a new plan without persistent launches (`Replan`).
 """
+
 from __future__ import annotations
 
 from typing import cast
@@ -52,7 +53,7 @@ class StepGuard:
         self.runtime = runtime
         self.pipeline = None
         self.in_flight: list[_InFlight] = []
-        self.serial = 0          # steps enqueued, picks the backup slot
+        self.serial = 0  # steps enqueued, picks the backup slot
         #: steps redone because a buffer overflowed (each grew the buffer)
         self.overflows = 0
         self._pinned: dict = {}  # slot -> (pinned buffer, mapped uint32 words)
@@ -88,19 +89,26 @@ class StepGuard:
         if pinned is None:
             buffer = cl.Buffer(self.runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 4 * self.words)
             flags = cast(cl.map_flags, cl.map_flags.READ | cl.map_flags.WRITE)
-            host, _ = cl.enqueue_map_buffer(queue, buffer, flags, 0, (self.words,),
-                                            np.dtype(np.uint32))
+            host, _ = cl.enqueue_map_buffer(
+                queue, buffer, flags, 0, (self.words,), np.dtype(np.uint32)
+            )
             pinned = self._pinned[slot] = (buffer, host)
         host = pinned[1]
-        self.in_flight.append(_InFlight(dt, slot, host, cl.enqueue_copy(
-            queue, host, buffer_of(self.report), is_blocking=False)))
+        self.in_flight.append(
+            _InFlight(
+                dt,
+                slot,
+                host,
+                cl.enqueue_copy(queue, host, buffer_of(self.report), is_blocking=False),
+            )
+        )
 
     def problems(self, entry: _InFlight) -> dict:
         """The failing stages of a step and what each reported."""
         entry.copied.wait()
         found = {}
         for stage, offset in self._layout:
-            problem = stage.problem(entry.host[offset:offset + stage.report_words])
+            problem = stage.problem(entry.host[offset : offset + stage.report_words])
             if problem is not None:
                 found[stage] = problem
         return found
@@ -122,7 +130,8 @@ class StepGuard:
             if redone > MAX_REDOS:
                 raise CapacityOverflowError(
                     f"a step still overflowed after {MAX_REDOS} redos with grown buffers "
-                    f"({', '.join(f'{s.name}: {p}' for s, p in problems.items())})")
+                    f"({', '.join(f'{s.name}: {p}' for s, p in problems.items())})"
+                )
             self.runtime.queue.finish()
             redo = [e.dt for e in self.in_flight]
             restore(entry.slot)

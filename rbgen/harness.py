@@ -30,6 +30,7 @@ each block reads the velocities back, which drains the queue; its time is
 left out of both blocks.
 Warm-up steps build and load the kernels.
 """
+
 from __future__ import annotations
 
 import time
@@ -75,8 +76,9 @@ def build_scene(name: str, n: int, device=None, **world_options):
         positions = scene_data.pile_positions(int(n), PILE_LAYERS)
         side = int(np.ceil(np.sqrt(n / min(PILE_LAYERS, int(n)))))
         extent = 1.5 * side / 2 + 10
-        world.add_static(Box((extent, 1, extent)),
-                         position=(1.5 * (side - 1) / 2, -1, 1.5 * (side - 1) / 2))
+        world.add_static(
+            Box((extent, 1, extent)), position=(1.5 * (side - 1) / 2, -1, 1.5 * (side - 1) / 2)
+        )
         ids = world.add_bodies(Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
         return world, ids, 0.0, 0.5
     rows = int(n)
@@ -95,20 +97,34 @@ def terrain_shapes() -> list:
 
     rng = np.random.default_rng(7)
     legs = [(Box((0.04, 0.2, 0.04)), (x * 0.3, -0.2, z * 0.2)) for x in (-1, 1) for z in (-1, 1)]
-    return [Box((0.35, 0.25, 0.3)),
-            ConvexHull(rng.normal(size=(14, 3)) * (0.35, 0.25, 0.3), name="rock"),
-            Compound([(Box((0.4, 0.04, 0.3)), (0, 0.02, 0))] + legs, name="table"),
-            Compound([(Sphere(0.2), (-0.4, 0, 0)), (Sphere(0.2), (0.4, 0, 0)),
-                      (Box((0.35, 0.05, 0.05)), (0, 0, 0))], name="dumbbell"),
-            Sphere(0.3), Capsule(0.2, 0.25)]
+    return [
+        Box((0.35, 0.25, 0.3)),
+        ConvexHull(rng.normal(size=(14, 3)) * (0.35, 0.25, 0.3), name="rock"),
+        Compound([(Box((0.4, 0.04, 0.3)), (0, 0.02, 0))] + legs, name="table"),
+        Compound(
+            [
+                (Sphere(0.2), (-0.4, 0, 0)),
+                (Sphere(0.2), (0.4, 0, 0)),
+                (Box((0.35, 0.05, 0.05)), (0, 0, 0)),
+            ],
+            name="dumbbell",
+        ),
+        Sphere(0.3),
+        Capsule(0.2, 0.25),
+    ]
 
 
 #: the shares of `terrain_shapes` in the rain (round shapes roll, so few of them)
 TERRAIN_SHARES = (0.3, 0.3, 0.15, 0.15, 0.05, 0.05)
 
 
-def _terrain_scene(n: int, device, terrain_cells: int = scene_data.TERRAIN_CELLS,
-                   terrain_ground: str = "mesh", **world_options):
+def _terrain_scene(
+    n: int,
+    device,
+    terrain_cells: int = scene_data.TERRAIN_CELLS,
+    terrain_ground: str = "mesh",
+    **world_options,
+):
     """The terrain scene; ``terrain_ground="plane"``: the same rain onto a plane at the
     terrain's lowest height instead (the benchmarks' baseline)."""
     from .mesh import TriangleMesh
@@ -131,20 +147,39 @@ def _terrain_scene(n: int, device, terrain_cells: int = scene_data.TERRAIN_CELLS
     for k, shape in enumerate(terrain_shapes()):
         chosen = np.flatnonzero(kinds == k)
         if len(chosen):
-            ids.append(world.add_bodies(shape, mass=1.0, positions=positions[chosen],
-                                        orientations=orientations[chosen]))
-    return world, np.sort(np.concatenate(ids)) if ids else np.zeros(0, int), float(heights.min()) - 1.0, 0.0
+            ids.append(
+                world.add_bodies(
+                    shape, mass=1.0, positions=positions[chosen], orientations=orientations[chosen]
+                )
+            )
+    return (
+        world,
+        np.sort(np.concatenate(ids)) if ids else np.zeros(0, int),
+        float(heights.min()) - 1.0,
+        0.0,
+    )
 
 
-def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True, *,
-              warmup: int = 0, dt: float = 1 / 60, on_step=None, **world_options) -> dict:
+def run_scene(
+    name: str,
+    n: int,
+    steps: int,
+    device=None,
+    progress: bool = True,
+    *,
+    warmup: int = 0,
+    dt: float = 1 / 60,
+    on_step=None,
+    **world_options,
+) -> dict:
     """Build scene ``name`` of size ``n``, run ``warmup`` then ``steps`` steps; return a summary.
 
     The summary: device, bodies, steps, ms_per_step (the median of the ms/step of
     `TIMING_BLOCKS` blocks of steps; ms_per_step_mean: the mean of all), launches and
     blocking_reads per step (of the last step), pairs / manifolds / contacts / batches of the last
     step, the batching, solver and normal solve it used with the release sweeps (0 for a
-    sequential normal solve, None: every sweep), overflows (redone steps), and sanity: nans, sunk (boxes whose
+    sequential normal solve, None: every sweep), overflows (redone steps), and sanity: nans, sunk
+    (boxes whose
     centre is more than 2 cm below its resting height), max_speed (m/s), and
     last_box_moved (m; the top box of a pyramid), with displaced and layer_drop
     (`rbgen.sanity.settling`); ms_per_step_blocks: each block's ms/step.
@@ -164,7 +199,7 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
         world.step(dt)
     queue.finish()
     block = max(1, int(steps) // TIMING_BLOCKS)
-    blocks = []     # (seconds, steps) of each block (the last may be shorter)
+    blocks = []  # (seconds, steps) of each block (the last may be shorter)
     if on_step is not None:
         on_step(world, 0)
     block_start = time.perf_counter()
@@ -179,8 +214,11 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
             blocks.append((now - block_start, s % block + 1))
             if progress:  # (the read-back after the block's clock stopped)
                 speed = np.linalg.norm(world.linear_velocities[ids], axis=1).max()
-                print(f"  step {s + 1:5d}: {1e3 * blocks[-1][0] / blocks[-1][1]:8.2f} ms/step, "
-                      f"max speed {speed:.3f} m/s", flush=True)
+                print(
+                    f"  step {s + 1:5d}: {1e3 * blocks[-1][0] / blocks[-1][1]:8.2f} ms/step, "
+                    f"max speed {speed:.3f} m/s",
+                    flush=True,
+                )
                 now = time.perf_counter()
             block_start = now
     block_ms = [1e3 * seconds / count for seconds, count in blocks]
@@ -189,16 +227,25 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
     positions = world.positions[ids]
     speeds = np.linalg.norm(world.linear_velocities[ids], axis=1)
     summary = {
-        "scene": name, "device": world.runtime.traits.device_name, "bodies": len(ids),
-        "steps": int(steps), "ms_per_step": float(np.median(block_ms)) if block_ms else 0.0,
+        "scene": name,
+        "device": world.runtime.traits.device_name,
+        "bodies": len(ids),
+        "steps": int(steps),
+        "ms_per_step": float(np.median(block_ms)) if block_ms else 0.0,
         "ms_per_step_mean": 1e3 * elapsed / max(1, int(steps)),
-        "launches_per_step": stats["launches"], "blocking_reads_per_step": stats["blocking_reads"],
-        "pairs": stats["pairs"], "manifolds": stats["manifolds"], "contacts": stats["contacts"],
-        "batches": stats["batches"], "groups_used": stats["groups_used"],
-        "batching": stats["batching"], "solver": stats["solver"],
+        "launches_per_step": stats["launches"],
+        "blocking_reads_per_step": stats["blocking_reads"],
+        "pairs": stats["pairs"],
+        "manifolds": stats["manifolds"],
+        "contacts": stats["contacts"],
+        "batches": stats["batches"],
+        "groups_used": stats["groups_used"],
+        "batching": stats["batching"],
+        "solver": stats["solver"],
         "normal_solve": stats["normal_solve"],
         # (only a block normal solve releases points; a sequential one has no release sweeps)
-        "release_sweeps": world.release_sweeps, "plan": world.plan.describe(),
+        "release_sweeps": world.release_sweeps,
+        "plan": world.plan.describe(),
         "overflows": world.overflows,
         "nans": int(np.isnan(positions).any(axis=1).sum()),
         "sunk": int((positions[:, 1] < ground_top + half - 0.02).sum()),
@@ -213,12 +260,18 @@ def run_scene(name: str, n: int, steps: int, device=None, progress: bool = True,
 
 
 def format_summary(s: dict) -> str:
-    return (f"{s['scene']} {s['bodies']:,} boxes: {s['ms_per_step']:.2f} ms/step, "
-            f"{s['launches_per_step']} launches and {s['blocking_reads_per_step']} blocking reads "
-            f"per step; {s['pairs']:,} pairs, {s['manifolds']:,} manifolds, {s['contacts']:,} "
-            f"contact points, "
-            + (f"{s['batches']} batches in the largest group ({s['batching']} batching)"
-               if s["solver"] == "pgs" else "Jacobi solver, no batching")
-            + f"; sanity: NaNs {s['nans']}, "
-            f"sunk {s['sunk']}, displaced {s.get('displaced', 0)}, max speed {s['max_speed']:.3f} m/s, overflows {s['overflows']}, "
-            f"last box moved {100 * s['last_box_moved']:.2f} cm")
+    return (
+        f"{s['scene']} {s['bodies']:,} boxes: {s['ms_per_step']:.2f} ms/step, "
+        f"{s['launches_per_step']} launches and {s['blocking_reads_per_step']} blocking reads "
+        f"per step; {s['pairs']:,} pairs, {s['manifolds']:,} manifolds, {s['contacts']:,} "
+        f"contact points, "
+        + (
+            f"{s['batches']} batches in the largest group ({s['batching']} batching)"
+            if s["solver"] == "pgs"
+            else "Jacobi solver, no batching"
+        )
+        + f"; sanity: NaNs {s['nans']}, "
+        f"sunk {s['sunk']}, displaced {s.get('displaced', 0)}, "
+        f"max speed {s['max_speed']:.3f} m/s, overflows {s['overflows']}, "
+        f"last box moved {100 * s['last_box_moved']:.2f} cm"
+    )

@@ -22,6 +22,7 @@ Gauss-map pruning of edge pairs (a cheap test per pair), and only the
 surviving pairs cost more; against spheres and planes any hull within the
 limits is cheap.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -45,15 +46,15 @@ PARALLEL_TOLERANCE = 1e-6
 class CookedHull:
     """A convex polyhedron in its principal frame, ready to pack."""
 
-    vertices: np.ndarray        # (V, 3) float64, centre of mass at the origin
-    faces: tuple                # F arrays of vertex indices, counter-clockwise from outside
-    planes: np.ndarray          # (F, 4): outward unit normal, offset d (n.x = d on the face)
+    vertices: np.ndarray  # (V, 3) float64, centre of mass at the origin
+    faces: tuple  # F arrays of vertex indices, counter-clockwise from outside
+    planes: np.ndarray  # (F, 4): outward unit normal, offset d (n.x = d on the face)
     edge_directions: np.ndarray  # (E, 3) unit, one per direction up to sign
-    edges: np.ndarray           # (E', 4) v0, v1, f0, f1: every edge with its two faces
+    edges: np.ndarray  # (E', 4) v0, v1, f0, f1: every edge with its two faces
     volume: float
-    com: np.ndarray             # centre of mass in the input frame
-    rotation: tuple             # quaternion (x, y, z, w): stored frame -> input frame
-    unit_inertia: np.ndarray    # principal inertia per unit mass (3,)
+    com: np.ndarray  # centre of mass in the input frame
+    rotation: tuple  # quaternion (x, y, z, w): stored frame -> input frame
+    unit_inertia: np.ndarray  # principal inertia per unit mass (3,)
 
     def triangles(self) -> np.ndarray:
         """Fan triangulation of the polygons (outward orientation)."""
@@ -61,8 +62,9 @@ class CookedHull:
 
 
 def _fan(faces) -> np.ndarray:
-    return np.array([(f[0], f[k], f[k + 1]) for f in faces for k in range(1, len(f) - 1)],
-                    dtype=np.int64)
+    return np.array(
+        [(f[0], f[k], f[k + 1]) for f in faces for k in range(1, len(f) - 1)], dtype=np.int64
+    )
 
 
 def cook(points, name: str = "ConvexHull") -> CookedHull:
@@ -82,7 +84,7 @@ def cook(points, name: str = "ConvexHull") -> CookedHull:
         raise RbgenError(f"{name}: points are coplanar or collinear (zero volume)")
     vertices, faces, planes = _polygons(pts, size, name)
     integrals = mesh_integrals(vertices, _fan(faces), name)
-    if integrals.volume < 1e-12 * size ** 3:
+    if integrals.volume < 1e-12 * size**3:
         raise RbgenError(f"{name}: hull volume {integrals.volume:g} is negligible for its size")
     return _to_principal_frame(vertices, faces, planes, integrals, name)
 
@@ -99,8 +101,10 @@ def _polygons(pts: np.ndarray, size: float, name: str):
         raise RbgenError(f"{name}: degenerate point set ({first})") from None
     used = np.unique(qhull.simplices)
     if len(used) > MAX_HULL_VERTICES:
-        raise RbgenError(f"{name}: hull has {len(used)} vertices, more than "
-                         f"MAX_HULL_VERTICES={MAX_HULL_VERTICES}")
+        raise RbgenError(
+            f"{name}: hull has {len(used)} vertices, more than "
+            f"MAX_HULL_VERTICES={MAX_HULL_VERTICES}"
+        )
     remap = -np.ones(len(pts), np.int64)
     remap[used] = np.arange(len(used))
     vertices = pts[used]
@@ -111,13 +115,17 @@ def _polygons(pts: np.ndarray, size: float, name: str):
     for i in range(len(normals)):
         if group_of[i] >= 0:
             continue
-        same = ((normals @ normals[i] > 1 - 0.5 * COPLANAR_TOLERANCE ** 2)
-                & (np.abs(offsets - offsets[i]) < COPLANAR_TOLERANCE * size) & (group_of < 0))
+        same = (
+            (normals @ normals[i] > 1 - 0.5 * COPLANAR_TOLERANCE**2)
+            & (np.abs(offsets - offsets[i]) < COPLANAR_TOLERANCE * size)
+            & (group_of < 0)
+        )
         group_of[same] = len(groups)
         groups.append(list(np.nonzero(same)[0]))
     if len(groups) > MAX_HULL_FACES:
-        raise RbgenError(f"{name}: hull has {len(groups)} faces, more than "
-                         f"MAX_HULL_FACES={MAX_HULL_FACES}")
+        raise RbgenError(
+            f"{name}: hull has {len(groups)} faces, more than MAX_HULL_FACES={MAX_HULL_FACES}"
+        )
     faces, planes = [], []
     for g in groups:
         n = normals[g].mean(axis=0)
@@ -125,8 +133,10 @@ def _polygons(pts: np.ndarray, size: float, name: str):
         idx = np.unique(remap[qhull.simplices[g]].reshape(-1))
         polygon = _without_collinear(vertices, _counter_clockwise(vertices, idx, n), n, size)
         if len(polygon) > MAX_FACE_VERTICES:
-            raise RbgenError(f"{name}: a face has {len(polygon)} vertices, more than "
-                             f"MAX_FACE_VERTICES={MAX_FACE_VERTICES}")
+            raise RbgenError(
+                f"{name}: a face has {len(polygon)} vertices, more than "
+                f"MAX_FACE_VERTICES={MAX_FACE_VERTICES}"
+            )
         faces.append(polygon)
         # the plane touches the hull: no vertex lies above it (a face's separation is
         # exact when measured with the plane offset)
@@ -145,8 +155,11 @@ def _without_collinear(vertices, polygon, normal, size) -> np.ndarray:
     while changed and len(polygon) > 3:
         changed = False
         for k in range(len(polygon)):
-            prev, cur, nxt = (vertices[polygon[k - 1]], vertices[polygon[k]],
-                              vertices[polygon[(k + 1) % len(polygon)]])
+            prev, cur, nxt = (
+                vertices[polygon[k - 1]],
+                vertices[polygon[k]],
+                vertices[polygon[(k + 1) % len(polygon)]],
+            )
             if np.dot(np.cross(cur - prev, nxt - cur), normal) <= 1e-9 * size * size:
                 del polygon[k]
                 changed = True
@@ -225,13 +238,34 @@ def box_hull(half_extents) -> CookedHull:
     signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
     vertices = signs * h
     # index = 4 (x>0) + 2 (y>0) + (z>0); each face counter-clockwise seen from outside
-    faces = (np.array([4, 6, 7, 5]), np.array([0, 1, 3, 2]),   # +x, -x
-             np.array([2, 3, 7, 6]), np.array([0, 4, 5, 1]),   # +y, -y
-             np.array([1, 5, 7, 3]), np.array([0, 2, 6, 4]))   # +z, -z
-    planes = np.array([[1, 0, 0, h[0]], [-1, 0, 0, h[0]], [0, 1, 0, h[1]],
-                       [0, -1, 0, h[1]], [0, 0, 1, h[2]], [0, 0, -1, h[2]]], np.float64)
-    a2, b2, c2 = h ** 2
-    return CookedHull(vertices, faces, planes, np.eye(3), edge_adjacency(faces, "box"),
-                      float(8 * h.prod()), np.zeros(3),
-                      (0.0, 0.0, 0.0, 1.0),
-                      np.array([(b2 + c2) / 3, (a2 + c2) / 3, (a2 + b2) / 3]))
+    faces = (
+        np.array([4, 6, 7, 5]),
+        np.array([0, 1, 3, 2]),  # +x, -x
+        np.array([2, 3, 7, 6]),
+        np.array([0, 4, 5, 1]),  # +y, -y
+        np.array([1, 5, 7, 3]),
+        np.array([0, 2, 6, 4]),
+    )  # +z, -z
+    planes = np.array(
+        [
+            [1, 0, 0, h[0]],
+            [-1, 0, 0, h[0]],
+            [0, 1, 0, h[1]],
+            [0, -1, 0, h[1]],
+            [0, 0, 1, h[2]],
+            [0, 0, -1, h[2]],
+        ],
+        np.float64,
+    )
+    a2, b2, c2 = h**2
+    return CookedHull(
+        vertices,
+        faces,
+        planes,
+        np.eye(3),
+        edge_adjacency(faces, "box"),
+        float(8 * h.prod()),
+        np.zeros(3),
+        (0.0, 0.0, 0.0, 1.0),
+        np.array([(b2 + c2) / 3, (a2 + c2) / 3, (a2 + b2) / 3]),
+    )

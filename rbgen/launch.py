@@ -24,6 +24,7 @@ per launch. (Passing such values in the global work offset does not work
 everywhere: PoCL 6 folds ``get_global_offset(0) >> 16`` to 0, as if the
 offset were always small.)
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -39,7 +40,7 @@ class BoundKernel:
         self.runtime = runtime
         self.kernel = kernel
         self._values: list = [_UNSET] * kernel.num_args  # what the driver holds
-        self._given: list = [_UNSET] * kernel.num_args   # the object last passed (fast path)
+        self._given: list = [_UNSET] * kernel.num_args  # the object last passed (fast path)
         # raw-bytes setter of pyopencl's generated invokers; the public set_arg otherwise
         self._set_bytes = getattr(kernel, "_set_arg_buf", None) or kernel.set_arg
 
@@ -61,8 +62,11 @@ class BoundKernel:
             self._set_bytes(index, value)
         elif isinstance(value, np.ndarray):
             given = _UNSET  # may be changed in place by its owner: compare bytes every time
-            if (isinstance(old, np.ndarray) and old.dtype == value.dtype
-                    and old.tobytes() == value.tobytes()):
+            if (
+                isinstance(old, np.ndarray)
+                and old.dtype == value.dtype
+                and old.tobytes() == value.tobytes()
+            ):
                 return
             value = np.ascontiguousarray(value).copy()
             self._set_bytes(index, value)
@@ -77,8 +81,10 @@ class BoundKernel:
     def bind(self, *args) -> BoundKernel:
         """Set every argument in order (only the changed ones reach the driver)."""
         if len(args) != len(self._given):
-            raise TypeError(f"kernel {self.kernel.function_name} takes {len(self._given)} "
-                            f"arguments, got {len(args)}")
+            raise TypeError(
+                f"kernel {self.kernel.function_name} takes {len(self._given)} "
+                f"arguments, got {len(args)}"
+            )
         return self._bind_from(0, args)
 
     def bind_first(self, *args) -> BoundKernel:
@@ -106,8 +112,9 @@ class BoundKernel:
         given = self._given
         for index, value in enumerate(args, first):
             old = given[index]
-            if value is not old and not (type(value) is type(old) and type(value) in _SCALARS
-                                         and value == old):
+            if value is not old and not (
+                type(value) is type(old) and type(value) in _SCALARS and value == old
+            ):
                 self.set(index, value)
         return self
 
@@ -122,8 +129,12 @@ class BoundKernel:
         runtime = self.runtime
         runtime.counters["launches"] += 1
         return cl.enqueue_nd_range_kernel(
-            runtime.queue, self.kernel, (int(global_size),),
-            None if local_size is None else (int(local_size),), wait_for=wait_for)
+            runtime.queue,
+            self.kernel,
+            (int(global_size),),
+            None if local_size is None else (int(local_size),),
+            wait_for=wait_for,
+        )
 
     def over(self, count: int, local_size: int, *args) -> cl.Event:
         """`bind` ``args``, then launch over ``count`` items rounded up to whole groups

@@ -14,6 +14,7 @@ type codes are declared through `constant` by their shape classes
 Add a struct by calling `declare`; look one up with `layout`. An unknown struct
 or field name raises `RbgenError` naming it.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -70,8 +71,10 @@ class Layout:
             raise RbgenError(f"layout {name}: duplicate field names in {names}")
         for f in self.fields:
             if f.kind not in _KINDS:
-                raise RbgenError(f"layout {name}: field {f.name!r} has unknown kind {f.kind!r}; "
-                                 f"known kinds: {sorted(_KINDS)}")
+                raise RbgenError(
+                    f"layout {name}: field {f.name!r} has unknown kind {f.kind!r}; "
+                    f"known kinds: {sorted(_KINDS)}"
+                )
         offsets, offset = {}, 0
         for f in self.fields:
             offset = -(-offset // f.align) * f.align
@@ -83,17 +86,26 @@ class Layout:
         formats = []
         for f in self.fields:
             base, lanes, _, _ = _KINDS[f.kind]
-            shape = tuple(s for s in (f.count if f.count > 1 else 0, lanes if lanes > 1 else 0) if s)
+            shape = tuple(
+                s for s in (f.count if f.count > 1 else 0, lanes if lanes > 1 else 0) if s
+            )
             formats.append((base, shape) if shape else base)
-        self.dtype = np.dtype({"names": names, "formats": formats,
-                               "offsets": [offsets[n] for n in names], "itemsize": self.itemsize})
+        self.dtype = np.dtype(
+            {
+                "names": names,
+                "formats": formats,
+                "offsets": [offsets[n] for n in names],
+                "itemsize": self.itemsize,
+            }
+        )
 
     def field(self, name: str) -> Field:
         for f in self.fields:
             if f.name == name:
                 return f
-        raise RbgenError(f"layout {self.name} has no field {name!r}; "
-                         f"fields: {[f.name for f in self.fields]}")
+        raise RbgenError(
+            f"layout {self.name} has no field {name!r}; fields: {[f.name for f in self.fields]}"
+        )
 
     def offset(self, name: str) -> int:
         self.field(name)
@@ -118,11 +130,14 @@ class Layout:
             note = f"  /* {f.doc} */" if f.doc else ""
             lines.append(f"    {_KINDS[f.kind][3]} {f.name}{arr};{note}")
         lines.append(f"}} {self.name};")
-        lines.append(f'RB_STATIC_ASSERT(sizeof({self.name}) == {self.itemsize}, '
-                     f'"sizeof({self.name})");')
+        lines.append(
+            f'RB_STATIC_ASSERT(sizeof({self.name}) == {self.itemsize}, "sizeof({self.name})");'
+        )
         for f in self.fields:
-            lines.append(f'RB_STATIC_ASSERT(offsetof({self.name}, {f.name}) == '
-                         f'{self._offsets[f.name]}, "{self.name}.{f.name}");')
+            lines.append(
+                f"RB_STATIC_ASSERT(offsetof({self.name}, {f.name}) == "
+                f'{self._offsets[f.name]}, "{self.name}.{f.name}");'
+            )
         return "\n".join(lines)
 
     def __repr__(self) -> str:
@@ -172,8 +187,9 @@ def constants() -> dict[str, int]:
 
 
 def cl_constants() -> str:
-    return "\n".join(f"#define {k} {v}{f'  /* {d} */' if d else ''}"
-                     for k, (v, d) in _CONSTANTS.items())
+    return "\n".join(
+        f"#define {k} {v}{f'  /* {d} */' if d else ''}" for k, (v, d) in _CONSTANTS.items()
+    )
 
 
 def cl_structs(*names: str) -> str:
@@ -222,51 +238,75 @@ SHAPE_MESH = constant("RB_SHAPE_MESH", 6, "reserved: static triangle mesh with a
 
 # --------------------------------------------------------------------------
 # Core structs.
-BODY = declare("Body", [
-    ("position", "float4", "centre of mass, world frame; w unused"),
-    ("orientation", "float4", "unit quaternion x, y, z, w (body to world)"),
-    ("linear_velocity", "float4", "m/s; w unused"),
-    ("angular_velocity", "float4", "rad/s, world frame; w unused"),
-    ("inv_mass", "float", "0 for static bodies"),
-    ("shape", "uint", "index into the Shape array"),
-    ("friction", "float", "material friction coefficient"),
-    ("restitution", "float", "material restitution coefficient"),
-], "A rigid body's state, one per body (dynamic or static).")
+BODY = declare(
+    "Body",
+    [
+        ("position", "float4", "centre of mass, world frame; w unused"),
+        ("orientation", "float4", "unit quaternion x, y, z, w (body to world)"),
+        ("linear_velocity", "float4", "m/s; w unused"),
+        ("angular_velocity", "float4", "rad/s, world frame; w unused"),
+        ("inv_mass", "float", "0 for static bodies"),
+        ("shape", "uint", "index into the Shape array"),
+        ("friction", "float", "material friction coefficient"),
+        ("restitution", "float", "material restitution coefficient"),
+    ],
+    "A rigid body's state, one per body (dynamic or static).",
+)
 
-SHAPE = declare("Shape", [
-    ("extents", "float4", "per type: radius, half extents, plane normal+offset"),
-    ("type", "uint", "RB_SHAPE_* (rbgen.shapes: the shape type's code)"),
-    ("vertex_offset", "uint", "hull: first vertex in the hull vertex array (mesh, compound: "
-                              "their local box's lower and upper corners)"),
-    ("vertex_count", "uint", "hull: number of vertices"),
-    ("face_offset", "uint", "hull: first face; mesh: first MeshTriangle"),
-    ("face_count", "uint", "hull: number of faces; mesh: number of triangles"),
-    ("edge_offset", "uint", "hull: first unique edge direction"),
-    ("edge_count", "uint", "hull: number of unique edge directions"),
-    ("child_offset", "uint", "compound: first CompoundChild; mesh: first BvhNode"),
-    ("adjacency_offset", "uint", "hull: first HullEdge (edge with its two faces)"),
-    ("adjacency_count", "uint", "hull: number of HullEdge records"),
-    ("child_count", "uint", "compound: children; mesh: BVH nodes (2 triangles - 1)"),
-], "A collision shape in its local (principal) frame. A mesh's triangles are "
-   "face_offset/face_count in the MeshTriangle array and its quantization box (lower, upper "
-   "corners) vertex_offset/2 in the hull vertex array; a compound's local AABB likewise.")
+SHAPE = declare(
+    "Shape",
+    [
+        ("extents", "float4", "per type: radius, half extents, plane normal+offset"),
+        ("type", "uint", "RB_SHAPE_* (rbgen.shapes: the shape type's code)"),
+        (
+            "vertex_offset",
+            "uint",
+            "hull: first vertex in the hull vertex array (mesh, compound: "
+            "their local box's lower and upper corners)",
+        ),
+        ("vertex_count", "uint", "hull: number of vertices"),
+        ("face_offset", "uint", "hull: first face; mesh: first MeshTriangle"),
+        ("face_count", "uint", "hull: number of faces; mesh: number of triangles"),
+        ("edge_offset", "uint", "hull: first unique edge direction"),
+        ("edge_count", "uint", "hull: number of unique edge directions"),
+        ("child_offset", "uint", "compound: first CompoundChild; mesh: first BvhNode"),
+        ("adjacency_offset", "uint", "hull: first HullEdge (edge with its two faces)"),
+        ("adjacency_count", "uint", "hull: number of HullEdge records"),
+        ("child_count", "uint", "compound: children; mesh: BVH nodes (2 triangles - 1)"),
+    ],
+    "A collision shape in its local (principal) frame. A mesh's triangles are "
+    "face_offset/face_count in the MeshTriangle array and its quantization box (lower, upper "
+    "corners) vertex_offset/2 in the hull vertex array; a compound's local AABB likewise.",
+)
 
-AABB = declare("Aabb", [
-    ("lower", "float4", "minimum corner; w unused"),
-    ("upper", "float4", "maximum corner; w unused"),
-], "An axis-aligned bounding box in the world frame.")
+AABB = declare(
+    "Aabb",
+    [
+        ("lower", "float4", "minimum corner; w unused"),
+        ("upper", "float4", "maximum corner; w unused"),
+    ],
+    "An axis-aligned bounding box in the world frame.",
+)
 
 #: `Pair.sub` (and the keys that copy it) of a pair of whole bodies
 WHOLE_BODY = constant("RB_WHOLE_BODY", 0, "sub-feature id of a pair of whole bodies")
 
-PAIR = declare("Pair", [
-    ("a", "uint", "lower body index"),
-    ("b", "uint", "higher body index"),
-    ("sub", "uint", "sub-feature of the pair: RB_WHOLE_BODY for whole bodies (what the "
-                    "broadphase writes), else a nonzero id, unique within (a, b), of a "
-                    "compound child or mesh triangle pair (assigned by a midphase)"),
-], "A candidate pair of bodies, a < b; (a, b, sub) is unique in a pair list, which is "
-   "sorted by (a, b, sub) so that everything computed per pair is in a deterministic order.")
+PAIR = declare(
+    "Pair",
+    [
+        ("a", "uint", "lower body index"),
+        ("b", "uint", "higher body index"),
+        (
+            "sub",
+            "uint",
+            "sub-feature of the pair: RB_WHOLE_BODY for whole bodies (what the "
+            "broadphase writes), else a nonzero id, unique within (a, b), of a "
+            "compound child or mesh triangle pair (assigned by a midphase)",
+        ),
+    ],
+    "A candidate pair of bodies, a < b; (a, b, sub) is unique in a pair list, which is "
+    "sorted by (a, b, sub) so that everything computed per pair is in a deterministic order.",
+)
 
 # --------------------------------------------------------------------------
 # Narrowphase output (consumed by the solver). Conventions, tested:
@@ -280,80 +320,148 @@ PAIR = declare("Pair", [
 #    manifold per sub-feature, and warm starting matches manifolds by that key.
 MAX_MANIFOLD_POINTS = constant("RB_MAX_MANIFOLD_POINTS", 4, "contact points per manifold")
 
-CONTACT_MANIFOLD = declare("ContactManifold", [
-    ("points", "float4", 4, "xyz: point on B (world); w: signed separation (< 0: penetration)"),
-    ("normal", "float4", "unit normal from A to B (world); w unused"),
-    ("features", "uint", 4, "feature id per point, stable across steps"),
-    ("body_a", "uint", "first body (index into Body)"),
-    ("body_b", "uint", "second body"),
-    ("sub", "uint", "sub-feature of the pair (Pair.sub; RB_WHOLE_BODY for whole bodies)"),
-    ("point_count", "uint", "valid points, 1..4"),
-    ("friction", "float", "combined friction coefficient"),
-    ("restitution", "float", "combined restitution coefficient"),
-], "Up to four contact points between two bodies sharing one normal.")
+CONTACT_MANIFOLD = declare(
+    "ContactManifold",
+    [
+        ("points", "float4", 4, "xyz: point on B (world); w: signed separation (< 0: penetration)"),
+        ("normal", "float4", "unit normal from A to B (world); w unused"),
+        ("features", "uint", 4, "feature id per point, stable across steps"),
+        ("body_a", "uint", "first body (index into Body)"),
+        ("body_b", "uint", "second body"),
+        ("sub", "uint", "sub-feature of the pair (Pair.sub; RB_WHOLE_BODY for whole bodies)"),
+        ("point_count", "uint", "valid points, 1..4"),
+        ("friction", "float", "combined friction coefficient"),
+        ("restitution", "float", "combined restitution coefficient"),
+    ],
+    "Up to four contact points between two bodies sharing one normal.",
+)
 
 # --------------------------------------------------------------------------
 # Contact solver (owner: constraint solver; rbgen/pipeline/constraints.py, batching/,
 # solvers/, prepare.py).
-BODY_INERTIA = declare("BodyInertia", [
-    ("inv_inertia_local", "float4", "principal inverse inertia diagonal (body frame); 0 for static"),
-    ("inv_inertia_world", "float4", 3, "rows of R diag(inv_inertia_local) R^T, updated every step"),
-], "Inverse inertia of one body, local principal diagonal and world tensor.")
+BODY_INERTIA = declare(
+    "BodyInertia",
+    [
+        (
+            "inv_inertia_local",
+            "float4",
+            "principal inverse inertia diagonal (body frame); 0 for static",
+        ),
+        (
+            "inv_inertia_world",
+            "float4",
+            3,
+            "rows of R diag(inv_inertia_local) R^T, updated every step",
+        ),
+    ],
+    "Inverse inertia of one body, local principal diagonal and world tensor.",
+)
 
-BODY_DELTA = declare("BodyDelta", [
-    ("linear", "float4", "displacement of the centre of mass since the step began; w unused"),
-    ("angular", "float4", "rotation since the step began, as the sum of angular velocity "
-                          "times substep (world frame, first order); w unused"),
-], "How far a body moved in the substeps so far: contacts update their separations from it.")
+BODY_DELTA = declare(
+    "BodyDelta",
+    [
+        ("linear", "float4", "displacement of the centre of mass since the step began; w unused"),
+        (
+            "angular",
+            "float4",
+            "rotation since the step began, as the sum of angular velocity "
+            "times substep (world frame, first order); w unused",
+        ),
+    ],
+    "How far a body moved in the substeps so far: contacts update their separations from it.",
+)
 
-SPLIT_VELOCITY = declare("SplitVelocity", [
-    ("linear", "float4", "push velocity of the split-impulse position pass; w unused"),
-    ("angular", "float4", "push angular velocity (world frame); w unused"),
-], "Pseudo-velocity that moves a body out of penetration without adding momentum.")
+SPLIT_VELOCITY = declare(
+    "SplitVelocity",
+    [
+        ("linear", "float4", "push velocity of the split-impulse position pass; w unused"),
+        ("angular", "float4", "push angular velocity (world frame); w unused"),
+    ],
+    "Pseudo-velocity that moves a body out of penetration without adding momentum.",
+)
 
 #: Marks an empty slot of the warm-starting hash table and an unassigned batch.
 SOLVER_NONE = constant("RB_SOLVER_NONE", 0xFFFFFFFF, "empty table slot / unassigned batch")
 
-# The words of a device-wide barrier's state (common/device_barrier.cl.mako, rbgen.pipeline.device_barrier)
-BARRIER_ARRIVALS = constant("RB_BARRIER_ARRIVALS", 0, "device-wide barrier: arrivals since the launch began")
-BARRIER_DEPARTURES = constant("RB_BARRIER_DEPARTURES", 1, "device-wide barrier: groups that have left")
-BARRIER_SPIN_LIMIT = constant("RB_BARRIER_SPIN_LIMIT", 2,
-                           "device-wide barrier: polls before a waiting group gives up (set by the host)")
-BARRIER_ABANDONED = constant("RB_BARRIER_ABANDONED", 3,
-                          "device-wide barrier: nonzero once a group gave up (reset by the host)")
+# The words of a device-wide barrier's state (common/device_barrier.cl.mako,
+# rbgen.pipeline.device_barrier)
+BARRIER_ARRIVALS = constant(
+    "RB_BARRIER_ARRIVALS", 0, "device-wide barrier: arrivals since the launch began"
+)
+BARRIER_DEPARTURES = constant(
+    "RB_BARRIER_DEPARTURES", 1, "device-wide barrier: groups that have left"
+)
+BARRIER_SPIN_LIMIT = constant(
+    "RB_BARRIER_SPIN_LIMIT",
+    2,
+    "device-wide barrier: polls before a waiting group gives up (set by the host)",
+)
+BARRIER_ABANDONED = constant(
+    "RB_BARRIER_ABANDONED",
+    3,
+    "device-wide barrier: nonzero once a group gave up (reset by the host)",
+)
 BARRIER_WORDS = constant("RB_BARRIER_WORDS", 4, "device-wide barrier: words of its state")
 
 #: int64 words of a body's summed warm start (solvers/pgs.cl.mako): its linear and angular
 #: velocity change in fixed point
-WARM_SUM_WORDS = constant("RB_WARM_SUM_WORDS", 6,
-                          "summed warm start: int64 words a body (linear, angular velocity change)")
+WARM_SUM_WORDS = constant(
+    "RB_WARM_SUM_WORDS",
+    6,
+    "summed warm start: int64 words a body (linear, angular velocity change)",
+)
 
-CONTACT_CONSTRAINT = declare("ContactConstraint", [
-    ("normal", "float4", "unit normal from A to B (world); w: friction coefficient"),
-    ("tangent1", "float4", "first friction direction, unit, orthogonal to normal"),
-    ("tangent2", "float4", "second friction direction, normal x tangent1; w: the manifold's "
-                           "restitution"),
-    ("r_a", "float4", 4, "contact point k relative to A's centre of mass (world, fixed over "
-                         "the step's substeps); w: its separation at setup (m)"),
-    ("r_b", "float4", 4, "contact point k relative to B's centre of mass (world); w: its "
-                         "bounce velocity (m/s, 0 below the restitution threshold)"),
-    ("normal_mass", "float4", "per point: 1 / (J M^-1 J^T) of the normal row"),
-    ("tangent1_mass", "float4", "per point: effective mass of the tangent1 row"),
-    ("tangent2_mass", "float4", "per point: effective mass of the tangent2 row"),
-    ("velocity_target", "float4", "per point: normal velocity the solver drives to (bounce, "
-                                  "speculative gap) this substep"),
-    ("position_target", "float4", "per point: split-impulse push velocity target this substep"),
-    ("normal_impulse", "float4", "per point: accumulated normal impulse (warm started)"),
-    ("tangent1_impulse", "float4", "per point: accumulated tangent1 impulse (warm started)"),
-    ("tangent2_impulse", "float4", "per point: accumulated tangent2 impulse (warm started)"),
-    ("push_impulse", "float4", "per point: accumulated split (position) impulse"),
-    ("features", "uint4", "feature id per point (warm-starting key)"),
-    ("body_a", "uint", "first body"),
-    ("body_b", "uint", "second body"),
-    ("point_count", "uint", "valid points, 0..4 (0: inactive)"),
-    ("sub", "uint", "sub-feature of the manifold (ContactManifold.sub): with body_a and "
-                    "body_b the warm-starting key"),
-], "One contact manifold prepared for the solver: up to four normal and eight friction rows.")
+CONTACT_CONSTRAINT = declare(
+    "ContactConstraint",
+    [
+        ("normal", "float4", "unit normal from A to B (world); w: friction coefficient"),
+        ("tangent1", "float4", "first friction direction, unit, orthogonal to normal"),
+        (
+            "tangent2",
+            "float4",
+            "second friction direction, normal x tangent1; w: the manifold's restitution",
+        ),
+        (
+            "r_a",
+            "float4",
+            4,
+            "contact point k relative to A's centre of mass (world, fixed over "
+            "the step's substeps); w: its separation at setup (m)",
+        ),
+        (
+            "r_b",
+            "float4",
+            4,
+            "contact point k relative to B's centre of mass (world); w: its "
+            "bounce velocity (m/s, 0 below the restitution threshold)",
+        ),
+        ("normal_mass", "float4", "per point: 1 / (J M^-1 J^T) of the normal row"),
+        ("tangent1_mass", "float4", "per point: effective mass of the tangent1 row"),
+        ("tangent2_mass", "float4", "per point: effective mass of the tangent2 row"),
+        (
+            "velocity_target",
+            "float4",
+            "per point: normal velocity the solver drives to (bounce, "
+            "speculative gap) this substep",
+        ),
+        ("position_target", "float4", "per point: split-impulse push velocity target this substep"),
+        ("normal_impulse", "float4", "per point: accumulated normal impulse (warm started)"),
+        ("tangent1_impulse", "float4", "per point: accumulated tangent1 impulse (warm started)"),
+        ("tangent2_impulse", "float4", "per point: accumulated tangent2 impulse (warm started)"),
+        ("push_impulse", "float4", "per point: accumulated split (position) impulse"),
+        ("features", "uint4", "feature id per point (warm-starting key)"),
+        ("body_a", "uint", "first body"),
+        ("body_b", "uint", "second body"),
+        ("point_count", "uint", "valid points, 0..4 (0: inactive)"),
+        (
+            "sub",
+            "uint",
+            "sub-feature of the manifold (ContactManifold.sub): with body_a and "
+            "body_b the warm-starting key",
+        ),
+    ],
+    "One contact manifold prepared for the solver: up to four normal and eight friction rows.",
+)
 
 # The constraint-edge list: what batching colours (contacts and, later, joints alike).
 # Edge e of a step: joints first, at fixed indices (a joint stage writes edges
@@ -361,21 +469,35 @@ CONTACT_CONSTRAINT = declare("ContactConstraint", [
 # constraint setup; the count stays on the device. An edge's item names its constraint:
 # kind << RB_EDGE_KIND_SHIFT | index into that kind's own array. The contact kind is 0,
 # so a contact's item is its constraint index.
-EDGE_KIND_SHIFT = constant("RB_EDGE_KIND_SHIFT", 28,
-                           "ConstraintEdge.item: kind << shift | index in the kind's array")
-EDGE_INDEX_MASK = constant("RB_EDGE_INDEX_MASK", (1 << 28) - 1,
-                           "ConstraintEdge.item: the index bits")
+EDGE_KIND_SHIFT = constant(
+    "RB_EDGE_KIND_SHIFT", 28, "ConstraintEdge.item: kind << shift | index in the kind's array"
+)
+EDGE_INDEX_MASK = constant(
+    "RB_EDGE_INDEX_MASK", (1 << 28) - 1, "ConstraintEdge.item: the index bits"
+)
 EDGE_CONTACT = constant("RB_EDGE_CONTACT", 0, "constraint kind: a ContactConstraint")
 
-CONSTRAINT_EDGE = declare("ConstraintEdge", [
-    ("body_a", "uint", "first body"),
-    ("body_b", "uint", "second body"),
-    ("item", "uint", "the constraint: kind << RB_EDGE_KIND_SHIFT | index in the kind's array"),
-    ("colour", "uint", "global batching: the colour the next step's edge of this constraint "
-                       "starts from (RB_SOLVER_NONE: none)"),
-    ("point", "float4", "a world point of the constraint (a contact's first point), whose "
-                        "cell spatial batching groups it by; w unused"),
-], "One constraint as batching sees it: its two bodies, its kind and index, its colour.")
+CONSTRAINT_EDGE = declare(
+    "ConstraintEdge",
+    [
+        ("body_a", "uint", "first body"),
+        ("body_b", "uint", "second body"),
+        ("item", "uint", "the constraint: kind << RB_EDGE_KIND_SHIFT | index in the kind's array"),
+        (
+            "colour",
+            "uint",
+            "global batching: the colour the next step's edge of this constraint "
+            "starts from (RB_SOLVER_NONE: none)",
+        ),
+        (
+            "point",
+            "float4",
+            "a world point of the constraint (a contact's first point), whose "
+            "cell spatial batching groups it by; w unused",
+        ),
+    ],
+    "One constraint as batching sees it: its two bodies, its kind and index, its colour.",
+)
 
 # --------------------------------------------------------------------------
 # Narrowphase and hull cooking (owner: narrowphase; rbgen/hull.py,
@@ -383,40 +505,65 @@ CONSTRAINT_EDGE = declare("ConstraintEdge", [
 # Shape.face_* HullFace polygons whose vertex indices (relative to
 # vertex_offset) live in the hull face-index uint array, and Shape.edge_*
 # unique edge directions (float4, w unused). Boxes are cooked the same way.
-HULL_FACE = declare("HullFace", [
-    ("plane", "float4", "outward unit normal xyz, offset w: n.x = w on the face (shape frame)"),
-    ("index_offset", "uint", "first entry of this polygon in the face-index array"),
-    ("index_count", "uint", "polygon vertices, counter-clockwise seen from outside"),
-], "One planar polygon of a cooked convex hull.")
+HULL_FACE = declare(
+    "HullFace",
+    [
+        ("plane", "float4", "outward unit normal xyz, offset w: n.x = w on the face (shape frame)"),
+        ("index_offset", "uint", "first entry of this polygon in the face-index array"),
+        ("index_count", "uint", "polygon vertices, counter-clockwise seen from outside"),
+    ],
+    "One planar polygon of a cooked convex hull.",
+)
 
-HULL_EDGE = declare("HullEdge", [
-    ("v0", "uint", "start vertex (relative to Shape.vertex_offset)"),
-    ("v1", "uint", "end vertex; v0 -> v1 runs counter-clockwise around face f0"),
-    ("f0", "uint", "face on the left of v0 -> v1 seen from outside (relative to face_offset)"),
-    ("f1", "uint", "the other face"),
-], "One edge of a cooked hull with its two faces (Gauss-map arc for the edge-edge SAT).")
+HULL_EDGE = declare(
+    "HullEdge",
+    [
+        ("v0", "uint", "start vertex (relative to Shape.vertex_offset)"),
+        ("v1", "uint", "end vertex; v0 -> v1 runs counter-clockwise around face f0"),
+        ("f0", "uint", "face on the left of v0 -> v1 seen from outside (relative to face_offset)"),
+        ("f1", "uint", "the other face"),
+    ],
+    "One edge of a cooked hull with its two faces (Gauss-map arc for the edge-edge SAT).",
+)
 
-PAIR_SWAPPED = constant("RB_PAIR_SWAPPED", 0x80000000,
-                        "queue entry bit: the pair's bodies are in the kernel's shape order b, a")
+PAIR_SWAPPED = constant(
+    "RB_PAIR_SWAPPED",
+    0x80000000,
+    "queue entry bit: the pair's bodies are in the kernel's shape order b, a",
+)
 NO_FEATURE = constant("RB_NO_FEATURE", 0xFFFFFFFF, "separating-axis cache: no axis cached")
-SAT_EDGE_PAIR = constant("RB_SAT_EDGE_PAIR", 0x80000000,
-                         "separating-axis feature bit: edge i of A x edge j of B in the HullEdge "
-                         "lists, i * B.adjacency_count + j in the low bits")
+SAT_EDGE_PAIR = constant(
+    "RB_SAT_EDGE_PAIR",
+    0x80000000,
+    "separating-axis feature bit: edge i of A x edge j of B in the HullEdge "
+    "lists, i * B.adjacency_count + j in the low bits",
+)
 
-SAT_CACHE_ENTRY = declare("SatCacheEntry", [
-    ("a", "uint", "body a of the pair this entry belongs to (key)"),
-    ("b", "uint", "body b (key)"),
-    ("sub", "uint", "sub-feature of the pair (key, Pair.sub)"),
-    ("feature", "uint", "best axis found last step (face/edge code) or RB_NO_FEATURE"),
-], "Previous step's best separating axis, one entry per pair-list index, keyed by "
-   "(a, b, sub).")
+SAT_CACHE_ENTRY = declare(
+    "SatCacheEntry",
+    [
+        ("a", "uint", "body a of the pair this entry belongs to (key)"),
+        ("b", "uint", "body b (key)"),
+        ("sub", "uint", "sub-feature of the pair (key, Pair.sub)"),
+        ("feature", "uint", "best axis found last step (face/edge code) or RB_NO_FEATURE"),
+    ],
+    "Previous step's best separating axis, one entry per pair-list index, keyed by (a, b, sub).",
+)
 
-SAT_RESULT = declare("SatResult", [
-    ("axis", "float4", "unit axis from the kernel's first shape to its second (world); "
-                       "w: separation along it (< 0: penetration)"),
-    ("pair", "uint", "pair index, | RB_PAIR_SWAPPED when the kernel's first shape is body b"),
-    ("feature", "uint", "face of A (< faces A), face of B (next faces B), else an edge pair"),
-], "A convex-convex pair that passed the separating-axis test, queued for clipping.")
+SAT_RESULT = declare(
+    "SatResult",
+    [
+        (
+            "axis",
+            "float4",
+            "unit axis from the kernel's first shape to its second (world); "
+            "w: separation along it (< 0: penetration)",
+        ),
+        ("pair", "uint", "pair index, | RB_PAIR_SWAPPED when the kernel's first shape is body b"),
+        ("feature", "uint", "face of A (< faces A), face of B (next faces B), else an edge pair"),
+    ],
+    "A convex-convex pair that passed the separating-axis test, queued for clipping.",
+)
 
 # --------------------------------------------------------------------------
 # Midphase: triangle meshes and compounds (owner: midphase; rbgen/bvh.py, rbgen/mesh.py,
@@ -426,55 +573,97 @@ SAT_RESULT = declare("SatResult", [
 # is the offset to the node after it (its "escape"), so a walk needs no stack.
 BVH_QUANTA = constant("RB_BVH_QUANTA", 65535, "largest quantized coordinate of a BVH box")
 
-BVH_NODE = declare("BvhNode", [
-    ("bounds", "uint", 3, "quantized box: lower.x | lower.y << 16, lower.z | upper.x << 16, "
-                          "upper.y | upper.z << 16"),
-    ("index", "int", "leaf: its triangle (from the mesh's first, >= 0); inner node: minus "
-                     "the nodes of its subtree (itself included), the offset to its escape"),
-], "One node of a quantized BVH, in depth-first order.")
+BVH_NODE = declare(
+    "BvhNode",
+    [
+        (
+            "bounds",
+            "uint",
+            3,
+            "quantized box: lower.x | lower.y << 16, lower.z | upper.x << 16, "
+            "upper.y | upper.z << 16",
+        ),
+        (
+            "index",
+            "int",
+            "leaf: its triangle (from the mesh's first, >= 0); inner node: minus "
+            "the nodes of its subtree (itself included), the offset to its escape",
+        ),
+    ],
+    "One node of a quantized BVH, in depth-first order.",
+)
 
 #: `MeshTriangle.edges` bit k: edge k (vertex k to vertex k + 1) is active
 ACTIVE_EDGE_BITS = constant("RB_ACTIVE_EDGES", 7, "MeshTriangle.edges: the three active-edge bits")
 
-MESH_TRIANGLE = declare("MeshTriangle", [
-    ("vertices", "uint", 3, "indices into the mesh vertex array (float4, mesh frame), "
-                            "counter-clockwise seen from the front"),
-    ("edges", "uint", "bit k: edge from vertex k to vertex k + 1 is active (open, sharp or "
-                      "non-manifold): a contact on an inactive edge takes the face normal"),
-], "One triangle of a static mesh, in its BVH's leaf order.")
+MESH_TRIANGLE = declare(
+    "MeshTriangle",
+    [
+        (
+            "vertices",
+            "uint",
+            3,
+            "indices into the mesh vertex array (float4, mesh frame), "
+            "counter-clockwise seen from the front",
+        ),
+        (
+            "edges",
+            "uint",
+            "bit k: edge from vertex k to vertex k + 1 is active (open, sharp or "
+            "non-manifold): a contact on an inactive edge takes the face normal",
+        ),
+    ],
+    "One triangle of a static mesh, in its BVH's leaf order.",
+)
 
-COMPOUND_CHILD = declare("CompoundChild", [
-    ("position", "float4", "origin of the child's frame in the compound's (principal) frame"),
-    ("orientation", "float4", "rotation of the child's frame in the compound's (x, y, z, w)"),
-    ("shape", "uint", "the child's Shape index"),
-], "One child of a compound shape: a convex shape and where it sits.")
+COMPOUND_CHILD = declare(
+    "CompoundChild",
+    [
+        ("position", "float4", "origin of the child's frame in the compound's (principal) frame"),
+        ("orientation", "float4", "rotation of the child's frame in the compound's (x, y, z, w)"),
+        ("shape", "uint", "the child's Shape index"),
+    ],
+    "One child of a compound shape: a convex shape and where it sits.",
+)
 
 #: Pair.sub of a sub-feature pair: 1 + (child << RB_SUB_CHILD_SHIFT | other), where child is
 #: a compound child (the first compound's) and other a triangle or the second compound's child
-SUB_CHILD_SHIFT = constant("RB_SUB_CHILD_SHIFT", 24,
-                           "Pair.sub = 1 + (compound child << shift | triangle or other child)")
+SUB_CHILD_SHIFT = constant(
+    "RB_SUB_CHILD_SHIFT", 24, "Pair.sub = 1 + (compound child << shift | triangle or other child)"
+)
 MAX_COMPOUND_CHILDREN = constant("RB_MAX_COMPOUND_CHILDREN", 256, "children of one compound")
-MAX_MESH_TRIANGLES = constant("RB_MAX_MESH_TRIANGLES", (1 << 24) - 1,
-                              "triangles of one mesh (after degenerate ones are dropped)")
+MAX_MESH_TRIANGLES = constant(
+    "RB_MAX_MESH_TRIANGLES",
+    (1 << 24) - 1,
+    "triangles of one mesh (after degenerate ones are dropped)",
+)
 NO_SUBTREE = constant("RB_NO_SUBTREE", 0xFFFFFFFF, "midphase: no subtree requested")
 
-CHILD_PROXY = declare("ChildProxy", [
-    ("body", "uint", "the compound body"),
-    ("child", "uint", "which of its shape's children"),
-], "A compound child as the narrowphase sees it: a body of its own after the world's "
-   "bodies, placed where the child is.")
+CHILD_PROXY = declare(
+    "ChildProxy",
+    [
+        ("body", "uint", "the compound body"),
+        ("child", "uint", "which of its shape's children"),
+    ],
+    "A compound child as the narrowphase sees it: a body of its own after the world's "
+    "bodies, placed where the child is.",
+)
 
 # --------------------------------------------------------------------------
 # Broadphase (owner: broadphase; rbgen/pipeline/broadphase/).
 #: `BroadphaseStatus.bad_body` when every AABB is valid.
 BP_NO_BODY = constant("RB_BP_NO_BODY", 0xFFFFFFFF, "no invalid AABB found")
 
-BROADPHASE_STATUS = declare("BroadphaseStatus", [
-    ("pair_count", "uint", "pairs stored in the pair buffer: min(pairs_found, capacity)"),
-    ("pairs_found", "uint", "pairs the query found; more than the capacity means overflow"),
-    ("bad_body", "uint", "lowest body with a NaN or inverted AABB, RB_BP_NO_BODY if none"),
-    ("crossings", "uint", "incremental SAP: endpoint crossings scanned this step"),
-    ("retry", "uint", "nonzero (RB_BP_RETRY_*) when the query must be redone another way"),
-], "Results of one broadphase query that the host checks without stalling the queue.")
+BROADPHASE_STATUS = declare(
+    "BroadphaseStatus",
+    [
+        ("pair_count", "uint", "pairs stored in the pair buffer: min(pairs_found, capacity)"),
+        ("pairs_found", "uint", "pairs the query found; more than the capacity means overflow"),
+        ("bad_body", "uint", "lowest body with a NaN or inverted AABB, RB_BP_NO_BODY if none"),
+        ("crossings", "uint", "incremental SAP: endpoint crossings scanned this step"),
+        ("retry", "uint", "nonzero (RB_BP_RETRY_*) when the query must be redone another way"),
+    ],
+    "Results of one broadphase query that the host checks without stalling the queue.",
+)
 #: `BroadphaseStatus.retry`: the grid met more large bodies than its owner rows.
 BP_RETRY_LARGE = constant("RB_BP_RETRY_LARGE", 1, "grid: too many large bodies for owner rows")

@@ -12,6 +12,7 @@ shape's stored (principal) frame into the frame the user gave the points in,
 and `com` is the centre of mass in that user frame: a point p stored in the
 shape is at ``rotate(rotation, p) + com`` in the user's frame.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -45,8 +46,9 @@ class MassProperties:
 def resolve_mass(volume: float, density: float | None, mass: float | None, what: str) -> float:
     """The mass from exactly one of ``density`` and ``mass``; ``what`` names the shape."""
     if (density is None) == (mass is None):
-        raise RbgenError(f"{what}: give exactly one of density and mass "
-                         f"(got density={density!r}, mass={mass!r})")
+        raise RbgenError(
+            f"{what}: give exactly one of density and mass (got density={density!r}, mass={mass!r})"
+        )
     given = mass if mass is not None else density
     assert given is not None  # exactly one of density and mass is None (checked above)
     value = mass if mass is not None else given * volume
@@ -81,7 +83,7 @@ def capsule_unit_inertia(radius: float, half_height: float) -> tuple:
     """
     r, h = float(radius), float(half_height)
     v_cyl = math.pi * r * r * 2.0 * h
-    v_hemi = 2.0 / 3.0 * math.pi * r ** 3
+    v_hemi = 2.0 / 3.0 * math.pi * r**3
     total = v_cyl + 2.0 * v_hemi
     m_cyl, m_hemi = v_cyl / total, v_hemi / total
     axial = m_cyl * r * r / 2.0 + 2.0 * m_hemi * 0.4 * r * r
@@ -142,11 +144,17 @@ def mesh_integrals(vertices: np.ndarray, triangles: np.ndarray, what: str) -> So
     """Exact volume integrals of a closed, outward-oriented triangle surface (via trimesh)."""
     import trimesh
 
-    mesh = trimesh.Trimesh(vertices=np.asarray(vertices, np.float64),
-                           faces=np.asarray(triangles, np.int64), process=False)
+    mesh = trimesh.Trimesh(
+        vertices=np.asarray(vertices, np.float64),
+        faces=np.asarray(triangles, np.int64),
+        process=False,
+    )
     props = mesh.mass_properties  # density 1: mass == volume
     volume = float(props["volume"])
     if not (np.isfinite(volume) and volume > 0):
         raise RbgenError(f"{what}: enclosed volume is {volume!r}; the hull is degenerate")
-    return SolidIntegrals(volume, np.asarray(props["center_mass"], np.float64),
-                          np.asarray(props["inertia"], np.float64))
+    return SolidIntegrals(
+        volume,
+        np.asarray(props["center_mass"], np.float64),
+        np.asarray(props["inertia"], np.float64),
+    )

@@ -17,6 +17,7 @@ when it is open (one triangle), shared by more than two, or a convex fold sharpe
 the two windings disagree, any fold that sharp). The flags are computed once, from the
 edge adjacency, when the mesh is made.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -36,9 +37,11 @@ ACTIVE_EDGE_DEGREES = 5.0
 #: (to float32 arithmetic: its normal would be noise)
 DEGENERATE_HEIGHT = 1e-7
 
-_STATIC_ONLY_HINT = ("; a TriangleMesh cannot move: for a dynamic body use a "
-                     "rbgen.ConvexHull (ConvexHull.from_trimesh(mesh): its convex hull) or a "
-                     "rbgen.Compound of hulls (a convex decomposition)")
+_STATIC_ONLY_HINT = (
+    "; a TriangleMesh cannot move: for a dynamic body use a "
+    "rbgen.ConvexHull (ConvexHull.from_trimesh(mesh): its convex hull) or a "
+    "rbgen.Compound of hulls (a convex decomposition)"
+)
 
 
 class TriangleMesh(Shape):
@@ -52,8 +55,10 @@ class TriangleMesh(Shape):
     type_name = "mesh"
     label = "triangle mesh"
     type_code = layouts.SHAPE_MESH
-    extents_doc = ("triangles face_* in MeshTriangle, BVH child_* in BvhNode, quantization "
-                   "box vertex_offset/2 in the hull vertices; static only")
+    extents_doc = (
+        "triangles face_* in MeshTriangle, BVH child_* in BvhNode, quantization "
+        "box vertex_offset/2 in the hull vertices; static only"
+    )
     aabb_template = "shapes/mesh.cl.mako"
     static_only = True
     static_only_hint = _STATIC_ONLY_HINT
@@ -69,21 +74,28 @@ class TriangleMesh(Shape):
         keep = _non_degenerate(vertices, triangles)
         dropped = int(np.count_nonzero(~keep))
         if dropped == len(triangles):
-            raise RbgenError(f"{self.name}: every triangle is degenerate (zero area); "
-                             f"nothing to collide with")
+            raise RbgenError(
+                f"{self.name}: every triangle is degenerate (zero area); nothing to collide with"
+            )
         if dropped:
             first = int(np.flatnonzero(~keep)[0])
-            warnings.warn(f"{self.name}: dropped {dropped} degenerate (zero-area) triangle"
-                          f"{'s' if dropped > 1 else ''} of {len(triangles)} (the first: "
-                          f"triangle {first})", stacklevel=2)
+            warnings.warn(
+                f"{self.name}: dropped {dropped} degenerate (zero-area) triangle"
+                f"{'s' if dropped > 1 else ''} of {len(triangles)} (the first: "
+                f"triangle {first})",
+                stacklevel=2,
+            )
         source = np.flatnonzero(keep)
         if len(source) > layouts.MAX_MESH_TRIANGLES:
-            raise RbgenError(f"{self.name}: {len(source)} triangles; at most "
-                             f"{layouts.MAX_MESH_TRIANGLES} per mesh (split it into meshes)")
+            raise RbgenError(
+                f"{self.name}: {len(source)} triangles; at most "
+                f"{layouts.MAX_MESH_TRIANGLES} per mesh (split it into meshes)"
+            )
         kept = triangles[source]
         p0, p1, p2 = (vertices[kept[:, k]] for k in range(3))
-        tree = bvh_build.build(np.minimum(np.minimum(p0, p1), p2),
-                               np.maximum(np.maximum(p0, p1), p2), self.name)
+        tree = bvh_build.build(
+            np.minimum(np.minimum(p0, p1), p2), np.maximum(np.maximum(p0, p1), p2), self.name
+        )
         del p0, p1, p2
         self.vertices = vertices.astype(np.float32)
         self.triangles = triangles[source][tree.order]
@@ -99,8 +111,9 @@ class TriangleMesh(Shape):
     def from_trimesh(cls, mesh, name: str | None = None) -> TriangleMesh:
         """The triangles of a ``trimesh.Trimesh``."""
         if not (hasattr(mesh, "vertices") and hasattr(mesh, "faces")):
-            raise RbgenError(f"TriangleMesh.from_trimesh expects a trimesh.Trimesh, "
-                             f"got {type(mesh).__name__}")
+            raise RbgenError(
+                f"TriangleMesh.from_trimesh expects a trimesh.Trimesh, got {type(mesh).__name__}"
+            )
         source = getattr(mesh, "metadata", {}).get("name", "mesh")
         label = name or f"TriangleMesh.from_trimesh({source})"
         return cls(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces), name=label)
@@ -124,8 +137,11 @@ class TriangleMesh(Shape):
 
     def nbytes(self) -> int:
         """Device bytes of the mesh: vertices, triangles and BVH nodes."""
-        return (16 * len(self.vertices) + layouts.MESH_TRIANGLE.itemsize * len(self.triangles)
-                + layouts.BVH_NODE.itemsize * len(self.bvh.nodes))
+        return (
+            16 * len(self.vertices)
+            + layouts.MESH_TRIANGLE.itemsize * len(self.triangles)
+            + layouts.BVH_NODE.itemsize * len(self.bvh.nodes)
+        )
 
     def device_arrays(self, vertex_offset: int = 0):
         """(float4 vertices, MeshTriangle records with vertex indices from
@@ -159,8 +175,9 @@ class TriangleMesh(Shape):
             v, t, n = v + len(vertices), t + len(triangles), n + len(nodes)
         if len(chunks) == 1:  # (one mesh: its arrays as they are, no copy of millions)
             return dict(zip(cls.table_arrays, chunks[0]))
-        return {name: np.concatenate([c[k] for c in chunks])
-                for k, name in enumerate(cls.table_arrays)}
+        return {
+            name: np.concatenate([c[k] for c in chunks]) for k, name in enumerate(cls.table_arrays)
+        }
 
 
 def load_mesh(path, name: str | None = None) -> TriangleMesh:
@@ -179,6 +196,7 @@ def load_mesh(path, name: str | None = None) -> TriangleMesh:
 
 # ----------------------------------------------------------------- construction
 
+
 def _checked(vertices, triangles, name: str) -> tuple[np.ndarray, np.ndarray]:
     """(V, 3) float64 vertices and (T, 3) int64 triangles, or an error naming the first
     bad vertex or triangle."""
@@ -195,8 +213,10 @@ def _checked(vertices, triangles, name: str) -> tuple[np.ndarray, np.ndarray]:
         raise RbgenError(f"{name}: vertex {bad[0]} is not finite: {v[bad[0]].tolist()}")
     t = np.asarray(triangles)
     if t.ndim != 2 or t.shape[1] != 3 or (t.size and not np.issubdtype(t.dtype, np.integer)):
-        raise RbgenError(f"{name}: triangles must be an (T, 3) array of vertex indices, got "
-                         f"shape {t.shape} and dtype {t.dtype}")
+        raise RbgenError(
+            f"{name}: triangles must be an (T, 3) array of vertex indices, got "
+            f"shape {t.shape} and dtype {t.dtype}"
+        )
     if len(t) == 0:
         raise RbgenError(f"{name}: the mesh is empty (no triangles)")
     t = t.astype(np.int64)
@@ -204,8 +224,10 @@ def _checked(vertices, triangles, name: str) -> tuple[np.ndarray, np.ndarray]:
     if len(bad):
         row = t[bad[0]]
         index = int(row[(row < 0) | (row >= len(v))][0])
-        raise RbgenError(f"{name}: triangle {bad[0]} {row.tolist()} has vertex index {index}, "
-                         f"outside 0..{len(v) - 1}")
+        raise RbgenError(
+            f"{name}: triangle {bad[0]} {row.tolist()} has vertex index {index}, "
+            f"outside 0..{len(v) - 1}"
+        )
     return v, t
 
 
@@ -216,11 +238,12 @@ def _non_degenerate(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     longest2 = np.maximum(np.maximum((e0 * e0).sum(1), (e1 * e1).sum(1)), (e2 * e2).sum(1))
     twice_area2 = (np.cross(e0, e1) ** 2).sum(1)
     # height = 2 area / longest edge
-    return twice_area2 > DEGENERATE_HEIGHT ** 2 * longest2 * longest2
+    return twice_area2 > DEGENERATE_HEIGHT**2 * longest2 * longest2
 
 
-def active_edges(vertices: np.ndarray, triangles: np.ndarray,
-                 degrees: float = ACTIVE_EDGE_DEGREES) -> np.ndarray:
+def active_edges(
+    vertices: np.ndarray, triangles: np.ndarray, degrees: float = ACTIVE_EDGE_DEGREES
+) -> np.ndarray:
     """The `MeshTriangle.edges` bits of every triangle (see the module docstring)."""
     vertices = np.asarray(vertices, np.float64)
     t = np.asarray(triangles, np.int64)
@@ -228,21 +251,21 @@ def active_edges(vertices: np.ndarray, triangles: np.ndarray,
     p = vertices[t]
     normals = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    start = t.reshape(-1)                                   # edge 3 i + k: vertex k ->
-    end = t[:, [1, 2, 0]].reshape(-1)                        # vertex k + 1
+    start = t.reshape(-1)  # edge 3 i + k: vertex k ->
+    end = t[:, [1, 2, 0]].reshape(-1)  # vertex k + 1
     key = np.minimum(start, end) * (len(vertices) + 1) + np.maximum(start, end)
     order = np.argsort(key)
     keys = key[order]
     first = np.flatnonzero(np.concatenate([[True], keys[1:] != keys[:-1]]))
     sizes = np.diff(np.append(first, len(keys)))
-    active = np.ones(3 * count, bool)                       # open and non-manifold: active
+    active = np.ones(3 * count, bool)  # open and non-manifold: active
     pairs = first[sizes == 2]
     e1, e2 = order[pairs], order[pairs + 1]
     t1, t2 = e1 // 3, e2 // 3
     n1, n2 = normals[t1], normals[t2]
     cos_fold = np.einsum("ij,ij->i", n1, n2)
-    consistent = start[e1] == end[e2]                        # opposite directions
-    opposite = vertices[t[t2, (e2 % 3 + 2) % 3]]             # t2's vertex off the edge
+    consistent = start[e1] == end[e2]  # opposite directions
+    opposite = vertices[t[t2, (e2 % 3 + 2) % 3]]  # t2's vertex off the edge
     convex = np.einsum("ij,ij->i", n1, opposite - vertices[start[e1]]) < 0.0
     sharp = math.cos(math.radians(degrees))
     flag = np.where(consistent, (cos_fold < sharp) & convex, np.abs(cos_fold) < sharp)

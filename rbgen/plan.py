@@ -11,6 +11,7 @@ Tunable parameters (`TUNABLES`) are chosen by `rbgen tune` per device and record
 tuning cache (`rbgen.tuning.tune_plan`); a World option ``plan={...}`` overrides them (an
 expert's lever, for measurements); an untuned device gets the hand-set value.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -39,8 +40,10 @@ class Tunable:
 
     def check(self, value, traits: DeviceTraits):
         if value not in self.candidates(traits) and not _ALSO_ALLOWED[self.name](value):
-            raise RbgenError(f"plan parameter {self.name}={value!r} is not allowed on "
-                             f"{traits.device_name}; candidates: {self.candidates(traits)}")
+            raise RbgenError(
+                f"plan parameter {self.name}={value!r} is not allowed on "
+                f"{traits.device_name}; candidates: {self.candidates(traits)}"
+            )
         return value
 
 
@@ -54,28 +57,40 @@ _CANDIDATES = {
     "batching": _batching_candidates,
     "release_sweeps": lambda traits: [2, 1, 3, None],
     "ordered_rounds": lambda traits: [ORDERED_ROUNDS, 32, 128],
-    "group_count": lambda traits: [default_group_count(traits),
-                                   max(1, default_group_count(traits) // 2),
-                                   2 * default_group_count(traits)],
+    "group_count": lambda traits: [
+        default_group_count(traits),
+        max(1, default_group_count(traits) // 2),
+        2 * default_group_count(traits),
+    ],
 }
 _ALSO_ALLOWED = {
     "batching": lambda v: v in ("global", "cells", "slabs"),
-    "release_sweeps": lambda v: v is None or (isinstance(v, int) and not isinstance(v, bool)
-                                              and v >= 0),
+    "release_sweeps": lambda v: (
+        v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
+    ),
     "ordered_rounds": lambda v: isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2**32,
     "group_count": lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 4096,
 }
 
 #: plan parameters `rbgen tune` chooses per device (the first candidate is the hand-set
 #: default)
-TUNABLES = {t.name: t for t in (
-    Tunable("batching", "the colouring a PGS solve runs over; the fastest that holds"),
-    Tunable("release_sweeps", "the last sweeps that solve each manifold's complete block; "
-                              "the earlier ones take its cheaper all-pushing solution"),
-    Tunable("ordered_rounds", "global batching: colouring rounds a step in index order "
-                              "(fewest colours) before hashed rounds finish the step"),
-    Tunable("group_count", "spatial batching: groups per colour (work for every core)"),
-)}
+TUNABLES = {
+    t.name: t
+    for t in (
+        Tunable("batching", "the colouring a PGS solve runs over; the fastest that holds"),
+        Tunable(
+            "release_sweeps",
+            "the last sweeps that solve each manifold's complete block; "
+            "the earlier ones take its cheaper all-pushing solution",
+        ),
+        Tunable(
+            "ordered_rounds",
+            "global batching: colouring rounds a step in index order "
+            "(fewest colours) before hashed rounds finish the step",
+        ),
+        Tunable("group_count", "spatial batching: groups per colour (work for every core)"),
+    )
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,31 +124,45 @@ class Plan:
 
     def choices(self) -> dict[str, Any]:
         """The choices as plain values (no reasons)."""
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-                if f.name not in ("reasons", "sources")}
+        return {
+            f.name: getattr(self, f.name)
+            for f in dataclasses.fields(self)
+            if f.name not in ("reasons", "sources")
+        }
 
     def to_json(self) -> str:
         """The plan as JSON: every choice with its source and reason."""
         choices = self.choices()
         choices["shape_types"] = list(self.shape_types)
-        return json.dumps({"choices": choices, "sources": self.sources,
-                           "reasons": self.reasons}, indent=2)
+        return json.dumps(
+            {"choices": choices, "sources": self.sources, "reasons": self.reasons}, indent=2
+        )
 
     def describe(self) -> str:
         """One line for logs and benchmarks."""
         if self.solver == "jacobi":
             solve = f"jacobi ({self.normal_solve} normal solve)"
         else:
-            solve = (f"pgs over {self.batching} batching ({self.solve_form}, "
-                     f"{self.normal_solve} normal solve, release sweeps "
-                     f"{self.release_sweeps if self.normal_solve == 'block' else '-'}, "
-                     f"{self.warm_start_mode} warm start)")
-        return (f"{solve}{', persistent launch' if self.persistent else ''}, "
-                f"{'fast' if self.fast_math else 'exact'} math, {self.broadphase} broadphase")
+            solve = (
+                f"pgs over {self.batching} batching ({self.solve_form}, "
+                f"{self.normal_solve} normal solve, release sweeps "
+                f"{self.release_sweeps if self.normal_solve == 'block' else '-'}, "
+                f"{self.warm_start_mode} warm start)"
+            )
+        return (
+            f"{solve}{', persistent launch' if self.persistent else ''}, "
+            f"{'fast' if self.fast_math else 'exact'} math, {self.broadphase} broadphase"
+        )
 
 
-def derive_plan(traits: DeviceTraits, options: dict, shape_types=(), *,
-                tuned: dict | None = None, persistent_failed: bool = False) -> Plan:
+def derive_plan(
+    traits: DeviceTraits,
+    options: dict,
+    shape_types=(),
+    *,
+    tuned: dict | None = None,
+    persistent_failed: bool = False,
+) -> Plan:
     """The plan of a World with construction ``options`` (checked, as `rbgen.settings`
     returns them) whose shapes have ``shape_types``, on a device with ``traits``.
 
@@ -143,6 +172,7 @@ def derive_plan(traits: DeviceTraits, options: dict, shape_types=(), *,
     """
     if tuned is None:
         from .tuning import lookup_plan
+
         tuned = lookup_plan(traits)
     overrides = dict(options.get("plan") or {})
     unknown = sorted(set(overrides) - set(TUNABLES))
@@ -166,77 +196,124 @@ def derive_plan(traits: DeviceTraits, options: dict, shape_types=(), *,
 
     solver = options["solver"]
     if solver == "jacobi" and options["batching"] is not None:
-        raise RbgenError(f"batching={options['batching']!r} needs solver='pgs': the Jacobi "
-                         f"solver colours nothing")
+        raise RbgenError(
+            f"batching={options['batching']!r} needs solver='pgs': the Jacobi "
+            f"solver colours nothing"
+        )
     sources["solver"] = "option" if solver != "pgs" else "default"
-    reasons["solver"] = ("Gauss-Seidel over colours holds stacks at the default sweeps"
-                         if solver == "pgs" else "set by the World's options")
+    reasons["solver"] = (
+        "Gauss-Seidel over colours holds stacks at the default sweeps"
+        if solver == "pgs"
+        else "set by the World's options"
+    )
     validated = persistent_launch_validated(traits) and not persistent_failed
     batching = solve_form = warm_start_mode = None
     if solver == "pgs":
         capable = persistent_launch_validated(traits)
-        batching = pick("batching", options["batching"],
-                        "global" if capable else ("cells" if traits.is_gpu else "slabs"),
-                        "one colouring and one solver launch a step over every compute unit"
-                        if capable else
-                        ("cells spread any pile over the device's compute units"
-                         if traits.is_gpu else
-                         "slabs keep stacks whole for a serial solve, over every core"),
-                        tunable=True)
+        batching = pick(
+            "batching",
+            options["batching"],
+            "global" if capable else ("cells" if traits.is_gpu else "slabs"),
+            "one colouring and one solver launch a step over every compute unit"
+            if capable
+            else (
+                "cells spread any pile over the device's compute units"
+                if traits.is_gpu
+                else "slabs keep stacks whole for a serial solve, over every core"
+            ),
+            tunable=True,
+        )
         if persistent_failed and batching == "global":
             batching = "cells" if traits.is_gpu else "slabs"
             sources["batching"] = "fallback"
-            reasons["batching"] = ("a persistent launch gave up on this device (its work "
-                                   "groups did not all run at once)")
+            reasons["batching"] = (
+                "a persistent launch gave up on this device (its work "
+                "groups did not all run at once)"
+            )
         solve_form = "lanes" if batching == "global" else default_solve_form(traits)
-        reasons["solve_form"] = ("a work group's lanes solve a batch together on GPUs; one "
-                                 "work-item walks its group in order on CPUs")
+        reasons["solve_form"] = (
+            "a work group's lanes solve a batch together on GPUs; one "
+            "work-item walks its group in order on CPUs"
+        )
         sources["solve_form"] = "default"
         persistent = batching == "global"
         reasons["persistent"] = "global batching's batches are solved by one persistent launch"
     else:
         persistent = validated
-        reasons["persistent"] = ("one launch runs every phase where every work group runs "
-                                 "at once" if validated else "one launch per phase")
+        reasons["persistent"] = (
+            "one launch runs every phase where every work group runs at once"
+            if validated
+            else "one launch per phase"
+        )
     sources["persistent"] = "default"
-    normal_solve = pick("normal_solve", options["normal_solve"],
-                        "block" if solver == "jacobi" else default_normal_solve(solve_form,
-                                                                                 batching),
-                        "a serial Gauss-Seidel over whole stacks holds them with the cheaper "
-                        "rows" if solver == "pgs" and default_normal_solve(
-                            solve_form, batching) == "sequential" else
-                        "the block leaves no point-order torque where manifolds are solved "
-                        "side by side or a column is split between launches")
+    normal_solve = pick(
+        "normal_solve",
+        options["normal_solve"],
+        "block" if solver == "jacobi" else default_normal_solve(solve_form, batching),
+        "a serial Gauss-Seidel over whole stacks holds them with the cheaper rows"
+        if solver == "pgs" and default_normal_solve(solve_form, batching) == "sequential"
+        else "the block leaves no point-order torque where manifolds are solved "
+        "side by side or a column is split between launches",
+    )
     if solver == "pgs":
         summed = persistent and traits.has_extension(INT64_ATOMICS)
         warm_start_mode = "summed" if summed else "batched"
         sources["warm_start_mode"] = "default"
-        reasons["warm_start_mode"] = ("two phases instead of a batch step per colour, "
-                                      "order-free integer sums" if summed else
-                                      "a batch step per colour (no device-wide barrier or "
-                                      "64-bit atomics)")
-    fast_math = pick("fast_math", options["fast_math"], traits.is_gpu,
-                     "a shorter dependent chain per lane on GPUs; exact arithmetic keeps CPU "
-                     "results the reference")
+        reasons["warm_start_mode"] = (
+            "two phases instead of a batch step per colour, order-free integer sums"
+            if summed
+            else "a batch step per colour (no device-wide barrier or 64-bit atomics)"
+        )
+    fast_math = pick(
+        "fast_math",
+        options["fast_math"],
+        traits.is_gpu,
+        "a shorter dependent chain per lane on GPUs; exact arithmetic keeps CPU "
+        "results the reference",
+    )
     if solver == "pgs":
-        release_sweeps = pick("release_sweeps", None, 2,
-                              "the last two sweeps remove the rows' point-order residual; the "
-                              "earlier ones are cheaper", tunable=True)
+        release_sweeps = pick(
+            "release_sweeps",
+            None,
+            2,
+            "the last two sweeps remove the rows' point-order residual; the "
+            "earlier ones are cheaper",
+            tunable=True,
+        )
     else:
         release_sweeps = None
         sources["release_sweeps"] = "default"
         reasons["release_sweeps"] = "the Jacobi solver solves the complete block every sweep"
-    ordered_rounds = pick("ordered_rounds", None, ORDERED_ROUNDS,
-                          "enough index-order rounds to reach the fewest colours over a few "
-                          "steps", tunable=True)
-    group_count = pick("group_count", None, default_group_count(traits),
-                       "two groups per compute unit on GPUs, eight per core on CPUs",
-                       tunable=True)
-    return Plan(device=traits.fingerprint, device_name=traits.device_name, solver=solver,
-                batching=batching, solve_form=solve_form, persistent=persistent,
-                normal_solve=normal_solve, warm_start_mode=warm_start_mode,
-                fast_math=bool(fast_math),
-                release_sweeps=None if release_sweeps is None else int(release_sweeps),
-                ordered_rounds=int(ordered_rounds), group_count=int(group_count),
-                broadphase=options["broadphase"], gyroscopic=bool(options["gyroscopic"]),
-                shape_types=tuple(sorted(shape_types)), reasons=reasons, sources=sources)
+    ordered_rounds = pick(
+        "ordered_rounds",
+        None,
+        ORDERED_ROUNDS,
+        "enough index-order rounds to reach the fewest colours over a few steps",
+        tunable=True,
+    )
+    group_count = pick(
+        "group_count",
+        None,
+        default_group_count(traits),
+        "two groups per compute unit on GPUs, eight per core on CPUs",
+        tunable=True,
+    )
+    return Plan(
+        device=traits.fingerprint,
+        device_name=traits.device_name,
+        solver=solver,
+        batching=batching,
+        solve_form=solve_form,
+        persistent=persistent,
+        normal_solve=normal_solve,
+        warm_start_mode=warm_start_mode,
+        fast_math=bool(fast_math),
+        release_sweeps=None if release_sweeps is None else int(release_sweeps),
+        ordered_rounds=int(ordered_rounds),
+        group_count=int(group_count),
+        broadphase=options["broadphase"],
+        gyroscopic=bool(options["gyroscopic"]),
+        shape_types=tuple(sorted(shape_types)),
+        reasons=reasons,
+        sources=sources,
+    )

@@ -12,6 +12,7 @@ the timing noise wins instead (the hand-set default is listed first, so noise ne
 a device away from it). The winners go to the device's tuning cache (entry "plan"), which
 `rbgen.plan.derive_plan` reads.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -55,21 +56,32 @@ def relevant(name: str, values: dict) -> bool:
 def holds(summary: dict, reference: dict) -> bool:
     """A candidate's scene holds when it has no NaN, nothing sunk, and no more boxes
     displaced than the hand-set default's run of the same scene."""
-    return (summary["nans"] == 0 and summary["sunk"] == 0
-            and summary.get("displaced", 0) <= reference.get("displaced", 0))
+    return (
+        summary["nans"] == 0
+        and summary["sunk"] == 0
+        and summary.get("displaced", 0) <= reference.get("displaced", 0)
+    )
 
 
 def choose(results: list[tuple[object, dict]], reference: dict, noise: float = NOISE):
     """The winning candidate value among ``(value, run summary)``, listed default first:
     the fastest that holds, ties within ``noise`` to the earlier one."""
-    timed = [(value, summary["ms_per_step"] if holds(summary, reference) else None)
-             for value, summary in results]
+    timed = [
+        (value, summary["ms_per_step"] if holds(summary, reference) else None)
+        for value, summary in results
+    ]
     winner = pick_winner(timed, noise)
     return results[0][0] if winner is None else timed[winner][0]
 
 
-def tune_plan(runtime: Runtime, *, quick: bool = False, scene: TuningScene | None = None,
-              progress: Callable[[str], None] | None = None, store: bool = True) -> dict:
+def tune_plan(
+    runtime: Runtime,
+    *,
+    quick: bool = False,
+    scene: TuningScene | None = None,
+    progress: Callable[[str], None] | None = None,
+    store: bool = True,
+) -> dict:
     """Tune the plan parameters of ``runtime``'s device (see the module docstring);
     returns the cache entry (stored unless ``store`` is False)."""
     from .harness import run_scene
@@ -81,8 +93,15 @@ def tune_plan(runtime: Runtime, *, quick: bool = False, scene: TuningScene | Non
     chosen = {name: getattr(default, name) for name in TUNABLES}
 
     def run(values: dict) -> dict:
-        return run_scene(scene.name, scene.size, scene.steps, device=runtime, progress=False,
-                         warmup=scene.warmup, plan=values)
+        return run_scene(
+            scene.name,
+            scene.size,
+            scene.steps,
+            device=runtime,
+            progress=False,
+            warmup=scene.warmup,
+            plan=values,
+        )
 
     reference = run(chosen)
     timings = []
@@ -94,16 +113,27 @@ def tune_plan(runtime: Runtime, *, quick: bool = False, scene: TuningScene | Non
         for value in tunable.candidates(traits):
             summary = reference if value == chosen[name] else run({**chosen, name: value})
             results.append((value, summary))
-            timings.append({"parameter": name, "value": value,
-                            "ms_per_step": summary["ms_per_step"],
-                            "holds": holds(summary, reference)})
+            timings.append(
+                {
+                    "parameter": name,
+                    "value": value,
+                    "ms_per_step": summary["ms_per_step"],
+                    "holds": holds(summary, reference),
+                }
+            )
             if progress:
-                progress(f"  plan {name}={value!r}: {summary['ms_per_step']:.3f} ms/step"
-                         + ("" if holds(summary, reference) else " (does not hold)"))
+                progress(
+                    f"  plan {name}={value!r}: {summary['ms_per_step']:.3f} ms/step"
+                    + ("" if holds(summary, reference) else " (does not hold)")
+                )
         chosen[name] = choose(results, reference)
-    entry = {"plan_version": PLAN_VERSION, "values": chosen,
-             "scene": f"{scene.name} {scene.size}, {scene.steps} steps",
-             "timings": timings, "tuned_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    entry = {
+        "plan_version": PLAN_VERSION,
+        "values": chosen,
+        "scene": f"{scene.name} {scene.size}, {scene.steps} steps",
+        "timings": timings,
+        "tuned_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
     if store:
         cache = load_cache(traits, reload=True)
         cache["entries"][PLAN_ENTRY] = entry

@@ -8,6 +8,7 @@ while a bar is live; `build_feedback` shows a line while kernel builds
 take long (the first, cold run of a kernel compiles it; later runs load
 the binary from the disk cache).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -30,15 +31,25 @@ def enabled() -> bool:
     return bool(getattr(sys.stderr, "isatty", lambda: False)())
 
 
-def bar(total=None, desc: str = "", unit: str = "it", delay: float = 0.0, show: bool = True,
-        **options):
+def bar(
+    total=None, desc: str = "", unit: str = "it", delay: float = 0.0, show: bool = True, **options
+):
     """A tqdm bar on stderr (a disabled one when bars do not show, or ``show`` is False);
     ``delay``: seconds before it appears, so short work shows none; ``options`` go to tqdm."""
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, unit=unit, delay=delay, leave=False,
-                disable=not (show and enabled()), file=sys.stderr, dynamic_ncols=True,
-                mininterval=0.2, **options)
+    return tqdm(
+        total=total,
+        desc=desc,
+        unit=unit,
+        delay=delay,
+        leave=False,
+        disable=not (show and enabled()),
+        file=sys.stderr,
+        dynamic_ncols=True,
+        mininterval=0.2,
+        **options,
+    )
 
 
 def say(line: str) -> None:
@@ -125,8 +136,11 @@ class _Builds:
                     line.close()
                 return
             if line is None and started is not None and now - started > SLOW_BUILD:
-                line = bar(desc="compiling OpenCL kernels (cached on disk for the next run)",
-                           unit="program", bar_format="{desc}: {n} built, {elapsed}{postfix}")
+                line = bar(
+                    desc="compiling OpenCL kernels (cached on disk for the next run)",
+                    unit="program",
+                    bar_format="{desc}: {n} built, {elapsed}{postfix}",
+                )
             if line is not None:
                 line.n = count
                 line.set_postfix_str(name, refresh=False)

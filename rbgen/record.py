@@ -18,6 +18,7 @@ a separate process, so a simulation loop pays only for the copy of the
 transforms and handing them over (rendering holds Python's GIL, so a thread
 would not do).
 """
+
 from __future__ import annotations
 
 import os
@@ -34,8 +35,14 @@ from .render.camera import coerce_camera
 from .render.scene import Bodies, Frame, bodies_of, frame_of
 
 #: extension -> format
-FORMATS = {".png": "png", ".gif": "gif", ".mp4": "mp4",
-           ".usd": "usd", ".usda": "usd", ".usdc": "usd"}
+FORMATS = {
+    ".png": "png",
+    ".gif": "gif",
+    ".mp4": "mp4",
+    ".usd": "usd",
+    ".usda": "usd",
+    ".usdc": "usd",
+}
 #: frames that may wait for a background renderer before `capture` waits for it
 BACKGROUND_QUEUE = 32
 
@@ -44,8 +51,10 @@ def record_format(path) -> str:
     """The format of a recording path, from its extension (`RbgenError` if unknown)."""
     suffix = Path(path).suffix.lower()
     if suffix not in FORMATS:
-        raise RbgenError(f"record path {str(path)!r}: unknown extension {suffix or '(none)'!r}; "
-                         f"choose one of {sorted(FORMATS)}")
+        raise RbgenError(
+            f"record path {str(path)!r}: unknown extension {suffix or '(none)'!r}; "
+            f"choose one of {sorted(FORMATS)}"
+        )
     return FORMATS[suffix]
 
 
@@ -60,13 +69,23 @@ class Recorder:
     context manager, or call `close` (or `abort`) yourself.
     """
 
-    def __init__(self, path, camera=None, *, width: int = 640, height: int = 360,
-                 fps: float = 30.0, samples: int | None = None, background: bool = False):
+    def __init__(
+        self,
+        path,
+        camera=None,
+        *,
+        width: int = 640,
+        height: int = 360,
+        fps: float = 30.0,
+        samples: int | None = None,
+        background: bool = False,
+    ):
         self.format = record_format(path)
         self.path = Path(path)
         self.camera = coerce_camera(camera)
-        if not (isinstance(fps, (int, float, np.integer, np.floating)) and np.isfinite(fps)
-                and fps > 0):
+        if not (
+            isinstance(fps, (int, float, np.integer, np.floating)) and np.isfinite(fps) and fps > 0
+        ):
             raise RbgenError(f"record fps must be a positive finite number, got {fps!r}")
         for name, value in (("width", width), ("height", height)):
             if not isinstance(value, (int, np.integer)) or not 16 <= value <= 8192:
@@ -78,9 +97,15 @@ class Recorder:
         self._body_count = -1
         self._temp = _claim_temp(self.path)
         options: dict[str, Any]  # make_sink's keyword arguments
-        options = {"format": self.format, "temp": str(self._temp), "camera": self.camera,
-                   "width": self.width, "height": self.height, "fps": self.fps,
-                   "samples": samples}
+        options = {
+            "format": self.format,
+            "temp": str(self._temp),
+            "camera": self.camera,
+            "width": self.width,
+            "height": self.height,
+            "fps": self.fps,
+            "samples": samples,
+        }
         self._sink = _BackgroundSink(options) if background else make_sink(**options)
         self._closed = False
 
@@ -99,8 +124,9 @@ class Recorder:
         if self._closed:
             raise RbgenError(f"recording {str(self.path)!r} is closed")
         if frame.positions.shape[0] != bodies.count:
-            raise RbgenError(f"frame has {frame.positions.shape[0]} bodies, bodies has "
-                             f"{bodies.count}")
+            raise RbgenError(
+                f"frame has {frame.positions.shape[0]} bodies, bodies has {bodies.count}"
+            )
         try:
             self._sink.add(frame, bodies)
         except BaseException:
@@ -170,18 +196,19 @@ def record_hook(recorders, every: int = 1):
 
 # ----------------------------------------------------------------- files
 
+
 def _claim_temp(path: Path) -> Path:
     """A fresh temporary file beside ``path`` with the same extension (encoders pick
     their format by it); `RbgenError` naming ``path`` when its directory cannot take it."""
     directory = path.parent if str(path.parent) else Path(".")
     if not directory.is_dir():
-        raise RbgenError(f"record path {str(path)!r}: directory {str(directory)!r} "
-                         f"does not exist")
+        raise RbgenError(f"record path {str(path)!r}: directory {str(directory)!r} does not exist")
     if path.is_dir():
         raise RbgenError(f"record path {str(path)!r} is a directory")
     try:
-        fd, name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".partial{path.suffix}",
-                                    dir=directory)
+        fd, name = tempfile.mkstemp(
+            prefix=f".{path.stem}.", suffix=f".partial{path.suffix}", dir=directory
+        )
     except OSError as err:
         raise RbgenError(f"record path {str(path)!r} cannot be written: {err.strerror}") from None
     os.close(fd)
@@ -203,10 +230,12 @@ def _remove(path: Path) -> None:
 
 # ----------------------------------------------------------------- sinks
 
+
 def make_sink(format: str, temp: str, camera, width: int, height: int, fps: float, samples):
     """The writer of one format into ``temp``."""
     if format == "usd":
         from .render.usd import UsdSink
+
         return UsdSink(temp, fps)
     return _ImageSink(format, temp, camera, width, height, fps, samples)
 
@@ -246,26 +275,46 @@ class _ImageSink:
         image = self._render(frame, bodies, fix_camera=True)
         if self.format == "gif":
             from PIL import Image
-            self._gif.append(Image.fromarray(image).quantize(
-                colors=255, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE))
+
+            self._gif.append(
+                Image.fromarray(image).quantize(
+                    colors=255, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE
+                )
+            )
             return
         if self._video is None:
             import imageio_ffmpeg
+
             self._video = imageio_ffmpeg.write_frames(
-                self.temp, self.size, fps=self.fps, codec="libx264", pix_fmt_out="yuv420p",
-                quality=7, macro_block_size=2, ffmpeg_log_level="error")
+                self.temp,
+                self.size,
+                fps=self.fps,
+                codec="libx264",
+                pix_fmt_out="yuv420p",
+                quality=7,
+                macro_block_size=2,
+                ffmpeg_log_level="error",
+            )
             self._video.send(None)
         self._video.send(np.ascontiguousarray(image))
 
     def finish(self):
         from PIL import Image
+
         if self.format == "png":
             image = self._render(*self._last, fix_camera=False)
             Image.fromarray(image).save(self.temp, format="PNG", optimize=True)
         elif self.format == "gif":
             first, rest = self._gif[0], self._gif[1:]
-            first.save(self.temp, format="GIF", save_all=True, append_images=rest, loop=0,
-                       duration=max(20, round(1000 / self.fps)), optimize=False)
+            first.save(
+                self.temp,
+                format="GIF",
+                save_all=True,
+                append_images=rest,
+                loop=0,
+                duration=max(20, round(1000 / self.fps)),
+                optimize=False,
+            )
         elif self._video is not None:
             self._video.close()
             self._video = None
@@ -295,8 +344,12 @@ class _BackgroundSink:
         env = dict(os.environ)
         root = str(Path(__file__).resolve().parent.parent)
         env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
-        self._process = subprocess.Popen([sys.executable, "-m", "rbgen.record"], env=env,
-                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        self._process = subprocess.Popen(
+            [sys.executable, "-m", "rbgen.record"],
+            env=env,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+        )
         self._queue: queue_module.Queue = queue_module.Queue(BACKGROUND_QUEUE)
         self._bodies_sent = None
         self._feed_error: BaseException | None = None
@@ -329,8 +382,11 @@ class _BackgroundSink:
         assert self._process.stdout is not None  # a pipe (Popen with stdout=PIPE)
         out = self._process.stdout.read().decode(errors="replace").strip()
         self._process.wait()
-        return out or (repr(self._feed_error) if self._feed_error else
-                       f"worker exit code {self._process.returncode}")
+        return out or (
+            repr(self._feed_error)
+            if self._feed_error
+            else f"worker exit code {self._process.returncode}"
+        )
 
     def finish(self):
         self._queue.put("finish")

@@ -11,6 +11,7 @@ these beside its ms/step (`rbgen.harness.run_scene`, `rbgen.bench`):
                 as built, so every layer's drop should stay near zero, and a
                 layer that sinks into the one below shows here first.
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -10,6 +10,7 @@ second layer is shifted by 1 along x and z, so each cube rests on four cubes
 of the layer below (the x and z pitch is 2.2, leaving gaps of 0.2 inside a
 layer).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -72,8 +73,13 @@ def boxbox_scene(nx: int, ny: int, nz: int) -> BoxScene:
     # margin on every side; its top face is y = 0.
     reach = np.array([2.2 * max(nx - 1, 0) + 2.0, 0.0, 2.2 * max(nz - 1, 0) + 2.0])
     centre = np.array([(reach[0] - 1.0) / 2, -GROUND_HALF_THICKNESS, (reach[2] - 1.0) / 2])
-    half = np.array([(reach[0] + 1.0) / 2 + GROUND_MARGIN, GROUND_HALF_THICKNESS,
-                     (reach[2] + 1.0) / 2 + GROUND_MARGIN])
+    half = np.array(
+        [
+            (reach[0] + 1.0) / 2 + GROUND_MARGIN,
+            GROUND_HALF_THICKNESS,
+            (reach[2] + 1.0) / 2 + GROUND_MARGIN,
+        ]
+    )
     return BoxScene(
         positions=positions,
         half_extents=np.ones(3, np.float32),
@@ -91,8 +97,9 @@ def standard_boxbox_dims(count: int) -> tuple[int, int, int]:
     try:
         return STANDARD_BOXBOX_DIMS[int(count)]
     except (KeyError, ValueError, TypeError):
-        raise RbgenError(f"no standard BoxBox size {count!r}; "
-                         f"known sizes: {sorted(STANDARD_BOXBOX_DIMS)}") from None
+        raise RbgenError(
+            f"no standard BoxBox size {count!r}; known sizes: {sorted(STANDARD_BOXBOX_DIMS)}"
+        ) from None
 
 
 def standard_boxbox_scene(count: int) -> BoxScene:
@@ -119,8 +126,9 @@ def scene_aabbs(scene: BoxScene, ground: bool = True) -> tuple[np.ndarray, np.nd
     return aabbs, static
 
 
-def pile_positions(n: int, layers: int = 5, pitch: float = 1.5, jitter: float = 0.01,
-                   seed: int = 0) -> np.ndarray:
+def pile_positions(
+    n: int, layers: int = 5, pitch: float = 1.5, jitter: float = 0.01, seed: int = 0
+) -> np.ndarray:
     """Centres of ``n`` unit boxes dropped in a loose grid: ``layers`` layers (fewer for
     small n) at ``pitch`` from y = 1, the square side just large enough, jittered by up
     to ``jitter`` in every axis (``seed``); they land in columns of ``layers``."""
@@ -134,8 +142,13 @@ def pile_positions(n: int, layers: int = 5, pitch: float = 1.5, jitter: float = 
 def pyramid_positions(rows: int, gap: float = 0.02) -> np.ndarray:
     """Centres of a 2-D pyramid of unit boxes with ``rows`` rows on the ground (y = 0),
     ``gap`` between neighbours of a row; the last box is the top."""
-    return np.array([[(i - (rows - r - 1) / 2) * (1 + gap), 0.5 + r, 0.0]
-                     for r in range(rows) for i in range(rows - r)]).reshape(-1, 3)
+    return np.array(
+        [
+            [(i - (rows - r - 1) / 2) * (1 + gap), 0.5 + r, 0.0]
+            for r in range(rows)
+            for i in range(rows - r)
+        ]
+    ).reshape(-1, 3)
 
 
 # --------------------------------------------------------------------------
@@ -158,7 +171,7 @@ def terrain_heights(cells: int, spacing: float = TERRAIN_SPACING, seed: int = 0)
     gx, gz = np.meshgrid(x, x, indexing="ij")
     heights = np.zeros_like(gx)
     for octave in range(4):
-        wavelength, amplitude = 80.0 / 2 ** octave, 1.0 / 2 ** octave
+        wavelength, amplitude = 80.0 / 2**octave, 1.0 / 2**octave
         for _ in range(2):
             angle, phase = rng.uniform(0, 2 * np.pi, 2)
             along = gx * np.cos(angle) + gz * np.sin(angle)
@@ -175,14 +188,21 @@ def height_field(heights: np.ndarray, spacing: float = TERRAIN_SPACING):
     vertices = np.stack([gx.ravel(), heights.ravel(), gz.ravel()], axis=1)
     i, j = np.meshgrid(np.arange(nx - 1), np.arange(nz - 1), indexing="ij")
     v00 = (i * nz + j).ravel()
-    triangles = np.concatenate([np.stack([v00, v00 + 1, v00 + nz], 1),
-                                np.stack([v00 + nz, v00 + 1, v00 + nz + 1], 1)])
+    triangles = np.concatenate(
+        [np.stack([v00, v00 + 1, v00 + nz], 1), np.stack([v00 + nz, v00 + 1, v00 + nz + 1], 1)]
+    )
     return vertices, triangles
 
 
-def rain_positions(n: int, heights: np.ndarray, spacing: float = TERRAIN_SPACING,
-                   pitch: float = 1.6, layers: int = 4, clearance: float = 1.0,
-                   seed: int = 0) -> np.ndarray:
+def rain_positions(
+    n: int,
+    heights: np.ndarray,
+    spacing: float = TERRAIN_SPACING,
+    pitch: float = 1.6,
+    layers: int = 4,
+    clearance: float = 1.0,
+    seed: int = 0,
+) -> np.ndarray:
     """Centres of ``n`` bodies above the middle of a height field: a square grid of
     ``pitch`` in ``layers`` layers (fewer for small n), the lowest ``clearance`` above the
     highest ground under the grid, jittered by 10 cm."""

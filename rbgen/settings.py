@@ -11,6 +11,7 @@ A default given as None for a construction option means "the device's choice", w
 plan makes and explains (`Plan.reasons`). Every value is checked when set: a bad one
 raises `RbgenError` naming the option and what it allows, and leaves the World as it was.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -37,15 +38,21 @@ class Option:
 
 def _integer(lo: int, hi: int | None = None) -> Callable[[Any], Any]:
     def check(value):
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
-                or value < lo or (hi is not None and value > hi):
+        if (
+            isinstance(value, (bool, np.bool_))
+            or not isinstance(value, (int, np.integer))
+            or value < lo
+            or (hi is not None and value > hi)
+        ):
             raise ValueError
         return int(value)
+
     return check
 
 
-def _number(lo: float, hi: float | None = None, *, open_lo: bool = False,
-            open_hi: bool = False) -> Callable[[Any], Any]:
+def _number(
+    lo: float, hi: float | None = None, *, open_lo: bool = False, open_hi: bool = False
+) -> Callable[[Any], Any]:
     def check(value):
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
             raise ValueError
@@ -55,6 +62,7 @@ def _number(lo: float, hi: float | None = None, *, open_lo: bool = False,
         if hi is not None and (value > hi or (open_hi and value == hi)):
             raise ValueError
         return value
+
     return check
 
 
@@ -71,6 +79,7 @@ def _choice(*values, none: bool = False) -> Callable[[Any], Any]:
         if not isinstance(value, str) or value not in values:
             raise ValueError
         return value
+
     return check
 
 
@@ -95,58 +104,161 @@ def _plan_overrides(value):
 
 #: settings a step reads; attributes of the World, changeable between steps
 STEP_SETTINGS = (
-    Option("gravity", (0.0, -9.81, 0.0), _vector3, "3 finite numbers (m/s^2)",
-           "acceleration of every dynamic body"),
-    Option("substeps", 1, _integer(1, 64), "an integer from 1 to 64",
-           "solver substeps a step on the step's contacts: stiffness from the substep rate "
-           "holds tall stacks; each costs the sweeps below, not a collision pass"),
-    Option("iterations", 10, _integer(0, 1000), "an integer from 0 to 1000",
-           "velocity sweeps of the solver a substep: more hold taller stacks, linearly dearer"),
-    Option("position_iterations", 4, _integer(0, 1000), "an integer from 0 to 1000",
-           "split-impulse push sweeps a substep: remove penetration without adding momentum"),
-    Option("relaxation", 1.0, _number(0.0, 2.0, open_lo=True, open_hi=True),
-           "a number in (0, 2)", "successive over-relaxation of each row (1: plain "
-           "Gauss-Seidel; above 1 makes columns walk sideways)"),
-    Option("warm_start", True, _flag, "True or False",
-           "start each step from the last step's impulses of the same contact: stacks "
-           "converge over steps instead of within one"),
-    Option("contact_margin", 0.02, _number(0.0), "a finite number >= 0 (m)",
-           "contacts are created this far apart, so resting contacts persist between steps"),
-    Option("restitution_threshold", 0.5, _number(0.0), "a finite number >= 0 (m/s)",
-           "slower impacts do not bounce, so resting bodies do not jitter"),
-    Option("penetration_slop", 0.001, _number(0.0), "a finite number >= 0 (m)",
-           "penetration left alone, so resting contacts do not flicker"),
-    Option("penetration_recovery", 0.2, _number(0.0, 1.0), "a number in [0, 1]",
-           "fraction of the penetration the push sweeps remove a step"),
-    Option("linear_damping", 0.0, _number(0.0, 1.0, open_hi=True), "a number in [0, 1)",
-           "fraction of linear velocity lost per second (v *= (1 - d)^dt)"),
-    Option("angular_damping", 0.0, _number(0.0, 1.0, open_hi=True), "a number in [0, 1)",
-           "fraction of angular velocity lost per second"),
+    Option(
+        "gravity",
+        (0.0, -9.81, 0.0),
+        _vector3,
+        "3 finite numbers (m/s^2)",
+        "acceleration of every dynamic body",
+    ),
+    Option(
+        "substeps",
+        1,
+        _integer(1, 64),
+        "an integer from 1 to 64",
+        "solver substeps a step on the step's contacts: stiffness from the substep rate "
+        "holds tall stacks; each costs the sweeps below, not a collision pass",
+    ),
+    Option(
+        "iterations",
+        10,
+        _integer(0, 1000),
+        "an integer from 0 to 1000",
+        "velocity sweeps of the solver a substep: more hold taller stacks, linearly dearer",
+    ),
+    Option(
+        "position_iterations",
+        4,
+        _integer(0, 1000),
+        "an integer from 0 to 1000",
+        "split-impulse push sweeps a substep: remove penetration without adding momentum",
+    ),
+    Option(
+        "relaxation",
+        1.0,
+        _number(0.0, 2.0, open_lo=True, open_hi=True),
+        "a number in (0, 2)",
+        "successive over-relaxation of each row (1: plain "
+        "Gauss-Seidel; above 1 makes columns walk sideways)",
+    ),
+    Option(
+        "warm_start",
+        True,
+        _flag,
+        "True or False",
+        "start each step from the last step's impulses of the same contact: stacks "
+        "converge over steps instead of within one",
+    ),
+    Option(
+        "contact_margin",
+        0.02,
+        _number(0.0),
+        "a finite number >= 0 (m)",
+        "contacts are created this far apart, so resting contacts persist between steps",
+    ),
+    Option(
+        "restitution_threshold",
+        0.5,
+        _number(0.0),
+        "a finite number >= 0 (m/s)",
+        "slower impacts do not bounce, so resting bodies do not jitter",
+    ),
+    Option(
+        "penetration_slop",
+        0.001,
+        _number(0.0),
+        "a finite number >= 0 (m)",
+        "penetration left alone, so resting contacts do not flicker",
+    ),
+    Option(
+        "penetration_recovery",
+        0.2,
+        _number(0.0, 1.0),
+        "a number in [0, 1]",
+        "fraction of the penetration the push sweeps remove a step",
+    ),
+    Option(
+        "linear_damping",
+        0.0,
+        _number(0.0, 1.0, open_hi=True),
+        "a number in [0, 1)",
+        "fraction of linear velocity lost per second (v *= (1 - d)^dt)",
+    ),
+    Option(
+        "angular_damping",
+        0.0,
+        _number(0.0, 1.0, open_hi=True),
+        "a number in [0, 1)",
+        "fraction of angular velocity lost per second",
+    ),
 )
 
 #: choices that decide the kernels; fixed for a World (see `rbgen.plan`)
 CONSTRUCTION_OPTIONS = (
-    Option("solver", "pgs", _choice("pgs", "jacobi"), "'pgs' or 'jacobi'",
-           "pgs: Gauss-Seidel over colours, holds stacks; jacobi: mass splitting, no "
-           "colouring, soft in tall stacks at equal sweeps"),
-    Option("batching", None, _choice("global", "cells", "slabs", none=True),
-           "None (the device's choice), 'global', 'cells' or 'slabs'",
-           "how PGS colours constraints for parallel solving (rbgen.pipeline.batching)"),
-    Option("normal_solve", None, _choice("block", "sequential", none=True),
-           "None (the device's choice), 'block' or 'sequential'",
-           "a manifold's normal rows solved together (no point-order torque) or one by one"),
-    Option("broadphase", "grid", _choice("grid", "sap", "sap3"), "'grid', 'sap' or 'sap3'",
-           "grid for similar sizes; sap / sap3 (incremental) for widely varying sizes"),
-    Option("fast_math", None, _optional(_flag), "None (the device's choice), True or False",
-           "build the contact solver with -cl-fast-relaxed-math (a shorter dependent chain)"),
-    Option("gyroscopic", True, _flag, "True or False",
-           "the implicit gyroscopic term: free spinning bodies keep their angular momentum"),
-    Option("manifold_capacity", None, _optional(_integer(1, 1 << 30)),
-           "None or an integer from 1 to 2^30", "initial manifold buffer (grown on overflow)"),
-    Option("pair_capacity", None, _optional(_integer(1, 1 << 30)),
-           "None or an integer from 1 to 2^30", "initial pair buffer (grown on overflow)"),
-    Option("plan", None, _plan_overrides, "None or a dict of plan parameters",
-           "expert overrides of tuned plan parameters (rbgen.plan.TUNABLES)"),
+    Option(
+        "solver",
+        "pgs",
+        _choice("pgs", "jacobi"),
+        "'pgs' or 'jacobi'",
+        "pgs: Gauss-Seidel over colours, holds stacks; jacobi: mass splitting, no "
+        "colouring, soft in tall stacks at equal sweeps",
+    ),
+    Option(
+        "batching",
+        None,
+        _choice("global", "cells", "slabs", none=True),
+        "None (the device's choice), 'global', 'cells' or 'slabs'",
+        "how PGS colours constraints for parallel solving (rbgen.pipeline.batching)",
+    ),
+    Option(
+        "normal_solve",
+        None,
+        _choice("block", "sequential", none=True),
+        "None (the device's choice), 'block' or 'sequential'",
+        "a manifold's normal rows solved together (no point-order torque) or one by one",
+    ),
+    Option(
+        "broadphase",
+        "grid",
+        _choice("grid", "sap", "sap3"),
+        "'grid', 'sap' or 'sap3'",
+        "grid for similar sizes; sap / sap3 (incremental) for widely varying sizes",
+    ),
+    Option(
+        "fast_math",
+        None,
+        _optional(_flag),
+        "None (the device's choice), True or False",
+        "build the contact solver with -cl-fast-relaxed-math (a shorter dependent chain)",
+    ),
+    Option(
+        "gyroscopic",
+        True,
+        _flag,
+        "True or False",
+        "the implicit gyroscopic term: free spinning bodies keep their angular momentum",
+    ),
+    Option(
+        "manifold_capacity",
+        None,
+        _optional(_integer(1, 1 << 30)),
+        "None or an integer from 1 to 2^30",
+        "initial manifold buffer (grown on overflow)",
+    ),
+    Option(
+        "pair_capacity",
+        None,
+        _optional(_integer(1, 1 << 30)),
+        "None or an integer from 1 to 2^30",
+        "initial pair buffer (grown on overflow)",
+    ),
+    Option(
+        "plan",
+        None,
+        _plan_overrides,
+        "None or a dict of plan parameters",
+        "expert overrides of tuned plan parameters (rbgen.plan.TUNABLES)",
+    ),
 )
 
 STEP = {o.name: o for o in STEP_SETTINGS}
@@ -158,8 +270,9 @@ def check(option: Option, value):
     try:
         return option.check(value)
     except (ValueError, TypeError):
-        raise RbgenError(f"World option {option.name}={value!r} is not allowed: expected "
-                         f"{option.allowed}") from None
+        raise RbgenError(
+            f"World option {option.name}={value!r} is not allowed: expected {option.allowed}"
+        ) from None
 
 
 def split_options(options: dict) -> tuple[dict, dict]:
@@ -167,12 +280,15 @@ def split_options(options: dict) -> tuple[dict, dict]:
     checked and every default filled in; an unknown name is refused, listing the known."""
     unknown = sorted(set(options) - set(STEP) - set(CONSTRUCTION))
     if unknown:
-        raise RbgenError(f"unknown World option(s) {unknown}; known: "
-                         f"{sorted(STEP)} (step settings) and {sorted(CONSTRUCTION)} "
-                         f"(construction options)")
+        raise RbgenError(
+            f"unknown World option(s) {unknown}; known: "
+            f"{sorted(STEP)} (step settings) and {sorted(CONSTRUCTION)} "
+            f"(construction options)"
+        )
     step = {name: check(o, options.get(name, o.default)) for name, o in STEP.items()}
-    construction = {name: check(o, options.get(name, o.default))
-                    for name, o in CONSTRUCTION.items()}
+    construction = {
+        name: check(o, options.get(name, o.default)) for name, o in CONSTRUCTION.items()
+    }
     return step, construction
 
 
@@ -211,7 +327,11 @@ def options_table() -> str:
     """The options as a Markdown table (the README's settings table)."""
     rows = ["| option | default | allowed | why |", "| --- | --- | --- | --- |"]
     for option in STEP_SETTINGS + CONSTRUCTION_OPTIONS:
-        default = "device's choice" if option.default is None and option.name not in (
-            "manifold_capacity", "pair_capacity", "plan") else repr(option.default)
+        default = (
+            "device's choice"
+            if option.default is None
+            and option.name not in ("manifold_capacity", "pair_capacity", "plan")
+            else repr(option.default)
+        )
         rows.append(f"| `{option.name}` | {default} | {option.allowed} | {option.doc} |")
     return "\n".join(rows)

@@ -18,6 +18,7 @@ kernel's cases, the narrowphase's queues and programs, which shapes a World
 accepts) is derived from these two registries, so a new type is its class,
 its AABB template (``rbgen/templates/shapes/``) and its pair kernels.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -104,8 +105,10 @@ class Shape:
 
     def __setattr__(self, name, value):
         if self.__dict__.get("_frozen", False):
-            raise RbgenError(f"{type(self).__name__} shapes are immutable (a World may share "
-                             f"this one); make a new shape instead of setting {name!r}")
+            raise RbgenError(
+                f"{type(self).__name__} shapes are immutable (a World may share "
+                f"this one); make a new shape instead of setting {name!r}"
+            )
         object.__setattr__(self, name, value)
 
     def pack(self, record: np.void, hull_vertices: list) -> None:
@@ -147,8 +150,9 @@ class Shape:
         """Polygon topology for the convex-convex kernels (boxes and hulls), else None."""
         return None
 
-    def mass_properties(self, density: float | None = None, mass: float | None = None
-                        ) -> mass_props.MassProperties:
+    def mass_properties(
+        self, density: float | None = None, mass: float | None = None
+    ) -> mass_props.MassProperties:
         """Mass, centre of mass, principal inertia diagonal and principal rotation.
 
         Give exactly one of ``density`` and ``mass``. The local frame of every
@@ -157,12 +161,22 @@ class Shape:
         """
         raise RbgenError(f"{self.what()} has no mass (static only)")
 
-    def _solid(self, volume, unit_inertia, density, mass, com=(0.0, 0.0, 0.0),
-               rotation=mass_props.IDENTITY_QUATERNION) -> mass_props.MassProperties:
+    def _solid(
+        self,
+        volume,
+        unit_inertia,
+        density,
+        mass,
+        com=(0.0, 0.0, 0.0),
+        rotation=mass_props.IDENTITY_QUATERNION,
+    ) -> mass_props.MassProperties:
         m = mass_props.resolve_mass(volume, density, mass, self.what())
-        return mass_props.MassProperties(m, tuple(float(c) for c in com),
-                                         tuple(float(m * i) for i in unit_inertia),
-                                         tuple(float(c) for c in rotation))
+        return mass_props.MassProperties(
+            m,
+            tuple(float(c) for c in com),
+            tuple(float(m * i) for i in unit_inertia),
+            tuple(float(c) for c in rotation),
+        )
 
 
 _SHAPE_TYPES: dict[str, type[Shape]] = {}
@@ -173,20 +187,31 @@ def register_shape_type(cls: type[Shape]) -> type[Shape]:
     that sets ``type_code``) and declare its ``RB_SHAPE_<TYPE_NAME>`` constant."""
     name = cls.type_name
     if not re.fullmatch(r"[a-z][a-z0-9]*", name or ""):
-        raise RbgenError(f"shape type {cls.__name__}: type_name {name!r} must be lower-case "
-                         f"letters and digits (it is part of kind names such as 'box_hull')")
+        raise RbgenError(
+            f"shape type {cls.__name__}: type_name {name!r} must be lower-case "
+            f"letters and digits (it is part of kind names such as 'box_hull')"
+        )
     if _SHAPE_TYPES.get(name, cls) is not cls:
-        raise RbgenError(f"shape type {cls.__name__}: type_name {name!r} is already "
-                         f"{_SHAPE_TYPES[name].__name__}'s")
+        raise RbgenError(
+            f"shape type {cls.__name__}: type_name {name!r} is already "
+            f"{_SHAPE_TYPES[name].__name__}'s"
+        )
     constant = f"RB_SHAPE_{name.upper()}"
-    taken = [k for k, v in layouts.constants().items()
-             if k.startswith("RB_SHAPE_") and k != constant and v == cls.type_code]
+    taken = [
+        k
+        for k, v in layouts.constants().items()
+        if k.startswith("RB_SHAPE_") and k != constant and v == cls.type_code
+    ]
     if taken or not (isinstance(cls.type_code, int) and 0 <= cls.type_code < 2**31):
-        raise RbgenError(f"shape type {cls.__name__}: type_code {cls.type_code!r} must be a "
-                         f"small non-negative int that no other type uses (taken: {taken})")
+        raise RbgenError(
+            f"shape type {cls.__name__}: type_code {cls.type_code!r} must be a "
+            f"small non-negative int that no other type uses (taken: {taken})"
+        )
     if not (codegen.TEMPLATE_DIR / cls.aabb_template).is_file():
-        raise RbgenError(f"shape type {cls.__name__}: aabb_template {cls.aabb_template!r} is "
-                         f"not a file under {codegen.TEMPLATE_DIR}")
+        raise RbgenError(
+            f"shape type {cls.__name__}: aabb_template {cls.aabb_template!r} is "
+            f"not a file under {codegen.TEMPLATE_DIR}"
+        )
     layouts.constant(constant, cls.type_code, cls.extents_doc)
     cls.type_constant = constant
     _SHAPE_TYPES[name] = cls
@@ -208,8 +233,9 @@ def shape_type(name: str) -> type[Shape]:
     try:
         return _SHAPE_TYPES[name]
     except (KeyError, TypeError):
-        raise RbgenError(f"no shape type named {name!r}; registered: "
-                         f"{list(_SHAPE_TYPES)}") from None
+        raise RbgenError(
+            f"no shape type named {name!r}; registered: {list(_SHAPE_TYPES)}"
+        ) from None
 
 
 def registered_type(shape: Shape) -> type[Shape] | None:
@@ -237,7 +263,7 @@ class Sphere(Shape):
         return ("sphere", self.radius)
 
     def mass_properties(self, density=None, mass=None):
-        volume = 4.0 / 3.0 * np.pi * self.radius ** 3
+        volume = 4.0 / 3.0 * np.pi * self.radius**3
         return self._solid(volume, mass_props.sphere_unit_inertia(self.radius), density, mass)
 
     def bounding_radius(self):
@@ -281,10 +307,13 @@ class Capsule(Shape):
     aabb_template = "shapes/capsule.cl.mako"
 
     def __init__(self, radius: float, half_height: float):
-        if not (np.isfinite(radius) and radius > 0 and np.isfinite(half_height)
-                and half_height >= 0):
-            raise RbgenError(f"Capsule needs radius > 0 and half_height >= 0, got "
-                             f"radius={radius!r}, half_height={half_height!r}")
+        if not (
+            np.isfinite(radius) and radius > 0 and np.isfinite(half_height) and half_height >= 0
+        ):
+            raise RbgenError(
+                f"Capsule needs radius > 0 and half_height >= 0, got "
+                f"radius={radius!r}, half_height={half_height!r}"
+            )
         self.radius, self.half_height = float(radius), float(half_height)
 
     def pack(self, record, hull_vertices):
@@ -295,8 +324,9 @@ class Capsule(Shape):
 
     def mass_properties(self, density=None, mass=None):
         volume = mass_props.capsule_volume(self.radius, self.half_height)
-        return self._solid(volume, mass_props.capsule_unit_inertia(self.radius, self.half_height),
-                           density, mass)
+        return self._solid(
+            volume, mass_props.capsule_unit_inertia(self.radius, self.half_height), density, mass
+        )
 
     def bounding_radius(self):
         return self.radius + self.half_height
@@ -327,8 +357,9 @@ class ConvexHull(Shape):
         """The convex hull of a ``trimesh.Trimesh``'s vertices."""
         vertices = getattr(mesh, "vertices", None)
         if vertices is None:
-            raise RbgenError(f"ConvexHull.from_trimesh expects a trimesh.Trimesh, "
-                             f"got {type(mesh).__name__}")
+            raise RbgenError(
+                f"ConvexHull.from_trimesh expects a trimesh.Trimesh, got {type(mesh).__name__}"
+            )
         mesh_name = getattr(mesh, "metadata", {}).get("name", "mesh")
         label = name or f"ConvexHull.from_trimesh({mesh_name})"
         return cls(np.asarray(vertices, np.float64), name=label)
@@ -469,7 +500,7 @@ def _records(layout, chunks) -> np.ndarray:
     out = layout.zeros(max(1, sum(len(c) for c in chunks)))
     start = 0
     for c in chunks:
-        out[start:start + len(c)] = c
+        out[start : start + len(c)] = c
         start += len(c)
     return out
 
@@ -483,9 +514,14 @@ def _float4(chunks) -> np.ndarray:
 
 
 #: the name every kernel gives each array of `PackedShapes` (kernels bind them by name)
-KERNEL_ARGUMENTS = {"shapes": "shapes", "vertices": "hull_vertices", "faces": "hull_faces",
-                    "face_indices": "face_indices", "edges": "hull_edges",
-                    "adjacency": "hull_adjacency"}
+KERNEL_ARGUMENTS = {
+    "shapes": "shapes",
+    "vertices": "hull_vertices",
+    "faces": "hull_faces",
+    "face_indices": "face_indices",
+    "edges": "hull_edges",
+    "adjacency": "hull_adjacency",
+}
 
 
 #: the array type of a `PackedShapes`: numpy on the host, pyopencl after `to_device`
@@ -496,21 +532,26 @@ _Arrays = TypeVar("_Arrays")
 class PackedShapes(Generic[_Arrays]):
     """Host arrays of a `ShapeTable` (each has at least one element for OpenCL)."""
 
-    shapes: _Arrays        # Shape records
-    vertices: _Arrays      # (V, 4) float32 hull/box vertices, w unused
-    faces: _Arrays         # HullFace records
+    shapes: _Arrays  # Shape records
+    vertices: _Arrays  # (V, 4) float32 hull/box vertices, w unused
+    faces: _Arrays  # HullFace records
     face_indices: _Arrays  # uint32 polygon vertex indices (relative to vertex_offset)
-    edges: _Arrays         # (E, 4) float32 unique edge directions, w unused
-    adjacency: _Arrays     # HullEdge records: every edge with its two faces
+    edges: _Arrays  # (E, 4) float32 unique edge directions, w unused
+    adjacency: _Arrays  # HullEdge records: every edge with its two faces
     #: the arrays of shape types' own (`Shape.table_arrays`), by kernel argument name;
     #: empty in a world without such types
     extra: dict = dataclasses.field(default_factory=dict)
 
     def kernel_arguments(self) -> dict:
         """The arrays by the names kernels give them (`KERNEL_ARGUMENTS`, then `extra`)."""
-        return {**{KERNEL_ARGUMENTS[f.name]: getattr(self, f.name)
-                   for f in dataclasses.fields(self) if f.name in KERNEL_ARGUMENTS},
-                **self.extra}
+        return {
+            **{
+                KERNEL_ARGUMENTS[f.name]: getattr(self, f.name)
+                for f in dataclasses.fields(self)
+                if f.name in KERNEL_ARGUMENTS
+            },
+            **self.extra,
+        }
 
     def to_device(self, queue) -> PackedShapes[cla.Array]:
         """The same arrays as pyopencl arrays on ``queue``'s device."""
@@ -519,10 +560,15 @@ class PackedShapes(Generic[_Arrays]):
         def device(array) -> cla.Array:
             return cla.to_device(queue, np.ascontiguousarray(array))
 
-        return PackedShapes(device(self.shapes), device(self.vertices), device(self.faces),
-                            device(self.face_indices), device(self.edges),
-                            device(self.adjacency),
-                            extra={name: device(a) for name, a in self.extra.items()})
+        return PackedShapes(
+            device(self.shapes),
+            device(self.vertices),
+            device(self.faces),
+            device(self.face_indices),
+            device(self.edges),
+            device(self.adjacency),
+            extra={name: device(a) for name, a in self.extra.items()},
+        )
 
 
 def table_arguments() -> dict[str, str]:

@@ -21,6 +21,7 @@ and ignored; a missing bucket falls back to the nearest tuned bucket of the
 same family and variant (ties: the larger). `tune_all` tunes every other
 bucket from 2^12 to 2^24 on GPUs (`TUNE_SIZES`).
 """
+
 from __future__ import annotations
 
 import copy
@@ -71,9 +72,12 @@ def load_cache(traits: DeviceTraits, reload: bool = False) -> dict:
     empty = {"version": CACHE_VERSION, "fingerprint": traits.fingerprint, "entries": {}}
     try:
         data = json.loads(path.read_text())
-        ok = (isinstance(data, dict) and data.get("version") == CACHE_VERSION
-              and data.get("fingerprint") == traits.fingerprint
-              and isinstance(data.get("entries"), dict))
+        ok = (
+            isinstance(data, dict)
+            and data.get("version") == CACHE_VERSION
+            and data.get("fingerprint") == traits.fingerprint
+            and isinstance(data.get("entries"), dict)
+        )
         cache = data if ok else empty
     except (OSError, ValueError):
         cache = empty
@@ -142,6 +146,7 @@ def lookup_plan(traits: DeviceTraits) -> dict:
 def describe_cache(traits: DeviceTraits) -> list[str]:
     """One line per tuned entry of a device's cache (``rbgen info`` prints them)."""
     from . import primitives  # noqa: F401 - registers the families
+
     lines = []
     entries = load_cache(traits, reload=True)["entries"]
     for key in sorted(entries):
@@ -155,8 +160,10 @@ def describe_cache(traits: DeviceTraits) -> list[str]:
         stale = e.get("source_hash") != _current_hash(e.get("family", ""), shape)
         text = ", ".join(f"{k}={v}" for k, v in sorted(params.items()))
         timing = f"{e['median_ms']:.3f} ms" if "median_ms" in e else "untimed"
-        lines.append(f"{key}: {shape} {text} -> {timing}"
-                     f" ({e.get('candidates', '?')} candidates)" + (" [stale]" if stale else ""))
+        lines.append(
+            f"{key}: {shape} {text} -> {timing}"
+            f" ({e.get('candidates', '?')} candidates)" + (" [stale]" if stale else "")
+        )
     return lines
 
 
@@ -261,11 +268,20 @@ def relative_spread(samples: list[float]) -> float:
     return (q3 - q1) / statistics.median(samples)
 
 
-def tune(runtime: Runtime, family: str | Family, variant: str, n: int, *,
-         repeats: int = 7, progress: Callable[[str], None] | None = None,
-         seed: int = 0, store: bool = True) -> dict:
+def tune(
+    runtime: Runtime,
+    family: str | Family,
+    variant: str,
+    n: int,
+    *,
+    repeats: int = 7,
+    progress: Callable[[str], None] | None = None,
+    seed: int = 0,
+    store: bool = True,
+) -> dict:
     """Tune one family/variant at size n on ``runtime``; returns the cache entry."""
     from .primitives._base import size_bucket
+
     fam = FAMILIES[family] if isinstance(family, str) else family
     runtime = profiling_runtime(runtime)
     rng = np.random.default_rng(seed)
@@ -283,10 +299,17 @@ def tune(runtime: Runtime, family: str | Family, variant: str, n: int, *,
         raise RbgenError(f"tuning {fam.name}[{variant}]: no candidate gave a correct result")
     params, ms = results[winner]
     bucket = size_bucket(n)
-    entry = {"family": fam.name, "variant": variant, "bucket": bucket, "n": n,
-             "params": params, "median_ms": ms, "candidates": len(space),
-             "source_hash": fam.template_hash(params["shape"]),
-             "tuned_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    entry = {
+        "family": fam.name,
+        "variant": variant,
+        "bucket": bucket,
+        "n": n,
+        "params": params,
+        "median_ms": ms,
+        "candidates": len(space),
+        "source_hash": fam.template_hash(params["shape"]),
+        "tuned_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
     if store:
         cache = load_cache(runtime.traits, reload=True)
         cache["entries"][entry_key(fam.name, variant, bucket)] = entry
@@ -341,6 +364,7 @@ def tune_all(runtime: Runtime, progress: bool = True, quick: bool = False) -> li
     from . import primitives  # noqa: F401 - registers the families
     from .progress import bar
     from .progress import say as say_above_bar
+
     say = say_above_bar if progress else None
     sizes = tune_sizes(runtime.traits, quick)
     jobs = [(fam, v, n) for fam in FAMILIES.values() for v in fam.variants for n in sizes]
@@ -348,10 +372,11 @@ def tune_all(runtime: Runtime, progress: bool = True, quick: bool = False) -> li
     with bar(total=len(jobs), desc="tuning", unit="job", show=progress) as jobs_bar:
         for j, (fam, variant, n) in enumerate(jobs):
             if say:
-                say(f"[{j + 1}/{len(jobs)}] tuning {fam.name}[{variant}] at n={n} "
-                    f"on {runtime.traits.device_name}")
-            entries.append(tune(runtime, fam, variant, n, repeats=3 if quick else 7,
-                                progress=say))
+                say(
+                    f"[{j + 1}/{len(jobs)}] tuning {fam.name}[{variant}] at n={n} "
+                    f"on {runtime.traits.device_name}"
+                )
+            entries.append(tune(runtime, fam, variant, n, repeats=3 if quick else 7, progress=say))
             jobs_bar.update(1)
     if say:
         say(f"tuning cache: {cache_path(runtime.traits)}")

@@ -12,6 +12,7 @@ A World is a thin façade over four parts, each in its own module:
 A step is a fixed sequence of enqueues with no blocking read; counts stay on the device;
 an overflowed buffer is grown and the step redone, so no pair or contact is dropped.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -55,8 +56,11 @@ class World:
         object.__setattr__(self, "settings", Settings(step_settings))
         self.options = construction
         self.shapes = ShapeTable()
-        self._bodies = BodyStore(self.shapes, finish=self._finish_pending,
-                                 read_device=lambda: self.runtime.read(self._device.bodies))
+        self._bodies = BodyStore(
+            self.shapes,
+            finish=self._finish_pending,
+            read_device=lambda: self.runtime.read(self._device.bodies),
+        )
         self._persistent_failed = False
         #: the plan of the current scene (rederived when the shape types change)
         self.plan: Plan = derive_plan(self.runtime.traits, construction)
@@ -100,25 +104,64 @@ class World:
     def body_count(self) -> int:
         return self._bodies.count
 
-    def add_static(self, shape: Shape, position=(0.0, 0.0, 0.0),
-                   orientation=(0.0, 0.0, 0.0, 1.0), friction: float = 0.6,
-                   restitution: float = 0.0) -> int:
+    def add_static(
+        self,
+        shape: Shape,
+        position=(0.0, 0.0, 0.0),
+        orientation=(0.0, 0.0, 0.0, 1.0),
+        friction: float = 0.6,
+        restitution: float = 0.0,
+    ) -> int:
         """A body that never moves (planes only this way); returns its index."""
-        return int(self._bodies.add(shape, np.asarray([position], float),
-                                    np.asarray([orientation], float), None, friction,
-                                    restitution, None, None)[0])
+        return int(
+            self._bodies.add(
+                shape,
+                np.asarray([position], float),
+                np.asarray([orientation], float),
+                None,
+                friction,
+                restitution,
+                None,
+                None,
+            )[0]
+        )
 
-    def add_body(self, shape: Shape, mass: float = 1.0, position=(0.0, 0.0, 0.0),
-                 orientation=(0.0, 0.0, 0.0, 1.0), linear_velocity=(0.0, 0.0, 0.0),
-                 angular_velocity=(0.0, 0.0, 0.0), friction: float = 0.6,
-                 restitution: float = 0.0) -> int:
+    def add_body(
+        self,
+        shape: Shape,
+        mass: float = 1.0,
+        position=(0.0, 0.0, 0.0),
+        orientation=(0.0, 0.0, 0.0, 1.0),
+        linear_velocity=(0.0, 0.0, 0.0),
+        angular_velocity=(0.0, 0.0, 0.0),
+        friction: float = 0.6,
+        restitution: float = 0.0,
+    ) -> int:
         """One dynamic body; returns its index."""
-        return int(self.add_bodies(shape, mass, [position], [orientation], friction, restitution,
-                                   [linear_velocity], [angular_velocity])[0])
+        return int(
+            self.add_bodies(
+                shape,
+                mass,
+                [position],
+                [orientation],
+                friction,
+                restitution,
+                [linear_velocity],
+                [angular_velocity],
+            )[0]
+        )
 
-    def add_bodies(self, shape: Shape, mass=1.0, positions=None, orientations=None,
-                   friction=0.6, restitution=0.0, linear_velocities=None,
-                   angular_velocities=None) -> np.ndarray:
+    def add_bodies(
+        self,
+        shape: Shape,
+        mass=1.0,
+        positions=None,
+        orientations=None,
+        friction=0.6,
+        restitution=0.0,
+        linear_velocities=None,
+        angular_velocities=None,
+    ) -> np.ndarray:
         """Many dynamic bodies of one shape; ``mass``, ``friction``, ``restitution``
         are scalars or one value per body. Returns their indices."""
         if positions is None:
@@ -126,9 +169,16 @@ class World:
         positions = np.asarray(positions, float)
         if isinstance(shape, Plane):
             raise RbgenError("a Plane can only be static: use add_static")
-        return self._bodies.add(shape, positions, orientations,
-                                per_body(mass, len(positions), "mass"), friction, restitution,
-                                linear_velocities, angular_velocities)
+        return self._bodies.add(
+            shape,
+            positions,
+            orientations,
+            per_body(mass, len(positions), "mass"),
+            friction,
+            restitution,
+            linear_velocities,
+            angular_velocities,
+        )
 
     # ------------------------------------------------------------- state
     def _set_field(self, name, values, lanes, what):
@@ -136,18 +186,24 @@ class World:
         if self._pipeline is not None:
             self._steps.constraints.constraints.reset()  # teleports forget the contacts
 
-    positions = property(lambda s: s._bodies.field("position", 3),
-                         lambda s, v: s._set_field("position", v, 3, "positions"),
-                         doc="(N, 3) float32 centres of mass; setting teleports every body")
-    orientations = property(lambda s: s._bodies.field("orientation", 4),
-                            lambda s, v: s._set_field("orientation", v, 4, "orientations"),
-                            doc="(N, 4) float32 unit quaternions (x, y, z, w)")
-    linear_velocities = property(lambda s: s._bodies.field("linear_velocity", 3),
-                                 lambda s, v: s._set_field("linear_velocity", v, 3,
-                                                           "linear_velocities"))
-    angular_velocities = property(lambda s: s._bodies.field("angular_velocity", 3),
-                                  lambda s, v: s._set_field("angular_velocity", v, 3,
-                                                            "angular_velocities"))
+    positions = property(
+        lambda s: s._bodies.field("position", 3),
+        lambda s, v: s._set_field("position", v, 3, "positions"),
+        doc="(N, 3) float32 centres of mass; setting teleports every body",
+    )
+    orientations = property(
+        lambda s: s._bodies.field("orientation", 4),
+        lambda s, v: s._set_field("orientation", v, 4, "orientations"),
+        doc="(N, 4) float32 unit quaternions (x, y, z, w)",
+    )
+    linear_velocities = property(
+        lambda s: s._bodies.field("linear_velocity", 3),
+        lambda s, v: s._set_field("linear_velocity", v, 3, "linear_velocities"),
+    )
+    angular_velocities = property(
+        lambda s: s._bodies.field("angular_velocity", 3),
+        lambda s, v: s._set_field("angular_velocity", v, 3, "angular_velocities"),
+    )
 
     @property
     def _steps(self) -> StepPipeline:
@@ -161,12 +217,20 @@ class World:
         """Send the host bodies (after adds or sets), replan if the shape types changed,
         and size the buffers."""
         self._bodies.sync_to_host()
-        plan = derive_plan(self.runtime.traits, self.options, self.shapes.type_names(),
-                           persistent_failed=self._persistent_failed)
+        plan = derive_plan(
+            self.runtime.traits,
+            self.options,
+            self.shapes.type_names(),
+            persistent_failed=self._persistent_failed,
+        )
         if self._pipeline is None:
-            self._pipeline = StepPipeline(self.runtime, plan, self.shapes,
-                                          pair_capacity=self.options["pair_capacity"],
-                                          manifold_capacity=self.options["manifold_capacity"])
+            self._pipeline = StepPipeline(
+                self.runtime,
+                plan,
+                self.shapes,
+                pair_capacity=self.options["pair_capacity"],
+                manifold_capacity=self.options["manifold_capacity"],
+            )
         elif plan != self.plan:
             self._pipeline.replan(plan)
         self.plan = plan
@@ -179,8 +243,9 @@ class World:
         lay out the step report."""
         pipeline.resize(self._bodies.count)
         if pipeline.batching is not None:
-            pipeline.batching.configure(self._bodies, self.settings.gravity,
-                                        self.settings.contact_margin)
+            pipeline.batching.configure(
+                self._bodies, self.settings.gravity, self.settings.contact_margin
+            )
         self._guard.attach(pipeline)
 
     # ------------------------------------------------------------- stepping
@@ -222,8 +287,9 @@ class World:
             self._abandon_persistent(replan.args[0])
 
     def _restore(self, slot: int) -> None:
-        cl.enqueue_copy(self.runtime.queue, self._device.bodies.data,
-                        self._device.backups[slot].data)
+        cl.enqueue_copy(
+            self.runtime.queue, self._device.bodies.data, self._device.backups[slot].data
+        )
 
     def _pipeline_rewind(self, steps: int) -> None:
         self._steps.constraints.constraints.undo(steps)
@@ -234,15 +300,20 @@ class World:
         the steps."""
         self._persistent_failed = True
         old = self.plan
-        self.plan = derive_plan(self.runtime.traits, self.options, self.shapes.type_names(),
-                                persistent_failed=True)
+        self.plan = derive_plan(
+            self.runtime.traits, self.options, self.shapes.type_names(), persistent_failed=True
+        )
         self._steps.replan(self.plan)
         self._size_pipeline(self._steps)
-        warnings.warn(f"a persistent launch on {self.runtime.traits.device_name} gave up waiting "
-                      f"at a device-wide barrier (its work groups did not all run at once: a "
-                      f"GPU shared through MPS?); the step is redone, and this World plans "
-                      f"without persistent launches from now on ({old.describe()} -> "
-                      f"{self.plan.describe()})", RuntimeWarning, stacklevel=4)
+        warnings.warn(
+            f"a persistent launch on {self.runtime.traits.device_name} gave up waiting "
+            f"at a device-wide barrier (its work groups did not all run at once: a "
+            f"GPU shared through MPS?); the step is redone, and this World plans "
+            f"without persistent launches from now on ({old.describe()} -> "
+            f"{self.plan.describe()})",
+            RuntimeWarning,
+            stacklevel=4,
+        )
         for dt in redo:
             self._enqueue_step(dt)
 
@@ -257,21 +328,40 @@ class World:
         outside the timed loop)."""
         self._finish_pending()
         plan = self.plan
-        summary = {"bodies": self.body_count, "solver": plan.solver, "batching": plan.batching,
-                   "normal_solve": plan.normal_solve, **self.last_step_counters}
+        summary = {
+            "bodies": self.body_count,
+            "solver": plan.solver,
+            "batching": plan.batching,
+            "normal_solve": plan.normal_solve,
+            **self.last_step_counters,
+        }
         if self._bodies.device_stale or self.body_count == 0 or self._pipeline is None:
-            return {**summary, "pairs": 0, "manifolds": 0, "contacts": 0, "batches": 0,
-                    "groups_used": 0}
+            return {
+                **summary,
+                "pairs": 0,
+                "manifolds": 0,
+                "contacts": 0,
+                "batches": 0,
+                "groups_used": 0,
+            }
         read, p = self.runtime.read, self._steps
         pairs = int(read(p.broadphase.broadphase.count)[0])
         constraints = p.constraints.constraints
         manifolds = int(read(constraints.count)[0])
         points = read(constraints.constraints)[:manifolds]["point_count"]
-        batch_counts = (read(p.batching.batcher.group_batch_count) if p.batching is not None
-                        else np.zeros(0, np.uint32))
-        return {**summary, "pairs": pairs, "manifolds": manifolds,
-                "contacts": int(points.sum()), "batches": int(batch_counts.max(initial=0)),
-                "groups_used": int((batch_counts > 0).sum())}
+        batch_counts = (
+            read(p.batching.batcher.group_batch_count)
+            if p.batching is not None
+            else np.zeros(0, np.uint32)
+        )
+        return {
+            **summary,
+            "pairs": pairs,
+            "manifolds": manifolds,
+            "contacts": int(points.sum()),
+            "batches": int(batch_counts.max(initial=0)),
+            "groups_used": int((batch_counts > 0).sum()),
+        }
 
     def render(self, path, camera=None, width: int = 960, height: int = 540):
         """Write a picture of the World now to ``path`` (PNG; see `rbgen.render.render_world`:

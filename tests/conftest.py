@@ -7,6 +7,7 @@ instead: a comma-separated list of device choices as accepted by
 are cached on disk between runs, so a second run of the suite skips
 compilation.
 """
+
 from __future__ import annotations
 
 import os
@@ -52,8 +53,10 @@ def _test_devices():
 _DEVICES = _test_devices()
 if not _DEVICES:  # fail loudly: a suite whose device tests are all skipped proves nothing
     _reasons = "\n  ".join(_LEFT_OUT or ["none listed"])
-    raise pytest.UsageError(f"no OpenCL device to test on:\n  {_reasons}\n(install the "
-                            f"system's PoCL, e.g. Debian's pocl-opencl-icd)")
+    raise pytest.UsageError(
+        f"no OpenCL device to test on:\n  {_reasons}\n(install the "
+        f"system's PoCL, e.g. Debian's pocl-opencl-icd)"
+    )
 
 
 def pytest_report_header(config):

@@ -1,5 +1,6 @@
 """rbgen bench: the JSON it writes follows the schema, its sanity measures are right, and the
 README's table is regenerated between its markers."""
+
 from __future__ import annotations
 
 import json
@@ -30,8 +31,9 @@ def test_quick_bench_json_follows_the_schema(quick_record):
     assert record["settings"]["quick"] is True
     for key in bench.DEVICE_KEYS:
         assert isinstance(record["device"][key], (str, int)), key
-    assert [(r["scene"], r["steps"]) for r in record["results"]] == \
-        [(scene, 20) for scene, *_ in bench.QUICK_SCENES]
+    assert [(r["scene"], r["steps"]) for r in record["results"]] == [
+        (scene, 20) for scene, *_ in bench.QUICK_SCENES
+    ]
     for r in record["results"]:
         assert r["ms"] > 0 and r["ms_spread"][0] <= r["ms"] <= r["ms_spread"][1]
         assert len(r["ms_blocks"]) == 10
@@ -68,10 +70,25 @@ def test_readme_without_markers_is_refused(tmp_path):
 
 
 def test_a_scene_that_does_not_hold_has_its_time_struck_out():
-    result = {"scene": "boxbox", "bodies": 8, "steps": 100, "warmup": 0, "ms": 1.5,
-              "ms_spread": [1.4, 1.6], "launches_per_step": 9, "blocking_reads_per_step": 0,
-              "sanity": {"nans": 0, "sunk": 3, "displaced": 1, "layer_drop": [0.0, 0.05],
-                         "max_speed": 0.0, "overflows": 0, "last_box_moved": 0.0}}
+    result = {
+        "scene": "boxbox",
+        "bodies": 8,
+        "steps": 100,
+        "warmup": 0,
+        "ms": 1.5,
+        "ms_spread": [1.4, 1.6],
+        "launches_per_step": 9,
+        "blocking_reads_per_step": 0,
+        "sanity": {
+            "nans": 0,
+            "sunk": 3,
+            "displaced": 1,
+            "layer_drop": [0.0, 0.05],
+            "max_speed": 0.0,
+            "overflows": 0,
+            "last_box_moved": 0.0,
+        },
+    }
     ok, problems = bench.holds(result)
     assert not ok and problems == ["3 sunk", "1 displaced", "top layer dropped 5.0 cm"]
     result["holds"], result["problems"] = ok, problems
@@ -81,9 +98,12 @@ def test_a_scene_that_does_not_hold_has_its_time_struck_out():
 def test_validate_names_what_is_missing():
     with pytest.raises(RbgenError, match="lacks"):
         bench.validate({"schema": bench.SCHEMA})
-    record = bench.make_record("benchmarks/render.py", [{"name": "x", "ms": 1.0,
-                                                          "ms_spread": [2.0, 1.0],
-                                                          "baseline": None}], None, {})
+    record = bench.make_record(
+        "benchmarks/render.py",
+        [{"name": "x", "ms": 1.0, "ms_spread": [2.0, 1.0], "baseline": None}],
+        None,
+        {},
+    )
     with pytest.raises(RbgenError, match=r"results\[0\].ms_spread"):
         bench.validate(record)
 
@@ -99,5 +119,4 @@ def test_settling_counts_displaced_boxes_and_layer_drops():
     nan_end = end.copy()
     nan_end[0] = np.nan
     assert sanity.settling(start, nan_end)["displaced"] == 1
-    assert sanity.settling(np.zeros((0, 3)), np.zeros((0, 3))) == {"displaced": 0,
-                                                                   "layer_drop": []}
+    assert sanity.settling(np.zeros((0, 3)), np.zeros((0, 3))) == {"displaced": 0, "layer_drop": []}

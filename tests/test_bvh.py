@@ -6,6 +6,7 @@ escape offsets, every primitive once in leaf order, every node's quantized box h
 its subtree's primitive boxes, a walk finding exactly what overlaps the quantized leaf
 boxes and never missing an exact overlap, subtrees covering the leaves once.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -90,11 +91,14 @@ def test_walk_finds_every_overlap(rng, n):
         half = rng.uniform(0, 10, 3)
         q_lo, q_hi = bvh.quantize_query(tree, centre - half, centre + half)
         found = tree.query(centre - half, centre + half)
-        expected = np.flatnonzero(np.all(leaf_q[:, :3] <= q_hi, axis=1)
-                                  & np.all(q_lo <= leaf_q[:, 3:], axis=1))
+        expected = np.flatnonzero(
+            np.all(leaf_q[:, :3] <= q_hi, axis=1) & np.all(q_lo <= leaf_q[:, 3:], axis=1)
+        )
         np.testing.assert_array_equal(found, expected)
-        exact = np.flatnonzero(np.all(lower[tree.order] <= centre + half, axis=1)
-                               & np.all(centre - half <= upper[tree.order], axis=1))
+        exact = np.flatnonzero(
+            np.all(lower[tree.order] <= centre + half, axis=1)
+            & np.all(centre - half <= upper[tree.order], axis=1)
+        )
         assert set(exact) <= set(found)
 
 
@@ -109,7 +113,7 @@ def test_subtrees_cover_the_leaves_once(rng, max_nodes):
     assert np.all(subtrees[:, 1] <= max_nodes)
     np.testing.assert_array_equal(sizes[subtrees[:, 0]], subtrees[:, 1])
     index = tree.nodes["index"]
-    covered = np.concatenate([index[r:r + s][index[r:r + s] >= 0] for r, s in subtrees])
+    covered = np.concatenate([index[r : r + s][index[r : r + s] >= 0] for r, s in subtrees])
     assert covered.tolist() == list(range(1000))
     if max_nodes >= len(tree.nodes):
         assert subtrees.tolist() == [[0, len(tree.nodes)]]

@@ -1,4 +1,5 @@
 """The rbgen command."""
+
 from __future__ import annotations
 
 import subprocess
@@ -36,8 +37,11 @@ def test_info_lists_devices_that_cannot_compile(monkeypatch, capsys):
 
 
 def test_info_unknown_device_exit_code():
-    result = subprocess.run([sys.executable, "-m", "rbgen", "export", "--out", "/tmp/x",
-                             "--device", "no-such-gpu"], capture_output=True, text=True)
+    result = subprocess.run(
+        [sys.executable, "-m", "rbgen", "export", "--out", "/tmp/x", "--device", "no-such-gpu"],
+        capture_output=True,
+        text=True,
+    )
     assert result.returncode == 2
     assert "no-such-gpu" in result.stderr and "available" in result.stderr
 

@@ -1,4 +1,5 @@
 """Code generation: validation, pure rendering, build errors, program caches."""
+
 from __future__ import annotations
 
 import time
@@ -12,23 +13,29 @@ from rbgen.pipeline import integrate
 
 
 def test_rendering_is_pure_and_deterministic():
-    a = integrate.TEMPLATE.spec(work_group_size=64, damping=True, gravity=True, split=False, deltas=False)
-    b = integrate.TEMPLATE.spec(damping=True, gravity=True, work_group_size=64, split=False, deltas=False)
+    a = integrate.TEMPLATE.spec(
+        work_group_size=64, damping=True, gravity=True, split=False, deltas=False
+    )
+    b = integrate.TEMPLATE.spec(
+        damping=True, gravity=True, work_group_size=64, split=False, deltas=False
+    )
     assert a == b and hash(a) == hash(b)
     codegen.render.cache_clear()
     first = a.source
     codegen.render.cache_clear()
     assert b.source == first
     assert "linear_damping" in first
-    plain = integrate.TEMPLATE.spec(work_group_size=64, damping=False, gravity=True,
-                                    split=False, deltas=False).source
+    plain = integrate.TEMPLATE.spec(
+        work_group_size=64, damping=False, gravity=True, split=False, deltas=False
+    ).source
     assert "damping" not in plain.split("__kernel")[1], "no dead damping code when damping=False"
 
 
 def test_parameter_errors_name_the_parameter():
     t = integrate.TEMPLATE
-    with pytest.raises(TemplateParameterError,
-                       match=r"missing parameter\(s\) \['gravity', 'split'\]"):
+    with pytest.raises(
+        TemplateParameterError, match=r"missing parameter\(s\) \['gravity', 'split'\]"
+    ):
         t.spec(work_group_size=64, damping=False)
     with pytest.raises(TemplateParameterError, match=r"unknown parameter\(s\) \['colour'\]"):
         t.spec(work_group_size=64, damping=False, gravity=True, colour=3)
@@ -41,7 +48,9 @@ def test_parameter_errors_name_the_parameter():
 def test_strict_undefined_in_templates(tmp_path, monkeypatch):
     """A template that uses a name nobody passes fails at render time, naming it."""
     (tmp_path / "probe").mkdir()
-    (tmp_path / "probe" / "undefined.cl.mako").write_text("__kernel void k() { int x = ${nope}; }\n")
+    (tmp_path / "probe" / "undefined.cl.mako").write_text(
+        "__kernel void k() { int x = ${nope}; }\n"
+    )
     monkeypatch.setattr(codegen, "TEMPLATE_DIR", tmp_path)
     codegen._lookup.cache_clear()
     codegen.render.cache_clear()
@@ -66,7 +75,9 @@ def test_build_error_shows_log_and_numbered_lines(runtime, tmp_path):
 
 
 def test_memory_and_disk_cache(runtime, tmp_path):
-    spec = integrate.TEMPLATE.spec(work_group_size=32, damping=True, gravity=False, split=False, deltas=False)
+    spec = integrate.TEMPLATE.spec(
+        work_group_size=32, damping=True, gravity=False, split=False, deltas=False
+    )
     first = ProgramCache(tmp_path)
     t0 = time.perf_counter()
     p1 = first.build(runtime, spec.source, (), spec)
@@ -86,7 +97,9 @@ def test_memory_and_disk_cache(runtime, tmp_path):
 
 
 def test_corrupt_disk_binary_is_rebuilt(runtime, tmp_path):
-    spec = integrate.TEMPLATE.spec(work_group_size=16, damping=False, gravity=True, split=False, deltas=False)
+    spec = integrate.TEMPLATE.spec(
+        work_group_size=16, damping=False, gravity=True, split=False, deltas=False
+    )
     cache = ProgramCache(tmp_path)
     key = cache.key(runtime, spec.source, ())
     (tmp_path / f"{key}.bin").write_bytes(b"not a binary")

@@ -5,6 +5,7 @@ children (non-overlapping children as one closed triangle surface: boxes and hul
 exact polyhedra): mass, centre of mass, and the inertia tensor about it, which must equal
 R diag(principal inertia) R^T with R the compound's rotation.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,8 +25,17 @@ def child_mesh(shape, position, orientation) -> trimesh.Trimesh:
         mesh = trimesh.creation.box(extents=2 * shape.half_extents)
     else:
         mesh = trimesh.convex.convex_hull(shape.local_vertices())
-    mesh.apply_transform(np.block([[quat_to_matrix(np.asarray(orientation, float)),
-                                    np.asarray(position, float)[:, None]], [np.zeros((1, 3)), 1]]))
+    mesh.apply_transform(
+        np.block(
+            [
+                [
+                    quat_to_matrix(np.asarray(orientation, float)),
+                    np.asarray(position, float)[:, None],
+                ],
+                [np.zeros((1, 3)), 1],
+            ]
+        )
+    )
     return mesh
 
 
@@ -59,8 +69,9 @@ def test_mass_properties_equal_trimesh_of_the_union(rng, count):
     np.testing.assert_allclose(props.com, union.center_mass, rtol=1e-6, atol=1e-9)
     rotation = quat_to_matrix(np.asarray(props.rotation))
     tensor = rotation @ np.diag(props.inertia) @ rotation.T
-    np.testing.assert_allclose(tensor, union.moment_inertia, rtol=1e-6,
-                               atol=1e-9 * np.abs(union.moment_inertia).max())
+    np.testing.assert_allclose(
+        tensor, union.moment_inertia, rtol=1e-6, atol=1e-9 * np.abs(union.moment_inertia).max()
+    )
     assert np.linalg.det(rotation) == pytest.approx(1.0)
 
 
@@ -72,8 +83,9 @@ def test_children_are_stored_in_the_principal_frame(rng):
     compound = Compound(children)
     props = compound.mass_properties(mass=1.0)
     rotation = quat_to_matrix(np.asarray(props.rotation))
-    for (shape, position, q), p, stored_q in zip(children, compound.positions,
-                                                  compound.orientations):
+    for (shape, position, q), p, stored_q in zip(
+        children, compound.positions, compound.orientations
+    ):
         given = shape.local_vertices() @ quat_to_matrix(q).T + position
         stored = shape.local_vertices() @ quat_to_matrix(stored_q).T + p
         np.testing.assert_allclose(stored @ rotation.T + props.com, given, atol=1e-9)
@@ -94,7 +106,8 @@ def test_a_sphere_child_and_a_capsule_child():
     assert props.mass == pytest.approx(vs + vc)
     np.testing.assert_allclose(props.com, (2 * vc / (vs + vc), 0, 0), atol=1e-12)
     assert compound.bounding_radius() == pytest.approx(
-        max(2 * vc / (vs + vc) + 0.5, 2 - 2 * vc / (vs + vc) + 0.7))
+        max(2 * vc / (vs + vc) + 0.5, 2 - 2 * vc / (vs + vc) + 0.7)
+    )
 
 
 def test_bad_compounds_are_refused_naming_the_child():
@@ -123,8 +136,9 @@ def test_compound_bodies_in_a_world_keep_their_children_apart(runtime):
     manifold per (body pair, child pair), with sub-features 1 + (child << 24 | other)."""
     from rbgen import layouts
 
-    legs = [(rbgen.Box((0.05, 0.25, 0.05)), (x * 0.4, 0.2, z * 0.4))
-            for x in (-1, 1) for z in (-1, 1)]
+    legs = [
+        (rbgen.Box((0.05, 0.25, 0.05)), (x * 0.4, 0.2, z * 0.4)) for x in (-1, 1) for z in (-1, 1)
+    ]
     chair = Compound([(rbgen.Box((0.5, 0.05, 0.5)), (0, 0.5, 0))] + legs)
     world = rbgen.World(runtime)
     world.add_static(rbgen.Plane())
@@ -133,7 +147,7 @@ def test_compound_bodies_in_a_world_keep_their_children_apart(runtime):
         world.step(1 / 60)
     world.statistics()
     narrowphase = world._pipeline.narrowphase
-    manifolds = narrowphase.manifolds.get()[:int(narrowphase.count.get()[0])]
+    manifolds = narrowphase.manifolds.get()[: int(narrowphase.count.get()[0])]
     assert set(manifolds["body_a"].tolist()) == {0} and set(manifolds["body_b"].tolist()) == {1}
     # the four legs (children 1..4) touch the plane; each its own manifold
     subs = sorted(int(s) for s in manifolds["sub"])
@@ -149,7 +163,7 @@ def test_compound_bodies_in_a_world_keep_their_children_apart(runtime):
         world.step(1 / 60)
     world.statistics()
     narrowphase = world._pipeline.narrowphase
-    manifolds = narrowphase.manifolds.get()[:int(narrowphase.count.get()[0])]
+    manifolds = narrowphase.manifolds.get()[: int(narrowphase.count.get()[0])]
     legs = {(int(s) - 1) >> layouts.SUB_CHILD_SHIFT for s in manifolds["sub"]}
     triangles = {(int(s) - 1) & ((1 << layouts.SUB_CHILD_SHIFT) - 1) for s in manifolds["sub"]}
     assert legs == {1, 2, 3, 4} and triangles <= {0, 1}

@@ -1,4 +1,5 @@
 """Device discovery and choice."""
+
 from __future__ import annotations
 
 import pyopencl as cl
@@ -26,6 +27,7 @@ def test_traits_describe_every_device():
 def test_fingerprint_changes_with_driver():
     t = DeviceTraits.of(device.list_devices()[0].device)
     import dataclasses
+
     other = dataclasses.replace(t, driver_version=t.driver_version + "-next")
     assert other.fingerprint != t.fingerprint
 
@@ -83,8 +85,11 @@ def test_default_passes_over_a_device_that_cannot_compile(monkeypatch):
     entries = device.list_devices()
     broken = entries[0]
     real = device.build_failure
-    monkeypatch.setattr(device, "build_failure",
-                        lambda d: "unknown target CPU 'x'" if d == broken.device else real(d))
+    monkeypatch.setattr(
+        device,
+        "build_failure",
+        lambda d: "unknown target CPU 'x'" if d == broken.device else real(d),
+    )
     if len(entries) > 1 and any(real(e.device) is None for e in entries[1:]):
         with pytest.warns(RuntimeWarning, match=broken.index):
             chosen = device.default_device()

@@ -1,4 +1,5 @@
 """Export: the .cl files build and run outside rbgen's loader, as the manifest says."""
+
 from __future__ import annotations
 
 import json
@@ -31,7 +32,12 @@ def test_exported_integrate_runs_standalone(runtime, rng, tmp_path):
     entry = reread["files"][0]
     kernel = next(k for k in entry["kernels"] if k["name"] == "integrate_bodies")
     assert [a["name"] for a in kernel["args"]] == [
-        "bodies", "body_count", "dt", "gravity", "max_angular_step"]
+        "bodies",
+        "body_count",
+        "dt",
+        "gravity",
+        "max_angular_step",
+    ]
     assert kernel["args"][0]["role"] == "inout" and kernel["args"][1]["role"] == "scalar"
     local = kernel["local_size"]
     assert local == entry["params"]["work_group_size"]
@@ -42,10 +48,19 @@ def test_exported_integrate_runs_standalone(runtime, rng, tmp_path):
     n = 77
     bodies = random_bodies(rng, n)
     d_standalone = cla.to_device(runtime.queue, bodies)
-    values = {"bodies": d_standalone.data, "body_count": n, "dt": 1 / 60,
-              "gravity": np.array([0, -9.81, 0, 0], np.float32), "max_angular_step": np.pi / 2}
-    args = [values[a["name"]] if a["role"] != "scalar" or a["type"].endswith("float4")
-            else _scalar(a, values[a["name"]]) for a in kernel["args"]]
+    values = {
+        "bodies": d_standalone.data,
+        "body_count": n,
+        "dt": 1 / 60,
+        "gravity": np.array([0, -9.81, 0, 0], np.float32),
+        "max_angular_step": np.pi / 2,
+    }
+    args = [
+        values[a["name"]]
+        if a["role"] != "scalar" or a["type"].endswith("float4")
+        else _scalar(a, values[a["name"]])
+        for a in kernel["args"]
+    ]
     k = getattr(program, kernel["name"])
     k(runtime.queue, (-(-n // local) * local,), (local,), *args)
 
@@ -61,20 +76,24 @@ def test_a_specs_build_options_reach_its_program_and_the_manifest(runtime, tmp_p
     from rbgen.codegen import compile_spec
     from rbgen.pipeline.solvers import pgs
 
-    fast = pgs.TEMPLATE.default_spec(runtime.traits, fast_math=True, persistent=False,
-                                     warm_start_mode="batched")
-    exact = pgs.TEMPLATE.default_spec(runtime.traits, fast_math=False, persistent=False,
-                                      warm_start_mode="batched")
+    fast = pgs.TEMPLATE.default_spec(
+        runtime.traits, fast_math=True, persistent=False, warm_start_mode="batched"
+    )
+    exact = pgs.TEMPLATE.default_spec(
+        runtime.traits, fast_math=False, persistent=False, warm_start_mode="batched"
+    )
     assert fast.build_options == ("-cl-fast-relaxed-math",) and exact.build_options == ()
     built = compile_spec(runtime, fast).program.get_build_info(
-        runtime.device, cl.program_build_info.OPTIONS)
+        runtime.device, cl.program_build_info.OPTIONS
+    )
     assert "-cl-fast-relaxed-math" in built
     manifest = export_kernels([fast, exact], tmp_path, runtime.traits)
     assert [e["build_options"] for e in manifest["files"]] == [["-cl-fast-relaxed-math"], []]
     assert fast.source == exact.source  # (fast math is a build option, not source)
     for entry in manifest["files"]:
         program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build(
-            options=entry["build_options"])
+            options=entry["build_options"]
+        )
         assert "solve_groups" in {k.function_name for k in program.all_kernels()}
 
 
@@ -86,14 +105,29 @@ def test_export_all_builds_every_file(runtime, tmp_path):
     assert {"pipeline/integrate.cl.mako", "pipeline/world_aabbs.cl.mako"} <= names
     for entry in manifest["files"]:
         program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build(
-            options=entry["build_options"])
+            options=entry["build_options"]
+        )
         for k in entry["kernels"]:
             assert getattr(program, k["name"]).num_args == len(k["args"])
 
 
 def test_export_param_override_and_bad_names(runtime, tmp_path):
-    assert main(["export", "--out", str(tmp_path), "--kernel", "integrate",
-                 "--param", "work_group_size=32", "--param", "damping=True"]) == 0
+    assert (
+        main(
+            [
+                "export",
+                "--out",
+                str(tmp_path),
+                "--kernel",
+                "integrate",
+                "--param",
+                "work_group_size=32",
+                "--param",
+                "damping=True",
+            ]
+        )
+        == 0
+    )
     entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
     assert entry["params"]["work_group_size"] == 32 and entry["params"]["damping"] is True
     with pytest.raises(RbgenError, match="no template matches 'warp_drive'"):
@@ -106,10 +140,28 @@ def test_exported_persistent_solver_and_colouring_build_standalone(runtime, tmp_
     default) export like any specialisation: each .cl builds outside rbgen's loader, the
     solver's manifest lists the barrier's words before the relaxation, and a persistent
     solver of the serial form is refused by name."""
-    assert main(["export", "--out", str(tmp_path), "--kernel", "solvers/pgs", "--device",
-                 runtime.device.name.strip(), "--param", "persistent=True",
-                 "--param", "solve_form=lanes", "--param", "warm_start_mode=batched",
-                 "--param", "work_group_size=32"]) == 0
+    assert (
+        main(
+            [
+                "export",
+                "--out",
+                str(tmp_path),
+                "--kernel",
+                "solvers/pgs",
+                "--device",
+                runtime.device.name.strip(),
+                "--param",
+                "persistent=True",
+                "--param",
+                "solve_form=lanes",
+                "--param",
+                "warm_start_mode=batched",
+                "--param",
+                "work_group_size=32",
+            ]
+        )
+        == 0
+    )
     entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
     assert entry["params"]["persistent"] is True
     program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
@@ -117,14 +169,40 @@ def test_exported_persistent_solver_and_colouring_build_standalone(runtime, tmp_
     names = [a["name"] for a in solve["args"]]
     assert names[names.index("relaxation") - 1] == "sync"
     assert program.solve_groups.num_args == len(solve["args"])
-    assert main(["export", "--out", str(tmp_path), "--kernel", "global_colouring", "--device",
-                 runtime.device.name.strip()]) == 0
+    assert (
+        main(
+            [
+                "export",
+                "--out",
+                str(tmp_path),
+                "--kernel",
+                "global_colouring",
+                "--device",
+                runtime.device.name.strip(),
+            ]
+        )
+        == 0
+    )
     entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
     program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
     colour = next(k for k in entry["kernels"] if k["name"] == "colour_global")
     assert program.colour_global.num_args == len(colour["args"])
-    assert main(["export", "--out", str(tmp_path), "--kernel", "solvers/pgs", "--param",
-                 "persistent=True", "--param", "solve_form=serial"]) == 2
+    assert (
+        main(
+            [
+                "export",
+                "--out",
+                str(tmp_path),
+                "--kernel",
+                "solvers/pgs",
+                "--param",
+                "persistent=True",
+                "--param",
+                "solve_form=serial",
+            ]
+        )
+        == 2
+    )
 
 
 def test_exported_world_specialisations_build_standalone(runtime, tmp_path):
@@ -133,31 +211,62 @@ def test_exported_world_specialisations_build_standalone(runtime, tmp_path):
     and the body count between the barrier's words and the relaxation; the .cl needs
     64-bit atomics, so it is built where the device has them) and the body preparation
     that writes the step's backup (an out buffer after the body count)."""
-    solver_args = ["export", "--out", str(tmp_path / "solver"), "--kernel", "solvers/pgs",
-                   "--device", runtime.device.name.strip(), "--param", "persistent=True",
-                   "--param", "solve_form=lanes", "--param", "work_group_size=32",
-                   "--param", "warm_start_mode=summed", "--param", "normal_solve=block"]
+    solver_args = [
+        "export",
+        "--out",
+        str(tmp_path / "solver"),
+        "--kernel",
+        "solvers/pgs",
+        "--device",
+        runtime.device.name.strip(),
+        "--param",
+        "persistent=True",
+        "--param",
+        "solve_form=lanes",
+        "--param",
+        "work_group_size=32",
+        "--param",
+        "warm_start_mode=summed",
+        "--param",
+        "normal_solve=block",
+    ]
     assert main(solver_args) == 0
     entry = json.loads((tmp_path / "solver" / "manifest.json").read_text())["files"][0]
     assert entry["params"]["warm_start_mode"] == "summed"
     solve = next(k for k in entry["kernels"] if k["name"] == "solve_groups")
     names = [a["name"] for a in solve["args"]]
     at = names.index("relaxation")
-    assert names[at - 3:at] == ["sync", "warm_sums", "body_count"]
+    assert names[at - 3 : at] == ["sync", "warm_sums", "body_count"]
     assert next(a for a in solve["args"] if a["name"] == "warm_sums")["role"] == "inout"
     if runtime.has_extension(INT64_ATOMICS):
-        program = cl.Program(runtime.context,
-                             (tmp_path / "solver" / entry["file"]).read_text()).build()
+        program = cl.Program(
+            runtime.context, (tmp_path / "solver" / entry["file"]).read_text()
+        ).build()
         assert program.solve_groups.num_args == len(solve["args"])
-    assert main(["export", "--out", str(tmp_path / "prepare"), "--kernel", "pipeline/prepare",
-                 "--device", runtime.device.name.strip(), "--param", "backup=True"]) == 0
+    assert (
+        main(
+            [
+                "export",
+                "--out",
+                str(tmp_path / "prepare"),
+                "--kernel",
+                "pipeline/prepare",
+                "--device",
+                runtime.device.name.strip(),
+                "--param",
+                "backup=True",
+            ]
+        )
+        == 0
+    )
     entry = json.loads((tmp_path / "prepare" / "manifest.json").read_text())["files"][0]
     prepare = next(k for k in entry["kernels"] if k["name"] == "prepare_bodies")
     names = [a["name"] for a in prepare["args"]]
     assert names[names.index("body_count") + 1] == "backup"
     assert next(a for a in prepare["args"] if a["name"] == "backup")["role"] == "out"
-    program = cl.Program(runtime.context,
-                         (tmp_path / "prepare" / entry["file"]).read_text()).build()
+    program = cl.Program(
+        runtime.context, (tmp_path / "prepare" / entry["file"]).read_text()
+    ).build()
     assert program.prepare_bodies.num_args == len(prepare["args"])
 
 
@@ -167,9 +276,24 @@ def test_exported_jacobi_solver_builds_standalone(runtime, tmp_path, persistent)
     loader; the phase variant's kernels all take one argument list (a C++ caller binds
     the buffers once and launches the phases in order), the persistent variant's one
     kernel takes the barrier's words before the relaxation."""
-    assert main(["export", "--out", str(tmp_path), "--kernel", "jacobi", "--device",
-                 runtime.device.name.strip(), "--param", f"persistent={persistent}",
-                 "--param", "work_group_size=32"]) == 0
+    assert (
+        main(
+            [
+                "export",
+                "--out",
+                str(tmp_path),
+                "--kernel",
+                "jacobi",
+                "--device",
+                runtime.device.name.strip(),
+                "--param",
+                f"persistent={persistent}",
+                "--param",
+                "work_group_size=32",
+            ]
+        )
+        == 0
+    )
     entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
     assert entry["params"]["persistent"] is persistent
     program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
@@ -201,37 +325,66 @@ def test_world_export_is_exactly_what_the_world_compiled(runtime, tmp_path, opti
         world.step(1 / 60)
         world.statistics()
     manifest = export_world(world, tmp_path)
-    exported = {(json.dumps(e["params"], sort_keys=True), e["template"]):
-                ((tmp_path / e["file"]).read_text(), tuple(e["build_options"]))
-                for e in manifest["files"]}
-    recorded = {(json.dumps({k: list(v) if isinstance(v, tuple) else v
-                             for k, v in spec.params}, sort_keys=True), spec.path):
-                (spec.source, options) for spec, options in compiled.specs()}
+    exported = {
+        (json.dumps(e["params"], sort_keys=True), e["template"]): (
+            (tmp_path / e["file"]).read_text(),
+            tuple(e["build_options"]),
+        )
+        for e in manifest["files"]
+    }
+    recorded = {
+        (
+            json.dumps(
+                {k: list(v) if isinstance(v, tuple) else v for k, v in spec.params}, sort_keys=True
+            ),
+            spec.path,
+        ): (spec.source, options)
+        for spec, options in compiled.specs()
+    }
     assert exported == recorded
     plan = json.loads((tmp_path / "plan.json").read_text())
     assert plan["choices"]["batching"] == world.plan.batching
     assert manifest["plan"]["choices"]["solver"] == world.plan.solver
     for entry in manifest["files"]:  # and every exported file builds standalone
         cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build(
-            options=entry["build_options"])
+            options=entry["build_options"]
+        )
 
 
 def test_export_world_from_the_command_line(runtime, tmp_path):
     """`rbgen export --world SCENE` (a scene name, or a Python file with build(device))
     writes the kernels, plan.json and the manifest; an unknown scene is refused by name."""
     device = runtime.device.name.strip()
-    assert main(["export", "--out", str(tmp_path / "a"), "--world", "pyramid", "--n", "5",
-                 "--device", device]) == 0
+    assert (
+        main(
+            [
+                "export",
+                "--out",
+                str(tmp_path / "a"),
+                "--world",
+                "pyramid",
+                "--n",
+                "5",
+                "--device",
+                device,
+            ]
+        )
+        == 0
+    )
     assert (tmp_path / "a" / "plan.json").is_file()
     script = tmp_path / "scene.py"
-    script.write_text("import rbgen\n"
-                      "def build(device):\n"
-                      "    w = rbgen.World(device)\n"
-                      "    w.add_static(rbgen.Plane((0, 1, 0)))\n"
-                      "    w.add_body(rbgen.Sphere(0.5), position=(0, 0.4, 0))\n"
-                      "    return w\n")
-    assert main(["export", "--out", str(tmp_path / "b"), "--world", str(script),
-                 "--device", device]) == 0
+    script.write_text(
+        "import rbgen\n"
+        "def build(device):\n"
+        "    w = rbgen.World(device)\n"
+        "    w.add_static(rbgen.Plane((0, 1, 0)))\n"
+        "    w.add_body(rbgen.Sphere(0.5), position=(0, 0.4, 0))\n"
+        "    return w\n"
+    )
+    assert (
+        main(["export", "--out", str(tmp_path / "b"), "--world", str(script), "--device", device])
+        == 0
+    )
     manifest = json.loads((tmp_path / "b" / "manifest.json").read_text())
     assert manifest["plan"]["choices"]["shape_types"] == ["plane", "sphere"]
     assert main(["export", "--out", str(tmp_path / "c"), "--world", "warp_drive"]) == 2

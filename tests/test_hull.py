@@ -1,4 +1,5 @@
 """Hull cooking: polygons, planes, edge directions, limits and degenerate input."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,7 +25,7 @@ def check_polyhedron(cooked, points_in_frame):
         p = v[face]
         np.testing.assert_allclose(p @ normal, offset, atol=1e-9 * scale)
         turn = np.cross(np.roll(p, -1, axis=0) - p, np.roll(p, -2, axis=0) - np.roll(p, -1, axis=0))
-        assert np.all(turn @ normal > -1e-12 * scale ** 2)
+        assert np.all(turn @ normal > -1e-12 * scale**2)
         edges |= {tuple(sorted(e)) for e in zip(face, np.roll(face, -1))}
     assert len(v) - len(edges) + len(cooked.faces) == 2
 
@@ -32,6 +33,7 @@ def check_polyhedron(cooked, points_in_frame):
 def stored_frame(cooked, points):
     """Input points expressed in the cooked (principal) frame."""
     from tests.pipeline.narrowphase.reference import quat_matrix
+
     return (np.asarray(points) - cooked.com) @ quat_matrix(cooked.rotation)
 
 
@@ -69,14 +71,17 @@ def test_cylinder_caps_are_single_polygons():
     check_polyhedron(cooked, stored_frame(cooked, pts))
 
 
-@pytest.mark.parametrize("points,match", [
-    (np.zeros((3, 3)), "at least 4"),
-    (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0.5, 0.2, 0]]), "coplanar"),
-    (np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3]]), "coplanar or collinear"),
-    (np.ones((5, 3)), "zero extents"),
-    (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, np.nan]]), "NaN"),
-    (np.zeros((4, 2)), r"\(N, 3\)"),
-])
+@pytest.mark.parametrize(
+    "points,match",
+    [
+        (np.zeros((3, 3)), "at least 4"),
+        (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0.5, 0.2, 0]]), "coplanar"),
+        (np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3]]), "coplanar or collinear"),
+        (np.ones((5, 3)), "zero extents"),
+        (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, np.nan]]), "NaN"),
+        (np.zeros((4, 2)), r"\(N, 3\)"),
+    ],
+)
 def test_degenerate_hulls_name_the_shape(points, match):
     with pytest.raises(RbgenError, match=match) as err:
         ConvexHull(points, name="rock 7")
@@ -96,8 +101,11 @@ def test_edges_know_their_faces(rng):
     """Each edge v0 -> v1 runs counter-clockwise around f0 and clockwise around f1;
     together the edges are every polygon side exactly once."""
     cooked = hull.cook(rng.normal(size=(40, 3)), "blob")
-    sides = {(int(a), int(b)): f for f, poly in enumerate(cooked.faces)
-             for a, b in zip(poly, np.roll(poly, -1))}
+    sides = {
+        (int(a), int(b)): f
+        for f, poly in enumerate(cooked.faces)
+        for a, b in zip(poly, np.roll(poly, -1))
+    }
     assert 2 * len(cooked.edges) == len(sides)
     for v0, v1, f0, f1 in cooked.edges:
         assert sides[(v0, v1)] == f0 and sides[(v1, v0)] == f1

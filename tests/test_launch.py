@@ -1,4 +1,5 @@
 """BoundKernel: arguments reach the driver only when they change, and results stay right."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,5 @@
 """Layouts: the numpy dtype, the OpenCL struct and the C header agree."""
+
 from __future__ import annotations
 
 import shutil
@@ -14,15 +15,20 @@ from rbgen.errors import RbgenError
 
 def offsets_kernel_source() -> str:
     """A kernel that writes sizeof and every field offset, as the device compiler sees them."""
-    lines = [layouts.cl_constants(), layouts.cl_structs(),
-             "__kernel void layout_offsets(__global ulong* out) {"]
+    lines = [
+        layouts.cl_constants(),
+        layouts.cl_structs(),
+        "__kernel void layout_offsets(__global ulong* out) {",
+    ]
     k = 0
     for layout in layouts.all_layouts():
         lines.append(f"  {{ __global {layout.name}* p = (__global {layout.name}*)0;")
         lines.append(f"    out[{k}] = sizeof({layout.name});")
         k += 1
         for f in layout.fields:
-            lines.append(f"    out[{k}] = (ulong)((__global char*)&p->{f.name} - (__global char*)p);")
+            lines.append(
+                f"    out[{k}] = (ulong)((__global char*)&p->{f.name} - (__global char*)p);"
+            )
             k += 1
         lines.append("  }")
     lines.append("}")
@@ -41,7 +47,9 @@ def test_device_offsets_equal_dtype(runtime):
         assert out[k] == layout.dtype.itemsize == layout.itemsize, f"sizeof({layout.name})"
         k += 1
         for f in layout.fields:
-            assert out[k] == layout.dtype.fields[f.name][1] == layout.offset(f.name), f"{layout.name}.{f.name}"
+            assert out[k] == layout.dtype.fields[f.name][1] == layout.offset(f.name), (
+                f"{layout.name}.{f.name}"
+            )
             k += 1
 
 
@@ -61,9 +69,14 @@ def test_c_header_compiles_with_static_asserts(tmp_path, compiler, flag):
     header = tmp_path / "rbgen_layouts.h"
     header.write_text(layouts.c_header())
     main = tmp_path / ("main.c" if compiler == "gcc" else "main.cpp")
-    main.write_text('#include "rbgen_layouts.h"\nint main(void) { return (int)sizeof(Body) - 80; }\n')
-    subprocess.run([compiler, flag, "-Wall", "-Werror", "-o", str(tmp_path / "a.out"), str(main)],
-                   check=True, capture_output=True)
+    main.write_text(
+        '#include "rbgen_layouts.h"\nint main(void) { return (int)sizeof(Body) - 80; }\n'
+    )
+    subprocess.run(
+        [compiler, flag, "-Wall", "-Werror", "-o", str(tmp_path / "a.out"), str(main)],
+        check=True,
+        capture_output=True,
+    )
     assert subprocess.run([str(tmp_path / "a.out")]).returncode == 0
 
 
@@ -71,12 +84,16 @@ def test_header_assert_catches_a_wrong_offset(tmp_path):
     """The header's static asserts really check: a corrupted offset fails to compile."""
     if shutil.which("gcc") is None:
         pytest.skip("gcc not installed")
-    text = layouts.c_header().replace("offsetof(Body, inv_mass) == 64", "offsetof(Body, inv_mass) == 60")
+    text = layouts.c_header().replace(
+        "offsetof(Body, inv_mass) == 64", "offsetof(Body, inv_mass) == 60"
+    )
     assert "== 60" in text
     (tmp_path / "h.h").write_text(text)
     (tmp_path / "m.c").write_text('#include "h.h"\nint main(void) { return 0; }\n')
-    result = subprocess.run(["gcc", "-std=c11", "-c", "-o", str(tmp_path / "m.o"), str(tmp_path / "m.c")],
-                            capture_output=True)
+    result = subprocess.run(
+        ["gcc", "-std=c11", "-c", "-o", str(tmp_path / "m.o"), str(tmp_path / "m.c")],
+        capture_output=True,
+    )
     assert result.returncode != 0
 
 

@@ -1,4 +1,5 @@
 """Mass properties: closed forms for spheres, boxes, capsules; volume integrals for hulls."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -13,7 +14,7 @@ from tests.pipeline.narrowphase.reference import quat_matrix
 def test_sphere_and_box_closed_forms():
     """Sphere: m = rho 4/3 pi r^3, I = 2/5 m r^2. Box: m = rho 8abc, I_x = m (b^2 + c^2) / 3."""
     s = Sphere(0.7).mass_properties(density=2.0)
-    m = 2.0 * 4 / 3 * np.pi * 0.7 ** 3
+    m = 2.0 * 4 / 3 * np.pi * 0.7**3
     assert s.mass == pytest.approx(m)
     np.testing.assert_allclose(s.inertia, [0.4 * m * 0.49] * 3)
     b = Box((1.0, 2.0, 3.0)).mass_properties(mass=6.0)
@@ -33,8 +34,11 @@ def test_capsule_matches_a_fine_mesh():
 def test_hull_of_a_box_equals_the_box(rng):
     corners = Box((0.5, 1.0, 1.5)).local_vertices()
     hull = ConvexHull(np.vstack([corners, rng.uniform(-0.4, 0.4, (10, 3))]))
-    np.testing.assert_allclose(hull.mass_properties(density=3.0).inertia,
-                               Box((0.5, 1.0, 1.5)).mass_properties(density=3.0).inertia, rtol=1e-9)
+    np.testing.assert_allclose(
+        hull.mass_properties(density=3.0).inertia,
+        Box((0.5, 1.0, 1.5)).mass_properties(density=3.0).inertia,
+        rtol=1e-9,
+    )
 
 
 def test_hull_frame_reproduces_the_input_inertia(rng):
@@ -48,8 +52,9 @@ def test_hull_frame_reproduces_the_input_inertia(rng):
     r = quat_matrix(props.rotation)
     np.testing.assert_allclose(props.com, ref["center_mass"], atol=1e-10)
     tensor = r @ np.diag(props.inertia) @ r.T
-    np.testing.assert_allclose(tensor, ref["inertia"] * 5.0 / ref["mass"],
-                               atol=1e-9 * np.abs(tensor).max())
+    np.testing.assert_allclose(
+        tensor, ref["inertia"] * 5.0 / ref["mass"], atol=1e-9 * np.abs(tensor).max()
+    )
     mapped = hull.vertices @ r.T + props.com
     d = np.linalg.norm(mapped[:, None] - pts[None], axis=-1)
     assert np.all(d.min(axis=1) < 1e-9)

@@ -9,6 +9,7 @@ Physics, each against its closed form or the same scene on a plane:
 * boxes, hulls and compounds dropped on a rough terrain come to rest (every speed below
   5 cm/s after 5 s, none below the terrain; spheres and capsules roll on, but stay on it).
 """
+
 from __future__ import annotations
 
 import json
@@ -26,17 +27,20 @@ from rbgen.pipeline import midphase_reference as reference
 def floor_mesh(cells: int, size: float) -> rbgen.TriangleMesh:
     """A flat square floor at y = 0 of 2 cells^2 triangles, centred on the origin."""
     n = cells + 1
-    x, z = np.meshgrid(np.linspace(-size / 2, size / 2, n), np.linspace(-size / 2, size / 2, n),
-                       indexing="ij")
+    x, z = np.meshgrid(
+        np.linspace(-size / 2, size / 2, n), np.linspace(-size / 2, size / 2, n), indexing="ij"
+    )
     vertices = np.stack([x.ravel(), np.zeros(n * n), z.ravel()], axis=1)
     i, j = np.meshgrid(np.arange(cells), np.arange(cells), indexing="ij")
     v00 = (i * n + j).ravel()
-    triangles = np.concatenate([np.stack([v00, v00 + 1, v00 + n], 1),
-                                np.stack([v00 + n, v00 + 1, v00 + n + 1], 1)])
+    triangles = np.concatenate(
+        [np.stack([v00, v00 + 1, v00 + n], 1), np.stack([v00 + n, v00 + 1, v00 + n + 1], 1)]
+    )
     return rbgen.TriangleMesh(vertices, triangles, name="floor")
 
 
 # ------------------------------------------------------------------ bad input
+
 
 def test_bad_meshes_are_refused_naming_the_vertex_or_triangle():
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 0, 1], [1, 0, 1]], float)
@@ -48,8 +52,11 @@ def test_bad_meshes_are_refused_naming_the_vertex_or_triangle():
     bad[2, 1] = np.inf
     with pytest.raises(RbgenError, match="vertex 2 is not finite"):
         rbgen.TriangleMesh(bad, t)
-    with pytest.raises(RbgenError, match=r"triangle 1 \[1, 2, 4\] has vertex index 4, "
-                                         r"outside 0..3"):
+    with pytest.raises(
+        RbgenError,
+        match=r"triangle 1 \[1, 2, 4\] has vertex index 4, "
+        r"outside 0..3",
+    ):
         rbgen.TriangleMesh(v, [[0, 2, 1], [1, 2, 4]])
     with pytest.raises(RbgenError, match="vertex index -1"):
         rbgen.TriangleMesh(v, [[0, 2, -1]])
@@ -70,12 +77,14 @@ def test_degenerate_triangles_are_dropped_with_one_warning():
         warnings.simplefilter("always")
         mesh = rbgen.TriangleMesh(v, t, name="ground")
     assert len(caught) == 1
-    assert "ground: dropped 2 degenerate (zero-area) triangles of 4 (the first: triangle 1)" \
-        in str(caught[0].message)
+    assert "ground: dropped 2 degenerate (zero-area) triangles of 4 (the first: triangle 1)" in str(
+        caught[0].message
+    )
     assert mesh.triangle_count == 2
     assert sorted(mesh.source_triangles.tolist()) == [0, 2]
-    np.testing.assert_array_equal(np.sort(mesh.triangles, axis=1),
-                                  np.sort(t[mesh.source_triangles], axis=1))
+    np.testing.assert_array_equal(
+        np.sort(mesh.triangles, axis=1), np.sort(t[mesh.source_triangles], axis=1)
+    )
     with pytest.raises(RbgenError, match="every triangle is degenerate"):
         rbgen.TriangleMesh(v, [[0, 1, 4]])
 
@@ -83,8 +92,11 @@ def test_degenerate_triangles_are_dropped_with_one_warning():
 def test_a_mesh_cannot_be_dynamic():
     world = rbgen.World()
     mesh = floor_mesh(2, 2.0)
-    with pytest.raises(RbgenError, match="TriangleMesh can only be static.*ConvexHull"
-                                         r".*Compound of hulls"):
+    with pytest.raises(
+        RbgenError,
+        match="TriangleMesh can only be static.*ConvexHull"
+        r".*Compound of hulls",
+    ):
         world.add_bodies(mesh, mass=1.0, positions=[(0, 0, 0)])
     assert world.body_count == 0
     world.add_static(mesh)
@@ -100,8 +112,9 @@ def test_active_edges():
     assert sorted(bin(int(e)).count("1") for e in flat.active_edges) == [2, 2]
 
     def fold(height, flip=False):
-        v = np.array([[-1, 0, 0], [0, height, 0], [1, 0, 0], [-1, 0, 2], [0, height, 2],
-                      [1, 0, 2]], float)
+        v = np.array(
+            [[-1, 0, 0], [0, height, 0], [1, 0, 0], [-1, 0, 2], [0, height, 2], [1, 0, 2]], float
+        )
         t = [[0, 3, 1], [1, 3, 4], [1, 4, 2], [2, 4, 5]]
         if flip:
             t[2] = [1, 2, 4]
@@ -115,10 +128,10 @@ def test_active_edges():
                     edges.append(bool(mesh.active_edges[k] >> e & 1))
         return edges
 
-    assert fold(1.0) == [True, True]          # 90-degree convex ridge
-    assert fold(-1.0) == [False, False]       # concave valley
-    assert fold(0.03) == [False, False]       # 3.4-degree convex fold: flat
-    assert fold(0.1) == [True, True]          # 11 degrees: sharp
+    assert fold(1.0) == [True, True]  # 90-degree convex ridge
+    assert fold(-1.0) == [False, False]  # concave valley
+    assert fold(0.03) == [False, False]  # 3.4-degree convex fold: flat
+    assert fold(0.1) == [True, True]  # 11 degrees: sharp
     assert fold(-1.0, flip=True) == [True, True]  # windings disagree: sharp is active
 
 
@@ -139,6 +152,7 @@ def test_load_mesh_round_trip(tmp_path):
 
 # ------------------------------------------------------------------ physics
 
+
 @pytest.mark.parametrize("direction", [(1.0, 0.0), (0.8, 0.6), (0.6, -0.8)])
 def test_box_slides_across_seams_as_on_a_plane(runtime, direction):
     """A unit box sliding at 4 m/s (friction 0.5 on both sides): on the tessellated floor
@@ -153,8 +167,13 @@ def test_box_slides_across_seams_as_on_a_plane(runtime, direction):
             world.add_static(rbgen.Plane((0, 1, 0), 0.0), friction=mu)
         else:
             world.add_static(floor_mesh(40, 40.0), friction=mu)
-        box = world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(-4, 0.5, 0.3),
-                             linear_velocity=velocity, friction=mu)
+        box = world.add_body(
+            rbgen.Box((0.5, 0.5, 0.5)),
+            mass=1.0,
+            position=(-4, 0.5, 0.3),
+            linear_velocity=velocity,
+            friction=mu,
+        )
         history = []
         for _ in range(30):
             world.step(1 / 60)
@@ -174,8 +193,13 @@ def test_sphere_rolls_across_seams(runtime):
     reaches 5/7 of its speed (rolling without slipping), as on a plane."""
     world = rbgen.World(runtime)
     world.add_static(floor_mesh(40, 40.0), friction=0.5)
-    ball = world.add_body(rbgen.Sphere(0.5), mass=1.0, position=(-15, 0.5, 0.2),
-                          linear_velocity=(3.0, 0.0, 1.0), friction=0.5)
+    ball = world.add_body(
+        rbgen.Sphere(0.5),
+        mass=1.0,
+        position=(-15, 0.5, 0.2),
+        linear_velocity=(3.0, 0.0, 1.0),
+        friction=0.5,
+    )
     heights, vertical = [], []
     for _ in range(120):
         world.step(1 / 60)
@@ -190,11 +214,20 @@ def test_sphere_rolls_across_seams(runtime):
 
 def chair(scale: float = 1.0) -> rbgen.Compound:
     """A seat on four legs with a ball on top: six children of two types."""
-    legs = [(rbgen.Box((0.05 * scale, 0.25 * scale, 0.05 * scale)),
-             (x * 0.4 * scale, 0.2 * scale, z * 0.4 * scale)) for x in (-1, 1) for z in (-1, 1)]
-    return rbgen.Compound([(rbgen.Box((0.5 * scale, 0.05 * scale, 0.5 * scale)),
-                            (0, 0.5 * scale, 0))] + legs
-                          + [(rbgen.Sphere(0.2 * scale), (0, 0.8 * scale, 0))], name="chair")
+    legs = [
+        (
+            rbgen.Box((0.05 * scale, 0.25 * scale, 0.05 * scale)),
+            (x * 0.4 * scale, 0.2 * scale, z * 0.4 * scale),
+        )
+        for x in (-1, 1)
+        for z in (-1, 1)
+    ]
+    return rbgen.Compound(
+        [(rbgen.Box((0.5 * scale, 0.05 * scale, 0.5 * scale)), (0, 0.5 * scale, 0))]
+        + legs
+        + [(rbgen.Sphere(0.2 * scale), (0, 0.8 * scale, 0))],
+        name="chair",
+    )
 
 
 def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
@@ -207,12 +240,18 @@ def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
     world = rbgen.World(runtime)
     mesh = rbgen.TriangleMesh(vertices, triangles)
     world.add_static(mesh)
-    shapes = [rbgen.Box((0.3, 0.2, 0.25)), rbgen.Sphere(0.3), rbgen.Capsule(0.2, 0.25),
-              rbgen.ConvexHull(rng.normal(size=(12, 3)) * 0.3), chair(0.6)]
+    shapes = [
+        rbgen.Box((0.3, 0.2, 0.25)),
+        rbgen.Sphere(0.3),
+        rbgen.Capsule(0.2, 0.25),
+        rbgen.ConvexHull(rng.normal(size=(12, 3)) * 0.3),
+        chair(0.6),
+    ]
     ids = []
     for k, shape in enumerate(shapes):
-        grid = np.stack(np.meshgrid(np.arange(3, 21, 3.0), [1.5 + 0.8 * k], [4.0 + 3.0 * k],
-                                    indexing="ij"), -1).reshape(-1, 3)
+        grid = np.stack(
+            np.meshgrid(np.arange(3, 21, 3.0), [1.5 + 0.8 * k], [4.0 + 3.0 * k], indexing="ij"), -1
+        ).reshape(-1, 3)
         ids += list(world.add_bodies(shape, mass=1.0, positions=grid))
     for _ in range(300):
         world.step(1 / 60)
@@ -220,8 +259,12 @@ def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
     speeds = np.linalg.norm(world.linear_velocities[ids], axis=1)
     assert np.all(np.isfinite(p))
     table = world._bodies.shapes.shapes
-    rolls = np.array([isinstance(table[s], (rbgen.Sphere, rbgen.Capsule))
-                      for s in world._bodies.host["shape"][ids]])
+    rolls = np.array(
+        [
+            isinstance(table[s], (rbgen.Sphere, rbgen.Capsule))
+            for s in world._bodies.host["shape"][ids]
+        ]
+    )
     assert speeds[~rolls].max() < 0.05, speeds[~rolls].max()
     assert speeds[rolls].max() < 2.0
     cell = np.clip(p[:, [0, 2]].astype(int), 0, 24)
@@ -254,9 +297,11 @@ def test_compounds_against_compounds_planes_and_meshes(runtime):
 
 # ------------------------------------------------------------------ cost and export
 
+
 def test_worlds_without_meshes_or_compounds_pay_nothing(runtime):
     """A world of boxes on a plane has no midphase or children stage and no extra shape
     arrays; one with a mesh has the midphase, one with a compound both."""
+
     def stages(*statics, dynamic=None):
         world = rbgen.World(runtime)
         for shape in statics:
@@ -269,8 +314,11 @@ def test_worlds_without_meshes_or_compounds_pay_nothing(runtime):
     assert "midphase" not in names and "children" not in names and extra == {}
     names, extra = stages(floor_mesh(2, 4.0))
     assert names[:4] == ["prepare", "broadphase", "midphase", "narrowphase"]
-    assert "children" not in names and set(extra) == {"mesh_vertices", "mesh_triangles",
-                                                      "bvh_nodes"}
+    assert "children" not in names and set(extra) == {
+        "mesh_vertices",
+        "mesh_triangles",
+        "bvh_nodes",
+    }
     names, extra = stages(rbgen.Plane(), dynamic=chair())
     assert names[:5] == ["prepare", "broadphase", "midphase", "narrowphase", "children"]
     assert set(extra) == {"compound_children"}
@@ -290,11 +338,15 @@ def test_a_mesh_worlds_export_builds_standalone(runtime, tmp_path):
         world.step(1 / 60)
     manifest = export_world(world, tmp_path)
     templates = {e["template"] for e in manifest["files"]}
-    assert {"pipeline/midphase/triangles.cl.mako", "pipeline/midphase/children.cl.mako",
-            "pipeline/narrowphase/triangles.cl.mako"} <= templates
+    assert {
+        "pipeline/midphase/triangles.cl.mako",
+        "pipeline/midphase/children.cl.mako",
+        "pipeline/narrowphase/triangles.cl.mako",
+    } <= templates
     for entry in manifest["files"]:
         cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build(
-            options=entry["build_options"])
+            options=entry["build_options"]
+        )
     header = (tmp_path / "rbgen_layouts.h").read_text()
     assert "BvhNode" in header and "MeshTriangle" in header and "CompoundChild" in header
     assert json.loads((tmp_path / "manifest.json").read_text())["files"]

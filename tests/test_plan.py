@@ -1,6 +1,7 @@
 """The plan: the documented default of every choice per device class, where each came
 from, the fallback after a persistent launch gave up, and overrides (no device needed:
 plans are derived from traits)."""
+
 from __future__ import annotations
 
 import json
@@ -14,11 +15,19 @@ from rbgen.settings import split_options
 
 
 def traits(vendor: str, gpu: bool, extensions=(INT64_ATOMICS,)) -> DeviceTraits:
-    return DeviceTraits(platform_name="p", device_name=f"{vendor} device", vendor=vendor,
-                        is_gpu=gpu, compute_units=8, wavefront=32 if gpu else 1,
-                        local_mem_size=48 * 1024, max_work_group_size=1024,
-                        driver_version="1", opencl_version="OpenCL 3.0",
-                        extensions=tuple(extensions))
+    return DeviceTraits(
+        platform_name="p",
+        device_name=f"{vendor} device",
+        vendor=vendor,
+        is_gpu=gpu,
+        compute_units=8,
+        wavefront=32 if gpu else 1,
+        local_mem_size=48 * 1024,
+        max_work_group_size=1024,
+        driver_version="1",
+        opencl_version="OpenCL 3.0",
+        extensions=tuple(extensions),
+    )
 
 
 NVIDIA = traits("NVIDIA Corporation", True)
@@ -32,15 +41,45 @@ def plan(device, tuned=None, **options):
 
 # device -> the README's table of defaults
 EXPECTED = {
-    "nvidia": (NVIDIA, dict(solver="pgs", batching="global", solve_form="lanes",
-                            persistent=True, normal_solve="block", warm_start_mode="summed",
-                            fast_math=True, release_sweeps=2)),
-    "other gpu": (AMD, dict(solver="pgs", batching="cells", solve_form="lanes",
-                            persistent=False, normal_solve="block", warm_start_mode="batched",
-                            fast_math=True, release_sweeps=2)),
-    "cpu": (CPU, dict(solver="pgs", batching="slabs", solve_form="serial", persistent=False,
-                      normal_solve="sequential", warm_start_mode="batched", fast_math=False,
-                      release_sweeps=2)),
+    "nvidia": (
+        NVIDIA,
+        dict(
+            solver="pgs",
+            batching="global",
+            solve_form="lanes",
+            persistent=True,
+            normal_solve="block",
+            warm_start_mode="summed",
+            fast_math=True,
+            release_sweeps=2,
+        ),
+    ),
+    "other gpu": (
+        AMD,
+        dict(
+            solver="pgs",
+            batching="cells",
+            solve_form="lanes",
+            persistent=False,
+            normal_solve="block",
+            warm_start_mode="batched",
+            fast_math=True,
+            release_sweeps=2,
+        ),
+    ),
+    "cpu": (
+        CPU,
+        dict(
+            solver="pgs",
+            batching="slabs",
+            solve_form="serial",
+            persistent=False,
+            normal_solve="sequential",
+            warm_start_mode="batched",
+            fast_math=False,
+            release_sweeps=2,
+        ),
+    ),
 }
 
 
@@ -64,12 +103,14 @@ def test_fallback_after_a_persistent_launch_gave_up():
     """No persistent launch is planned on a device where one gave up: GPUs fall back to
     cells, and an explicit batching='global' is overruled, saying why."""
     for options in ({}, {"batching": "global"}):
-        p = derive_plan(NVIDIA, split_options(options)[1], ("box",), tuned={},
-                        persistent_failed=True)
+        p = derive_plan(
+            NVIDIA, split_options(options)[1], ("box",), tuned={}, persistent_failed=True
+        )
         assert (p.batching, p.persistent) == ("cells", False)
         assert p.sources["batching"] == "fallback"
-    jacobi = derive_plan(NVIDIA, split_options({"solver": "jacobi"})[1], (), tuned={},
-                         persistent_failed=True)
+    jacobi = derive_plan(
+        NVIDIA, split_options({"solver": "jacobi"})[1], (), tuned={}, persistent_failed=True
+    )
     assert jacobi.persistent is False and jacobi.batching is None
 
 

@@ -1,5 +1,6 @@
 """Plan tuning: the choice among candidates (from recorded summaries, no device) and a
 real tuning run on a tiny scene whose winners a new World's plan then takes."""
+
 from __future__ import annotations
 
 import pytest
@@ -15,8 +16,12 @@ def summary(ms, displaced=0, sunk=0, nans=0):
 
 def test_the_fastest_candidate_that_holds_wins():
     reference = summary(1.0)
-    results = [(2, reference), (1, summary(0.8)), (3, summary(0.5, displaced=40)),
-               (None, summary(0.9))]
+    results = [
+        (2, reference),
+        (1, summary(0.8)),
+        (3, summary(0.5, displaced=40)),
+        (None, summary(0.9)),
+    ]
     assert choose(results, reference) == 1  # 3 is faster but displaces boxes
 
 
@@ -47,8 +52,7 @@ def test_a_tuned_plan_reaches_new_worlds(cache_root, runtime):
     the device's cache, and a World made afterwards plans with them (source "tuned")."""
     lines = []
     entry = tune_plan(runtime, scene=TuningScene("boxbox", 64, 1, 3), progress=lines.append)
-    assert set(entry["values"]) == {"batching", "release_sweeps", "ordered_rounds",
-                                    "group_count"}
+    assert set(entry["values"]) == {"batching", "release_sweeps", "ordered_rounds", "group_count"}
     assert entry["timings"] and all(t["ms_per_step"] > 0 for t in entry["timings"])
     assert len(lines) == len(entry["timings"])
     assert tuning.lookup_plan(runtime.traits) == entry["values"]

@@ -1,4 +1,5 @@
 """rbgen.progress: bars and build lines show on a terminal (or when asked) and nowhere else."""
+
 from __future__ import annotations
 
 import time

@@ -1,5 +1,6 @@
 """rbgen.record: animations have the frames asked for, USD files re-open with their prims and
 time samples, and bad input fails before anything is written, leaving no file behind."""
+
 from __future__ import annotations
 
 import os
@@ -18,8 +19,13 @@ SIZE = {"width": 64, "height": 48}
 
 def falling(frames: int):
     """Synthetic bodies of every kind and ``frames`` frames of them falling and turning."""
-    shapes = [Plane((0, 1, 0), 0.0), Box((0.5, 0.5, 0.5)), Sphere(0.4), Capsule(0.2, 0.4),
-              ConvexHull(np.random.default_rng(1).normal(size=(16, 3)) * 0.4)]
+    shapes = [
+        Plane((0, 1, 0), 0.0),
+        Box((0.5, 0.5, 0.5)),
+        Sphere(0.4),
+        Capsule(0.2, 0.4),
+        ConvexHull(np.random.default_rng(1).normal(size=(16, 3)) * 0.4),
+    ]
     bodies = Bodies.make(shapes, [0, 1, 2, 3, 4, 1], static=[True] + [False] * 5)
     out = []
     for t in range(frames):
@@ -85,8 +91,9 @@ def test_usd_reopens_with_prims_time_samples_and_transforms(tmp_path):
     assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
     bodies_prim = stage.GetPrimAtPath("/World/Bodies")
     assert len(bodies_prim.GetChildren()) == 6
-    kinds = sorted(p.GetName().split("_")[0] for p in stage.GetPrimAtPath("/World/Shapes")
-                   .GetChildren())
+    kinds = sorted(
+        p.GetName().split("_")[0] for p in stage.GetPrimAtPath("/World/Shapes").GetChildren()
+    )
     assert kinds == ["box", "capsule", "hull", "plane", "sphere"]
     for i in range(6):
         prim = stage.GetPrimAtPath(f"/World/Bodies/body_{i:06d}")
@@ -133,7 +140,8 @@ def test_world_recording_reads_transforms_once_per_frame(tmp_path):
         assert recorder.frames == 4
     stage = Usd.Stage.Open(str(tmp_path / "w.usd"))
     translate = stage.GetPrimAtPath(f"/World/Bodies/body_{ids[1]:06d}").GetAttribute(
-        "xformOp:translate")
+        "xformOp:translate"
+    )
     assert translate.GetNumTimeSamples() == 4
     assert np.allclose(translate.Get(3), world.positions[ids[1]], atol=1e-6)
 
@@ -171,11 +179,14 @@ def test_unwritable_path_is_refused_naming_it(tmp_path):
         Recorder(tmp_path / "dir.png")
 
 
-@pytest.mark.parametrize("camera, named", [
-    ({"eye": (float("nan"), 0, 0)}, "eye"),
-    ({"eye": (1, 1, 1), "target": (1, 1, 1)}, "view direction is zero"),
-    ({"colour": 1}, "unknown field"),
-])
+@pytest.mark.parametrize(
+    "camera, named",
+    [
+        ({"eye": (float("nan"), 0, 0)}, "eye"),
+        ({"eye": (1, 1, 1), "target": (1, 1, 1)}, "view direction is zero"),
+        ({"colour": 1}, "unknown field"),
+    ],
+)
 def test_bad_camera_is_refused_before_anything_is_written(tmp_path, camera, named):
     with pytest.raises(RbgenError, match=named):
         Recorder(tmp_path / "run.png", camera=camera)
@@ -214,8 +225,27 @@ def test_rbgen_run_records_every_k_steps(tmp_path, capsys):
     from rbgen.cli import main
 
     gif, usd = tmp_path / "p.gif", tmp_path / "p.usda"
-    assert main(["run", "pyramid", "--n", "3", "--steps", "6", "--record", str(gif),
-                 "--record", str(usd), "--record-every", "2", "--record-size", "64x48"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "pyramid",
+                "--n",
+                "3",
+                "--steps",
+                "6",
+                "--record",
+                str(gif),
+                "--record",
+                str(usd),
+                "--record-every",
+                "2",
+                "--record-size",
+                "64x48",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert f"wrote {gif.resolve()} (4 frames)" in out and str(usd.resolve()) in out
     with Image.open(gif) as image:
@@ -235,8 +265,10 @@ def test_rbgen_demo_writes_its_animation_and_says_where(tmp_path, capsys, monkey
 def test_rbgen_run_refuses_a_bad_record_path_before_simulating(tmp_path, capsys):
     from rbgen.cli import main
 
-    assert main(["run", "pyramid", "--n", "3", "--steps", "6",
-                 "--record", str(tmp_path / "p.webm")]) == 2
+    assert (
+        main(["run", "pyramid", "--n", "3", "--steps", "6", "--record", str(tmp_path / "p.webm")])
+        == 2
+    )
     err = capsys.readouterr()
     assert ".webm" in err.err and "pyramid" not in err.out
     assert os.listdir(tmp_path) == []

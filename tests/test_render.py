@@ -4,6 +4,7 @@ The projection in these tests is written out from the pinhole model (look-at
 basis, perspective divide, pixel rows from the top), independently of
 `rbgen.render.camera`, so a wrong matrix in the renderer fails them.
 """
+
 from __future__ import annotations
 
 import math
@@ -38,9 +39,13 @@ def background_mask(image):
 
 def quat_matrix(q):
     x, y, z, w = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def project(points, eye, target, up, fov_deg, width, height):
@@ -80,8 +85,9 @@ def test_box_covers_the_pixels_its_projected_corners_bound(renderer):
     centre = np.array([0.4, 0.3, -0.2])
     eye, target, up, fov = (4.0, 3.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0
     bodies = Bodies.make([Box(half)], [0])
-    image = renderer.render(bodies, Frame.make([centre], [q], 1),
-                            Camera(eye=eye, target=target, up=up, fov=fov))
+    image = renderer.render(
+        bodies, Frame.make([centre], [q], 1), Camera(eye=eye, target=target, up=up, fov=fov)
+    )
     corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
     world = corners @ quat_matrix(q).T + centre
     inside, distance = polygon_mask_and_distance(project(world, eye, target, up, fov, W, H), W, H)
@@ -89,23 +95,37 @@ def test_box_covers_the_pixels_its_projected_corners_bound(renderer):
     clear = distance > 2.0
     assert inside.sum() > 500  # the box is well in view
     assert np.array_equal(drawn[clear], inside[clear]), (
-        f"{np.sum(drawn[clear] != inside[clear])} pixels off the outline disagree")
+        f"{np.sum(drawn[clear] != inside[clear])} pixels off the outline disagree"
+    )
 
 
-@pytest.mark.parametrize("shape", [Sphere(0.6), Box((0.5, 0.4, 0.3)), Capsule(0.3, 0.5),
-                                   ConvexHull(np.random.default_rng(3).normal(size=(24, 3)) * 0.5)],
-                         ids=["sphere", "box", "capsule", "hull"])
+@pytest.mark.parametrize(
+    "shape",
+    [
+        Sphere(0.6),
+        Box((0.5, 0.4, 0.3)),
+        Capsule(0.3, 0.5),
+        ConvexHull(np.random.default_rng(3).normal(size=(24, 3)) * 0.5),
+    ],
+    ids=["sphere", "box", "capsule", "hull"],
+)
 def test_every_shape_kind_draws_inside_its_bounding_sphere(renderer, shape):
     """Each kind covers pixels, all of them inside the projected disc of its bounding sphere."""
     eye, target, up, fov = (3.0, 2.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 30.0
-    image = renderer.render(Bodies.make([shape], [0]), Frame.make([[0, 0, 0]], [[0, 0, 0, 1]], 1),
-                            Camera(eye=eye, target=target, up=up, fov=fov))
+    image = renderer.render(
+        Bodies.make([shape], [0]),
+        Frame.make([[0, 0, 0]], [[0, 0, 0, 1]], 1),
+        Camera(eye=eye, target=target, up=up, fov=fov),
+    )
     drawn = ~background_mask(image)
     assert drawn.sum() > 200
     # the sphere's outline is within its projected radius of the projected centre (+ margin)
-    r = {Sphere: lambda s: s.radius, Capsule: lambda s: s.radius + s.half_height,
-         Box: lambda s: float(np.linalg.norm(s.half_extents)),
-         ConvexHull: lambda s: float(np.linalg.norm(s.vertices, axis=1).max())}[type(shape)](shape)
+    r = {
+        Sphere: lambda s: s.radius,
+        Capsule: lambda s: s.radius + s.half_height,
+        Box: lambda s: float(np.linalg.norm(s.half_extents)),
+        ConvexHull: lambda s: float(np.linalg.norm(s.vertices, axis=1).max()),
+    }[type(shape)](shape)
     dist = np.linalg.norm(eye)
     radius_px = math.tan(math.asin(r / dist)) / math.tan(math.radians(fov) / 2) * H / 2
     centre = project([[0, 0, 0]], eye, target, up, fov, W, H)[0]
@@ -122,10 +142,10 @@ def test_plane_fills_below_the_horizon_and_boxes_cast_shadows(renderer):
     ground = renderer.render(plane, Frame.make([[0, 0, 0]], [[0, 0, 0, 1]], 1), camera)
     sky = background_mask(ground)
     assert not sky[-5:].any() and sky[:3].all()
-    both = Bodies.make([Plane((0, 1, 0), 0.0), Box((0.5, 0.5, 0.5))], [0, 1],
-                       static=[True, False])
-    with_box = renderer.render(both, Frame.make([[0, 0, 0], [0, 1.5, 0]],
-                                                [[0, 0, 0, 1]] * 2, 2), camera)
+    both = Bodies.make([Plane((0, 1, 0), 0.0), Box((0.5, 0.5, 0.5))], [0, 1], static=[True, False])
+    with_box = renderer.render(
+        both, Frame.make([[0, 0, 0], [0, 1.5, 0]], [[0, 0, 0, 1]] * 2, 2), camera
+    )
     darker = with_box.astype(int).sum(-1) < ground.astype(int).sum(-1) - 60
     grey = np.ptp(with_box.astype(int), axis=-1) < 24  # ground, not the coloured box
     assert (darker & grey).sum() >= 10
@@ -137,26 +157,31 @@ def test_thousands_of_bodies_render(renderer):
     n = 2000
     shapes = [Box((0.3, 0.3, 0.3)), Sphere(0.3), Capsule(0.2, 0.3), Plane((0, 1, 0), 0)]
     index = np.r_[rng.integers(0, 3, n), 3]
-    positions = np.c_[rng.uniform(-10, 10, n + 1), rng.uniform(0.3, 5, n + 1),
-                      rng.uniform(-10, 10, n + 1)]
+    positions = np.c_[
+        rng.uniform(-10, 10, n + 1), rng.uniform(0.3, 5, n + 1), rng.uniform(-10, 10, n + 1)
+    ]
     q = rng.normal(size=(n + 1, 4))
     q /= np.linalg.norm(q, axis=1)[:, None]
     positions[n], q[n] = (1.0, -0.5, 2.0), (0.0, 0.0, 0.0, 1.0)  # the ground plane
-    image = renderer.render(Bodies.make(shapes, index, static=index == 3),
-                            Frame.make(positions, q, n + 1))
+    image = renderer.render(
+        Bodies.make(shapes, index, static=index == 3), Frame.make(positions, q, n + 1)
+    )
     assert image.shape == (H, W, 3) and image.dtype == np.uint8
     assert (~background_mask(image)).mean() > 0.6  # bodies and the ground below the horizon
 
 
-@pytest.mark.parametrize("fields, named", [
-    ({"eye": (float("nan"), 1, 1)}, "eye"),
-    ({"eye": (1, 2, 3), "target": (1, 2, 3)}, "view direction is zero"),
-    ({"eye": (0, 5, 0), "target": (0, 0, 0), "up": (0, 1, 0)}, "parallel"),
-    ({"target": (0, float("inf"), 0)}, "target"),
-    ({"fov": 0.0}, "fov"),
-    ({"fov": float("nan")}, "fov"),
-    ({"near": -1.0}, "near"),
-])
+@pytest.mark.parametrize(
+    "fields, named",
+    [
+        ({"eye": (float("nan"), 1, 1)}, "eye"),
+        ({"eye": (1, 2, 3), "target": (1, 2, 3)}, "view direction is zero"),
+        ({"eye": (0, 5, 0), "target": (0, 0, 0), "up": (0, 1, 0)}, "parallel"),
+        ({"target": (0, float("inf"), 0)}, "target"),
+        ({"fov": 0.0}, "fov"),
+        ({"fov": float("nan")}, "fov"),
+        ({"near": -1.0}, "near"),
+    ],
+)
 def test_bad_camera_is_refused_naming_the_field(fields, named):
     with pytest.raises(RbgenError, match=named):
         Camera(**fields)
@@ -165,8 +190,14 @@ def test_bad_camera_is_refused_naming_the_field(fields, named):
 def test_camera_fit_keeps_the_box_in_the_picture():
     lower, upper = np.array([-3.0, 0.0, -1.0]), np.array([5.0, 2.0, 4.0])
     camera = Camera.fit(lower, upper, aspect=W / H)
-    corners = np.array([[x, y, z] for x in (lower[0], upper[0]) for y in (lower[1], upper[1])
-                        for z in (lower[2], upper[2])])
+    corners = np.array(
+        [
+            [x, y, z]
+            for x in (lower[0], upper[0])
+            for y in (lower[1], upper[1])
+            for z in (lower[2], upper[2])
+        ]
+    )
     px = project(corners, camera.eye, camera.target, camera.up, camera.fov, W, H)
     assert np.all(px >= -1e-6) and np.all(px[:, 0] <= W + 1e-6) and np.all(px[:, 1] <= H + 1e-6)
     # and it is tight along one of the two axes (within the 5 % margin)

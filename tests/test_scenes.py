@@ -1,4 +1,5 @@
 """BoxBox scene: positions from the closed-form lattice, standard sizes, AABBs."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,8 +20,12 @@ def test_boxbox_positions_follow_the_formula():
     nx, ny, nz = 3, 4, 2
     scene = boxbox_scene(nx, ny, nz)
     assert scene.count == nx * ny * nz and scene.positions.dtype == np.float32
-    expected = {(((j + 1) % 2) + 2.2 * i, 1 + 2 * j, ((j + 1) % 2) + 2.2 * k)
-                for i in range(nx) for j in range(ny) for k in range(nz)}
+    expected = {
+        (((j + 1) % 2) + 2.2 * i, 1 + 2 * j, ((j + 1) % 2) + 2.2 * k)
+        for i in range(nx)
+        for j in range(ny)
+        for k in range(nz)
+    }
     got = {tuple(p) for p in scene.positions.astype(np.float64)}
     assert len(got) == len(expected)
     for p in expected:  # float32 rounding of 2.2 i

@@ -1,4 +1,5 @@
 """Shapes and their packing into the device arrays (Shape records + hull topology)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -30,29 +31,36 @@ def test_table_deduplicates_and_packs_topology(rng):
     packed = table.pack_all()
     records = packed.shapes
     assert records.dtype == layouts.SHAPE.dtype and packed.faces.dtype == layouts.HULL_FACE.dtype
-    assert list(records["type"][[box, ball, rock, ground]]) == [Box.type_code, Sphere.type_code,
-                                                               ConvexHull.type_code,
-                                                               Plane.type_code]
+    assert list(records["type"][[box, ball, rock, ground]]) == [
+        Box.type_code,
+        Sphere.type_code,
+        ConvexHull.type_code,
+        Plane.type_code,
+    ]
     np.testing.assert_allclose(records["extents"][ground], (0, 1, 0, 1.0))
     for index in (box, rock):
         shape, rec = table.shapes[index], records[index]
         cooked = shape.cooked()
         v0, nv = rec["vertex_offset"], rec["vertex_count"]
-        np.testing.assert_allclose(packed.vertices[v0:v0 + nv, :3], cooked.vertices, rtol=1e-6,
-                                   atol=1e-6)
-        faces = packed.faces[rec["face_offset"]:rec["face_offset"] + rec["face_count"]]
+        np.testing.assert_allclose(
+            packed.vertices[v0 : v0 + nv, :3], cooked.vertices, rtol=1e-6, atol=1e-6
+        )
+        faces = packed.faces[rec["face_offset"] : rec["face_offset"] + rec["face_count"]]
         for face, polygon, plane in zip(faces, cooked.faces, cooked.planes):
             start = face["index_offset"]
-            idx = packed.face_indices[start:start + face["index_count"]]
+            idx = packed.face_indices[start : start + face["index_count"]]
             np.testing.assert_array_equal(idx, polygon)
             np.testing.assert_allclose(face["plane"], plane, rtol=1e-6, atol=1e-6)
         e0, ne = rec["edge_offset"], rec["edge_count"]
-        np.testing.assert_allclose(packed.edges[e0:e0 + ne, :3], cooked.edge_directions, atol=1e-6)
+        np.testing.assert_allclose(
+            packed.edges[e0 : e0 + ne, :3], cooked.edge_directions, atol=1e-6
+        )
     # the legacy 2-tuple: records and hull vertices
     legacy_records, legacy_vertices = table.pack()
     np.testing.assert_array_equal(legacy_records, records)
-    assert table.max_face_vertices() == max(len(f) for s in (box, rock)
-                                            for f in table.shapes[s].cooked().faces)
+    assert table.max_face_vertices() == max(
+        len(f) for s in (box, rock) for f in table.shapes[s].cooked().faces
+    )
 
 
 def test_box_cooked_as_hull_matches_its_extents():
@@ -99,15 +107,13 @@ def test_shape_classes_are_the_registry_entries_and_bound_their_shapes(rng):
         assert layouts.constants()[cls.type_constant] == cls.type_code
         assert cls.type_constant == f"RB_SHAPE_{cls.type_name.upper()}"
         assert cls.aabb_template == f"shapes/{cls.type_name}.cl.mako"
-    assert [c.static_only for c in shape_types()] == [False, False, False, False, True, True,
-                                                      False]
+    assert [c.static_only for c in shape_types()] == [False, False, False, False, True, True, False]
     assert Sphere(0.7).bounding_radius() == 0.7
     assert Capsule(0.3, 1.2).bounding_radius() == pytest.approx(1.5)
     assert Box((1.0, 2.0, 2.0)).bounding_radius() == pytest.approx(3.0)
     points = rng.normal(size=(20, 3))
     hull = ConvexHull(points)
-    assert hull.bounding_radius() == pytest.approx(
-        np.linalg.norm(hull.vertices, axis=1).max())
+    assert hull.bounding_radius() == pytest.approx(np.linalg.norm(hull.vertices, axis=1).max())
     with pytest.raises(RbgenError, match="plane has no vertex representation"):
         Plane().bounding_radius()
     with pytest.raises(RbgenError, match="no shape type named 'torus'"):

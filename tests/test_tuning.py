@@ -8,6 +8,7 @@ Fixtures (tests/fixtures/tuning/):
   recorded_timings.json    candidate timings (None: wrong result) and the
                            winner the tie rule must pick.
 """
+
 import dataclasses
 import json
 from pathlib import Path
@@ -24,8 +25,18 @@ from rbgen.primitives._base import size_bucket
 from rbgen.primitives.fill import search_space as fill_space
 
 FIXTURES = Path(__file__).parent / "fixtures" / "tuning"
-GPU = DeviceTraits("NVIDIA CUDA", "NVIDIA H200 (recorded)", "NVIDIA Corporation", True, 132, 32,
-                   49152, 1024, "550.54.15", "OpenCL 3.0 CUDA")
+GPU = DeviceTraits(
+    "NVIDIA CUDA",
+    "NVIDIA H200 (recorded)",
+    "NVIDIA Corporation",
+    True,
+    132,
+    32,
+    49152,
+    1024,
+    "550.54.15",
+    "OpenCL 3.0 CUDA",
+)
 
 
 @pytest.fixture
@@ -43,7 +54,8 @@ def install_fixture(traits, name="recorded_gpu_cache.json", **changes):
     for entry in data["entries"].values():
         if entry["source_hash"] == "@current":
             entry["source_hash"] = tuning.FAMILIES[entry["family"]].template_hash(
-                entry["params"]["shape"])
+                entry["params"]["shape"]
+            )
     data.update(changes)
     path = tuning.cache_path(traits)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -62,9 +74,9 @@ def test_lookup_exact_bucket(cache_root):
 def test_lookup_nearest_bucket(cache_root):
     data = install_fixture(GPU)
     e = data["entries"]
-    assert tuning.lookup(GPU, "scan", "uint", 20) == e["scan[uint]@2^22"]["params"]   # 2 vs 4 away
-    assert tuning.lookup(GPU, "scan", "uint", 18) == e["scan[uint]@2^16"]["params"]   # 2 vs 4 away
-    assert tuning.lookup(GPU, "scan", "uint", 19) == e["scan[uint]@2^22"]["params"]   # tie: larger
+    assert tuning.lookup(GPU, "scan", "uint", 20) == e["scan[uint]@2^22"]["params"]  # 2 vs 4 away
+    assert tuning.lookup(GPU, "scan", "uint", 18) == e["scan[uint]@2^16"]["params"]  # 2 vs 4 away
+    assert tuning.lookup(GPU, "scan", "uint", 19) == e["scan[uint]@2^22"]["params"]  # tie: larger
     assert tuning.lookup(GPU, "scan", "uint", 10) == e["scan[uint]@2^12"]["params"]
     assert tuning.lookup(GPU, "scan", "uint", 26) == e["scan[uint]@2^24"]["params"]
     assert tuning.lookup(GPU, "scan", "float", 12) == e["scan[float]@2^22"]["params"]
@@ -72,9 +84,24 @@ def test_lookup_nearest_bucket(cache_root):
 
 def test_size_bucket_is_the_nearest_even_exponent():
     """Bucket b serves 2^(b-1) <= n < 2^(b+1) (log scale), clamped to 10..26."""
-    cases = {0: 10, 1: 10, 2**11 - 1: 10, 2**11: 12, 3000: 12, 2**16: 16, 2**17 - 1: 16,
-             2**17: 18, 2**22: 22, 2**22 + 1: 22, 2**23 - 1: 22, 2**23: 24,
-             12_000_000: 24, 2**24: 24, 2**25: 26, 2**31: 26}
+    cases = {
+        0: 10,
+        1: 10,
+        2**11 - 1: 10,
+        2**11: 12,
+        3000: 12,
+        2**16: 16,
+        2**17 - 1: 16,
+        2**17: 18,
+        2**22: 22,
+        2**22 + 1: 22,
+        2**23 - 1: 22,
+        2**23: 24,
+        12_000_000: 24,
+        2**24: 24,
+        2**25: 26,
+        2**31: 26,
+    }
     assert {n: size_bucket(n) for n in cases} == cases
 
 
@@ -86,14 +113,17 @@ def test_sizes_between_tuned_buckets(cache_root):
 
     def params_for(n):
         return tuning.lookup(GPU, "scan", "uint", size_bucket(n))
+
     assert params_for(2**22 + 1) == e["scan[uint]@2^22"]["params"]
     assert params_for(2**23 - 1) == e["scan[uint]@2^22"]["params"]
     assert params_for(12_000_000) == e["scan[uint]@2^24"]["params"]
     assert params_for(2**26) == e["scan[uint]@2^24"]["params"]
     assert params_for(3000) == e["scan[uint]@2^12"]["params"]
-    assert params_for(2**14) == e["scan[uint]@2^16"]["params"]   # 2^14: tie 12/16, the larger
-    assert tuning.lookup(GPU, "scan_chained", "uint", size_bucket(2**20)) == \
-        e["scan_chained[uint]@2^24"]["params"]                   # its only tuned bucket
+    assert params_for(2**14) == e["scan[uint]@2^16"]["params"]  # 2^14: tie 12/16, the larger
+    assert (
+        tuning.lookup(GPU, "scan_chained", "uint", size_bucket(2**20))
+        == e["scan_chained[uint]@2^24"]["params"]
+    )  # its only tuned bucket
 
 
 def test_tune_sizes_cover_every_other_bucket_to_2_24():
@@ -106,11 +136,11 @@ def test_tune_sizes_cover_every_other_bucket_to_2_24():
 
 def test_lookup_misses(cache_root):
     install_fixture(GPU)
-    assert tuning.lookup(GPU, "scan", "int", 22) is None            # variant never tuned
-    assert tuning.lookup(GPU, "reduce", "sum-float", 22) is None    # family never tuned
-    assert tuning.lookup(GPU, "radix_sort", "kv", 22) is None       # only a stale entry
+    assert tuning.lookup(GPU, "scan", "int", 22) is None  # variant never tuned
+    assert tuning.lookup(GPU, "reduce", "sum-float", 22) is None  # family never tuned
+    assert tuning.lookup(GPU, "radix_sort", "kv", 22) is None  # only a stale entry
     assert tuning.lookup(GPU, "radix_sort", "keys", 22)["radix_bits"] == 4
-    other = dataclasses.replace(GPU, driver_version="560.1")        # same GPU, new driver
+    other = dataclasses.replace(GPU, driver_version="560.1")  # same GPU, new driver
     assert other.fingerprint != GPU.fingerprint
     assert tuning.lookup(other, "scan", "uint", 22) is None
 
@@ -149,16 +179,30 @@ def test_pick_winner_recorded_timings():
 def test_primitive_uses_tuned_params(cache_root, runtime, rng):
     """A tuned entry for this device is used (and computes right); an entry that
     no longer fits the template falls back to the heuristic default."""
-    tuned = {"shape": "cpu", "work_items": 3} if not runtime.traits.is_gpu else \
-        {"shape": "gpu", "work_group_size": 64, "items_per_thread": 2, "wavefront": 64}
-    entry = {"family": "scan", "variant": "int", "bucket": 10, "params": tuned,
-             "source_hash": tuning.FAMILIES["scan"].template_hash(tuned["shape"]),
-             "median_ms": 0.01, "candidates": 5}
+    tuned = (
+        {"shape": "cpu", "work_items": 3}
+        if not runtime.traits.is_gpu
+        else {"shape": "gpu", "work_group_size": 64, "items_per_thread": 2, "wavefront": 64}
+    )
+    entry = {
+        "family": "scan",
+        "variant": "int",
+        "bucket": 10,
+        "params": tuned,
+        "source_hash": tuning.FAMILIES["scan"].template_hash(tuned["shape"]),
+        "median_ms": 0.01,
+        "candidates": 5,
+    }
     broken = dict(entry, variant="uint", params=dict(tuned, shape="gpu", work_group_size=3))
     broken["source_hash"] = tuning.FAMILIES["scan"].template_hash("gpu")
-    tuning.save_cache(runtime.traits, {"version": tuning.CACHE_VERSION,
-                                       "fingerprint": runtime.traits.fingerprint,
-                                       "entries": {"a": entry, "b": broken}})
+    tuning.save_cache(
+        runtime.traits,
+        {
+            "version": tuning.CACHE_VERSION,
+            "fingerprint": runtime.traits.fingerprint,
+            "entries": {"a": entry, "b": broken},
+        },
+    )
     tuning.forget_loaded()
     scan = Scan(runtime, np.int32, inclusive=True)
     assert scan.program(1000)[0] == tuned
@@ -174,13 +218,25 @@ def test_tuned_chained_scan_is_used(cache_root, runtime, rng, monkeypatch):
     """A chained winner of family "scan" is used by a plain Scan (the tuner
     opted in); if its guard fails on this device the scan falls back."""
     from rbgen.primitives import scan as scan_module
+
     tuned = Scan.default_params(runtime.traits, "chained")
-    entry = {"family": "scan", "variant": "uint", "bucket": 16, "params": tuned,
-             "source_hash": tuning.FAMILIES["scan"].template_hash("chained"),
-             "median_ms": 0.01, "candidates": 9}
-    tuning.save_cache(runtime.traits, {"version": tuning.CACHE_VERSION,
-                                       "fingerprint": runtime.traits.fingerprint,
-                                       "entries": {"scan[uint]@2^16": entry}})
+    entry = {
+        "family": "scan",
+        "variant": "uint",
+        "bucket": 16,
+        "params": tuned,
+        "source_hash": tuning.FAMILIES["scan"].template_hash("chained"),
+        "median_ms": 0.01,
+        "candidates": 9,
+    }
+    tuning.save_cache(
+        runtime.traits,
+        {
+            "version": tuning.CACHE_VERSION,
+            "fingerprint": runtime.traits.fingerprint,
+            "entries": {"scan[uint]@2^16": entry},
+        },
+    )
     tuning.forget_loaded()
     x = rng.integers(0, 100, 70_001).astype(np.uint32)
     src, dst = cla.to_device(runtime.queue, x), cla.empty(runtime.queue, x.size, np.uint32)
@@ -215,11 +271,14 @@ def test_tune_rejects_wrong_candidates(cache_root, runtime):
     bad = dict(good, items_per_thread=1 if good["items_per_thread"] != 1 else 4)
     base = tuning.FAMILIES["fill"]
     family = dataclasses.replace(
-        base, space=lambda traits: [bad, good],
-        build=lambda rt, v, p: (WrongFill if p == bad else Fill)(rt, np.uint32, params=p))
+        base,
+        space=lambda traits: [bad, good],
+        build=lambda rt, v, p: (WrongFill if p == bad else Fill)(rt, np.uint32, params=p),
+    )
     lines = []
-    entry = tuning.tune(runtime, family, "uint", 3000, repeats=1, progress=lines.append,
-                        store=False)
+    entry = tuning.tune(
+        runtime, family, "uint", 3000, repeats=1, progress=lines.append, store=False
+    )
     assert entry["params"] == good
     assert "REJECTED" in lines[0] and "REJECTED" not in lines[1]
     all_wrong = dataclasses.replace(family, space=lambda traits: [bad])

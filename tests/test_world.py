@@ -6,6 +6,7 @@ solvers (Gauss-Seidel and Jacobi with mass splitting); the resting, sliding,
 rebound and momentum tests also with each solver built exactly and with
 -cl-fast-relaxed-math (``fast_math``, the GPU default), on every device.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,8 +21,10 @@ G = 9.81
 
 #: the contact tests run with one solve a step and with substeps (contacts found once a
 #: step, the solver run on them each substep)
-EFFORTS = {"one_step": {"substeps": 1, "iterations": 10, "position_iterations": 4},
-           "substeps": {"substeps": 4, "iterations": 3, "position_iterations": 1}}
+EFFORTS = {
+    "one_step": {"substeps": 1, "iterations": 10, "position_iterations": 4},
+    "substeps": {"substeps": 4, "iterations": 3, "position_iterations": 1},
+}
 
 
 @pytest.fixture(params=list(EFFORTS))
@@ -30,8 +33,13 @@ def effort(request) -> dict:
 
 
 def ground(world, friction=0.6, restitution=0.0, orientation=(0, 0, 0, 1), position=(0, -1, 0)):
-    return world.add_static(rbgen.Box(half_extents=(30, 1, 30)), position=position,
-                            orientation=orientation, friction=friction, restitution=restitution)
+    return world.add_static(
+        rbgen.Box(half_extents=(30, 1, 30)),
+        position=position,
+        orientation=orientation,
+        friction=friction,
+        restitution=restitution,
+    )
 
 
 @pytest.mark.parametrize("fast_math", [False, True])
@@ -54,8 +62,7 @@ def _incline(runtime, mu, steps, solver="pgs", fast_math=False, effort=None):
     ground(world, friction=mu, orientation=q, position=(0, 0, 0))
     normal = np.array([-np.sin(theta), np.cos(theta), 0])
     start = 1.0 * normal + 0.5 * normal  # box centre 0.5 above the slab's top face (half 1)
-    world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=start, orientation=q,
-                   friction=mu)
+    world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=start, orientation=q, friction=mu)
     positions = [world.positions[1]]
     for _ in range(steps):
         world.step(DT)
@@ -106,8 +113,7 @@ def test_projectile(runtime):
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_restitution_rebound_height(runtime, solver, fast_math, effort):
     """A box with e = 0.5 dropped from 1 m (bottom face) rebounds to e^2 * 1 m = 0.25 m (5%)."""
-    world = World(runtime, restitution_threshold=0.5, solver=solver, fast_math=fast_math,
-                  **effort)
+    world = World(runtime, restitution_threshold=0.5, solver=solver, fast_math=fast_math, **effort)
     ground(world, restitution=0.5)
     world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0, 1.5, 0), restitution=0.5)
     heights, bounced = [], False
@@ -127,10 +133,20 @@ def test_two_free_boxes_conserve_momentum(runtime, rng, solver, fast_math, effor
     conserved within 1e-4 relative (before, during and after contact)."""
     world = World(runtime, gravity=(0, 0, 0), solver=solver, fast_math=fast_math, **effort)
     box = rbgen.Box((0.5, 0.5, 0.5))
-    world.add_body(box, mass=1.0, position=(-1, 0.2, 0), linear_velocity=(3, 0, 0.5),
-                   angular_velocity=rng.normal(size=3))
-    world.add_body(box, mass=3.0, position=(1, -0.2, 0.1), linear_velocity=(-1, 0, 0),
-                   angular_velocity=rng.normal(size=3))
+    world.add_body(
+        box,
+        mass=1.0,
+        position=(-1, 0.2, 0),
+        linear_velocity=(3, 0, 0.5),
+        angular_velocity=rng.normal(size=3),
+    )
+    world.add_body(
+        box,
+        mass=3.0,
+        position=(1, -0.2, 0.1),
+        linear_velocity=(-1, 0, 0),
+        angular_velocity=rng.normal(size=3),
+    )
     masses = np.array([1.0, 3.0])[:, None]
     p0 = (masses * world.linear_velocities).sum(0)
     touched = False
@@ -148,14 +164,21 @@ def test_spinning_asymmetric_box_conserves_angular_momentum(runtime):
     world = World(runtime, gravity=(0, 0, 0))
     he = np.array([0.2, 0.5, 1.0])
     world.add_body(rbgen.Box(he), mass=2.0, angular_velocity=(0.2, 4.0, 0.3))
-    inertia = 2.0 / 3.0 * np.array([he[1] ** 2 + he[2] ** 2, he[0] ** 2 + he[2] ** 2,
-                                    he[0] ** 2 + he[1] ** 2])
+    inertia = (
+        2.0
+        / 3.0
+        * np.array([he[1] ** 2 + he[2] ** 2, he[0] ** 2 + he[2] ** 2, he[0] ** 2 + he[1] ** 2])
+    )
 
     def momentum():
         x, y, z, w = world.orientations[0]
-        rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        rot = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+            ]
+        )
         return rot @ (inertia * (rot.T @ world.angular_velocities[0]))
 
     l0 = momentum()
@@ -166,6 +189,7 @@ def test_spinning_asymmetric_box_conserves_angular_momentum(runtime):
 
 def test_shape_without_narrowphase_kernels_fails_when_added():
     """An unsupported shape pair is reported when the body is added, not in step()."""
+
     class Torus(rbgen.Shape):
         type_name = "torus"
 
@@ -177,8 +201,8 @@ def test_shape_without_narrowphase_kernels_fails_when_added():
 
 def test_one_shape_object_serves_two_worlds_and_cannot_change(runtime):
     """Shapes are values: the same Box in two Worlds gives both the same fall (semi-implicit
-    Euler's closed form y = y0 - g h^2 n (n + 1) / 2 after n steps of h), and setting or writing into it afterwards is refused
-    (it would change a World's shape behind its back)."""
+    Euler's closed form y = y0 - g h^2 n (n + 1) / 2 after n steps of h), and setting or
+    writing into it afterwards is refused (it would change a World's shape behind its back)."""
     box = rbgen.Box((0.5, 0.5, 0.5))
     worlds = [World(runtime) for _ in range(2)]
     for world in worlds:

@@ -2,6 +2,7 @@
 setters, statistics, no blocking read in step(), and capacity overflow
 redone rather than dropped (a run with tiny initial buffers gives the same
 trajectory as one with ample buffers)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -22,22 +23,40 @@ def world(runtime):
 
 
 def grid(n):
-    return np.array([[1.2 * (i % 5), 0.5 + 1.0 * (i // 25), 1.2 * ((i // 5) % 5)] for i in range(n)])
+    return np.array(
+        [[1.2 * (i % 5), 0.5 + 1.0 * (i // 25), 1.2 * ((i // 5) % 5)] for i in range(n)]
+    )
 
 
-@pytest.mark.parametrize("field,kwargs,needle", [
-    ("positions", {"positions": [[0, 1, 0], [0, np.nan, 0]]}, "body 2: positions"),
-    ("mass", {"positions": [[0, 1, 0], [0, 2, 0]], "mass": [1.0, 0.0]}, "body 2: mass"),
-    ("mass", {"positions": [[0, 1, 0]], "mass": -1.0}, "body 1: mass"),
-    ("velocity", {"positions": [[0, 1, 0]], "linear_velocities": [[np.inf, 0, 0]]},
-     "body 1: linear_velocities"),
-    ("angular", {"positions": [[0, 1, 0]], "angular_velocities": [[0, np.nan, 0]]},
-     "body 1: angular_velocities"),
-    ("orientation", {"positions": [[0, 1, 0]], "orientations": [[0, 0, 0, 0]]},
-     "body 1: orientations"),
-    ("friction", {"positions": [[0, 1, 0], [0, 2, 0]], "friction": [0.5, -0.1]}, "body 2: friction"),
-    ("restitution", {"positions": [[0, 1, 0]], "restitution": 1.5}, "body 1: restitution"),
-])
+@pytest.mark.parametrize(
+    "field,kwargs,needle",
+    [
+        ("positions", {"positions": [[0, 1, 0], [0, np.nan, 0]]}, "body 2: positions"),
+        ("mass", {"positions": [[0, 1, 0], [0, 2, 0]], "mass": [1.0, 0.0]}, "body 2: mass"),
+        ("mass", {"positions": [[0, 1, 0]], "mass": -1.0}, "body 1: mass"),
+        (
+            "velocity",
+            {"positions": [[0, 1, 0]], "linear_velocities": [[np.inf, 0, 0]]},
+            "body 1: linear_velocities",
+        ),
+        (
+            "angular",
+            {"positions": [[0, 1, 0]], "angular_velocities": [[0, np.nan, 0]]},
+            "body 1: angular_velocities",
+        ),
+        (
+            "orientation",
+            {"positions": [[0, 1, 0]], "orientations": [[0, 0, 0, 0]]},
+            "body 1: orientations",
+        ),
+        (
+            "friction",
+            {"positions": [[0, 1, 0], [0, 2, 0]], "friction": [0.5, -0.1]},
+            "body 2: friction",
+        ),
+        ("restitution", {"positions": [[0, 1, 0]], "restitution": 1.5}, "body 1: restitution"),
+    ],
+)
 def test_bad_body_input_names_body_and_field(world, field, kwargs, needle):
     with pytest.raises(RbgenError, match=needle):
         world.add_bodies(BOX, **kwargs)
@@ -88,6 +107,7 @@ def test_setters_teleport_and_step_has_no_blocking_read(world, runtime):
 def test_overflow_is_redone_not_dropped(runtime):
     """Tiny pair and manifold buffers: the World grows them and redoes steps; the
     trajectory equals the one with ample buffers."""
+
     def run(**capacities):
         w = World(runtime, **capacities)
         w.add_static(rbgen.Box((20, 1, 20)), position=(0, -1, 0))
@@ -95,6 +115,7 @@ def test_overflow_is_redone_not_dropped(runtime):
         for _ in range(30):
             w.step(1 / 60)
         return w
+
     small = run(manifold_capacity=3, pair_capacity=2)
     ample = run()
     assert small.overflows >= 1 and ample.overflows == 0
@@ -124,17 +145,38 @@ def test_the_planned_batching_runs_and_solves(runtime):
     assert np.abs(world.linear_velocities).max() < 0.05  # landed and resting
 
 
-@pytest.mark.parametrize("option,bad", [
-    ("iterations", -3), ("iterations", 2.5), ("iterations", True), ("position_iterations", -1),
-    ("relaxation", 0.0), ("relaxation", 2.0), ("relaxation", float("nan")),
-    ("warm_start", "yes"), ("contact_margin", -0.01), ("restitution_threshold", -1.0),
-    ("penetration_slop", float("inf")), ("penetration_recovery", 1.5),
-    ("linear_damping", 1.0), ("angular_damping", -0.1), ("gravity", (0, 1)),
-    ("gravity", (0, np.nan, 0)), ("solver", "gauss"), ("batching", "components"),
-    ("normal_solve", "both"), ("broadphase", "octree"), ("fast_math", "yes"),
-    ("gyroscopic", 1), ("manifold_capacity", 0), ("pair_capacity", -5), ("plan", [1]),
-    ("plan", {"release_sweeps": -1}), ("plan", {"colours": 3}),
-])
+@pytest.mark.parametrize(
+    "option,bad",
+    [
+        ("iterations", -3),
+        ("iterations", 2.5),
+        ("iterations", True),
+        ("position_iterations", -1),
+        ("relaxation", 0.0),
+        ("relaxation", 2.0),
+        ("relaxation", float("nan")),
+        ("warm_start", "yes"),
+        ("contact_margin", -0.01),
+        ("restitution_threshold", -1.0),
+        ("penetration_slop", float("inf")),
+        ("penetration_recovery", 1.5),
+        ("linear_damping", 1.0),
+        ("angular_damping", -0.1),
+        ("gravity", (0, 1)),
+        ("gravity", (0, np.nan, 0)),
+        ("solver", "gauss"),
+        ("batching", "components"),
+        ("normal_solve", "both"),
+        ("broadphase", "octree"),
+        ("fast_math", "yes"),
+        ("gyroscopic", 1),
+        ("manifold_capacity", 0),
+        ("pair_capacity", -5),
+        ("plan", [1]),
+        ("plan", {"release_sweeps": -1}),
+        ("plan", {"colours": 3}),
+    ],
+)
 def test_every_option_is_checked_when_the_world_is_made(runtime, option, bad):
     """A bad option value is refused at construction, naming the option (and nothing is
     built); the step settings are checked the same way when set later, and a refused set

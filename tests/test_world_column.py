@@ -1,5 +1,6 @@
 """A column of ten unit boxes on the ground stands still (World defaults, dt = 1/60), in
 every batching, on every device."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -34,8 +35,9 @@ def test_symmetric_column_gets_no_sideways_motion(runtime, batching):
     another tips it from the first step (~1e-2 m/s); the block solve keeps float noise."""
     world = rbgen.World(runtime, batching=batching, warm_start=False, normal_solve="block")
     world.add_static(rbgen.Box((50, 1, 50)), position=(0, -1, 0))
-    ids = world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0,
-                           positions=[[0.0, 0.5 + k, 0.0] for k in range(3)])
+    ids = world.add_bodies(
+        rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=[[0.0, 0.5 + k, 0.0] for k in range(3)]
+    )
     for _ in range(10):
         world.step(1 / 60)
         assert np.abs(world.linear_velocities[ids][:, [0, 2]]).max() < 1e-4
@@ -50,8 +52,11 @@ def rock_tipped_column(runtime, batching, steps=300, **settings):
     world = rbgen.World(runtime, batching=batching, normal_solve="block", **settings)
     world.add_static(rbgen.Box((10, 1, 10)), position=(0, -1, 0))
     jitter = np.random.default_rng(0).uniform(-0.01, 0.01, (5, 3)) * [1, 0, 1]
-    ids = world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0,
-                           positions=[[0.0, 0.5 + k, 0.0] for k in range(5)] + jitter)
+    ids = world.add_bodies(
+        rbgen.Box((0.5, 0.5, 0.5)),
+        mass=1.0,
+        positions=[[0.0, 0.5 + k, 0.0] for k in range(5)] + jitter,
+    )
     for _ in range(60):
         world.step(1 / 60)
     spin = np.array([0.06, 0.0, 0.0])  # about the x axis through the base edge z = 0.5
@@ -82,11 +87,14 @@ def test_tipped_column_stops_rocking(runtime, batching):
     assert offset < 0.1
 
 
-@pytest.mark.xfail(reason="known defect: split-impulse pushes feed energy into a rocking "
-                          "column's sway (the pushes that lift an interface's deeper edge raise "
-                          "the column without taking the speed that sank it), which at 10 "
-                          "iterations can settle at ~0.27 m/s instead of decaying; to be fixed "
-                          "by the substepping solver (issue 24)", strict=False)
+@pytest.mark.xfail(
+    reason="known defect: split-impulse pushes feed energy into a rocking "
+    "column's sway (the pushes that lift an interface's deeper edge raise "
+    "the column without taking the speed that sank it), which at 10 "
+    "iterations can settle at ~0.27 m/s instead of decaying; to be fixed "
+    "by the substepping solver (issue 24)",
+    strict=False,
+)
 @pytest.mark.parametrize("batching", BATCHINGS)
 def test_tipped_column_stops_rocking_with_position_correction(runtime, batching):
     """With the default split-impulse position sweeps the same column must come to rest

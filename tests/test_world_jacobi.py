@@ -8,6 +8,7 @@ position iterations: 2.4 cm (6.4), 80 and 40: 2.0 cm (2.8); Gauss-Seidel at 10
 holds it to ~1.6 cm. A Jacobi sweep carries a contact's push one body further
 down a stack, a Gauss-Seidel sweep as far as the batch order allows.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -40,8 +41,9 @@ def test_symmetric_column_gets_no_sideways_motion(runtime):
     z -> -z, so no box may gain lateral or angular velocity (the block solve)."""
     world = rbgen.World(runtime, solver="jacobi", warm_start=False, normal_solve="block")
     world.add_static(rbgen.Box((50, 1, 50)), position=(0, -1, 0))
-    ids = world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0,
-                           positions=[[0.0, 0.5 + k, 0.0] for k in range(3)])
+    ids = world.add_bodies(
+        rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=[[0.0, 0.5 + k, 0.0] for k in range(3)]
+    )
     for _ in range(10):
         world.step(DT)
         assert np.abs(world.linear_velocities[ids][:, [0, 2]]).max() < 1e-4
@@ -54,8 +56,11 @@ def test_dropped_grid_comes_to_rest(runtime):
     2 cm."""
     world = rbgen.World(runtime, solver="jacobi")
     world.add_static(rbgen.Box((50, 1, 50)), position=(0, -1, 0))
-    ids = world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0,
-                           positions=pile_positions(64, layers=4, jitter=0.05, seed=1))
+    ids = world.add_bodies(
+        rbgen.Box((0.5, 0.5, 0.5)),
+        mass=1.0,
+        positions=pile_positions(64, layers=4, jitter=0.05, seed=1),
+    )
     for _ in range(300):
         world.step(DT)
     assert np.linalg.norm(world.linear_velocities[ids], axis=1).max() < 0.05

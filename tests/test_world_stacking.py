@@ -13,6 +13,7 @@ solver build, and global and slabs batching (a GPU's and a CPU's default) also w
 solver built with -cl-fast-relaxed-math (``fast_math``, the GPU default), so that a CPU
 checks that build too.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -28,7 +29,7 @@ DT = 1 / 60
 
 #: (batching, fast_math): every mode with the device's default build (None), and the
 #: GPU's and the CPU's default modes with the fast-math build
-STACKING_CASES = ([(mode, None) for mode in BATCHINGS] + [("global", True), ("slabs", True)])
+STACKING_CASES = [(mode, None) for mode in BATCHINGS] + [("global", True), ("slabs", True)]
 STACKING_IDS = [f"{mode}-{'fast' if fast else 'default'}" for mode, fast in STACKING_CASES]
 
 
@@ -70,13 +71,17 @@ def test_dropped_grid_comes_to_rest(runtime, batching, fast_math):
     speeds = np.linalg.norm(world.linear_velocities[ids], axis=1)
     assert speeds.max() < 0.05
     # lowest corner of every box above -2 cm
-    corners = np.array([[x, y, z] for x in (-.5, .5) for y in (-.5, .5) for z in (-.5, .5)])
+    corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
     q = world.orientations[ids]
     lowest = []
     for p, (x, y, z, w) in zip(world.positions[ids], q):
-        rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        rot = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+            ]
+        )
         lowest.append((p + corners @ rot.T)[:, 1].min())
     assert min(lowest) > -0.02
     assert np.all(np.isfinite(world.positions))
@@ -92,8 +97,9 @@ def test_global_batching_holds_a_tall_lattice_off_the_ground(runtime):
     scene = boxbox_scene(6, 30, 6)
     world = World(runtime, batching="global")
     world.add_static(rbgen.Box(scene.ground_half_extents), position=scene.ground_position)
-    ids = world.add_bodies(rbgen.Box(scene.half_extents), mass=scene.mass,
-                           positions=scene.positions)
+    ids = world.add_bodies(
+        rbgen.Box(scene.half_extents), mass=scene.mass, positions=scene.positions
+    )
     lowest = np.inf
     for step in range(60):
         world.step(DT)

@@ -6,6 +6,7 @@ calls each shape type's ``<type>_world_aabb`` (its registry entry's
 `prepare.BodyPreparation` (one launch for both), and `WorldAabbs` launches it on
 its own for other callers.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,23 +21,33 @@ def shape_types_param(doc: str, *, empty: bool) -> Param:
     distinct registered shape type names (``empty``: the empty tuple is allowed too)."""
     return Param(
         "shape_types",
-        lambda v: (isinstance(v, tuple) and (empty or len(v) > 0)
-                   and set(v) <= set(shape_type_names()) and tuple(sorted(set(v))) == v),
-        doc, "a sorted tuple of distinct registered shape type names (rbgen.shapes)"
-             + (", empty for none" if empty else ", not empty"))
+        lambda v: (
+            isinstance(v, tuple)
+            and (empty or len(v) > 0)
+            and set(v) <= set(shape_type_names())
+            and tuple(sorted(set(v))) == v
+        ),
+        doc,
+        "a sorted tuple of distinct registered shape type names (rbgen.shapes)"
+        + (", empty for none" if empty else ", not empty"),
+    )
 
 
 TEMPLATE = KernelTemplate(
     "pipeline/world_aabbs.cl.mako",
     [
         work_group_size_param(
-            "bodies per work group; memory-bound, so any size that fills a CU works"),
-        shape_types_param("emit a case only for the shape types present, keeping the kernel "
-                          "small", empty=False),
+            "bodies per work group; memory-bound, so any size that fills a CU works"
+        ),
+        shape_types_param(
+            "emit a case only for the shape types present, keeping the kernel small", empty=False
+        ),
     ],
     doc="World-space AABB of every body.",
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "shape_types": ("box", "hull", "plane", "sphere")},
+    defaults=lambda traits: {
+        "work_group_size": default_work_group_size(traits),
+        "shape_types": ("box", "hull", "plane", "sphere"),
+    },
 )
 
 
@@ -51,12 +62,21 @@ class WorldAabbs:
     def __init__(self, runtime: Runtime, shape_types, *, work_group_size: int | None = None):
         self.runtime = runtime
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
-                                  shape_types=tuple(sorted(set(shape_types))))
+        self.spec = TEMPLATE.spec(
+            work_group_size=self.work_group_size, shape_types=tuple(sorted(set(shape_types)))
+        )
         self.kernel = runtime.bound(compile_spec(runtime, self.spec).kernel("compute_world_aabbs"))
 
     def __call__(self, bodies, shapes, hull_vertices, aabbs, body_count: int, margin: float = 0.0):
         if body_count == 0:
             return None
-        return self.kernel.over(body_count, self.work_group_size, bodies, shapes, hull_vertices,
-                                aabbs, np.uint32(body_count), np.float32(margin))
+        return self.kernel.over(
+            body_count,
+            self.work_group_size,
+            bodies,
+            shapes,
+            hull_vertices,
+            aabbs,
+            np.uint32(body_count),
+            np.float32(margin),
+        )

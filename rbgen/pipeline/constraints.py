@@ -31,6 +31,7 @@ after its own (the oldest, which no redo needs), so that a step has no clearing
 launch of its own: a generation's table is empty whenever a call starts writing
 it (fresh, cleared by the call before, or cleared by `undo`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -49,14 +50,20 @@ TEMPLATE = KernelTemplate(
     "pipeline/constraints.cl.mako",
     [
         work_group_size_param(
-            "manifolds per work group; memory-bound, any size that fills a CU works"),
-        Param("warm_start", (True, False),
-              "emit the previous-step lookup only when warm starting is on"),
+            "manifolds per work group; memory-bound, any size that fills a CU works"
+        ),
+        Param(
+            "warm_start",
+            (True, False),
+            "emit the previous-step lookup only when warm starting is on",
+        ),
     ],
     doc="Contact constraints (a normal row per point, a friction pair and a twist row per "
-        "manifold) from contact manifolds.",
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "warm_start": True},
+    "manifold) from contact manifolds.",
+    defaults=lambda traits: {
+        "work_group_size": default_work_group_size(traits),
+        "warm_start": True,
+    },
 )
 
 
@@ -70,12 +77,14 @@ class _Buffers:
 
     def __init__(self, queue, capacity: int, first_contact_edge: int):
         self.capacity = int(capacity)
-        self.constraints = cl_array.zeros(queue, max(1, self.capacity),
-                                          layouts.CONTACT_CONSTRAINT.dtype)
+        self.constraints = cl_array.zeros(
+            queue, max(1, self.capacity), layouts.CONTACT_CONSTRAINT.dtype
+        )
         #: the generation's edges: first_contact_edge joint edges, then one a contact
         self.first_contact_edge = int(first_contact_edge)
-        self.edges = cl_array.zeros(queue, max(1, self.first_contact_edge + self.capacity),
-                                    layouts.CONSTRAINT_EDGE.dtype)
+        self.edges = cl_array.zeros(
+            queue, max(1, self.first_contact_edge + self.capacity), layouts.CONSTRAINT_EDGE.dtype
+        )
         table_size = 1 << max(4, int(2 * max(1, self.capacity) - 1).bit_length())
         self.table = cl_array.to_device(queue, np.full(table_size, layouts.SOLVER_NONE, np.uint32))
         self.mask = table_size - 1
@@ -94,13 +103,13 @@ class ContactConstraints:
     body B, passes its impulses on when no feature id matches).
     """
 
-    def __init__(self, runtime: Runtime, *, warm_start: bool = True,
-                 work_group_size: int | None = None):
+    def __init__(
+        self, runtime: Runtime, *, warm_start: bool = True, work_group_size: int | None = None
+    ):
         self.runtime = runtime
         self.warm_start = bool(warm_start)
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
-                                  warm_start=self.warm_start)
+        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, warm_start=self.warm_start)
         program = compile_spec(runtime, self.spec)
         self.setup_kernel = runtime.bound(program.kernel("setup_contact_constraints"))
         #: a stand-in for the next generation's table before that generation exists
@@ -108,8 +117,9 @@ class ContactConstraints:
         #: an empty previous generation (a count of 0 and a table with no entry): what a
         #: call that must not warm-start reads, so that it finds nothing
         self._no_count = cl_array.zeros(runtime.queue, 1, np.uint32)
-        self._empty_table = cl_array.to_device(runtime.queue,
-                                               np.full(1, layouts.SOLVER_NONE, np.uint32))
+        self._empty_table = cl_array.to_device(
+            runtime.queue, np.full(1, layouts.SOLVER_NONE, np.uint32)
+        )
         self.restitution_threshold = 0.5
         self.penetration_slop = 0.005
         self.penetration_recovery = 0.2
@@ -170,8 +180,16 @@ class ContactConstraints:
         if gen is not None:
             gen.table.fill(np.uint32(layouts.SOLVER_NONE), queue=self.runtime.queue)
 
-    def __call__(self, manifolds, manifold_count, bodies, inertia, capacity: int, dt: float,
-                 warm_start: bool = True):
+    def __call__(
+        self,
+        manifolds,
+        manifold_count,
+        bodies,
+        inertia,
+        capacity: int,
+        dt: float,
+        warm_start: bool = True,
+    ):
         """Set up min(``manifold_count[0]``, ``capacity``) constraints (count: a device
         uint32 array(1)); that number is written to ``self.count`` on the device.
         ``warm_start=False`` (a World whose warm_start setting is off): this call finds no
@@ -195,17 +213,43 @@ class ContactConstraints:
         # (the next call's table, which this setup clears; before that generation exists,
         # a one-word stand-in and a size of 0: nothing to clear)
         next_table = self._no_table if following is None else following.table
-        args = [manifolds, manifold_count, bodies, inertia, np.uint32(capacity),
-                gen.constraints, self.count, gen.edges, self.edge_count, np.uint32(first),
-                gen.table, np.uint32(gen.mask),
-                next_table, np.uint32(0 if following is None else following.mask + 1)]
+        args = [
+            manifolds,
+            manifold_count,
+            bodies,
+            inertia,
+            np.uint32(capacity),
+            gen.constraints,
+            self.count,
+            gen.edges,
+            self.edge_count,
+            np.uint32(first),
+            gen.table,
+            np.uint32(gen.mask),
+            next_table,
+            np.uint32(0 if following is None else following.mask + 1),
+        ]
         if self.warm_start:
-            found = (previous.count, previous.table, previous.mask) if warm_start else \
-                (self._no_count, self._empty_table, 0)
-            args += [gen.count, previous.constraints, previous.edges,
-                     np.uint32(previous.first_contact_edge), found[0], found[1],
-                     np.uint32(found[2]),
-                     np.float32(self.warm_start_factor), np.float32(self.match_distance)]
-        args += [np.float32(dt), np.float32(self.restitution_threshold),
-                 np.float32(self.penetration_slop), np.float32(self.penetration_recovery)]
+            found = (
+                (previous.count, previous.table, previous.mask)
+                if warm_start
+                else (self._no_count, self._empty_table, 0)
+            )
+            args += [
+                gen.count,
+                previous.constraints,
+                previous.edges,
+                np.uint32(previous.first_contact_edge),
+                found[0],
+                found[1],
+                np.uint32(found[2]),
+                np.float32(self.warm_start_factor),
+                np.float32(self.match_distance),
+            ]
+        args += [
+            np.float32(dt),
+            np.float32(self.restitution_threshold),
+            np.float32(self.penetration_slop),
+            np.float32(self.penetration_recovery),
+        ]
         return self.setup_kernel.over(capacity, wg, *args)

@@ -14,6 +14,7 @@ the World reads the flag without blocking and redoes the step without persistent
 launches (`rbgen.world`). "Persistent launch" and "device-wide barrier" are the names
 for this everywhere; "grid" means only the broadphase's uniform grid.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -63,5 +64,6 @@ def barrier_buffer(runtime: Runtime, extra_words: int = 0):
 
 def clear_abandoned(runtime: Runtime, sync) -> None:
     """Reset a sync buffer's abandoned flag (after the host has dealt with it)."""
-    sync[layouts.BARRIER_ABANDONED:layouts.BARRIER_ABANDONED + 1].fill(np.uint32(0),
-                                                                  queue=runtime.queue)
+    sync[layouts.BARRIER_ABANDONED : layouts.BARRIER_ABANDONED + 1].fill(
+        np.uint32(0), queue=runtime.queue
+    )

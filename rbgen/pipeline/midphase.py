@@ -32,6 +32,7 @@ subtrees of ``subtree_nodes`` nodes in local memory, shared by the pairs of a wo
 that reach them. The tuner chooses per device (family "midphase", `register_family`);
 untuned devices get `default_params`.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -86,8 +87,9 @@ TRAVERSALS = ("global", "local")
 
 
 def _subtree_nodes_allowed(value) -> bool:
-    return isinstance(value, int) and (value == 0 or (16 <= value <= 4096
-                                                      and value & (value - 1) == 0))
+    return isinstance(value, int) and (
+        value == 0 or (16 <= value <= 4096 and value & (value - 1) == 0)
+    )
 
 
 def _traversal_rule(values) -> str | None:
@@ -102,20 +104,27 @@ TRIANGLES = KernelTemplate(
     "pipeline/midphase/triangles.cl.mako",
     [
         work_group_size_param("input pairs per work group (one work-item each)"),
-        Param("traversal", TRAVERSALS,
-              "global: each work-item walks its tree in global memory (Bullet3's way); "
-              "local: a work group stages the subtrees its pairs reach in local memory, "
-              "each read once for the group"),
-        Param("subtree_nodes", _subtree_nodes_allowed,
-              "local traversal: nodes of the largest subtree staged (16 bytes each); "
-              "global: 0", "0, or a power of two from 16 to 4096"),
+        Param(
+            "traversal",
+            TRAVERSALS,
+            "global: each work-item walks its tree in global memory (Bullet3's way); "
+            "local: a work group stages the subtrees its pairs reach in local memory, "
+            "each read once for the group",
+        ),
+        Param(
+            "subtree_nodes",
+            _subtree_nodes_allowed,
+            "local traversal: nodes of the largest subtree staged (16 bytes each); global: 0",
+            "0, or a power of two from 16 to 4096",
+        ),
     ],
     doc="Midphase: the (body, triangle) pairs of (mesh, body) pairs, by BVH walks.",
     requires=_traversal_rule,
     defaults=lambda traits: default_params(traits),
     signatures=(
-        Signature("count_triangle_pairs", _PAIR_INPUT + _MESH_ARRAYS
-                  + (Arg("__global uint*", "counts"),)),
+        Signature(
+            "count_triangle_pairs", _PAIR_INPUT + _MESH_ARRAYS + (Arg("__global uint*", "counts"),)
+        ),
         Signature("write_triangle_pairs", _PAIR_INPUT + _MESH_ARRAYS + _PAIR_OUTPUT),
     ),
 )
@@ -128,32 +137,41 @@ CHILDREN = KernelTemplate(
     ],
     doc="Midphase: compound children as bodies of their own, their pairs, their manifolds.",
     roles={"manifolds": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "shape_types": ("box", "hull", "sphere")},
+    defaults=lambda traits: {
+        "work_group_size": default_work_group_size(traits),
+        "shape_types": ("box", "hull", "sphere"),
+    },
     signatures=(
-        Signature("place_children", (
-            Arg("__global const Body*", "bodies"),
-            Arg("__global const Aabb*", "aabbs"),
-            Arg("const uint", "body_count"),
-            Arg("__global const Shape*", "shapes"),
-            Arg("__global const float4*", "hull_vertices"),
-            Arg("__global const CompoundChild*", "compound_children"),
-            Arg("__global const ChildProxy*", "proxies"),
-            Arg("const uint", "proxy_count"),
-            Arg("const float", "margin"),
-            Arg("__global Body*", "placed_bodies"),
-            Arg("__global Aabb*", "placed_aabbs"),
-        )),
-        Signature("count_child_pairs", _PAIR_INPUT + _CHILD_ARRAYS
-                  + (Arg("__global uint*", "counts"),)),
+        Signature(
+            "place_children",
+            (
+                Arg("__global const Body*", "bodies"),
+                Arg("__global const Aabb*", "aabbs"),
+                Arg("const uint", "body_count"),
+                Arg("__global const Shape*", "shapes"),
+                Arg("__global const float4*", "hull_vertices"),
+                Arg("__global const CompoundChild*", "compound_children"),
+                Arg("__global const ChildProxy*", "proxies"),
+                Arg("const uint", "proxy_count"),
+                Arg("const float", "margin"),
+                Arg("__global Body*", "placed_bodies"),
+                Arg("__global Aabb*", "placed_aabbs"),
+            ),
+        ),
+        Signature(
+            "count_child_pairs", _PAIR_INPUT + _CHILD_ARRAYS + (Arg("__global uint*", "counts"),)
+        ),
         Signature("write_child_pairs", _PAIR_INPUT + _CHILD_ARRAYS + _PAIR_OUTPUT),
-        Signature("resolve_child_manifolds", (
-            Arg("__global ContactManifold*", "manifolds"),
-            Arg("__global const uint*", "manifold_count"),
-            Arg("const uint", "manifold_capacity"),
-            Arg("__global const ChildProxy*", "proxies"),
-            Arg("const uint", "body_count"),
-        )),
+        Signature(
+            "resolve_child_manifolds",
+            (
+                Arg("__global ContactManifold*", "manifolds"),
+                Arg("__global const uint*", "manifold_count"),
+                Arg("const uint", "manifold_capacity"),
+                Arg("__global const ChildProxy*", "proxies"),
+                Arg("const uint", "body_count"),
+            ),
+        ),
     ),
 )
 
@@ -185,8 +203,7 @@ def search_space(traits: DeviceTraits) -> list[dict]:
         space.append({"work_group_size": wg, "traversal": "global", "subtree_nodes": 0})
         for nodes in (64, 128, 256, 512):
             if 16 * nodes + 64 <= traits.local_mem_size:
-                space.append({"work_group_size": wg, "traversal": "local",
-                              "subtree_nodes": nodes})
+                space.append({"work_group_size": wg, "traversal": "local", "subtree_nodes": nodes})
     unique = []
     for params in space:
         if params not in unique:
@@ -211,8 +228,10 @@ class _Launch:
 
     def __call__(self, count: int, values: dict):
         self.binder(self.kernel, *(_data(values[n]) for n in self.names))
-        return self.kernel.launch(max(1, -(-int(count) // self.work_group_size))
-                                  * self.work_group_size, self.work_group_size)
+        return self.kernel.launch(
+            max(1, -(-int(count) // self.work_group_size)) * self.work_group_size,
+            self.work_group_size,
+        )
 
 
 def _data(value):
@@ -222,8 +241,16 @@ def _data(value):
 class Expansion:
     """Count, scan, write: one expansion's output (see the module docstring)."""
 
-    def __init__(self, runtime: Runtime, name: str, spec, count: str, write: str,
-                 work_group_size: int, capacity: int | None = None):
+    def __init__(
+        self,
+        runtime: Runtime,
+        name: str,
+        spec,
+        count: str,
+        write: str,
+        work_group_size: int,
+        capacity: int | None = None,
+    ):
         self.runtime = runtime
         self.name = name
         self._count = _Launch(runtime, spec, count, work_group_size)
@@ -256,11 +283,19 @@ class Expansion:
     def enqueue(self, pairs, pair_count, values: dict, status) -> None:
         size = max(1, int(pairs.size))
         self.ensure(size)
-        values = {**values, "pairs": pairs, "pair_count": pair_count,
-                  "pair_capacity": np.uint32(pairs.size), "counts": self.counts,
-                  "offsets": self.offsets, "out_pairs": self.pairs,
-                  "out_capacity": np.uint32(self.capacity), "out_count": self.count,
-                  "status": status, "status_word": np.uint32(self.status_word)}
+        values = {
+            **values,
+            "pairs": pairs,
+            "pair_count": pair_count,
+            "pair_capacity": np.uint32(pairs.size),
+            "counts": self.counts,
+            "offsets": self.offsets,
+            "out_pairs": self.pairs,
+            "out_capacity": np.uint32(self.capacity),
+            "out_count": self.count,
+            "status": status,
+            "status_word": np.uint32(self.status_word),
+        }
         self._count(size, values)
         self.scan(self.counts, self.offsets, n=pair_count, total=self.count)
         self._write(size, values)
@@ -277,8 +312,14 @@ class Midphase:
     reads, and ``status`` holds a word per expansion (`STATUS_WORDS`).
     """
 
-    def __init__(self, runtime: Runtime, table: ShapeTable, *, params: dict | None = None,
-                 capacity: int | None = None):
+    def __init__(
+        self,
+        runtime: Runtime,
+        table: ShapeTable,
+        *,
+        params: dict | None = None,
+        capacity: int | None = None,
+    ):
         self.runtime = runtime
         self.table = table
         types = set(table.type_names())
@@ -295,14 +336,23 @@ class Midphase:
         self._configured: np.ndarray | None = None
         self.pairs = self.count = self.bodies = None
         if self.has_children:
-            child_types = tuple(sorted({type(c).type_name for s in table.shapes
-                                        if isinstance(s, Compound) for c in s.children}))
+            child_types = tuple(
+                sorted(
+                    {
+                        type(c).type_name
+                        for s in table.shapes
+                        if isinstance(s, Compound)
+                        for c in s.children
+                    }
+                )
+            )
             wg = default_work_group_size(runtime.traits)
             spec = CHILDREN.spec(work_group_size=wg, shape_types=child_types or ("sphere",))
             self._place = _Launch(runtime, spec, "place_children", wg)
             self._resolve = _Launch(runtime, spec, "resolve_child_manifolds", wg)
-            self.children = Expansion(runtime, "children", spec, "count_child_pairs",
-                                      "write_child_pairs", wg, capacity)
+            self.children = Expansion(
+                runtime, "children", spec, "count_child_pairs", "write_child_pairs", wg, capacity
+            )
 
     # ------------------------------------------------------------------ parameters
     def params_for(self, input_size: int) -> dict:
@@ -322,14 +372,21 @@ class Midphase:
 
     def _triangle_expansion(self, input_size: int) -> Expansion:
         bucket = size_bucket(input_size)
-        if self.triangles is None or (self.params_override is None
-                                      and bucket != self._triangle_bucket):
+        if self.triangles is None or (
+            self.params_override is None and bucket != self._triangle_bucket
+        ):
             params = self.params_for(input_size)
             spec = TRIANGLES.spec(**params)
             old = self.triangles
-            self.triangles = Expansion(self.runtime, "triangles", spec, "count_triangle_pairs",
-                                       "write_triangle_pairs", params["work_group_size"],
-                                       old.capacity if old is not None else self.capacity)
+            self.triangles = Expansion(
+                self.runtime,
+                "triangles",
+                spec,
+                "count_triangle_pairs",
+                "write_triangle_pairs",
+                params["work_group_size"],
+                old.capacity if old is not None else self.capacity,
+            )
             self._triangle_bucket = bucket
             self.triangle_params = params
         return self.triangles
@@ -340,8 +397,9 @@ class Midphase:
         once per upload)."""
         q = self.runtime.queue
         n = len(shape_indices)
-        children = np.array([len(s.children) if isinstance(s, Compound) else 0
-                             for s in self.table.shapes], np.int64)
+        children = np.array(
+            [len(s.children) if isinstance(s, Compound) else 0 for s in self.table.shapes], np.int64
+        )
         per_body = children[shape_indices] if n else np.zeros(0, np.int64)
         first = n + np.concatenate([[0], np.cumsum(per_body)[:-1]]) if n else per_body
         total = int(per_body.sum())
@@ -350,31 +408,49 @@ class Midphase:
         proxies["body"][:total] = owners
         proxies["child"][:total] = np.arange(total) - (first[owners] - n)
         self.body_count, self.proxy_count = n, total
-        self.first_proxy = cla.to_device(q, np.maximum(first, 0).astype(np.uint32)
-                                         if n else np.zeros(1, np.uint32))
+        self.first_proxy = cla.to_device(
+            q, np.maximum(first, 0).astype(np.uint32) if n else np.zeros(1, np.uint32)
+        )
         self.proxies = cla.to_device(q, proxies)
         self.placed_bodies = cla.empty(q, max(1, n + total), layouts.BODY.dtype)
         self.placed_aabbs = cla.empty(q, max(1, n + total), layouts.AABB.dtype)
 
     # ------------------------------------------------------------------ step
-    def enqueue(self, bodies, body_count: int, shapes: PackedShapes, aabbs, pairs, pair_count,
-                margin: float = 0.0, shape_indices: np.ndarray | None = None) -> None:
+    def enqueue(
+        self,
+        bodies,
+        body_count: int,
+        shapes: PackedShapes,
+        aabbs,
+        pairs,
+        pair_count,
+        margin: float = 0.0,
+        shape_indices: np.ndarray | None = None,
+    ) -> None:
         """Enqueue the expansions (no blocking read). ``bodies`` (Body records),
         ``aabbs`` (their world AABBs), ``pairs`` and ``pair_count`` (the broadphase's)
         are device arrays; ``shape_indices``: each body's shape index on the host (needed
         with compounds; the proxies are rebuilt when it is a new array)."""
-        values = {**shapes.kernel_arguments(), "bodies": bodies, "aabbs": aabbs,
-                  "body_count": np.uint32(body_count), "margin": np.float32(margin)}
+        values = {
+            **shapes.kernel_arguments(),
+            "bodies": bodies,
+            "aabbs": aabbs,
+            "body_count": np.uint32(body_count),
+            "margin": np.float32(margin),
+        }
         if self.has_children:
             if shape_indices is None:
-                raise RbgenError("midphase: a world with compounds needs the bodies' shape "
-                                 "indices")
+                raise RbgenError("midphase: a world with compounds needs the bodies' shape indices")
             if self._configured is not shape_indices:
                 self._configure(shape_indices)
                 self._configured = shape_indices
-            values.update(proxies=self.proxies, proxy_count=np.uint32(self.proxy_count),
-                          first_proxy=self.first_proxy, placed_bodies=self.placed_bodies,
-                          placed_aabbs=self.placed_aabbs)
+            values.update(
+                proxies=self.proxies,
+                proxy_count=np.uint32(self.proxy_count),
+                first_proxy=self.first_proxy,
+                placed_bodies=self.placed_bodies,
+                placed_aabbs=self.placed_aabbs,
+            )
             self._place(body_count + self.proxy_count, values)
             assert self.children is not None  # (made with the stage when it has compounds)
             self.children.enqueue(pairs, pair_count, values, self.status)
@@ -391,10 +467,16 @@ class Midphase:
         the child in the sub-feature (worlds with compounds; after the narrowphase)."""
         if not self.has_children:
             return
-        self._resolve(manifolds.size, {
-            "manifolds": manifolds, "manifold_count": manifold_count,
-            "manifold_capacity": np.uint32(manifolds.size), "proxies": self.proxies,
-            "body_count": np.uint32(self.body_count)})
+        self._resolve(
+            manifolds.size,
+            {
+                "manifolds": manifolds,
+                "manifold_count": manifold_count,
+                "manifold_capacity": np.uint32(manifolds.size),
+                "proxies": self.proxies,
+                "body_count": np.uint32(self.body_count),
+            },
+        )
 
     # ------------------------------------------------------------------ overflow
     def expansions(self) -> list[Expansion]:
@@ -403,8 +485,11 @@ class Midphase:
     def problem(self, words: np.ndarray) -> dict | None:
         """The expansions whose output overflowed and the size each needs, from the status
         words (None: every output fit)."""
-        found = {e.name: int(words[e.status_word]) for e in self.expansions()
-                 if int(words[e.status_word]) > e.capacity}
+        found = {
+            e.name: int(words[e.status_word])
+            for e in self.expansions()
+            if int(words[e.status_word]) > e.capacity
+        }
         return found or None
 
     def grow(self, needed: dict) -> None:
@@ -413,16 +498,26 @@ class Midphase:
             if e.name in needed:
                 e.grow(int(needed[e.name] * 1.25) + 16)
 
-    def find_pairs(self, bodies, body_count: int, shapes: PackedShapes, aabbs, pairs, pair_count,
-                   margin: float = 0.0, shape_indices=None) -> np.ndarray:
+    def find_pairs(
+        self,
+        bodies,
+        body_count: int,
+        shapes: PackedShapes,
+        aabbs,
+        pairs,
+        pair_count,
+        margin: float = 0.0,
+        shape_indices=None,
+    ) -> np.ndarray:
         """The expanded pairs as host `Pair` records, growing the outputs until they fit
         (blocking; for tests, tools and benchmarks). ``pair_count`` may be a host int."""
         q = self.runtime.queue
         if not isinstance(pair_count, cla.Array):
             pair_count = cla.to_device(q, np.array([int(pair_count)], np.uint32))
         while True:
-            self.enqueue(bodies, body_count, shapes, aabbs, pairs, pair_count, margin,
-                         shape_indices)
+            self.enqueue(
+                bodies, body_count, shapes, aabbs, pairs, pair_count, margin, shape_indices
+            )
             needed = self.problem(self.runtime.read(self.status))
             if needed is None:
                 n = int(self.runtime.read(self.count)[0])
@@ -459,8 +554,9 @@ def _bench(runtime: Runtime, values: dict, n: int, rng):
     packed = table.pack_all().to_device(q)
     d_bodies = cla.to_device(q, host)
     aabbs = cla.empty(q, len(host), layouts.AABB.dtype)
-    WorldAabbs(runtime, table.type_names())(d_bodies, packed.shapes, packed.vertices, aabbs,
-                                            len(host))
+    WorldAabbs(runtime, table.type_names())(
+        d_bodies, packed.shapes, packed.vertices, aabbs, len(host)
+    )
     pairs = layouts.PAIR.zeros(bodies_n)
     pairs["a"], pairs["b"] = 0, np.arange(1, bodies_n + 1)
     d_pairs = cla.to_device(q, pairs)
@@ -474,7 +570,9 @@ def _bench(runtime: Runtime, values: dict, n: int, rng):
     def check():
         n_out = int(midphase.count.get()[0])
         return n_out <= midphase.triangles.capacity and np.array_equal(
-            midphase.pairs.get()[:n_out], expected)
+            midphase.pairs.get()[:n_out], expected
+        )
+
     return run, check
 
 
@@ -482,11 +580,16 @@ def register_family() -> None:
     """Declare the triangle walk to the tuner (`rbgen tune` times both traversals)."""
     if FAMILY in tuning.FAMILIES:
         return
-    tuning.register(tuning.Family(
-        name=FAMILY, variants=("triangles",),
-        space=lambda traits: [{"shape": p["traversal"], **p} for p in search_space(traits)],
-        build=_bench_build, bench=_bench,
-        templates=lambda: {t: TRIANGLES for t in TRAVERSALS}))
+    tuning.register(
+        tuning.Family(
+            name=FAMILY,
+            variants=("triangles",),
+            space=lambda traits: [{"shape": p["traversal"], **p} for p in search_space(traits)],
+            build=_bench_build,
+            bench=_bench,
+            templates=lambda: {t: TRIANGLES for t in TRAVERSALS},
+        )
+    )
 
 
 register_family()

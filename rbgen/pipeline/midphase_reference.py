@@ -1,6 +1,7 @@
 """Host references of the midphase: brute force (every body box against every triangle
 box) and small scenes to check and tune it on. Tests and the tuner compare the device's
 output with these, pair for pair."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -21,8 +22,9 @@ def terrain(cells: int, spacing: float, rng, roughness: float = 0.3):
     return vertices, triangles
 
 
-def bodies_above(count: int, mesh, shape_index: int, rng, mesh_index: int = 0,
-                 height: float = 0.5) -> np.ndarray:
+def bodies_above(
+    count: int, mesh, shape_index: int, rng, mesh_index: int = 0, height: float = 0.5
+) -> np.ndarray:
     """`Body` records: body 0 the mesh (static, at the origin), then ``count`` bodies of
     shape ``shape_index`` at random places just above its box."""
     lower, upper = mesh.local_box()
@@ -66,8 +68,9 @@ def brute_force(meshes, bodies: np.ndarray, aabbs: np.ndarray, pairs: np.ndarray
         lower = (aabbs["lower"][other, :3] - p).astype(np.float32)
         upper = (aabbs["upper"][other, :3] - p).astype(np.float32)
         tri_lower, tri_upper = boxes[mesh]
-        hit = np.flatnonzero(np.all(tri_lower <= upper, axis=1)
-                             & np.all(lower <= tri_upper, axis=1))
+        hit = np.flatnonzero(
+            np.all(tri_lower <= upper, axis=1) & np.all(lower <= tri_upper, axis=1)
+        )
         records = layouts.PAIR.zeros(len(hit))
         records["a"], records["b"], records["sub"] = a, b, hit + 1
         out.extend(records)

@@ -11,6 +11,7 @@ Built with ``shape_types``, the pass also writes every body's world AABB
 (the World's broadphase input, see `aabbs`): the step's poses are the same
 before and after this kernel, so a World saves the separate AABB launch.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -25,21 +26,38 @@ TEMPLATE = KernelTemplate(
     "pipeline/prepare.cl.mako",
     [
         work_group_size_param(
-            "bodies per work group; memory-bound, so any size that fills a CU works"),
-        Param("gyroscopic", (True, False),
-              "emit the implicit gyroscopic update only when the world enables it"),
-        Param("gravity", (True, False),
-              "add g dt to dynamic bodies here, saving the World a separate gravity launch"),
-        shape_types_param("write world AABBs here for these shape types, saving the World "
-                          "the AABB launch; () writes none", empty=True),
-        Param("backup", (False, True),
-              "copy every body to a backup array first, saving the World a copy command"),
+            "bodies per work group; memory-bound, so any size that fills a CU works"
+        ),
+        Param(
+            "gyroscopic",
+            (True, False),
+            "emit the implicit gyroscopic update only when the world enables it",
+        ),
+        Param(
+            "gravity",
+            (True, False),
+            "add g dt to dynamic bodies here, saving the World a separate gravity launch",
+        ),
+        shape_types_param(
+            "write world AABBs here for these shape types, saving the World "
+            "the AABB launch; () writes none",
+            empty=True,
+        ),
+        Param(
+            "backup",
+            (False, True),
+            "copy every body to a backup array first, saving the World a copy command",
+        ),
     ],
     doc="World inverse inertia and the implicit gyroscopic term, one work-item per body.",
     roles={"bodies": "inout", "inertia": "inout", "backup": "out"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "gyroscopic": True, "gravity": False, "shape_types": (),
-                             "backup": False},
+    defaults=lambda traits: {
+        "work_group_size": default_work_group_size(traits),
+        "gyroscopic": True,
+        "gravity": False,
+        "shape_types": (),
+        "backup": False,
+    },
 )
 
 
@@ -67,35 +85,54 @@ class BodyPreparation:
     every body, as it is, into the ``backup`` array given to each call.
     """
 
-    def __init__(self, runtime: Runtime, *, gyroscopic: bool = True, gravity: bool = False,
-                 shape_types=(), backup: bool = False, work_group_size: int | None = None):
+    def __init__(
+        self,
+        runtime: Runtime,
+        *,
+        gyroscopic: bool = True,
+        gravity: bool = False,
+        shape_types=(),
+        backup: bool = False,
+        work_group_size: int | None = None,
+    ):
         self.runtime = runtime
         self.gyroscopic = bool(gyroscopic)
         self.gravity = bool(gravity)
         self.shape_types = tuple(sorted(set(shape_types)))
         self.backup = bool(backup)
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, gyroscopic=self.gyroscopic,
-                                  gravity=self.gravity, shape_types=self.shape_types,
-                                  backup=self.backup)
+        self.spec = TEMPLATE.spec(
+            work_group_size=self.work_group_size,
+            gyroscopic=self.gyroscopic,
+            gravity=self.gravity,
+            shape_types=self.shape_types,
+            backup=self.backup,
+        )
         self.kernel = runtime.bound(compile_spec(runtime, self.spec).kernel("prepare_bodies"))
 
-    def __call__(self, bodies, inertia, body_count: int, dt: float, gravity=None, aabbs=None,
-                 backup=None):
+    def __call__(
+        self, bodies, inertia, body_count: int, dt: float, gravity=None, aabbs=None, backup=None
+    ):
         """Prepare ``body_count`` bodies; ``gravity`` (3 numbers) is required exactly
         when built with gravity=True (v += g dt on dynamic bodies); ``aabbs``, a tuple
         (shapes, hull_vertices, aabbs, margin) as `WorldAabbs` takes them, exactly
         when built with shape types; ``backup`` (a Body array of at least
         ``body_count``) exactly when built with backup=True."""
         if (gravity is not None) != self.gravity:
-            raise RbgenError("gravity must be given exactly when this BodyPreparation was "
-                             f"built with gravity=True (built with gravity={self.gravity})")
+            raise RbgenError(
+                "gravity must be given exactly when this BodyPreparation was "
+                f"built with gravity=True (built with gravity={self.gravity})"
+            )
         if (aabbs is not None) != bool(self.shape_types):
-            raise RbgenError("aabbs must be given exactly when this BodyPreparation was built "
-                             f"with shape types (built with shape_types={self.shape_types})")
+            raise RbgenError(
+                "aabbs must be given exactly when this BodyPreparation was built "
+                f"with shape types (built with shape_types={self.shape_types})"
+            )
         if (backup is not None) != self.backup:
-            raise RbgenError("backup must be given exactly when this BodyPreparation was "
-                             f"built with backup=True (built with backup={self.backup})")
+            raise RbgenError(
+                "backup must be given exactly when this BodyPreparation was "
+                f"built with backup=True (built with backup={self.backup})"
+            )
         if body_count == 0:
             return None
         args = [bodies, inertia, np.uint32(body_count)]

@@ -13,6 +13,7 @@ the step report (`report_words`, `report`, `problem`) and how to recover (`recov
 between the broadphase and the narrowphase, a joint stage beside the constraints) is
 one class here and one entry in the list `StepPipeline` assembles.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -99,8 +100,13 @@ class PrepareStage(Stage):
 
     def __init__(self, runtime: Runtime, plan: Plan):
         self.runtime = runtime
-        self.kernel = BodyPreparation(runtime, gyroscopic=plan.gyroscopic, gravity=True,
-                                      shape_types=plan.shape_types, backup=True)
+        self.kernel = BodyPreparation(
+            runtime,
+            gyroscopic=plan.gyroscopic,
+            gravity=True,
+            shape_types=plan.shape_types,
+            backup=True,
+        )
         self.aabbs: cla.Array | None = None
 
     def resize(self, body_count: int) -> None:
@@ -110,10 +116,20 @@ class PrepareStage(Stage):
         b, substeps = step.bodies, step.settings.substeps
         # (the first substep's gravity: g h = (g / substeps) dt)
         gravity = step.settings.gravity if substeps == 1 else step.settings.gravity / substeps
-        self.kernel(b.bodies, b.inertia, b.count, step.dt, gravity,
-                    aabbs=(step.shapes.shapes, step.shapes.vertices, self.aabbs,
-                           step.settings.contact_margin),
-                    backup=b.backups[step.slot])
+        self.kernel(
+            b.bodies,
+            b.inertia,
+            b.count,
+            step.dt,
+            gravity,
+            aabbs=(
+                step.shapes.shapes,
+                step.shapes.vertices,
+                self.aabbs,
+                step.settings.contact_margin,
+            ),
+            backup=b.backups[step.slot],
+        )
 
 
 class BroadphaseStage(Stage):
@@ -122,8 +138,9 @@ class BroadphaseStage(Stage):
     name = "broadphase"
     report_words = layouts.BROADPHASE_STATUS.itemsize // 4
 
-    def __init__(self, runtime: Runtime, plan: Plan, prepare: PrepareStage,
-                 pair_capacity: int | None):
+    def __init__(
+        self, runtime: Runtime, plan: Plan, prepare: PrepareStage, pair_capacity: int | None
+    ):
         self.runtime = runtime
         self.prepare = prepare
         options = {} if pair_capacity is None else {"capacity": int(pair_capacity)}
@@ -136,15 +153,23 @@ class BroadphaseStage(Stage):
     def report(self, queue, report, offset: int) -> None:
         assert self.broadphase.buffer is not None  # (made by the first query)
         status = self.broadphase.buffer.status
-        cl.enqueue_copy(queue, buffer_of(report), buffer_of(status), byte_count=status.nbytes,
-                        dst_offset=4 * offset)
+        cl.enqueue_copy(
+            queue,
+            buffer_of(report),
+            buffer_of(status),
+            byte_count=status.nbytes,
+            dst_offset=4 * offset,
+        )
 
     def problem(self, words):
         status = words.view(layouts.BROADPHASE_STATUS.dtype)[0]
         pairs_found = int(status["pairs_found"])
         retry = int(status["retry"]) if "retry" in status.dtype.names else 0
-        if (status["bad_body"] != layouts.BP_NO_BODY or retry
-                or pairs_found > self.broadphase.capacity):
+        if (
+            status["bad_body"] != layouts.BP_NO_BODY
+            or retry
+            or pairs_found > self.broadphase.capacity
+        ):
             return pairs_found
         return None
 
@@ -161,21 +186,35 @@ class MidphaseStage(Stage):
 
     name = "midphase"
 
-    def __init__(self, runtime: Runtime, shapes, prepare: PrepareStage,
-                 broadphase: BroadphaseStage):
+    def __init__(
+        self, runtime: Runtime, shapes, prepare: PrepareStage, broadphase: BroadphaseStage
+    ):
         self.midphase = Midphase(runtime, shapes)
         self.prepare, self.broadphase = prepare, broadphase
         self.report_words = int(self.midphase.status.size)
 
     def enqueue(self, step: StepContext) -> None:
         bp, b = self.broadphase.broadphase, step.bodies
-        self.midphase.enqueue(b.bodies, b.count, step.shapes, self.prepare.aabbs, bp.pairs,
-                              bp.count, step.settings.contact_margin, b.shape_indices)
+        self.midphase.enqueue(
+            b.bodies,
+            b.count,
+            step.shapes,
+            self.prepare.aabbs,
+            bp.pairs,
+            bp.count,
+            step.settings.contact_margin,
+            b.shape_indices,
+        )
 
     def report(self, queue, report, offset: int) -> None:
         status = self.midphase.status
-        cl.enqueue_copy(queue, buffer_of(report), buffer_of(status), byte_count=status.nbytes,
-                        dst_offset=4 * offset)
+        cl.enqueue_copy(
+            queue,
+            buffer_of(report),
+            buffer_of(status),
+            byte_count=status.nbytes,
+            dst_offset=4 * offset,
+        )
 
     def problem(self, words):
         return self.midphase.problem(words)
@@ -193,8 +232,14 @@ class NarrowphaseStage(Stage):
     report_words = 1
     writes_report = True
 
-    def __init__(self, runtime: Runtime, shapes, broadphase: BroadphaseStage,
-                 manifold_capacity: int | None, midphase: MidphaseStage | None = None):
+    def __init__(
+        self,
+        runtime: Runtime,
+        shapes,
+        broadphase: BroadphaseStage,
+        manifold_capacity: int | None,
+        midphase: MidphaseStage | None = None,
+    ):
         self.runtime = runtime
         self.narrowphase = Narrowphase(runtime, shapes)
         self.broadphase = broadphase
@@ -217,14 +262,21 @@ class NarrowphaseStage(Stage):
 
     def attach_report(self, report, offset: int) -> None:
         # a view made once: a pyopencl slice is a new Array, host time every step
-        self.needed_word = report[offset:offset + 1]
+        self.needed_word = report[offset : offset + 1]
 
     def enqueue(self, step: StepContext) -> None:
         source = self.broadphase.broadphase if self.midphase is None else self.midphase.midphase
         bodies = step.bodies.bodies if self.midphase is None else self.midphase.midphase.bodies
-        self.narrowphase.enqueue(bodies, step.shapes, source.pairs, source.count,
-                                 self.manifolds, self.count, self.needed_word,
-                                 step.settings.contact_margin)
+        self.narrowphase.enqueue(
+            bodies,
+            step.shapes,
+            source.pairs,
+            source.count,
+            self.manifolds,
+            self.count,
+            self.needed_word,
+            step.settings.contact_margin,
+        )
 
     def problem(self, words):
         needed = int(words[0])
@@ -265,8 +317,15 @@ class ConstraintStage(Stage):
         c.restitution_threshold = s.restitution_threshold
         c.penetration_slop = s.penetration_slop
         c.penetration_recovery = s.penetration_recovery
-        c(self.narrowphase.manifolds, self.narrowphase.count, b.bodies, b.inertia,
-          self.capacity, step.h, warm_start=s.warm_start)  # (the first substep's targets)
+        c(
+            self.narrowphase.manifolds,
+            self.narrowphase.count,
+            b.bodies,
+            b.inertia,
+            self.capacity,
+            step.h,
+            warm_start=s.warm_start,
+        )  # (the first substep's targets)
 
 
 class BatchingStage(Stage):
@@ -276,21 +335,31 @@ class BatchingStage(Stage):
 
     def __init__(self, runtime: Runtime, plan: Plan, constraints: ConstraintStage):
         assert plan.batching is not None  # (a PGS plan)
-        options: dict = {"ordered_rounds": plan.ordered_rounds} if plan.batching == "global" else \
-            {"group_count": plan.group_count, "solve_form": plan.solve_form}
+        options: dict = (
+            {"ordered_rounds": plan.ordered_rounds}
+            if plan.batching == "global"
+            else {"group_count": plan.group_count, "solve_form": plan.solve_form}
+        )
         self.batcher = make_batcher(runtime, plan.batching, **options)
         self.constraints = constraints
 
     def configure(self, bodies, gravity, contact_margin: float) -> None:
         """Scene geometry of spatial batching (from the host copy of the bodies)."""
         radius = max((bounding_radius(s) for s in bodies.dynamic_shapes()), default=0.0)
-        self.batcher.configure(cell_size=2.0 * radius + 2.0 * contact_margin + 1e-3,
-                               slab_axis=slab_axis(bodies.dynamic_positions(), gravity))
+        self.batcher.configure(
+            cell_size=2.0 * radius + 2.0 * contact_margin + 1e-3,
+            slab_axis=slab_axis(bodies.dynamic_positions(), gravity),
+        )
 
     def enqueue(self, step: StepContext) -> None:
         c = self.constraints.constraints
-        self.batcher(c.edges, c.edge_count, step.bodies.bodies, step.bodies.count,
-                     c.first_contact_edge + self.constraints.capacity)
+        self.batcher(
+            c.edges,
+            c.edge_count,
+            step.bodies.bodies,
+            step.bodies.count,
+            c.first_contact_edge + self.constraints.capacity,
+        )
 
 
 def slab_axis(positions: np.ndarray, gravity) -> tuple:
@@ -313,20 +382,34 @@ class SolveStage(Stage):
 
     name = "solve"
 
-    def __init__(self, runtime: Runtime, plan: Plan, constraints: ConstraintStage,
-                 batching: BatchingStage | None):
+    def __init__(
+        self,
+        runtime: Runtime,
+        plan: Plan,
+        constraints: ConstraintStage,
+        batching: BatchingStage | None,
+    ):
         self.runtime = runtime
         self.constraints = constraints
         self.solver: PgsSolver | JacobiSolver
         if plan.solver == "pgs":
             assert batching is not None
-            self.solver = PgsSolver(runtime, batching.batcher, normal_solve=plan.normal_solve,
-                                    persistent=plan.persistent, fast_math=plan.fast_math,
-                                    warm_start_mode=plan.warm_start_mode,
-                                    release_sweeps=plan.release_sweeps)
+            self.solver = PgsSolver(
+                runtime,
+                batching.batcher,
+                normal_solve=plan.normal_solve,
+                persistent=plan.persistent,
+                fast_math=plan.fast_math,
+                warm_start_mode=plan.warm_start_mode,
+                release_sweeps=plan.release_sweeps,
+            )
         else:
-            self.solver = JacobiSolver(runtime, normal_solve=plan.normal_solve,
-                                       persistent=plan.persistent, fast_math=plan.fast_math)
+            self.solver = JacobiSolver(
+                runtime,
+                normal_solve=plan.normal_solve,
+                persistent=plan.persistent,
+                fast_math=plan.fast_math,
+            )
         self.integrator = Integrator(runtime, gravity=False, damping=True)
         self._refresh: ContactRefresh | None = None  # (made at the first substepped step)
         self.report_words = 1 if self.solver.barrier_state() is not None else 0
@@ -344,27 +427,55 @@ class SolveStage(Stage):
         if getattr(self.solver, "integrates", False):  # one launch runs every substep
             assert isinstance(self.solver, PgsSolver)
             motion = SubstepMotion(
-                substeps, h, s.gravity, (1.0 - s.linear_damping) ** h,
-                (1.0 - s.angular_damping) ** h, DEFAULT_MAX_ANGULAR_STEP / substeps,
-                s.penetration_slop, s.penetration_recovery, deltas)
-            self.solver.solve(constraints, count, c.capacity, b.bodies, b.inertia, b.count, s,
-                              motion=motion)
+                substeps,
+                h,
+                s.gravity,
+                (1.0 - s.linear_damping) ** h,
+                (1.0 - s.angular_damping) ** h,
+                DEFAULT_MAX_ANGULAR_STEP / substeps,
+                s.penetration_slop,
+                s.penetration_recovery,
+                deltas,
+            )
+            self.solver.solve(
+                constraints, count, c.capacity, b.bodies, b.inertia, b.count, s, motion=motion
+            )
             return
         for k in range(substeps):
             if k > 0:
                 assert self._refresh is not None
                 self.integrator.apply_gravity(b.bodies, b.count, h, s.gravity)
-                self._refresh(constraints, count, c.capacity, b.count, h, s.penetration_slop,
-                              s.penetration_recovery)
+                self._refresh(
+                    constraints,
+                    count,
+                    c.capacity,
+                    b.count,
+                    h,
+                    s.penetration_slop,
+                    s.penetration_recovery,
+                )
             self.solver.solve(constraints, count, c.capacity, b.bodies, b.inertia, b.count, s)
-            self.integrator(b.bodies, b.count, h, linear_damping=s.linear_damping,
-                            angular_damping=s.angular_damping,
-                            max_angular_step=DEFAULT_MAX_ANGULAR_STEP / substeps, split=split,
-                            deltas=deltas, first_substep=k == 0)
+            self.integrator(
+                b.bodies,
+                b.count,
+                h,
+                linear_damping=s.linear_damping,
+                angular_damping=s.angular_damping,
+                max_angular_step=DEFAULT_MAX_ANGULAR_STEP / substeps,
+                split=split,
+                deltas=deltas,
+                first_substep=k == 0,
+            )
 
     def report(self, queue, report, offset: int) -> None:
-        cl.enqueue_copy(queue, buffer_of(report), buffer_of(self.solver.barrier_state()),
-                        byte_count=4, src_offset=ABANDONED_OFFSET, dst_offset=4 * offset)
+        cl.enqueue_copy(
+            queue,
+            buffer_of(report),
+            buffer_of(self.solver.barrier_state()),
+            byte_count=4,
+            src_offset=ABANDONED_OFFSET,
+            dst_offset=4 * offset,
+        )
 
     def problem(self, words):
         return bool(words[0]) or None
@@ -381,8 +492,16 @@ class StepPipeline:
     the constraint stage, with its warm-start history, survives both.
     """
 
-    def __init__(self, runtime: Runtime, plan: Plan, shapes, *, pair_capacity=None,
-                 manifold_capacity=None, warm_start: bool = True):
+    def __init__(
+        self,
+        runtime: Runtime,
+        plan: Plan,
+        shapes,
+        *,
+        pair_capacity=None,
+        manifold_capacity=None,
+        warm_start: bool = True,
+    ):
         self.runtime, self.shapes = runtime, shapes
         self.pair_capacity, self.manifold_capacity = pair_capacity, manifold_capacity
         self.plan = plan
@@ -394,35 +513,64 @@ class StepPipeline:
         rt = self.runtime
         self.prepare = PrepareStage(rt, plan)
         self.broadphase = BroadphaseStage(rt, plan, self.prepare, self.pair_capacity)
-        self.midphase = MidphaseStage(rt, self.shapes, self.prepare, self.broadphase) \
-            if needs_midphase(plan.shape_types) else None
-        self.narrowphase = NarrowphaseStage(rt, self.shapes, self.broadphase,
-                                            self.manifold_capacity, self.midphase)
-        self.children = ChildrenStage(self.midphase, self.narrowphase) \
-            if self.midphase is not None and self.midphase.midphase.has_children else None
+        self.midphase = (
+            MidphaseStage(rt, self.shapes, self.prepare, self.broadphase)
+            if needs_midphase(plan.shape_types)
+            else None
+        )
+        self.narrowphase = NarrowphaseStage(
+            rt, self.shapes, self.broadphase, self.manifold_capacity, self.midphase
+        )
+        self.children = (
+            ChildrenStage(self.midphase, self.narrowphase)
+            if self.midphase is not None and self.midphase.midphase.has_children
+            else None
+        )
 
     def _build_solve(self, plan: Plan) -> None:
         rt = self.runtime
-        self.batching = BatchingStage(rt, plan, self.constraints) \
-            if plan.solver == "pgs" else None
+        self.batching = BatchingStage(rt, plan, self.constraints) if plan.solver == "pgs" else None
         self.solve = SolveStage(rt, plan, self.constraints, self.batching)
         self._assemble()
 
     def _assemble(self) -> None:
-        self.stages: list[Stage] = [s for s in (
-            self.prepare, self.broadphase, self.midphase, self.narrowphase, self.children,
-            self.constraints, self.batching, self.solve) if s is not None]
+        self.stages: list[Stage] = [
+            s
+            for s in (
+                self.prepare,
+                self.broadphase,
+                self.midphase,
+                self.narrowphase,
+                self.children,
+                self.constraints,
+                self.batching,
+                self.solve,
+            )
+            if s is not None
+        ]
         self.by_name = {s.name: s for s in self.stages}
 
     def replan(self, plan: Plan) -> None:
         """Rebuild the stages whose choices differ in ``plan`` (call `resize` after)."""
         old, self.plan = self.plan, plan
-        if (old.shape_types, old.broadphase, old.gyroscopic) != \
-                (plan.shape_types, plan.broadphase, plan.gyroscopic):
+        if (old.shape_types, old.broadphase, old.gyroscopic) != (
+            plan.shape_types,
+            plan.broadphase,
+            plan.gyroscopic,
+        ):
             self._build_collision(plan)
             self.constraints.narrowphase = self.narrowphase
-        solve_choices = ("solver", "batching", "persistent", "normal_solve", "fast_math",
-                         "warm_start_mode", "release_sweeps", "ordered_rounds", "group_count")
+        solve_choices = (
+            "solver",
+            "batching",
+            "persistent",
+            "normal_solve",
+            "fast_math",
+            "warm_start_mode",
+            "release_sweeps",
+            "ordered_rounds",
+            "group_count",
+        )
         if any(getattr(old, c) != getattr(plan, c) for c in solve_choices):
             self._build_solve(plan)
         self._assemble()

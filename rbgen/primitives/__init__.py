@@ -6,6 +6,7 @@ arrays; element counts may be host ints or device uint32 counts, so a
 pipeline can chain them without reading sizes back. Every class accepts
 ``params=`` to override the tuned or heuristic kernel parameters.
 """
+
 from .bound_search import BoundSearch
 from .compact import Compact
 from .fill import Fill
@@ -13,6 +14,14 @@ from .radix_sort import RadixSort, float_to_sortable_uint, sortable_uint_to_floa
 from .reduce import Reduce
 from .scan import Scan
 
-__all__ = ["BoundSearch", "Compact", "Fill", "RadixSort", "Reduce", "Scan",
-           "float_to_sortable_uint", "sortable_uint_to_float"]
+__all__ = [
+    "BoundSearch",
+    "Compact",
+    "Fill",
+    "RadixSort",
+    "Reduce",
+    "Scan",
+    "float_to_sortable_uint",
+    "sortable_uint_to_float",
+]
 from . import families  # noqa: F401 - importing it registers the tuning families

@@ -13,6 +13,7 @@ scans with barriers) and ``"cpu"`` (a few work-items, each owning one long
 contiguous chunk, with private counters and no barriers). A parameter dict
 always carries ``"shape"``; the remaining keys are the template's parameters.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -54,12 +55,14 @@ def cl_type(dtype, what: str) -> str:
     try:
         return CL_TYPES[np.dtype(dtype)]
     except (KeyError, TypeError):
-        raise RbgenError(f"{what}: dtype {dtype!r} is not supported; "
-                         f"expected one of uint32, int32, float32") from None
+        raise RbgenError(
+            f"{what}: dtype {dtype!r} is not supported; expected one of uint32, int32, float32"
+        ) from None
 
 
-def check_array(runtime: Runtime, array, name: str, dtype=None,
-                min_size: int = 0) -> cl.Buffer | None:
+def check_array(
+    runtime: Runtime, array, name: str, dtype=None, min_size: int = 0
+) -> cl.Buffer | None:
     """Validate a pyopencl array argument and return its buffer (None for an empty one).
 
     It must be a pyopencl Array of ``dtype`` (when given), contiguous, start
@@ -71,11 +74,14 @@ def check_array(runtime: Runtime, array, name: str, dtype=None,
     if dtype is not None and array.dtype != np.dtype(dtype):
         raise RbgenError(f"{name} has dtype {array.dtype}, expected {np.dtype(dtype)}")
     if array.ndim != 1 or not array.flags.c_contiguous:
-        raise RbgenError(f"{name} must be a contiguous 1-D array (shape {array.shape}, "
-                         f"strides {array.strides})")
+        raise RbgenError(
+            f"{name} must be a contiguous 1-D array (shape {array.shape}, strides {array.strides})"
+        )
     if array.offset != 0:
-        raise RbgenError(f"{name} must start at the beginning of its buffer (offset "
-                         f"{array.offset} bytes); copy it or slice from 0")
+        raise RbgenError(
+            f"{name} must start at the beginning of its buffer (offset "
+            f"{array.offset} bytes); copy it or slice from 0"
+        )
     if array.context != runtime.context:
         raise RbgenError(f"{name} belongs to another OpenCL context than this primitive's runtime")
     if array.size < min_size:
@@ -95,8 +101,10 @@ def resolve_count(runtime: Runtime, n, capacity: int, name: str = "n"):
         check_array(runtime, n, name, np.uint32, min_size=1)
         return capacity, n.base_data
     if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)):
-        raise RbgenError(f"{name} must be None, an int or a device uint32 array of one "
-                         f"element, got {type(n).__name__}")
+        raise RbgenError(
+            f"{name} must be None, an int or a device uint32 array of one "
+            f"element, got {type(n).__name__}"
+        )
     n = int(n)
     if not 0 <= n <= capacity:
         raise RbgenError(f"{name}={n} is outside 0..{capacity} (the array's length)")
@@ -126,8 +134,10 @@ def split_params(params: dict[str, Any]) -> tuple[str, dict[str, Any]]:
     params = dict(params)
     shape = params.pop("shape", None)
     if shape not in ("gpu", "cpu", "chained"):
-        raise RbgenError(f"params['shape'] must be 'gpu' or 'cpu' (or 'chained' for a chained "
-                         f"Scan), got {shape!r}")
+        raise RbgenError(
+            f"params['shape'] must be 'gpu' or 'cpu' (or 'chained' for a chained "
+            f"Scan), got {shape!r}"
+        )
     return shape, params
 
 
@@ -168,11 +178,15 @@ class Primitive:
     def _spec_for(self, params: dict):
         shape, values = split_params(params)
         if shape not in self.TEMPLATES:
-            raise RbgenError(f"params['shape']={shape!r} is not a shape of {type(self).__name__}; "
-                             f"expected one of {sorted(self.TEMPLATES)}")
+            raise RbgenError(
+                f"params['shape']={shape!r} is not a shape of {type(self).__name__}; "
+                f"expected one of {sorted(self.TEMPLATES)}"
+            )
         if "wavefront" in values and values.get("work_group_size", 0) < values["wavefront"]:
-            raise RbgenError(f"params: work_group_size={values.get('work_group_size')} is smaller "
-                             f"than wavefront={values['wavefront']}")
+            raise RbgenError(
+                f"params: work_group_size={values.get('work_group_size')} is smaller "
+                f"than wavefront={values['wavefront']}"
+            )
         return self.TEMPLATES[shape].spec(**values, **self.template_values())
 
     def params_for(self, capacity: int) -> dict[str, Any]:
@@ -184,8 +198,8 @@ class Primitive:
 
     def _tuned_params(self, capacity: int) -> dict[str, Any] | None:
         from .. import tuning
-        return tuning.lookup(self.runtime.traits, self.family, self.variant,
-                             size_bucket(capacity))
+
+        return tuning.lookup(self.runtime.traits, self.family, self.variant, size_bucket(capacity))
 
     def _checked(self, params: dict, capacity: int) -> dict:
         """Hook: ``params``, or a fallback where they name an opt-in shape that
@@ -226,9 +240,12 @@ def device_check(runtime: Runtime, name: str, params: dict, probe, fallback: str
         DEVICE_CHECKS[key] = True  # the probe itself runs the shape it checks
         ok, why = probe(runtime, params)
         if not ok:
-            warnings.warn(f"{name} with {params} failed its check on "
-                          f"{runtime.traits.device_name} ({why}); using {fallback} instead",
-                          RuntimeWarning, stacklevel=4)
+            warnings.warn(
+                f"{name} with {params} failed its check on "
+                f"{runtime.traits.device_name} ({why}); using {fallback} instead",
+                RuntimeWarning,
+                stacklevel=4,
+            )
         DEVICE_CHECKS[key] = bool(ok)
     return DEVICE_CHECKS[key]
 
@@ -248,8 +265,14 @@ def tiled_or_chunked_space(default: dict, traits: DeviceTraits) -> list[dict]:
         for wg in (128, 256, 512):
             for ipt in (4, 8, 16):
                 if wf <= wg <= traits.max_work_group_size:
-                    space.append({"shape": "gpu", "work_group_size": wg,
-                                  "items_per_thread": ipt, "wavefront": wf})
+                    space.append(
+                        {
+                            "shape": "gpu",
+                            "work_group_size": wg,
+                            "items_per_thread": ipt,
+                            "wavefront": wf,
+                        }
+                    )
     else:
         cu = max(1, traits.compute_units)
         space += [{"shape": "cpu", "work_items": k * cu} for k in (1, 2, 4, 8, 16)]

@@ -6,6 +6,7 @@ n_queries=None)`` writes for each query the first index i < n_keys with
 numpy's ``searchsorted(keys, queries, side)``. One binary search per work-item
 in both shapes; only the work-group size is tuned.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -52,8 +53,10 @@ class BoundSearch(Primitive):
         """Heuristics: 128 queries per group on GPUs (4 warps hide the dependent
         loads), 64 on CPUs."""
         shape = shape or traits.kind
-        return {"shape": shape, "work_group_size": min(128 if shape == "gpu" else 64,
-                                                        traits.max_work_group_size)}
+        return {
+            "shape": shape,
+            "work_group_size": min(128 if shape == "gpu" else 64, traits.max_work_group_size),
+        }
 
     def __call__(self, sorted_keys, queries, out, n_keys=None, n_queries=None):
         rt = self.runtime
@@ -67,8 +70,15 @@ class BoundSearch(Primitive):
         params, program = self.program(query_capacity)
         wg = params["work_group_size"]
         kernel = program.kernel("bound_search")
-        rt.bound(kernel).bind(buf_keys, np.uint32(key_capacity), device_keys, buf_queries,
-                        np.uint32(query_capacity), device_queries, buf_out)
+        rt.bound(kernel).bind(
+            buf_keys,
+            np.uint32(key_capacity),
+            device_keys,
+            buf_queries,
+            np.uint32(query_capacity),
+            device_queries,
+            buf_out,
+        )
         return rt.launch(kernel, ceil_div(query_capacity, wg) * wg, wg)
 
 

@@ -7,6 +7,7 @@
 elements (the most that can be kept). Count, scan the counts, scatter: the
 same reduce-then-scan structure as `Scan`, in a GPU and a CPU shape.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -26,32 +27,46 @@ from ._base import (
     tiled_or_chunked_space,
 )
 
-_GATHER = Param("gather_values", (True, False),
-                "write values[i] of kept elements instead of their index i")
+_GATHER = Param(
+    "gather_values", (True, False), "write values[i] of kept elements instead of their index i"
+)
 
 TILED = PrimitiveTemplate(
     "primitives/compact_tiled.cl.mako",
     [
         _GATHER,
-        Param("work_group_size", power_of_two(32, 1024), "work-items per tile",
-              "a power of two from 32 to 1024, at least the wavefront"),
+        Param(
+            "work_group_size",
+            power_of_two(32, 1024),
+            "work-items per tile",
+            "a power of two from 32 to 1024, at least the wavefront",
+        ),
         Param("items_per_thread", (1, 2, 4, 8, 16), "consecutive flags per work-item"),
         Param("wavefront", (32, 64), "segment width of the work-group scan"),
     ],
     doc="Stream compaction, GPU shape: count tiles, scan counts, scatter tiles.",
-    defaults=lambda traits: {"gather_values": False, **_strip(Compact.default_params(traits, "gpu"))},
+    defaults=lambda traits: {
+        "gather_values": False,
+        **_strip(Compact.default_params(traits, "gpu")),
+    },
 )
 
 CHUNKED = PrimitiveTemplate(
     "primitives/compact_chunked.cl.mako",
     [
         _GATHER,
-        Param("work_items", lambda v: isinstance(v, int) and 1 <= v <= 4096,
-              "chunks (one work-item each): a small multiple of the compute units",
-              "an int from 1 to 4096"),
+        Param(
+            "work_items",
+            lambda v: isinstance(v, int) and 1 <= v <= 4096,
+            "chunks (one work-item each): a small multiple of the compute units",
+            "an int from 1 to 4096",
+        ),
     ],
     doc="Stream compaction, CPU shape: one long chunk per work-item.",
-    defaults=lambda traits: {"gather_values": False, **_strip(Compact.default_params(traits, "cpu"))},
+    defaults=lambda traits: {
+        "gather_values": False,
+        **_strip(Compact.default_params(traits, "cpu")),
+    },
 )
 
 
@@ -82,8 +97,12 @@ class Compact(Primitive):
         """Heuristics as for `Scan`: GPU tiles of 256 x 8 flags, CPU four chunks per CU."""
         if (shape or traits.kind) == "gpu":
             wf = clamp_wavefront(traits)
-            return {"shape": "gpu", "work_group_size": max(wf, min(256, traits.max_work_group_size)),
-                    "items_per_thread": 8, "wavefront": wf}
+            return {
+                "shape": "gpu",
+                "work_group_size": max(wf, min(256, traits.max_work_group_size)),
+                "items_per_thread": 8,
+                "wavefront": wf,
+            }
         return {"shape": "cpu", "work_items": default_work_items(traits)}
 
     def __call__(self, flags, out, out_count, n=None, values=None):
@@ -96,8 +115,9 @@ class Compact(Primitive):
         if values is not None:
             buf_values = check_array(rt, values, "values", np.uint32)
             if values.size < capacity:
-                raise RbgenError(f"values holds {values.size} elements, shorter than flags "
-                                 f"({capacity})")
+                raise RbgenError(
+                    f"values holds {values.size} elements, shorter than flags ({capacity})"
+                )
         self._gathering = values is not None
         params, program = self.program(capacity)
         cap = np.uint32(capacity)
@@ -123,8 +143,9 @@ class Compact(Primitive):
             rt.launch(k_scan, 1, 1)
         gathered = (buf_values,) if values is not None else ()
         extra = (buf_count,) if params["shape"] == "cpu" else ()
-        rt.bound(k_scatter).bind(buf_flags, *gathered, buf_out, cap, device_count, self._counts,
-                                 *extra)
+        rt.bound(k_scatter).bind(
+            buf_flags, *gathered, buf_out, cap, device_count, self._counts, *extra
+        )
         return rt.launch(k_scatter, global_size, local_size)
 
 

@@ -6,6 +6,7 @@ that computes a wrong answer on this device is never chosen however fast.
 Inputs are random but seeded by the tuner, and include duplicate keys for the
 sort so that stability is part of the check.
 """
+
 from __future__ import annotations
 
 from typing import Any, cast
@@ -54,11 +55,13 @@ def _bench_sort(runtime, prim: RadixSort, n, rng):
 
     def run():
         return prim(d_keys, d_values)
+
     cast(Any, run).prepare = prepare  # a function attribute: tuning.time_samples looks for it
 
     def check():
         ok = np.array_equal(d_keys.get(), keys[order])
         return ok and (d_values is None or np.array_equal(d_values.get(), order.astype(np.uint32)))
+
     return run, check
 
 
@@ -81,6 +84,7 @@ def _bench_compact(runtime, prim: Compact, n, rng):
     def check():
         c = int(count.get()[0])
         return c == kept.size and np.array_equal(out.get()[:c], kept)
+
     return (lambda: prim(d_flags, out, count)), check
 
 
@@ -121,25 +125,62 @@ def _build_sort(runtime, variant, params):
 
 
 FAMILIES = [
-    tuning.Family("scan", ("uint", "float"), scan.search_space, _build_scan, _bench_scan,
-                  lambda: Scan.TEMPLATES),
-    tuning.Family("scan_chained", ("uint",), scan.chained_search_space,
-                  lambda rt, v, p: _build_scan(rt, v, p, chained=True),
-                  _bench_scan, lambda: {"chained": Scan.TEMPLATES["chained"]}),
-    tuning.Family("radix_sort", ("kv", "keys"), radix_sort.search_space, _build_sort,
-                  _bench_sort, lambda: RadixSort.TEMPLATES),
-    tuning.Family("reduce", ("sum-float",), reduce.search_space,
-                  lambda rt, v, p: Reduce(rt, _NP[v.split("-")[1]], v.split("-")[0], params=p),
-                  _bench_reduce, lambda: Reduce.TEMPLATES),
-    tuning.Family("compact", ("indices",), compact.search_space,
-                  lambda rt, v, p: Compact(rt, params=p), _bench_compact,
-                  lambda: Compact.TEMPLATES),
-    tuning.Family("fill", ("uint",), fill.search_space,
-                  lambda rt, v, p: Fill(rt, _NP[v], params=p), _bench_fill,
-                  lambda: Fill.TEMPLATES),
-    tuning.Family("bound_search", ("lower",), bound_search.search_space,
-                  lambda rt, v, p: BoundSearch(rt, v, params=p), _bench_bound_search,
-                  lambda: BoundSearch.TEMPLATES),
+    tuning.Family(
+        "scan",
+        ("uint", "float"),
+        scan.search_space,
+        _build_scan,
+        _bench_scan,
+        lambda: Scan.TEMPLATES,
+    ),
+    tuning.Family(
+        "scan_chained",
+        ("uint",),
+        scan.chained_search_space,
+        lambda rt, v, p: _build_scan(rt, v, p, chained=True),
+        _bench_scan,
+        lambda: {"chained": Scan.TEMPLATES["chained"]},
+    ),
+    tuning.Family(
+        "radix_sort",
+        ("kv", "keys"),
+        radix_sort.search_space,
+        _build_sort,
+        _bench_sort,
+        lambda: RadixSort.TEMPLATES,
+    ),
+    tuning.Family(
+        "reduce",
+        ("sum-float",),
+        reduce.search_space,
+        lambda rt, v, p: Reduce(rt, _NP[v.split("-")[1]], v.split("-")[0], params=p),
+        _bench_reduce,
+        lambda: Reduce.TEMPLATES,
+    ),
+    tuning.Family(
+        "compact",
+        ("indices",),
+        compact.search_space,
+        lambda rt, v, p: Compact(rt, params=p),
+        _bench_compact,
+        lambda: Compact.TEMPLATES,
+    ),
+    tuning.Family(
+        "fill",
+        ("uint",),
+        fill.search_space,
+        lambda rt, v, p: Fill(rt, _NP[v], params=p),
+        _bench_fill,
+        lambda: Fill.TEMPLATES,
+    ),
+    tuning.Family(
+        "bound_search",
+        ("lower",),
+        bound_search.search_space,
+        lambda rt, v, p: BoundSearch(rt, v, params=p),
+        _bench_bound_search,
+        lambda: BoundSearch.TEMPLATES,
+    ),
 ]
 for _family in FAMILIES:
     tuning.register(_family)

@@ -4,6 +4,7 @@ A host count uses the driver's ``enqueue_fill_buffer`` (on PoCL 5x faster than
 any kernel we measured). A device count needs a kernel that stops at the
 count: one template serves both shapes, only the defaults differ.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -52,10 +53,16 @@ class Fill(Primitive):
         """Heuristics (device counts only): GPU 256 x 4 coalesced stores; CPU 64 x 256
         (PoCL vectorises across the 64 work-items, each group fills 64 KiB)."""
         if (shape or traits.kind) == "gpu":
-            return {"shape": "gpu", "work_group_size": min(256, traits.max_work_group_size),
-                    "items_per_thread": 4}
-        return {"shape": "cpu", "work_group_size": min(64, traits.max_work_group_size),
-                "items_per_thread": 256}
+            return {
+                "shape": "gpu",
+                "work_group_size": min(256, traits.max_work_group_size),
+                "items_per_thread": 4,
+            }
+        return {
+            "shape": "cpu",
+            "work_group_size": min(64, traits.max_work_group_size),
+            "items_per_thread": 256,
+        }
 
     def __call__(self, array, value, n=None):
         buf = check_array(self.runtime, array, "array", self.dtype)
@@ -65,14 +72,16 @@ class Fill(Primitive):
         if device_count is None:
             # the count is known here: the driver's own fill is the fastest kernel there is
             pattern = self.dtype.type(value)
-            return cl.enqueue_fill_buffer(self.runtime.queue, buf, pattern, 0,
-                                          capacity * self.dtype.itemsize)
+            return cl.enqueue_fill_buffer(
+                self.runtime.queue, buf, pattern, 0, capacity * self.dtype.itemsize
+            )
         params, program = self.program(capacity)
         wg = params["work_group_size"]
         groups = ceil_div(capacity, wg * params["items_per_thread"])
         kernel = program.kernel("fill")
-        self.runtime.bound(kernel).bind(buf, self.dtype.type(value), np.uint32(capacity),
-                                        device_count)
+        self.runtime.bound(kernel).bind(
+            buf, self.dtype.type(value), np.uint32(capacity), device_count
+        )
         return self.runtime.launch(kernel, groups * wg, wg)
 
 
@@ -81,8 +90,11 @@ def search_space(traits: DeviceTraits) -> list[dict]:
     shape = traits.kind
     shapes = ((64, 256), (64, 16), (64, 1)) if shape == "cpu" else ((256, 1), (256, 4), (256, 16))
     for wg, ipt in shapes:
-        p = {"shape": shape, "work_group_size": min(wg, traits.max_work_group_size),
-             "items_per_thread": ipt}
+        p = {
+            "shape": shape,
+            "work_group_size": min(wg, traits.max_work_group_size),
+            "items_per_thread": ipt,
+        }
         if p not in space:
             space.append(p)
     return space

@@ -23,6 +23,7 @@ arrays and scratch arrays owned by the sorter; after an odd number of passes
 a copy brings the result back, so the sort is in place. Only the first n
 elements are read or written. Float keys sort through `float_to_sortable_uint`.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -53,8 +54,9 @@ _WITH_VALUES = Param("with_values", (True, False), "move a uint value with every
 _WAVEFRONT = Param("wavefront", (32, 64), "segment width of the work-group scan")
 
 
-def _tile_params(radix_bits: str, work_group_size: str, work_group_text: str,
-                 items_per_thread: str) -> list[Param]:
+def _tile_params(
+    radix_bits: str, work_group_size: str, work_group_text: str, items_per_thread: str
+) -> list[Param]:
     """The parameters every tile shape takes; the docs say what each shape does with them."""
     return [
         _WITH_VALUES,
@@ -73,12 +75,18 @@ class _TileTemplate(PrimitiveTemplate):
 
 TILED = _TileTemplate(
     "primitives/radix_sort_tiled.cl.mako",
-    _tile_params("bits per pass: 8 halves the passes but needs 16x the local counters",
-                 "work-items per tile; RADIX * WG counters must fit in local memory",
-                 "a power of two from 32 to 1024, at least the wavefront",
-                 "consecutive keys ranked serially by each work-item") + [
-        Param("counter_type", ("uint", "ushort"),
-              "local rank counters: ushort halves their local memory (tiles < 65536 keys)"),
+    _tile_params(
+        "bits per pass: 8 halves the passes but needs 16x the local counters",
+        "work-items per tile; RADIX * WG counters must fit in local memory",
+        "a power of two from 32 to 1024, at least the wavefront",
+        "consecutive keys ranked serially by each work-item",
+    )
+    + [
+        Param(
+            "counter_type",
+            ("uint", "ushort"),
+            "local rank counters: ushort halves their local memory (tiles < 65536 keys)",
+        ),
     ],
     doc="Radix sort pass kernels, GPU shape: tile histograms and stable tile scatter.",
     roles={"keys": "inout"},
@@ -87,11 +95,12 @@ TILED = _TileTemplate(
 
 SPLIT = _TileTemplate(
     "primitives/radix_sort_split.cl.mako",
-    _tile_params("bits per pass, ranked by one or two 4-bit splits of the tile: 8 halves the "
-                 "passes",
-                 "work-items per tile; 8 packed counters each, plus the tile, in local memory",
-                 "a power of two from 32 to 1024, at least the wavefront",
-                 "consecutive keys ranked serially by each work-item: amortises the scans"),
+    _tile_params(
+        "bits per pass, ranked by one or two 4-bit splits of the tile: 8 halves the passes",
+        "work-items per tile; 8 packed counters each, plus the tile, in local memory",
+        "a power of two from 32 to 1024, at least the wavefront",
+        "consecutive keys ranked serially by each work-item: amortises the scans",
+    ),
     doc="Radix sort pass kernels, GPU shape: tile histograms, tile sorted by 4-bit splits.",
     roles={"keys": "inout"},
     defaults=lambda traits: _template_defaults(traits, "split"),
@@ -99,11 +108,12 @@ SPLIT = _TileTemplate(
 
 ONESWEEP = _TileTemplate(
     "primitives/radix_sort_onesweep.cl.mako",
-    _tile_params("bits per pass, ranked by one or two 4-bit splits of the tile",
-                 "work-items per tile, at least one per digit (each looks back for its digit)",
-                 "a power of two from 32 to 1024, at least the wavefront and 2^radix_bits",
-                 "consecutive keys ranked serially by each work-item: amortises scans and "
-                 "look-back"),
+    _tile_params(
+        "bits per pass, ranked by one or two 4-bit splits of the tile",
+        "work-items per tile, at least one per digit (each looks back for its digit)",
+        "a power of two from 32 to 1024, at least the wavefront and 2^radix_bits",
+        "consecutive keys ranked serially by each work-item: amortises scans and look-back",
+    ),
     doc="Radix sort, one launch per pass: digit totals once, tile look-back for tile offsets.",
     roles={"keys": "inout"},
     defaults=lambda traits: _template_defaults(traits, "onesweep"),
@@ -113,11 +123,17 @@ CHUNKED = PrimitiveTemplate(
     "primitives/radix_sort_chunked.cl.mako",
     [
         _WITH_VALUES,
-        Param("radix_bits", (4, 8, 11),
-              "bits per pass: private histograms of 2^11 counters still fit a CPU's L1"),
-        Param("work_items", lambda v: isinstance(v, int) and 1 <= v <= 4096,
-              "chunks (one work-item each): a small multiple of the compute units",
-              "an int from 1 to 4096"),
+        Param(
+            "radix_bits",
+            (4, 8, 11),
+            "bits per pass: private histograms of 2^11 counters still fit a CPU's L1",
+        ),
+        Param(
+            "work_items",
+            lambda v: isinstance(v, int) and 1 <= v <= 4096,
+            "chunks (one work-item each): a small multiple of the compute units",
+            "an int from 1 to 4096",
+        ),
     ],
     doc="Radix sort pass kernels, CPU shape: private chunk histograms, sequential scatter.",
     defaults=lambda traits: _template_defaults(traits, "cpu"),
@@ -136,8 +152,11 @@ class RadixSort(Primitive):
     TEMPLATES = {"gpu": TILED, "split": SPLIT, "onesweep": ONESWEEP, "cpu": CHUNKED}
 
     def __init__(self, runtime, key_bits: int = 32, with_values: bool = True, *, params=None):
-        if isinstance(key_bits, bool) or not isinstance(key_bits, (int, np.integer)) \
-                or not 1 <= key_bits <= 32:
+        if (
+            isinstance(key_bits, bool)
+            or not isinstance(key_bits, (int, np.integer))
+            or not 1 <= key_bits <= 32
+        ):
             raise RbgenError(f"key_bits must be an int from 1 to 32, got {key_bits!r}")
         self.key_bits = int(key_bits)
         self.with_values = bool(with_values)
@@ -161,11 +180,14 @@ class RadixSort(Primitive):
         values = {k: v for k, v in params.items() if k != "shape"}
         wg = values.get("work_group_size", 0)
         if wg < values.get("wavefront", 0):
-            raise RbgenError(f"params: work_group_size={wg} is smaller than "
-                             f"wavefront={values['wavefront']}")
+            raise RbgenError(
+                f"params: work_group_size={wg} is smaller than wavefront={values['wavefront']}"
+            )
         if shape == "onesweep" and wg < 1 << values.get("radix_bits", 0):
-            raise RbgenError(f"params: work_group_size={wg} is smaller than the "
-                             f"{1 << values['radix_bits']} digits of a onesweep pass")
+            raise RbgenError(
+                f"params: work_group_size={wg} is smaller than the "
+                f"{1 << values['radix_bits']} digits of a onesweep pass"
+            )
         return self.TEMPLATES[shape].spec(**values, **self.template_values())
 
     @staticmethod
@@ -194,13 +216,29 @@ class RadixSort(Primitive):
         wg = max(wf, min(256, traits.max_work_group_size))
         if shape in ("split", "onesweep"):
             bits = 4 if shape == "onesweep" and wg < 256 else 8
-            items = 16 if (shape == "onesweep"
-                           and tile_local_bytes(shape, wg, 16, bits) <= _usable_local(traits)) else 8
-            return {"shape": shape, "radix_bits": bits, "work_group_size": wg,
-                    "items_per_thread": items, "wavefront": wf}
+            items = (
+                16
+                if (
+                    shape == "onesweep"
+                    and tile_local_bytes(shape, wg, 16, bits) <= _usable_local(traits)
+                )
+                else 8
+            )
+            return {
+                "shape": shape,
+                "radix_bits": bits,
+                "work_group_size": wg,
+                "items_per_thread": items,
+                "wavefront": wf,
+            }
         if shape == "gpu":
-            return {"shape": "gpu", "radix_bits": 4, "work_group_size": wg,
-                    "items_per_thread": 8, "wavefront": wf}
+            return {
+                "shape": "gpu",
+                "radix_bits": 4,
+                "work_group_size": wg,
+                "items_per_thread": 8,
+                "wavefront": wf,
+            }
         # one chunk per compute unit: each chunk scatters to RADIX output streams,
         # and more streams than the caches hold slow the scatter down
         return {"shape": "cpu", "radix_bits": 8, "work_items": max(1, traits.compute_units)}
@@ -208,8 +246,9 @@ class RadixSort(Primitive):
     def _buffer(self, name: str, count: int) -> cl.Buffer:
         buf = self._scratch.get(name)
         if buf is None or buf.size < 4 * count:
-            buf = self._scratch[name] = cl.Buffer(self.runtime.context, cl.mem_flags.READ_WRITE,
-                                                  4 * max(count, 1))
+            buf = self._scratch[name] = cl.Buffer(
+                self.runtime.context, cl.mem_flags.READ_WRITE, 4 * max(count, 1)
+            )
         return buf
 
     def __call__(self, keys, values=None, n=None):
@@ -219,8 +258,9 @@ class RadixSort(Primitive):
                 raise RbgenError("values is required: this RadixSort was built with_values=True")
             buf_values = check_array(self.runtime, values, "values", np.uint32)
             if values.size < keys.size:
-                raise RbgenError(f"values holds {values.size} elements, shorter than keys "
-                                 f"({keys.size})")
+                raise RbgenError(
+                    f"values holds {values.size} elements, shorter than keys ({keys.size})"
+                )
         elif values is not None:
             raise RbgenError("values given, but this RadixSort was built with_values=False")
         else:
@@ -231,8 +271,9 @@ class RadixSort(Primitive):
     def _checked(self, params: dict, capacity: int) -> dict:
         """A onesweep sort must fit its 30-bit status words and pass its guard,
         else this sorter uses the split shape's defaults."""
-        if params["shape"] == "onesweep" and (capacity >= ONESWEEP_MAX_KEYS
-                                              or not onesweep_works(self.runtime, params)):
+        if params["shape"] == "onesweep" and (
+            capacity >= ONESWEEP_MAX_KEYS or not onesweep_works(self.runtime, params)
+        ):
             return self.default_params(self.runtime.traits, "split")
         return params
 
@@ -248,14 +289,20 @@ class RadixSort(Primitive):
             wg = params["work_group_size"]
             groups = ceil_div(capacity, wg * params["items_per_thread"])
             global_size, local_size = groups * wg, wg
-        pair = [(keys, values), (self._buffer("keys", capacity),
-                                 self._buffer("values", capacity) if values is not None else None)]
+        pair = [
+            (keys, values),
+            (
+                self._buffer("keys", capacity),
+                self._buffer("values", capacity) if values is not None else None,
+            ),
+        ]
         passes = ceil_div(self.key_bits, params["radix_bits"])
         if params["shape"] == "onesweep":
             event = self._onesweep_passes(program, params, pair, capacity, device_count, groups)
         else:
-            event = self._table_passes(program, params, pair, capacity, device_count, groups,
-                                       global_size, local_size)
+            event = self._table_passes(
+                program, params, pair, capacity, device_count, groups, global_size, local_size
+            )
         if passes % 2:
             (k_in, v_in), (k_out, v_out) = pair[1], pair[0]
             vals = (v_in, v_out) if values is not None else ()
@@ -264,8 +311,9 @@ class RadixSort(Primitive):
             event = self.runtime.launch(copy, global_size, local_size)
         return event
 
-    def _table_passes(self, program, params, pair, capacity, device_count, groups,
-                      global_size, local_size):
+    def _table_passes(
+        self, program, params, pair, capacity, device_count, groups, global_size, local_size
+    ):
         """Per pass: count digits per tile/chunk, scan the digit table, scatter."""
         rt, cap, bits = self.runtime, np.uint32(capacity), params["radix_bits"]
         table = self._buffer("table", groups << bits)
@@ -279,8 +327,9 @@ class RadixSort(Primitive):
             rt.launch(count, global_size, local_size)
             self.scan.enqueue(table, table, groups << bits, None, None)
             vals = (v_in, v_out) if v_in is not None else ()
-            rt.bound(scatter).bind(k_in, k_out, *vals, cap, device_count, np.uint32(shift), mask,
-                                   table)
+            rt.bound(scatter).bind(
+                k_in, k_out, *vals, cap, device_count, np.uint32(shift), mask, table
+            )
             event = rt.launch(scatter, global_size, local_size)
         return event
 
@@ -303,8 +352,9 @@ class RadixSort(Primitive):
         for p in range(passes):
             (k_in, v_in), (k_out, v_out) = pair[p % 2], pair[1 - p % 2]
             vals = (v_in, v_out) if v_in is not None else ()
-            rt.bound(sort_pass).bind(k_in, k_out, *vals, cap, device_count, key_bits,
-                                     np.uint32(p), state)
+            rt.bound(sort_pass).bind(
+                k_in, k_out, *vals, cap, device_count, key_bits, np.uint32(p), state
+            )
             event = rt.launch(sort_pass, tiles * wg, wg)
         return event
 
@@ -343,8 +393,9 @@ def sortable_uint_to_float(u, runtime=None):
     if isinstance(u, cla.Array):
         return _flip_on_device(runtime, u, np.uint32, "sortable_to_float", np.float32)
     bits = _host_bits(u, np.uint32, "u")
-    return (bits ^ np.where(bits >> 31, np.uint32(0x80000000), np.uint32(0xFFFFFFFF))
-            ).view(np.float32)
+    return (bits ^ np.where(bits >> 31, np.uint32(0x80000000), np.uint32(0xFFFFFFFF))).view(
+        np.float32
+    )
 
 
 def _host_bits(x, dtype, name):
@@ -367,20 +418,32 @@ def _flip_on_device(runtime, array, dtype, kernel_name, out_dtype):
     return out
 
 
-def tile_local_bytes(shape: str, work_group_size: int, items_per_thread: int,
-                     radix_bits: int = 8, with_values: bool = True) -> int:
+def tile_local_bytes(
+    shape: str,
+    work_group_size: int,
+    items_per_thread: int,
+    radix_bits: int = 8,
+    with_values: bool = True,
+) -> int:
     """Local memory of the split or onesweep shape's tile kernel: the padded tile
     (keys and values), 8 packed counters per work-item, per-digit bases (and
     for onesweep the tile's histogram and ticket), scan scratch."""
     padded = lambda words: words + words // 32  # noqa: E731
     tile = padded(work_group_size * items_per_thread) * (2 if with_values else 1)
     digits = (2 if shape == "onesweep" else 1) << radix_bits
-    return 4 * (tile + padded(8 * work_group_size) + digits + 2 * work_group_size
-                + work_group_size // 32 + 2)
+    return 4 * (
+        tile
+        + padded(8 * work_group_size)
+        + digits
+        + 2 * work_group_size
+        + work_group_size // 32
+        + 2
+    )
 
 
 #: onesweep status words count keys in 30 bits; larger sorts use the split shape
 ONESWEEP_MAX_KEYS = 1 << 30
+
 
 def onesweep_works(runtime, params: dict) -> bool:
     """The onesweep shape's guard (a `device_check`): sort a many-tile input with
@@ -403,8 +466,9 @@ def _probe_onesweep(runtime, params: dict) -> tuple[bool, str]:
     if flag[0] != 0:
         return False, "spin limit hit"
     order = np.argsort(keys, kind="stable")
-    ok = (np.array_equal(d_keys.get(), keys[order])
-          and np.array_equal(d_values.get(), order.astype(np.uint32)))
+    ok = np.array_equal(d_keys.get(), keys[order]) and np.array_equal(
+        d_values.get(), order.astype(np.uint32)
+    )
     return ok, "wrong result"
 
 
@@ -420,21 +484,51 @@ def search_space(traits: DeviceTraits) -> list[dict]:
     if traits.is_gpu:
         wf = clamp_wavefront(traits)
         for shape, bits, wg, ipt in (
-                ("split", 8, 128, 16), ("split", 8, 256, 8), ("split", 8, 256, 16),
-                ("split", 8, 512, 4), ("split", 8, 512, 8), ("split", 8, 1024, 4),
-                ("split", 4, 256, 16), ("onesweep", 8, 256, 16), ("onesweep", 8, 256, 8),
-                ("onesweep", 8, 512, 8)):
-            if wf <= wg <= traits.max_work_group_size \
-                    and tile_local_bytes(shape, wg, ipt, bits) <= _usable_local(traits):
-                space.append({"shape": shape, "radix_bits": bits, "work_group_size": wg,
-                              "items_per_thread": ipt, "wavefront": wf})
-        for bits, wg, ipt in ((4, 128, 8), (4, 128, 16), (4, 256, 4), (4, 256, 8), (4, 512, 4),
-                              (8, 64, 8), (8, 64, 16), (8, 128, 4)):
+            ("split", 8, 128, 16),
+            ("split", 8, 256, 8),
+            ("split", 8, 256, 16),
+            ("split", 8, 512, 4),
+            ("split", 8, 512, 8),
+            ("split", 8, 1024, 4),
+            ("split", 4, 256, 16),
+            ("onesweep", 8, 256, 16),
+            ("onesweep", 8, 256, 8),
+            ("onesweep", 8, 512, 8),
+        ):
+            if wf <= wg <= traits.max_work_group_size and tile_local_bytes(
+                shape, wg, ipt, bits
+            ) <= _usable_local(traits):
+                space.append(
+                    {
+                        "shape": shape,
+                        "radix_bits": bits,
+                        "work_group_size": wg,
+                        "items_per_thread": ipt,
+                        "wavefront": wf,
+                    }
+                )
+        for bits, wg, ipt in (
+            (4, 128, 8),
+            (4, 128, 16),
+            (4, 256, 4),
+            (4, 256, 8),
+            (4, 512, 4),
+            (8, 64, 8),
+            (8, 64, 16),
+            (8, 128, 4),
+        ):
             # rank counters + the tile's keys and values (padded 1/32) + scan scratch
             local = (wg << bits) * (2 if bits == 8 else 4) + 2 * 4 * (wg * ipt * 33 // 32) + 12 * wg
             if wf <= wg <= traits.max_work_group_size and local <= traits.local_mem_size - 2048:
-                space.append({"shape": "gpu", "radix_bits": bits, "work_group_size": wg,
-                              "items_per_thread": ipt, "wavefront": wf})
+                space.append(
+                    {
+                        "shape": "gpu",
+                        "radix_bits": bits,
+                        "work_group_size": wg,
+                        "items_per_thread": ipt,
+                        "wavefront": wf,
+                    }
+                )
     else:
         for bits in (8, 11):
             for k in (1, 2, 4, 8):

@@ -5,6 +5,7 @@ use it without a round trip. The reduction of no elements is the operation's
 identity: 0 for sums, the type's largest value for min (+inf for floats) and
 its smallest for max (-inf for floats). Integer sums wrap modulo 2^32.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -30,27 +31,42 @@ _OP = Param("op", OPS, "the associative operation")
 TILED = PrimitiveTemplate(
     "primitives/reduce_tiled.cl.mako",
     [
-        _DTYPE, _OP,
+        _DTYPE,
+        _OP,
         work_group_size_param("work-items per tile (tree reduction in local memory)"),
-        Param("items_per_thread", (1, 2, 4, 8, 16, 32),
-              "elements each work-item combines before the tree"),
+        Param(
+            "items_per_thread",
+            (1, 2, 4, 8, 16, 32),
+            "elements each work-item combines before the tree",
+        ),
     ],
     doc="Reduction, GPU shape: tile partials, then one work group.",
-    defaults=lambda traits: {"dtype": "float", "op": "sum", "work_group_size": 256,
-                             "items_per_thread": 16},
+    defaults=lambda traits: {
+        "dtype": "float",
+        "op": "sum",
+        "work_group_size": 256,
+        "items_per_thread": 16,
+    },
 )
 
 CHUNKED = PrimitiveTemplate(
     "primitives/reduce_chunked.cl.mako",
     [
-        _DTYPE, _OP,
-        Param("work_items", lambda v: isinstance(v, int) and 1 <= v <= 4096,
-              "chunks (one work-item each): a small multiple of the compute units",
-              "an int from 1 to 4096"),
+        _DTYPE,
+        _OP,
+        Param(
+            "work_items",
+            lambda v: isinstance(v, int) and 1 <= v <= 4096,
+            "chunks (one work-item each): a small multiple of the compute units",
+            "an int from 1 to 4096",
+        ),
     ],
     doc="Reduction, CPU shape: chunk partials with private accumulators, then one work-item.",
-    defaults=lambda traits: {"dtype": "float", "op": "sum",
-                             "work_items": default_work_items(traits)},
+    defaults=lambda traits: {
+        "dtype": "float",
+        "op": "sum",
+        "work_items": default_work_items(traits),
+    },
 )
 
 
@@ -81,8 +97,11 @@ class Reduce(Primitive):
         """Heuristics: GPU tiles of 256 x 16 (few partials, one tree per 4096
         elements); CPU four chunks per compute unit."""
         if (shape or traits.kind) == "gpu":
-            return {"shape": "gpu", "work_group_size": min(256, traits.max_work_group_size),
-                    "items_per_thread": 16}
+            return {
+                "shape": "gpu",
+                "work_group_size": min(256, traits.max_work_group_size),
+                "items_per_thread": 16,
+            }
         return {"shape": "cpu", "work_items": default_work_items(traits)}
 
     def __call__(self, src, out, n=None):

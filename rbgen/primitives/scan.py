@@ -19,6 +19,7 @@ The optional total (sum of the first n elements) is written to a device array
 so that a following step can use it without a round trip. Integer sums wrap
 modulo 2^32 like C.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -52,61 +53,98 @@ _INCLUSIVE = Param("inclusive", (True, False), "whether element i counts itself"
 TILED = PrimitiveTemplate(
     "primitives/scan_tiled.cl.mako",
     [
-        _DTYPE, _INCLUSIVE,
-        Param("work_group_size", power_of_two(32, 1024),
-              "work-items per tile; larger tiles mean fewer tile sums but more barriers",
-              "a power of two from 32 to 1024, at least the wavefront"),
-        Param("items_per_thread", (1, 2, 4, 8, 16),
-              "elements each work-item scans serially: amortises the work-group scan"),
-        Param("wavefront", (32, 64),
-              "segment width of the two-level work-group scan (32 NVIDIA, 64 AMD)"),
+        _DTYPE,
+        _INCLUSIVE,
+        Param(
+            "work_group_size",
+            power_of_two(32, 1024),
+            "work-items per tile; larger tiles mean fewer tile sums but more barriers",
+            "a power of two from 32 to 1024, at least the wavefront",
+        ),
+        Param(
+            "items_per_thread",
+            (1, 2, 4, 8, 16),
+            "elements each work-item scans serially: amortises the work-group scan",
+        ),
+        Param(
+            "wavefront",
+            (32, 64),
+            "segment width of the two-level work-group scan (32 NVIDIA, 64 AMD)",
+        ),
     ],
     doc="Prefix sum, GPU shape: reduce tiles, scan tile sums, scan tiles.",
-    defaults=lambda traits: {"dtype": "uint", "inclusive": False,
-                             **Scan.default_params(traits, shape="gpu", strip=True)},
+    defaults=lambda traits: {
+        "dtype": "uint",
+        "inclusive": False,
+        **Scan.default_params(traits, shape="gpu", strip=True),
+    },
 )
 
 CHUNKED = PrimitiveTemplate(
     "primitives/scan_chunked.cl.mako",
     [
-        _DTYPE, _INCLUSIVE,
-        Param("work_items", lambda v: isinstance(v, int) and 1 <= v <= 4096,
-              "chunks (one work-item each): a small multiple of the compute units",
-              "an int from 1 to 4096"),
+        _DTYPE,
+        _INCLUSIVE,
+        Param(
+            "work_items",
+            lambda v: isinstance(v, int) and 1 <= v <= 4096,
+            "chunks (one work-item each): a small multiple of the compute units",
+            "an int from 1 to 4096",
+        ),
     ],
     doc="Prefix sum, CPU shape: one long chunk per work-item, private running sums.",
-    defaults=lambda traits: {"dtype": "uint", "inclusive": False,
-                             **Scan.default_params(traits, shape="cpu", strip=True)},
+    defaults=lambda traits: {
+        "dtype": "uint",
+        "inclusive": False,
+        **Scan.default_params(traits, shape="cpu", strip=True),
+    },
 )
 
 
 CHAINED = PrimitiveTemplate(
     "primitives/scan_chained.cl.mako",
     [
-        _DTYPE, _INCLUSIVE,
-        Param("work_group_size", power_of_two(1, 1024),
-              "work-items per tile (1 on CPUs: one work-item walks a whole tile)",
-              "a power of two from 1 to 1024, at least the wavefront"),
-        Param("items_per_thread", power_of_two(4, 1 << 16),
-              "elements per work-item, loaded as vectors of 4 and kept in registers "
-              "(GPU shape: 16-64 hide memory latency; CPU shape: a cache-sized tile)",
-              "a power of two from 4 to 65536"),
-        Param("wavefront", (1, 32, 64),
-              "segment width of the work-group scan (1: serial, CPU shape)"),
-        Param("order", ("ticket", "group"),
-              "how a work group finds its tile: ticket (atomic counter, start order: safe "
-              "in any dispatch order) or group id (no atomic or barrier before the loads; "
-              "relies on groups starting in id order, as GPUs do)"),
-        Param("lookback", power_of_two(1, 1024),
-              "predecessors one look-back step polls, one per work-item: a wider window "
-              "reaches a tile that knows its prefix in fewer steps (1: serial, CPU shape)",
-              "a power of two from 1 to 1024"),
+        _DTYPE,
+        _INCLUSIVE,
+        Param(
+            "work_group_size",
+            power_of_two(1, 1024),
+            "work-items per tile (1 on CPUs: one work-item walks a whole tile)",
+            "a power of two from 1 to 1024, at least the wavefront",
+        ),
+        Param(
+            "items_per_thread",
+            power_of_two(4, 1 << 16),
+            "elements per work-item, loaded as vectors of 4 and kept in registers "
+            "(GPU shape: 16-64 hide memory latency; CPU shape: a cache-sized tile)",
+            "a power of two from 4 to 65536",
+        ),
+        Param(
+            "wavefront", (1, 32, 64), "segment width of the work-group scan (1: serial, CPU shape)"
+        ),
+        Param(
+            "order",
+            ("ticket", "group"),
+            "how a work group finds its tile: ticket (atomic counter, start order: safe "
+            "in any dispatch order) or group id (no atomic or barrier before the loads; "
+            "relies on groups starting in id order, as GPUs do)",
+        ),
+        Param(
+            "lookback",
+            power_of_two(1, 1024),
+            "predecessors one look-back step polls, one per work-item: a wider window "
+            "reaches a tile that knows its prefix in fewer steps (1: serial, CPU shape)",
+            "a power of two from 1 to 1024",
+        ),
     ],
     doc="Prefix sum in one launch (chained scan, decoupled look-back); opt-in with a guard.",
     # zeroed once at allocation, then carried from call to call (with a new epoch each)
     roles={"state": "inout"},
-    defaults=lambda traits: {"dtype": "uint", "inclusive": False,
-                             **Scan.default_params(traits, shape="chained", strip=True)},
+    defaults=lambda traits: {
+        "dtype": "uint",
+        "inclusive": False,
+        **Scan.default_params(traits, shape="chained", strip=True),
+    },
 )
 
 #: GPU-shape chained tiles keep every element in registers: at most this many per work-item
@@ -133,8 +171,15 @@ class Scan(Primitive):
 
     TEMPLATES = {"gpu": TILED, "cpu": CHUNKED, "chained": CHAINED}
 
-    def __init__(self, runtime, dtype=np.uint32, inclusive: bool = False, *,
-                 chained: bool = False, params=None):
+    def __init__(
+        self,
+        runtime,
+        dtype=np.uint32,
+        inclusive: bool = False,
+        *,
+        chained: bool = False,
+        params=None,
+    ):
         self.dtype = np.dtype(dtype) if dtype is not None else None
         self.type_name = cl_type(dtype, "Scan dtype")
         self.inclusive = bool(inclusive)
@@ -178,14 +223,30 @@ class Scan(Primitive):
             if traits.is_gpu:
                 wf = clamp_wavefront(traits)
                 wg = max(wf, min(256, traits.max_work_group_size))
-                params = {"shape": "chained", "work_group_size": wg, "items_per_thread": 32,
-                          "wavefront": wf, "lookback": wf, "order": "ticket"}
+                params = {
+                    "shape": "chained",
+                    "work_group_size": wg,
+                    "items_per_thread": 32,
+                    "wavefront": wf,
+                    "lookback": wf,
+                    "order": "ticket",
+                }
             else:
-                params = {"shape": "chained", "work_group_size": 1, "items_per_thread": 16384,
-                          "wavefront": 1, "lookback": 1, "order": "ticket"}
+                params = {
+                    "shape": "chained",
+                    "work_group_size": 1,
+                    "items_per_thread": 16384,
+                    "wavefront": 1,
+                    "lookback": 1,
+                    "order": "ticket",
+                }
         elif shape == "gpu":
-            params = {"shape": "gpu", "work_group_size": min(256, traits.max_work_group_size),
-                      "items_per_thread": 8, "wavefront": clamp_wavefront(traits)}
+            params = {
+                "shape": "gpu",
+                "work_group_size": min(256, traits.max_work_group_size),
+                "items_per_thread": 8,
+                "wavefront": clamp_wavefront(traits),
+            }
             if params["work_group_size"] < params["wavefront"]:
                 params["work_group_size"] = params["wavefront"]
         else:
@@ -196,8 +257,7 @@ class Scan(Primitive):
 
     def _scratch(self, count: int):
         if self._sums is None or self._sums.size < 4 * count:
-            self._sums = cl.Buffer(self.runtime.context, cl.mem_flags.READ_WRITE,
-                                   4 * max(count, 1))
+            self._sums = cl.Buffer(self.runtime.context, cl.mem_flags.READ_WRITE, 4 * max(count, 1))
         return self._sums
 
     def _chained_state(self, tiles: int):
@@ -211,8 +271,9 @@ class Scan(Primitive):
             self._epoch = EPOCHS - 1  # forces the zeroing below
         self._epoch += 1
         if self._epoch >= EPOCHS:
-            cl.enqueue_fill_buffer(self.runtime.queue, self._state, np.uint32(0), 0,
-                                   self._state.size)
+            cl.enqueue_fill_buffer(
+                self.runtime.queue, self._state, np.uint32(0), 0, self._state.size
+            )
             self._epoch = 1
         return self._state, np.uint32(self._epoch)
 
@@ -221,8 +282,11 @@ class Scan(Primitive):
         buf_dst = check_array(self.runtime, dst, "dst", self.dtype)
         if dst.size < src.size:
             raise RbgenError(f"dst holds {dst.size} elements, shorter than src ({src.size})")
-        buf_total = None if total is None else check_array(self.runtime, total, "total",
-                                                           self.dtype, min_size=1)
+        buf_total = (
+            None
+            if total is None
+            else check_array(self.runtime, total, "total", self.dtype, min_size=1)
+        )
         capacity, device_count = resolve_count(self.runtime, n, src.size)
         return self.enqueue(buf_src, buf_dst, capacity, device_count, buf_total)
 
@@ -253,8 +317,9 @@ class Scan(Primitive):
             wg = params["work_group_size"]
             tiles = max(1, ceil_div(capacity, wg * params["items_per_thread"]))
             sums = self._scratch(tiles)
-            k_reduce, k_sums, k_scan = (program.kernel(k) for k in
-                                        ("reduce_tiles", "scan_tile_sums", "scan_tiles"))
+            k_reduce, k_sums, k_scan = (
+                program.kernel(k) for k in ("reduce_tiles", "scan_tile_sums", "scan_tiles")
+            )
             rt.bound(k_reduce).bind(src, cap, device_count, sums)
             rt.bound(k_sums).bind(sums, cap, device_count, total)
             rt.bound(k_scan).bind(src, dst, cap, device_count, sums)
@@ -263,8 +328,9 @@ class Scan(Primitive):
             return rt.launch(k_scan, tiles * wg, wg)
         chunks = params["work_items"]
         sums = self._scratch(chunks)
-        k_reduce, k_sums, k_scan = (program.kernel(k) for k in
-                                    ("reduce_chunks", "scan_chunk_sums", "scan_chunks"))
+        k_reduce, k_sums, k_scan = (
+            program.kernel(k) for k in ("reduce_chunks", "scan_chunk_sums", "scan_chunks")
+        )
         rt.bound(k_reduce).bind(src, cap, device_count, sums)
         rt.bound(k_sums).bind(sums, total)
         rt.bound(k_scan).bind(src, dst, cap, device_count, sums)
@@ -278,21 +344,35 @@ def check_chained_params(params: dict) -> None:
     alone by the template): the CPU shape is one serial work-item; the GPU
     shape keeps a work-item's elements in registers and polls at most one
     predecessor per work-item, at least a wavefront's worth."""
-    wg, ipt, wf, lb = (params.get(k) for k in
-                       ("work_group_size", "items_per_thread", "wavefront", "lookback"))
+    wg, ipt, wf, lb = (
+        params.get(k) for k in ("work_group_size", "items_per_thread", "wavefront", "lookback")
+    )
     if (wg == 1) != (wf == 1):
-        raise RbgenError(f"params: chained scan with work_group_size={wg} and wavefront={wf}; "
-                         f"wavefront 1 goes with work_group_size 1 (CPU shape) only")
+        raise RbgenError(
+            f"params: chained scan with work_group_size={wg} and wavefront={wf}; "
+            f"wavefront 1 goes with work_group_size 1 (CPU shape) only"
+        )
     if wg == 1 and lb != 1:
-        raise RbgenError(f"params: lookback={lb} with work_group_size 1; the serial CPU shape "
-                         f"looks back one tile at a time (lookback 1)")
-    if (wg != 1 and wg is not None and isinstance(lb, int) and isinstance(wf, int)
-            and not wf <= lb <= wg):
-        raise RbgenError(f"params: lookback={lb} must lie between wavefront={wf} and "
-                         f"work_group_size={wg} (one polled predecessor per work-item)")
+        raise RbgenError(
+            f"params: lookback={lb} with work_group_size 1; the serial CPU shape "
+            f"looks back one tile at a time (lookback 1)"
+        )
+    if (
+        wg != 1
+        and wg is not None
+        and isinstance(lb, int)
+        and isinstance(wf, int)
+        and not wf <= lb <= wg
+    ):
+        raise RbgenError(
+            f"params: lookback={lb} must lie between wavefront={wf} and "
+            f"work_group_size={wg} (one polled predecessor per work-item)"
+        )
     if wg != 1 and isinstance(ipt, int) and ipt > CHAINED_MAX_ITEMS:
-        raise RbgenError(f"params: items_per_thread={ipt} is more than the "
-                         f"{CHAINED_MAX_ITEMS} a chained work-item keeps in registers")
+        raise RbgenError(
+            f"params: items_per_thread={ipt} is more than the "
+            f"{CHAINED_MAX_ITEMS} a chained work-item keeps in registers"
+        )
 
 
 #: the extension the chained scan's 64-bit tile words need
@@ -342,11 +422,17 @@ def chained_search_space(traits: DeviceTraits) -> list[dict]:
     space = [default]
     if traits.is_gpu:
         wf = clamp_wavefront(traits)
-        for wg, ipt in ((256, 16), (256, 64), (128, 32), (128, 64), (512, 16), (512, 32),
-                        (1024, 16)):
+        for wg, ipt in (
+            (256, 16),
+            (256, 64),
+            (128, 32),
+            (128, 64),
+            (512, 16),
+            (512, 32),
+            (1024, 16),
+        ):
             if wf <= wg <= traits.max_work_group_size:
-                space.append(dict(default, work_group_size=wg, items_per_thread=ipt,
-                                  lookback=wg))
+                space.append(dict(default, work_group_size=wg, items_per_thread=ipt, lookback=wg))
         space.append(dict(default, lookback=default["work_group_size"]))
         space.append(dict(default, order="group"))
     else:
@@ -359,5 +445,6 @@ def search_space(traits: DeviceTraits) -> list[dict]:
     """Candidate parameters the tuner tries on a device (heuristic default first):
     reduce-then-scan in the device's shape, then the chained scan's candidates
     (the tuner rejects those where the guard fails)."""
-    return tiled_or_chunked_space(Scan.default_params(traits), traits) + \
-        chained_search_space(traits)
+    return tiled_or_chunked_space(Scan.default_params(traits), traits) + chained_search_space(
+        traits
+    )

@@ -19,26 +19,37 @@ OSMesa or EGL all the same, and slower per body without glyph instancing),
 Open3D's offscreen renderer (EGL too, heavier, fewer platforms), and a numpy
 rasteriser (no shadows at a usable speed).
 """
+
 from __future__ import annotations
 
 from .camera import Camera, coerce_camera
 from .meshes import Mesh, mesh_for
 from .scene import Bodies, Frame, bodies_of, frame_of
 
-__all__ = ["Bodies", "Camera", "Frame", "Mesh", "Renderer", "bodies_of", "coerce_camera", "frame_of",
-           "mesh_for", "render_world"]
+__all__ = [
+    "Bodies",
+    "Camera",
+    "Frame",
+    "Mesh",
+    "Renderer",
+    "bodies_of",
+    "coerce_camera",
+    "frame_of",
+    "mesh_for",
+    "render_world",
+]
 
 
 def __getattr__(name):
     # the renderer imports moderngl only when a picture is asked for
     if name == "Renderer":
         from .renderer import Renderer
+
         return Renderer
     raise AttributeError(name)
 
 
-def render_world(world, path, camera=None, width: int = 960, height: int = 540,
-                 samples: int = 4):
+def render_world(world, path, camera=None, width: int = 960, height: int = 540, samples: int = 4):
     """Write a picture (PNG, or any `rbgen.record` format as one frame) of ``world`` now.
 
     ``camera``: a `Camera`, a dict of its fields, or None to frame the dynamic bodies;
@@ -48,7 +59,6 @@ def render_world(world, path, camera=None, width: int = 960, height: int = 540,
     """
     from ..record import Recorder
 
-    with Recorder(path, camera=camera, width=width, height=height,
-                  samples=samples) as recorder:
+    with Recorder(path, camera=camera, width=width, height=height, samples=samples) as recorder:
         recorder.capture(world)
     return recorder.path

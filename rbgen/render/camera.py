@@ -8,6 +8,7 @@ whose row 0 is the top of the image, as PNG files store it. `Camera.fit`
 frames a box of the world from a direction, so a caller that knows nothing
 about the scene still gets a useful picture.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -55,21 +56,24 @@ class Camera:
         eye, target, up = (_vector3(getattr(self, k), k) for k in ("eye", "target", "up"))
         view = target - eye
         if np.linalg.norm(view) < 1e-9:
-            raise RbgenError(f"camera view direction is zero: eye {tuple(eye)} equals "
-                             f"target {tuple(target)}")
+            raise RbgenError(
+                f"camera view direction is zero: eye {tuple(eye)} equals target {tuple(target)}"
+            )
         if np.linalg.norm(up) < 1e-9:
             raise RbgenError("camera up must not be the zero vector")
         if np.linalg.norm(np.cross(view / np.linalg.norm(view), up / np.linalg.norm(up))) < 1e-6:
-            raise RbgenError(f"camera up {tuple(up)} is parallel to the view direction "
-                             f"{tuple(view)}")
+            raise RbgenError(
+                f"camera up {tuple(up)} is parallel to the view direction {tuple(view)}"
+            )
         fov = float(self.fov) if _is_number(self.fov) else float("nan")
         if not (0.0 < fov < 180.0):
             raise RbgenError(f"camera fov must be in (0, 180) degrees, got {self.fov!r}")
         for name in ("near", "far"):
             value = getattr(self, name)
             if value is not None and not (_is_number(value) and 0 < float(value) < math.inf):
-                raise RbgenError(f"camera {name} must be a positive finite number or None, "
-                                 f"got {value!r}")
+                raise RbgenError(
+                    f"camera {name} must be a positive finite number or None, got {value!r}"
+                )
         if self.near is not None and self.far is not None and float(self.far) <= float(self.near):
             raise RbgenError(f"camera far ({self.far!r}) must exceed near ({self.near!r})")
         for name, value in (("eye", eye), ("target", target), ("up", up)):
@@ -78,8 +82,16 @@ class Camera:
 
     # ------------------------------------------------------------- framing
     @classmethod
-    def fit(cls, lower, upper, direction=DEFAULT_DIRECTION, up=(0.0, 1.0, 0.0),
-            fov: float = 40.0, aspect: float = 16 / 9, margin: float = 1.05) -> Camera:
+    def fit(
+        cls,
+        lower,
+        upper,
+        direction=DEFAULT_DIRECTION,
+        up=(0.0, 1.0, 0.0),
+        fov: float = 40.0,
+        aspect: float = 16 / 9,
+        margin: float = 1.05,
+    ) -> Camera:
         """A camera that sees the box [lower, upper] whole from ``direction``.
 
         The eye lies along ``direction`` (target to eye) from the box's centre, at the
@@ -94,14 +106,19 @@ class Camera:
         d = d / np.linalg.norm(d)
         probe = cls(eye=tuple(centre + d), target=tuple(centre), up=up, fov=fov)
         right, upv, back = probe.basis()
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                            for z in (lo[2], hi[2])]) - centre
+        corners = (
+            np.array(
+                [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+            )
+            - centre
+        )
         tan_y = math.tan(math.radians(float(fov)) / 2)
         tan_x = tan_y * float(aspect)
         # the eye at distance D along ``back`` sees a corner (x, y, z) of the camera's basis
         # at depth D - z: it is inside the picture when |x| <= (D - z) tan_x, |y| likewise
-        need = corners @ back + np.maximum(np.abs(corners @ right) / tan_x,
-                                           np.abs(corners @ upv) / tan_y)
+        need = corners @ back + np.maximum(
+            np.abs(corners @ right) / tan_x, np.abs(corners @ upv) / tan_y
+        )
         distance = max(float(need.max()) * margin, 1e-3 + float((corners @ back).max()))
         eye = centre + d * distance
         return cls(eye=tuple(eye), target=tuple(centre), up=up, fov=fov)
@@ -138,12 +155,16 @@ class Camera:
     def clip_range(self, lower, upper) -> tuple[float, float]:
         """(near, far) that hold the box [lower, upper], unless the camera fixes them."""
         lo, hi = np.asarray(lower, float), np.asarray(upper, float)
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                            for z in (lo[2], hi[2])])
+        corners = np.array(
+            [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+        )
         depth = -(self.view_matrix()[:3, :3] @ corners.T + self.view_matrix()[:3, 3:4])[2]
         far = float(self.far) if self.far is not None else max(float(depth.max()) * 1.01, 1e-2)
-        near = float(self.near) if self.near is not None else max(float(depth.min()) * 0.99,
-                                                                  far * 1e-4)
+        near = (
+            float(self.near)
+            if self.near is not None
+            else max(float(depth.min()) * 0.99, far * 1e-4)
+        )
         return near, max(far, near * 1.001)
 
     def project(self, points, width: int, height: int) -> np.ndarray:
@@ -172,5 +193,7 @@ def coerce_camera(camera) -> Camera | None:
         if unknown:
             raise RbgenError(f"camera: unknown field(s) {sorted(unknown)}")
         return Camera(**camera)
-    raise RbgenError(f"camera must be an rbgen.render.Camera, a dict of its fields or None, "
-                     f"got {type(camera).__name__}")
+    raise RbgenError(
+        f"camera must be an rbgen.render.Camera, a dict of its fields or None, "
+        f"got {type(camera).__name__}"
+    )

@@ -10,6 +10,7 @@ so that they shade smooth. A plane is a half-space: its mesh is a square of
 a given half size on the boundary, centred on the point of the plane nearest
 a given centre, because the renderer sizes it to the scene.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -76,8 +77,9 @@ def _round(radius: float, half_height: float, segments: int, rings: int) -> Mesh
     shift = np.where(np.arange(len(lat)) <= rings // 2, half_height, -half_height)
     lon = np.linspace(0, 2 * np.pi, segments + 1)
     cl, sl = np.cos(lat)[:, None], np.sin(lat)[:, None]
-    normals = np.stack([cl * np.cos(lon), np.broadcast_to(sl, (len(lat), len(lon))),
-                        -cl * np.sin(lon)], axis=-1)
+    normals = np.stack(
+        [cl * np.cos(lon), np.broadcast_to(sl, (len(lat), len(lon))), -cl * np.sin(lon)], axis=-1
+    )
     vertices = normals * radius
     vertices[..., 1] += shift[:, None]
     cols = len(lon)
@@ -90,8 +92,10 @@ def _round(radius: float, half_height: float, segments: int, rings: int) -> Mesh
     triangles = np.array(tris)
     # drop the triangles collapsed at the poles (both their top or bottom corners coincide)
     v = vertices.reshape(-1, 3)
-    area = np.linalg.norm(np.cross(v[triangles[:, 1]] - v[triangles[:, 0]],
-                                   v[triangles[:, 2]] - v[triangles[:, 0]]), axis=1)
+    area = np.linalg.norm(
+        np.cross(v[triangles[:, 1]] - v[triangles[:, 0]], v[triangles[:, 2]] - v[triangles[:, 0]]),
+        axis=1,
+    )
     return Mesh(v, normals.reshape(-1, 3), triangles[area > 1e-12 * radius * radius])
 
 
@@ -100,8 +104,9 @@ def sphere_mesh(radius: float, segments: int = ROUND_SEGMENTS, rings: int = ROUN
     return _round(float(radius), 0.0, segments, rings)
 
 
-def capsule_mesh(radius: float, half_height: float, segments: int = ROUND_SEGMENTS,
-                 rings: int = ROUND_RINGS) -> Mesh:
+def capsule_mesh(
+    radius: float, half_height: float, segments: int = ROUND_SEGMENTS, rings: int = ROUND_RINGS
+) -> Mesh:
     """A capsule along the body's y axis: the segment from -half_height to +half_height
     swept by a sphere of ``radius`` (the narrowphase's convention)."""
     return _round(float(radius), float(half_height), segments, rings)
@@ -149,8 +154,7 @@ def compound_mesh(shape) -> Mesh:
     from ..compound import _rotation
 
     vertices, normals, triangles, start = [], [], [], 0
-    for child, position, orientation in zip(shape.children, shape.positions,
-                                            shape.orientations):
+    for child, position, orientation in zip(shape.children, shape.positions, shape.orientations):
         mesh = mesh_for(child)
         r = _rotation(orientation)
         vertices.append(mesh.vertices @ r.T + position)
@@ -179,8 +183,10 @@ def mesh_for(shape: Shape, plane_half_size: float = 100.0, plane_centre=(0.0, 0.
         return hull_mesh(shape)
     if isinstance(shape, Plane):
         return plane_mesh(shape.normal, shape.offset, plane_half_size, plane_centre)
-    raise RbgenError(f"no mesh for shape {type(shape).__name__}; drawable: Sphere, Box, "
-                     f"Capsule, ConvexHull, Plane, TriangleMesh, Compound")
+    raise RbgenError(
+        f"no mesh for shape {type(shape).__name__}; drawable: Sphere, Box, "
+        f"Capsule, ConvexHull, Plane, TriangleMesh, Compound"
+    )
 
 
 def local_bounds(shape: Shape) -> tuple[np.ndarray, np.ndarray] | None:

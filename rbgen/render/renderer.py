@@ -9,6 +9,7 @@ sun into a shadow map fitted to the dynamic bodies, then colour with
 percentage-closer filtered shadows, a hemisphere ambient and multisampling.
 Why OpenGL through moderngl: see `rbgen.render`.
 """
+
 from __future__ import annotations
 
 import math
@@ -56,9 +57,12 @@ def gl_context():
             except Exception as err:  # noqa: BLE001 - try the next backend, report all
                 errors.append(f"{backend or 'default'}: {err}")
         else:
-            raise RbgenError("no headless OpenGL context could be made (" + "; ".join(errors)
-                             + "). On Debian/Ubuntu: apt-get install libegl1 libegl-mesa0 "
-                               "libgl1-mesa-dri (Mesa's EGL and its llvmpipe CPU renderer)")
+            raise RbgenError(
+                "no headless OpenGL context could be made ("
+                + "; ".join(errors)
+                + "). On Debian/Ubuntu: apt-get install libegl1 libegl-mesa0 "
+                "libgl1-mesa-dri (Mesa's EGL and its llvmpipe CPU renderer)"
+            )
     return _CONTEXT
 
 
@@ -68,8 +72,10 @@ def _shader(name: str) -> str:
 
 def _program(ctx, vertex: str, fragment: str):
     common = _shader("common.glsl")
-    return ctx.program(vertex_shader="#version 330\n" + common + _shader(vertex),
-                       fragment_shader="#version 330\n" + _shader(fragment))
+    return ctx.program(
+        vertex_shader="#version 330\n" + common + _shader(vertex),
+        fragment_shader="#version 330\n" + _shader(fragment),
+    )
 
 
 class Renderer:
@@ -80,8 +86,14 @@ class Renderer:
     any bodies; meshes are built once per shape (planes once per size of scene).
     """
 
-    def __init__(self, width: int = 640, height: int = 360, samples: int = SAMPLES,
-                 shadows: bool = True, shadow_size: int = SHADOW_SIZE):
+    def __init__(
+        self,
+        width: int = 640,
+        height: int = 360,
+        samples: int = SAMPLES,
+        shadows: bool = True,
+        shadow_size: int = SHADOW_SIZE,
+    ):
         for name, value in (("width", width), ("height", height)):
             if not isinstance(value, (int, np.integer)) or not 1 <= value <= 8192:
                 raise RbgenError(f"image {name} must be an integer in [1, 8192], got {value!r}")
@@ -92,9 +104,11 @@ class Renderer:
         ctx = self.ctx = gl_context()
         samples = min(int(samples), ctx.max_samples) if samples > 1 else 0
         size = (self.width, self.height)
-        self._msaa = ctx.framebuffer(ctx.renderbuffer(size, 4, samples=samples),
-                                     ctx.depth_renderbuffer(size, samples=samples))
-        self._resolved = (ctx.framebuffer(ctx.renderbuffer(size, 4)) if samples else self._msaa)
+        self._msaa = ctx.framebuffer(
+            ctx.renderbuffer(size, 4, samples=samples),
+            ctx.depth_renderbuffer(size, samples=samples),
+        )
+        self._resolved = ctx.framebuffer(ctx.renderbuffer(size, 4)) if samples else self._msaa
         self._shadow_tex = ctx.depth_texture((shadow_size, shadow_size))
         self._shadow_tex.compare_func = "<="
         self._shadow_tex.filter = (ctx.LINEAR, ctx.LINEAR)  # each tap a 2 x 2 filtered compare
@@ -102,15 +116,16 @@ class Renderer:
         self._shadow_fbo = ctx.framebuffer(depth_attachment=self._shadow_tex)
         self._shade = _program(ctx, "shade.vert", "shade.frag")
         self._depth = _program(ctx, "shadow.vert", "shadow.frag")
-        self._meshes: dict = {}      # shape key (planes: with size) -> buffers, vertex arrays
+        self._meshes: dict = {}  # shape key (planes: with size) -> buffers, vertex arrays
 
     # ------------------------------------------------------------- drawing
     def render(self, bodies: Bodies, frame: Frame, camera: Camera | None = None) -> np.ndarray:
         """The image of ``frame`` seen by ``camera`` (None: `Camera.fit` to the dynamic
         bodies, or all bodies when none moves)."""
         if frame.positions.shape[0] != bodies.count:
-            raise RbgenError(f"frame has {frame.positions.shape[0]} bodies, "
-                             f"bodies has {bodies.count}")
+            raise RbgenError(
+                f"frame has {frame.positions.shape[0]} bodies, bodies has {bodies.count}"
+            )
         bounds = scene_bounds(bodies, frame, dynamic_only=True) or scene_bounds(bodies, frame)
         if bounds is None:
             bounds = (np.full(3, -1.0), np.full(3, 1.0))
@@ -124,8 +139,9 @@ class Renderer:
         all_upper = np.maximum(everything[1], plane_centre + plane_size)
         near, far = camera.clip_range(all_lower, all_upper)
         near = max(near, far * 1e-4)
-        view_proj = camera.projection_matrix(self.width / self.height, near, far) \
-            @ camera.view_matrix()
+        view_proj = (
+            camera.projection_matrix(self.width / self.height, near, far) @ camera.view_matrix()
+        )
         light_dir = np.asarray(SUN, float) / np.linalg.norm(SUN)
         light_view_proj, texel = _light_matrix(light_dir, lower, upper, self._shadow_tex.size[0])
 
@@ -166,7 +182,8 @@ class Renderer:
         the camera sees around the bodies."""
         centre = (lower + upper) / 2
         reach = float(np.linalg.norm(upper - lower)) + float(
-            np.linalg.norm(np.asarray(camera.eye) - centre))
+            np.linalg.norm(np.asarray(camera.eye) - centre)
+        )
         return 4.0 * reach + 10.0, centre
 
     def _groups(self, bodies: Bodies, frame: Frame, plane_size: float, plane_centre):
@@ -183,8 +200,10 @@ class Renderer:
         starts = np.concatenate([[0], np.cumsum(counts)])
         groups = []
         # dynamic shapes first: the ground drawn last loses its hidden fragments to the depth test
-        for k in sorted(range(len(bodies.shapes)), key=lambda k: bool(bodies.static[
-                bodies.shape_index == k].all())):
+        for k in sorted(
+            range(len(bodies.shapes)),
+            key=lambda k: bool(bodies.static[bodies.shape_index == k].all()),
+        ):
             count = int(counts[k])
             if count:
                 centre = plane_centre
@@ -196,7 +215,7 @@ class Renderer:
                     conjugate = np.r_[-q[:3], q[3]]
                     centre = rotate(conjugate, np.asarray(plane_centre) - frame.positions[first])
                 entry = self._mesh(bodies.shapes[k], plane_size, centre)
-                chunk = data[starts[k]:starts[k] + count]
+                chunk = data[starts[k] : starts[k] + count]
                 if entry["instances"].size < chunk.nbytes:
                     entry["instances"].orphan(max(chunk.nbytes, 2 * entry["instances"].size))
                 entry["instances"].write(chunk.tobytes())
@@ -222,17 +241,28 @@ class Renderer:
             vbo, ibo = ctx.buffer(interleaved.tobytes()), ctx.buffer(mesh.triangles.tobytes())
             inst = ctx.buffer(reserve=_INSTANCE_FLOATS * 4 * 64, dynamic=True)
             vaos = {
-                "shade": ctx.vertex_array(self._shade, [
-                    (vbo, "3f 3f", "in_vert", "in_norm"),
-                    (inst, "3f 4f 4f/i", "in_pos", "in_rot", "in_color")],
-                    index_buffer=ibo, index_element_size=4),
-                "depth": ctx.vertex_array(self._depth, [
-                    (vbo, "3f 3x4", "in_vert"),
-                    (inst, "3f 4f 4x4/i", "in_pos", "in_rot")],
-                    index_buffer=ibo, index_element_size=4),
+                "shade": ctx.vertex_array(
+                    self._shade,
+                    [
+                        (vbo, "3f 3f", "in_vert", "in_norm"),
+                        (inst, "3f 4f 4f/i", "in_pos", "in_rot", "in_color"),
+                    ],
+                    index_buffer=ibo,
+                    index_element_size=4,
+                ),
+                "depth": ctx.vertex_array(
+                    self._depth,
+                    [(vbo, "3f 3x4", "in_vert"), (inst, "3f 4f 4x4/i", "in_pos", "in_rot")],
+                    index_buffer=ibo,
+                    index_element_size=4,
+                ),
             }
-            entry = {"buffers": (vbo, ibo, inst), "instances": inst, "vaos": vaos,
-                     "indices": mesh.triangles.size}
+            entry = {
+                "buffers": (vbo, ibo, inst),
+                "instances": inst,
+                "vaos": vaos,
+                "indices": mesh.triangles.size,
+            }
             self._meshes[key] = entry
         return entry
 
@@ -244,8 +274,14 @@ class Renderer:
             for buffer in entry["buffers"]:
                 buffer.release()
         self._meshes.clear()
-        for obj in (self._shadow_fbo, self._shadow_tex, self._msaa,
-                    self._resolved, self._shade, self._depth):
+        for obj in (
+            self._shadow_fbo,
+            self._shadow_tex,
+            self._msaa,
+            self._resolved,
+            self._shade,
+            self._depth,
+        ):
             obj.release()
 
 

@@ -7,6 +7,7 @@ are static, colours) because that changes only when bodies are added;
 reads the World's body table, so a change in the World's storage touches one
 function here.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -19,10 +20,19 @@ from ..shapes import Plane, Shape
 from .meshes import local_bounds
 
 #: colours of dynamic bodies (linear RGB): muted hues that stay apart under shadow
-PALETTE = np.array([
-    (0.80, 0.36, 0.24), (0.90, 0.62, 0.20), (0.36, 0.58, 0.80), (0.45, 0.70, 0.40),
-    (0.70, 0.45, 0.70), (0.85, 0.80, 0.45), (0.35, 0.70, 0.70), (0.78, 0.52, 0.42),
-], np.float32)
+PALETTE = np.array(
+    [
+        (0.80, 0.36, 0.24),
+        (0.90, 0.62, 0.20),
+        (0.36, 0.58, 0.80),
+        (0.45, 0.70, 0.40),
+        (0.70, 0.45, 0.70),
+        (0.85, 0.80, 0.45),
+        (0.35, 0.70, 0.70),
+        (0.78, 0.52, 0.42),
+    ],
+    np.float32,
+)
 #: colour of static bodies (shaded with a checker of 1 m squares)
 STATIC_COLOUR = (0.62, 0.63, 0.62)
 
@@ -53,13 +63,17 @@ class Bodies:
                 raise RbgenError(f"shapes[{k}] must be an rbgen shape, got {type(shape).__name__}")
         index = np.asarray(shape_index, dtype=np.int64).reshape(-1)
         if len(index) and (index.min() < 0 or index.max() >= len(shapes)):
-            raise RbgenError(f"shape_index must lie in [0, {len(shapes)}), got values "
-                             f"{index.min()}..{index.max()}")
-        static = (np.zeros(len(index), bool) if static is None
-                  else np.asarray(static, bool).reshape(-1))
+            raise RbgenError(
+                f"shape_index must lie in [0, {len(shapes)}), got values "
+                f"{index.min()}..{index.max()}"
+            )
+        static = (
+            np.zeros(len(index), bool) if static is None else np.asarray(static, bool).reshape(-1)
+        )
         if static.shape != index.shape:
-            raise RbgenError(f"static must have one flag per body ({len(index)}), "
-                             f"got shape {static.shape}")
+            raise RbgenError(
+                f"static must have one flag per body ({len(index)}), got shape {static.shape}"
+            )
         colours = default_colours(static) if colours is None else np.asarray(colours, np.float32)
         if colours.shape != (len(index), 3):
             raise RbgenError(f"colours must have shape ({len(index)}, 3), got {colours.shape}")
@@ -115,8 +129,9 @@ def frame_of(world) -> Frame:
     return Frame.make(positions, world.orientations, len(positions))
 
 
-def scene_bounds(bodies: Bodies, frame: Frame,
-                 dynamic_only: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
+def scene_bounds(
+    bodies: Bodies, frame: Frame, dynamic_only: bool = False
+) -> tuple[np.ndarray, np.ndarray] | None:
     """(lower, upper) of every bounded body (planes left out), rotated boxes bounded by
     their local bounds' corners; None when no body is bounded."""
     lows, highs = [], []
@@ -129,8 +144,9 @@ def scene_bounds(bodies: Bodies, frame: Frame,
         bounds = local_bounds(shape)
         assert bounds is not None  # None for planes only, left out above
         lo, hi = bounds
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                            for z in (lo[2], hi[2])])
+        corners = np.array(
+            [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+        )
         radius = float(np.linalg.norm(corners, axis=1).max())
         p = frame.positions[mask].astype(float)
         if len(p) > 64:  # many bodies: a sphere about each is bound enough

@@ -14,6 +14,7 @@ Bodies reference their shape's mesh rather than copying it, so a file of 8,000
 boxes holds one box. usdview, Blender and Omniverse read it as is. Needs the
 ``usd-core`` package (module ``pxr``).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,16 +25,17 @@ from .meshes import mesh_for
 from .scene import Bodies, Frame, scene_bounds
 
 #: prim names of the shape kinds
-KIND_NAMES = {Box: "box", Sphere: "sphere", Capsule: "capsule", ConvexHull: "hull",
-              Plane: "plane"}
+KIND_NAMES = {Box: "box", Sphere: "sphere", Capsule: "capsule", ConvexHull: "hull", Plane: "plane"}
 
 
 def _pxr():
     try:
         from pxr import Gf, Sdf, Usd, UsdGeom, Vt
     except ImportError:
-        raise RbgenError("writing .usd needs OpenUSD's Python module: pip install usd-core "
-                         "(or pip install 'rbgen[usd]')") from None
+        raise RbgenError(
+            "writing .usd needs OpenUSD's Python module: pip install usd-core "
+            "(or pip install 'rbgen[usd]')"
+        ) from None
     return Gf, Sdf, Usd, UsdGeom, Vt
 
 
@@ -53,8 +55,10 @@ class UsdSink:
 
     def add(self, frame: Frame, bodies: Bodies) -> None:
         if self._bodies is not None and bodies.count != self._bodies.count:
-            raise RbgenError(f"a USD recording keeps one set of bodies: {self._bodies.count} "
-                             f"at the first frame, {bodies.count} now")
+            raise RbgenError(
+                f"a USD recording keeps one set of bodies: {self._bodies.count} "
+                f"at the first frame, {bodies.count} now"
+            )
         self._bodies = bodies
         self._frames.append(Frame(frame.positions.copy(), frame.orientations.copy()))
 
@@ -91,15 +95,16 @@ def write_stage(path: str, bodies: Bodies, frames: list, fps: float) -> None:
         prim.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(mesh.normals))
         prim.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
         prim.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(mesh.triangles)))
-        prim.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(
-            mesh.triangles.reshape(-1).astype(np.int32)))
+        prim.CreateFaceVertexIndicesAttr(
+            Vt.IntArray.FromNumpy(mesh.triangles.reshape(-1).astype(np.int32))
+        )
         prim.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
         prim.CreateVisibilityAttr(UsdGeom.Tokens.invisible)  # the bodies show it
         shape_paths.append(path_k)
 
     moving = np.ones(bodies.count, bool) if len(frames) > 1 else np.zeros(bodies.count, bool)
     moving &= ~bodies.static
-    positions = np.stack([f.positions for f in frames]).astype(np.float64)     # (F, N, 3)
+    positions = np.stack([f.positions for f in frames]).astype(np.float64)  # (F, N, 3)
     orientations = np.stack([f.orientations for f in frames]).astype(np.float64)  # (F, N, 4)
     for i in range(bodies.count):
         xform = UsdGeom.Xform.Define(stage, body_path(i))

@@ -1,4 +1,5 @@
 """World AABBs: contain every rotated vertex and are tight (within 1e-5)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -14,9 +15,14 @@ from tests.reference import quat_to_matrix, random_quaternions
 
 
 def make_shapes(rng):
-    return [Box(rng.uniform(0.1, 3, 3)), Box((1, 1, 1)), Sphere(0.7),
-            ConvexHull(rng.normal(size=(12, 3))), ConvexHull(rng.uniform(-2, 2, (40, 3))),
-            Capsule(0.3, 1.2)]
+    return [
+        Box(rng.uniform(0.1, 3, 3)),
+        Box((1, 1, 1)),
+        Sphere(0.7),
+        ConvexHull(rng.normal(size=(12, 3))),
+        ConvexHull(rng.uniform(-2, 2, (40, 3))),
+        Capsule(0.3, 1.2),
+    ]
 
 
 def run_aabbs(runtime, table, bodies, margin=0.0, work_group_size=None):
@@ -55,8 +61,11 @@ def test_contains_and_tight(runtime, rng, n):
     got = run_aabbs(runtime, table, bodies)
     check = range(n) if n <= 1000 else rng.choice(n, 1000, replace=False)
     for i in check:
-        lo, hi = expected_bounds(shape_list[which[i]], bodies["position"][i, :3].astype(np.float64),
-                                 bodies["orientation"][i])
+        lo, hi = expected_bounds(
+            shape_list[which[i]],
+            bodies["position"][i, :3].astype(np.float64),
+            bodies["orientation"][i],
+        )
         np.testing.assert_allclose(got["lower"][i, :3], lo, atol=1e-5 + 1e-6 * np.abs(lo).max())
         np.testing.assert_allclose(got["upper"][i, :3], hi, atol=1e-5 + 1e-6 * np.abs(hi).max())
 
@@ -108,8 +117,9 @@ def test_posed_plane_is_bounded_where_the_narrowphase_puts_it(runtime):
     got = run_aabbs(runtime, table, bodies)
     assert got["upper"][0, 0] == pytest.approx(1.5, abs=1e-6)
     assert got["lower"][1, 1] == pytest.approx(1.5, abs=1e-6)
-    unbounded = np.concatenate([got["lower"][0, :3], got["upper"][0, 1:3], got["lower"][1, [0, 2]],
-                                got["upper"][1, :3]])
+    unbounded = np.concatenate(
+        [got["lower"][0, :3], got["upper"][0, 1:3], got["lower"][1, [0, 2]], got["upper"][1, :3]]
+    )
     assert np.all(np.abs(unbounded) > 1e29)
 
 

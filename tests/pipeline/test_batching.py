@@ -9,6 +9,7 @@ empty) listing its edges in increasing index order. Batching sees edges only: ed
 another constraint kind (their items tagged with another kind) are coloured with the
 contacts' by the same rules.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -84,8 +85,18 @@ def groups_of(batcher, n):
     return batcher.edge_group.get()[:n]
 
 
-def run_device(runtime, a, b, dynamic, rng=None, hints=None, items=None, mode="cells",
-               solve_form="lanes", **options):
+def run_device(
+    runtime,
+    a,
+    b,
+    dynamic,
+    rng=None,
+    hints=None,
+    items=None,
+    mode="cells",
+    solve_form="lanes",
+    **options,
+):
     """Bodies scattered in a 20 m box, edge points 0.5 m from B (cell size 1.5 m); the
     count on the device, launches over a larger capacity. Global mode: ``hints`` are the
     edges' inherited colours (None: a first step, none inherited), and the colour field
@@ -146,12 +157,12 @@ def check_invariants(batcher, a, b, dynamic, order, offsets, batch_counts, group
         nb = int(batch_counts[g])
         assert nb <= batcher.max_batches
         if not lanes:  # one batch in index order, or none
-            members = listed[offsets[g, 0]: offsets[g, 1]]
+            members = listed[offsets[g, 0] : offsets[g, 1]]
             assert nb == (len(members) > 0)
             assert np.all(np.diff(members) > 0)
             assert np.array_equal(members, np.flatnonzero(groups == g))
         for k in range(nb):
-            members = listed[offsets[g, k]: offsets[g, k + 1]]
+            members = listed[offsets[g, k] : offsets[g, k + 1]]
             assert np.all(groups[members] == g)
             total += len(members)
             if k == batcher.max_batches - 1 or not lanes:
@@ -170,18 +181,20 @@ def edge_batches(order, offsets, items, group=0):
     edge_of = {int(item): e for e, item in enumerate(items)}
     batches = np.full(len(items), -1)
     for k in range(len(offsets[group]) - 1):
-        for item in order[offsets[group, k]: offsets[group, k + 1]]:
+        for item in order[offsets[group, k] : offsets[group, k + 1]]:
             batches[edge_of[int(item)]] = k
     return batches
 
 
 @pytest.mark.parametrize("mode,solve_form", SPATIAL)
-@pytest.mark.parametrize("n_bodies,n_constraints", [(1, 0), (2, 1), (9, 31), (100, 333),
-                                                   (2000, 5003)])
+@pytest.mark.parametrize(
+    "n_bodies,n_constraints", [(1, 0), (2, 1), (9, 31), (100, 333), (2000, 5003)]
+)
 def test_batches_are_independent(runtime, rng, n_bodies, n_constraints, mode, solve_form):
     a, b, dynamic = random_graph(rng, n_bodies, n_constraints)
-    batcher, *result = run_device(runtime, a, b, dynamic, rng, group_count=5, mode=mode,
-                                  solve_form=solve_form)
+    batcher, *result = run_device(
+        runtime, a, b, dynamic, rng, group_count=5, mode=mode, solve_form=solve_form
+    )
     check_invariants(batcher, a, b, dynamic, *result)
     if solve_form == "serial":
         return
@@ -205,10 +218,10 @@ def test_edges_of_other_kinds_share_the_colours(runtime, rng, n_bodies, n_constr
     items = mixed_items(rng, n_constraints)
     assert len(np.unique(items >> layouts.EDGE_KIND_SHIFT)) == 2
     options = {"ordered_rounds": 2**31} if mode == "global" else {"group_count": 5}
-    for solve_form in (("lanes",) if mode == "global" else ("lanes", "serial")):
+    for solve_form in ("lanes",) if mode == "global" else ("lanes", "serial"):
         batcher, order, offsets, counts, groups = run_device(
-            runtime, a, b, dynamic, rng, items=items, mode=mode, solve_form=solve_form,
-            **options)
+            runtime, a, b, dynamic, rng, items=items, mode=mode, solve_form=solve_form, **options
+        )
         check_invariants(batcher, a, b, dynamic, order, offsets, counts, groups, items)
     if mode == "global":
         reference = batch_host(a, b, dynamic)
@@ -227,27 +240,36 @@ def test_tiny_batch_limit_sends_the_rest_to_the_serial_slot(runtime, work_group_
     star_b = np.arange(2, 40, dtype=np.uint32)
     star_a = np.ones_like(star_b)
     dynamic = np.ones(40, bool)
-    batcher, *result = run_device(runtime, star_a, star_b, dynamic, mode=mode, max_batches=4,
-                                  work_group_size=work_group_size)
+    batcher, *result = run_device(
+        runtime, star_a, star_b, dynamic, mode=mode, max_batches=4, work_group_size=work_group_size
+    )
     check_invariants(batcher, star_a, star_b, dynamic, *result)
     assert int(result[2].max()) == 4
     a = np.arange(300, dtype=np.uint32)
-    batcher, *result = run_device(runtime, a, a + 1, np.ones(301, bool), mode=mode,
-                                  max_batches=4, work_group_size=work_group_size)
+    batcher, *result = run_device(
+        runtime,
+        a,
+        a + 1,
+        np.ones(301, bool),
+        mode=mode,
+        max_batches=4,
+        work_group_size=work_group_size,
+    )
     check_invariants(batcher, a, a + 1, np.ones(301, bool), *result)
 
 
 @pytest.mark.parametrize("work_group_size", [1, 32, 64, 256])
-@pytest.mark.parametrize("n_bodies,n_constraints", [(1, 0), (2, 1), (9, 31), (100, 333),
-                                                   (2000, 5003)])
-def test_global_mode_colours_every_edge(runtime, rng, n_bodies, n_constraints,
-                                        work_group_size):
+@pytest.mark.parametrize(
+    "n_bodies,n_constraints", [(1, 0), (2, 1), (9, 31), (100, 333), (2000, 5003)]
+)
+def test_global_mode_colours_every_edge(runtime, rng, n_bodies, n_constraints, work_group_size):
     """Global mode (every compute unit, global marks, device-wide barriers): one group of
     every edge; batches share no dynamic body and stay close to the sequential greedy
     colouring (the Jones-Plassmann rounds colour each winner greedily)."""
     a, b, dynamic = random_graph(rng, n_bodies, n_constraints)
-    batcher, *result = run_device(runtime, a, b, dynamic, rng, mode="global",
-                                  work_group_size=work_group_size)
+    batcher, *result = run_device(
+        runtime, a, b, dynamic, rng, mode="global", work_group_size=work_group_size
+    )
     assert batcher.launch_plan == [(0, 1)] and batcher.group_count == 1
     check_invariants(batcher, a, b, dynamic, *result)
     order, offsets, batch_counts, _ = result
@@ -267,20 +289,20 @@ def test_global_mode_sends_a_hub_past_64_colours_to_the_serial_batch(runtime):
     star_b = np.arange(2, 102, dtype=np.uint32)
     star_a = np.ones_like(star_b)
     dynamic = np.ones(102, bool)
-    batcher, *result = run_device(runtime, star_a, star_b, dynamic, mode="global",
-                                  work_group_size=32)
+    batcher, *result = run_device(
+        runtime, star_a, star_b, dynamic, mode="global", work_group_size=32
+    )
     check_invariants(batcher, star_a, star_b, dynamic, *result)
     order, offsets, batch_counts, _ = result
     assert int(batch_counts[0]) == batcher.max_batches
     sizes = np.diff(offsets[0].astype(np.int64))
     assert np.all(sizes[:64] == 1) and np.all(sizes[64:-1] == 0) and sizes[-1] == 36
-    serial = order[offsets[0, -2]: offsets[0, -1]]
+    serial = order[offsets[0, -2] : offsets[0, -1]]
     assert np.all(np.diff(serial.astype(np.int64)) > 0)
 
 
 @pytest.mark.parametrize("n_bodies,n_constraints", [(9, 31), (2000, 5003)])
-def test_global_mode_colours_do_not_depend_on_the_launch(runtime, rng, n_bodies,
-                                                         n_constraints):
+def test_global_mode_colours_do_not_depend_on_the_launch(runtime, rng, n_bodies, n_constraints):
     """The colours depend on the priorities alone, not on how many lanes take part or in
     which order their atomics land: with hashed bids only, launches of 1, 64 and 256 lanes
     a work group give every edge the same colour and the same batch sizes."""
@@ -288,10 +310,18 @@ def test_global_mode_colours_do_not_depend_on_the_launch(runtime, rng, n_bodies,
     results = []
     for work_group_size in (1, 64, 256):
         batcher, order, offsets, counts, _ = run_device(
-            runtime, a, b, dynamic, rng, mode="global", work_group_size=work_group_size,
-            ordered_rounds=0)
-        results.append((batcher.edge_batch.get()[:n_constraints], int(counts[0]),
-                        offsets[0].copy()))
+            runtime,
+            a,
+            b,
+            dynamic,
+            rng,
+            mode="global",
+            work_group_size=work_group_size,
+            ordered_rounds=0,
+        )
+        results.append(
+            (batcher.edge_batch.get()[:n_constraints], int(counts[0]), offsets[0].copy())
+        )
     for colours, count, offsets in results[1:]:
         assert np.array_equal(colours, results[0][0])
         assert count == results[0][1]
@@ -307,32 +337,40 @@ def global_colouring(runtime, a, b, dynamic, hints=None, **options):
     edges = make_edges(a, b, np.zeros((len(a), 3)), colours=hints)
     d_edges = cl_array.to_device(queue, edges)
     batcher = GlobalBatcher(runtime, **options)
-    batcher(d_edges, cl_array.to_device(queue, np.array([len(a)], np.uint32)),
-            cl_array.to_device(queue, bodies), len(dynamic), len(edges))
+    batcher(
+        d_edges,
+        cl_array.to_device(queue, np.array([len(a)], np.uint32)),
+        cl_array.to_device(queue, bodies),
+        len(dynamic),
+        len(edges),
+    )
     order, offsets, counts = batcher.read_batches()
-    check_invariants(batcher, a, b, dynamic, order[: len(a)], offsets, counts,
-                     np.zeros(len(a), np.uint32))
-    return (batcher.edge_batch.get()[: len(a)], d_edges.get()["colour"][: len(a)],
-            int(counts[0]))
+    check_invariants(
+        batcher, a, b, dynamic, order[: len(a)], offsets, counts, np.zeros(len(a), np.uint32)
+    )
+    return (batcher.edge_batch.get()[: len(a)], d_edges.get()["colour"][: len(a)], int(counts[0]))
 
 
 @pytest.mark.parametrize("work_group_size", [1, 64])
 @pytest.mark.parametrize("n_bodies,n_constraints", [(9, 31), (2000, 5003)])
 def test_global_mode_ordered_rounds_colour_first_fit_in_index_order(
-        runtime, rng, n_bodies, n_constraints, work_group_size):
+    runtime, rng, n_bodies, n_constraints, work_group_size
+):
     """Bids of edge indices make the Jones-Plassmann rounds the sequential first-fit
     colouring in index order (batch_host) exactly, every colour handed on; with hashed
     bids only, the colours are valid but not those."""
     a, b, dynamic = random_graph(rng, n_bodies, n_constraints)
     reference = batch_host(a, b, dynamic)
-    colours, field, count = global_colouring(runtime, a, b, dynamic, ordered_rounds=2**31,
-                                             work_group_size=work_group_size)
+    colours, field, count = global_colouring(
+        runtime, a, b, dynamic, ordered_rounds=2**31, work_group_size=work_group_size
+    )
     assert np.array_equal(colours, reference)
     assert np.array_equal(field, colours)
     assert count == int(reference.max()) + 1
     if n_constraints > 1000:  # (a small graph might come out the same)
-        hashed, _, _ = global_colouring(runtime, a, b, dynamic, ordered_rounds=0,
-                                        work_group_size=work_group_size)
+        hashed, _, _ = global_colouring(
+            runtime, a, b, dynamic, ordered_rounds=0, work_group_size=work_group_size
+        )
         assert not np.array_equal(hashed, reference)
 
 
@@ -349,8 +387,9 @@ def test_global_mode_spreads_the_ordered_rounds_over_steps(runtime):
     reference = np.arange(300) % 2
     hints = None
     for step in range(1, 7):
-        colours, field, count = global_colouring(runtime, a, b, dynamic, hints,
-                                                 ordered_rounds=64, work_group_size=32)
+        colours, field, count = global_colouring(
+            runtime, a, b, dynamic, hints, ordered_rounds=64, work_group_size=32
+        )
         done = min(300, 64 * step)
         assert np.array_equal(field[:done], reference[:done]), f"step {step}"
         assert np.all(field[done:] == layouts.SOLVER_NONE), f"step {step}"
@@ -368,15 +407,20 @@ def inherited_colours_kept(a, b, dynamic, hints, colours=64):
             for x in (int(a[i]), int(b[i])):
                 if dynamic[x]:
                     claims[(x, int(k))] = claims.get((x, int(k)), 0) + 1
-    return np.array([k < colours and all(claims[(int(x), int(k))] == 1
-                                         for x in (a[i], b[i]) if dynamic[x])
-                     for i, k in enumerate(hints)], bool)
+    return np.array(
+        [
+            k < colours and all(claims[(int(x), int(k))] == 1 for x in (a[i], b[i]) if dynamic[x])
+            for i, k in enumerate(hints)
+        ],
+        bool,
+    )
 
 
 @pytest.mark.parametrize("work_group_size", [1, 64])
 @pytest.mark.parametrize("n_bodies,n_constraints", [(9, 31), (100, 333), (2000, 5003)])
-def test_global_mode_keeps_the_colours_it_inherits(runtime, rng, n_bodies, n_constraints,
-                                                   work_group_size):
+def test_global_mode_keeps_the_colours_it_inherits(
+    runtime, rng, n_bodies, n_constraints, work_group_size
+):
     """A step whose edges inherit the colours of the last step (the same constraint graph)
     gets exactly the same colours; random inherited colours, with clashes, still give
     valid batches, and every inherited colour that clashes with none on its bodies is kept
@@ -439,8 +483,9 @@ def test_slabs_keep_each_stack_in_one_group(runtime, solve_form):
     a, b = np.array(a, np.uint32), np.array(b, np.uint32)
     edges = make_edges(a, b, positions[b] + [0.2, -0.5, 0.2])
     batcher = new_batcher(runtime, "slabs", solve_form, group_count=50)
-    order, offsets, batch_counts, groups = batch_records(runtime, batcher, edges, bodies,
-                                                         bodies["inv_mass"] > 0)
+    order, offsets, batch_counts, groups = batch_records(
+        runtime, batcher, edges, bodies, bodies["inv_mass"] > 0
+    )
     stacks = groups.reshape(side * side, height)
     assert np.all(stacks == stacks[:, :1]), "a stack split over groups"
     slab = np.floor((1.6 * np.arange(side) + 0.9) / 1.5).astype(int)
@@ -459,8 +504,17 @@ def batch_records(runtime, batcher, edges, bodies, dynamic=None):
     order, offsets, batch_counts = batcher.read_batches()
     groups = groups_of(batcher, len(edges))
     dynamic = np.ones(len(bodies), bool) if dynamic is None else dynamic
-    check_invariants(batcher, edges["body_a"], edges["body_b"], dynamic, order[: len(edges)],
-                     offsets, batch_counts, groups, edges["item"])
+    check_invariants(
+        batcher,
+        edges["body_a"],
+        edges["body_b"],
+        dynamic,
+        order[: len(edges)],
+        offsets,
+        batch_counts,
+        groups,
+        edges["item"],
+    )
     return order, offsets, batch_counts, groups
 
 
@@ -485,7 +539,7 @@ def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rn
     # body 0 is "huge": it also touches bodies far away
     far = rng.choice(np.arange(1, side * side), 25, replace=False)
     extra = make_edges(np.zeros(25, np.uint32), far, bodies["position"][far, :3] / 2)
-    extra["item"] = contact_items(len(edges) + 25)[len(edges):]
+    extra["item"] = contact_items(len(edges) + 25)[len(edges) :]
     edges = np.concatenate([edges, extra]).astype(edges.dtype)
     batcher = new_batcher(runtime, "cells", solve_form, group_count=7)
     order, offsets, batch_counts, groups = batch_records(runtime, batcher, edges, bodies, dynamic)
@@ -513,8 +567,15 @@ def test_serial_form_lists_each_group_in_index_order(runtime, rng, mode):
     a, b, dynamic = random_graph(rng, 500, 1777)
     for _ in range(2):
         batcher, order, offsets, batch_counts, groups = run_device(
-            runtime, a, b, dynamic, np.random.default_rng(1), group_count=6, mode=mode,
-            solve_form="serial")
+            runtime,
+            a,
+            b,
+            dynamic,
+            np.random.default_rng(1),
+            group_count=6,
+            mode=mode,
+            solve_form="serial",
+        )
         check_invariants(batcher, a, b, dynamic, order, offsets, batch_counts, groups)
         listed_groups = groups[order]
         assert np.all(np.diff(listed_groups.astype(np.int64)) >= 0), "grouped"
@@ -539,9 +600,13 @@ def test_slabs_spread_a_pile_over_every_group(runtime, rng, solve_form):
     queue = runtime.queue
     batcher.configure(cell_size=1.5, slab_axis=(0.0, 0.0, 0.0))
     with pytest.raises(RbgenError, match="slab_axis"):
-        batcher(cl_array.to_device(queue, edges),
-                cl_array.to_device(queue, np.array([len(edges)], np.uint32)),
-                cl_array.to_device(queue, bodies), len(bodies), len(edges))
+        batcher(
+            cl_array.to_device(queue, edges),
+            cl_array.to_device(queue, np.array([len(edges)], np.uint32)),
+            cl_array.to_device(queue, bodies),
+            len(bodies),
+            len(edges),
+        )
 
 
 @pytest.mark.parametrize("solve_form", ["lanes", "serial"])

@@ -11,6 +11,7 @@ normals, 1-4 points, full inertia tensors) over boundary sizes including 0. Each
 constraint gets one constraint edge (its bodies, its item: the contact kind and its
 index, its first point, the colour inherited from the previous step's edge).
 """
+
 from __future__ import annotations
 
 from types import SimpleNamespace
@@ -30,8 +31,12 @@ from rbgen.pipeline.solvers.pgs import PgsSolver
 #: group's lanes solve a batch together (the GPU form); one_group: global batching's one
 #: group of everything, solved by one work group's lanes; persistent: global batching
 #: solved by the persistent launch over every compute unit.
-VARIANTS = {"serial": ("cells", "serial", False), "lanes": ("cells", "lanes", False),
-            "one_group": ("global", "lanes", False), "persistent": ("global", "lanes", True)}
+VARIANTS = {
+    "serial": ("cells", "serial", False),
+    "lanes": ("cells", "lanes", False),
+    "one_group": ("global", "lanes", False),
+    "persistent": ("global", "lanes", True),
+}
 
 
 def make_bodies(positions, inv_mass, velocities=None, angular=None):
@@ -67,8 +72,7 @@ def make_batcher_for(runtime, variant="serial", batching=None, group_count=3, **
     mode = batching or mode
     if mode == "global":
         return make_batcher(runtime, "global", **options)
-    batcher = make_batcher(runtime, mode, group_count=group_count, solve_form=solve_form,
-                           **options)
+    batcher = make_batcher(runtime, mode, group_count=group_count, solve_form=solve_form, **options)
     batcher.configure(cell_size=2.5, slab_axis=(1.0, 0.0, 0.0))
     return batcher
 
@@ -78,9 +82,22 @@ class ContactRig:
     of the VARIANTS (no integration); the block normal solve unless ``normal_solve`` says
     otherwise, the device's fast_math and warm-start mode unless given."""
 
-    def __init__(self, runtime, bodies, inv_inertia, *, warm_start=True, variant="serial",
-                 batching=None, group_count=3, work_group_size=None, normal_solve="block",
-                 fast_math=None, warm_start_mode=None, batcher_options=None):
+    def __init__(
+        self,
+        runtime,
+        bodies,
+        inv_inertia,
+        *,
+        warm_start=True,
+        variant="serial",
+        batching=None,
+        group_count=3,
+        work_group_size=None,
+        normal_solve="block",
+        fast_math=None,
+        warm_start_mode=None,
+        batcher_options=None,
+    ):
         self.runtime = runtime
         queue = runtime.queue
         self.body_count = len(bodies)
@@ -88,12 +105,18 @@ class ContactRig:
         self.inertia = cl_array.to_device(queue, inertia_records(inv_inertia))
         self.prepare = BodyPreparation(runtime, gyroscopic=False)
         self.setup = ContactConstraints(runtime, warm_start=warm_start)
-        self.batcher = make_batcher_for(runtime, variant, batching, group_count,
-                                        **(batcher_options or {}))
-        self.solver = PgsSolver(runtime, self.batcher, persistent=VARIANTS[variant][2],
-                                normal_solve=normal_solve, fast_math=fast_math,
-                                warm_start_mode=warm_start_mode,
-                                work_group_size=work_group_size)
+        self.batcher = make_batcher_for(
+            runtime, variant, batching, group_count, **(batcher_options or {})
+        )
+        self.solver = PgsSolver(
+            runtime,
+            self.batcher,
+            persistent=VARIANTS[variant][2],
+            normal_solve=normal_solve,
+            fast_math=fast_math,
+            warm_start_mode=warm_start_mode,
+            work_group_size=work_group_size,
+        )
         self.warm_start = warm_start
 
     def constraints(self, manifolds, dt=1 / 60, capacity_slack=3):
@@ -112,23 +135,51 @@ class ContactRig:
     def batch(self):
         """Batch the constraints' edges (after `constraints`)."""
         setup = self.setup
-        self.batcher(setup.edges, setup.edge_count, self.bodies, self.body_count,
-                     setup.first_contact_edge + self.capacity)
+        self.batcher(
+            setup.edges,
+            setup.edge_count,
+            self.bodies,
+            self.body_count,
+            setup.first_contact_edge + self.capacity,
+        )
 
-    def sweep(self, iterations=20, position_iterations=0, relaxation=1.0, warm_start=None,
-              release_sweeps=None):
+    def sweep(
+        self,
+        iterations=20,
+        position_iterations=0,
+        relaxation=1.0,
+        warm_start=None,
+        release_sweeps=None,
+    ):
         """Batch and solve the constraints set up last (warm start: the rig's setting)."""
         self.batch()
         self.solver.release_sweeps = release_sweeps
-        sweeps = SimpleNamespace(iterations=iterations, position_iterations=position_iterations,
-                                 relaxation=relaxation,
-                                 warm_start=self.warm_start if warm_start is None else warm_start)
+        sweeps = SimpleNamespace(
+            iterations=iterations,
+            position_iterations=position_iterations,
+            relaxation=relaxation,
+            warm_start=self.warm_start if warm_start is None else warm_start,
+        )
         setup = self.setup
-        self.solver.solve(setup.constraints, setup.count, self.capacity, self.bodies,
-                          self.inertia, self.body_count, sweeps)
+        self.solver.solve(
+            setup.constraints,
+            setup.count,
+            self.capacity,
+            self.bodies,
+            self.inertia,
+            self.body_count,
+            sweeps,
+        )
 
-    def solve(self, manifolds, dt=1 / 60, iterations=20, position_iterations=0, relaxation=1.0,
-              release_sweeps=None):
+    def solve(
+        self,
+        manifolds,
+        dt=1 / 60,
+        iterations=20,
+        position_iterations=0,
+        relaxation=1.0,
+        release_sweeps=None,
+    ):
         """Set up, batch and solve the manifolds; apply the push velocities over dt: (the
         bodies, the constraints after the solve)."""
         self.constraints(manifolds, dt)
@@ -151,14 +202,17 @@ def test_effective_masses_and_targets(runtime, rng):
     n = np.array([0, 1.0, 0])
     slop, beta = rig.setup.penetration_slop, rig.setup.penetration_recovery
     centre = points.mean(0) - [0, 1, 0]
-    for direction, field in ((c["tangent1"][:3], "tangent1_mass"),
-                             (c["tangent2"][:3], "tangent2_mass")):
+    for direction, field in (
+        (c["tangent1"][:3], "tangent1_mass"),
+        (c["tangent2"][:3], "tangent2_mass"),
+    ):
         rc = np.cross(centre, direction)  # the friction pair acts at the points' centre
         assert c[field][0] == pytest.approx(1 / (0.5 + rc @ (inv_inertia[1] * rc)), rel=1e-4)
     for k in range(3):
         rc = np.cross(points[k] - [0, 1, 0], n)
-        assert c["normal_mass"][k] == pytest.approx(1 / (0.5 + rc @ (inv_inertia[1] * rc)),
-                                                    rel=1e-4)
+        assert c["normal_mass"][k] == pytest.approx(
+            1 / (0.5 + rc @ (inv_inertia[1] * rc)), rel=1e-4
+        )
         # touching: the bounce; apart but crossed within the step: land at the contact,
         # then bounce for the rest of the step, a mean velocity of bounce - (1 + e) gap / dt
         bounce = e * speed - (1 + e) * max(depth[k], 0.0) / dt
@@ -197,8 +251,18 @@ def setup_reference(manifold, bodies, inv_inertia, dt, setup):
         k = inv_mass[a] + inv_mass[b] + ca @ inv_inertia[a] @ ca + cb @ inv_inertia[b] @ cb
         return 1 / k if k > 0 else 0.0
 
-    out = {f: np.zeros(4) for f in ("normal_mass", "tangent1_mass", "tangent2_mass",
-                                    "velocity_target", "position_target", "separation", "bounce")}
+    out = {
+        f: np.zeros(4)
+        for f in (
+            "normal_mass",
+            "tangent1_mass",
+            "tangent2_mass",
+            "velocity_target",
+            "position_target",
+            "separation",
+            "bounce",
+        )
+    }
     out["tangent1"], out["tangent2"] = t1, t2
     ras, rbs = [], []
     beta, slop = setup.penetration_recovery, setup.penetration_slop
@@ -208,17 +272,22 @@ def setup_reference(manifold, bodies, inv_inertia, dt, setup):
         ras.append(ra), rbs.append(rb)
         out["normal_mass"][k] = row_mass(n, ra, rb)
         approach = (v[b] + np.cross(w[b], rb) - v[a] - np.cross(w[a], ra)) @ n
-        bounce = -manifold["restitution"] * approach if approach < -setup.restitution_threshold \
-            else 0.0
+        bounce = (
+            -manifold["restitution"] * approach if approach < -setup.restitution_threshold else 0.0
+        )
         if separation > 0:  # (a gap crossed within the step: land, then bounce)
-            target = bounce - (1 + manifold["restitution"]) * separation / dt \
-                if bounce > 0 and approach * dt < -separation else -separation / dt
+            target = (
+                bounce - (1 + manifold["restitution"]) * separation / dt
+                if bounce > 0 and approach * dt < -separation
+                else -separation / dt
+            )
         else:
             target = bounce
         out["velocity_target"][k] = target
         out["separation"][k], out["bounce"][k] = separation, bounce
-        out["position_target"][k] = -beta / dt * separation if separation > 0 else \
-            beta / dt * max(-separation - slop, 0.0)
+        out["position_target"][k] = (
+            -beta / dt * separation if separation > 0 else beta / dt * max(-separation - slop, 0.0)
+        )
     if count:  # the friction pair at the points' centre, the twist about the normal
         centre_a, centre_b = np.mean(ras, axis=0), np.mean(rbs, axis=0)
         out["tangent1_mass"][0] = row_mass(t1, centre_a, centre_b)
@@ -239,11 +308,16 @@ def random_manifolds(rng, n_manifolds, n_bodies, static):
         a = int(rng.choice(np.delete(np.arange(n_bodies), b)))
         normal = rng.normal(size=3)
         count = int(rng.integers(1, 5))
-        manifolds[i] = make_manifold(a, b, normal / np.linalg.norm(normal),
-                                     rng.uniform(-1, 1, (count, 3)),
-                                     rng.uniform(-0.05, 0.03, count),
-                                     features=rng.integers(0, 100, count),
-                                     friction=rng.uniform(0, 1), restitution=rng.uniform(0, 1))
+        manifolds[i] = make_manifold(
+            a,
+            b,
+            normal / np.linalg.norm(normal),
+            rng.uniform(-1, 1, (count, 3)),
+            rng.uniform(-0.05, 0.03, count),
+            features=rng.integers(0, 100, count),
+            friction=rng.uniform(0, 1),
+            restitution=rng.uniform(0, 1),
+        )
     return manifolds
 
 
@@ -253,10 +327,12 @@ def random_scene(rng, n_manifolds, n_bodies=23, statics=3):
     inertia diagonals, manifolds)."""
     static = np.arange(n_bodies) < statics
     quaternions = rng.normal(size=(n_bodies, 4))
-    bodies = make_bodies(rng.uniform(-3, 3, (n_bodies, 3)),
-                         np.where(static, 0.0, rng.uniform(0.2, 2.0, n_bodies)),
-                         velocities=rng.uniform(-3, 3, (n_bodies, 3)),
-                         angular=rng.uniform(-3, 3, (n_bodies, 3)))
+    bodies = make_bodies(
+        rng.uniform(-3, 3, (n_bodies, 3)),
+        np.where(static, 0.0, rng.uniform(0.2, 2.0, n_bodies)),
+        velocities=rng.uniform(-3, 3, (n_bodies, 3)),
+        angular=rng.uniform(-3, 3, (n_bodies, 3)),
+    )
     bodies["orientation"] = quaternions / np.linalg.norm(quaternions, axis=1)[:, None]
     inv_inertia_diag = np.where(static[:, None], 0.0, rng.uniform(0.5, 3.0, (n_bodies, 3)))
     return bodies, inv_inertia_diag, random_manifolds(rng, n_manifolds, n_bodies, static)
@@ -284,15 +360,21 @@ def test_setup_matches_float64_reference(runtime, rng, n_manifolds):
         for field in ("r_a", "r_b"):
             np.testing.assert_allclose(c[field][:, :3], expected[field], atol=1e-5)
         # (what later substeps need: each point's separation and bounce, the restitution)
-        np.testing.assert_allclose(c["r_a"][:count, 3], expected["separation"][:count],
-                                   atol=1e-7)
-        np.testing.assert_allclose(c["r_b"][:count, 3], expected["bounce"][:count],
-                                   rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(c["r_a"][:count, 3], expected["separation"][:count], atol=1e-7)
+        np.testing.assert_allclose(
+            c["r_b"][:count, 3], expected["bounce"][:count], rtol=1e-4, atol=1e-5
+        )
         assert c["tangent2"][3] == pytest.approx(m["restitution"])
-        for field in ("normal_mass", "tangent1_mass", "tangent2_mass", "velocity_target",
-                      "position_target"):
-            np.testing.assert_allclose(c[field], expected[field], rtol=1e-4, atol=1e-5,
-                                       err_msg=field)
+        for field in (
+            "normal_mass",
+            "tangent1_mass",
+            "tangent2_mass",
+            "velocity_target",
+            "position_target",
+        ):
+            np.testing.assert_allclose(
+                c[field], expected[field], rtol=1e-4, atol=1e-5, err_msg=field
+            )
         for field in ("normal_impulse", "tangent1_impulse", "tangent2_impulse", "push_impulse"):
             assert not c[field].any()
 
@@ -312,11 +394,12 @@ def test_edges_describe_the_constraints(runtime, rng, n_manifolds, first_contact
     assert rig.setup.edge_capacity == first_contact_edge + rig.capacity
     edges = rig.setup.edges.get()
     assert not edges[:first_contact_edge].view(np.uint8).any()  # the joints' edges untouched
-    edges = edges[first_contact_edge:first_contact_edge + n_manifolds]
+    edges = edges[first_contact_edge : first_contact_edge + n_manifolds]
     assert np.array_equal(edges["body_a"], manifolds["body_a"])
     assert np.array_equal(edges["body_b"], manifolds["body_b"])
-    assert np.array_equal(edges["item"], layouts.EDGE_CONTACT << layouts.EDGE_KIND_SHIFT
-                          | np.arange(n_manifolds))
+    assert np.array_equal(
+        edges["item"], layouts.EDGE_CONTACT << layouts.EDGE_KIND_SHIFT | np.arange(n_manifolds)
+    )
     assert np.all(edges["colour"] == layouts.SOLVER_NONE)
     np.testing.assert_allclose(edges["point"][:, :3], manifolds["points"][:, 0, :3], atol=1e-5)
 
@@ -325,8 +408,9 @@ def test_slow_speculative_contact_only_closes_the_gap(runtime):
     """A point 0.1 m apart approaching at 1 m/s (no crossing in 1/60 s) may approach at gap/dt."""
     bodies = make_bodies([[0, 0, 0], [0, 1, 0]], [0.0, 1.0], velocities=[[0, 0, 0], [0, -1, 0]])
     rig = ContactRig(runtime, bodies, np.array([[0, 0, 0], [1, 1, 1.0]]), warm_start=False)
-    c = rig.constraints(np.array([make_manifold(0, 1, [0, 1, 0], [[0, 0, 0]], [0.1],
-                                                restitution=1.0)]))[0]
+    c = rig.constraints(
+        np.array([make_manifold(0, 1, [0, 1, 0], [[0, 0, 0]], [0.1], restitution=1.0)])
+    )[0]
     assert c["velocity_target"][0] == pytest.approx(-0.1 * 60, rel=1e-5)
 
 
@@ -338,15 +422,23 @@ def boxes_on_ground(n_pairs, features=None):
     positions = np.zeros((n_pairs + 1, 3))
     positions[1:, 0] = np.arange(n_pairs) * 3.0
     positions[1:, 1] = 0.5
-    bodies = make_bodies(positions, np.r_[0.0, np.ones(n_pairs)],
-                         velocities=np.r_[[[0, 0, 0]], np.tile([0, -2.0, 0], (n_pairs, 1))])
+    bodies = make_bodies(
+        positions,
+        np.r_[0.0, np.ones(n_pairs)],
+        velocities=np.r_[[[0, 0, 0]], np.tile([0, -2.0, 0], (n_pairs, 1))],
+    )
     inv_inertia = np.r_[[[0, 0, 0]], np.ones((n_pairs, 3))]
-    corners = np.array([[.3, .5, .3], [-.3, .5, .3], [.3, .5, -.3], [-.3, .5, -.3]])
+    corners = np.array([[0.3, 0.5, 0.3], [-0.3, 0.5, 0.3], [0.3, 0.5, -0.3], [-0.3, 0.5, -0.3]])
     manifolds = layouts.CONTACT_MANIFOLD.zeros(n_pairs)
     for i in range(n_pairs):
-        manifolds[i] = make_manifold(0, i + 1, [0, 1, 0], positions[i + 1] - corners,
-                                     [-0.01] * 4,
-                                     features=None if features is None else features[i])
+        manifolds[i] = make_manifold(
+            0,
+            i + 1,
+            [0, 1, 0],
+            positions[i + 1] - corners,
+            [-0.01] * 4,
+            features=None if features is None else features[i],
+        )
     return bodies, inv_inertia, manifolds
 
 
@@ -386,8 +478,11 @@ def test_warm_start_matches_pair_and_feature(runtime, rng, warm_start, reorder):
                 expected = (0.0, 0.0, 0.0)
             else:
                 j = k if k == 1 else list(old["features"]).index(c["features"][k])
-                expected = (old["normal_impulse"][j], old["tangent1_impulse"][j],
-                            old["tangent2_impulse"][j])
+                expected = (
+                    old["normal_impulse"][j],
+                    old["tangent1_impulse"][j],
+                    old["tangent2_impulse"][j],
+                )
             got = (c["normal_impulse"][k], c["tangent1_impulse"][k], c["tangent2_impulse"][k])
             np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-7)
         assert edge["body_b"] == c["body_b"]
@@ -413,8 +508,9 @@ def test_warm_start_off_for_one_call(runtime, rng):
     rig.setup.edges.set(edges)
     rig.bodies.set(bodies)  # falling again, so that every call has impulses to carry
     rig.prepare(rig.bodies, rig.inertia, rig.body_count, 1 / 60)
-    rig.setup(rig.manifolds, rig.count, rig.bodies, rig.inertia, rig.capacity, 1 / 60,
-              warm_start=False)
+    rig.setup(
+        rig.manifolds, rig.count, rig.bodies, rig.inertia, rig.capacity, 1 / 60, warm_start=False
+    )
     off = rig.setup.constraints.get()[:n_pairs]
     assert np.array_equal(off, reference.constraints(manifolds))
     assert np.all(rig.setup.edges.get()[:n_pairs]["colour"] == layouts.SOLVER_NONE)
@@ -464,19 +560,38 @@ def test_warm_start_follows_the_ring_through_shrinking_pair_sets_and_undo(runtim
         started = rig.constraints(manifolds[pairs])
         rig.sweep(iterations=3)
         final = rig.setup.constraints.get()[: len(pairs)]
+
         def impulses(cs):
-            return {int(c["body_b"]): np.r_[c["normal_impulse"], c["tangent1_impulse"],
-                                            c["tangent2_impulse"]] for c in cs}
+            return {
+                int(c["body_b"]): np.r_[
+                    c["normal_impulse"], c["tangent1_impulse"], c["tangent2_impulse"]
+                ]
+                for c in cs
+            }
+
         return impulses(started), impulses(final)
 
     history = []  # final impulses of the calls in effect, oldest first
     everything = np.arange(n_pairs)
     # (a redo with fewer pairs than the undone call it replaces, then all pairs again: an
     # undone call's table entries must not survive into the redo's generation)
-    schedule = [everything, everything, everything, everything, everything[: n_pairs // 3],
-                rng.permutation(n_pairs), rng.permutation(n_pairs), "undo 2",
-                rng.permutation(n_pairs)[: n_pairs // 2], everything, "undo 1",
-                rng.permutation(n_pairs), everything[::2], rng.permutation(n_pairs), everything]
+    schedule = [
+        everything,
+        everything,
+        everything,
+        everything,
+        everything[: n_pairs // 3],
+        rng.permutation(n_pairs),
+        rng.permutation(n_pairs),
+        "undo 2",
+        rng.permutation(n_pairs)[: n_pairs // 2],
+        everything,
+        "undo 1",
+        rng.permutation(n_pairs),
+        everything[::2],
+        rng.permutation(n_pairs),
+        everything,
+    ]
     found = missing = 0
     for number, entry in enumerate(schedule):
         if isinstance(entry, str):
@@ -488,8 +603,13 @@ def test_warm_start_follows_the_ring_through_shrinking_pair_sets_and_undo(runtim
         before = history[-1] if history else {}
         for body, impulses in started.items():
             expected = before.get(body, np.zeros(12))
-            np.testing.assert_allclose(impulses, expected, rtol=1e-5, atol=1e-7,
-                                       err_msg=f"warm start of the pair (0, {body})")
+            np.testing.assert_allclose(
+                impulses,
+                expected,
+                rtol=1e-5,
+                atol=1e-7,
+                err_msg=f"warm start of the pair (0, {body})",
+            )
             found, missing = found + (body in before), missing + (body not in before)
         history.append(final)
         assert all(np.all(v[:4] > 0) for v in final.values())  # every call carries impulses

@@ -9,6 +9,7 @@ barrier's counters are back to zero, a later kernel on the same buffer does
 nothing, and a World redoes the step without persistent launches, with a warning,
 ending exactly where a World that never tried them ends.
 """
+
 from __future__ import annotations
 
 from types import SimpleNamespace
@@ -33,22 +34,29 @@ OVERSUBSCRIBED = 64
 def oversubscribed(monkeypatch):
     """Persistent launches of OVERSUBSCRIBED groups per compute unit, giving up after 4,096
     polls."""
+
     def too_many(traits):
         return OVERSUBSCRIBED * max(1, int(traits.compute_units))
+
     for module in (global_colouring, pgs, jacobi):
         monkeypatch.setattr(module, "persistent_groups", too_many)
     monkeypatch.setattr(device_barrier, "spin_limit", lambda traits: 1 << 12)
 
 
 def column_rig(runtime, rng):
-    positions, manifolds = stacked_columns(5, 4, 1.2, lambda: rng.uniform(-0.01, 0.0, 4),
-                                           side_contacts=True)
+    positions, manifolds = stacked_columns(
+        5, 4, 1.2, lambda: rng.uniform(-0.01, 0.0, 4), side_contacts=True
+    )
     n = len(positions)
-    bodies = make_bodies(positions, np.r_[0.0, rng.uniform(0.5, 2, n - 1)],
-                         velocities=np.r_[[[0, 0, 0]], rng.uniform(-1, 1, (n - 1, 3))])
+    bodies = make_bodies(
+        positions,
+        np.r_[0.0, rng.uniform(0.5, 2, n - 1)],
+        velocities=np.r_[[[0, 0, 0]], rng.uniform(-1, 1, (n - 1, 3))],
+    )
     inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(2, 8, (n - 1, 3))]
-    return ContactRig(runtime, bodies, inv_inertia, variant="persistent",
-                      work_group_size=32), np.array(manifolds)
+    return ContactRig(
+        runtime, bodies, inv_inertia, variant="persistent", work_group_size=32
+    ), np.array(manifolds)
 
 
 def test_oversubscribed_colouring_and_solve_give_up(runtime, rng, oversubscribed):
@@ -71,10 +79,15 @@ def test_oversubscribed_jacobi_gives_up(runtime, rng, oversubscribed):
     rig.constraints(manifolds)
     before = rig.bodies.get()
     jacobi_solver = jacobi.JacobiSolver(runtime, persistent=True, work_group_size=32)
-    jacobi_solver.solve(rig.setup.constraints, rig.setup.count, rig.capacity, rig.bodies,
-                        rig.inertia, rig.body_count,
-                        SimpleNamespace(iterations=4, position_iterations=0, relaxation=1.0,
-                                        warm_start=True))
+    jacobi_solver.solve(
+        rig.setup.constraints,
+        rig.setup.count,
+        rig.capacity,
+        rig.bodies,
+        rig.inertia,
+        rig.body_count,
+        SimpleNamespace(iterations=4, position_iterations=0, relaxation=1.0, warm_start=True),
+    )
     sync = jacobi_solver.sync.get()
     assert sync[layouts.BARRIER_ABANDONED] == 1
     assert sync[layouts.BARRIER_ARRIVALS] == sync[layouts.BARRIER_DEPARTURES] == 0
@@ -89,9 +102,9 @@ def small_pile(world):
 
 
 @pytest.mark.parametrize("solver_name", ["pgs", "jacobi"])
-def test_world_redoes_an_abandoned_step_without_persistent_launches(runtime, solver_name,
-                                                                    oversubscribed,
-                                                                    monkeypatch):
+def test_world_redoes_an_abandoned_step_without_persistent_launches(
+    runtime, solver_name, oversubscribed, monkeypatch
+):
     """The World's persistent launches give up on the first step; it warns, redoes the
     step with a plan without them (PGS: spatial batching; Jacobi: one launch per phase)
     and then matches, bit for bit, a World that used that plan from the start."""

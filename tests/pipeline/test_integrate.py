@@ -1,4 +1,5 @@
 """Integrate kernel against a float64 reference and closed forms."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -12,8 +13,14 @@ from tests.conftest import SIZES
 from tests.reference import quat_mul, random_quaternions, rotation_angle_between
 
 
-def reference_step(bodies, dt, gravity, linear_damping=0.0, angular_damping=0.0,
-                   max_angular_step=DEFAULT_MAX_ANGULAR_STEP):
+def reference_step(
+    bodies,
+    dt,
+    gravity,
+    linear_damping=0.0,
+    angular_damping=0.0,
+    max_angular_step=DEFAULT_MAX_ANGULAR_STEP,
+):
     """One step in float64: v += g dt, damping, x += v dt, exact axis-angle rotation."""
     out = bodies.copy()
     dynamic = bodies["inv_mass"] != 0
@@ -28,7 +35,11 @@ def reference_step(bodies, dt, gravity, linear_damping=0.0, angular_damping=0.0,
     dq = np.concatenate([axis * np.sin(angle / 2)[:, None], np.cos(angle / 2)[:, None]], axis=1)
     q = quat_mul(dq, bodies["orientation"].astype(np.float64))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    for name, value in (("linear_velocity", v), ("angular_velocity", w), ("position", pos + v * dt)):
+    for name, value in (
+        ("linear_velocity", v),
+        ("angular_velocity", w),
+        ("position", pos + v * dt),
+    ):
         out[name][dynamic, :3] = value[dynamic]
     out["orientation"][dynamic] = q[dynamic]
     return out
@@ -49,7 +60,11 @@ def test_matches_float64_reference(runtime, rng, n):
     bodies = random_bodies(rng, n)
     dt, g = 1 / 60, (0.5, -9.81, 0.25)
     integrate = Integrator(runtime)
-    d = cla.to_device(runtime.queue, bodies) if n else cla.empty(runtime.queue, 1, layouts.BODY.dtype)
+    d = (
+        cla.to_device(runtime.queue, bodies)
+        if n
+        else cla.empty(runtime.queue, 1, layouts.BODY.dtype)
+    )
     integrate(d, n, dt, gravity=g)
     got = d.get()[:n]
     want = reference_step(bodies, dt, g)
@@ -71,7 +86,9 @@ def test_damping_and_work_group_sizes(runtime, rng, work_group_size):
     integrate(d, n, 0.01, gravity=(0, -9.81, 0), linear_damping=0.2, angular_damping=0.5)
     want = reference_step(bodies, 0.01, (0, -9.81, 0), 0.2, 0.5)
     got = d.get()
-    np.testing.assert_allclose(got["linear_velocity"], want["linear_velocity"], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(
+        got["linear_velocity"], want["linear_velocity"], rtol=1e-5, atol=1e-5
+    )
     np.testing.assert_allclose(got["position"], want["position"], rtol=1e-5, atol=1e-4)
 
 
@@ -80,7 +97,13 @@ def test_projectile_closed_form(runtime):
     bodies = layouts.BODY.zeros(1)
     bodies["orientation"][:, 3] = 1
     bodies["inv_mass"] = 1
-    x0, v0, g, dt, steps = np.array([1.0, 2.0, -3.0]), np.array([3.0, 12.0, -1.0]), np.array([0, -9.81, 0]), 1 / 120, 240
+    x0, v0, g, dt, steps = (
+        np.array([1.0, 2.0, -3.0]),
+        np.array([3.0, 12.0, -1.0]),
+        np.array([0, -9.81, 0]),
+        1 / 120,
+        240,
+    )
     bodies["position"][0, :3], bodies["linear_velocity"][0, :3] = x0, v0
     d = cla.to_device(runtime.queue, bodies)
     integrate = Integrator(runtime)
@@ -125,8 +148,9 @@ def test_angular_step_clamp(runtime):
     d = cla.to_device(runtime.queue, bodies)
     Integrator(runtime)(d, 1, 0.1, gravity=(0, 0, 0), max_angular_step=0.25)
     got = d.get()[0]
-    np.testing.assert_allclose(rotation_angle_between(got["orientation"], np.array([0, 0, 0, 1.0])), 0.25,
-                               atol=1e-5)
+    np.testing.assert_allclose(
+        rotation_angle_between(got["orientation"], np.array([0, 0, 0, 1.0])), 0.25, atol=1e-5
+    )
     assert got["angular_velocity"][1] == pytest.approx(100.0), "the stored w is not clamped"
 
 
@@ -167,8 +191,9 @@ def test_split_push_fused(runtime, rng, n, work_group_size):
     dt = 1 / 60
     q = runtime.queue
     d_bodies, d_split = cla.to_device(q, bodies), cla.to_device(q, split)
-    Integrator(runtime, gravity=False, work_group_size=work_group_size)(d_bodies, n, dt,
-                                                                       split=d_split)
+    Integrator(runtime, gravity=False, work_group_size=work_group_size)(
+        d_bodies, n, dt, split=d_split
+    )
     got, pushes = d_bodies.get()[:n], d_split.get()[:n]
     expected = reference_step(bodies[:n], dt, (0.0, 0.0, 0.0))
     dynamic = bodies["inv_mass"][:n] != 0
@@ -178,11 +203,15 @@ def test_split_push_fused(runtime, rng, n, work_group_size):
     half = 0.5 * dt * w
     turned = orientation + quat_mul(np.concatenate([half, np.zeros((n, 1))], axis=1), orientation)
     turned /= np.linalg.norm(turned, axis=1, keepdims=True)
-    np.testing.assert_allclose(got["position"][dynamic, :3], position[dynamic], rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(
+        got["position"][dynamic, :3], position[dynamic], rtol=1e-5, atol=1e-4
+    )
     np.testing.assert_array_equal(got["position"][~dynamic], bodies["position"][:n][~dynamic])
     assert np.all(rotation_angle_between(got["orientation"][dynamic], turned[dynamic]) < 1e-5)
-    np.testing.assert_array_equal(got["linear_velocity"][dynamic, :3],
-                                  expected["linear_velocity"][dynamic, :3].astype(np.float32))
+    np.testing.assert_array_equal(
+        got["linear_velocity"][dynamic, :3],
+        expected["linear_velocity"][dynamic, :3].astype(np.float32),
+    )
     assert not np.any(pushes["linear"][dynamic]) and not np.any(pushes["angular"][dynamic])
     with pytest.raises(RbgenError, match="split"):
         Integrator(runtime)(d_bodies, n + 5, dt, split=d_split[:n] if n else d_split[:0])

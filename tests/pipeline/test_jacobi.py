@@ -14,6 +14,7 @@
 * Total linear and angular momentum of free bodies is conserved.
 * No constraints: nothing changes.
 """
+
 from __future__ import annotations
 
 from types import SimpleNamespace
@@ -30,15 +31,26 @@ VARIANTS = [(False, 16), (False, 64), (True, 32), (True, 64)]  # (persistent, wo
 
 def sweeps(iterations=1, position_iterations=0, relaxation=1.0, warm_start=True):
     """The sweep settings a solver reads (the World's settings object)."""
-    return SimpleNamespace(iterations=iterations, position_iterations=position_iterations,
-                           relaxation=relaxation, warm_start=warm_start)
+    return SimpleNamespace(
+        iterations=iterations,
+        position_iterations=position_iterations,
+        relaxation=relaxation,
+        warm_start=warm_start,
+    )
 
 
 def run_jacobi(rig, solver, **settings):
     """Solve the rig's constraints (set up last) with ``solver``."""
     setup = rig.setup
-    solver.solve(setup.constraints, setup.count, rig.capacity, rig.bodies, rig.inertia,
-                 rig.body_count, sweeps(**settings))
+    solver.solve(
+        setup.constraints,
+        setup.count,
+        rig.capacity,
+        rig.bodies,
+        rig.inertia,
+        rig.body_count,
+        sweeps(**settings),
+    )
 
 
 def random_scene(rng, bodies=37, statics=3, manifolds=101):
@@ -62,21 +74,33 @@ def random_scene(rng, bodies=37, statics=3, manifolds=101):
         count = int(rng.integers(1, 5))
         centre = 0.5 * (positions[a] + positions[b])
         points = centre + rng.uniform(-0.4, 0.4, (count, 3))
-        records.append(make_manifold(int(a), int(b), normal, points,
-                                     rng.uniform(-0.03, 0.01, count),
-                                     friction=float(rng.uniform(0.2, 0.9))))
+        records.append(
+            make_manifold(
+                int(a),
+                int(b),
+                normal,
+                points,
+                rng.uniform(-0.03, 0.01, count),
+                friction=float(rng.uniform(0.2, 0.9)),
+            )
+        )
     return body_array, inv_inertia, np.array(records)
 
 
 def rows_of(c, k):
     """Point k's lever arms and the constraint's frame."""
-    return (c["r_a"][k, :3].astype(np.float64), c["r_b"][k, :3].astype(np.float64),
-            c["normal"][:3].astype(np.float64), c["tangent1"][:3].astype(np.float64),
-            c["tangent2"][:3].astype(np.float64))
+    return (
+        c["r_a"][k, :3].astype(np.float64),
+        c["r_b"][k, :3].astype(np.float64),
+        c["normal"][:3].astype(np.float64),
+        c["tangent1"][:3].astype(np.float64),
+        c["tangent2"][:3].astype(np.float64),
+    )
 
 
-def reference_jacobi(cons, bodies, world_inv_inertia, *, iterations, position_iterations,
-                     relaxation, warm_start):
+def reference_jacobi(
+    cons, bodies, world_inv_inertia, *, iterations, position_iterations, relaxation, warm_start
+):
     """Float64 Jacobi with mass splitting, sequential normal rows and the manifold's
     friction pair and twist row (the kernels' arithmetic in the template's order):
     (velocities, angular velocities, push linear, push angular, constraints with their
@@ -99,8 +123,10 @@ def reference_jacobi(cons, bodies, world_inv_inertia, *, iterations, position_it
 
     def centres(c):
         count = c["point_count"]
-        return (c["r_a"][:count, :3].astype(np.float64).mean(0),
-                c["r_b"][:count, :3].astype(np.float64).mean(0))
+        return (
+            c["r_a"][:count, :3].astype(np.float64).mean(0),
+            c["r_b"][:count, :3].astype(np.float64).mean(0),
+        )
 
     for c in cons:  # the row masses between the split bodies
         a, b = c["body_a"], c["body_b"]
@@ -137,8 +163,10 @@ def reference_jacobi(cons, bodies, world_inv_inertia, *, iterations, position_it
             a, b = c["body_a"], c["body_b"]
             state = [v[a].copy(), w[a].copy(), v[b].copy(), w[b].copy()]
             action(c, state, a, b)
-            for body, lin, ang in ((a, state[0] - v[a], state[1] - w[a]),
-                                   (b, state[2] - v[b], state[3] - w[b])):
+            for body, lin, ang in (
+                (a, state[0] - v[a], state[1] - w[a]),
+                (b, state[2] - v[b], state[3] - w[b]),
+            ):
                 if dynamic[body]:
                     dv[body] += lin
                     dw[body] += ang
@@ -161,8 +189,13 @@ def reference_jacobi(cons, bodies, world_inv_inertia, *, iterations, position_it
             for k in order:
                 ra, rb, n, _, _ = rows_of(c, k)
                 old = float(c["normal_impulse"][k])
-                total = max(0.0, old + relaxation * c["normal_mass"][k]
-                            * (c["velocity_target"][k] - speed(state, n, ra, rb)))
+                total = max(
+                    0.0,
+                    old
+                    + relaxation
+                    * c["normal_mass"][k]
+                    * (c["velocity_target"][k] - speed(state, n, ra, rb)),
+                )
                 apply(state, a, b, n * (total - old), ra, rb)
                 c["normal_impulse"][k] = total
             # the friction pair at the points' centre, within mu times the total impulse
@@ -183,18 +216,25 @@ def reference_jacobi(cons, bodies, world_inv_inertia, *, iterations, position_it
             twist_limit = limit * radius / count
             old = float(c["tangent1_impulse"][1])
             turning = n @ state[3] - n @ state[1]
-            total = min(max(old - relaxation * c["tangent1_mass"][1] * turning, -twist_limit),
-                        twist_limit)
+            total = min(
+                max(old - relaxation * c["tangent1_mass"][1] * turning, -twist_limit), twist_limit
+            )
             twist_about(state, a, b, n, total - old)
             c["tangent1_impulse"][1] = total
+
         return action
 
     def push(c, state, a, b):
         for k in range(c["point_count"]):
             ra, rb, n, _, _ = rows_of(c, k)
             old = float(c["push_impulse"][k])
-            total = max(0.0, old + relaxation * c["normal_mass"][k]
-                        * (c["position_target"][k] - speed(state, n, ra, rb)))
+            total = max(
+                0.0,
+                old
+                + relaxation
+                * c["normal_mass"][k]
+                * (c["position_target"][k] - speed(state, n, ra, rb)),
+            )
             apply(state, a, b, n * (total - old), ra, rb)
             c["push_impulse"][k] = total
 
@@ -219,8 +259,9 @@ def device_setup(runtime, rng, **scene):
     all_constraints = rig.setup.constraints.get()
     n = len(manifolds)
     for field in ("normal_impulse", "tangent1_impulse", "tangent2_impulse"):
-        all_constraints[field][:n] = rng.uniform(0.0 if field == "normal_impulse" else -0.05,
-                                                 0.1, (n, 4)).astype(np.float32)
+        all_constraints[field][:n] = rng.uniform(
+            0.0 if field == "normal_impulse" else -0.05, 0.1, (n, 4)
+        ).astype(np.float32)
     rig.setup.constraints.set(all_constraints)
     return rig, n
 
@@ -231,10 +272,10 @@ def test_sweeps_match_the_float64_reference(runtime, rng, persistent, work_group
     before = rig.setup.constraints.get()[:n]
     bodies = rig.bodies.get()
     world_inv_inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(np.float64)
-    solver = JacobiSolver(runtime, normal_solve="sequential", persistent=persistent,
-                          work_group_size=work_group_size)
-    settings = {"iterations": 5, "position_iterations": 3, "relaxation": 0.9,
-                "warm_start": True}
+    solver = JacobiSolver(
+        runtime, normal_solve="sequential", persistent=persistent, work_group_size=work_group_size
+    )
+    settings = {"iterations": 5, "position_iterations": 3, "relaxation": 0.9, "warm_start": True}
     run_jacobi(rig, solver, **settings)
     v, w, pv, pw, cons = reference_jacobi(before, bodies, world_inv_inertia, **settings)
     got = rig.bodies.get()
@@ -245,10 +286,22 @@ def test_sweeps_match_the_float64_reference(runtime, rng, persistent, work_group
     np.testing.assert_allclose(split["linear"][:, :3], pv, atol=2e-5 * np.abs(pv).max())
     np.testing.assert_allclose(split["angular"][:, :3], pw, atol=2e-5 * np.abs(pw).max())
     after = rig.setup.constraints.get()[:n]
-    for field in ("normal_mass", "tangent1_mass", "tangent2_mass", "normal_impulse",
-                  "tangent1_impulse", "tangent2_impulse", "push_impulse"):
-        np.testing.assert_allclose(after[field], cons[field], rtol=1e-4,
-                                   atol=1e-5 * np.abs(cons[field]).max(), err_msg=field)
+    for field in (
+        "normal_mass",
+        "tangent1_mass",
+        "tangent2_mass",
+        "normal_impulse",
+        "tangent1_impulse",
+        "tangent2_impulse",
+        "push_impulse",
+    ):
+        np.testing.assert_allclose(
+            after[field],
+            cons[field],
+            rtol=1e-4,
+            atol=1e-5 * np.abs(cons[field]).max(),
+            err_msg=field,
+        )
     assert (np.bincount(np.r_[before["body_a"], before["body_b"]]) > 3).any()  # shared bodies
 
 
@@ -261,19 +314,23 @@ def test_manifold_friction_masses_rewritten_for_split_bodies(runtime, rng, persi
     after = rig.setup.constraints.get()[:n]
     inv_mass = rig.bodies.get()["inv_mass"]
     inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(np.float64)
-    contacts = np.bincount(np.r_[before["body_a"], before["body_b"]],
-                           minlength=len(inv_mass)) * (inv_mass > 0)
+    contacts = np.bincount(np.r_[before["body_a"], before["body_b"]], minlength=len(inv_mass)) * (
+        inv_mass > 0
+    )
     share = np.maximum(contacts, 1)
     for c, old in zip(after, before):
         a, b = c["body_a"], c["body_b"]
         count = c["point_count"]
         ra, rb = c["r_a"][:count, :3].mean(0), c["r_b"][:count, :3].mean(0)
         n_ = c["normal"][:3]
-        for d, got in ((c["tangent1"][:3], c["tangent1_mass"][0]),
-                       (c["tangent2"][:3], c["tangent2_mass"][0])):
+        for d, got in (
+            (c["tangent1"][:3], c["tangent1_mass"][0]),
+            (c["tangent2"][:3], c["tangent2_mass"][0]),
+        ):
             ca, cb = np.cross(ra, d), np.cross(rb, d)
-            k = (share[a] * (inv_mass[a] + ca @ inertia[a] @ ca)
-                 + share[b] * (inv_mass[b] + cb @ inertia[b] @ cb))
+            k = share[a] * (inv_mass[a] + ca @ inertia[a] @ ca) + share[b] * (
+                inv_mass[b] + cb @ inertia[b] @ cb
+            )
             assert got == pytest.approx(1 / k, rel=2e-4)
         twist = share[a] * n_ @ inertia[a] @ n_ + share[b] * n_ @ inertia[b] @ n_
         assert c["tangent1_mass"][1] == pytest.approx(1 / twist, rel=2e-4)
@@ -290,12 +347,22 @@ def test_single_contacts_are_gauss_seidel(runtime, rng, persistent):
     positions = np.c_[np.arange(boxes) * 1.5, np.full(boxes, 0.5), np.zeros(boxes)]
     positions = np.r_[[[0, 0, 0]], positions]
     velocities = np.r_[[[0, 0, 0]], rng.uniform(-1, 1, (boxes, 3))]
-    bodies = make_bodies(positions, np.r_[0.0, rng.uniform(0.5, 2, boxes)], velocities=velocities,
-                         angular=np.r_[[[0, 0, 0]], rng.uniform(-1, 1, (boxes, 3))])
+    bodies = make_bodies(
+        positions,
+        np.r_[0.0, rng.uniform(0.5, 2, boxes)],
+        velocities=velocities,
+        angular=np.r_[[[0, 0, 0]], rng.uniform(-1, 1, (boxes, 3))],
+    )
     inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(2, 8, (boxes, 3))]
     square = np.array([[0.5, 0, 0.5], [-0.5, 0, 0.5], [0.5, 0, -0.5], [-0.5, 0, -0.5]])
-    manifolds = np.array([make_manifold(0, i, [0, 1, 0], positions[i] - [0, 0.5, 0] + square,
-                                        rng.uniform(-0.01, 0.0, 4)) for i in range(1, boxes + 1)])
+    manifolds = np.array(
+        [
+            make_manifold(
+                0, i, [0, 1, 0], positions[i] - [0, 0.5, 0] + square, rng.uniform(-0.01, 0.0, 4)
+            )
+            for i in range(1, boxes + 1)
+        ]
+    )
     results = []
     for use_jacobi in (False, True):
         rig = ContactRig(runtime, bodies, inv_inertia, warm_start=False)
@@ -306,8 +373,13 @@ def test_single_contacts_are_gauss_seidel(runtime, rng, persistent):
         else:  # the rig's own Gauss-Seidel solver (block normal solve) and batcher
             solver = rig.solver
             rig.sweep(iterations=6, position_iterations=2)
-        results.append((rig.bodies.get(), rig.setup.constraints.get()[:boxes],
-                        solver.split_velocities(rig.body_count).get()))
+        results.append(
+            (
+                rig.bodies.get(),
+                rig.setup.constraints.get()[:boxes],
+                solver.split_velocities(rig.body_count).get(),
+            )
+        )
     (b_gs, c_gs, s_gs), (b_j, c_j, s_j) = results
     for field in ("linear_velocity", "angular_velocity"):
         np.testing.assert_allclose(b_j[field], b_gs[field], atol=1e-5, err_msg=field)

@@ -11,6 +11,7 @@ sit where the compound's pose times the child's puts them. In a World, a pile on
 dense mesh overflows the candidate buffer: the step is redone and the candidates of the
 step equal brute force.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -51,8 +52,9 @@ def mesh_scene(runtime, rng, count: int, cells: int = 24):
     bodies = cla.to_device(q, host)
     aabbs = cla.empty(q, len(host), layouts.AABB.dtype)
     margin = float(rng.uniform(0, 0.05))
-    WorldAabbs(runtime, table.type_names())(bodies, packed.shapes, packed.vertices, aabbs,
-                                            len(host), margin)
+    WorldAabbs(runtime, table.type_names())(
+        bodies, packed.shapes, packed.vertices, aabbs, len(host), margin
+    )
     return mesh, table, host, packed, bodies, aabbs
 
 
@@ -71,8 +73,9 @@ def mesh_pairs(rng, count: int, with_others: bool) -> np.ndarray:
 
 
 @pytest.mark.parametrize("count", COUNTS)
-@pytest.mark.parametrize("params", PARAMS, ids=lambda p: f"{p['traversal']}-"
-                         f"{p['work_group_size']}-{p['subtree_nodes']}")
+@pytest.mark.parametrize(
+    "params", PARAMS, ids=lambda p: f"{p['traversal']}-{p['work_group_size']}-{p['subtree_nodes']}"
+)
 def test_triangle_candidates_equal_brute_force(runtime, rng, params, count):
     """Both traversals, every tunable point: the output equals brute force, pair order
     then triangle order, pairs without a mesh copied; the output starts at 16 pairs and
@@ -80,10 +83,11 @@ def test_triangle_candidates_equal_brute_force(runtime, rng, params, count):
     mesh, table, host, packed, bodies, aabbs = mesh_scene(runtime, rng, count)
     pairs = mesh_pairs(rng, count, with_others=True)
     padded = layouts.PAIR.zeros(max(1, len(pairs)) + 5)  # a list longer than its count
-    padded[:len(pairs)] = pairs
+    padded[: len(pairs)] = pairs
     midphase = Midphase(runtime, table, params=params, capacity=16)
-    found = midphase.find_pairs(bodies, len(host), packed, aabbs,
-                                cla.to_device(runtime.queue, padded), len(pairs))
+    found = midphase.find_pairs(
+        bodies, len(host), packed, aabbs, cla.to_device(runtime.queue, padded), len(pairs)
+    )
     expected = reference.brute_force(mesh, host, aabbs.get(), pairs)
     assert len(found) == len(expected)
     np.testing.assert_array_equal(found, expected)
@@ -144,17 +148,20 @@ def test_rotated_mesh_misses_nothing(runtime, rng):
     host["orientation"][0] = turn / np.linalg.norm(turn)
     host["position"][0, :3] = rng.uniform(-3, 3, 3)
     rotation = quat_to_matrix(host["orientation"][0].astype(np.float64))
-    host["position"][1:, :3] = (host["position"][1:, :3].astype(np.float64) @ rotation.T
-                                + host["position"][0, :3])
+    host["position"][1:, :3] = (
+        host["position"][1:, :3].astype(np.float64) @ rotation.T + host["position"][0, :3]
+    )
     q = runtime.queue
     packed = table.pack_all().to_device(q)
     bodies = cla.to_device(q, host)
     aabbs = cla.empty(q, len(host), layouts.AABB.dtype)
-    WorldAabbs(runtime, table.type_names())(bodies, packed.shapes, packed.vertices, aabbs,
-                                            len(host))
+    WorldAabbs(runtime, table.type_names())(
+        bodies, packed.shapes, packed.vertices, aabbs, len(host)
+    )
     pairs = mesh_pairs(rng, 300, with_others=False)
-    found = Midphase(runtime, table).find_pairs(bodies, len(host), packed, aabbs,
-                                                cla.to_device(q, pairs), len(pairs))
+    found = Midphase(runtime, table).find_pairs(
+        bodies, len(host), packed, aabbs, cla.to_device(q, pairs), len(pairs)
+    )
     world = mesh.vertices.astype(np.float64) @ rotation.T + host["position"][0, :3]
     corners = world[mesh.triangles]
     box_lo = aabbs.get()["lower"][:, :3].astype(np.float64)
@@ -176,8 +183,10 @@ def compound_scene(runtime, rng, count: int):
     table = ShapeTable()
     compounds = []
     for _ in range(3):
-        children = [(rbgen.Box(rng.uniform(0.1, 0.5, 3)), rng.uniform(-1, 1, 3),
-                     reference_quaternion(rng)) for _ in range(int(rng.integers(1, 6)))]
+        children = [
+            (rbgen.Box(rng.uniform(0.1, 0.5, 3)), rng.uniform(-1, 1, 3), reference_quaternion(rng))
+            for _ in range(int(rng.integers(1, 6)))
+        ]
         children.append((rbgen.Sphere(0.3), rng.uniform(-1, 1, 3)))
         compounds.append(rbgen.Compound(children))
     indices = [table.add(c) for c in compounds] + [table.add(rbgen.Sphere(0.5))]
@@ -211,19 +220,25 @@ def test_compound_children_pairs_equal_brute_force(runtime, rng, count):
     if pairs:
         records["a"], records["b"] = np.array(pairs).T
     midphase = Midphase(runtime, table, capacity=4)
-    found = midphase.find_pairs(bodies, count, packed, aabbs, cla.to_device(q, records),
-                                len(pairs), shape_indices=host["shape"])
-    placed = midphase.placed_bodies.get()[:count + midphase.proxy_count]
-    boxes = midphase.placed_aabbs.get()[:count + midphase.proxy_count]
-    proxies = midphase.proxies.get()[:midphase.proxy_count]
+    found = midphase.find_pairs(
+        bodies,
+        count,
+        packed,
+        aabbs,
+        cla.to_device(q, records),
+        len(pairs),
+        shape_indices=host["shape"],
+    )
+    placed = midphase.placed_bodies.get()[: count + midphase.proxy_count]
+    boxes = midphase.placed_aabbs.get()[: count + midphase.proxy_count]
+    proxies = midphase.proxies.get()[: midphase.proxy_count]
     # the placed children
     for k, proxy in enumerate(proxies):
         body, child = host[proxy["body"]], proxy["child"]
         compound = table.shapes[body["shape"]]
         rotation = quat_to_matrix(body["orientation"].astype(np.float64))
         expected_position = body["position"][:3] + rotation @ compound.positions[child]
-        np.testing.assert_allclose(placed[count + k]["position"][:3], expected_position,
-                                   atol=2e-5)
+        np.testing.assert_allclose(placed[count + k]["position"][:3], expected_position, atol=2e-5)
         expected_q = quat_mul(body["orientation"].astype(np.float64), compound.orientations[child])
         assert abs(abs(np.dot(placed[count + k]["orientation"], expected_q)) - 1) < 1e-5
         assert placed[count + k]["shape"] == table.index_of(compound.children[child])
@@ -238,8 +253,10 @@ def test_compound_children_pairs_equal_brute_force(runtime, rng, count):
         return [first[body] + c for c in range(n)] if n else None
 
     def overlap(i, j):
-        return bool(np.all(boxes["lower"][i, :3] <= boxes["upper"][j, :3])
-                    and np.all(boxes["lower"][j, :3] <= boxes["upper"][i, :3]))
+        return bool(
+            np.all(boxes["lower"][i, :3] <= boxes["upper"][j, :3])
+            and np.all(boxes["lower"][j, :3] <= boxes["upper"][i, :3])
+        )
 
     expected = []
     for a, b in pairs:
@@ -259,8 +276,10 @@ def test_world_pile_overflows_and_loses_nothing(runtime, rng):
     vertices, triangles = reference.terrain(40, 0.25, rng, roughness=0.02)
     mesh = rbgen.TriangleMesh(vertices, triangles)
     world.add_static(mesh)
-    grid = np.stack(np.meshgrid(np.arange(1, 9) * 1.1, [0.5, 1.6, 2.7],
-                                np.arange(1, 9) * 1.1, indexing="ij"), -1).reshape(-1, 3)
+    grid = np.stack(
+        np.meshgrid(np.arange(1, 9) * 1.1, [0.5, 1.6, 2.7], np.arange(1, 9) * 1.1, indexing="ij"),
+        -1,
+    ).reshape(-1, 3)
     world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=grid)
     world.step(1 / 60)
     stage = world._pipeline["midphase"]
@@ -272,10 +291,10 @@ def test_world_pile_overflows_and_loses_nothing(runtime, rng):
     world.statistics()  # (waits for every step)
     assert world.overflows > before
     bp = world._pipeline.broadphase.broadphase
-    pairs = bp.pairs.get()[:int(bp.count.get()[0])]
+    pairs = bp.pairs.get()[: int(bp.count.get()[0])]
     aabbs = world._pipeline.prepare.aabbs.get()
     mp = stage.midphase
-    found = mp.pairs.get()[:int(mp.count.get()[0])]
+    found = mp.pairs.get()[: int(mp.count.get()[0])]
     host = world._bodies.host  # (the mesh never moves; its pose is all brute force reads)
     expected = reference.brute_force({0: mesh}, host, aabbs, pairs)
     assert len(expected) > 32
@@ -296,7 +315,8 @@ def test_parameters_are_checked_and_the_space_is_valid(runtime):
 
 
 def test_the_tuner_times_both_traversals_and_the_midphase_uses_its_winner(
-        runtime, tmp_path, monkeypatch):
+    runtime, tmp_path, monkeypatch
+):
     """`rbgen tune`'s family "midphase" runs its candidates on a terrain and checks each
     against brute force; the winner it stores is what a Midphase then uses (an untuned
     device gets the heuristic)."""
@@ -308,8 +328,10 @@ def test_the_tuner_times_both_traversals_and_the_midphase_uses_its_winner(
     table = ShapeTable()
     table.add(rbgen.TriangleMesh(*reference.terrain(4, 1.0, np.random.default_rng(0))))
     assert Midphase(runtime, table).params_for(300) == default_params(runtime.traits)
-    candidates = [{"work_group_size": 16, "traversal": "global", "subtree_nodes": 0},
-                  {"work_group_size": 16, "traversal": "local", "subtree_nodes": 64}]
+    candidates = [
+        {"work_group_size": 16, "traversal": "global", "subtree_nodes": 0},
+        {"work_group_size": 16, "traversal": "local", "subtree_nodes": 64},
+    ]
     monkeypatch.setattr(module, "search_space", lambda traits: candidates)
     entry = tuning.tune(runtime, "midphase", "triangles", 300, repeats=2)
     winner = {k: v for k, v in entry["params"].items() if k != "shape"}
@@ -340,12 +362,14 @@ def test_two_meshes_share_a_work_group(runtime, rng, params):
     packed = table.pack_all().to_device(q)
     bodies = cla.to_device(q, host)
     aabbs = cla.empty(q, len(host), layouts.AABB.dtype)
-    WorldAabbs(runtime, table.type_names())(bodies, packed.shapes, packed.vertices, aabbs,
-                                            len(host))
+    WorldAabbs(runtime, table.type_names())(
+        bodies, packed.shapes, packed.vertices, aabbs, len(host)
+    )
     pairs = layouts.PAIR.zeros(2 * count)
     pairs["a"] = np.tile([0, 1], count)
     pairs["b"] = np.repeat(np.arange(2, count + 2), 2)
     found = Midphase(runtime, table, params=params, capacity=8).find_pairs(
-        bodies, len(host), packed, aabbs, cla.to_device(q, pairs), len(pairs))
+        bodies, len(host), packed, aabbs, cla.to_device(q, pairs), len(pairs)
+    )
     expected = reference.brute_force({0: meshes[0], 1: meshes[1]}, host, aabbs.get(), pairs)
     np.testing.assert_array_equal(found, expected)

@@ -3,6 +3,7 @@ and world AABBs.
 
 Closed forms checked against a float64 numpy reference, for body counts that
 are not multiples of the work-group size (and zero bodies)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -16,9 +17,13 @@ from rbgen.pipeline.prepare import BodyPreparation, inertia_records
 
 def _rotation(q):
     x, y, z, w = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _random_bodies(rng, n):
@@ -91,23 +96,33 @@ def test_fused_world_aabbs(runtime, rng, n, work_group_size):
         d_bodies = cl_array.to_device(queue, bodies)
         d_inertia = cl_array.to_device(queue, inertia_records(diag))
         fused = bool(shape_types)  # (the AABBs and the backup fused in, or neither)
-        prepare = BodyPreparation(runtime, gyroscopic=True, gravity=True, shape_types=shape_types,
-                                  work_group_size=work_group_size, backup=fused)
+        prepare = BodyPreparation(
+            runtime,
+            gyroscopic=True,
+            gravity=True,
+            shape_types=shape_types,
+            work_group_size=work_group_size,
+            backup=fused,
+        )
         aabbs = cl_array.empty(queue, max(n, 1), layouts.AABB.dtype)
         backup = cl_array.zeros(queue, max(n, 1), layouts.BODY.dtype)
-        inputs = (cl_array.to_device(queue, shapes), cl_array.to_device(queue, vertices), aabbs,
-                  margin) if shape_types else None
-        prepare(d_bodies, d_inertia, n, dt, gravity, aabbs=inputs,
-                backup=backup if fused else None)
-        outputs.append((d_bodies.get()[:n], d_inertia.get()[:n], aabbs.get()[:n],
-                        backup.get()[:n]))
+        inputs = (
+            (cl_array.to_device(queue, shapes), cl_array.to_device(queue, vertices), aabbs, margin)
+            if shape_types
+            else None
+        )
+        prepare(d_bodies, d_inertia, n, dt, gravity, aabbs=inputs, backup=backup if fused else None)
+        outputs.append((d_bodies.get()[:n], d_inertia.get()[:n], aabbs.get()[:n], backup.get()[:n]))
     (plain_bodies, plain_inertia, _, _), (fused_bodies, fused_inertia, boxes, backup) = outputs
     np.testing.assert_array_equal(fused_bodies, plain_bodies)
     np.testing.assert_array_equal(fused_inertia, plain_inertia)
     np.testing.assert_array_equal(backup, bodies[:n])  # the bodies as they were
     for i in range(n):
-        lo, hi = expected_bounds(shape_list[which[i]], bodies["position"][i, :3].astype(np.float64),
-                                 bodies["orientation"][i])
+        lo, hi = expected_bounds(
+            shape_list[which[i]],
+            bodies["position"][i, :3].astype(np.float64),
+            bodies["orientation"][i],
+        )
         tol = 1e-5 + 1e-6 * max(np.abs(lo).max(), np.abs(hi).max())
         np.testing.assert_allclose(boxes["lower"][i, :3], lo - margin, atol=tol)
         np.testing.assert_allclose(boxes["upper"][i, :3], hi + margin, atol=tol)

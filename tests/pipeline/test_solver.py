@@ -19,6 +19,7 @@ group, and the persistent launch (every compute unit stepping through the batche
 together). The kernel signatures are rendered from the Python declarations the solvers
 bind by, and a binding that disagrees with them is refused.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -59,12 +60,27 @@ def stacked_columns(columns, height, pitch, separations, side_contacts=False):
             positions.append([pitch * col, 0.5 + level, 0])
             i = len(positions) - 1
             below = 0 if level == 0 else i - 1
-            manifolds.append(make_manifold(below, i, [0, 1, 0], np.array(positions[i]) + SQUARE
-                                           - [0, 0.5, 0], separations()))
+            manifolds.append(
+                make_manifold(
+                    below,
+                    i,
+                    [0, 1, 0],
+                    np.array(positions[i]) + SQUARE - [0, 0.5, 0],
+                    separations(),
+                )
+            )
             if side_contacts and col:
-                manifolds.append(make_manifold(i - height, i, [1, 0, 0], np.array(positions[i])
-                                               + SQUARE[:, [1, 0, 2]] * [0, 0.8, 0.8]
-                                               - [pitch / 2, 0, 0], [-0.002] * 4))
+                manifolds.append(
+                    make_manifold(
+                        i - height,
+                        i,
+                        [1, 0, 0],
+                        np.array(positions[i])
+                        + SQUARE[:, [1, 0, 2]] * [0, 0.8, 0.8]
+                        - [pitch / 2, 0, 0],
+                        [-0.002] * 4,
+                    )
+                )
     return np.array(positions), manifolds
 
 
@@ -75,14 +91,26 @@ def test_bounce_off_static_plane(runtime, rng, restitution, speed, variant):
     n_boxes = 33
     positions = np.c_[np.arange(n_boxes) * 2.0, np.full(n_boxes, 0.5), np.zeros(n_boxes)]
     positions = np.r_[[[0, 0, 0]], positions]
-    bodies = make_bodies(positions, np.r_[0.0, rng.uniform(0.2, 2.0, n_boxes)],
-                         velocities=np.r_[[[0, 0, 0]], np.tile([0, -speed, 0], (n_boxes, 1))])
+    bodies = make_bodies(
+        positions,
+        np.r_[0.0, rng.uniform(0.2, 2.0, n_boxes)],
+        velocities=np.r_[[[0, 0, 0]], np.tile([0, -speed, 0], (n_boxes, 1))],
+    )
     inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(0.5, 3.0, (n_boxes, 3))]
     rig = ContactRig(runtime, bodies, inv_inertia, variant=variant, warm_start=False)
-    manifolds = np.array([make_manifold(0, i + 1, [0, 1, 0],
-                                        positions[i + 1] + SQUARE - [0, 0.5, 0], [0.0] * 4,
-                                        restitution=restitution)
-                          for i in range(n_boxes)])
+    manifolds = np.array(
+        [
+            make_manifold(
+                0,
+                i + 1,
+                [0, 1, 0],
+                positions[i + 1] + SQUARE - [0, 0.5, 0],
+                [0.0] * 4,
+                restitution=restitution,
+            )
+            for i in range(n_boxes)
+        ]
+    )
     out, _ = rig.solve(manifolds, iterations=60)
     expected = restitution * speed if speed > rig.setup.restitution_threshold else 0.0
     np.testing.assert_allclose(out["linear_velocity"][1:, 1], expected, atol=2e-3 * speed)
@@ -134,10 +162,20 @@ def test_two_free_bodies_conserve_momentum(runtime, rng, variant):
         s = np.cross(n, t)
         k = int(rng.integers(1, 5))
         points = centre + 0.3 * (rng.uniform(-1, 1, (k, 1)) * t + rng.uniform(-1, 1, (k, 1)) * s)
-        manifolds.append(make_manifold(2 * i, 2 * i + 1, n, points, np.zeros(k),
-                                       friction=rng.uniform(0, 1), restitution=rng.uniform(0, 1)))
-    bodies = make_bodies(np.array(positions), np.array(inv_mass), np.array(velocities),
-                         np.array(angular))
+        manifolds.append(
+            make_manifold(
+                2 * i,
+                2 * i + 1,
+                n,
+                points,
+                np.zeros(k),
+                friction=rng.uniform(0, 1),
+                restitution=rng.uniform(0, 1),
+            )
+        )
+    bodies = make_bodies(
+        np.array(positions), np.array(inv_mass), np.array(velocities), np.array(angular)
+    )
     rig = ContactRig(runtime, bodies, np.array(inv_inertia), variant=variant, warm_start=False)
     out, cons = rig.solve(np.array(manifolds), iterations=1000)
 
@@ -146,8 +184,9 @@ def test_two_free_bodies_conserve_momentum(runtime, rng, variant):
         x, v, w = b["position"][:, :3], b["linear_velocity"][:, :3], b["angular_velocity"][:, :3]
         # orientation is identity, so the world inertia is the principal diagonal
         spin = w / np.array(inv_inertia)
-        return (mass[:, None] * v).reshape(n_pairs, 2, 3).sum(1), \
-            (spin + np.cross(x, mass[:, None] * v)).reshape(n_pairs, 2, 3).sum(1)
+        return (mass[:, None] * v).reshape(n_pairs, 2, 3).sum(1), (
+            spin + np.cross(x, mass[:, None] * v)
+        ).reshape(n_pairs, 2, 3).sum(1)
 
     p0, l0 = momenta(bodies.astype(bodies.dtype))
     p1, l1 = momenta(out)
@@ -160,8 +199,12 @@ def test_two_free_bodies_conserve_momentum(runtime, rng, variant):
             continue  # redundant points (more than the rows' rank) converge slowly
         for k in range(c["point_count"]):
             ra, rb = c["r_a"][k, :3], c["r_b"][k, :3]
-            dv = (out["linear_velocity"][b, :3] + np.cross(out["angular_velocity"][b, :3], rb)
-                  - out["linear_velocity"][a, :3] - np.cross(out["angular_velocity"][a, :3], ra))
+            dv = (
+                out["linear_velocity"][b, :3]
+                + np.cross(out["angular_velocity"][b, :3], rb)
+                - out["linear_velocity"][a, :3]
+                - np.cross(out["angular_velocity"][a, :3], ra)
+            )
             target = c["velocity_target"][k]
             assert dv @ c["normal"][:3] >= target - 1e-2 * max(1.0, abs(target))
 
@@ -172,8 +215,9 @@ def test_penetration_recovery(runtime, variant):
     velocity at rest."""
     depth, dt = 0.05, 1 / 60
     bodies = make_bodies([[0, 0, 0], [0, 0.45, 0]], [0.0, 1.0])
-    rig = ContactRig(runtime, bodies, np.array([[0, 0, 0], [1, 1, 1.0]]), variant=variant,
-                     warm_start=False)
+    rig = ContactRig(
+        runtime, bodies, np.array([[0, 0, 0], [1, 1, 1.0]]), variant=variant, warm_start=False
+    )
     m = make_manifold(0, 1, [0, 1, 0], SQUARE + [0, -0.05, 0], [-depth] * 4)
     out, _ = rig.solve(np.array([m]), dt=dt, iterations=30, position_iterations=30)
     push = rig.setup.penetration_recovery * (depth - rig.setup.penetration_slop)
@@ -181,11 +225,21 @@ def test_penetration_recovery(runtime, variant):
     assert np.abs(out["linear_velocity"][1, :3]).max() < 1e-5
 
 
-@pytest.mark.parametrize("variant,work_group_size,batching", [
-    ("lanes", 1, "cells"), ("lanes", 64, "cells"), ("lanes", 32, "slabs"),
-    ("serial", 1, "cells"), ("serial", 2, "cells"), ("serial", 1, "slabs"),
-    ("one_group", 1, None), ("one_group", 32, None), ("persistent", 1, None),
-    ("persistent", 32, None)])
+@pytest.mark.parametrize(
+    "variant,work_group_size,batching",
+    [
+        ("lanes", 1, "cells"),
+        ("lanes", 64, "cells"),
+        ("lanes", 32, "slabs"),
+        ("serial", 1, "cells"),
+        ("serial", 2, "cells"),
+        ("serial", 1, "slabs"),
+        ("one_group", 1, None),
+        ("one_group", 32, None),
+        ("persistent", 1, None),
+        ("persistent", 32, None),
+    ],
+)
 def test_stacked_columns_end_resting(runtime, rng, variant, work_group_size, batching):
     """Columns of 6 boxes falling onto each other (one pile per column, batched): after
     the solve every box's vertical speed is ~0 (inelastic), whatever the batching (in cells
@@ -198,9 +252,16 @@ def test_stacked_columns_end_resting(runtime, rng, variant, work_group_size, bat
     velocities = np.tile([0, -speed, 0], (n, 1))
     velocities[0] = 0
     bodies = make_bodies(positions, np.r_[0.0, np.ones(n - 1)], velocities=velocities)
-    rig = ContactRig(runtime, bodies, np.r_[[[0, 0, 0]], np.full((n - 1, 3), 6.0)],
-                     variant=variant, batching=batching, warm_start=False, group_count=4,
-                     work_group_size=work_group_size)
+    rig = ContactRig(
+        runtime,
+        bodies,
+        np.r_[[[0, 0, 0]], np.full((n - 1, 3), 6.0)],
+        variant=variant,
+        batching=batching,
+        warm_start=False,
+        group_count=4,
+        work_group_size=work_group_size,
+    )
     manifolds = np.array(manifolds)[rng.permutation(len(manifolds))]
     out, _ = rig.solve(manifolds, iterations=200)
     assert np.abs(out["linear_velocity"][1:, 1]).max() < 5e-3 * speed
@@ -222,9 +283,13 @@ def test_gyroscopic_term_conserves_angular_momentum(runtime):
     def momentum(b):
         q = b["orientation"][0]
         x, y, z, w = q
-        rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        rot = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+            ]
+        )
         return rot @ (inertia_diag * (rot.T @ b["angular_velocity"][0, :3]))
 
     l0 = momentum(bodies)
@@ -254,27 +319,34 @@ def test_persistent_solve_matches_the_one_group_solve_bit_for_bit(runtime, rng, 
     each kernel's arithmetic its own way, so only exact builds promise equal bits; both
     warm-start batch by batch (the summed warm start adds in another order:
     test_summed_warm_start_is_the_sum_of_the_impulses)."""
-    positions, manifolds = stacked_columns(columns, 5, 1.2, lambda: rng.uniform(-0.01, 0.0, 4),
-                                           side_contacts=True)
+    positions, manifolds = stacked_columns(
+        columns, 5, 1.2, lambda: rng.uniform(-0.01, 0.0, 4), side_contacts=True
+    )
     n = len(positions)
     velocities = rng.uniform(-1, 1, (n, 3))
     velocities[0] = 0
-    bodies = make_bodies(positions, np.r_[0.0, rng.uniform(0.5, 2, n - 1)],
-                         velocities=velocities)
+    bodies = make_bodies(positions, np.r_[0.0, rng.uniform(0.5, 2, n - 1)], velocities=velocities)
     inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(2, 8, (n - 1, 3))]
     manifolds = np.array(manifolds)[rng.permutation(len(manifolds))]
     impulses = rng.uniform(0.0, 0.3, (len(manifolds), 4)).astype(np.float32)
     results = []
     for variant in ("one_group", "persistent"):
-        rig = ContactRig(runtime, bodies, inv_inertia, variant=variant, work_group_size=32,
-                         fast_math=False, warm_start_mode="batched")
+        rig = ContactRig(
+            runtime,
+            bodies,
+            inv_inertia,
+            variant=variant,
+            work_group_size=32,
+            fast_math=False,
+            warm_start_mode="batched",
+        )
         rig.constraints(manifolds)
         records = rig.setup.constraints.get()
-        records["normal_impulse"][:len(manifolds)] = impulses  # something to warm start
+        records["normal_impulse"][: len(manifolds)] = impulses  # something to warm start
         rig.setup.constraints.set(records)
         rig.sweep(iterations=7, position_iterations=3)
         rig.solver.apply_split(rig.bodies, rig.body_count, 1 / 60)
-        results.append((rig.bodies.get(), rig.setup.constraints.get()[:len(manifolds)]))
+        results.append((rig.bodies.get(), rig.setup.constraints.get()[: len(manifolds)]))
     (bodies_g, cons_g), (bodies_p, cons_p) = results
     for field in ("linear_velocity", "angular_velocity", "position", "orientation"):
         assert np.array_equal(bodies_g[field], bodies_p[field]), field
@@ -320,33 +392,39 @@ def test_summed_warm_start_is_the_sum_of_the_impulses(runtime, rng):
     additions."""
     if not runtime.has_extension(INT64_ATOMICS):
         pytest.skip(f"the summed warm start needs {INT64_ATOMICS}")
-    positions, manifolds = stacked_columns(6, 5, 1.2, lambda: rng.uniform(-0.01, 0.0, 4),
-                                           side_contacts=True)
+    positions, manifolds = stacked_columns(
+        6, 5, 1.2, lambda: rng.uniform(-0.01, 0.0, 4), side_contacts=True
+    )
     n = len(positions)
     velocities = rng.uniform(-1, 1, (n, 3))
     velocities[0] = 0
-    bodies = make_bodies(positions, np.r_[0.0, rng.uniform(0.5, 2, n - 1)],
-                         velocities=velocities, angular=np.r_[[[0, 0, 0]],
-                                                              rng.uniform(-1, 1, (n - 1, 3))])
+    bodies = make_bodies(
+        positions,
+        np.r_[0.0, rng.uniform(0.5, 2, n - 1)],
+        velocities=velocities,
+        angular=np.r_[[[0, 0, 0]], rng.uniform(-1, 1, (n - 1, 3))],
+    )
     inv_inertia = np.r_[[[0, 0, 0]], rng.uniform(2, 8, (n - 1, 3))]
     manifolds = np.array(manifolds)[rng.permutation(len(manifolds))]
-    impulses = {name: rng.uniform(0.0 if name == "normal_impulse" else -0.3, 0.6,
-                                  (len(manifolds), 4)).astype(np.float32)
-                for name in ("normal_impulse", "tangent1_impulse", "tangent2_impulse")}
+    impulses = {
+        name: rng.uniform(
+            0.0 if name == "normal_impulse" else -0.3, 0.6, (len(manifolds), 4)
+        ).astype(np.float32)
+        for name in ("normal_impulse", "tangent1_impulse", "tangent2_impulse")
+    }
     results = []
     for mode in ("summed", "summed", "batched"):
-        rig = ContactRig(runtime, bodies, inv_inertia, variant="persistent",
-                         warm_start_mode=mode)
+        rig = ContactRig(runtime, bodies, inv_inertia, variant="persistent", warm_start_mode=mode)
         assert rig.solver.spec.values["warm_start_mode"] == mode
         rig.constraints(manifolds)
         records = rig.setup.constraints.get()
         for name, values in impulses.items():
-            records[name][:len(manifolds)] = values
+            records[name][: len(manifolds)] = values
         rig.setup.constraints.set(records)
         rig.sweep(iterations=0, warm_start=True)
         results.append(rig.bodies.get())
         inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
-        constraints = records[:len(manifolds)]
+        constraints = records[: len(manifolds)]
     first, again, batched = results
     assert first.tobytes() == again.tobytes()
     scale = np.abs(batched["linear_velocity"]).max()
@@ -365,8 +443,7 @@ def test_summed_warm_start_needs_a_persistent_solve_and_int64_atomics(runtime):
     with pytest.raises(RbgenError, match="warm_start_mode='summed' needs persistent=True"):
         PgsSolver(runtime, batcher, warm_start_mode="summed")
     expected = "summed" if runtime.has_extension(INT64_ATOMICS) else "batched"
-    assert PgsSolver(runtime, batcher, persistent=True).spec.values["warm_start_mode"] \
-        == expected
+    assert PgsSolver(runtime, batcher, persistent=True).spec.values["warm_start_mode"] == expected
     assert PgsSolver(runtime, batcher).spec.values["warm_start_mode"] == "batched"
 
 
@@ -391,8 +468,9 @@ def test_launch_schedule(runtime, batching):
     for release_sweeps in (None, 2):  # (the release sweeps change scalars, not launches)
         launches, _ = solver._schedule(batcher.launch_plan, 10, 4, True, release_sweeps)
         assert len(launches) == (1 if one else colours * 11)
-        assert len(solver._schedule(batcher.launch_plan, 3, 5, False, release_sweeps)[0]) == \
-            (1 if one else colours * 5)
+        assert len(solver._schedule(batcher.launch_plan, 3, 5, False, release_sweeps)[0]) == (
+            1 if one else colours * 5
+        )
         assert solver._schedule(batcher.launch_plan, 0, 0, False, release_sweeps)[0] == []
 
 
@@ -401,12 +479,20 @@ def pgs_specs():
     between its parameters."""
     specs = []
     for form, persistent, warm, normal in itertools.product(
-            ("serial", "lanes"), (False, True), pgs.WARM_START_MODES, ("block", "sequential")):
+        ("serial", "lanes"), (False, True), pgs.WARM_START_MODES, ("block", "sequential")
+    ):
         try:
-            specs.append(pgs.TEMPLATE.spec(
-                work_group_size=1 if form == "serial" else 64, max_batches=128,
-                solve_form=form, normal_solve=normal, persistent=persistent, fast_math=False,
-                warm_start_mode=warm))
+            specs.append(
+                pgs.TEMPLATE.spec(
+                    work_group_size=1 if form == "serial" else 64,
+                    max_batches=128,
+                    solve_form=form,
+                    normal_solve=normal,
+                    persistent=persistent,
+                    fast_math=False,
+                    warm_start_mode=warm,
+                )
+            )
         except TemplateParameterError:
             continue
     return specs
@@ -419,17 +505,26 @@ def test_kernel_signatures_are_the_declarations():
     specs = pgs_specs()
     assert len(specs) == 8  # serial; lanes; persistent batched; persistent summed; x 2
     cases = [(spec, pgs.TEMPLATE) for spec in specs]
-    cases += [(jacobi.TEMPLATE.spec(work_group_size=16, normal_solve="block",
-                                    persistent=persistent, fast_math=False), jacobi.TEMPLATE)
-              for persistent in (False, True)]
+    cases += [
+        (
+            jacobi.TEMPLATE.spec(
+                work_group_size=16, normal_solve="block", persistent=persistent, fast_math=False
+            ),
+            jacobi.TEMPLATE,
+        )
+        for persistent in (False, True)
+    ]
     for spec, template in cases:
         rendered = kernel_signatures(spec.source)
         assert rendered and set(rendered) <= set(template.signatures)  # every kernel declared
         for name in rendered:
-            declared = [(a.name, " ".join(a.type_for(spec.values).split()))
-                        for a in template.signatures[name].args(spec.values)]
-            assert [(arg["name"], arg["type"]) for arg in rendered[name]] == declared, \
+            declared = [
+                (a.name, " ".join(a.type_for(spec.values).split()))
+                for a in template.signatures[name].args(spec.values)
+            ]
+            assert [(arg["name"], arg["type"]) for arg in rendered[name]] == declared, (
                 f"{name} of {spec}"
+            )
 
 
 def test_bindings_that_disagree_with_the_declaration_are_refused(runtime):
@@ -446,14 +541,16 @@ def test_bindings_that_disagree_with_the_declaration_are_refused(runtime):
         pgs.SOLVE_GROUPS.binder(spec, "warm_sums")
     with pytest.raises(TemplateParameterError, match=r"never sets \['passes'"):
         names = [n for n in pgs.LAUNCH_SCALARS if n not in ("passes", "group_end")]
-        pgs.SOLVE_GROUPS.check_bound(spec, pgs.SOLVE_GROUPS.binder(spec, *names),
-                                     solver._bind_buffers)
+        pgs.SOLVE_GROUPS.check_bound(
+            spec, pgs.SOLVE_GROUPS.binder(spec, *names), solver._bind_buffers
+        )
     kernel = instance(runtime, solver._program, "solve_groups")
     with pytest.raises(TypeError, match="6 values expected, got 5"):
         solver._bind_scalars(kernel, *[np.uint32(0)] * 5)
     other = PgsSolver(runtime, make_batcher_for(runtime, "serial"))  # group_end: one more
-    with pytest.raises(TemplateParameterError,
-                       match="built with 14 arguments, its declaration has 15"):
+    with pytest.raises(
+        TemplateParameterError, match="built with 14 arguments, its declaration has 15"
+    ):
         other._bind_scalars(kernel, *[np.uint32(0)] * 7)
     with pytest.raises(TemplateParameterError, match="declared twice"):
         Signature("k", [Arg("const uint", "n"), Arg("const float", "n")])

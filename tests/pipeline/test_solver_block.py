@@ -19,6 +19,7 @@ those of a float64 brute-force solve of the linear complementarity problem
 (every active set tried), and the impulses are complementary to them. The
 sequential solve (rows one after another) is float64 Gauss-Seidel over the rows.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -32,10 +33,19 @@ CORNERS = np.array([[0.5, -0.5, 0.5], [-0.5, -0.5, 0.5], [-0.5, -0.5, -0.5], [0.
 
 
 def solve_one_iteration(runtime, normal_solve, velocity, angular, count=4):
-    bodies = make_bodies([[0, 0, 0], [0, 0.5, 0]], [0.0, 1.0], velocities=[[0, 0, 0], velocity],
-                         angular=[[0, 0, 0], angular])
-    rig = ContactRig(runtime, bodies, np.array([[0, 0, 0], [6.0, 6.0, 6.0]]), warm_start=False,
-                     normal_solve=normal_solve)
+    bodies = make_bodies(
+        [[0, 0, 0], [0, 0.5, 0]],
+        [0.0, 1.0],
+        velocities=[[0, 0, 0], velocity],
+        angular=[[0, 0, 0], angular],
+    )
+    rig = ContactRig(
+        runtime,
+        bodies,
+        np.array([[0, 0, 0], [6.0, 6.0, 6.0]]),
+        warm_start=False,
+        normal_solve=normal_solve,
+    )
     points = CORNERS[:count] + [0, 0.5, 0]
     m = make_manifold(0, 1, [0, 1, 0], points, [0.0] * count, friction=0.0)
     out, cons = rig.solve(np.array([m]), iterations=1)
@@ -63,8 +73,9 @@ def test_block_three_points_complementary(runtime, rng):
     gives the exact contact solution (every point pushes and stops, or has impulse 0
     and separates) whatever the tumbling."""
     velocity = [0.0, -rng.uniform(1.0, 3.0), 0.0]
-    normal_speed, impulses, _, _ = solve_one_iteration(runtime, "block", velocity,
-                                                       rng.uniform(-0.3, 0.3, 3), count=3)
+    normal_speed, impulses, _, _ = solve_one_iteration(
+        runtime, "block", velocity, rng.uniform(-0.3, 0.3, 3), count=3
+    )
     assert impulses.min() >= 0.0
     pushing = impulses > 0
     assert pushing.any()
@@ -78,8 +89,9 @@ def test_block_releases_separating_points(runtime, count):
     -1 + 4 * 0.5 = 1 m/s and keep impulse 0 (they still separate afterwards); the -x
     corners (approaching at 3 m/s) stop: normal speed 0, positive impulses. With two
     corners (an edge, one of each) the same, by the two-point active sets."""
-    normal_speed, impulses, _, _ = solve_one_iteration(runtime, "block", [0, -1.0, 0],
-                                                       [0, 0, 4.0], count=count)
+    normal_speed, impulses, _, _ = solve_one_iteration(
+        runtime, "block", [0, -1.0, 0], [0, 0, 4.0], count=count
+    )
     pushing = CORNERS[:count, 0] < 0
     assert np.abs(normal_speed[pushing]).max() < 1e-4
     assert np.all(normal_speed[~pushing] > 0)
@@ -93,8 +105,9 @@ def test_block_releases_the_one_pulling_corner(runtime, rng):
     the other three, which stops the whole face: p0 + p1 + p2 = 1 (mass 1) and the moments
     that cancel w with inverse inertia 6, sum r_z p = w / 6 and sum r_x p = -w / 6."""
     spin = rng.uniform(1.7, 2.3)
-    normal_speed, impulses, v, w = solve_one_iteration(runtime, "block", [0, -1.0, 0],
-                                                       [spin, 0, spin])
+    normal_speed, impulses, v, w = solve_one_iteration(
+        runtime, "block", [0, -1.0, 0], [spin, 0, spin]
+    )
     rows = np.array([np.ones(3), CORNERS[:3, 2], CORNERS[:3, 0]])
     expected = np.linalg.solve(rows, [1.0, spin / 6, -spin / 6])
     assert expected.min() > 0
@@ -111,8 +124,9 @@ def test_block_leaves_a_corner_that_is_apart(runtime, rng):
     targets fit no rigid motion; a least-squares compromise tips the box towards the gap
     (|w| ~ gap/dt), and the rows one after another converge slowly (measured on PoCL,
     |w| 0.03-0.15 rad/s after 10 iterations)."""
-    bodies = make_bodies([[0, 0, 0], [0, 0.5, 0]], [0.0, 1.0],
-                         velocities=[[0, 0, 0], [0, -rng.uniform(0.5, 2.0), 0]])
+    bodies = make_bodies(
+        [[0, 0, 0], [0, 0.5, 0]], [0.0, 1.0], velocities=[[0, 0, 0], [0, -rng.uniform(0.5, 2.0), 0]]
+    )
     rig = ContactRig(runtime, bodies, np.array([[0, 0, 0], [6.0, 6.0, 6.0]]), warm_start=False)
     apart = int(rng.integers(4))
     separations = [0.0] * 4
@@ -125,8 +139,17 @@ def test_block_leaves_a_corner_that_is_apart(runtime, rng):
     assert impulses[apart] == 0.0 and impulses.min() >= 0.0
 
 
-def random_face_pairs(runtime, rng, count, variant, pairs=7, spin=0.2, separations=(0.0, 0.0),
-                      batching=None, normal_solve="block"):
+def random_face_pairs(
+    runtime,
+    rng,
+    count,
+    variant,
+    pairs=7,
+    spin=0.2,
+    separations=(0.0, 0.0),
+    batching=None,
+    normal_solve="block",
+):
     """``pairs`` pairs of free bodies with full inertia tensors, each in contact through
     ``count`` points of a random tilted face (a rectangle, an edge or a triangle about the
     line of centres, points off the contact plane by a few mm), approaching at 1-2 m/s and
@@ -154,23 +177,47 @@ def random_face_pairs(runtime, rng, count, variant, pairs=7, spin=0.2, separatio
             angles = np.radians([90, 210, 330]) + rng.uniform(0, 2 * np.pi)
             corners = rng.uniform(0.4, 0.6, (3, 1)) * np.c_[np.cos(angles), np.sin(angles)]
         corners = corners + rng.uniform(-0.05, 0.05, (count, 2))
-        points = centre + corners[:, :1] * t1 + corners[:, 1:] * t2 \
+        points = (
+            centre
+            + corners[:, :1] * t1
+            + corners[:, 1:] * t2
             + rng.uniform(-0.003, 0.003, (count, 1)) * normal
+        )
         positions += [a, b]
         low, high = ranges[i % len(ranges)]
-        manifolds.append(make_manifold(2 * i, 2 * i + 1, normal, points,
-                                       rng.uniform(low, high, count), friction=0.0,
-                                       restitution=rng.uniform(0.0, 0.8) if high <= 0 else 0.0))
+        manifolds.append(
+            make_manifold(
+                2 * i,
+                2 * i + 1,
+                normal,
+                points,
+                rng.uniform(low, high, count),
+                friction=0.0,
+                restitution=rng.uniform(0.0, 0.8) if high <= 0 else 0.0,
+            )
+        )
     n_bodies = 2 * pairs
     normals = np.array([m["normal"][:3] for m in manifolds])
-    velocities = np.repeat(normals, 2, axis=0) * np.tile([1.0, -1.0], pairs)[:, None] \
-        * rng.uniform(1.0, 2.0, (n_bodies, 1)) + rng.uniform(-0.2, 0.2, (n_bodies, 3))
-    bodies = make_bodies(positions, rng.uniform(0.5, 2.0, n_bodies), velocities=velocities,
-                         angular=rng.uniform(-spin, spin, (n_bodies, 3)))
+    velocities = np.repeat(normals, 2, axis=0) * np.tile([1.0, -1.0], pairs)[:, None] * rng.uniform(
+        1.0, 2.0, (n_bodies, 1)
+    ) + rng.uniform(-0.2, 0.2, (n_bodies, 3))
+    bodies = make_bodies(
+        positions,
+        rng.uniform(0.5, 2.0, n_bodies),
+        velocities=velocities,
+        angular=rng.uniform(-spin, spin, (n_bodies, 3)),
+    )
     quaternions = rng.normal(size=(n_bodies, 4))
     bodies["orientation"] = quaternions / np.linalg.norm(quaternions, axis=1)[:, None]
-    rig = ContactRig(runtime, bodies, rng.uniform(1.0, 6.0, (n_bodies, 3)), variant=variant,
-                     batching=batching, warm_start=False, normal_solve=normal_solve)
+    rig = ContactRig(
+        runtime,
+        bodies,
+        rng.uniform(1.0, 6.0, (n_bodies, 3)),
+        variant=variant,
+        batching=batching,
+        warm_start=False,
+        normal_solve=normal_solve,
+    )
     assert rig.solver.spec.values["normal_solve"] == normal_solve
     manifolds = np.array(manifolds)
     cons = rig.constraints(manifolds)
@@ -187,8 +234,9 @@ def normal_rows(manifold, constraint, before, inertia):
     rb = constraint["r_b"][:count, :3].astype(float)
     arm_a, arm_b = np.cross(ra, n), np.cross(rb, n)
     inv_mass = before["inv_mass"].astype(float)
-    k_matrix = inv_mass[a] + inv_mass[b] + arm_a @ inertia[a] @ arm_a.T \
-        + arm_b @ inertia[b] @ arm_b.T
+    k_matrix = (
+        inv_mass[a] + inv_mass[b] + arm_a @ inertia[a] @ arm_a.T + arm_b @ inertia[b] @ arm_b.T
+    )
     v, w = (before[f][:, :3].astype(float) for f in ("linear_velocity", "angular_velocity"))
     normal_speed = (v[b] - v[a]) @ n + arm_b @ w[b] - arm_a @ w[a]
     return a, b, n, arm_a, arm_b, k_matrix, normal_speed
@@ -199,8 +247,10 @@ def apply_totals(before, inertia, a, b, n, arm_a, arm_b, total):
     inv_mass = before["inv_mass"].astype(float)
     v, w = (before[f][:, :3].astype(float) for f in ("linear_velocity", "angular_velocity"))
     impulse = total.sum() * n
-    return {a: (v[a] - inv_mass[a] * impulse, w[a] - inertia[a] @ (arm_a.T @ total)),
-            b: (v[b] + inv_mass[b] * impulse, w[b] + inertia[b] @ (arm_b.T @ total))}
+    return {
+        a: (v[a] - inv_mass[a] * impulse, w[a] - inertia[a] @ (arm_a.T @ total)),
+        b: (v[b] + inv_mass[b] * impulse, w[b] + inertia[b] @ (arm_b.T @ total)),
+    }
 
 
 def assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total, atol=None):
@@ -227,8 +277,11 @@ def brute_force_lcp(k_matrix, rhs):
                 idx = list(active)
                 x[idx] = np.linalg.lstsq(k_matrix[np.ix_(idx, idx)], rhs[idx], rcond=1e-9)[0]
             slack = k_matrix @ x - rhs
-            if x.min() >= -1e-9 * scale and slack.min() >= -1e-7 * scale \
-                    and np.abs(slack[list(active)]).max(initial=0) <= 1e-7 * scale:
+            if (
+                x.min() >= -1e-9 * scale
+                and slack.min() >= -1e-7 * scale
+                and np.abs(slack[list(active)]).max(initial=0) <= 1e-7 * scale
+            ):
                 return np.maximum(x, 0.0)
     raise AssertionError("no active set solves the reference problem")
 
@@ -248,11 +301,11 @@ def test_pushing_points_get_the_smallest_exact_impulses(runtime, rng, variant, c
     out, solved = rig.solve(manifolds, iterations=1)
     for m, c, s in zip(manifolds, cons, solved):
         a, b, n, arm_a, arm_b, k_matrix, normal_speed = normal_rows(m, c, before, inertia)
-        total = np.linalg.pinv(k_matrix, rcond=1e-6) @ (c["velocity_target"][:count]
-                                                        - normal_speed)
+        total = np.linalg.pinv(k_matrix, rcond=1e-6) @ (c["velocity_target"][:count] - normal_speed)
         assert total.min() > 0.05 * total.max()
-        np.testing.assert_allclose(s["normal_impulse"][:count], total, rtol=2e-3,
-                                   atol=1e-4 * total.max())
+        np.testing.assert_allclose(
+            s["normal_impulse"][:count], total, rtol=2e-3, atol=1e-4 * total.max()
+        )
         assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total)
 
 
@@ -273,8 +326,9 @@ def test_block_is_the_exact_contact_solution(runtime, rng, variant, count):
     the rows one by one instead of the block fail every seed)."""
     released = 0
     for _attempt in range(3):
-        rig, manifolds, cons, before = random_face_pairs(runtime, rng, count, variant, pairs=9,
-                                                         spin=4.0, separations=(-0.002, 0.004))
+        rig, manifolds, cons, before = random_face_pairs(
+            runtime, rng, count, variant, pairs=9, spin=4.0, separations=(-0.002, 0.004)
+        )
         inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
         out, solved = rig.solve(manifolds, iterations=1)
         for m, c, s in zip(manifolds, cons, solved):
@@ -282,10 +336,14 @@ def test_block_is_the_exact_contact_solution(runtime, rng, variant, count):
             target = c["velocity_target"][:count].astype(float)
             total = brute_force_lcp(k_matrix, target - normal_speed)
             released += int((total == 0).sum())
-            scale = max(np.abs(before["linear_velocity"][[a, b]]).max(), 1.0,
-                        np.abs(target - normal_speed).max())
-            assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total,
-                                    atol=2e-4 * scale)
+            scale = max(
+                np.abs(before["linear_velocity"][[a, b]]).max(),
+                1.0,
+                np.abs(target - normal_speed).max(),
+            )
+            assert_velocities_after(
+                out, before, inertia, a, b, n, arm_a, arm_b, total, atol=2e-4 * scale
+            )
             impulses = s["normal_impulse"][:count].astype(float)
             reached = normal_speed + k_matrix @ impulses
             assert impulses.min() >= 0.0
@@ -303,8 +361,9 @@ def test_sequential_rows_are_gauss_seidel(runtime, rng, variant, count):
     points in order, then backwards, equal the float64 Gauss-Seidel of the normal rows,
     lambda_k = max(0, lambda_k + (target_k - speed_k) / K_kk) with the speeds updated after
     every row, and the velocities change by the impulses found. Friction 0."""
-    rig, manifolds, cons, before = random_face_pairs(runtime, rng, count, variant, spin=2.0,
-                                                     normal_solve="sequential")
+    rig, manifolds, cons, before = random_face_pairs(
+        runtime, rng, count, variant, spin=2.0, normal_solve="sequential"
+    )
     inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
     out, solved = rig.solve(manifolds, iterations=2)
     for m, c, s in zip(manifolds, cons, solved):
@@ -316,8 +375,9 @@ def test_sequential_rows_are_gauss_seidel(runtime, rng, variant, count):
                 speed = normal_speed + k_matrix @ total
                 total[k] = max(0.0, total[k] + (target[k] - speed[k]) / k_matrix[k, k])
         assert total.max() > 0.0
-        np.testing.assert_allclose(s["normal_impulse"][:count], total, rtol=1e-3,
-                                   atol=1e-4 * total.max())
+        np.testing.assert_allclose(
+            s["normal_impulse"][:count], total, rtol=1e-3, atol=1e-4 * total.max()
+        )
         assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total)
 
 
@@ -328,7 +388,7 @@ def gauss_seidel_rows(k_matrix, rhs, sweeps, alternate=True):
     count = len(rhs)
     total = np.zeros(count)
     for sweep in range(sweeps):
-        for k in (reversed(range(count)) if alternate and sweep % 2 else range(count)):
+        for k in reversed(range(count)) if alternate and sweep % 2 else range(count):
             total[k] = max(0.0, total[k] + (rhs[k] - k_matrix[k] @ total) / k_matrix[k, k])
     return total
 
@@ -348,12 +408,20 @@ def all_pushing(k_matrix, rhs):
     return total, None
 
 
-@pytest.mark.parametrize("variant, batching", [("lanes", "cells"), ("lanes", "slabs"),
-                                               ("serial", "cells"), ("serial", "slabs"),
-                                               ("one_group", "global"),
-                                               ("persistent", "global")])
-def test_release_sweeps_leave_the_releasing_faces_to_the_rows_until_the_last(runtime, rng,
-                                                                             variant, batching):
+@pytest.mark.parametrize(
+    "variant, batching",
+    [
+        ("lanes", "cells"),
+        ("lanes", "slabs"),
+        ("serial", "cells"),
+        ("serial", "slabs"),
+        ("one_group", "global"),
+        ("persistent", "global"),
+    ],
+)
+def test_release_sweeps_leave_the_releasing_faces_to_the_rows_until_the_last(
+    runtime, rng, variant, batching
+):
     """release_sweeps=1 of 3 velocity and 3 position sweeps: whatever the first two did,
     the last solves the complete block, whose result is the exact contact solution: the
     velocities are those of the float64 brute-force solution (brute_force_lcp), and the
@@ -375,46 +443,60 @@ def test_release_sweeps_leave_the_releasing_faces_to_the_rows_until_the_last(run
         seed = int(rng.integers(1 << 31))
         for release_sweeps in (1, 0):
             rig, manifolds, cons, before = random_face_pairs(
-                runtime, np.random.default_rng(seed), 4, variant, pairs=9, spin=3.0,
-                separations=[(-0.002, 0.0), (-0.002, 0.004)], batching=batching)
+                runtime,
+                np.random.default_rng(seed),
+                4,
+                variant,
+                pairs=9,
+                spin=3.0,
+                separations=[(-0.002, 0.0), (-0.002, 0.004)],
+                batching=batching,
+            )
             assert (len(rig.batcher.launch_plan) > 1) == (batching != "global")
             inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
-            out, solved = rig.solve(manifolds, iterations=3, position_iterations=3,
-                                    release_sweeps=release_sweeps)
+            out, solved = rig.solve(
+                manifolds, iterations=3, position_iterations=3, release_sweeps=release_sweeps
+            )
             for m, c, s in zip(manifolds, cons, solved):
-                a, b, n, arm_a, arm_b, k_matrix, normal_speed = normal_rows(m, c, before,
-                                                                            inertia)
+                a, b, n, arm_a, arm_b, k_matrix, normal_speed = normal_rows(m, c, before, inertia)
                 rhs = c["velocity_target"][:4].astype(float) - normal_speed
                 push_target = c["position_target"][:4].astype(float)
-                scale = max(np.abs(before["linear_velocity"][[a, b]]).max(), 1.0,
-                            np.abs(rhs).max())
+                scale = max(np.abs(before["linear_velocity"][[a, b]]).max(), 1.0, np.abs(rhs).max())
                 push = s["push_impulse"][:4].astype(float)
                 push_scale = max(np.abs(push_target).max(), 1e-3)
                 exact = brute_force_lcp(k_matrix, rhs)
                 if release_sweeps:
-                    assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, exact,
-                                            atol=2e-4 * scale)
+                    assert_velocities_after(
+                        out, before, inertia, a, b, n, arm_a, arm_b, exact, atol=2e-4 * scale
+                    )
                     reached = k_matrix @ push
                     pushing = push > 1e-4 * max(push.max(), 1e-9)
                     assert push.min() >= 0.0
-                    np.testing.assert_allclose(reached[pushing], push_target[pushing],
-                                               atol=2e-4 * push_scale)
-                    assert np.all(reached[~pushing] >= push_target[~pushing]
-                                  - 2e-4 * push_scale)
+                    np.testing.assert_allclose(
+                        reached[pushing], push_target[pushing], atol=2e-4 * push_scale
+                    )
+                    assert np.all(reached[~pushing] >= push_target[~pushing] - 2e-4 * push_scale)
                     continue
                 block, holds = all_pushing(k_matrix, rhs)
                 if holds is None:
                     continue
                 kinds[holds] += 1
                 total = block if holds else gauss_seidel_rows(k_matrix, rhs, 3)
-                np.testing.assert_allclose(s["normal_impulse"][:4], total, rtol=2e-3,
-                                           atol=2e-4 * max(np.abs(total).max(), 1e-9))
-                missed += int(not holds and np.abs(k_matrix @ (total - exact)).max()
-                              > 1e-2 * scale)
+                np.testing.assert_allclose(
+                    s["normal_impulse"][:4],
+                    total,
+                    rtol=2e-3,
+                    atol=2e-4 * max(np.abs(total).max(), 1e-9),
+                )
+                missed += int(not holds and np.abs(k_matrix @ (total - exact)).max() > 1e-2 * scale)
                 push_block, push_holds = all_pushing(k_matrix, push_target)
                 if push_holds is not None:
-                    expected = push_block if push_holds else \
-                        gauss_seidel_rows(k_matrix, push_target, 3, alternate=False)
-                    np.testing.assert_allclose(push, expected, rtol=2e-3,
-                                               atol=2e-4 * max(np.abs(expected).max(), 1e-9))
+                    expected = (
+                        push_block
+                        if push_holds
+                        else gauss_seidel_rows(k_matrix, push_target, 3, alternate=False)
+                    )
+                    np.testing.assert_allclose(
+                        push, expected, rtol=2e-3, atol=2e-4 * max(np.abs(expected).max(), 1e-9)
+                    )
     assert kinds[True] > 0 and kinds[False] > 0 and missed > 0

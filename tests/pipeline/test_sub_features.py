@@ -8,6 +8,7 @@ everywhere; two pairs of the same bodies with different sub ids give the same ma
 step's constraint with the same (a, b, sub), whatever the order of the manifolds, and a
 key absent last step starts from zero.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -27,8 +28,12 @@ from .narrowphase.reference import make_bodies, pair_records
 
 def test_layouts_carry_the_sub_feature_key():
     assert layouts.WHOLE_BODY == 0
-    for layout in (layouts.PAIR, layouts.CONTACT_MANIFOLD, layouts.SAT_CACHE_ENTRY,
-                   layouts.CONTACT_CONSTRAINT):
+    for layout in (
+        layouts.PAIR,
+        layouts.CONTACT_MANIFOLD,
+        layouts.SAT_CACHE_ENTRY,
+        layouts.CONTACT_CONSTRAINT,
+    ):
         assert layout.field("sub").kind == "uint"
     # the key fields come last, after the point count (the struct stays 352 bytes)
     c = layouts.CONTACT_CONSTRAINT
@@ -50,8 +55,9 @@ def test_broadphases_write_whole_body_pairs(runtime, rng, name):
         aabbs["lower"][:, :3] = lower
         aabbs["upper"][:, :3] = lower + 1.0
         if name != "sap3":
-            cl.enqueue_fill_buffer(runtime.queue, broadphase.pairs.data, np.uint8(0xFF), 0,
-                                   broadphase.pairs.nbytes)
+            cl.enqueue_fill_buffer(
+                runtime.queue, broadphase.pairs.data, np.uint8(0xFF), 0, broadphase.pairs.nbytes
+            )
         count = broadphase.find_pairs(aabbs)
         pairs = broadphase.pairs.get()[:count]
         assert count > n // 2
@@ -70,14 +76,22 @@ def test_manifolds_and_axis_cache_are_keyed_by_sub(runtime):
     axis of the other sub at each index), the same manifolds come out."""
     table = ShapeTable()
     cube, ball, ground = table.add(Box((1, 1, 1))), table.add(Sphere(0.5)), table.add(Plane())
-    bodies = make_bodies([cube, cube, cube, ball, ground],
-                         [(0, 0, 0), (0.3, 1.98, 0.1), (1.97, 0.2, 0), (10, 0.49, 0), (0, 0, 0)])
+    bodies = make_bodies(
+        [cube, cube, cube, ball, ground],
+        [(0, 0, 0), (0.3, 1.98, 0.1), (1.97, 0.2, 0), (10, 0.49, 0), (0, 0, 0)],
+    )
     q = runtime.queue
     narrowphase = Narrowphase(runtime, table)
     packed = table.pack_all().to_device(q)
     d_bodies = cla.to_device(q, bodies)
-    records = np.concatenate([pair_records([(0, 1)], 1), pair_records([(0, 1)], 2),
-                              pair_records([(0, 2)]), pair_records([(3, 4)], 5)])
+    records = np.concatenate(
+        [
+            pair_records([(0, 1)], 1),
+            pair_records([(0, 1)], 2),
+            pair_records([(0, 2)]),
+            pair_records([(3, 4)], 5),
+        ]
+    )
     found = {}
     for order in ([0, 1, 2, 3], [1, 0, 2, 3]):
         pairs = records[order]
@@ -88,8 +102,9 @@ def test_manifolds_and_axis_cache_are_keyed_by_sub(runtime):
         for field in ("a", "b", "sub"):
             np.testing.assert_array_equal(cache[field], pairs[:3][field])
         for record in m:
-            found.setdefault((int(record["body_a"]), int(record["body_b"]), int(record["sub"])),
-                             []).append(record)
+            found.setdefault(
+                (int(record["body_a"]), int(record["body_b"]), int(record["sub"])), []
+            ).append(record)
     assert set(found) == {(0, 1, 1), (0, 1, 2), (0, 2, 0), (3, 4, 5)}
     first, second = found[(0, 1, 1)][0], found[(0, 1, 2)][0]
     assert first["point_count"] == 4
@@ -128,9 +143,15 @@ def test_warm_start_is_keyed_by_sub_feature(runtime):
 
     def step(manifolds):
         padded = layouts.CONTACT_MANIFOLD.zeros(capacity)
-        padded[:len(manifolds)] = manifolds
-        setup(cla.to_device(q, padded), cla.to_device(q, np.array([len(manifolds)], np.uint32)),
-              d_bodies, inertia, capacity, 1 / 60)
+        padded[: len(manifolds)] = manifolds
+        setup(
+            cla.to_device(q, padded),
+            cla.to_device(q, np.array([len(manifolds)], np.uint32)),
+            d_bodies,
+            inertia,
+            capacity,
+            1 / 60,
+        )
         return setup.constraints
 
     constraints = step(np.array([manifold(0, 1, 1, 0.01), manifold(0, 1, 2, 0.01)]))
@@ -141,8 +162,9 @@ def test_warm_start_is_keyed_by_sub_feature(runtime):
         host["normal_impulse"][k] = impulses[int(host["sub"][k])]
     constraints.set(host)
 
-    later = step(np.array([manifold(0, 1, 2, 0.01), manifold(0, 1, 1, 0.01),
-                           manifold(0, 1, 3, 0.01)])).get()[:3]
+    later = step(
+        np.array([manifold(0, 1, 2, 0.01), manifold(0, 1, 1, 0.01), manifold(0, 1, 3, 0.01)])
+    ).get()[:3]
     assert list(later["sub"]) == [2, 1, 3]
     np.testing.assert_array_equal(later["normal_impulse"][0], impulses[2])
     np.testing.assert_array_equal(later["normal_impulse"][1], impulses[1])

@@ -1,6 +1,7 @@
 """Substeps: the contacts' targets refreshed from the bodies' motion (against a float64
 reference), the bodies' motion recorded by the integrator, and a World's substeps against
 closed forms."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -47,12 +48,17 @@ def reference_targets(c, deltas, h):
         moved = deltas["linear"][b, :3].astype(np.float64) - deltas["linear"][a, :3]
         for k in range(int(row["point_count"])):
             ra, rb = row["r_a"][k, :3].astype(np.float64), row["r_b"][k, :3].astype(np.float64)
-            s = (row["r_a"][k, 3] + n @ moved + deltas["angular"][b, :3] @ np.cross(rb, n)
-                 - deltas["angular"][a, :3] @ np.cross(ra, n))
+            s = (
+                row["r_a"][k, 3]
+                + n @ moved
+                + deltas["angular"][b, :3] @ np.cross(rb, n)
+                - deltas["angular"][a, :3] @ np.cross(ra, n)
+            )
             bounce, e = float(row["r_b"][k, 3]), float(row["tangent2"][3])
             if s > 0:
-                velocity[i, k] = (bounce - (1 + e) * s / h if bounce > 0 and bounce * h > e * s
-                                  else -s / h)
+                velocity[i, k] = (
+                    bounce - (1 + e) * s / h if bounce > 0 and bounce * h > e * s else -s / h
+                )
             else:
                 velocity[i, k] = bounce
             push[i, k] = -RECOVERY / h * s if s > 0 else RECOVERY / h * max(-s - SLOP, 0.0)
@@ -73,8 +79,9 @@ def test_refreshed_targets_match_float64(runtime, rng, n):
     count = max(0, n - 1)
     d = cla.to_device(runtime.queue, c)
     h = 1 / 240
-    refresh(d, cla.to_device(runtime.queue, np.array([count], np.uint32)), n, bodies, h, SLOP,
-            RECOVERY)
+    refresh(
+        d, cla.to_device(runtime.queue, np.array([count], np.uint32)), n, bodies, h, SLOP, RECOVERY
+    )
     got = d.get()
     velocity, push = reference_targets(c[:count], deltas, h)
     np.testing.assert_allclose(got["velocity_target"][:count], velocity, rtol=1e-4, atol=2e-3)
@@ -134,11 +141,15 @@ def test_substeps_are_checked(runtime):
 
 def stacked_boxes(world):
     world.add_static(rbgen.Box((10, 1, 10)), position=(0, -1, 0))
-    grid = np.array([[1.1 * i, 0.5 + 1.0 * j, 1.1 * k] for i in range(3) for j in range(4)
-                     for k in range(2)], float)
-    return world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0,
-                            positions=grid + np.random.default_rng(3).uniform(-0.02, 0.02,
-                                                                              grid.shape))
+    grid = np.array(
+        [[1.1 * i, 0.5 + 1.0 * j, 1.1 * k] for i in range(3) for j in range(4) for k in range(2)],
+        float,
+    )
+    return world.add_bodies(
+        rbgen.Box((0.5, 0.5, 0.5)),
+        mass=1.0,
+        positions=grid + np.random.default_rng(3).uniform(-0.02, 0.02, grid.shape),
+    )
 
 
 def test_persistent_launch_runs_the_substeps_as_the_launches_do(runtime, monkeypatch):
@@ -150,8 +161,15 @@ def test_persistent_launch_runs_the_substeps_as_the_launches_do(runtime, monkeyp
     from rbgen.pipeline.solvers.pgs import PgsSolver
 
     def run():
-        world = rbgen.World(runtime, batching="global", substeps=4, iterations=3,
-                            position_iterations=1, linear_damping=0.1, angular_damping=0.2)
+        world = rbgen.World(
+            runtime,
+            batching="global",
+            substeps=4,
+            iterations=3,
+            position_iterations=1,
+            linear_damping=0.1,
+            angular_damping=0.2,
+        )
         ids = stacked_boxes(world)
         for _ in range(40):
             world.step(1 / 60)

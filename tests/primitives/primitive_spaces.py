@@ -8,6 +8,7 @@ wavefront 64) plus the extra points a test names: PoCL needs 10-30 s to
 compile each barrier-heavy GPU-shape program (mostly spent producing the
 binary for the disk cache), so the whole GPU spaces would cost CI minutes.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -20,10 +21,25 @@ FULL_SIZES = [0, 1, 31, 32, 33, 63, 64, 65, 1000, 2**16 - 1, 2**16 + 1, 2**20 + 
 #: work-group size, and one size larger than the largest tile (32 * 1024 keys)
 REDUCED_SIZES = [0, 1, 33, 1000, 40_009]
 
-NVIDIA = DeviceTraits("NVIDIA CUDA", "reference NVIDIA GPU", "NVIDIA Corporation", True, 132, 32,
-                      65536, 1024, "test", "OpenCL 3.0")
-AMD = dataclasses.replace(NVIDIA, platform_name="AMD APP", device_name="reference AMD GPU",
-                          vendor="Advanced Micro Devices, Inc.", wavefront=64)
+NVIDIA = DeviceTraits(
+    "NVIDIA CUDA",
+    "reference NVIDIA GPU",
+    "NVIDIA Corporation",
+    True,
+    132,
+    32,
+    65536,
+    1024,
+    "test",
+    "OpenCL 3.0",
+)
+AMD = dataclasses.replace(
+    NVIDIA,
+    platform_name="AMD APP",
+    device_name="reference AMD GPU",
+    vendor="Advanced Micro Devices, Inc.",
+    wavefront=64,
+)
 
 
 def all_points(search_space, traits: DeviceTraits, extra=lambda params: False) -> list[dict]:

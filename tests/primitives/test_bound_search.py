@@ -4,6 +4,7 @@ Keys contain long runs of duplicates; queries fall before, inside, between
 and after the keys. Full size list (number of keys) on the default point;
 every other search-space point on the reduced list.
 """
+
 import numpy as np
 import pyopencl.array as cla
 import pytest
@@ -19,15 +20,23 @@ NUMPY_SIDE = {"lower": "left", "upper": "right"}
 def check(runtime, search, keys, queries, n_keys=None, n_queries=None, what=""):
     q = runtime.queue
     out = cla.to_device(q, np.full(max(queries.size, 1), 0xDEAD, np.uint32))
-    search(cla.to_device(q, keys), cla.to_device(q, queries), out, n_keys=n_keys, n_queries=n_queries)
-    nk = keys.size if n_keys is None else min(keys.size, n_keys if isinstance(n_keys, int)
-                                               else int(n_keys.get()[0]))
-    nq = queries.size if n_queries is None else min(queries.size, n_queries if isinstance(n_queries, int)
-                                                     else int(n_queries.get()[0]))
+    search(
+        cla.to_device(q, keys), cla.to_device(q, queries), out, n_keys=n_keys, n_queries=n_queries
+    )
+    nk = (
+        keys.size
+        if n_keys is None
+        else min(keys.size, n_keys if isinstance(n_keys, int) else int(n_keys.get()[0]))
+    )
+    nq = (
+        queries.size
+        if n_queries is None
+        else min(queries.size, n_queries if isinstance(n_queries, int) else int(n_queries.get()[0]))
+    )
     expected = np.searchsorted(keys[:nk], queries[:nq], side=NUMPY_SIDE[search.side])
     got = out.get()
     assert np.array_equal(got[:nq], expected), what
-    assert np.all(got[nq:queries.size] == 0xDEAD), what
+    assert np.all(got[nq : queries.size] == 0xDEAD), what
 
 
 def random_case(rng, n_keys, n_queries):
@@ -60,9 +69,15 @@ def test_every_search_space_point(runtime, rng):
 def test_device_counts(runtime, rng):
     search = BoundSearch(runtime, "upper")
     keys, queries = random_case(rng, 4000, 3000)
+
     def dev(count):
         return cla.to_device(runtime.queue, np.array([count], np.uint32))
 
-    for n_keys, n_queries in ((dev(0), dev(3000)), (dev(1234), dev(17)), (dev(10**6), dev(10**6)),
-                              (2000, dev(2999)), (dev(3999), 1500)):
+    for n_keys, n_queries in (
+        (dev(0), dev(3000)),
+        (dev(1234), dev(17)),
+        (dev(10**6), dev(10**6)),
+        (2000, dev(2999)),
+        (dev(3999), 1500),
+    ):
         check(runtime, search, keys, queries, n_keys, n_queries, what=f"{n_keys} {n_queries}")

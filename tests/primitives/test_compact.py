@@ -4,6 +4,7 @@ Flags are arbitrary nonzero values (not just 1). The full size list runs on
 the heuristic default point (indices and values); every other search-space
 point runs the reduced list with indices. The count stays on the device.
 """
+
 import numpy as np
 import pyopencl.array as cla
 import pytest
@@ -15,7 +16,9 @@ from .primitive_spaces import FULL_SIZES, REDUCED_SIZES, all_points, label
 
 
 def random_flags(rng, n, density):
-    return ((rng.random(n) < density) * rng.integers(1, 2**32, n, dtype=np.uint64)).astype(np.uint32)
+    return ((rng.random(n) < density) * rng.integers(1, 2**32, n, dtype=np.uint64)).astype(
+        np.uint32
+    )
 
 
 def check(runtime, compact, flags, values=None, n=None, what=""):
@@ -41,8 +44,13 @@ def test_default_point_full_sizes(runtime, rng, gather):
     for n in FULL_SIZES:
         for density in (0.0, 0.3, 1.0) if n == 1000 else (0.5,):
             values = rng.integers(0, 2**32, n, dtype=np.uint32) if gather else None
-            check(runtime, compact, random_flags(rng, n, density), values,
-                  what=f"n={n} density={density}")
+            check(
+                runtime,
+                compact,
+                random_flags(rng, n, density),
+                values,
+                what=f"n={n} density={density}",
+            )
 
 
 def test_every_search_space_point(runtime, rng):
@@ -57,6 +65,11 @@ def test_device_count(runtime, rng, shape):
     compact = Compact(runtime, params=Compact.default_params(runtime.traits, shape))
     flags = random_flags(rng, 7000, 0.5)
     for count in (0, 1, 3333, 7000, 10**6):
-        check(runtime, compact, flags, n=cla.to_device(runtime.queue, np.array([count], np.uint32)),
-              what=f"count={count}")
+        check(
+            runtime,
+            compact,
+            flags,
+            n=cla.to_device(runtime.queue, np.array([count], np.uint32)),
+            what=f"count={count}",
+        )
     check(runtime, compact, flags, n=4444, what="host count")

@@ -1,4 +1,5 @@
 """Bad input to the primitives: each raises RbgenError naming the argument."""
+
 import numpy as np
 import pyopencl.array as cla
 import pytest
@@ -96,8 +97,9 @@ def test_bad_counts(runtime, arrays):
     with pytest.raises(RbgenError, match="n must be None, an int or a device uint32 array"):
         RadixSort(runtime)(arrays["u"], arrays["u"], n=3.0)
     with pytest.raises(RbgenError, match="n_keys holds 0 elements"):
-        BoundSearch(runtime)(arrays["u"], arrays["u"], arrays["u"],
-                             n_keys=cla.zeros(runtime.queue, 0, np.uint32))
+        BoundSearch(runtime)(
+            arrays["u"], arrays["u"], arrays["u"], n_keys=cla.zeros(runtime.queue, 0, np.uint32)
+        )
 
 
 def test_short_outputs(runtime, arrays):
@@ -122,10 +124,14 @@ def test_bad_options(runtime):
     with pytest.raises(RbgenError, match=r"params\['shape'\]"):
         Scan(runtime, params={"work_items": 4})
     with pytest.raises(TemplateParameterError, match="items_per_thread=3"):
-        Scan(runtime, params={"shape": "gpu", "work_group_size": 64, "items_per_thread": 3,
-                              "wavefront": 32})
+        Scan(
+            runtime,
+            params={"shape": "gpu", "work_group_size": 64, "items_per_thread": 3, "wavefront": 32},
+        )
     with pytest.raises(RbgenError, match="smaller than wavefront"):
-        Compact(runtime, params={"shape": "gpu", "work_group_size": 32, "items_per_thread": 4,
-                                 "wavefront": 64})
+        Compact(
+            runtime,
+            params={"shape": "gpu", "work_group_size": 32, "items_per_thread": 4, "wavefront": 64},
+        )
     with pytest.raises(RbgenError, match="runtime must be an rbgen.Runtime"):
         Scan("pocl")

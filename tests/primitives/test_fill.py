@@ -3,6 +3,7 @@
 Full size list on the default point for every dtype; every other
 search-space point on the reduced list.
 """
+
 import numpy as np
 import pyopencl.array as cla
 import pytest
@@ -35,13 +36,26 @@ def test_every_search_space_point(runtime, rng):
     for params in all_points(search_space, runtime.traits):
         fill = Fill(runtime, np.uint32, params=params)
         for n in REDUCED_SIZES:
-            check(runtime, fill, n, int(rng.integers(0, 2**32)), np.uint32,
-                  what=f"{label(params)} n={n}")
+            check(
+                runtime,
+                fill,
+                n,
+                int(rng.integers(0, 2**32)),
+                np.uint32,
+                what=f"{label(params)} n={n}",
+            )
 
 
 def test_counts(runtime, rng):
     fill = Fill(runtime, np.float32)
     for count in (0, 1, 777, 3000, 10**6):
-        check(runtime, fill, 3000, 1.5, np.float32,
-              n=cla.to_device(runtime.queue, np.array([count], np.uint32)), what=f"count={count}")
+        check(
+            runtime,
+            fill,
+            3000,
+            1.5,
+            np.float32,
+            n=cla.to_device(runtime.queue, np.array([count], np.uint32)),
+            what=f"count={count}",
+        )
     check(runtime, fill, 3000, 1.5, np.float32, n=1001, what="host count")

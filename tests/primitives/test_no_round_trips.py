@@ -4,6 +4,7 @@ Blocking copies, ``Array.get`` and event waits are made to fail while a chain
 of primitives runs whose sizes all live on the device; the results are then
 checked against numpy.
 """
+
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
@@ -25,25 +26,33 @@ def test_chain_without_round_trips(runtime, rng, monkeypatch):
     starts = cla.empty(q, 600, np.uint32)
     queries = cla.to_device(q, np.arange(600, dtype=np.uint32))
     filled = cla.to_device(q, np.zeros(capacity, np.uint32))
-    primitives = [Compact(runtime), RadixSort(runtime, key_bits=9), Scan(runtime),
-                  Reduce(runtime, np.uint32, "max"), BoundSearch(runtime), Fill(runtime)]
+    primitives = [
+        Compact(runtime),
+        RadixSort(runtime, key_bits=9),
+        Scan(runtime),
+        Reduce(runtime, np.uint32, "max"),
+        BoundSearch(runtime),
+        Fill(runtime),
+    ]
     reads_before = runtime.counters["blocking_reads"]
 
     def forbidden(*args, **kwargs):
         raise AssertionError("a primitive waited for the device")
+
     original_copy = cl.enqueue_copy
 
     def copy_without_blocking(queue, dest, src, **kwargs):
         if kwargs.get("is_blocking", True) and isinstance(dest, np.ndarray):
             raise AssertionError("a primitive read back from the device")
         return original_copy(queue, dest, src, **kwargs)
+
     with monkeypatch.context() as patch:
         patch.setattr(cla.Array, "get", forbidden)
         patch.setattr(cl, "wait_for_events", forbidden)
         patch.setattr(cl, "enqueue_copy", copy_without_blocking)
         compact, sort, scan, reduce, search, fill = primitives
-        compact(d_flags, kept, kept_count, n=count)             # kept indices, count on device
-        sort(d_keys, d_values, n=kept_count)                    # sort a prefix of that length
+        compact(d_flags, kept, kept_count, n=count)  # kept indices, count on device
+        sort(d_keys, d_values, n=kept_count)  # sort a prefix of that length
         scan(d_keys, offsets, n=kept_count, total=total)
         reduce(d_keys, largest, n=kept_count)
         search(d_keys, queries, starts, n_keys=kept_count)

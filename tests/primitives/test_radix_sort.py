@@ -10,6 +10,7 @@ list, key-value with 32 and with 13 key bits. The GPU shapes are also run
 with key_bits whose last digit is shorter than the others, and on all-equal
 and extreme keys.
 """
+
 import numpy as np
 import pyopencl.array as cla
 import pytest
@@ -21,8 +22,9 @@ from rbgen.primitives.radix_sort import search_space
 from .primitive_spaces import FULL_SIZES, NVIDIA, REDUCED_SIZES, all_points, label
 
 #: the reference GPU's defaults of each GPU shape (rendered for, and run on, this device)
-GPU_SHAPES = {shape: RadixSort.default_params(NVIDIA, shape)
-              for shape in ("split", "onesweep", "gpu")}
+GPU_SHAPES = {
+    shape: RadixSort.default_params(NVIDIA, shape) for shape in ("split", "onesweep", "gpu")
+}
 
 
 def random_keys(rng, n, key_bits=32, duplicates=True):
@@ -36,8 +38,9 @@ def random_keys(rng, n, key_bits=32, duplicates=True):
 def check_sort(runtime, sorter, keys, key_bits=32, what=""):
     n = keys.size
     d_keys = cla.to_device(runtime.queue, keys)
-    d_values = cla.to_device(runtime.queue, np.arange(n, dtype=np.uint32)) \
-        if sorter.with_values else None
+    d_values = (
+        cla.to_device(runtime.queue, np.arange(n, dtype=np.uint32)) if sorter.with_values else None
+    )
     sorter(d_keys, d_values)
     sort_keys = keys & np.uint32((1 << key_bits) - 1) if key_bits < 32 else keys
     order = np.argsort(sort_keys, kind="stable")
@@ -69,21 +72,32 @@ def test_every_search_space_point(runtime, rng):
         tile (wavefront 32)."""
         point = (p["shape"], p["radix_bits"], p["work_group_size"], p["items_per_thread"])
         return p.get("wavefront") == 32 and point in {
-            ("gpu", 4, 256, 8), ("gpu", 8, 64, 16), ("split", 4, 256, 16), ("onesweep", 8, 256, 8)}
+            ("gpu", 4, 256, 8),
+            ("gpu", 8, 64, 16),
+            ("split", 4, 256, 16),
+            ("onesweep", 8, 256, 8),
+        }
+
     for params in all_points(search_space, runtime.traits, extra=extra):
         for key_bits in (32, 13):
             sorter = RadixSort(runtime, key_bits, with_values=True, params=params)
             for n in REDUCED_SIZES:
-                check_sort(runtime, sorter, random_keys(rng, n, key_bits), key_bits,
-                           f"{label(params)} key_bits={key_bits}")
+                check_sort(
+                    runtime,
+                    sorter,
+                    random_keys(rng, n, key_bits),
+                    key_bits,
+                    f"{label(params)} key_bits={key_bits}",
+                )
 
 
 def test_bits_above_key_bits_are_ignored(runtime, rng):
     """Only the low key_bits bits order the keys; high bits ride along (stably)."""
     keys = rng.integers(0, 2**32, 3001, dtype=np.uint32)
     for key_bits in (1, 7, 16, 31):
-        check_sort(runtime, RadixSort(runtime, key_bits), keys.copy(), key_bits,
-                   f"key_bits={key_bits}")
+        check_sort(
+            runtime, RadixSort(runtime, key_bits), keys.copy(), key_bits, f"key_bits={key_bits}"
+        )
 
 
 @pytest.mark.parametrize("shape", ["split", "onesweep", "gpu"])
@@ -93,8 +107,13 @@ def test_short_last_digit(runtime, rng, shape):
     for key_bits in (1, 3, 4, 5, 9, 12, 17, 31):
         sorter = RadixSort(runtime, key_bits, params=GPU_SHAPES[shape])
         for n in (1, 4099, 20_000):
-            check_sort(runtime, sorter, random_keys(rng, n, key_bits), key_bits,
-                       f"{shape} key_bits={key_bits}")
+            check_sort(
+                runtime,
+                sorter,
+                random_keys(rng, n, key_bits),
+                key_bits,
+                f"{shape} key_bits={key_bits}",
+            )
 
 
 @pytest.mark.parametrize("shape", ["split", "onesweep", "gpu", "cpu"])
@@ -104,8 +123,11 @@ def test_equal_and_extreme_keys(runtime, rng, shape):
     params = GPU_SHAPES.get(shape) or RadixSort.default_params(runtime.traits, "cpu")
     sorter = RadixSort(runtime, 32, params=params)
     n = 3 * 4096 + 17
-    for keys in (np.full(n, 7, np.uint32), np.full(n, 0xFFFFFFFF, np.uint32),
-                 rng.choice(np.array([0, 0xFFFFFFFF], np.uint32), n)):
+    for keys in (
+        np.full(n, 7, np.uint32),
+        np.full(n, 0xFFFFFFFF, np.uint32),
+        rng.choice(np.array([0, 0xFFFFFFFF], np.uint32), n),
+    ):
         check_sort(runtime, sorter, keys, 32, f"{shape} keys from {np.unique(keys)}")
 
 
@@ -123,14 +145,18 @@ def test_launches_per_shape(runtime):
         launches[shape] = runtime.counters["launches"] - before
     scan_launches = launches["split"] / 4 - 2
     assert scan_launches >= 1
-    assert launches == {"split": 4 * (2 + scan_launches), "onesweep": 1 + 4,
-                        "gpu": 8 * (2 + scan_launches)}
+    assert launches == {
+        "split": 4 * (2 + scan_launches),
+        "onesweep": 1 + 4,
+        "gpu": 8 * (2 + scan_launches),
+    }
     assert np.array_equal(keys.get(), np.arange(5000, dtype=np.uint32))
 
 
 def test_onesweep_falls_back_when_its_guard_fails(runtime, rng, monkeypatch):
     """A device where the look-back cannot be trusted sorts with the split shape."""
     from rbgen.primitives import radix_sort
+
     monkeypatch.setattr(radix_sort, "onesweep_works", lambda runtime, params: False)
     sorter = RadixSort(runtime, 32, params=GPU_SHAPES["onesweep"])
     assert sorter.program(5000)[0] == RadixSort.default_params(runtime.traits, "split")

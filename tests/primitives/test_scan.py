@@ -9,6 +9,7 @@ other search-space point (the device's own space and the reference GPUs' --
 see primitive_spaces) runs the reduced size list on uint32 exclusive and
 float32 inclusive (GPU-shape points on a CPU device: uint32 exclusive only).
 """
+
 import dataclasses
 
 import numpy as np
@@ -72,8 +73,9 @@ def test_every_search_space_point(runtime, rng):
             for n in REDUCED_SIZES:
                 x = small_values(rng, n, dtype)
                 out, total = run_scan(runtime, scan, x, in_place=(n == 1000))
-                assert np.array_equal(out, reference(x, inclusive).astype(dtype)), \
+                assert np.array_equal(out, reference(x, inclusive).astype(dtype)), (
                     f"{label(params)} dtype={np.dtype(dtype).name} n={n}"
+                )
                 assert total == x.astype(np.float64).sum(), f"{label(params)} n={n}"
 
 
@@ -125,9 +127,11 @@ def chained_points():
     every device (PoCL compiles a GPU-shape point in 10-20 s)."""
     traits = [DeviceTraits.of(entry.device) for entry in list_devices()] + [NVIDIA]
     cpu = dataclasses.replace(NVIDIA, is_gpu=False)
-    return unique_params([p for t in traits for p in chained_search_space(t)]
-                         + chained_search_space(AMD)[:1]
-                         + [dict(Scan.default_params(cpu, "chained"), order="group")])
+    return unique_params(
+        [p for t in traits for p in chained_search_space(t)]
+        + chained_search_space(AMD)[:1]
+        + [dict(Scan.default_params(cpu, "chained"), order="group")]
+    )
 
 
 def scan_with_count(runtime, scan, x, count, capacity):
@@ -172,8 +176,9 @@ def test_chained_scan_device_count(runtime, rng):
     x = small_values(rng, 50_000, np.uint32)
     for count in (0, 1, 33_333, 10**6):
         m = min(count, x.size)
-        out, total = run_scan(runtime, scan, x,
-                              n=cla.to_device(runtime.queue, np.array([count], np.uint32)))
+        out, total = run_scan(
+            runtime, scan, x, n=cla.to_device(runtime.queue, np.array([count], np.uint32))
+        )
         assert np.array_equal(out[:m], reference(x[:m], False)) and np.all(out[m:] == 7)
         assert total == x[:m].sum()
 
@@ -195,6 +200,7 @@ def test_chained_scan_many_calls_in_a_row(runtime, rng, shape):
     def counted_fill(*args, **kwargs):
         fills.append(args)
         return real_fill(*args, **kwargs)
+
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(cl, "enqueue_fill_buffer", counted_fill)
         inputs, outputs, totals = [], [], []
@@ -219,6 +225,7 @@ def test_chained_scan_ignores_words_of_other_epochs(runtime, rng):
     previous one, the next one, zero) carrying wrong values: the result must
     not change. Also across the epoch wrap, where the state is zeroed again."""
     from rbgen.primitives.scan import EPOCHS
+
     scan = Scan(runtime, np.uint32, chained=True)
     params = scan.program(100_000)[0]
     tile = params["work_group_size"] * params["items_per_thread"]
@@ -231,8 +238,8 @@ def test_chained_scan_ignores_words_of_other_epochs(runtime, rng):
         words = np.empty(scan._state.size // 8, np.uint64)
         for i, epoch in enumerate((next_epoch - 1, next_epoch + 1, 0)):
             low = (epoch % EPOCHS << 2) | 2  # INCLUSIVE
-            values = rng.integers(1, 1000, words[1 + i::3].size, dtype=np.uint64)
-            words[1 + i::3] = (values << np.uint64(32)) | np.uint64(low)
+            values = rng.integers(1, 1000, words[1 + i :: 3].size, dtype=np.uint64)
+            words[1 + i :: 3] = (values << np.uint64(32)) | np.uint64(low)
         words[0] = 0
         cl.enqueue_copy(runtime.queue, scan._state, words)
         out, total = run_scan(runtime, scan, x)
@@ -248,8 +255,10 @@ def test_chained_tile_words(runtime, rng):
     epoch (earlier, later, zeroed state) reads as empty, one of this epoch
     gives back its status and value bits (any float, negative ints)."""
     from rbgen.primitives.scan import CHAINED, EPOCHS
-    source = CHAINED.spec(dtype="float", inclusive=False,
-                          **Scan.default_params(runtime.traits, "chained", strip=True)).source
+
+    source = CHAINED.spec(
+        dtype="float", inclusive=False, **Scan.default_params(runtime.traits, "chained", strip=True)
+    ).source
     source += """
 __kernel void read_words(__global const ulong* words, const uint epoch, __global uint* status,
                          __global float* values)
@@ -271,15 +280,31 @@ __kernel void make_words(__global const uint* status, __global const uint* epoch
     epochs = rng.choice([epoch - 1, epoch, epoch + 1, 0, EPOCHS - 1], count).astype(np.uint32)
     status = rng.integers(1, 3, count).astype(np.uint32)
     values = rng.normal(0, 1e6, count).astype(np.float32)
-    d = {k: cla.to_device(runtime.queue, v) for k, v in
-         (("status", status), ("epochs", epochs), ("values", values))}
+    d = {
+        k: cla.to_device(runtime.queue, v)
+        for k, v in (("status", status), ("epochs", epochs), ("values", values))
+    }
     words = cla.empty(runtime.queue, count, np.uint64)
-    program.make_words(runtime.queue, (count,), None, d["status"].data, d["epochs"].data,
-                       d["values"].data, words.data)
+    program.make_words(
+        runtime.queue,
+        (count,),
+        None,
+        d["status"].data,
+        d["epochs"].data,
+        d["values"].data,
+        words.data,
+    )
     got_status = cla.empty(runtime.queue, count, np.uint32)
     got_values = cla.empty(runtime.queue, count, np.float32)
-    program.read_words(runtime.queue, (count,), None, words.data, np.uint32(epoch),
-                       got_status.data, got_values.data)
+    program.read_words(
+        runtime.queue,
+        (count,),
+        None,
+        words.data,
+        np.uint32(epoch),
+        got_status.data,
+        got_values.data,
+    )
     assert np.array_equal(got_status.get(), np.where(epochs == epoch, status, 0))
     assert np.array_equal(got_values.get().view(np.uint32), values.view(np.uint32))
 
@@ -307,11 +332,11 @@ def test_chained_params_are_checked(runtime):
     with pytest.raises(RbgenError, match="items_per_thread=2"):
         Scan(runtime, params=dict(gpu, items_per_thread=2))
     with pytest.raises(RbgenError, match="lookback=16"):
-        Scan(runtime, params=dict(gpu, lookback=16))      # narrower than a wavefront
+        Scan(runtime, params=dict(gpu, lookback=16))  # narrower than a wavefront
     with pytest.raises(RbgenError, match="lookback=512"):
-        Scan(runtime, params=dict(gpu, lookback=512))     # more than one per work-item
+        Scan(runtime, params=dict(gpu, lookback=512))  # more than one per work-item
     with pytest.raises(RbgenError, match="lookback=32"):
-        Scan(runtime, params=dict(cpu, lookback=32))      # the serial shape polls one
+        Scan(runtime, params=dict(cpu, lookback=32))  # the serial shape polls one
     with pytest.raises(RbgenError, match="lookback"):
         Scan(runtime, params={k: v for k, v in gpu.items() if k != "lookback"})
     with pytest.raises(RbgenError, match="chained=True contradicts"):
@@ -340,28 +365,46 @@ def test_chained_look_back_over_many_windows(runtime, rng, lookback):
     to tile 0): every work-item of a group gets the sum of the predecessors
     up to and including the nearest INCLUSIVE one."""
     from rbgen.primitives.scan import CHAINED, EPOCHS
+
     params = dict(Scan.default_params(NVIDIA, "chained", strip=True), lookback=lookback)
     wg = params["work_group_size"]
     if wg > runtime.traits.max_work_group_size:
         pytest.skip("work group larger than this device allows")
-    program = cl.Program(runtime.context, CHAINED.spec(dtype="uint", inclusive=False, **params)
-                         .source + LOOK_BACK_KERNEL).build()
+    program = cl.Program(
+        runtime.context,
+        CHAINED.spec(dtype="uint", inclusive=False, **params).source + LOOK_BACK_KERNEL,
+    ).build()
     count = 3000
     epoch = int(rng.integers(1, EPOCHS))
     status = np.where(rng.random(count) < 0.004, 2, 1).astype(np.uint64)  # INCLUSIVE : AGGREGATE
     values = rng.integers(0, 2**32, count, dtype=np.uint64)
     words = (values << np.uint64(32)) | (np.uint64(epoch) << np.uint64(2)) | status
     inclusive = np.flatnonzero(status == 2)
-    tiles = np.unique(np.concatenate([
-        [0, 1, 2, lookback - 1, lookback, lookback + 1, 2 * lookback + 3, count - 1],
-        inclusive + 1, inclusive[:5] + lookback, rng.integers(0, count, 40)])).astype(np.uint32)
+    tiles = np.unique(
+        np.concatenate(
+            [
+                [0, 1, 2, lookback - 1, lookback, lookback + 1, 2 * lookback + 3, count - 1],
+                inclusive + 1,
+                inclusive[:5] + lookback,
+                rng.integers(0, count, 40),
+            ]
+        )
+    ).astype(np.uint32)
     tiles = tiles[tiles < count]
     d_words = cla.to_device(runtime.queue, words)
     failed = cla.zeros(runtime.queue, 1, np.uint32)
     d_tiles = cla.to_device(runtime.queue, tiles)
     before = cla.empty(runtime.queue, tiles.size * wg, np.uint32)
-    program.run_look_back(runtime.queue, (tiles.size * wg,), (wg,), d_words.data, failed.data,
-                          np.uint32(epoch), d_tiles.data, before.data)
+    program.run_look_back(
+        runtime.queue,
+        (tiles.size * wg,),
+        (wg,),
+        d_words.data,
+        failed.data,
+        np.uint32(epoch),
+        d_tiles.data,
+        before.data,
+    )
     got = before.get().reshape(tiles.size, wg)
     for row, tile in zip(got, tiles):
         nearest = inclusive[inclusive < tile]
@@ -374,6 +417,7 @@ def test_chained_look_back_over_many_windows(runtime, rng, lookback):
 def test_chained_scan_guard_falls_back(runtime, rng, monkeypatch):
     """When the guard reports failure (it warns then) the scan runs reduce-then-scan."""
     from rbgen.primitives import scan as scan_module
+
     monkeypatch.setattr(scan_module, "chained_scan_works", lambda rt, params: False)
     scan = Scan(runtime, np.int32, inclusive=True, chained=True)
     params, _ = scan.program(5000)
@@ -387,6 +431,7 @@ def test_chained_guard_needs_64_bit_atomics(runtime, monkeypatch):
     """A device without the extension fails the guard with a warning naming it."""
     from rbgen.primitives import _base
     from rbgen.primitives import scan as scan_module
+
     monkeypatch.setattr(scan_module, "CHAINED_EXTENSION", "cl_khr_not_a_real_extension")
     monkeypatch.setattr(_base, "DEVICE_CHECKS", {})
     params = Scan.default_params(runtime.traits, "chained")

@@ -29,6 +29,7 @@ One module per algorithm, chosen by name (`make_batcher`):
 
 `batch_host` is the sequential greedy reference the device results are tested against.
 """
+
 from __future__ import annotations
 
 from typing import Any, Protocol

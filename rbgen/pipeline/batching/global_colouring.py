@@ -8,6 +8,7 @@ with global body marks, the first ``ordered_rounds`` of a step first-fit in inde
 order). One colouring launch and one solver launch a step at any size: the choice where
 the device runs a persistent launch (`rbgen.pipeline.device_barrier`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -23,17 +24,28 @@ TEMPLATE = KernelTemplate(
     "pipeline/batching/global_colouring.cl.mako",
     [
         work_group_size_param("lanes of each of the launch's work groups (one per compute unit)"),
-        Param("max_batches", power_of_two(2, 4096),
-              "batch slots (the solver's layout of group_batches); the last is the serial "
-              "remainder", "a power of two from 2 to 4096"),
+        Param(
+            "max_batches",
+            power_of_two(2, 4096),
+            "batch slots (the solver's layout of group_batches); the last is the serial remainder",
+            "a power of two from 2 to 4096",
+        ),
     ],
     doc="Global batching: one launch over the whole device colours all constraint edges (the "
-        "previous step's colours where they still hold, Jones-Plassmann rounds for the rest, "
-        "global body marks and a device-wide barrier between phases).",
-    roles={"edges": "inout", "edge_colour": "inout", "pairs": "inout",
-           "bids": "inout", "used": "inout", "state": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "max_batches": 128},
+    "previous step's colours where they still hold, Jones-Plassmann rounds for the rest, "
+    "global body marks and a device-wide barrier between phases).",
+    roles={
+        "edges": "inout",
+        "edge_colour": "inout",
+        "pairs": "inout",
+        "bids": "inout",
+        "used": "inout",
+        "state": "inout",
+    },
+    defaults=lambda traits: {
+        "work_group_size": default_work_group_size(traits),
+        "max_batches": 128,
+    },
 )
 
 #: Jones-Plassmann rounds a step that bid constraint indices (first-fit in index order,
@@ -57,17 +69,25 @@ class GlobalBatcher:
     group_count = 1
     launch_plan = [(0, 1)]
 
-    def __init__(self, runtime: Runtime, *, max_batches: int = 128,
-                 work_group_size: int | None = None, ordered_rounds: int = ORDERED_ROUNDS):
+    def __init__(
+        self,
+        runtime: Runtime,
+        *,
+        max_batches: int = 128,
+        work_group_size: int | None = None,
+        ordered_rounds: int = ORDERED_ROUNDS,
+    ):
         self.runtime = runtime
         self.max_batches = int(max_batches)
         if not isinstance(ordered_rounds, (int, np.integer)) or not 0 <= ordered_rounds < 2**32:
-            raise RbgenError(f"ordered_rounds must be a non-negative integer, got "
-                             f"{ordered_rounds!r}")
+            raise RbgenError(
+                f"ordered_rounds must be a non-negative integer, got {ordered_rounds!r}"
+            )
         self.ordered_rounds = int(ordered_rounds)
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
-                                  max_batches=self.max_batches)
+        self.spec = TEMPLATE.spec(
+            work_group_size=self.work_group_size, max_batches=self.max_batches
+        )
         #: the device barrier's words, 2 lost flags, the highest colour, the batch counters
         #: (the layout of colour_global's STATE_*); the PGS solver's launch shares it
         self.state = barrier_buffer(runtime, 3 + self.max_batches + 1)
@@ -102,11 +122,21 @@ class GlobalBatcher:
         ``edge_capacity`` bounds the count."""
         self.ensure_capacity(body_count, edge_capacity)
         wg = self.work_group_size
-        self._kernel.bind(edges, edge_count, bodies, self.edge_batch,
-                          self.order, self.group_batches, self.group_batch_count,
-                          self.edge_pairs, self.body_bids, self.body_colours,
-                          self.state, np.uint32(body_count), np.uint32(self.ordered_rounds)
-                          ).launch(persistent_groups(self.runtime.traits) * wg, wg)
+        self._kernel.bind(
+            edges,
+            edge_count,
+            bodies,
+            self.edge_batch,
+            self.order,
+            self.group_batches,
+            self.group_batch_count,
+            self.edge_pairs,
+            self.body_bids,
+            self.body_colours,
+            self.state,
+            np.uint32(body_count),
+            np.uint32(self.ordered_rounds),
+        ).launch(persistent_groups(self.runtime.traits) * wg, wg)
 
     def read_batches(self):
         return read_batches(self)

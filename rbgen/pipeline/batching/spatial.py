@@ -15,6 +15,7 @@ Level 2 (solve form ``lanes``): each group is coloured into batches by one work 
 takes any remainder and is solved by a single lane. With ``serial`` a group is one batch,
 listed in index order by a single work-item (deterministic).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -31,23 +32,38 @@ COLOURS = {"cells": 8, "slabs": 2}
 TEMPLATE = KernelTemplate(
     "pipeline/batching/spatial.cl.mako",
     [
-        work_group_size_param("lanes of the batching work group (and of the per-item kernels); "
-                              "more lanes colour a large group faster"),
-        Param("max_batches", power_of_two(2, 4096),
-              "batch slots per group; the last slot holds the remainder, solved serially, "
-              "so this bounds local memory, not correctness", "a power of two from 2 to 4096"),
-        Param("mode", tuple(COLOURS),
-              "cells (8 colour launches + leftovers per sweep, piles spread over the device) "
-              "or slabs (2 colour launches + leftovers per sweep, a stack whole in a group)"),
-        Param("solve_form", SOLVE_FORMS,
-              "lanes: level-2 batches for a work group's lanes; serial: none (a group is "
-              "solved by one work-item), groups listed by a single work-item"),
+        work_group_size_param(
+            "lanes of the batching work group (and of the per-item kernels); "
+            "more lanes colour a large group faster"
+        ),
+        Param(
+            "max_batches",
+            power_of_two(2, 4096),
+            "batch slots per group; the last slot holds the remainder, solved serially, "
+            "so this bounds local memory, not correctness",
+            "a power of two from 2 to 4096",
+        ),
+        Param(
+            "mode",
+            tuple(COLOURS),
+            "cells (8 colour launches + leftovers per sweep, piles spread over the device) "
+            "or slabs (2 colour launches + leftovers per sweep, a stack whole in a group)",
+        ),
+        Param(
+            "solve_form",
+            SOLVE_FORMS,
+            "lanes: level-2 batches for a work group's lanes; serial: none (a group is "
+            "solved by one work-item), groups listed by a single work-item",
+        ),
     ],
     doc="Level-1 groups (coloured cells or slabs); level-2 batches per work group.",
     roles={"body_owner": "inout", "group_counts": "inout"},
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "max_batches": 128, "mode": "cells" if traits.is_gpu else "slabs",
-                             "solve_form": default_solve_form(traits)},
+    defaults=lambda traits: {
+        "work_group_size": default_work_group_size(traits),
+        "max_batches": 128,
+        "mode": "cells" if traits.is_gpu else "slabs",
+        "solve_form": default_solve_form(traits),
+    },
 )
 
 
@@ -81,14 +97,21 @@ class SpatialBatcher:
     vector). Both are set with `configure` before a call.
     """
 
-    def __init__(self, runtime: Runtime, *, mode: str = "cells", group_count: int | None = None,
-                 cell_size: float | None = None, max_batches: int = 128,
-                 work_group_size: int | None = None, solve_form: str | None = None):
+    def __init__(
+        self,
+        runtime: Runtime,
+        *,
+        mode: str = "cells",
+        group_count: int | None = None,
+        cell_size: float | None = None,
+        max_batches: int = 128,
+        work_group_size: int | None = None,
+        solve_form: str | None = None,
+    ):
         self.runtime = runtime
         traits = runtime.traits
         if mode not in COLOURS:
-            raise RbgenError(f"spatial batching mode must be one of {tuple(COLOURS)}, "
-                             f"got {mode!r}")
+            raise RbgenError(f"spatial batching mode must be one of {tuple(COLOURS)}, got {mode!r}")
         self.mode = mode
         self.solve_form = solve_form or default_solve_form(traits)
         if self.solve_form not in SOLVE_FORMS:
@@ -108,12 +131,16 @@ class SpatialBatcher:
         self.colours = colours + 1
         self.launch_plan = [(c * per_colour, per_colour) for c in range(colours)]
         self.launch_plan.append((colours * per_colour, 1))
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
-                                  max_batches=self.max_batches, mode=self.mode,
-                                  solve_form=self.solve_form)
+        self.spec = TEMPLATE.spec(
+            work_group_size=self.work_group_size,
+            max_batches=self.max_batches,
+            mode=self.mode,
+            solve_form=self.solve_form,
+        )
         names = ["reset_batching", "assign_cells"]
-        names += ["scan_groups", "scatter_groups", "batch_groups"] if self.batches \
-            else ["list_groups"]
+        names += (
+            ["scan_groups", "scatter_groups", "batch_groups"] if self.batches else ["list_groups"]
+        )
         program = compile_spec(runtime, self.spec)
         self._kernels = {name: runtime.bound(program.kernel(name)) for name in names}
         self.body_capacity = self.edge_capacity = 0
@@ -145,8 +172,9 @@ class SpatialBatcher:
             #: per edge: its level-1 group
             self.edge_group = cl_array.empty(queue, n, np.uint32)
             if self.batches:  # per edge: its slot in its group's list, batch, blocked mark
-                (self.edge_slot, self.edge_batch, self.edge_blocked,
-                 self.group_list) = (cl_array.empty(queue, n, np.uint32) for _ in range(4))
+                (self.edge_slot, self.edge_batch, self.edge_blocked, self.group_list) = (
+                    cl_array.empty(queue, n, np.uint32) for _ in range(4)
+                )
 
     def __call__(self, edges, edge_count, bodies, body_count: int, edge_capacity: int) -> None:
         """Batch the first ``edge_count[0]`` constraint edges (a device uint32 array(1));
@@ -158,32 +186,75 @@ class SpatialBatcher:
         g, n = self.group_count, self.body_capacity
         marks = max(self.cell_colours * n, self.colours * n if self.batches else 0)
         marks_buffers = (self.body_stamp, self.body_taken) if self.batches else ()
-        k["reset_batching"].over(max(marks, g), wg, *marks_buffers, self.body_owner,
-                                 self.group_counts, np.uint32(n), np.uint32(g))
+        k["reset_batching"].over(
+            max(marks, g),
+            wg,
+            *marks_buffers,
+            self.body_owner,
+            self.group_counts,
+            np.uint32(n),
+            np.uint32(g),
+        )
         # lanes: also the atomic slots in the group lists
         slots = (self.group_counts, self.edge_slot) if self.batches else ()
         if edge_capacity > 0:
             axis = (unit4(self.slab_axis, "slab_axis"),) if self.mode == "slabs" else ()
-            k["assign_cells"].over(edge_capacity, wg, edges, edge_count, bodies,
-                                   self.body_owner, *slots, self.edge_group, np.uint32(n),
-                                   np.uint32(self.groups_per_colour), *axis,
-                                   np.float32(1.0 / self.cell_size))
+            k["assign_cells"].over(
+                edge_capacity,
+                wg,
+                edges,
+                edge_count,
+                bodies,
+                self.body_owner,
+                *slots,
+                self.edge_group,
+                np.uint32(n),
+                np.uint32(self.groups_per_colour),
+                *axis,
+                np.float32(1.0 / self.cell_size),
+            )
         if not self.batches:
-            k["list_groups"].bind(edges, edge_count, self.edge_group, self.group_counts,
-                                  self.group_offsets, self.order, self.group_batches,
-                                  self.group_batch_count, np.uint32(edge_capacity),
-                                  np.uint32(g)).launch(1, 1)
+            k["list_groups"].bind(
+                edges,
+                edge_count,
+                self.edge_group,
+                self.group_counts,
+                self.group_offsets,
+                self.order,
+                self.group_batches,
+                self.group_batch_count,
+                np.uint32(edge_capacity),
+                np.uint32(g),
+            ).launch(1, 1)
             return
         k["scan_groups"].bind(self.group_counts, self.group_offsets, np.uint32(g)).launch(1, 1)
         if edge_capacity > 0:
-            k["scatter_groups"].over(edge_capacity, wg, edge_count, self.edge_group,
-                                     self.edge_slot, self.group_offsets, self.group_list,
-                                     self.edge_batch, self.edge_blocked)
-        k["batch_groups"].bind(edges, bodies, self.group_offsets, self.group_list,
-                               self.body_stamp, self.body_taken, self.edge_batch,
-                               self.edge_blocked, self.order, self.group_batches,
-                               self.group_batch_count, np.uint32(n),
-                               np.uint32(self.groups_per_colour)).launch(g * wg, wg)
+            k["scatter_groups"].over(
+                edge_capacity,
+                wg,
+                edge_count,
+                self.edge_group,
+                self.edge_slot,
+                self.group_offsets,
+                self.group_list,
+                self.edge_batch,
+                self.edge_blocked,
+            )
+        k["batch_groups"].bind(
+            edges,
+            bodies,
+            self.group_offsets,
+            self.group_list,
+            self.body_stamp,
+            self.body_taken,
+            self.edge_batch,
+            self.edge_blocked,
+            self.order,
+            self.group_batches,
+            self.group_batch_count,
+            np.uint32(n),
+            np.uint32(self.groups_per_colour),
+        ).launch(g * wg, wg)
 
     def read_batches(self):
         return read_batches(self)

@@ -25,6 +25,7 @@ brackets; every one also takes ``capacity`` and ``work_group_size``):
 The query protocol (``enqueue`` / ``check`` / ``find_pairs``) is in base.py,
 the pair buffer and its overflow contract in pairs.py.
 """
+
 from __future__ import annotations
 
 from ...errors import RbgenError
@@ -45,13 +46,20 @@ def make_broadphase(runtime, name: str = "grid", **options) -> Broadphase:
     try:
         cls = BROADPHASES[name]
     except (KeyError, TypeError):
-        raise RbgenError(f"unknown broadphase {name!r}; choose one of "
-                         f"{sorted(BROADPHASES)}") from None
+        raise RbgenError(
+            f"unknown broadphase {name!r}; choose one of {sorted(BROADPHASES)}"
+        ) from None
     try:
         return cls(runtime, **options)
     except TypeError as err:
         raise RbgenError(f"broadphase {name!r}: bad option ({err})") from None
 
 
-__all__ = ["Broadphase", "GridBroadphase", "SapBroadphase", "IncrementalSapBroadphase",
-           "make_broadphase", "BROADPHASES"]
+__all__ = [
+    "Broadphase",
+    "GridBroadphase",
+    "SapBroadphase",
+    "IncrementalSapBroadphase",
+    "make_broadphase",
+    "BROADPHASES",
+]

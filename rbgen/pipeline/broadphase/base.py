@@ -18,6 +18,7 @@ A broadphase object is built once per world and queried every step:
 ``find_pairs(aabbs, static)``
     both, repeated until complete: the simple call for tests and benchmarks.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,8 +34,11 @@ from .pairs import PairBuffer, check_capacity
 
 BODIES_TEMPLATE = KernelTemplate(
     "pipeline/broadphase/bodies.cl.mako",
-    [work_group_size_param(
-        "bodies per work group; memory-bound, so any size that fills a CU works")],
+    [
+        work_group_size_param(
+            "bodies per work group; memory-bound, so any size that fills a CU works"
+        )
+    ],
     doc="Validation of world AABBs and their log2 sizes for the size statistics.",
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
 )
@@ -65,18 +69,22 @@ class Broadphase:
 
     name = ""
 
-    def __init__(self, runtime: Runtime, *, capacity: int | None = None,
-                 work_group_size: int | None = None):
+    def __init__(
+        self, runtime: Runtime, *, capacity: int | None = None, work_group_size: int | None = None
+    ):
         if not isinstance(runtime, Runtime):
             raise RbgenError(f"runtime must be an rbgen.Runtime, got {type(runtime).__name__}")
         self.runtime = runtime
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
         if not power_of_two(1, runtime.traits.max_work_group_size)(self.work_group_size):
-            raise RbgenError(f"work_group_size={self.work_group_size!r} must be a power of two "
-                             f"no larger than {runtime.traits.max_work_group_size}")
+            raise RbgenError(
+                f"work_group_size={self.work_group_size!r} must be a power of two "
+                f"no larger than {runtime.traits.max_work_group_size}"
+            )
         self.buffer = None if capacity is None else PairBuffer(runtime, check_capacity(capacity))
-        self._bodies = compile_spec(runtime, BODIES_TEMPLATE.spec(
-            work_group_size=self.work_group_size))
+        self._bodies = compile_spec(
+            runtime, BODIES_TEMPLATE.spec(work_group_size=self.work_group_size)
+        )
         self._scratch: dict[str, cla.Array] = {}
         self._views: dict[str, cla.Array] = {}
         self._primitives: dict = {}
@@ -205,16 +213,21 @@ class Broadphase:
         elif isinstance(aabbs, cla.Array) and aabbs.dtype == layouts.AABB.dtype:
             n = aabbs.size
         else:
-            raise RbgenError(f"aabbs must be a pyopencl or numpy array of the Aabb layout, "
-                             f"got {type(aabbs).__name__}")
+            raise RbgenError(
+                f"aabbs must be a pyopencl or numpy array of the Aabb layout, "
+                f"got {type(aabbs).__name__}"
+            )
         if static is None:
             if self._no_static is None or self._no_static.size < max(n, 1):
                 self._no_static = cla.zeros(queue, max(n, 1), np.uint32)
             static = self._no_static
         else:
             if isinstance(static, np.ndarray):
-                static = cla.to_device(queue, np.ascontiguousarray(static, np.uint32)) \
-                    if len(static) else cla.zeros(queue, 1, np.uint32)
+                static = (
+                    cla.to_device(queue, np.ascontiguousarray(static, np.uint32))
+                    if len(static)
+                    else cla.zeros(queue, 1, np.uint32)
+                )
             if not isinstance(static, cla.Array) or static.dtype != np.uint32:
                 raise RbgenError("static must be None or a uint32 array of flags (1 = static)")
             if n and static.size < n:
@@ -224,19 +237,28 @@ class Broadphase:
     def _measure(self, aabbs: cla.Array, n: int, sizes: bool = True) -> None:
         """Validation, plus (``sizes``) the sum of log2 sizes in ``self.log_size_sum``."""
         from ...primitives import Reduce
+
         log_sizes = self.exact("log_sizes", n, np.float32)
         assert self.buffer is not None  # enqueue made it before the query
-        self.launch(self._bodies.kernel("measure_bodies"), n, aabbs.base_data, np.uint32(n),
-                    log_sizes.base_data, self.buffer.status.base_data)
+        self.launch(
+            self._bodies.kernel("measure_bodies"),
+            n,
+            aabbs.base_data,
+            np.uint32(n),
+            log_sizes.base_data,
+            self.buffer.status.base_data,
+        )
         if sizes:
             self.log_size_sum = self.exact("log_size_sum", 1, np.float32)
             self.primitive("sum", lambda: Reduce(self.runtime, np.float32, op="sum"))(
-                log_sizes, self.log_size_sum, n=n)
+                log_sizes, self.log_size_sum, n=n
+            )
 
     def _raise_bad_body(self, body: int) -> None:
         assert self._aabbs is not None  # set by the query whose status named the body
-        record = self.runtime.read(self._aabbs[body:body + 1])[0]
+        record = self.runtime.read(self._aabbs[body : body + 1])[0]
         lower, upper = record["lower"][:3], record["upper"][:3]
-        raise RbgenError(f"body {body} has an invalid AABB (NaN or lower > upper): "
-                         f"lower={lower.tolist()}, upper={upper.tolist()}")
-
+        raise RbgenError(
+            f"body {body} has an invalid AABB (NaN or lower > upper): "
+            f"lower={lower.tolist()}, upper={upper.tolist()}"
+        )

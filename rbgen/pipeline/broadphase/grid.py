@@ -45,6 +45,7 @@ body in a dense packing), so ``large_factor`` only decides which bodies are
 too big for the grid: a larger factor keeps more bodies in the grid at the
 price of larger cells.
 """
+
 from __future__ import annotations
 
 import math
@@ -68,30 +69,46 @@ from .pairs import key_bits
 
 TEMPLATE = KernelTemplate(
     "pipeline/broadphase/grid.cl.mako",
-    [work_group_size_param(
-        "bodies per work group; the visit is latency-bound, so any size that fills a CU works"),
-     Param("bucketing", ("sort", "count"),
-           "sort: radix sort of (bucket, body) and bound search of the bucket starts "
-           "(deterministic order inside buckets); count: counting sort with atomics, "
-           "a fifth of the launches")],
+    [
+        work_group_size_param(
+            "bodies per work group; the visit is latency-bound, so any size that fills a CU works"
+        ),
+        Param(
+            "bucketing",
+            ("sort", "count"),
+            "sort: radix sort of (bucket, body) and bound search of the bucket starts "
+            "(deterministic order inside buckets); count: counting sort with atomics, "
+            "a fifth of the launches",
+        ),
+    ],
     doc="Uniform grid, slot emission: bucket keys per body, pair counting and writing over "
-        "neighbour cells, then a global sort of the pairs.",
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "bucketing": default_bucketing(traits, "slot")},
+    "neighbour cells, then a global sort of the pairs.",
+    defaults=lambda traits: {
+        "work_group_size": default_work_group_size(traits),
+        "bucketing": default_bucketing(traits, "slot"),
+    },
 )
 
 OWNER_TEMPLATE = KernelTemplate(
     "pipeline/broadphase/grid_owner.cl.mako",
-    [work_group_size_param(
-        "bodies per work group; the visit is latency-bound, and the pair offsets are "
-        "scanned per group (one work group scans the group totals)"),
-     Param("large_rows", power_of_two(1, 32),
-           "most large bodies handled (one bit of a body's row mask each)",
-           "a power of two from 1 to 32")],
+    [
+        work_group_size_param(
+            "bodies per work group; the visit is latency-bound, and the pair offsets are "
+            "scanned per group (one work group scans the group totals)"
+        ),
+        Param(
+            "large_rows",
+            power_of_two(1, 32),
+            "most large bodies handled (one bit of a body's row mask each)",
+            "a power of two from 1 to 32",
+        ),
+    ],
     doc="Uniform grid, owner emission: the whole query in six launches, bucket lists, "
-        "pairs written sorted by their lower body.",
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "large_rows": LARGE_ROWS},
+    "pairs written sorted by their lower body.",
+    defaults=lambda traits: {
+        "work_group_size": default_work_group_size(traits),
+        "large_rows": LARGE_ROWS,
+    },
 )
 
 #: Bodies larger than this many times the geometric mean size are large (kept
@@ -139,9 +156,16 @@ class GridBroadphase(Broadphase):
 
     name = "grid"
 
-    def __init__(self, runtime, *, large_factor: float = DEFAULT_LARGE_FACTOR,
-                 emission: str | None = None, bucketing: str | None = None, capacity=None,
-                 work_group_size=None):
+    def __init__(
+        self,
+        runtime,
+        *,
+        large_factor: float = DEFAULT_LARGE_FACTOR,
+        emission: str | None = None,
+        bucketing: str | None = None,
+        capacity=None,
+        work_group_size=None,
+    ):
         super().__init__(runtime, capacity=capacity, work_group_size=work_group_size)
         self.large_factor = check_large_factor(large_factor)
         self.emission = emission or default_emission(runtime.traits)
@@ -149,8 +173,10 @@ class GridBroadphase(Broadphase):
             raise RbgenError(f"emission must be one of {list(BUCKETINGS)}, got {emission!r}")
         self.bucketing = bucketing or default_bucketing(runtime.traits, self.emission)
         if self.bucketing not in BUCKETINGS[self.emission]:
-            raise RbgenError(f"bucketing={bucketing!r} does not go with emission="
-                             f"{self.emission!r}; choose one of {list(BUCKETINGS[self.emission])}")
+            raise RbgenError(
+                f"bucketing={bucketing!r} does not go with emission="
+                f"{self.emission!r}; choose one of {list(BUCKETINGS[self.emission])}"
+            )
         self._programs: dict[tuple[str, str], Compiled] = {}
         self._program()  # builds the kernels now
         self._bucket_ids: cla.Array | None = None
@@ -160,11 +186,11 @@ class GridBroadphase(Broadphase):
         key = (self.emission, self.bucketing)
         if key not in self._programs:
             if self.emission == "owner":
-                spec = OWNER_TEMPLATE.spec(work_group_size=self.work_group_size,
-                                           large_rows=LARGE_ROWS)
+                spec = OWNER_TEMPLATE.spec(
+                    work_group_size=self.work_group_size, large_rows=LARGE_ROWS
+                )
             else:
-                spec = TEMPLATE.spec(work_group_size=self.work_group_size,
-                                     bucketing=self.bucketing)
+                spec = TEMPLATE.spec(work_group_size=self.work_group_size, bucketing=self.bucketing)
             self._programs[key] = compile_spec(self.runtime, spec)
         return self._programs[key]
 
@@ -191,96 +217,198 @@ class GridBroadphase(Broadphase):
         """The six launches of grid_owner.cl.mako."""
         program, buffer, wg = self._program(), self.buffer, self.work_group_size
         dim = grid_dim_for(n)
-        bucket_count, groups = dim ** 3, -(-n // wg)
+        bucket_count, groups = dim**3, -(-n // wg)
         measure_groups = min(groups, MEASURE_GROUPS)
         partials = self.exact("log_size_partials", measure_groups, np.float32)
         heads, next_body = self.exact("bucket_heads", bucket_count), self.exact("next_body", n)
         large_flags = self.exact("large_flags", n)
-        large_count, large_bodies = self.exact("large_count", 1), self.exact("large_bodies",
-                                                                            LARGE_ROWS)
+        large_count, large_bodies = (
+            self.exact("large_count", 1),
+            self.exact("large_bodies", LARGE_ROWS),
+        )
         largest = self.exact("largest_small_bits", 1)
         status = buffer.status.base_data
-        self.launch(program.kernel("measure_grid_bodies"), measure_groups * wg,
-                    aabbs.base_data, np.uint32(n), np.uint32(bucket_count), partials.base_data,
-                    heads.base_data, large_count.base_data, largest.base_data, status)
-        self.launch(program.kernel("classify_grid_bodies"), n, aabbs.base_data, np.uint32(n),
-                    partials.base_data, np.uint32(measure_groups),
-                    np.float32(self.large_factor), large_flags.base_data,
-                    large_count.base_data, large_bodies.base_data, largest.base_data, status)
-        self.launch(program.kernel("link_bucket_bodies"), n, aabbs.base_data, np.uint32(n),
-                    np.int32(dim), large_flags.base_data, largest.base_data, heads.base_data,
-                    next_body.base_data)
+        self.launch(
+            program.kernel("measure_grid_bodies"),
+            measure_groups * wg,
+            aabbs.base_data,
+            np.uint32(n),
+            np.uint32(bucket_count),
+            partials.base_data,
+            heads.base_data,
+            large_count.base_data,
+            largest.base_data,
+            status,
+        )
+        self.launch(
+            program.kernel("classify_grid_bodies"),
+            n,
+            aabbs.base_data,
+            np.uint32(n),
+            partials.base_data,
+            np.uint32(measure_groups),
+            np.float32(self.large_factor),
+            large_flags.base_data,
+            large_count.base_data,
+            large_bodies.base_data,
+            largest.base_data,
+            status,
+        )
+        self.launch(
+            program.kernel("link_bucket_bodies"),
+            n,
+            aabbs.base_data,
+            np.uint32(n),
+            np.int32(dim),
+            large_flags.base_data,
+            largest.base_data,
+            heads.base_data,
+            next_body.base_data,
+        )
 
-        visit = (aabbs.base_data, static.base_data, np.uint32(n), np.int32(dim),
-                 large_flags.base_data, largest.base_data, heads.base_data, next_body.base_data,
-                 large_count.base_data, large_bodies.base_data)
+        visit = (
+            aabbs.base_data,
+            static.base_data,
+            np.uint32(n),
+            np.int32(dim),
+            large_flags.base_data,
+            largest.base_data,
+            heads.base_data,
+            next_body.base_data,
+            large_count.base_data,
+            large_bodies.base_data,
+        )
         in_group = self.exact("in_group_offsets", n)
-        group_pairs, group_rows = (self.exact("group_pairs", groups),
-                                   self.exact("group_rows", LARGE_ROWS * groups))
-        owner_starts, owner_counts = (self.exact("owner_starts", LARGE_ROWS),
-                                      self.exact("owner_counts", LARGE_ROWS))
+        group_pairs, group_rows = (
+            self.exact("group_pairs", groups),
+            self.exact("group_rows", LARGE_ROWS * groups),
+        )
+        owner_starts, owner_counts = (
+            self.exact("owner_starts", LARGE_ROWS),
+            self.exact("owner_counts", LARGE_ROWS),
+        )
         capacity = np.uint32(buffer.capacity)
-        self.launch(program.kernel("count_owned_pairs"), n, *visit, in_group.base_data,
-                    group_pairs.base_data, group_rows.base_data)
-        self.launch(program.kernel("place_owner_slices"), wg, np.uint32(groups),
-                    large_count.base_data, large_bodies.base_data, in_group.base_data,
-                    group_pairs.base_data, group_rows.base_data, owner_starts.base_data,
-                    owner_counts.base_data, capacity, status)
-        self.launch(program.kernel("write_owned_pairs"), n, *visit, in_group.base_data,
-                    group_pairs.base_data, group_rows.base_data, owner_starts.base_data,
-                    owner_counts.base_data, capacity, buffer.pairs.base_data)
+        self.launch(
+            program.kernel("count_owned_pairs"),
+            n,
+            *visit,
+            in_group.base_data,
+            group_pairs.base_data,
+            group_rows.base_data,
+        )
+        self.launch(
+            program.kernel("place_owner_slices"),
+            wg,
+            np.uint32(groups),
+            large_count.base_data,
+            large_bodies.base_data,
+            in_group.base_data,
+            group_pairs.base_data,
+            group_rows.base_data,
+            owner_starts.base_data,
+            owner_counts.base_data,
+            capacity,
+            status,
+        )
+        self.launch(
+            program.kernel("write_owned_pairs"),
+            n,
+            *visit,
+            in_group.base_data,
+            group_pairs.base_data,
+            group_rows.base_data,
+            owner_starts.base_data,
+            owner_counts.base_data,
+            capacity,
+            buffer.pairs.base_data,
+        )
 
     # -------------------------------------------------------- slot emission
     def _bucket_id_queries(self, bucket_count: int) -> cla.Array:
         """0, 1, ..., bucket_count: the BoundSearch queries of the bucket starts."""
         if self._bucket_ids is None or self._bucket_ids.size != bucket_count + 1:
-            self._bucket_ids = cla.to_device(self.runtime.queue,
-                                             np.arange(bucket_count + 1, dtype=np.uint32))
+            self._bucket_ids = cla.to_device(
+                self.runtime.queue, np.arange(bucket_count + 1, dtype=np.uint32)
+            )
         return self._bucket_ids
 
     def _slot_query(self, aabbs, static, n):
         from ...primitives import Reduce
+
         runtime, program = self.runtime, self._program()
         dim = grid_dim_for(n)
-        bucket_count = dim ** 3
+        bucket_count = dim**3
 
         small_sizes = self.exact("small_sizes", n, np.float32)
         large_flags = self.exact("large_flags", n)
-        self.launch(program.kernel("classify_sizes"), n, aabbs.base_data, np.uint32(n),
-                    self.log_size_sum.base_data, np.float32(self.large_factor),
-                    small_sizes.base_data, large_flags.base_data)
+        self.launch(
+            program.kernel("classify_sizes"),
+            n,
+            aabbs.base_data,
+            np.uint32(n),
+            self.log_size_sum.base_data,
+            np.float32(self.large_factor),
+            small_sizes.base_data,
+            large_flags.base_data,
+        )
         largest = self.exact("largest_small_size", 1, np.float32)
         self.primitive("max", lambda: Reduce(runtime, np.float32, op="max"))(
-            small_sizes, largest, n=n)
+            small_sizes, largest, n=n
+        )
 
         sorted_boxes = self.exact("sorted_boxes", n, layouts.AABB.dtype)
         starts = self.exact("bucket_starts", bucket_count + 1)
-        bucket = (aabbs.base_data, np.uint32(n), large_flags.base_data, largest.base_data,
-                  np.int32(dim))
+        bucket = (
+            aabbs.base_data,
+            np.uint32(n),
+            large_flags.base_data,
+            largest.base_data,
+            np.int32(dim),
+        )
         if self.bucketing == "sort":
-            keys = self._sort_buckets(program, bucket, aabbs, n, bucket_count, sorted_boxes,
-                                      starts)
+            keys = self._sort_buckets(program, bucket, aabbs, n, bucket_count, sorted_boxes, starts)
         else:
-            keys = self._count_buckets(program, bucket, aabbs, n, bucket_count, sorted_boxes,
-                                       starts)
-        visit = (aabbs.base_data, static.base_data, np.uint32(n), largest.base_data,
-                 np.int32(dim), keys.base_data, sorted_boxes.base_data, starts.base_data)
+            keys = self._count_buckets(
+                program, bucket, aabbs, n, bucket_count, sorted_boxes, starts
+            )
+        visit = (
+            aabbs.base_data,
+            static.base_data,
+            np.uint32(n),
+            largest.base_data,
+            np.int32(dim),
+            keys.base_data,
+            sorted_boxes.base_data,
+            starts.base_data,
+        )
         self._slot_pairs(program, visit, n)
+
     def _sort_buckets(self, program, bucket, aabbs, n, bucket_count, sorted_boxes, starts):
         """Radix sort of (bucket, body), gather, bound search: the sorted keys."""
         from ...primitives import BoundSearch, RadixSort
+
         runtime = self.runtime
         keys, bodies = self.exact("keys", n), self.exact("bodies", n)
-        self.launch(program.kernel("bucket_bodies"), n, *bucket, keys.base_data,
-                    bodies.base_data)
+        self.launch(program.kernel("bucket_bodies"), n, *bucket, keys.base_data, bodies.base_data)
         bits = key_bits(bucket_count)
-        self.primitive(("sort", bits), lambda: RadixSort(runtime, key_bits=bits,
-                                                         with_values=True))(keys, bodies, n=n)
-        self.launch(program.kernel("gather_sorted"), n, aabbs.base_data, np.uint32(n),
-                    bodies.base_data, sorted_boxes.base_data)
+        self.primitive(("sort", bits), lambda: RadixSort(runtime, key_bits=bits, with_values=True))(
+            keys, bodies, n=n
+        )
+        self.launch(
+            program.kernel("gather_sorted"),
+            n,
+            aabbs.base_data,
+            np.uint32(n),
+            bodies.base_data,
+            sorted_boxes.base_data,
+        )
         self.primitive("lower_bound", lambda: BoundSearch(runtime, side="lower"))(
-            keys, self._bucket_id_queries(bucket_count), starts, n_keys=n,
-            n_queries=bucket_count + 1)
+            keys,
+            self._bucket_id_queries(bucket_count),
+            starts,
+            n_keys=n,
+            n_queries=bucket_count + 1,
+        )
         return keys
 
     def _count_buckets(self, program, bucket, aabbs, n, bucket_count, sorted_boxes, starts):
@@ -288,16 +416,25 @@ class GridBroadphase(Broadphase):
         queue = self.runtime.queue
         keys, sizes = self.exact("keys", n), self.exact("bucket_sizes", bucket_count + 1)
         cl.enqueue_fill_buffer(queue, sizes.base_data, np.uint32(0), 0, 4 * (bucket_count + 1))
-        self.launch(program.kernel("count_bucket_bodies"), n, *bucket, keys.base_data,
-                    sizes.base_data)
+        self.launch(
+            program.kernel("count_bucket_bodies"), n, *bucket, keys.base_data, sizes.base_data
+        )
         self._scan(sizes, starts, bucket_count + 1, None)
         cursors = self.exact("bucket_cursors", bucket_count + 1)
-        cl.enqueue_copy(queue, cursors.base_data, starts.base_data,
-                        byte_count=4 * (bucket_count + 1))
+        cl.enqueue_copy(
+            queue, cursors.base_data, starts.base_data, byte_count=4 * (bucket_count + 1)
+        )
         sorted_keys = self.exact("sorted_keys", n)
-        self.launch(program.kernel("scatter_bucket_bodies"), n, aabbs.base_data, np.uint32(n),
-                    keys.base_data, cursors.base_data, sorted_keys.base_data,
-                    sorted_boxes.base_data)
+        self.launch(
+            program.kernel("scatter_bucket_bodies"),
+            n,
+            aabbs.base_data,
+            np.uint32(n),
+            keys.base_data,
+            cursors.base_data,
+            sorted_keys.base_data,
+            sorted_boxes.base_data,
+        )
         return sorted_keys
 
     def _slot_pairs(self, program, visit, n):
@@ -306,12 +443,22 @@ class GridBroadphase(Broadphase):
         self.launch(program.kernel("count_grid_pairs"), n, *visit, counts.base_data)
         self._scan(counts, offsets, n, found)
         buffer = self.buffer
-        self.launch(program.kernel("write_grid_pairs"), n, *visit, offsets.base_data,
-                    found.base_data, np.uint32(buffer.capacity), buffer.pairs_a.base_data,
-                    buffer.pairs_b.base_data, buffer.status.base_data)
+        self.launch(
+            program.kernel("write_grid_pairs"),
+            n,
+            *visit,
+            offsets.base_data,
+            found.base_data,
+            np.uint32(buffer.capacity),
+            buffer.pairs_a.base_data,
+            buffer.pairs_b.base_data,
+            buffer.status.base_data,
+        )
         buffer.sort(n)
 
     def _scan(self, src, dst, n, total):
         from ...primitives import Scan
+
         self.primitive("scan", lambda: Scan(self.runtime, np.uint32, inclusive=False))(
-            src, dst, n=n, total=total)
+            src, dst, n=n, total=total
+        )

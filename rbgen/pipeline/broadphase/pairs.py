@@ -16,10 +16,11 @@ Contract (all broadphases):
 * Checking without a stall: `start_status_read` enqueues a non-blocking copy
   of the status into pinned host memory right after the query; `read_status`
   waits for that copy only (a query whose read was not started, because its
-  caller copies the status with its own, gets one then). In a simulation loop the host starts the read at
-  the end of step k and checks it at the start of step k + 1 (by then the
-  copy is long done); on overflow it grows the buffer and redoes step k.
+  caller copies the status with its own, gets one then). In a simulation loop
+  the host starts the read at the end of step k and checks it at the start of
+  step k + 1 (by then the copy is long done); on overflow it grows the buffer and redoes step k.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -33,8 +34,11 @@ from ...errors import RbgenError
 
 TEMPLATE = KernelTemplate(
     "pipeline/broadphase/pairs.cl.mako",
-    [work_group_size_param(
-        "pairs per work group; memory-bound, so any size that fills a CU works")],
+    [
+        work_group_size_param(
+            "pairs per work group; memory-bound, so any size that fills a CU works"
+        )
+    ],
     doc="Folding pairs into sort keys and packing sorted halves into Pair records.",
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
 )
@@ -57,8 +61,11 @@ def key_bits(largest: int) -> int:
 
 
 def check_capacity(capacity) -> int:
-    if isinstance(capacity, (bool, np.bool_)) or not isinstance(capacity, (int, np.integer)) \
-            or capacity < 1:
+    if (
+        isinstance(capacity, (bool, np.bool_))
+        or not isinstance(capacity, (int, np.integer))
+        or capacity < 1
+    ):
         raise RbgenError(f"pair capacity must be a positive integer, got {capacity!r}")
     return int(capacity)
 
@@ -76,8 +83,9 @@ class PairBuffer:
         self._initial = np.zeros(1, layouts.BROADPHASE_STATUS.dtype).view(np.uint32).copy()
         self._initial.view(layouts.BROADPHASE_STATUS.dtype)["bad_body"] = layouts.BP_NO_BODY
         self._pinned_buffer = cl.Buffer(runtime.context, cl.mem_flags.ALLOC_HOST_PTR, 4 * words)
-        self._pinned, _ = cl.enqueue_map_buffer(queue, self._pinned_buffer, cl.map_flags.READ,
-                                                0, (words,), np.dtype(np.uint32))
+        self._pinned, _ = cl.enqueue_map_buffer(
+            queue, self._pinned_buffer, cl.map_flags.READ, 0, (words,), np.dtype(np.uint32)
+        )
         self._pinned[:] = self._initial
         #: the initial status on the device: the reset is a device copy (a copy from
         #: host memory returns a pyopencl NannyEvent, whose deletion waits for it)
@@ -109,11 +117,11 @@ class PairBuffer:
 
     def reset_status(self) -> None:
         """Enqueue the status reset that starts every query (no launch, no wait)."""
-        cl.enqueue_copy(self.runtime.queue, buffer_of(self.status),
-                        buffer_of(self._initial_device))
+        cl.enqueue_copy(self.runtime.queue, buffer_of(self.status), buffer_of(self._initial_device))
 
     def _sorter(self, bits: int, with_values: bool):
         from ...primitives import RadixSort
+
         key = (bits, with_values)
         if key not in self._sorts:
             self._sorts[key] = RadixSort(self.runtime, key_bits=bits, with_values=with_values)
@@ -124,11 +132,13 @@ class PairBuffer:
         if body_count < 2:
             return
         if body_count <= MAX_FOLDED_BODIES:
-            self._launch("combine_pair_keys", self.pairs_a, self.pairs_b, self.status,
-                         np.uint32(body_count))
+            self._launch(
+                "combine_pair_keys", self.pairs_a, self.pairs_b, self.status, np.uint32(body_count)
+            )
             self._sorter(key_bits(body_count * body_count - 1), False)(self.pairs_a, n=self.count)
-            self._launch("split_pair_keys", self.pairs_a, self.status, np.uint32(body_count),
-                         self.pairs)
+            self._launch(
+                "split_pair_keys", self.pairs_a, self.status, np.uint32(body_count), self.pairs
+            )
         else:
             sort = self._sorter(key_bits(body_count - 1), True)
             sort(self.pairs_b, self.pairs_a, n=self.count)
@@ -141,8 +151,9 @@ class PairBuffer:
 
     def _launch(self, name: str, *args) -> None:
         """One kernel of this buffer's program over the whole capacity."""
-        self.runtime.bound(self.program.kernel(name)).over(self.capacity, self.work_group_size,
-                                                           *args)
+        self.runtime.bound(self.program.kernel(name)).over(
+            self.capacity, self.work_group_size, *args
+        )
 
     def new_query(self) -> None:
         """A query is being enqueued: its status read is not started yet."""
@@ -150,9 +161,10 @@ class PairBuffer:
 
     def start_status_read(self) -> None:
         """Enqueue a non-blocking copy of the status into pinned host memory."""
-        event = cl.enqueue_copy(self.runtime.queue, self._pinned, buffer_of(self.status),
-                                is_blocking=False)
-        self._read_events = [*self._read_events[-(KEPT_READ_EVENTS - 1):], event]
+        event = cl.enqueue_copy(
+            self.runtime.queue, self._pinned, buffer_of(self.status), is_blocking=False
+        )
+        self._read_events = [*self._read_events[-(KEPT_READ_EVENTS - 1) :], event]
         self._read_started = True
 
     def read_status(self) -> np.void:

@@ -9,6 +9,7 @@ tests. `grid_pairs` is a vectorised uniform grid for large scenes (benchmark
 sanity counts at 100k bodies), exact because cells are keyed without hashing.
 Neither imports scipy (the benchmark machine has none).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -53,8 +54,11 @@ def brute_force_pairs(aabbs, static=None, block: int = 2048) -> np.ndarray:
     found_a, found_b = [], []
     for start in range(0, n, block):
         stop = min(n, start + block)
-        overlap = np.all((lower[start:stop, None, :] <= upper[None, :, :])
-                         & (lower[None, :, :] <= upper[start:stop, None, :]), axis=2)
+        overlap = np.all(
+            (lower[start:stop, None, :] <= upper[None, :, :])
+            & (lower[None, :, :] <= upper[start:stop, None, :]),
+            axis=2,
+        )
         a, b = np.nonzero(overlap)
         a += start
         keep = a < b

@@ -31,6 +31,7 @@ says it is incomplete. The first query, a new body count and `reset()` are
 full queries directly. Static flags must stay the same between steps (call
 `reset` after changing them).
 """
+
 from __future__ import annotations
 
 import math
@@ -48,8 +49,11 @@ from .pairs import PairBuffer, check_capacity, key_bits
 
 TEMPLATE = KernelTemplate(
     "pipeline/broadphase/sap3.cl.mako",
-    [work_group_size_param(
-        "endpoints or records per work group; memory-bound kernels, any size that fills a CU")],
+    [
+        work_group_size_param(
+            "endpoints or records per work group; memory-bound kernels, any size that fills a CU"
+        )
+    ],
     doc="Incremental 3-axis SAP: endpoint ranks, changed pairs, merge with the previous set.",
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
 )
@@ -80,21 +84,39 @@ class IncrementalSapBroadphase(Broadphase):
 
     name = "sap3"
 
-    def __init__(self, runtime, *, full: str = "grid", full_options: dict | None = None,
-                 max_moves_per_body: float = DEFAULT_MAX_MOVES_PER_BODY, capacity=None,
-                 work_group_size=None):
+    def __init__(
+        self,
+        runtime,
+        *,
+        full: str = "grid",
+        full_options: dict | None = None,
+        max_moves_per_body: float = DEFAULT_MAX_MOVES_PER_BODY,
+        capacity=None,
+        work_group_size=None,
+    ):
         super().__init__(runtime, capacity=None, work_group_size=work_group_size)
         from . import make_broadphase
+
         if full not in ("grid", "sap"):
-            raise RbgenError(f"full must be 'grid' or 'sap' (the full-query broadphase), "
-                             f"got {full!r}")
-        if not (isinstance(max_moves_per_body, (int, float)) and math.isfinite(max_moves_per_body)
-                and max_moves_per_body >= 0):
-            raise RbgenError(f"max_moves_per_body must be a non-negative number, "
-                             f"got {max_moves_per_body!r}")
+            raise RbgenError(
+                f"full must be 'grid' or 'sap' (the full-query broadphase), got {full!r}"
+            )
+        if not (
+            isinstance(max_moves_per_body, (int, float))
+            and math.isfinite(max_moves_per_body)
+            and max_moves_per_body >= 0
+        ):
+            raise RbgenError(
+                f"max_moves_per_body must be a non-negative number, got {max_moves_per_body!r}"
+            )
         self._initial_capacity = None if capacity is None else check_capacity(capacity)
-        self.full = make_broadphase(runtime, full, capacity=capacity,
-                                    work_group_size=work_group_size, **(full_options or {}))
+        self.full = make_broadphase(
+            runtime,
+            full,
+            capacity=capacity,
+            work_group_size=work_group_size,
+            **(full_options or {}),
+        )
         self.max_moves_per_body = float(max_moves_per_body)
         self.program = compile_spec(runtime, TEMPLATE.spec(work_group_size=self.work_group_size))
         self.reset()
@@ -103,9 +125,9 @@ class IncrementalSapBroadphase(Broadphase):
         """Forget the history: the next query is a full one."""
         self._slots: list[_Slot | None] = [None, None]
         self._current: int | None = None  # slot of the last complete step
-        self._target: int | None = None   # slot the pending step writes
+        self._target: int | None = None  # slot the pending step writes
         self._pending_full = True
-        self._force_full = False   # set by check() after a degenerate step
+        self._force_full = False  # set by check() after a degenerate step
         self._slot_bodies = -1
 
     @property
@@ -136,8 +158,12 @@ class IncrementalSapBroadphase(Broadphase):
             self._measure(aabbs, n, sizes=False)
         if n >= 1:
             self._sort_endpoints(aabbs, n, slot)
-            cl.enqueue_copy(self.runtime.queue, buffer_of(slot.boxes), aabbs.base_data,
-                            byte_count=n * layouts.AABB.itemsize)
+            cl.enqueue_copy(
+                self.runtime.queue,
+                buffer_of(slot.boxes),
+                aabbs.base_data,
+                byte_count=n * layouts.AABB.itemsize,
+            )
         if not full and n >= 2:
             assert self._current is not None  # a step that is not full has a last one
             old = self._slots[self._current]
@@ -167,25 +193,46 @@ class IncrementalSapBroadphase(Broadphase):
     # ---------------------------------------------------------------- steps
     def _sort_endpoints(self, aabbs, n: int, slot: _Slot) -> None:
         from ...primitives import RadixSort
+
         keys = [self.exact(f"keys{k}", 2 * n) for k in range(3)]
-        self.launch(self.program.kernel("endpoint_keys"), 2 * n, aabbs.base_data, np.uint32(n),
-                    *(k.base_data for k in keys), *(s.base_data for s in slot.sorted))
-        sort = self.primitive("sort32", lambda: RadixSort(self.runtime, key_bits=32,
-                                                          with_values=True))
+        self.launch(
+            self.program.kernel("endpoint_keys"),
+            2 * n,
+            aabbs.base_data,
+            np.uint32(n),
+            *(k.base_data for k in keys),
+            *(s.base_data for s in slot.sorted),
+        )
+        sort = self.primitive(
+            "sort32", lambda: RadixSort(self.runtime, key_bits=32, with_values=True)
+        )
         for key, ends in zip(keys, slot.sorted):
             sort(key, ends, n=2 * n)
-        self.launch(self.program.kernel("endpoint_ranks"), 2 * n, np.uint32(n),
-                    *(s.base_data for s in slot.sorted), slot.ranks.base_data)
+        self.launch(
+            self.program.kernel("endpoint_ranks"),
+            2 * n,
+            np.uint32(n),
+            *(s.base_data for s in slot.sorted),
+            slot.ranks.base_data,
+        )
 
     def _update_pairs(self, aabbs, static, n: int, old: _Slot, new: _Slot) -> None:
         from ...primitives import Compact, RadixSort, Reduce, Scan
+
         runtime, program = self.runtime, self.program
         moves = self.exact("moves", 6 * n, np.float32)
         total_moves = self.exact("total_moves", 1, np.float32)
-        self.launch(program.kernel("rank_moves"), 6 * n, np.uint32(n), old.ranks.base_data,
-                    new.ranks.base_data, moves.base_data)
+        self.launch(
+            program.kernel("rank_moves"),
+            6 * n,
+            np.uint32(n),
+            old.ranks.base_data,
+            new.ranks.base_data,
+            moves.base_data,
+        )
         self.primitive("sum", lambda: Reduce(runtime, np.float32, op="sum"))(
-            moves, total_moves, n=6 * n)
+            moves, total_moves, n=6 * n
+        )
 
         budget = self.max_moves_per_body * n
         change_capacity = CHANGES_PER_BODY * n + 1024
@@ -193,41 +240,73 @@ class IncrementalSapBroadphase(Broadphase):
         changes_b = self.exact("changes_b", change_capacity)
         change_count = self.exact("change_count", 1)
         cl.enqueue_fill_buffer(runtime.queue, buffer_of(change_count), np.uint32(0), 0, 4)
-        self.launch(program.kernel("find_changes"), 6 * n, aabbs.base_data, old.boxes.base_data,
-                    static.base_data, np.uint32(n), old.ranks.base_data, new.ranks.base_data,
-                    *(s.base_data for s in old.sorted), *(s.base_data for s in new.sorted),
-                    total_moves.base_data, np.float32(budget), change_count.base_data,
-                    np.uint32(change_capacity), changes_a.base_data, changes_b.base_data,
-                    new.pairs.status.base_data)
+        self.launch(
+            program.kernel("find_changes"),
+            6 * n,
+            aabbs.base_data,
+            old.boxes.base_data,
+            static.base_data,
+            np.uint32(n),
+            old.ranks.base_data,
+            new.ranks.base_data,
+            *(s.base_data for s in old.sorted),
+            *(s.base_data for s in new.sorted),
+            total_moves.base_data,
+            np.float32(budget),
+            change_count.base_data,
+            np.uint32(change_capacity),
+            changes_a.base_data,
+            changes_b.base_data,
+            new.pairs.status.base_data,
+        )
 
         # the distinct changes, sorted by (a, b)
         bits = key_bits(n - 1)
-        sort = self.primitive(("sort", bits), lambda: RadixSort(runtime, key_bits=bits,
-                                                                with_values=True))
+        sort = self.primitive(
+            ("sort", bits), lambda: RadixSort(runtime, key_bits=bits, with_values=True)
+        )
         sort(changes_b, changes_a, n=change_count)
         sort(changes_a, changes_b, n=change_count)
         first = self.exact("first_flags", change_capacity)
-        self.launch(program.kernel("mark_unique_changes"), change_capacity, changes_a.base_data,
-                    changes_b.base_data, change_count.base_data, np.uint32(change_capacity),
-                    first.base_data, new.pairs.status.base_data)
+        self.launch(
+            program.kernel("mark_unique_changes"),
+            change_capacity,
+            changes_a.base_data,
+            changes_b.base_data,
+            change_count.base_data,
+            np.uint32(change_capacity),
+            first.base_data,
+            new.pairs.status.base_data,
+        )
         compact = self.primitive("compact", lambda: Compact(runtime))
         unique_index = self.exact("unique_index", change_capacity)
         unique_count = self.exact("unique_count", 1)
         compact(first, unique_index, unique_count, n=change_count)
         unique = self.exact("unique_changes", change_capacity, layouts.PAIR.dtype)
-        self.launch(program.kernel("gather_unique_changes"), change_capacity,
-                    changes_a.base_data, changes_b.base_data, unique_index.base_data,
-                    unique_count.base_data, unique.base_data)
+        self.launch(
+            program.kernel("gather_unique_changes"),
+            change_capacity,
+            changes_a.base_data,
+            changes_b.base_data,
+            unique_index.base_data,
+            unique_count.base_data,
+            unique.base_data,
+        )
 
         # new set = old set XOR changes, merged in (a, b) order
         old_capacity = old.pairs.capacity
         keep_old = self.exact("keep_old", old_capacity)
         keep_change = self.exact("keep_change", change_capacity)
-        lists = (old.pairs.pairs.base_data, old.pairs.status.base_data, unique.base_data,
-                 unique_count.base_data)
+        lists = (
+            old.pairs.pairs.base_data,
+            old.pairs.status.base_data,
+            unique.base_data,
+            unique_count.base_data,
+        )
         self.launch(program.kernel("mark_old_pairs"), old_capacity, *lists, keep_old.base_data)
-        self.launch(program.kernel("mark_new_pairs"), change_capacity, *lists,
-                    keep_change.base_data)
+        self.launch(
+            program.kernel("mark_new_pairs"), change_capacity, *lists, keep_change.base_data
+        )
         scan = self.primitive("scan", lambda: Scan(runtime, np.uint32, inclusive=False))
         old_ranks, kept_total = self.exact("old_ranks", old_capacity), self.exact("kept", 1)
         change_ranks = self.exact("change_ranks", change_capacity)
@@ -235,12 +314,33 @@ class IncrementalSapBroadphase(Broadphase):
         scan(keep_old, old_ranks, n=old.pairs.count, total=kept_total)
         scan(keep_change, change_ranks, n=unique_count, total=added_total)
         capacity = np.uint32(new.pairs.capacity)
-        self.launch(program.kernel("place_old_pairs"), old_capacity, old.pairs.pairs.base_data,
-                    old.pairs.status.base_data, keep_old.base_data, old_ranks.base_data,
-                    unique.base_data, unique_count.base_data, change_ranks.base_data,
-                    added_total.base_data, capacity, new.pairs.pairs.base_data)
-        self.launch(program.kernel("place_new_pairs"), change_capacity, old.pairs.pairs.base_data,
-                    old.pairs.status.base_data, old_ranks.base_data, kept_total.base_data,
-                    unique.base_data, unique_count.base_data, keep_change.base_data,
-                    change_ranks.base_data, added_total.base_data, capacity,
-                    new.pairs.pairs.base_data, new.pairs.status.base_data)
+        self.launch(
+            program.kernel("place_old_pairs"),
+            old_capacity,
+            old.pairs.pairs.base_data,
+            old.pairs.status.base_data,
+            keep_old.base_data,
+            old_ranks.base_data,
+            unique.base_data,
+            unique_count.base_data,
+            change_ranks.base_data,
+            added_total.base_data,
+            capacity,
+            new.pairs.pairs.base_data,
+        )
+        self.launch(
+            program.kernel("place_new_pairs"),
+            change_capacity,
+            old.pairs.pairs.base_data,
+            old.pairs.status.base_data,
+            old_ranks.base_data,
+            kept_total.base_data,
+            unique.base_data,
+            unique_count.base_data,
+            keep_change.base_data,
+            change_ranks.base_data,
+            added_total.base_data,
+            capacity,
+            new.pairs.pairs.base_data,
+            new.pairs.status.base_data,
+        )

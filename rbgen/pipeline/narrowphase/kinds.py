@@ -14,6 +14,7 @@ the programs a `Narrowphase` builds, which shapes a World accepts
 (`missing_pairs`). The built-in kernels are declared beside their templates
 (`templates`).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -62,16 +63,20 @@ _KINDS: dict[str, PairKernel] = {}
 def register_pair_kernel(kind: PairKernel) -> PairKernel:
     """Declare a pair kernel; no type pair (in either order) may have two kernels."""
     if not re.fullmatch(r"[a-z][a-z0-9_]*", kind.name) or kind.name in _KINDS:
-        raise RbgenError(f"pair kernel {kind.name!r}: the name must be new and a C identifier "
-                         f"(declared: {list(_KINDS)})")
+        raise RbgenError(
+            f"pair kernel {kind.name!r}: the name must be new and a C identifier "
+            f"(declared: {list(_KINDS)})"
+        )
     if not kind.pairs:
         raise RbgenError(f"pair kernel {kind.name!r} handles no shape-type pair")
     for first, second in kind.pairs:
         shape_type(first), shape_type(second)  # registered types only
         other = kernel_for(first, second)
         if other is not None:
-            raise RbgenError(f"pair kernel {kind.name!r}: the pair ({first}, {second}) is "
-                             f"already handled by {other[0].name!r}")
+            raise RbgenError(
+                f"pair kernel {kind.name!r}: the pair ({first}, {second}) is "
+                f"already handled by {other[0].name!r}"
+            )
     _KINDS[kind.name] = kind
     return kind
 
@@ -104,10 +109,13 @@ def missing_pairs(type_names) -> list[tuple[str, str]]:
     types needs none (such bodies never touch), nor a pair with a composite type (the
     midphase turns it into pairs of its children, whose types are among the world's)."""
     types = sorted(set(type_names))
-    return [(a, b) for a, b in itertools.combinations_with_replacement(types, 2)
-            if not (shape_type(a).static_only and shape_type(b).static_only)
-            and not (shape_type(a).composite or shape_type(b).composite)
-            and kernel_for(a, b) is None]
+    return [
+        (a, b)
+        for a, b in itertools.combinations_with_replacement(types, 2)
+        if not (shape_type(a).static_only and shape_type(b).static_only)
+        and not (shape_type(a).composite or shape_type(b).composite)
+        and kernel_for(a, b) is None
+    ]
 
 
 def kinds_for(type_names) -> tuple[str, ...]:
@@ -116,21 +124,33 @@ def kinds_for(type_names) -> tuple[str, ...]:
     types = set(type_names)
     unknown = sorted(types - set(shape_type_names()))
     if unknown:
-        raise RbgenError(f"narrowphase: shape type(s) {unknown} are not supported "
-                         f"(registered: {list(shape_type_names())})")
+        raise RbgenError(
+            f"narrowphase: shape type(s) {unknown} are not supported "
+            f"(registered: {list(shape_type_names())})"
+        )
     missing = missing_pairs(types)
     if missing:
-        raise RbgenError(f"narrowphase: no pair kernel handles {missing} "
-                         f"(declared: {list(_KINDS)})")
+        raise RbgenError(
+            f"narrowphase: no pair kernel handles {missing} (declared: {list(_KINDS)})"
+        )
     return tuple(kind.name for kind in _KINDS.values() if kind.handles(types))
 
 
 def kinds_param_check(template_path: str | None):
     """The check of a template's ``kinds`` parameter: a non-empty tuple of distinct names of
     kernels declared with that template (any template: None), in declaration order."""
+
     def allowed(value) -> bool:
-        names = [k.name for k in _KINDS.values()
-                 if template_path is None or k.template.path == template_path]
-        return (isinstance(value, tuple) and len(value) > 0 and set(value) <= set(names)
-                and tuple(sorted(set(value), key=names.index)) == value)
+        names = [
+            k.name
+            for k in _KINDS.values()
+            if template_path is None or k.template.path == template_path
+        ]
+        return (
+            isinstance(value, tuple)
+            and len(value) > 0
+            and set(value) <= set(names)
+            and tuple(sorted(set(value), key=names.index)) == value
+        )
+
     return allowed

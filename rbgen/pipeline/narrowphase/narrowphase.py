@@ -49,6 +49,7 @@ capacity grows.
 Margin: points with separation up to ``+margin`` are reported (resting
 contacts persist between steps).
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -124,8 +125,15 @@ class Narrowphase:
     choose kernel shapes; results are the same.
     """
 
-    def __init__(self, runtime: Runtime, shapes, *, max_face_vertices: int | None = None,
-                 work_group_size: int | None = None, placement_tile: int | None = None):
+    def __init__(
+        self,
+        runtime: Runtime,
+        shapes,
+        *,
+        max_face_vertices: int | None = None,
+        work_group_size: int | None = None,
+        placement_tile: int | None = None,
+    ):
         #: a table given here is watched: when shapes with larger faces are added later,
         #: the clipping kernel is rebuilt for them before the next launch
         self.table = shapes if isinstance(shapes, ShapeTable) else None
@@ -143,14 +151,18 @@ class Narrowphase:
         #: one separating-axis kind with one shape type on both sides: its kernel reads the
         #: pair list itself and no classify_pairs runs
         only = declared[0] if len(declared) == 1 else None
-        self.direct = (only is not None and "direct" in only.template.params
-                       and all(first == second for first, second in only.handles(types)))
+        self.direct = (
+            only is not None
+            and "direct" in only.template.params
+            and all(first == second for first, second in only.handles(types))
+        )
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
         wg = self.work_group_size
         self.placement_tile = tile = placement_tile or default_placement_tile(runtime.traits, wg)
         if tile % wg:
-            raise RbgenError(f"placement_tile ({tile}) must be a multiple of work_group_size "
-                             f"({wg})")
+            raise RbgenError(
+                f"placement_tile ({tile}) must be a multiple of work_group_size ({wg})"
+            )
         self.max_face_vertices = max(3, int(max_face_vertices or 4))
         self._classify: _Launch | None = None
         self._scatter: _Launch | None = None
@@ -174,16 +186,21 @@ class Narrowphase:
         names = tuple(a["name"] for a in kernel_signatures(spec.source)[kernel_name])
         unknown = [n for n in names if n not in ARGUMENTS and n not in table_arguments()]
         if unknown:
-            raise RbgenError(f"narrowphase: kernel {kernel_name} of {spec.path} takes {unknown}, "
-                             f"which the stage does not provide (it provides {list(ARGUMENTS)})")
-        return _Launch(self.runtime.bound(program.kernel(kernel_name)), names,
-                       self.work_group_size)
+            raise RbgenError(
+                f"narrowphase: kernel {kernel_name} of {spec.path} takes {unknown}, "
+                f"which the stage does not provide (it provides {list(ARGUMENTS)})"
+            )
+        return _Launch(self.runtime.bound(program.kernel(kernel_name)), names, self.work_group_size)
 
     def _build_pair_kernels(self, declared) -> dict:
         """One program per template and parameter set (a template with a ``kinds``
         parameter holds several kernels); the launch of each kind."""
-        shared = {"work_group_size": self.work_group_size, "placement_tile": self.placement_tile,
-                  "direct": self.direct, "max_face_vertices": self.max_face_vertices}
+        shared = {
+            "work_group_size": self.work_group_size,
+            "placement_tile": self.placement_tile,
+            "direct": self.direct,
+            "max_face_vertices": self.max_face_vertices,
+        }
         programs: dict[tuple, list] = {}
         for kind in declared:
             programs.setdefault((kind.template.path, kind.params), []).append(kind)
@@ -202,10 +219,14 @@ class Narrowphase:
     def _build_clip(self) -> None:
         if not self._separating:
             return
-        self._clip = self._launch(CLIP.spec(work_group_size=self.work_group_size,
-                                            placement_tile=self.placement_tile,
-                                            max_face_vertices=self.max_face_vertices),
-                                  "clip_incident_face")
+        self._clip = self._launch(
+            CLIP.spec(
+                work_group_size=self.work_group_size,
+                placement_tile=self.placement_tile,
+                max_face_vertices=self.max_face_vertices,
+            ),
+            "clip_incident_face",
+        )
 
     def _follow_table(self) -> None:
         """Rebuild for faces larger than the clipping buffers (shapes added since)."""
@@ -214,8 +235,10 @@ class Narrowphase:
         self._table_size = len(self.table.shapes)
         kinds = kinds_for(self.table.type_names())
         if not set(kinds) <= set(self.kinds):
-            raise RbgenError(f"narrowphase: the shape table now needs kinds {list(kinds)} but this "
-                             f"Narrowphase was built for {list(self.kinds)}; build a new one")
+            raise RbgenError(
+                f"narrowphase: the shape table now needs kinds {list(kinds)} but this "
+                f"Narrowphase was built for {list(self.kinds)}; build a new one"
+            )
         needed = self.table.max_face_vertices()
         if needed > self.max_face_vertices:
             self.max_face_vertices = needed
@@ -245,8 +268,17 @@ class Narrowphase:
         self.capacity = cap
 
     # ------------------------------------------------------------------ step
-    def enqueue(self, bodies, shapes: PackedShapes, pairs, pair_count, manifolds, manifold_count,
-                overflow, margin: float = 0.0) -> dict:
+    def enqueue(
+        self,
+        bodies,
+        shapes: PackedShapes,
+        pairs,
+        pair_count,
+        manifolds,
+        manifold_count,
+        overflow,
+        margin: float = 0.0,
+    ) -> dict:
         """Enqueue the whole stage; returns its events by stage name (no blocking read).
 
         ``bodies``, ``pairs`` (Pair records), ``pair_count`` (uint32 array(1)),
@@ -263,26 +295,40 @@ class Narrowphase:
         rt = self.runtime
         if not self.kinds:  # nothing can touch: no manifolds, no overflow
             cl.enqueue_fill_buffer(rt.queue, _data(overflow), np.uint32(0), 0, 4)
-            return {"clear": cl.enqueue_fill_buffer(rt.queue, _data(manifold_count), np.uint32(0),
-                                                     0, 4)}
+            return {
+                "clear": cl.enqueue_fill_buffer(rt.queue, _data(manifold_count), np.uint32(0), 0, 4)
+            }
         pair_list_size = int(pairs.size)
         self._ensure(max(1, pair_list_size))
         size = max(1, pair_list_size)
         if not self._counters_clear:  # a call that stopped before its scatter_manifolds
             for counters in (self.queue_counts, self.sat_count):
-                cl.enqueue_fill_buffer(rt.queue, buffer_of(counters), np.uint32(0), 0,
-                                       counters.nbytes)
+                cl.enqueue_fill_buffer(
+                    rt.queue, buffer_of(counters), np.uint32(0), 0, counters.nbytes
+                )
         self._counters_clear = False
         values = {
-            **shapes.kernel_arguments(), "bodies": bodies, "pairs": pairs,
-            "pair_count": pair_count, "pair_list_size": np.uint32(pair_list_size),
-            "pair_capacity": np.uint32(self.capacity), "queues": self.queues,
-            "queue_counts": self.queue_counts, "kind": np.uint32(0),
-            "contact_flags": self.contact_flags, "slots": self.slots,
-            "tile_counts": self.tile_counts, "tile_count": np.uint32(self.tile_count),
-            "cache": self.sat_cache, "results": self.sat_results, "result_count": self.sat_count,
-            "sat_count": self.sat_count, "margin": np.float32(margin), "manifolds": manifolds,
-            "manifold_capacity": np.uint32(manifolds.size), "manifold_count": manifold_count,
+            **shapes.kernel_arguments(),
+            "bodies": bodies,
+            "pairs": pairs,
+            "pair_count": pair_count,
+            "pair_list_size": np.uint32(pair_list_size),
+            "pair_capacity": np.uint32(self.capacity),
+            "queues": self.queues,
+            "queue_counts": self.queue_counts,
+            "kind": np.uint32(0),
+            "contact_flags": self.contact_flags,
+            "slots": self.slots,
+            "tile_counts": self.tile_counts,
+            "tile_count": np.uint32(self.tile_count),
+            "cache": self.sat_cache,
+            "results": self.sat_results,
+            "result_count": self.sat_count,
+            "sat_count": self.sat_count,
+            "margin": np.float32(margin),
+            "manifolds": manifolds,
+            "manifold_capacity": np.uint32(manifolds.size),
+            "manifold_count": manifold_count,
             "overflow": overflow,
         }
         # built with the kinds, which are not empty here
@@ -304,8 +350,15 @@ class Narrowphase:
         return events
 
     # ------------------------------------------------------------------ convenience
-    def find_contacts(self, bodies, shapes: PackedShapes, pairs, pair_count, margin: float = 0.0,
-                      capacity: int | None = None) -> np.ndarray:
+    def find_contacts(
+        self,
+        bodies,
+        shapes: PackedShapes,
+        pairs,
+        pair_count,
+        margin: float = 0.0,
+        capacity: int | None = None,
+    ) -> np.ndarray:
         """All manifolds as host `ContactManifold` records, growing the output as needed.
 
         Blocking (reads the count); for tests, tools and benchmarks. Arguments
@@ -327,16 +380,18 @@ class Narrowphase:
             capacity = needed
 
 
-def find_contacts(runtime: Runtime, table: ShapeTable, bodies: np.ndarray, pairs,
-                  margin: float = 0.0, **options) -> np.ndarray:
+def find_contacts(
+    runtime: Runtime, table: ShapeTable, bodies: np.ndarray, pairs, margin: float = 0.0, **options
+) -> np.ndarray:
     """One-shot host convenience: `Body` records, a `ShapeTable` and pairs (an (n, 2)
     array of body indices with a < b, or Pair records) to `ContactManifold` records."""
     q = runtime.queue
     pairs = np.asarray(pairs)
     if pairs.dtype != layouts.PAIR.dtype:
         idx = np.asarray(pairs, np.int64).reshape(-1, 2)
-        if len(idx) and (np.any(idx[:, 0] >= idx[:, 1]) or np.any(idx < 0)
-                         or np.any(idx >= len(bodies))):
+        if len(idx) and (
+            np.any(idx[:, 0] >= idx[:, 1]) or np.any(idx < 0) or np.any(idx >= len(bodies))
+        ):
             raise RbgenError("find_contacts: pairs must be body indices (a, b) with a < b")
         records = layouts.PAIR.zeros(len(idx))
         records["a"], records["b"] = idx[:, 0], idx[:, 1]
@@ -346,5 +401,6 @@ def find_contacts(runtime: Runtime, table: ShapeTable, bodies: np.ndarray, pairs
     padded[:n] = pairs
     narrowphase = Narrowphase(runtime, table, **options)
     packed = table.pack_all().to_device(q)
-    return narrowphase.find_contacts(cla.to_device(q, np.ascontiguousarray(bodies)), packed,
-                                     cla.to_device(q, padded), n, margin)
+    return narrowphase.find_contacts(
+        cla.to_device(q, np.ascontiguousarray(bodies)), packed, cla.to_device(q, padded), n, margin
+    )

@@ -6,6 +6,7 @@ tile; each `KernelTemplate` sits beside its file in
 kernels it holds (the shape-type pairs each handles; see `kinds`). "convex"
 in a kind name is a box or a hull (both carry cooked polygons).
 """
+
 from __future__ import annotations
 
 from ...codegen import KernelTemplate, Param, work_group_size_param
@@ -26,11 +27,14 @@ def default_placement_tile(traits: DeviceTraits, work_group_size: int) -> int:
 
 
 def _kinds_param(template_path: str | None) -> Param:
-    return Param("kinds", kinds_param_check(template_path),
-                 "emit code only for the pair kernels (kinds) the world needs",
-                 "a non-empty tuple of distinct names of pair kernels declared "
-                 + ("for any template" if template_path is None else f"with {template_path}")
-                 + ", in declaration order")
+    return Param(
+        "kinds",
+        kinds_param_check(template_path),
+        "emit code only for the pair kernels (kinds) the world needs",
+        "a non-empty tuple of distinct names of pair kernels declared "
+        + ("for any template" if template_path is None else f"with {template_path}")
+        + ", in declaration order",
+    )
 
 
 def _sizes(traits: DeviceTraits) -> dict:
@@ -40,14 +44,18 @@ def _sizes(traits: DeviceTraits) -> dict:
 
 _WORK_GROUP = work_group_size_param("queue entries per work group")
 _DIRECT = Param(
-    "direct", (True, False),
+    "direct",
+    (True, False),
     "True: the world's only kind reads the pair list itself and clears what classify_pairs "
-    "would (one launch less); False: its queue, filled by classify_pairs")
+    "would (one launch less); False: its queue, filled by classify_pairs",
+)
 _PLACEMENT_TILE = Param(
-    "placement_tile", lambda v: isinstance(v, int) and 1 <= v <= 1 << 16 and v & (v - 1) == 0,
+    "placement_tile",
+    lambda v: isinstance(v, int) and 1 <= v <= 1 << 16 and v & (v - 1) == 0,
     "pairs whose manifolds one scatter_manifolds work group places: kernels that store a "
     "manifold count it in its tile, so placement needs no separate prefix-sum launches",
-    "a power of two from 1 to 65536, a multiple of work_group_size")
+    "a power of two from 1 to 65536, a multiple of work_group_size",
+)
 #: argument roles of kernels that store manifolds (KernelTemplate ``roles``)
 PAIR_ROLES = {"slots": "inout", "contact_flags": "inout", "tile_counts": "inout"}
 _SAT_ROLES = {"cache": "inout", "result_count": "inout"}
@@ -70,20 +78,24 @@ DISPATCH = KernelTemplate(
 
 PRIMITIVE_PAIRS_PATH = "pipeline/narrowphase/primitive_pairs.cl.mako"
 PRIMITIVE_PAIRS = KernelTemplate(
-    PRIMITIVE_PAIRS_PATH, pair_kernel_params(PRIMITIVE_PAIRS_PATH),
+    PRIMITIVE_PAIRS_PATH,
+    pair_kernel_params(PRIMITIVE_PAIRS_PATH),
     doc="Contacts of pairs with a sphere, a capsule or a plane (closed forms, one kernel each).",
     roles=PAIR_ROLES,
-    defaults=lambda traits: {**_sizes(traits), "kinds": tuple(
-        k.name for k in pair_kernels() if k.template.path == PRIMITIVE_PAIRS_PATH)},
+    defaults=lambda traits: {
+        **_sizes(traits),
+        "kinds": tuple(k.name for k in pair_kernels() if k.template.path == PRIMITIVE_PAIRS_PATH),
+    },
 )
 for _name, _pairs in (
-        ("sphere_sphere", [("sphere", "sphere")]),
-        ("sphere_plane", [("sphere", "plane")]),
-        ("sphere_convex", [("sphere", "box"), ("sphere", "hull")]),
-        ("sphere_capsule", [("sphere", "capsule")]),
-        ("capsule_capsule", [("capsule", "capsule")]),
-        ("capsule_plane", [("capsule", "plane")]),
-        ("convex_plane", [("box", "plane"), ("hull", "plane")])):
+    ("sphere_sphere", [("sphere", "sphere")]),
+    ("sphere_plane", [("sphere", "plane")]),
+    ("sphere_convex", [("sphere", "box"), ("sphere", "hull")]),
+    ("sphere_capsule", [("sphere", "capsule")]),
+    ("capsule_capsule", [("capsule", "capsule")]),
+    ("capsule_plane", [("capsule", "plane")]),
+    ("convex_plane", [("box", "plane"), ("hull", "plane")]),
+):
     register_pair_kernel(PairKernel(_name, tuple(_pairs), PRIMITIVE_PAIRS))
 
 CAPSULE_CONVEX = KernelTemplate(
@@ -93,8 +105,9 @@ CAPSULE_CONVEX = KernelTemplate(
     roles=PAIR_ROLES,
     defaults=_sizes,
 )
-register_pair_kernel(PairKernel("capsule_convex", (("capsule", "box"), ("capsule", "hull")),
-                                CAPSULE_CONVEX))
+register_pair_kernel(
+    PairKernel("capsule_convex", (("capsule", "box"), ("capsule", "hull")), CAPSULE_CONVEX)
+)
 
 SAT_BOX_BOX = KernelTemplate(
     "pipeline/narrowphase/sat_box_box.cl.mako",
@@ -103,39 +116,77 @@ SAT_BOX_BOX = KernelTemplate(
     roles=_SAT_ROLES,
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "direct": False},
 )
-register_pair_kernel(PairKernel("box_box", (("box", "box"),), SAT_BOX_BOX,
-                                kernel="find_separating_axis", separating_axis=True))
+register_pair_kernel(
+    PairKernel(
+        "box_box",
+        (("box", "box"),),
+        SAT_BOX_BOX,
+        kernel="find_separating_axis",
+        separating_axis=True,
+    )
+)
 
 SAT = KernelTemplate(
     "pipeline/narrowphase/sat.cl.mako",
-    [_WORK_GROUP, _DIRECT,
-     Param("first", ("box", "hull"), "box: closed-form projection; hull: loop over the vertices"),
-     Param("second", ("box", "hull"), "as first, for the second shape of the kind"),
-     Param("edge_axes", ("directions", "gauss_map"),
-           "directions: every pair of unique edge directions, each measured over the vertices "
-           "(cheap for boxes: 3 x 3); gauss_map: only edge pairs whose Gauss-map arcs cross, "
-           "measured between the edges (scales to large hulls)")],
+    [
+        _WORK_GROUP,
+        _DIRECT,
+        Param(
+            "first", ("box", "hull"), "box: closed-form projection; hull: loop over the vertices"
+        ),
+        Param("second", ("box", "hull"), "as first, for the second shape of the kind"),
+        Param(
+            "edge_axes",
+            ("directions", "gauss_map"),
+            "directions: every pair of unique edge directions, each measured over the vertices "
+            "(cheap for boxes: 3 x 3); gauss_map: only edge pairs whose Gauss-map arcs cross, "
+            "measured between the edges (scales to large hulls)",
+        ),
+    ],
     doc="Separating-axis test of convex pairs with a per-pair best-axis cache.",
     roles=_SAT_ROLES,
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits), "direct": False,
-                             "first": "box", "second": "hull", "edge_axes": "directions"},
+    defaults=lambda traits: {
+        "work_group_size": default_work_group_size(traits),
+        "direct": False,
+        "first": "box",
+        "second": "hull",
+        "edge_axes": "directions",
+    },
 )
 # a box brings its three edge directions; hull pairs prune their edge pairs on the Gauss map
-register_pair_kernel(PairKernel("box_hull", (("box", "hull"),), SAT,
-                                (("first", "box"), ("second", "hull"),
-                                 ("edge_axes", "directions")),
-                                kernel="find_separating_axis", separating_axis=True))
-register_pair_kernel(PairKernel("hull_hull", (("hull", "hull"),), SAT,
-                                (("first", "hull"), ("second", "hull"),
-                                 ("edge_axes", "gauss_map")),
-                                kernel="find_separating_axis", separating_axis=True))
+register_pair_kernel(
+    PairKernel(
+        "box_hull",
+        (("box", "hull"),),
+        SAT,
+        (("first", "box"), ("second", "hull"), ("edge_axes", "directions")),
+        kernel="find_separating_axis",
+        separating_axis=True,
+    )
+)
+register_pair_kernel(
+    PairKernel(
+        "hull_hull",
+        (("hull", "hull"),),
+        SAT,
+        (("first", "hull"), ("second", "hull"), ("edge_axes", "gauss_map")),
+        kernel="find_separating_axis",
+        separating_axis=True,
+    )
+)
 
 CLIP = KernelTemplate(
     "pipeline/narrowphase/clip.cl.mako",
-    [_WORK_GROUP, _PLACEMENT_TILE,
-     Param("max_face_vertices", lambda v: isinstance(v, int) and 3 <= v <= 32,
-           "sizes the private clipping buffers (2x): the world's largest face",
-           "an int from 3 to 32 (rbgen.hull.MAX_FACE_VERTICES)")],
+    [
+        _WORK_GROUP,
+        _PLACEMENT_TILE,
+        Param(
+            "max_face_vertices",
+            lambda v: isinstance(v, int) and 3 <= v <= 32,
+            "sizes the private clipping buffers (2x): the world's largest face",
+            "an int from 3 to 32 (rbgen.hull.MAX_FACE_VERTICES)",
+        ),
+    ],
     doc="Clip incident faces against reference faces; reduce to at most 4 points.",
     roles=PAIR_ROLES,
     defaults=lambda traits: {**_sizes(traits), "max_face_vertices": 4},

@@ -10,6 +10,7 @@
 Both take the step's constraints, bodies and sweep settings through `Solver.solve` and
 leave the push velocities (split impulse) for the integrator.
 """
+
 from __future__ import annotations
 
 from typing import Protocol
@@ -34,8 +35,16 @@ class Solver(Protocol):
     def barrier_state(self):
         """The barrier buffer its persistent launch shares (None: no persistent launch)."""
 
-    def solve(self, constraints, constraint_count, constraint_capacity: int, bodies, inertia,
-              body_count: int, sweeps: Sweeps) -> None:
+    def solve(
+        self,
+        constraints,
+        constraint_count,
+        constraint_capacity: int,
+        bodies,
+        inertia,
+        body_count: int,
+        sweeps: Sweeps,
+    ) -> None:
         """Warm start and sweep the step's constraints (no blocking read)."""
 
     def split_velocities(self, body_capacity: int):

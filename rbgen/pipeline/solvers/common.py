@@ -1,4 +1,5 @@
 """What the contact solvers share: the fast-math build, push velocities, sweep checks."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,17 +20,23 @@ FAST_MATH_OPTIONS = ("-cl-fast-relaxed-math",)
 
 def fast_math_param() -> Param:
     """The contact solvers' ``fast_math`` parameter (its build options: `fast_math_options`)."""
-    return Param("fast_math", (False, True),
-                 "build with -cl-fast-relaxed-math: a lane's constraint is a long chain of "
-                 "dependent arithmetic, which IEEE division and square root and unfused, "
-                 "unreordered operations lengthen")
+    return Param(
+        "fast_math",
+        (False, True),
+        "build with -cl-fast-relaxed-math: a lane's constraint is a long chain of "
+        "dependent arithmetic, which IEEE division and square root and unfused, "
+        "unreordered operations lengthen",
+    )
 
 
 def normal_solve_param() -> Param:
     """The contact solvers' ``normal_solve`` parameter."""
-    return Param("normal_solve", NORMAL_SOLVES,
-                 "block: a manifold's normal rows solved together (no point-order bias, so "
-                 "symmetric stacks stay upright); sequential: one row after another (cheaper)")
+    return Param(
+        "normal_solve",
+        NORMAL_SOLVES,
+        "block: a manifold's normal rows solved together (no point-order bias, so "
+        "symmetric stacks stay upright); sequential: one row after another (cheaper)",
+    )
 
 
 def fast_math_options(values: dict) -> tuple[str, ...]:
@@ -56,10 +63,12 @@ def resolve_fast_math(traits: DeviceTraits, fast_math: bool | None) -> bool:
 def check_sweeps(iterations: int, position_iterations: int, relaxation: float) -> None:
     """Refuse sweep settings no solver can run, naming them."""
     if iterations < 0 or position_iterations < 0 or not 0.0 < relaxation < 2.0:
-        raise RbgenError(f"need iterations >= 0, position_iterations >= 0 and "
-                         f"0 < relaxation < 2, got iterations={iterations!r}, "
-                         f"position_iterations={position_iterations!r}, "
-                         f"relaxation={relaxation!r}")
+        raise RbgenError(
+            f"need iterations >= 0, position_iterations >= 0 and "
+            f"0 < relaxation < 2, got iterations={iterations!r}, "
+            f"position_iterations={position_iterations!r}, "
+            f"relaxation={relaxation!r}"
+        )
 
 
 class PushVelocities:
@@ -71,6 +80,7 @@ class PushVelocities:
     def split_velocities(self, body_capacity: int):
         """The zeroed push-velocity array (grown to ``body_capacity``)."""
         if self._split is None or len(self._split) < body_capacity:
-            self._split = cl_array.zeros(self.runtime.queue, max(1, int(body_capacity)),
-                                         layouts.SPLIT_VELOCITY.dtype)
+            self._split = cl_array.zeros(
+                self.runtime.queue, max(1, int(body_capacity)), layouts.SPLIT_VELOCITY.dtype
+            )
         return self._split

@@ -28,6 +28,7 @@ The Jacobi solver reads the contact constraints directly, not the constraint-edg
 that batching colours (`rbgen.pipeline.constraints`): it colours nothing, and a joint
 kind would join it as a constraint phase of its own.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -76,31 +77,44 @@ SHARED_NAMES = tuple(a.name for a in SHARED_ARGS)
 #: the phases that build the bodies' contact lists, in order (phase launches)
 LIST_PHASES = ("clear", "count", "chunk_sums", "scan", "link", "order")
 #: every kernel's trailing scalars (bound once per kernel object)
-SCALARS = {"solve_jacobi": ("passes", "velocity_sweeps", "position_sweeps"),
-           **{f"jacobi_{phase}": ("reverse",) for phase in LIST_PHASES
-              + ("warm_start", "sweep", "average", "push", "average_push")}}
+SCALARS = {
+    "solve_jacobi": ("passes", "velocity_sweeps", "position_sweeps"),
+    **{
+        f"jacobi_{phase}": ("reverse",)
+        for phase in LIST_PHASES + ("warm_start", "sweep", "average", "push", "average_push")
+    },
+}
 #: each kernel's arguments, declared once: the template renders them, JacobiSolver binds them
-SIGNATURES = {name: Signature(name, SHARED_ARGS + tuple(Arg("const uint", s) for s in scalars))
-              for name, scalars in SCALARS.items()}
+SIGNATURES = {
+    name: Signature(name, SHARED_ARGS + tuple(Arg("const uint", s) for s in scalars))
+    for name, scalars in SCALARS.items()
+}
 
 TEMPLATE = KernelTemplate(
     "pipeline/solvers/jacobi.cl.mako",
     [
-        work_group_size_param("lanes of a work group; each lane handles constraints and bodies "
-                              "at its index plus multiples of the launch's size"),
+        work_group_size_param(
+            "lanes of a work group; each lane handles constraints and bodies "
+            "at its index plus multiples of the launch's size"
+        ),
         normal_solve_param(),
-        Param("persistent", (False, True),
-              "True: one launch runs every phase with a device-wide barrier between phases "
-              "(the work groups must all run at once); False: one launch per phase"),
+        Param(
+            "persistent",
+            (False, True),
+            "True: one launch runs every phase with a device-wide barrier between phases "
+            "(the work groups must all run at once); False: one launch per phase",
+        ),
         fast_math_param(),
     ],
     doc="Jacobi sweeps with mass splitting over contact constraints.",
     roles={"constraints": "inout", "bodies": "inout", "split": "inout", "sync": "inout"},
     build_options=fast_math_options,
-    defaults=lambda traits: {"work_group_size": default_work_group_size(traits),
-                             "normal_solve": "block",
-                             "persistent": persistent_launch_validated(traits),
-                             "fast_math": resolve_fast_math(traits, None)},
+    defaults=lambda traits: {
+        "work_group_size": default_work_group_size(traits),
+        "normal_solve": "block",
+        "persistent": persistent_launch_validated(traits),
+        "fast_math": resolve_fast_math(traits, None),
+    },
     signatures=SIGNATURES.values(),
 )
 
@@ -119,21 +133,30 @@ def default_work_group_size(traits: DeviceTraits) -> int:
 class JacobiSolver(PushVelocities):
     """Launches the Jacobi sweeps with mass splitting (see the module docstring)."""
 
-    def __init__(self, runtime: Runtime, *, normal_solve: str = "block",
-                 persistent: bool | None = None, work_group_size: int | None = None,
-                 fast_math: bool | None = None):
+    def __init__(
+        self,
+        runtime: Runtime,
+        *,
+        normal_solve: str = "block",
+        persistent: bool | None = None,
+        work_group_size: int | None = None,
+        fast_math: bool | None = None,
+    ):
         self.runtime = runtime
         traits = runtime.traits
-        self.persistent = persistent_launch_validated(traits) if persistent is None \
-            else bool(persistent)
+        self.persistent = (
+            persistent_launch_validated(traits) if persistent is None else bool(persistent)
+        )
         self.work_group_size = int(work_group_size or default_work_group_size(traits))
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size,
-                                  normal_solve=normal_solve, persistent=self.persistent,
-                                  fast_math=resolve_fast_math(traits, fast_math))
+        self.spec = TEMPLATE.spec(
+            work_group_size=self.work_group_size,
+            normal_solve=normal_solve,
+            persistent=self.persistent,
+            fast_math=resolve_fast_math(traits, fast_math),
+        )
         self._program = compile_spec(runtime, self.spec)
         #: work groups of every launch (the scan's chunks depend on it)
-        self.groups = persistent_groups(traits) * (1 if self.persistent
-                                                   else PHASE_GROUPS_PER_UNIT)
+        self.groups = persistent_groups(traits) * (1 if self.persistent else PHASE_GROUPS_PER_UNIT)
         q = runtime.queue
         #: the device-wide barrier's words (persistent launch; the World reads its flag)
         self.sync = barrier_buffer(runtime) if self.persistent else None
@@ -186,8 +209,9 @@ class JacobiSolver(PushVelocities):
         return kernel
 
     # ------------------------------------------------------------- solving
-    def solve(self, constraints, constraint_count, capacity: int, bodies, inertia,
-              body_count: int, sweeps) -> None:
+    def solve(
+        self, constraints, constraint_count, capacity: int, bodies, inertia, body_count: int, sweeps
+    ) -> None:
         """Warm start, ``sweeps.iterations`` velocity sweeps and
         ``sweeps.position_iterations`` push sweeps over min(``constraint_count[0]``,
         ``capacity``) constraints (``constraint_count``: a device uint32 array(1)) between
@@ -196,20 +220,36 @@ class JacobiSolver(PushVelocities):
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
         relaxation, warm_start = sweeps.relaxation, bool(sweeps.warm_start)
         check_sweeps(iterations, position_iterations, relaxation)
-        if capacity <= 0 or body_count <= 0 or not (warm_start or iterations
-                                                    or position_iterations):
+        if (
+            capacity <= 0
+            or body_count <= 0
+            or not (warm_start or iterations or position_iterations)
+        ):
             return
         self._ensure(body_count, capacity)
-        shared = [constraints, constraint_count, np.uint32(capacity), bodies, inertia,
-                  self.split_velocities(body_count)]
-        shared += [self._body_contacts, self._body_first, self._chunk_sums, self._side_slots,
-                   self._lists, self._changes]
+        shared = [
+            constraints,
+            constraint_count,
+            np.uint32(capacity),
+            bodies,
+            inertia,
+            self.split_velocities(body_count),
+        ]
+        shared += [
+            self._body_contacts,
+            self._body_first,
+            self._chunk_sums,
+            self._side_slots,
+            self._lists,
+            self._changes,
+        ]
         if self.persistent:
             shared.append(self.sync)
         shared += [np.float32(relaxation), np.uint32(body_count)]
         size = self.groups * self.work_group_size
-        for name, kernel in self._schedule(int(iterations), int(position_iterations),
-                                           bool(warm_start)):
+        for name, kernel in self._schedule(
+            int(iterations), int(position_iterations), bool(warm_start)
+        ):
             self._binders_of(name)[0](kernel, *shared)
             kernel.launch(size, self.work_group_size)
 

@@ -45,6 +45,7 @@ schedule has its own kernel object (`rbgen.launch.instance`) with those scalars 
 buffers and ``relaxation`` are bound once per call, only the changed ones reaching the
 driver.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -101,100 +102,155 @@ def _serial(values) -> bool:
 #: solve_groups' arguments, in order: the template renders them, `PgsSolver` binds them.
 #: The buffers and ``relaxation`` are bound once per solve; the trailing scalars once per
 #: kernel object (`rbgen.launch.instance`), one object per distinct set of them.
-SOLVE_GROUPS = Signature("solve_groups", [
-    Arg("__global ContactConstraint*", "constraints"),
-    Arg("__global const uint*", "order"),
-    Arg("__global const uint*", "group_batches"),
-    Arg("__global const uint*", "group_batch_count"),
-    Arg(lambda v: f"{_velocity_space(v)} Body*", "bodies"),
-    Arg("__global const BodyInertia*", "inertia"),
-    Arg(lambda v: f"{_velocity_space(v)} SplitVelocity*", "split"),
-    Arg("volatile __global uint*", "sync", when=_persistent),
-    Arg("volatile __global long*", "warm_sums", when=_summed),
-    Arg("volatile __global BodyDelta*", "deltas", when=_persistent),
-    Arg("const uint", "body_count", when=lambda v: _summed(v) or _persistent(v)),
-    Arg("const float", "relaxation"),
-    # a persistent launch runs the step's substeps itself (see the template)
-    Arg("const uint", "substeps", when=_persistent),
-    Arg("const float", "h", when=_persistent),
-    Arg("const float4", "gravity", when=_persistent),
-    Arg("const float", "linear_damping_factor", when=_persistent),
-    Arg("const float", "angular_damping_factor", when=_persistent),
-    Arg("const float", "max_angular_step", when=_persistent),
-    Arg("const float", "penetration_slop", when=_persistent),
-    Arg("const float", "penetration_recovery", when=_persistent),
-    Arg("const uint", "group_offset"),
-    Arg("const uint", "group_end", when=_serial),
-    Arg("const uint", "passes"),
-    Arg("const uint", "velocity_sweeps"),
-    Arg("const uint", "position_sweeps"),
-    Arg("const uint", "velocity_release_from"),
-    Arg("const uint", "position_release_from"),
-])
+SOLVE_GROUPS = Signature(
+    "solve_groups",
+    [
+        Arg("__global ContactConstraint*", "constraints"),
+        Arg("__global const uint*", "order"),
+        Arg("__global const uint*", "group_batches"),
+        Arg("__global const uint*", "group_batch_count"),
+        Arg(lambda v: f"{_velocity_space(v)} Body*", "bodies"),
+        Arg("__global const BodyInertia*", "inertia"),
+        Arg(lambda v: f"{_velocity_space(v)} SplitVelocity*", "split"),
+        Arg("volatile __global uint*", "sync", when=_persistent),
+        Arg("volatile __global long*", "warm_sums", when=_summed),
+        Arg("volatile __global BodyDelta*", "deltas", when=_persistent),
+        Arg("const uint", "body_count", when=lambda v: _summed(v) or _persistent(v)),
+        Arg("const float", "relaxation"),
+        # a persistent launch runs the step's substeps itself (see the template)
+        Arg("const uint", "substeps", when=_persistent),
+        Arg("const float", "h", when=_persistent),
+        Arg("const float4", "gravity", when=_persistent),
+        Arg("const float", "linear_damping_factor", when=_persistent),
+        Arg("const float", "angular_damping_factor", when=_persistent),
+        Arg("const float", "max_angular_step", when=_persistent),
+        Arg("const float", "penetration_slop", when=_persistent),
+        Arg("const float", "penetration_recovery", when=_persistent),
+        Arg("const uint", "group_offset"),
+        Arg("const uint", "group_end", when=_serial),
+        Arg("const uint", "passes"),
+        Arg("const uint", "velocity_sweeps"),
+        Arg("const uint", "position_sweeps"),
+        Arg("const uint", "velocity_release_from"),
+        Arg("const uint", "position_release_from"),
+    ],
+)
 #: the buffers of a solve and ``relaxation`` (bound once per solve), in SOLVE_GROUPS' order
-SOLVE_BUFFERS = ("constraints", "order", "group_batches", "group_batch_count", "bodies",
-                 "inertia", "split", "sync", "warm_sums", "deltas", "body_count", "relaxation",
-                 "substeps", "h", "gravity", "linear_damping_factor", "angular_damping_factor",
-                 "max_angular_step", "penetration_slop", "penetration_recovery")
+SOLVE_BUFFERS = (
+    "constraints",
+    "order",
+    "group_batches",
+    "group_batch_count",
+    "bodies",
+    "inertia",
+    "split",
+    "sync",
+    "warm_sums",
+    "deltas",
+    "body_count",
+    "relaxation",
+    "substeps",
+    "h",
+    "gravity",
+    "linear_damping_factor",
+    "angular_damping_factor",
+    "max_angular_step",
+    "penetration_slop",
+    "penetration_recovery",
+)
 #: one launch's trailing scalars (bound once per kernel object)
-LAUNCH_SCALARS = ("group_offset", "group_end", "passes", "velocity_sweeps", "position_sweeps",
-                  "velocity_release_from", "position_release_from")
+LAUNCH_SCALARS = (
+    "group_offset",
+    "group_end",
+    "passes",
+    "velocity_sweeps",
+    "position_sweeps",
+    "velocity_release_from",
+    "position_release_from",
+)
 
-APPLY_SPLIT_VELOCITIES = Signature("apply_split_velocities", [
-    Arg("__global Body*", "bodies"),
-    Arg("__global SplitVelocity*", "split"),
-    Arg("const uint", "body_count"),
-    Arg("const float", "dt"),
-])
+APPLY_SPLIT_VELOCITIES = Signature(
+    "apply_split_velocities",
+    [
+        Arg("__global Body*", "bodies"),
+        Arg("__global SplitVelocity*", "split"),
+        Arg("const uint", "body_count"),
+        Arg("const float", "dt"),
+    ],
+)
 
 TEMPLATE = KernelTemplate(
     "pipeline/solvers/pgs.cl.mako",
     [
-        work_group_size_param("lanes form: lanes solving one batch at a time (a batch of a "
-                              "dense pile holds a few hundred constraints); serial form: groups "
-                              "per work group, each solved by its own work-item"),
-        Param("max_batches", power_of_two(2, 4096),
-              "must equal the batcher's max_batches (the layout of group_batches)",
-              "a power of two from 2 to 4096"),
-        Param("solve_form", SOLVE_FORMS,
-              "lanes: a work group per level-1 group, lanes over level-2 batches with barriers; "
-              "serial: a work-item per level-1 group, its constraints one after another"),
+        work_group_size_param(
+            "lanes form: lanes solving one batch at a time (a batch of a "
+            "dense pile holds a few hundred constraints); serial form: groups "
+            "per work group, each solved by its own work-item"
+        ),
+        Param(
+            "max_batches",
+            power_of_two(2, 4096),
+            "must equal the batcher's max_batches (the layout of group_batches)",
+            "a power of two from 2 to 4096",
+        ),
+        Param(
+            "solve_form",
+            SOLVE_FORMS,
+            "lanes: a work group per level-1 group, lanes over level-2 batches with barriers; "
+            "serial: a work-item per level-1 group, its constraints one after another",
+        ),
         normal_solve_param(),
-        Param("persistent", (False, True),
-              "lanes form, one group of all constraints (global batching): every work group "
-              "of the launch (one per compute unit) takes part in each batch, with a "
-              "device-wide barrier between batches (one launch for the whole solve)"),
+        Param(
+            "persistent",
+            (False, True),
+            "lanes form, one group of all constraints (global batching): every work group "
+            "of the launch (one per compute unit) takes part in each batch, with a "
+            "device-wide barrier between batches (one launch for the whole solve)",
+        ),
         fast_math_param(),
-        Param("warm_start_mode", WARM_START_MODES,
-              "batched: the warm start is a sweep over the batches (one batch step per "
-              "colour); summed (persistent only): every constraint's old impulses are summed "
-              "per body in 64-bit fixed point with atomics, then every body takes its sum"),
+        Param(
+            "warm_start_mode",
+            WARM_START_MODES,
+            "batched: the warm start is a sweep over the batches (one batch step per "
+            "colour); summed (persistent only): every constraint's old impulses are summed "
+            "per body in 64-bit fixed point with atomics, then every body takes its sum",
+        ),
     ],
     doc="PGS velocity sweeps and split-impulse position sweeps over batched contacts.",
-    roles={"constraints": "inout", "bodies": "inout", "split": "inout", "sync": "inout",
-           "warm_sums": "inout", "deltas": "inout"},
+    roles={
+        "constraints": "inout",
+        "bodies": "inout",
+        "split": "inout",
+        "sync": "inout",
+        "warm_sums": "inout",
+        "deltas": "inout",
+    },
     requires=lambda v: _parameter_rules(v),
     build_options=fast_math_options,
-    defaults=lambda traits: default_values(traits,
-                                           persistent=persistent_launch_validated(traits)),
+    defaults=lambda traits: default_values(traits, persistent=persistent_launch_validated(traits)),
     signatures=[SOLVE_GROUPS, APPLY_SPLIT_VELOCITIES],
 )
 
 
-def default_values(traits: DeviceTraits, *, persistent: bool = False,
-                   solve_form: str | None = None) -> dict:
+def default_values(
+    traits: DeviceTraits, *, persistent: bool = False, solve_form: str | None = None
+) -> dict:
     """The solver's parameters for a device and a batching of this solve form (the
     template's defaults: a default World's plan on that device)."""
     solve_form = solve_form or ("lanes" if traits.is_gpu else "serial")
-    return {"work_group_size": default_work_group_size(traits, solve_form, persistent),
-            "max_batches": 128, "solve_form": solve_form,
-            "normal_solve": default_normal_solve(solve_form, "global" if persistent else
-                                                 ("slabs" if solve_form == "serial" else
-                                                  "cells")),
-            "persistent": persistent,
-            "fast_math": resolve_fast_math(traits, None),
-            "warm_start_mode": "summed" if persistent and traits.has_extension(INT64_ATOMICS)
-            else "batched"}
+    return {
+        "work_group_size": default_work_group_size(traits, solve_form, persistent),
+        "max_batches": 128,
+        "solve_form": solve_form,
+        "normal_solve": default_normal_solve(
+            solve_form, "global" if persistent else ("slabs" if solve_form == "serial" else "cells")
+        ),
+        "persistent": persistent,
+        "fast_math": resolve_fast_math(traits, None),
+        "warm_start_mode": "summed"
+        if persistent and traits.has_extension(INT64_ATOMICS)
+        else "batched",
+    }
 
 
 def _parameter_rules(values: dict) -> str | None:
@@ -202,8 +258,10 @@ def _parameter_rules(values: dict) -> str | None:
     if values["persistent"] and values["solve_form"] != "lanes":
         return "persistent needs solve_form='lanes' (the work groups share the batches)"
     if values["warm_start_mode"] == "summed" and not values["persistent"]:
-        return "warm_start_mode='summed' needs persistent=True (its two phases are " \
-               "separated by a device-wide barrier)"
+        return (
+            "warm_start_mode='summed' needs persistent=True (its two phases are "
+            "separated by a device-wide barrier)"
+        )
     return None
 
 
@@ -216,8 +274,9 @@ def default_normal_solve(solve_form: str | None, batching: str | None = None) ->
     return "sequential" if solve_form == "serial" and batching == "slabs" else "block"
 
 
-def default_work_group_size(traits: DeviceTraits, solve_form: str | None = None,
-                            persistent: bool = False) -> int:
+def default_work_group_size(
+    traits: DeviceTraits, solve_form: str | None = None, persistent: bool = False
+) -> int:
     """lanes form: 64 (two warps / one wavefront per batch step), 256 for a persistent
     solve (one work group a compute unit does all; the block solve's registers a lane
     allow no more); serial form: 1 (one group per work group, so that PoCL hands groups to
@@ -253,23 +312,29 @@ class SubstepMotion:
 
     def arguments(self) -> dict:
         """The kernel arguments by name."""
-        return {"substeps": np.uint32(self.substeps), "h": np.float32(self.h),
-                "gravity": np.array([*self.gravity, 0.0], np.float32),
-                "linear_damping_factor": np.float32(self.linear_damping_factor),
-                "angular_damping_factor": np.float32(self.angular_damping_factor),
-                "max_angular_step": np.float32(self.max_angular_step),
-                "penetration_slop": np.float32(self.penetration_slop),
-                "penetration_recovery": np.float32(self.penetration_recovery),
-                "deltas": self.deltas}
+        return {
+            "substeps": np.uint32(self.substeps),
+            "h": np.float32(self.h),
+            "gravity": np.array([*self.gravity, 0.0], np.float32),
+            "linear_damping_factor": np.float32(self.linear_damping_factor),
+            "angular_damping_factor": np.float32(self.angular_damping_factor),
+            "max_angular_step": np.float32(self.max_angular_step),
+            "penetration_slop": np.float32(self.penetration_slop),
+            "penetration_recovery": np.float32(self.penetration_recovery),
+            "deltas": self.deltas,
+        }
 
 
 def check_release_sweeps(release_sweeps) -> None:
     """Refuse a ``release_sweeps`` that is neither None nor an integer >= 0, naming it."""
-    if release_sweeps is not None and (isinstance(release_sweeps, bool)
-                                       or not isinstance(release_sweeps, (int, np.integer))
-                                       or release_sweeps < 0):
-        raise RbgenError(f"release_sweeps must be None (every sweep) or an integer >= 0, "
-                         f"got {release_sweeps!r}")
+    if release_sweeps is not None and (
+        isinstance(release_sweeps, bool)
+        or not isinstance(release_sweeps, (int, np.integer))
+        or release_sweeps < 0
+    ):
+        raise RbgenError(
+            f"release_sweeps must be None (every sweep) or an integer >= 0, got {release_sweeps!r}"
+        )
 
 
 def first_release_sweep(sweeps: int, release_sweeps: int | None) -> int:
@@ -288,26 +353,40 @@ class PgsSolver(PushVelocities):
     the last position sweeps, solve the complete block (None: every sweep).
     """
 
-    def __init__(self, runtime: Runtime, batcher, *, normal_solve: str | None = None,
-                 persistent: bool = False, fast_math: bool | None = None,
-                 warm_start_mode: str | None = None, work_group_size: int | None = None,
-                 release_sweeps: int | None = None):
+    def __init__(
+        self,
+        runtime: Runtime,
+        batcher,
+        *,
+        normal_solve: str | None = None,
+        persistent: bool = False,
+        fast_math: bool | None = None,
+        warm_start_mode: str | None = None,
+        work_group_size: int | None = None,
+        release_sweeps: int | None = None,
+    ):
         self.runtime = runtime
         self.batcher = batcher
         traits = runtime.traits
         persistent = bool(persistent)
         if persistent and batcher.group_count != 1:
-            raise RbgenError(f"a persistent solve needs one group of all constraints (global "
-                             f"batching), got {batcher.group_count} groups (batching "
-                             f"{batcher.mode!r})")
+            raise RbgenError(
+                f"a persistent solve needs one group of all constraints (global "
+                f"batching), got {batcher.group_count} groups (batching "
+                f"{batcher.mode!r})"
+            )
         values = default_values(traits, persistent=persistent, solve_form=batcher.solve_form)
         if warm_start_mode == "summed" and not runtime.has_extension(INT64_ATOMICS):
-            raise RbgenError(f"warm_start_mode='summed' needs the device extension "
-                             f"{INT64_ATOMICS}, which {traits.device_name} lacks")
-        overrides = {"normal_solve": normal_solve, "warm_start_mode": warm_start_mode,
-                     "work_group_size": work_group_size,
-                     "fast_math": None if fast_math is None else resolve_fast_math(traits,
-                                                                                   fast_math)}
+            raise RbgenError(
+                f"warm_start_mode='summed' needs the device extension "
+                f"{INT64_ATOMICS}, which {traits.device_name} lacks"
+            )
+        overrides = {
+            "normal_solve": normal_solve,
+            "warm_start_mode": warm_start_mode,
+            "work_group_size": work_group_size,
+            "fast_math": None if fast_math is None else resolve_fast_math(traits, fast_math),
+        }
         values.update({k: v for k, v in overrides.items() if v is not None})
         values["max_batches"] = int(batcher.max_batches)
         check_release_sweeps(release_sweeps)
@@ -332,8 +411,9 @@ class PgsSolver(PushVelocities):
         self._bind_buffers = SOLVE_GROUPS.binder(self.spec, *self._buffer_names)
         self._bind_scalars = SOLVE_GROUPS.binder(self.spec, *self._scalar_names)
         SOLVE_GROUPS.check_bound(self.spec, self._bind_buffers, self._bind_scalars)
-        self._bind_apply = APPLY_SPLIT_VELOCITIES.binder(self.spec, "bodies", "split",
-                                                         "body_count", "dt")
+        self._bind_apply = APPLY_SPLIT_VELOCITIES.binder(
+            self.spec, "bodies", "split", "body_count", "dt"
+        )
         #: trailing scalars -> kernel object with those scalars set
         self._instances: dict = {}
         #: (plan, sweeps, warm start) -> ([(kernel, global size)], distinct kernels)
@@ -356,8 +436,17 @@ class PgsSolver(PushVelocities):
         persistent launch): then `solve` takes the step's `SubstepMotion`."""
         return self.persistent
 
-    def solve(self, constraints, constraint_count, constraint_capacity: int, bodies, inertia,
-              body_count: int, sweeps, motion: SubstepMotion | None = None) -> None:
+    def solve(
+        self,
+        constraints,
+        constraint_count,
+        constraint_capacity: int,
+        bodies,
+        inertia,
+        body_count: int,
+        sweeps,
+        motion: SubstepMotion | None = None,
+    ) -> None:
         """Warm start (every constraint's old impulses, before any sweep),
         ``sweeps.iterations`` velocity sweeps and ``sweeps.position_iterations``
         split-impulse sweeps over the batches of the batcher's last call, launched as the
@@ -370,23 +459,34 @@ class PgsSolver(PushVelocities):
         # (the sequential normal solve has no block to release: its release scalars are unused)
         release = self.release_sweeps if self.normal_solve == "block" else 0
         batcher = self.batcher
-        launches, kernels = self._schedule(batcher.launch_plan, iterations, position_iterations,
-                                           bool(sweeps.warm_start), release)
+        launches, kernels = self._schedule(
+            batcher.launch_plan, iterations, position_iterations, bool(sweeps.warm_start), release
+        )
         if not launches:
             return
-        given = {"constraints": constraints, "order": batcher.order,
-                 "group_batches": batcher.group_batches,
-                 "group_batch_count": batcher.group_batch_count, "bodies": bodies,
-                 "inertia": inertia, "split": self.split_velocities(max(1, int(body_count))),
-                 "relaxation": np.float32(sweeps.relaxation)}
+        given = {
+            "constraints": constraints,
+            "order": batcher.order,
+            "group_batches": batcher.group_batches,
+            "group_batch_count": batcher.group_batch_count,
+            "bodies": bodies,
+            "inertia": inertia,
+            "split": self.split_velocities(max(1, int(body_count))),
+            "relaxation": np.float32(sweeps.relaxation),
+        }
         if self.persistent:  # after a global colouring: its buffer (it may have given up)
             given["sync"] = self.barrier_state()
         if self.spec.values["warm_start_mode"] == "summed":
             given["warm_sums"] = self._warm_sum_buffer(max(1, int(body_count)))
         given["body_count"] = np.uint32(body_count)
         if self.persistent:  # (substeps 0 unless it runs the step's substeps)
-            given.update((motion if self.integrates and motion is not None
-                          else self._no_motion(body_count)).arguments())
+            given.update(
+                (
+                    motion
+                    if self.integrates and motion is not None
+                    else self._no_motion(body_count)
+                ).arguments()
+            )
         shared = [given[name] for name in self._buffer_names]
         for kernel in kernels:
             self._bind_buffers(kernel, *shared)
@@ -398,8 +498,9 @@ class PgsSolver(PushVelocities):
         """A persistent solve's arguments for the warm start and sweeps alone (0 substeps:
         the caller moves the bodies)."""
         if self._idle_deltas is None or len(self._idle_deltas) < body_count:
-            self._idle_deltas = cl_array.zeros(self.runtime.queue, max(1, body_count),
-                                               layouts.BODY_DELTA.dtype)
+            self._idle_deltas = cl_array.zeros(
+                self.runtime.queue, max(1, body_count), layouts.BODY_DELTA.dtype
+            )
         return SubstepMotion(0, 0.0, np.zeros(3), 1.0, 1.0, 0.0, 0.0, 0.0, self._idle_deltas)
 
     def _warm_sum_buffer(self, body_capacity: int):
@@ -411,8 +512,14 @@ class PgsSolver(PushVelocities):
             self._warm_sums = cl_array.zeros(self.runtime.queue, words, np.int64)
         return self._warm_sums
 
-    def _schedule(self, plan, iterations: int, position_iterations: int, warm_start: bool,
-                  release_sweeps: int | None):
+    def _schedule(
+        self,
+        plan,
+        iterations: int,
+        position_iterations: int,
+        warm_start: bool,
+        release_sweeps: int | None,
+    ):
         """Every launch of one call (kernel object, global size) and the distinct
         kernel objects, computed once per plan and settings."""
         key = (tuple(plan), iterations, position_iterations, warm_start, release_sweeps)
@@ -427,10 +534,16 @@ class PgsSolver(PushVelocities):
             passes = [(warm, iterations, position_iterations, velocity_from, position_from)]
         else:  # one launch per colour and sweep; the warm start is a sweep of its own
             passes = [(warm, 0, 0, 0, 0)] if warm else []
-            passes += [(FIRST_REVERSED if s % 2 else 0, int(s < iterations),
-                        int(s < position_iterations), int(s < velocity_from),
-                        int(s < position_from))
-                       for s in range(max(iterations, position_iterations))]
+            passes += [
+                (
+                    FIRST_REVERSED if s % 2 else 0,
+                    int(s < iterations),
+                    int(s < position_iterations),
+                    int(s < velocity_from),
+                    int(s < position_from),
+                )
+                for s in range(max(iterations, position_iterations))
+            ]
         if not self.persistent:  # (a persistent launch also moves the bodies: it always runs)
             passes = [p for p in passes if p[:3] != (0, 0, 0)]
         launches = [self._launch(first, count, *p) for p in passes for first, count in plan]
@@ -438,8 +551,16 @@ class PgsSolver(PushVelocities):
         schedule = self._schedules[key] = (launches, kernels)
         return schedule
 
-    def _launch(self, first: int, count: int, passes: int, velocity_sweeps: int,
-                position_sweeps: int, velocity_release_from: int, position_release_from: int):
+    def _launch(
+        self,
+        first: int,
+        count: int,
+        passes: int,
+        velocity_sweeps: int,
+        position_sweeps: int,
+        velocity_release_from: int,
+        position_release_from: int,
+    ):
         """(kernel object, global size) of one launch over groups first .. first + count - 1;
         its sweeps from velocity_release_from (position_release_from) on may release points."""
         wg = self.work_group_size
@@ -449,10 +570,15 @@ class PgsSolver(PushVelocities):
             size = persistent_groups(self.runtime.traits) * wg
         else:
             size = count * wg
-        given = {"group_offset": first, "group_end": first + count, "passes": passes,
-                 "velocity_sweeps": velocity_sweeps, "position_sweeps": position_sweeps,
-                 "velocity_release_from": velocity_release_from,
-                 "position_release_from": position_release_from}
+        given = {
+            "group_offset": first,
+            "group_end": first + count,
+            "passes": passes,
+            "velocity_sweeps": velocity_sweeps,
+            "position_sweeps": position_sweeps,
+            "velocity_release_from": velocity_release_from,
+            "position_release_from": position_release_from,
+        }
         key = tuple(given[name] for name in self._scalar_names)
         kernel = self._instances.get(key)
         if kernel is None:

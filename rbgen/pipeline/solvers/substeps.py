@@ -9,6 +9,7 @@ comes from the substep rate rather than from sweeps: a stack's weight reaches it
 through warm-started impulses each substep, and positions follow each substep, so tall
 stacks stop sinking while a substep costs no collision pass.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -47,16 +48,33 @@ class ContactRefresh:
     def body_deltas(self, body_count: int):
         """The `BodyDelta` records (grown to ``body_count``, zero when made)."""
         if self.deltas is None or len(self.deltas) < body_count:
-            self.deltas = cl_array.zeros(self.runtime.queue, max(1, int(body_count)),
-                                         layouts.BODY_DELTA.dtype)
+            self.deltas = cl_array.zeros(
+                self.runtime.queue, max(1, int(body_count)), layouts.BODY_DELTA.dtype
+            )
         return self.deltas
 
-    def __call__(self, constraints, constraint_count, capacity: int, body_count: int,
-                 h: float, penetration_slop: float, penetration_recovery: float) -> None:
+    def __call__(
+        self,
+        constraints,
+        constraint_count,
+        capacity: int,
+        body_count: int,
+        h: float,
+        penetration_slop: float,
+        penetration_recovery: float,
+    ) -> None:
         """Refresh min(``constraint_count[0]``, ``capacity``) constraints' targets for a
         substep of ``h`` seconds."""
         if capacity <= 0:
             return
-        self.kernel.over(capacity, self.work_group_size, constraints, constraint_count,
-                         np.uint32(capacity), self.body_deltas(body_count), np.float32(h),
-                         np.float32(penetration_slop), np.float32(penetration_recovery))
+        self.kernel.over(
+            capacity,
+            self.work_group_size,
+            constraints,
+            constraint_count,
+            np.uint32(capacity),
+            self.body_deltas(body_count),
+            np.float32(h),
+            np.float32(penetration_slop),
+            np.float32(penetration_recovery),
+        )

@@ -4,6 +4,7 @@
 the distributions in `KINDS`; every test compares against the brute-force
 reference, so the generators only need to be varied, not precise.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -44,7 +45,7 @@ def make_aabbs(rng: np.random.Generator, n: int, kind: str):
     elif kind == "lattice":
         # unit cubes on an integer lattice: neighbours share faces, edges, corners exactly
         dim = max(2, int(np.ceil((2 * n) ** (1 / 3))))
-        cells = rng.choice(dim ** 3, n, replace=False)
+        cells = rng.choice(dim**3, n, replace=False)
         lower = np.stack(np.unravel_index(cells, (dim, dim, dim)), axis=1).astype(float)
         size = np.ones((n, 3))
     else:
@@ -61,19 +62,32 @@ def make_aabbs(rng: np.random.Generator, n: int, kind: str):
 
 
 #: (name, options) of every broadphase configuration the tests cover.
-ALGORITHMS = [("grid", {"emission": "slot", "bucketing": "sort"}),
-              ("grid", {"emission": "owner"}),
-              ("grid", {"emission": "owner", "work_group_size": 4}),
-              ("grid", {"emission": "slot", "bucketing": "count"}),
-              ("sap", {"shape": "cpu"}), ("sap", {"shape": "gpu"}),
-              ("sap", {"shape": "gpu", "work_group_size": 4}), ("sap3", {})]
-ALGORITHM_IDS = ["grid-slot-sort", "grid-owner", "grid-owner-wg4", "grid-slot-count", "sap-cpu",
-                 "sap-gpu", "sap-gpu-wg4", "sap3"]
+ALGORITHMS = [
+    ("grid", {"emission": "slot", "bucketing": "sort"}),
+    ("grid", {"emission": "owner"}),
+    ("grid", {"emission": "owner", "work_group_size": 4}),
+    ("grid", {"emission": "slot", "bucketing": "count"}),
+    ("sap", {"shape": "cpu"}),
+    ("sap", {"shape": "gpu"}),
+    ("sap", {"shape": "gpu", "work_group_size": 4}),
+    ("sap3", {}),
+]
+ALGORITHM_IDS = [
+    "grid-slot-sort",
+    "grid-owner",
+    "grid-owner-wg4",
+    "grid-slot-count",
+    "sap-cpu",
+    "sap-gpu",
+    "sap-gpu-wg4",
+    "sap3",
+]
 
 
 @pytest.fixture(params=ALGORITHMS, ids=ALGORITHM_IDS)
 def broadphase(request, runtime):
     """A fresh broadphase of each configuration on each device."""
     from rbgen.pipeline.broadphase import make_broadphase
+
     name, options = request.param
     return make_broadphase(runtime, name, **options)

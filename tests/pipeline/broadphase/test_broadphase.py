@@ -4,6 +4,7 @@ The expected pairs always come from `brute_force_pairs` (float64 numpy, all
 n(n-1)/2 candidates) on the same float32 boxes, with the touching rule of the
 package: closed boxes, a < b, never two static bodies, sorted by (a, b).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -27,28 +28,32 @@ def query(broadphase, aabbs, static):
 @pytest.mark.parametrize("n", [0, 1, 2, 3, 37, 1000])
 def test_mixed_sizes_match_brute_force(broadphase, rng, n):
     aabbs, static = make_aabbs(rng, n, "mixed")
-    np.testing.assert_array_equal(query(broadphase, aabbs, static),
-                                  brute_force_pairs(aabbs, static))
+    np.testing.assert_array_equal(
+        query(broadphase, aabbs, static), brute_force_pairs(aabbs, static)
+    )
 
 
 @pytest.mark.parametrize("kind", [k for k in KINDS if k != "mixed"])
 def test_distributions_match_brute_force(broadphase, rng, kind):
     aabbs, static = make_aabbs(rng, 1000 if kind != "identical" else 301, kind)
-    np.testing.assert_array_equal(query(broadphase, aabbs, static),
-                                  brute_force_pairs(aabbs, static))
+    np.testing.assert_array_equal(
+        query(broadphase, aabbs, static), brute_force_pairs(aabbs, static)
+    )
 
 
 def test_ten_thousand_bodies(runtime, rng):
     """The large case, once, on the grid (the default broadphase)."""
     aabbs, static = make_aabbs(rng, 10_000, "clustered")
-    np.testing.assert_array_equal(query(make_broadphase(runtime, "grid"), aabbs, static),
-                                  brute_force_pairs(aabbs, static))
+    np.testing.assert_array_equal(
+        query(make_broadphase(runtime, "grid"), aabbs, static), brute_force_pairs(aabbs, static)
+    )
 
 
 def test_touching_rule(broadphase):
     """Sharing a face, an edge or a corner is a pair; a gap of 1e-3 is not."""
-    lower = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1], [2.001, 0, 0],
-                      [0, 0, 2.001]], np.float32)
+    lower = np.array(
+        [[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1], [2.001, 0, 0], [0, 0, 2.001]], np.float32
+    )
     aabbs = pack(lower, lower + 1)
     pairs = query(broadphase, aabbs, None)
     assert {tuple(p) for p in pairs} == {(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)}
@@ -63,15 +68,19 @@ def test_static_pairs_are_dropped(broadphase):
 
 
 def test_overflow_grows_and_keeps_every_pair(runtime, rng):
-    for name, options in (("grid", {"emission": "slot"}),
-                          ("grid", {"emission": "owner"}), ("sap", {})):
+    for name, options in (
+        ("grid", {"emission": "slot"}),
+        ("grid", {"emission": "owner"}),
+        ("sap", {}),
+    ):
         broadphase = make_broadphase(runtime, name, capacity=1, **options)
         aabbs, static = make_aabbs(rng, 300, "clustered")
         broadphase.enqueue(aabbs, static)
-        assert broadphase.check() is False          # the first query overflowed
+        assert broadphase.check() is False  # the first query overflowed
         assert broadphase.capacity > 1
-        np.testing.assert_array_equal(query(broadphase, aabbs, static),
-                                      brute_force_pairs(aabbs, static))
+        np.testing.assert_array_equal(
+            query(broadphase, aabbs, static), brute_force_pairs(aabbs, static)
+        )
 
 
 def test_enqueue_does_not_block(runtime, rng):
@@ -79,9 +88,10 @@ def test_enqueue_does_not_block(runtime, rng):
     broadphase = make_broadphase(runtime, "grid")
     aabbs, static = make_aabbs(rng, 500, "uniform")
     import pyopencl.array as cla
+
     device_aabbs = cla.to_device(runtime.queue, aabbs)
     device_static = cla.to_device(runtime.queue, static)
-    broadphase.find_pairs(device_aabbs, device_static)      # build and allocate
+    broadphase.find_pairs(device_aabbs, device_static)  # build and allocate
     before = runtime.counters["blocking_reads"]
     broadphase.enqueue(device_aabbs, device_static)
     assert runtime.counters["blocking_reads"] == before
@@ -95,16 +105,17 @@ def test_check_reads_a_status_the_query_did_not(broadphase, rng):
     grown (not for sap3, which alternates between two pair buffers: test_sap3 covers its
     overflow), a bad body still named, and a complete query's pairs are brute force's."""
     import pyopencl as cl
+
     aabbs, static = make_aabbs(rng, 300, "clustered")
-    broadphase.find_pairs(aabbs, static)                    # build and allocate
+    broadphase.find_pairs(aabbs, static)  # build and allocate
     copies = []
     original = cl.enqueue_copy
     cl.enqueue_copy = lambda *a, **k: copies.append(k.get("is_blocking")) or original(*a, **k)
     try:
         if broadphase.name != "sap3":
-            broadphase.buffer.allocate(1)                   # the next query overflows
+            broadphase.buffer.allocate(1)  # the next query overflows
             broadphase.enqueue(aabbs, static, read_status=False)
-            assert False not in copies                      # no non-blocking status read
+            assert False not in copies  # no non-blocking status read
             assert broadphase.check() is False and broadphase.capacity > 1
         copies.clear()
         broadphase.enqueue(aabbs, static, read_status=False)

@@ -1,5 +1,6 @@
 """Grid specifics: owner emission, its large-body rows, its launch count and the
 fallback to slot emission; the expected pairs come from `brute_force_pairs`."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -29,8 +30,7 @@ def test_owner_emission_large_rows_and_fallback(runtime, rng, large, work_group_
     aabbs["upper"][slabs, 0] = 1e30
     aabbs["upper"][slabs, 2] = 1e30
     aabbs["upper"][slabs, 1] = rng.uniform(0, 10, large)
-    broadphase = make_broadphase(runtime, "grid", emission="owner",
-                                 work_group_size=work_group_size)
+    broadphase = make_broadphase(runtime, "grid", emission="owner", work_group_size=work_group_size)
     broadphase.enqueue(aabbs, static)
     assert broadphase.check() is (large <= LARGE_ROWS)
     broadphase.find_pairs(aabbs, static)
@@ -54,7 +54,7 @@ def test_owner_query_launch_count(runtime, rng):
     broadphase = make_broadphase(runtime, "grid", emission="owner")
     for n in (2, 333, 4099):
         aabbs, static = make_aabbs(rng, n, "clustered")
-        broadphase.find_pairs(aabbs, static)                  # grows the buffer if needed
+        broadphase.find_pairs(aabbs, static)  # grows the buffer if needed
         before = runtime.counters["launches"]
         broadphase.enqueue(aabbs, static)
         assert runtime.counters["launches"] - before == OWNER_LAUNCHES
@@ -75,4 +75,4 @@ def test_grid_dim_keeps_neighbour_buckets_distinct():
     assert grid_dim_for(0) == grid_dim_for(1) == 3
     for n in (2, 13, 1000, 111_376):
         dim = grid_dim_for(n)
-        assert dim >= 3 and dim ** 3 >= 2 * n
+        assert dim >= 3 and dim**3 >= 2 * n

@@ -1,4 +1,5 @@
 """The pair buffer: ordering by (a, b) on both key paths, status, growth."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,5 @@
 """The host grid reference equals brute force (it is the benchmarks' sanity count)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,4 +20,4 @@ def test_grid_reference_matches_brute_force(rng, kind, n):
 def test_brute_force_rules():
     lower = np.array([[0, 0, 0], [1, 0, 0], [0.5, 0.5, 0.5], [3, 3, 3]], float)
     pairs = brute_force_pairs((lower, lower + 1), np.array([1, 1, 0, 0]))
-    assert [tuple(p) for p in pairs] == [(0, 2), (1, 2)]   # (0, 1) touch but both are static
+    assert [tuple(p) for p in pairs] == [(0, 2), (1, 2)]  # (0, 1) touch but both are static

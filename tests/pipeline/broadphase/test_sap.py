@@ -1,4 +1,5 @@
 """SAP specifics: the sweep axis is the axis of largest centre variance."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -4,6 +4,7 @@ Each frame is one step of the protocol: ``enqueue`` then ``check``; a False
 check (a degenerate step, e.g. after teleports) is redone, which runs a full
 query. The tests also check that both paths really ran.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -42,16 +43,17 @@ def test_random_walk_with_teleports(runtime, rng):
             lower[moved] = rng.uniform(0, 10, (len(moved), 3))
         frame_aabbs = pack(lower.astype(np.float32), (lower + size).astype(np.float32))
         pairs = step(broadphase, frame_aabbs, static, modes)
-        np.testing.assert_array_equal(pairs, brute_force_pairs(frame_aabbs, static),
-                                      err_msg=f"frame {frame}")
+        np.testing.assert_array_equal(
+            pairs, brute_force_pairs(frame_aabbs, static), err_msg=f"frame {frame}"
+        )
     assert modes.count("incremental") >= 90
-    assert modes.count("redo") >= 4 and modes.count("full") >= 5   # first + teleports
+    assert modes.count("redo") >= 4 and modes.count("full") >= 5  # first + teleports
 
 
 def test_lattice_hops_touch_exactly(runtime, rng):
     """Unit cubes hop by whole units, so faces start and stop touching exactly."""
     n = 200
-    cells = rng.choice(12 ** 3, n, replace=False)
+    cells = rng.choice(12**3, n, replace=False)
     lower = np.stack(np.unravel_index(cells, (12, 12, 12)), axis=1).astype(np.float32)
     static = (rng.random(n) < 0.1).astype(np.uint32)
     broadphase = make_broadphase(runtime, "sap3", full="sap", max_moves_per_body=64)
@@ -61,8 +63,9 @@ def test_lattice_hops_touch_exactly(runtime, rng):
         lower = lower + (hop * (static[:, None] == 0)).astype(np.float32)
         frame_aabbs = pack(lower, lower + 1)
         pairs = step(broadphase, frame_aabbs, static, modes)
-        np.testing.assert_array_equal(pairs, brute_force_pairs(frame_aabbs, static),
-                                      err_msg=f"frame {frame}")
+        np.testing.assert_array_equal(
+            pairs, brute_force_pairs(frame_aabbs, static), err_msg=f"frame {frame}"
+        )
     assert modes.count("incremental") >= 25
 
 
@@ -86,10 +89,11 @@ def test_reset_and_bad_options(runtime, rng):
     broadphase = make_broadphase(runtime, "sap3")
     modes = []
     step(broadphase, aabbs, static, modes)
-    static = 1 - static                     # new static flags: history is void
+    static = 1 - static  # new static flags: history is void
     broadphase.reset()
-    np.testing.assert_array_equal(step(broadphase, aabbs, static, modes),
-                                  brute_force_pairs(aabbs, static))
+    np.testing.assert_array_equal(
+        step(broadphase, aabbs, static, modes), brute_force_pairs(aabbs, static)
+    )
     assert modes == ["full", "full"]
     with pytest.raises(RbgenError, match="full must be"):
         make_broadphase(runtime, "sap3", full="sap3")
@@ -102,13 +106,14 @@ def test_full_query_retry_is_honoured(runtime, rng):
     pair buffer starts large enough for the ~2,450 pairs: a growth redo would come first
     for about 2% of the scenes)."""
     from rbgen.pipeline.broadphase.grid import LARGE_ROWS
+
     aabbs, static = make_aabbs(rng, 300, "uniform")
     slabs = rng.choice(300, LARGE_ROWS + 2, replace=False)
     aabbs["lower"][slabs, :3] = -1e30
     aabbs["upper"][slabs, 0::2] = 1e30
-    broadphase = make_broadphase(runtime, "sap3", capacity=8192,
-                                 full_options={"emission": "owner"})
+    broadphase = make_broadphase(runtime, "sap3", capacity=8192, full_options={"emission": "owner"})
     modes = []
-    np.testing.assert_array_equal(step(broadphase, aabbs, static, modes),
-                                  brute_force_pairs(aabbs, static))
+    np.testing.assert_array_equal(
+        step(broadphase, aabbs, static, modes), brute_force_pairs(aabbs, static)
+    )
     assert modes == ["redo", "full"] and broadphase.full.emission == "slot"

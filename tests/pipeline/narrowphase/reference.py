@@ -8,6 +8,7 @@ an axis L (from A to B) is min(B . L) - max(A . L). The largest separation is
 the signed distance for separated shapes and minus the penetration depth for
 overlapping ones.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -19,11 +20,13 @@ from rbgen import layouts
 
 def quat_matrix(q) -> np.ndarray:
     x, y, z, w = np.asarray(q, np.float64) / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def random_quaternions(rng, n: int) -> np.ndarray:
@@ -70,17 +73,20 @@ class Placed:
     def of(cls, shape, position, orientation) -> Placed:
         c = shape.cooked()
         r = quat_matrix(orientation)
-        return cls(c.vertices @ r.T + np.asarray(position, np.float64), c.planes[:, :3] @ r.T,
-                   c.edge_directions @ r.T)
+        return cls(
+            c.vertices @ r.T + np.asarray(position, np.float64),
+            c.planes[:, :3] @ r.T,
+            c.edge_directions @ r.T,
+        )
 
 
 @dataclasses.dataclass
 class SatAnswer:
-    separation: float   # max over all axes
-    axis: np.ndarray    # its axis, from A to B
-    best_face: float    # best over face axes
-    best_edge: float    # best over edge axes (-inf when none)
-    runner_up: float    # best separation along an axis not parallel to `axis`
+    separation: float  # max over all axes
+    axis: np.ndarray  # its axis, from A to B
+    best_face: float  # best over face axes
+    best_edge: float  # best over edge axes (-inf when none)
+    runner_up: float  # best separation along an axis not parallel to `axis`
 
 
 def sat(a: Placed, b: Placed, face_aligned_deg: float | None = None) -> SatAnswer:
@@ -110,7 +116,10 @@ def sat(a: Placed, b: Placed, face_aligned_deg: float | None = None) -> SatAnswe
     best = int(np.argmax(separations))
     axis = axes[best]
     others = np.abs(axes @ axis) < 1 - 1e-6
-    return SatAnswer(float(separations[best]), axis,
-                     float(separations[~is_edge].max()),
-                     float(separations[is_edge].max()) if is_edge.any() else -np.inf,
-                     float(separations[others].max()) if others.any() else -np.inf)
+    return SatAnswer(
+        float(separations[best]),
+        axis,
+        float(separations[~is_edge].max()),
+        float(separations[is_edge].max()) if is_edge.any() else -np.inf,
+        float(separations[others].max()) if others.any() else -np.inf,
+    )

@@ -4,6 +4,7 @@ Conventions checked throughout (rbgen/layouts.py, ContactManifold): the
 normal points from body_a to body_b, points lie on body_b with the signed
 separation in w (negative: penetration).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -109,8 +110,11 @@ def test_swapping_bodies_flips_the_normal(runtime, rng):
     positions = [(0, 0, 0), (0.2, 0.95, 0.1), (0.1, 0.2, 0.8)]
     shapes = [cube, cube, ball]
     for order in ([0, 1, 2], [2, 1, 0]):
-        bodies = make_bodies([shapes[i] for i in order], [positions[i] for i in order],
-                             [q if i == 1 else (0, 0, 0, 1) for i in order])
+        bodies = make_bodies(
+            [shapes[i] for i in order],
+            [positions[i] for i in order],
+            [q if i == 1 else (0, 0, 0, 1) for i in order],
+        )
         found = contacts(runtime, table, bodies, [(0, 1), (1, 2), (0, 2)])
         if order == [0, 1, 2]:
             first = found
@@ -123,8 +127,9 @@ def test_swapping_bodies_flips_the_normal(runtime, rng):
             np.testing.assert_allclose(other["normal"][:3], -n, atol=1e-5)
             moved = points(m)[:, :3] - n * points(m)[:, 3:]
             assert same_point_sets(points(other)[:, :3], moved, atol=1e-4)
-            np.testing.assert_allclose(np.sort(points(other)[:, 3]), np.sort(points(m)[:, 3]),
-                                       atol=1e-5)
+            np.testing.assert_allclose(
+                np.sort(points(other)[:, 3]), np.sort(points(m)[:, 3]), atol=1e-5
+            )
 
 
 def test_sphere_cases(runtime, rng):
@@ -140,8 +145,13 @@ def test_sphere_cases(runtime, rng):
     local_centres = [(0, 0.8 + 0.45, 0), (1.2, 0.95, 0.1), (1.3, 1.0, 0.75), (0.2, 0.35, -0.1)]
     box_at = np.array([5.0, 5.0, 5.0])
     # sphere-sphere: 0-1; sphere-plane: 2-3; sphere-box: box 4, spheres 5..8
-    positions = [(0, 0, 0), (0.3, 0.85, -0.2), tuple(plane.normal * (0.3 + 0.47)), (0, 0, 0),
-                 box_at]
+    positions = [
+        (0, 0, 0),
+        (0.3, 0.85, -0.2),
+        tuple(plane.normal * (0.3 + 0.47)),
+        (0, 0, 0),
+        box_at,
+    ]
     positions += [tuple(box_at + r @ c) for c in local_centres]
     shapes = [ball, ball, ball, ground, cube] + [ball] * 4
     orient = [(0, 0, 0, 1)] * 4 + [q] + [(0, 0, 0, 1)] * 4
@@ -184,9 +194,10 @@ def test_separated_shapes_and_margin(runtime):
     table = ShapeTable()
     cube, ball, ground = table.add(Box((1, 1, 1))), table.add(Sphere(0.5)), table.add(Plane())
     g = 0.05
-    bodies = make_bodies([ground, cube, cube, ball, ball],
-                         [(0, 0, 0), (0, 1 + g, 0), (0, 3 + 2 * g, 0), (0, 4 + 2 * g + 0.5 + g, 0),
-                          (5, 0.5 + g, 0)])
+    bodies = make_bodies(
+        [ground, cube, cube, ball, ball],
+        [(0, 0, 0), (0, 1 + g, 0), (0, 3 + 2 * g, 0), (0, 4 + 2 * g + 0.5 + g, 0), (5, 0.5 + g, 0)],
+    )
     pairs = [(0, 1), (1, 2), (2, 3), (0, 4)]
     assert contacts(runtime, table, bodies, pairs, margin=0.5 * g) == {}
     found = contacts(runtime, table, bodies, pairs, margin=2 * g)
@@ -206,15 +217,16 @@ def test_many_boxes_on_plane(runtime, rng, count):
     q = np.array([axis_angle((0, 1, 0), a) for a in yaw]).reshape(-1, 4)
     xz = rng.uniform(-50, 50, (count, 2))
     pos = np.column_stack([xz[:, 0], 0.25 + depth, xz[:, 1]])
-    bodies = make_bodies([ground] + [box] * count, np.vstack([[0, 0, 0], pos]),
-                         np.vstack([[0, 0, 0, 1], q]))
+    bodies = make_bodies(
+        [ground] + [box] * count, np.vstack([[0, 0, 0], pos]), np.vstack([[0, 0, 0, 1], q])
+    )
     m = find_contacts(runtime, table, bodies, [(0, i + 1) for i in range(count)], margin=0.02)
     expected = np.nonzero(depth <= 0.02)[0] + 1
     np.testing.assert_array_equal(m["body_b"], expected)
     assert np.all(m["point_count"] == 4)
-    np.testing.assert_allclose(m["points"][:, :, 3],
-                               np.repeat(depth[expected - 1], 4).reshape(-1, 4),
-                               atol=2e-5)
+    np.testing.assert_allclose(
+        m["points"][:, :, 3], np.repeat(depth[expected - 1], 4).reshape(-1, 4), atol=2e-5
+    )
     np.testing.assert_allclose(m["friction"], 0.5, rtol=1e-6)
 
 
@@ -225,6 +237,7 @@ def test_overflow_grows_and_keeps_everything(runtime):
     bodies = make_bodies([ground] + [ball] * 7, [(0, 0, 0)] + [(3 * i, 0.9, 0) for i in range(7)])
     narrowphase = Narrowphase(runtime, table)
     import pyopencl.array as cla
+
     q = runtime.queue
     pairs = layouts.PAIR.zeros(7)
     pairs["b"] = np.arange(1, 8)
@@ -232,8 +245,16 @@ def test_overflow_grows_and_keeps_everything(runtime):
     d_bodies, d_pairs = cla.to_device(q, bodies), cla.to_device(q, pairs)
     manifolds = cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype)
     count, overflow = cla.zeros(q, 1, np.uint32), cla.zeros(q, 1, np.uint32)
-    narrowphase.enqueue(d_bodies, packed, d_pairs, cla.to_device(q, np.array([7], np.uint32)),
-                        manifolds, count, overflow, 0.0)
+    narrowphase.enqueue(
+        d_bodies,
+        packed,
+        d_pairs,
+        cla.to_device(q, np.array([7], np.uint32)),
+        manifolds,
+        count,
+        overflow,
+        0.0,
+    )
     assert overflow.get()[0] == 7 and count.get()[0] == 7
     m = narrowphase.find_contacts(d_bodies, packed, d_pairs, 7, capacity=1)
     np.testing.assert_array_equal(m["body_b"], np.arange(1, 8))
@@ -254,9 +275,11 @@ def test_icosphere_hull_behaves_like_a_sphere(runtime, rng):
     direction /= np.linalg.norm(direction)
     d = 0.05
     # plane under a hull sunk by d; a sphere of radius 0.5 sunk by d into a hull along `direction`
-    bodies = make_bodies([ground, rock, rock, ball],
-                         [(0, 0, 0), (0, 1 - d, 0), (0, 0, 0), (1.5 - d) * direction],
-                         [(0, 0, 0, 1), q, q, (0, 0, 0, 1)])
+    bodies = make_bodies(
+        [ground, rock, rock, ball],
+        [(0, 0, 0), (0, 1 - d, 0), (0, 0, 0), (1.5 - d) * direction],
+        [(0, 0, 0, 1), q, q, (0, 0, 0, 1)],
+    )
     found = contacts(runtime, table, bodies, [(0, 1), (2, 3)])
     plane_contact, sphere_contact = found[(0, 1)], found[(2, 3)]
     assert plane_contact["point_count"] >= 1
@@ -274,31 +297,47 @@ def test_unsupported_shapes_fail_at_construction(runtime):
         Narrowphase(runtime, ("box", "voxels"))
 
 
-@pytest.mark.parametrize("work_group_size,placement_tile", [
-    (1, None), (64, None), (1, 1), (16, 16), (64, 256), (32, 1024)])
-def test_mixed_world_is_independent_of_work_group_size(runtime, rng, work_group_size,
-                                                       placement_tile):
+@pytest.mark.parametrize(
+    "work_group_size,placement_tile",
+    [(1, None), (64, None), (1, 1), (16, 16), (64, 256), (32, 1024)],
+)
+def test_mixed_world_is_independent_of_work_group_size(
+    runtime, rng, work_group_size, placement_tile
+):
     """Spheres, capsules, boxes and hulls on a plane (every kind), 301 random pairs: the same
     manifolds, in the same order, as with the default work-group size and placement tile
     (queues are filled by group-aggregated atomics; manifolds are placed per tile of
     pairs, from 1 pair to more than all of them)."""
     table = ShapeTable()
-    kinds = [table.add(Plane()), table.add(Sphere(0.5)), table.add(Box((0.5, 0.4, 0.3))),
-             table.add(ConvexHull(rng.normal(size=(12, 3)) * 0.5, name="pebble")),
-             table.add(Capsule(0.3, 0.4))]
+    kinds = [
+        table.add(Plane()),
+        table.add(Sphere(0.5)),
+        table.add(Box((0.5, 0.4, 0.3))),
+        table.add(ConvexHull(rng.normal(size=(12, 3)) * 0.5, name="pebble")),
+        table.add(Capsule(0.3, 0.4)),
+    ]
     n = 120
     shapes = np.concatenate([[kinds[0]], rng.choice(kinds[1:], n)])
     positions = np.vstack([[0, 0, 0], rng.uniform((-3, 0.0, -3), (3, 1.5, 3), (n, 3))])
-    quats = np.vstack([[0, 0, 0, 1], [axis_angle(rng.normal(size=3), a)
-                                      for a in rng.uniform(0, np.pi, n)]])
+    quats = np.vstack(
+        [[0, 0, 0, 1], [axis_angle(rng.normal(size=3), a) for a in rng.uniform(0, np.pi, n)]]
+    )
     bodies = make_bodies(shapes, positions, quats)
     candidates = [(0, i) for i in range(1, n + 1)]
-    candidates += sorted({tuple(sorted(p)) for p in rng.integers(1, n + 1, (400, 2))
-                          if p[0] != p[1]})
+    candidates += sorted(
+        {tuple(sorted(p)) for p in rng.integers(1, n + 1, (400, 2)) if p[0] != p[1]}
+    )
     pairs = candidates[:301]
     reference = find_contacts(runtime, table, bodies, pairs, margin=0.01)
-    other = find_contacts(runtime, table, bodies, pairs, margin=0.01,
-                          work_group_size=work_group_size, placement_tile=placement_tile)
+    other = find_contacts(
+        runtime,
+        table,
+        bodies,
+        pairs,
+        margin=0.01,
+        work_group_size=work_group_size,
+        placement_tile=placement_tile,
+    )
     assert len(reference) > 20
     np.testing.assert_array_equal(other["body_a"], reference["body_a"])
     np.testing.assert_array_equal(other["body_b"], reference["body_b"])
@@ -311,6 +350,7 @@ def test_no_pairs_give_no_manifolds(runtime):
     """Zero pairs after a call with contacts: count 0, no overflow (the placement counters
     and the contact flags of the earlier call do not leak into this one)."""
     import pyopencl.array as cla
+
     table = ShapeTable()
     cube = table.add(Box((1, 1, 1)))
     narrowphase = Narrowphase(runtime, table)
@@ -322,8 +362,9 @@ def test_no_pairs_give_no_manifolds(runtime):
     count = cla.to_device(q, np.array([7], np.uint32))
     overflow = cla.to_device(q, np.array([7], np.uint32))
     manifolds = cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype)
-    narrowphase.enqueue(bodies, packed, pairs, cla.zeros(q, 1, np.uint32), manifolds, count,
-                        overflow)
+    narrowphase.enqueue(
+        bodies, packed, pairs, cla.zeros(q, 1, np.uint32), manifolds, count, overflow
+    )
     assert count.get()[0] == 0 and overflow.get()[0] == 0
 
 
@@ -339,6 +380,7 @@ def test_cached_axis_follows_the_bodies(runtime):
     """The per-pair axis cache: a touching pair moved apart loses its contact, and moved
     back regains it, with the same Narrowphase (cache warm)."""
     import pyopencl.array as cla
+
     table = ShapeTable()
     cube = table.add(Box((1, 1, 1)))
     narrowphase = Narrowphase(runtime, table)
@@ -363,6 +405,7 @@ def test_enqueue_never_blocks_and_features_persist(runtime, with_sphere, expecte
     read; a box resting on a box that moves by 1e-3 keeps its four feature ids
     (warm-starting keys)."""
     import pyopencl.array as cla
+
     table = ShapeTable()
     wide, cube = table.add(Box((2, 0.5, 2))), table.add(Box((0.5, 0.5, 0.5)))
     if with_sphere:
@@ -377,8 +420,14 @@ def test_enqueue_never_blocks_and_features_persist(runtime, with_sphere, expecte
     count, overflow = cla.zeros(q, 1, np.uint32), cla.zeros(q, 1, np.uint32)
     features = []
     for shift in (0.0, 1e-3):
-        bodies = cla.to_device(q, make_bodies([wide, cube], [(0, 0, 0), (0.2 + shift, 0.99, 0.1)],
-                                              [(0, 0, 0, 1), axis_angle((0, 1, 0), 0.2 + shift)]))
+        bodies = cla.to_device(
+            q,
+            make_bodies(
+                [wide, cube],
+                [(0, 0, 0), (0.2 + shift, 0.99, 0.1)],
+                [(0, 0, 0, 1), axis_angle((0, 1, 0), 0.2 + shift)],
+            ),
+        )
         before = dict(runtime.counters)
         narrowphase.enqueue(bodies, packed, pairs, pair_count, manifolds, count, overflow, 0.0)
         assert runtime.counters["blocking_reads"] == before["blocking_reads"]
@@ -421,7 +470,7 @@ def test_prism_cap_on_a_box_reduces_to_four_points(runtime, rng):
     m = contacts(runtime, table, bodies, [(0, 1)])[(0, 1)]
     assert m["point_count"] == 4
     np.testing.assert_allclose(points(m)[:, 3], -d, atol=2e-5)
-    corners = (prism.local_vertices() @ quat_matrix(q).T + centre)
+    corners = prism.local_vertices() @ quat_matrix(q).T + centre
     bottom = corners[corners[:, 1] < centre[1]]
     p = points(m)[:, :3]
     assert all(np.linalg.norm(bottom - x, axis=1).min() < 1e-4 for x in p)
@@ -440,6 +489,7 @@ def test_larger_faces_added_later_rebuild_the_clipping(runtime):
     """A Narrowphase built for 8-vertex faces follows its table when a 16-sided prism is
     added later: both prisms, sunk by 0.01 into a box, get 4 points at that depth."""
     import pyopencl.array as cla
+
     table = ShapeTable()
     slab = table.add(Box((3, 0.5, 3)))
     octagon = table.add(ConvexHull(prism_points(8, 1.0, 0.25), name="octagon"))
@@ -480,10 +530,20 @@ def test_capsule_pairs(runtime, rng):
     flat = axis_angle((1, 0, 0), np.pi / 2)  # segment along z
     bodies = make_bodies(
         [ground, rod, ball, ball, rod, rod, rod, rod, rod, rod],
-        [(0, 0, 0), centre, centre + 0.3 * axis + 0.65 * side, centre + 1.45 * axis,
-         (10, 0.3 - d, 0), (20, tilt_low, 0),
-         (30, 0, 0), (30, 0.6 - d, 0.1), (40, 0, 0), (40.2, 0.6 - d, 0)],
-        [(0, 0, 0, 1), q, (0, 0, 0, 1), (0, 0, 0, 1), lying, tilted, lying, flat, lying, lying])
+        [
+            (0, 0, 0),
+            centre,
+            centre + 0.3 * axis + 0.65 * side,
+            centre + 1.45 * axis,
+            (10, 0.3 - d, 0),
+            (20, tilt_low, 0),
+            (30, 0, 0),
+            (30, 0.6 - d, 0.1),
+            (40, 0, 0),
+            (40.2, 0.6 - d, 0),
+        ],
+        [(0, 0, 0, 1), q, (0, 0, 0, 1), (0, 0, 0, 1), lying, tilted, lying, flat, lying, lying],
+    )
     pairs = [(1, 2), (1, 3), (0, 4), (0, 5), (6, 7), (8, 9)]
     found = contacts(runtime, table, bodies, pairs)
     assert set(found) == set(pairs)
@@ -494,8 +554,9 @@ def test_capsule_pairs(runtime, rng):
         on = segment_closest(c, a0, a1)
         n = (c - on) / np.linalg.norm(c - on)  # from the capsule (a) to the sphere (b)
         np.testing.assert_allclose(m["normal"][:3], n, atol=2e-5)
-        np.testing.assert_allclose(points(m)[0], (*(c - 0.4 * n), np.linalg.norm(c - on) - 0.7),
-                                   atol=2e-5)
+        np.testing.assert_allclose(
+            points(m)[0], (*(c - 0.4 * n), np.linalg.norm(c - on) - 0.7), atol=2e-5
+        )
     m = found[(0, 4)]
     assert m["point_count"] == 2
     # points on body b, the capsule: the bottoms of its end caps
@@ -511,14 +572,16 @@ def test_capsule_pairs(runtime, rng):
     np.testing.assert_allclose(points(m)[0], (30, 0.3 - d, 0, -d), atol=2e-5)
     m = found[(8, 9)]  # parallel along x, shifted by 0.2: overlap [-0.6, 0.8] around x = 40
     assert m["point_count"] == 2
-    assert same_point_sets(points(m)[:, :3], [(40 - 0.6, 0.3 - d, 0), (40.8, 0.3 - d, 0)],
-                           atol=1e-5)
+    assert same_point_sets(
+        points(m)[:, :3], [(40 - 0.6, 0.3 - d, 0), (40.8, 0.3 - d, 0)], atol=1e-5
+    )
     np.testing.assert_allclose(points(m)[:, 3], -d, atol=2e-5)
 
 
 def test_world_of_planes_reports_no_contacts(runtime):
     """Shapes that cannot touch (only planes): no kernels, manifold count 0, no error."""
     import pyopencl.array as cla
+
     table = ShapeTable()
     table.add(Plane())
     table.add(Plane((1, 0, 0), 2.0))
@@ -526,12 +589,15 @@ def test_world_of_planes_reports_no_contacts(runtime):
     assert narrowphase.kinds == ()
     q = runtime.queue
     count = cla.to_device(q, np.array([5], np.uint32))
-    narrowphase.enqueue(cla.to_device(q, make_bodies([0, 1], np.zeros((2, 3)))),
-                        table.pack_all().to_device(q),
-                        cla.to_device(q, pair_records([(0, 1)])),
-                        cla.to_device(q, np.array([1], np.uint32)),
-                        cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype), count,
-                        cla.zeros(q, 1, np.uint32))
+    narrowphase.enqueue(
+        cla.to_device(q, make_bodies([0, 1], np.zeros((2, 3)))),
+        table.pack_all().to_device(q),
+        cla.to_device(q, pair_records([(0, 1)])),
+        cla.to_device(q, np.array([1], np.uint32)),
+        cla.empty(q, 1, layouts.CONTACT_MANIFOLD.dtype),
+        count,
+        cla.zeros(q, 1, np.uint32),
+    )
     assert count.get()[0] == 0
 
 
@@ -543,15 +609,32 @@ def test_capsule_on_a_box(runtime):
     table = ShapeTable()
     slab, rod = table.add(Box((3, 0.5, 3))), table.add(Capsule(0.3, 0.8))
     d = 0.02
-    lying = axis_angle((0, 0, 1), np.pi / 2)   # segment along x
+    lying = axis_angle((0, 0, 1), np.pi / 2)  # segment along x
     along_z = axis_angle((1, 0, 0), np.pi / 2)  # segment along z
-    offset = np.array([0.12, 0.16])             # beyond the edge x = 3, y = 0.5
+    offset = np.array([0.12, 0.16])  # beyond the edge x = 3, y = 0.5
     bodies = make_bodies(
         [slab, rod, slab, rod, slab, rod, slab, rod],
-        [(0, 0, 0), (0.5, 0.8 - d, 0.2), (10, 0, 0), (10.3, 0.5 + 1.1 - d, 0),
-         (20, 0, 0), (20, 0.5 - 0.1, 0), (30, 0, 0), (33 + offset[0], 0.5 + offset[1], 0)],
-        [(0, 0, 0, 1), lying, (0, 0, 0, 1), (0, 0, 0, 1), (0, 0, 0, 1), lying, (0, 0, 0, 1),
-         along_z])
+        [
+            (0, 0, 0),
+            (0.5, 0.8 - d, 0.2),
+            (10, 0, 0),
+            (10.3, 0.5 + 1.1 - d, 0),
+            (20, 0, 0),
+            (20, 0.5 - 0.1, 0),
+            (30, 0, 0),
+            (33 + offset[0], 0.5 + offset[1], 0),
+        ],
+        [
+            (0, 0, 0, 1),
+            lying,
+            (0, 0, 0, 1),
+            (0, 0, 0, 1),
+            (0, 0, 0, 1),
+            lying,
+            (0, 0, 0, 1),
+            along_z,
+        ],
+    )
     found = contacts(runtime, table, bodies, [(0, 1), (2, 3), (4, 5), (6, 7)])
     m = found[(0, 1)]
     assert m["point_count"] == 2
@@ -617,8 +700,9 @@ def test_capsule_core_across_a_box_edge(runtime):
     d = 0.05
     diagonal = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
     centre = np.array([3.0, 0.5, 0.0]) - d * diagonal
-    bodies = make_bodies([slab, rod], [(0, 0, 0), centre],
-                         [(0, 0, 0, 1), axis_angle((0, 0, 1), np.pi / 4)])
+    bodies = make_bodies(
+        [slab, rod], [(0, 0, 0), centre], [(0, 0, 0, 1), axis_angle((0, 0, 1), np.pi / 4)]
+    )
     m = contacts(runtime, table, bodies, [(0, 1)])[(0, 1)]
     assert m["point_count"] == 1
     np.testing.assert_allclose(m["normal"][:3], diagonal, atol=1e-5)

@@ -9,6 +9,7 @@ real one would be: a Shape subclass (its entry), its world-AABB function in
 spheres (separation = distance - radii, normal along the centres, points on body b).
 The registries, the constants and the template directory are copies restored after.
 """
+
 from __future__ import annotations
 
 import re
@@ -158,8 +159,12 @@ def define_ball(templates, *, with_kernels: bool = True):
             return ("ball", self.radius)
 
         def mass_properties(self, density=None, mass=None):
-            return self._solid(4.0 / 3.0 * np.pi * self.radius ** 3,
-                               mass_props.sphere_unit_inertia(self.radius), density, mass)
+            return self._solid(
+                4.0 / 3.0 * np.pi * self.radius**3,
+                mass_props.sphere_unit_inertia(self.radius),
+                density,
+                mass,
+            )
 
         def bounding_radius(self):
             return self.radius
@@ -167,10 +172,12 @@ def define_ball(templates, *, with_kernels: bool = True):
     if with_kernels:
         path = "pipeline/narrowphase/ball_pairs.cl.mako"
         (templates / path).write_text(BALL_PAIRS)
-        template = KernelTemplate(path, pair_kernel_params(path), doc="Ball pairs.",
-                                  roles=PAIR_ROLES)
-        register_pair_kernel(PairKernel("ball_round", [("ball", "ball"), ("ball", "sphere")],
-                                        template))
+        template = KernelTemplate(
+            path, pair_kernel_params(path), doc="Ball pairs.", roles=PAIR_ROLES
+        )
+        register_pair_kernel(
+            PairKernel("ball_round", [("ball", "ball"), ("ball", "sphere")], template)
+        )
         register_pair_kernel(PairKernel("ball_plane", [("ball", "plane")], template))
     return Ball
 
@@ -184,22 +191,30 @@ def test_every_type_list_is_derived_from_the_registry():
     names = shape_type_names()
     assert set(names) == {"sphere", "box", "capsule", "hull", "plane", "mesh", "compound"}
     aabbs = WORLD_AABBS.spec(work_group_size=64, shape_types=tuple(sorted(names))).source
-    assert re.findall(r"case (RB_SHAPE_\w+):", aabbs) == \
-        [shape_type(n).type_constant for n in sorted(names)]
+    assert re.findall(r"case (RB_SHAPE_\w+):", aabbs) == [
+        shape_type(n).type_constant for n in sorted(names)
+    ]
     for name in names:
         assert f"{name}_world_aabb(shape, centre" in aabbs
     every_kind = tuple(k.name for k in pair_kernels())
     assert kinds_for(names) == every_kind
     dispatch = DISPATCH.spec(work_group_size=16, kinds=every_kind, placement_tile=1024).source
     tests = re.findall(r"if \(ta == (RB_SHAPE_\w+) && tb == (RB_SHAPE_\w+)\)", dispatch)
-    declared = [(shape_type(f).type_constant, shape_type(s).type_constant)
-                for k in pair_kernels() for f, s in k.pairs]
+    declared = [
+        (shape_type(f).type_constant, shape_type(s).type_constant)
+        for k in pair_kernels()
+        for f, s in k.pairs
+    ]
     assert sorted(tests) == sorted(set(declared + [(s, f) for f, s in declared]))
     assert missing_pairs(names) == []
     for a in names:
         for b in names:
-            if (shape_type(a).static_only and shape_type(b).static_only
-                    or shape_type(a).composite or shape_type(b).composite):
+            if (
+                shape_type(a).static_only
+                and shape_type(b).static_only
+                or shape_type(a).composite
+                or shape_type(b).composite
+            ):
                 assert kernel_for(a, b) is None  # (a compound's pairs are its children's)
             else:
                 kind, swapped = kernel_for(a, b)
@@ -220,7 +235,7 @@ def test_a_new_shape_type_is_its_entry_and_its_kernels(runtime, rng, registries)
     assert layouts.constants()["RB_SHAPE_BALL"] == 7 and Ball.type_constant == "RB_SHAPE_BALL"
     ball = Ball(0.4)
     assert bounding_radius(ball) == 0.4
-    assert ball.mass_properties(density=2.0).mass == pytest.approx(2.0 * 4 / 3 * np.pi * 0.4 ** 3)
+    assert ball.mass_properties(density=2.0).mass == pytest.approx(2.0 * 4 / 3 * np.pi * 0.4**3)
     check_supported(ball, ("plane", "sphere"))
     with pytest.raises(RbgenError, match=r"\('ball', 'box'\)"):
         check_supported(ball, ("box", "plane"))
@@ -235,9 +250,13 @@ def test_a_new_shape_type_is_its_entry_and_its_kernels(runtime, rng, registries)
 
     aabbs = cla.empty(q, 4, layouts.AABB.dtype)
     packed = table.pack_all()
-    WorldAabbs(runtime, table.type_names())(cla.to_device(q, bodies),
-                                            cla.to_device(q, packed.shapes),
-                                            cla.to_device(q, packed.vertices), aabbs, 4)
+    WorldAabbs(runtime, table.type_names())(
+        cla.to_device(q, bodies),
+        cla.to_device(q, packed.shapes),
+        cla.to_device(q, packed.vertices),
+        aabbs,
+        4,
+    )
     boxes = aabbs.get()
     for body in (2, 3):
         np.testing.assert_allclose(boxes["lower"][body, :3], centres[body] - 0.4, atol=1e-6)
@@ -246,8 +265,10 @@ def test_a_new_shape_type_is_its_entry_and_its_kernels(runtime, rng, registries)
     narrowphase = Narrowphase(runtime, table)
     assert narrowphase.kinds == ("sphere_sphere", "sphere_plane", "ball_round", "ball_plane")
     pairs = [(0, 1), (0, 2), (1, 2), (2, 3)]
-    found = {(int(m["body_a"]), int(m["body_b"])): m
-             for m in find_contacts(runtime, table, bodies, pairs)}
+    found = {
+        (int(m["body_a"]), int(m["body_b"])): m
+        for m in find_contacts(runtime, table, bodies, pairs)
+    }
     assert set(found) == set(pairs)
     radius = {1: 0.5, 2: 0.4, 3: 0.4}
     for a, b in pairs:
@@ -276,12 +297,18 @@ def test_missing_kernels_and_clashes_are_refused(registries):
     with pytest.raises(RbgenError, match="Ball has no narrowphase kernel"):
         check_supported(Ball(1.0), ())
     with pytest.raises(RbgenError, match="already handled by 'sphere_plane'"):
-        register_pair_kernel(PairKernel("plane_sphere", [("plane", "sphere")],
-                                        kinds.pair_kernel("sphere_plane").template))
+        register_pair_kernel(
+            PairKernel(
+                "plane_sphere", [("plane", "sphere")], kinds.pair_kernel("sphere_plane").template
+            )
+        )
 
     def declare(name, code):
-        return type("Other", (Shape,), {"type_name": name, "type_code": code,
-                                        "aabb_template": "shapes/ball.cl.mako"})
+        return type(
+            "Other",
+            (Shape,),
+            {"type_name": name, "type_code": code, "aabb_template": "shapes/ball.cl.mako"},
+        )
 
     with pytest.raises(RbgenError, match="already Ball's"):
         declare("ball", 8)

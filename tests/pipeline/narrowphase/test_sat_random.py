@@ -16,6 +16,7 @@ pairs whose best and second-best non-parallel axes are within 3e-4, or whose
 best face axis and best edge axis are (the kernel prefers faces of A, then of
 B, then edges, by 1e-4: a tie may legitimately pick either axis).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -42,12 +43,25 @@ def random_world(rng, kind: str, n: int, boxes_as_hulls: bool = False):
     """n random pairs of one kind; ``boxes_as_hulls``: the boxes are ConvexHulls of their
     corners (the generic hull-hull test on box geometry)."""
     table = ShapeTable()
-    box = (lambda he: ConvexHull(Box(he).local_vertices(), name="box hull")) if boxes_as_hulls \
+    box = (
+        (lambda he: ConvexHull(Box(he).local_vertices(), name="box hull"))
+        if boxes_as_hulls
         else Box
+    )
     boxes = [table.add(box(rng.uniform(0.2, 1.2, 3))) for _ in range(6)]
-    hulls = [table.add(ConvexHull(rng.normal(size=(int(rng.integers(8, 20)), 3))
-                                  * rng.uniform(0.3, 1.0, 3), name=f"random hull {k}"))
-             for k in range(4)] if kind != "box_box" else []
+    hulls = (
+        [
+            table.add(
+                ConvexHull(
+                    rng.normal(size=(int(rng.integers(8, 20)), 3)) * rng.uniform(0.3, 1.0, 3),
+                    name=f"random hull {k}",
+                )
+            )
+            for k in range(4)
+        ]
+        if kind != "box_box"
+        else []
+    )
     first = boxes if kind.startswith("box") else hulls
     second = hulls if kind.endswith("hull") else boxes
     shape_a = rng.choice(first, n)
@@ -66,9 +80,15 @@ def random_world(rng, kind: str, n: int, boxes_as_hulls: bool = False):
     return table, bodies, pairs
 
 
-@pytest.mark.parametrize("kind,n,boxes_as_hulls", [
-    ("box_box", 2001, False), ("box_box", 300, True), ("box_hull", 700, False),
-    ("hull_hull", 700, False)])
+@pytest.mark.parametrize(
+    "kind,n,boxes_as_hulls",
+    [
+        ("box_box", 2001, False),
+        ("box_box", 300, True),
+        ("box_hull", 700, False),
+        ("hull_hull", 700, False),
+    ],
+)
 def test_sat_matches_reference(runtime, rng, kind, n, boxes_as_hulls):
     """box_box: the closed-form box-box kernel (which takes no edge-pair axis within 1
     degree of a face normal); box_hull: the generic test with closed-form box projection
@@ -94,11 +114,19 @@ def test_sat_matches_reference(runtime, rng, kind, n, boxes_as_hulls):
     checked = skipped_ties = 0
     for i in range(n):
         a, b = 2 * i, 2 * i + 1
-        ref = sat(Placed.of(table.shapes[bodies["shape"][a]], bodies["position"][a, :3],
-                            bodies["orientation"][a]),
-                  Placed.of(table.shapes[bodies["shape"][b]], bodies["position"][b, :3],
-                            bodies["orientation"][b]),
-                  face_aligned_deg=FACE_ALIGNED_DEG if closed_form else None)
+        ref = sat(
+            Placed.of(
+                table.shapes[bodies["shape"][a]],
+                bodies["position"][a, :3],
+                bodies["orientation"][a],
+            ),
+            Placed.of(
+                table.shapes[bodies["shape"][b]],
+                bodies["position"][b, :3],
+                bodies["orientation"][b],
+            ),
+            face_aligned_deg=FACE_ALIGNED_DEG if closed_form else None,
+        )
         if abs(ref.separation) < UNDECIDED:
             continue
         touching = ref.separation <= 0
@@ -112,16 +140,18 @@ def test_sat_matches_reference(runtime, rng, kind, n, boxes_as_hulls):
         got = by_pair[i]
         angle = np.arccos(np.clip(np.dot(got[:3], ref.axis), -1, 1))
         assert angle < 1e-3, f"pair {i}: axis {got[:3]} vs reference {ref.axis}"
-        assert abs(got[3] - ref.separation) <= 1e-4 * abs(ref.separation) + FLOAT32_ABS, \
+        assert abs(got[3] - ref.separation) <= 1e-4 * abs(ref.separation) + FLOAT32_ABS, (
             f"pair {i}: separation {got[3]} vs reference {ref.separation}"
+        )
         m = by_manifold[i]
         np.testing.assert_allclose(m["normal"][:3], got[:3], atol=1e-6)
         seps = m["points"][: m["point_count"], 3]
         assert np.all(seps >= ref.separation - 1e-4) and np.all(seps <= 1e-6)
         # the points lie on B's surface: on its boundary, inside all its face planes
         shape_b = table.shapes[bodies["shape"][b]].cooked()
-        local = ((m["points"][: m["point_count"], :3] - bodies["position"][b, :3])
-                 @ quat_matrix(bodies["orientation"][b]))
+        local = (m["points"][: m["point_count"], :3] - bodies["position"][b, :3]) @ quat_matrix(
+            bodies["orientation"][b]
+        )
         height = (local @ shape_b.planes[:, :3].T - shape_b.planes[:, 3]).max(axis=1)
         assert np.all(np.abs(height) < 1e-4), f"pair {i}: points off B's surface by {height}"
         checked += 1
@@ -135,8 +165,9 @@ def test_sat_matches_reference(runtime, rng, kind, n, boxes_as_hulls):
 
 @pytest.mark.parametrize("boxes_as_hulls", [False, True])
 @pytest.mark.parametrize("work_group_size,placement_tile", [(None, None), (64, 256), (1, 1)])
-def test_one_kind_reads_the_pair_list_directly(runtime, rng, boxes_as_hulls, work_group_size,
-                                               placement_tile):
+def test_one_kind_reads_the_pair_list_directly(
+    runtime, rng, boxes_as_hulls, work_group_size, placement_tile
+):
     """A world of boxes only (or hulls only) has one kind: its separating-axis kernel reads
     the pair list and clears the flags itself (no classify_pairs). Same manifolds, in the
     same order, as through the queues (the same table with a sphere that no body uses, so
@@ -150,8 +181,9 @@ def test_one_kind_reads_the_pair_list_directly(runtime, rng, boxes_as_hulls, wor
         if queued:
             table.add(Sphere(1.0))
         packed = table.pack_all().to_device(q)
-        narrowphase = Narrowphase(runtime, table, work_group_size=work_group_size,
-                                  placement_tile=placement_tile)
+        narrowphase = Narrowphase(
+            runtime, table, work_group_size=work_group_size, placement_tile=placement_tile
+        )
         assert narrowphase.direct == (not queued)
         first = narrowphase.find_contacts(d_bodies, packed, d_pairs, len(pairs))
         second = narrowphase.find_contacts(d_bodies, packed, d_pairs, len(pairs))

@@ -21,6 +21,7 @@ internal edges: on a flat square of two triangles (its diagonal inactive) each s
 over the seam gets the face normal from both triangles, and a sharp convex ridge keeps
 its tilted normals.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -44,8 +45,9 @@ def random_triangles(rng, n: int) -> np.ndarray:
     while len(out) < n:
         t = rng.uniform(-1.5, 1.5, (3, 3))
         n_ = np.cross(t[1] - t[0], t[2] - t[0])
-        longest = max(np.linalg.norm(t[1] - t[0]), np.linalg.norm(t[2] - t[1]),
-                      np.linalg.norm(t[0] - t[2]))
+        longest = max(
+            np.linalg.norm(t[1] - t[0]), np.linalg.norm(t[2] - t[1]), np.linalg.norm(t[0] - t[2])
+        )
         if np.linalg.norm(n_) / longest > 0.3 * longest:
             out.append(t)
     return np.array(out)
@@ -58,7 +60,7 @@ def triangle_world(rng, n: int, shapes: list):
     mesh = rbgen.TriangleMesh(triangles.reshape(-1, 3), np.arange(3 * n).reshape(n, 3))
     table = ShapeTable()
     index = [table.add(mesh)] + [table.add(s) for s in shapes]
-    stored = mesh.vertices.astype(np.float64)[mesh.triangles]   # in the mesh's order
+    stored = mesh.vertices.astype(np.float64)[mesh.triangles]  # in the mesh's order
     body_shapes = rng.integers(1, len(index), n)
     w = rng.dirichlet(np.ones(3), n)
     on = np.einsum("tk,tkd->td", w, stored)
@@ -66,9 +68,11 @@ def triangle_world(rng, n: int, shapes: list):
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     radius = np.array([0.0] + [s.bounding_radius() for s in shapes])[body_shapes]
     position = on + direction * (radius * rng.uniform(0.2, 1.3, n))[:, None]
-    bodies = make_bodies([0] + [index[k] for k in body_shapes],
-                         np.concatenate([[np.zeros(3)], position]),
-                         np.concatenate([[[0, 0, 0, 1]], random_quaternions(rng, n)]))
+    bodies = make_bodies(
+        [0] + [index[k] for k in body_shapes],
+        np.concatenate([[np.zeros(3)], position]),
+        np.concatenate([[[0, 0, 0, 1]], random_quaternions(rng, n)]),
+    )
     bodies["inv_mass"][0] = 0.0
     pairs = layouts.PAIR.zeros(n)
     pairs["a"], pairs["b"], pairs["sub"] = 0, np.arange(1, n + 1), np.arange(1, n + 1)
@@ -158,7 +162,8 @@ def test_sphere_triangle_matches_reference(runtime, rng):
     """Sphere: closest point, distance - radius, normal along the closest points."""
     n = 600
     mesh, table, bodies, pairs, stored, shapes = triangle_world(
-        rng, n, [Sphere(r) for r in (0.3, 0.7, 1.1)])
+        rng, n, [Sphere(r) for r in (0.3, 0.7, 1.1)]
+    )
     found = contacts_by_body(runtime, table, bodies, pairs)
     checked = 0
     for i in range(n):
@@ -187,7 +192,8 @@ def test_capsule_triangle_matches_reference(runtime, rng):
     points (or the face's, for a face contact), points on the capsule."""
     n = 600
     mesh, table, bodies, pairs, stored, shapes = triangle_world(
-        rng, n, [Capsule(0.2, 0.5), Capsule(0.5, 0.3), Capsule(0.3, 0.0)])
+        rng, n, [Capsule(0.2, 0.5), Capsule(0.5, 0.3), Capsule(0.3, 0.0)]
+    )
     found = contacts_by_body(runtime, table, bodies, pairs)
     checked = 0
     for i in range(n):
@@ -203,7 +209,7 @@ def test_capsule_triangle_matches_reference(runtime, rng):
         if i + 1 not in found or distance < 1e-3:
             continue
         m = found[i + 1]
-        points = m["points"][:m["point_count"]]
+        points = m["points"][: m["point_count"]]
         assert points[:, 3].min() == pytest.approx(separation, abs=5e-5)
         normal = (on_segment - on_triangle) / distance
         face = np.cross(stored[i][1] - stored[i][0], stored[i][2] - stored[i][0])
@@ -215,8 +221,10 @@ def test_capsule_triangle_matches_reference(runtime, rng):
             assert abs(m["normal"][:3] @ face) > 1 - 1e-4
         # the points are on the capsule (body b) below its segment along the normal: the
         # deepest on its surface, none outside it
-        reach = [np.linalg.norm(p[:3] - closest_on_segment(s0, s1, p[:3].astype(np.float64)))
-                 for p in points]
+        reach = [
+            np.linalg.norm(p[:3] - closest_on_segment(s0, s1, p[:3].astype(np.float64)))
+            for p in points
+        ]
         assert max(reach) <= capsule.radius + 1e-4
         assert reach[int(np.argmin(points[:, 3]))] == pytest.approx(capsule.radius, abs=1e-4)
         checked += 1
@@ -227,9 +235,17 @@ def test_capsule_triangle_matches_reference(runtime, rng):
 def test_convex_triangle_matches_reference(runtime, rng, kind):
     """Box or hull: the separating-axis answer with the triangle as a two-sided polygon."""
     n = 500
-    shapes = [Box(rng.uniform(0.2, 0.9, 3)) for _ in range(3)] if kind == "box" else \
-        [ConvexHull(rng.normal(size=(int(rng.integers(8, 20)), 3)) * rng.uniform(0.3, 0.9, 3),
-                    name=f"random hull {k}") for k in range(3)]
+    shapes = (
+        [Box(rng.uniform(0.2, 0.9, 3)) for _ in range(3)]
+        if kind == "box"
+        else [
+            ConvexHull(
+                rng.normal(size=(int(rng.integers(8, 20)), 3)) * rng.uniform(0.3, 0.9, 3),
+                name=f"random hull {k}",
+            )
+            for k in range(3)
+        ]
+    )
     mesh, table, bodies, pairs, stored, body_shapes = triangle_world(rng, n, shapes)
     assert f"{kind}_triangle" in Narrowphase(runtime, table).kinds
     found = contacts_by_body(runtime, table, bodies, pairs)
@@ -239,8 +255,9 @@ def test_convex_triangle_matches_reference(runtime, rng, kind):
         normal = np.cross(t[1] - t[0], t[2] - t[0])
         normal /= np.linalg.norm(normal)
         triangle = Placed(t, np.array([normal, -normal]), t[[1, 2, 0]] - t)
-        shape = Placed.of(body_shapes[i], bodies["position"][i + 1, :3],
-                          bodies["orientation"][i + 1])
+        shape = Placed.of(
+            body_shapes[i], bodies["position"][i + 1, :3], bodies["orientation"][i + 1]
+        )
         answer = sat(shape, triangle)
         if abs(answer.separation) < UNDECIDED:
             continue
@@ -248,11 +265,13 @@ def test_convex_triangle_matches_reference(runtime, rng, kind):
         if i + 1 not in found:
             continue
         m = found[i + 1]
-        points = m["points"][:m["point_count"]]
+        points = m["points"][: m["point_count"]]
         assert 1 <= len(points) <= 4
         assert np.all(points[:, 3] >= answer.separation - 1e-4) and np.all(points[:, 3] <= 1e-6)
-        if answer.runner_up < answer.separation - TIE and \
-                abs(answer.best_face - answer.best_edge) > TIE:
+        if (
+            answer.runner_up < answer.separation - TIE
+            and abs(answer.best_face - answer.best_edge) > TIE
+        ):
             # the manifold's normal runs from the mesh (a) to the shape (b)
             angle = np.arccos(np.clip(-m["normal"][:3] @ answer.axis, -1, 1))
             assert angle < 1e-3, (i, m["normal"][:3], answer.axis)
@@ -268,6 +287,7 @@ def test_convex_triangle_matches_reference(runtime, rng, kind):
 
 # --------------------------------------------------------------- internal edges
 
+
 def flat_square(size: float = 2.0):
     """Two triangles making the square [0, size]^2 at y = 0; the diagonal from (size, 0, 0)
     to (0, 0, size) is shared (inactive), the four sides open (active)."""
@@ -275,10 +295,14 @@ def flat_square(size: float = 2.0):
     return rbgen.TriangleMesh(v, np.array([[0, 1, 2], [2, 1, 3]]))
 
 
-@pytest.mark.parametrize("shape,orientation", [
-    (Sphere(0.5), (0, 0, 0, 1)),
-    (Capsule(0.25, 0.4), (0, 0, np.sin(np.pi / 4), np.cos(np.pi / 4))),
-    (Box((0.4, 0.25, 0.3)), (0, np.sin(0.3), 0, np.cos(0.3)))])
+@pytest.mark.parametrize(
+    "shape,orientation",
+    [
+        (Sphere(0.5), (0, 0, 0, 1)),
+        (Capsule(0.25, 0.4), (0, 0, np.sin(np.pi / 4), np.cos(np.pi / 4))),
+        (Box((0.4, 0.25, 0.3)), (0, np.sin(0.3), 0, np.cos(0.3))),
+    ],
+)
 def test_no_bump_over_an_inactive_edge(runtime, shape, orientation):
     """A shape pressed 1 cm into a flat square right over its diagonal: both triangles
     give the face normal (+y) and a separation of -1 cm, none a tilted normal."""
@@ -286,9 +310,11 @@ def test_no_bump_over_an_inactive_edge(runtime, shape, orientation):
     assert sorted(mesh.active_edges.tolist()) == [5, 6]  # one edge inactive in each
     table = ShapeTable()
     index = [table.add(mesh), table.add(shape)]
-    bottom = -min((shape.local_vertices() @ quat_matrix(orientation).T)[:, 1]) \
-        if isinstance(shape, Box) else (shape.radius if isinstance(shape, Sphere)
-                                        else shape.radius)
+    bottom = (
+        -min((shape.local_vertices() @ quat_matrix(orientation).T)[:, 1])
+        if isinstance(shape, Box)
+        else (shape.radius if isinstance(shape, Sphere) else shape.radius)
+    )
     centre = np.array([1.05, bottom - 0.01, 0.98])  # near the diagonal x + z = 2
     bodies = make_bodies(index, [np.zeros(3), centre], [(0, 0, 0, 1), orientation])
     pairs = layouts.PAIR.zeros(2)
@@ -297,7 +323,7 @@ def test_no_bump_over_an_inactive_edge(runtime, shape, orientation):
     assert len(found) == 2
     for m in found:
         np.testing.assert_allclose(m["normal"][:3], (0, 1, 0), atol=1e-5)
-        points = m["points"][:m["point_count"]]
+        points = m["points"][: m["point_count"]]
         assert points[:, 3].min() == pytest.approx(-0.01, abs=1e-4)
 
 
@@ -323,8 +349,12 @@ def test_a_sharp_ridge_keeps_its_edge_normal(runtime):
 def test_few_or_no_triangle_pairs(runtime, rng, n):
     """Lists of 0, 1 and 17 triangle pairs of every kind (fewer than a work group): as
     many manifolds as touching pairs, each keyed by its pair's sub-feature."""
-    shapes = [Sphere(0.5), Capsule(0.3, 0.3), Box((0.4, 0.3, 0.5)),
-              ConvexHull(rng.normal(size=(10, 3)) * 0.4, name="pebble")]
+    shapes = [
+        Sphere(0.5),
+        Capsule(0.3, 0.3),
+        Box((0.4, 0.3, 0.5)),
+        ConvexHull(rng.normal(size=(10, 3)) * 0.4, name="pebble"),
+    ]
     mesh, table, bodies, pairs, stored, body_shapes = triangle_world(rng, max(n, 1), shapes)
     found = find_contacts(runtime, table, bodies, pairs[:n])
     assert len(found) <= n
