@@ -11,9 +11,14 @@ Input checks (errors name the body index and the field, and leave the store as i
 NaN/inf positions, velocities, orientations; non-positive or non-finite mass of a dynamic
 body; friction < 0; restitution outside [0, 1]; a static-only shape (a plane) as a dynamic
 body; a shape that is not a registered shape type, or whose pairs with the world's other
-types have no narrowphase kernel (`supported_shapes`). Orientations
+types have no narrowphase kernel (`supported_shapes`); body ids that are not integers in
+range; a velocity set on a static body; numbers given as text or booleans. Orientations
 are normalised; one whose norm is off by more than 1e-3 is normalised with a warning, a
 zero one is refused.
+
+State read back (`field`) is a read-only `StateArray` snapshot: an edit raises, naming the
+setter, because an edit of a copy would be lost without a word. Removal compacts the
+records in order (`remove` returns the old-to-new index mapping).
 """
 
 from __future__ import annotations
@@ -60,6 +65,32 @@ def check_supported(shape: Shape, world_types) -> None:
         )
 
 
+class StateArray(np.ndarray):
+    """A read-only snapshot of one state field (an (N, lanes) float32 array).
+
+    Writing into it raises `RbgenError` naming the setter: the World's state lives on the
+    device, so an edit of this copy would be silently lost. ``.copy()`` is writeable;
+    arithmetic on it gives plain numpy arrays."""
+
+    #: the setter named in the error (set by `BodyStore.field`)
+    setter = "World.set_state"
+
+    def __array_finalize__(self, obj):
+        self.setter = getattr(obj, "setter", StateArray.setter)
+
+    def __array_wrap__(self, result, context=None, return_scalar=False):
+        result = np.asarray(result)
+        return result[()] if return_scalar else result
+
+    def __setitem__(self, key, value):
+        if not self.flags.writeable:
+            raise RbgenError(
+                f"this array is a read-only snapshot of the World's state (an "
+                f"edit would be lost): use {self.setter}"
+            )
+        super().__setitem__(key, value)
+
+
 class DeviceBodies:
     """The device arrays of one upload: bodies, their backups (one per step in flight: a
     redone step starts from one), inertia records and static flags."""
@@ -74,6 +105,14 @@ class DeviceBodies:
             queue, (host["inv_mass"] == 0).astype(np.uint32) if n else np.zeros(1, np.uint32)
         )
         #: each body's shape index (host copy: the midphase places compound children by it)
+        self.shape_indices = host["shape"].copy()
+
+    def refill(self, queue, host: np.ndarray, inv_inertia: np.ndarray) -> None:
+        """Copy a host copy of the same body count into these arrays (a set or a removal
+        followed by as many adds: no new allocation)."""
+        self.bodies.set(host, queue=queue)
+        self.inertia.set(inertia_records(inv_inertia), queue=queue)
+        self.static.set((host["inv_mass"] == 0).astype(np.uint32), queue=queue)
         self.shape_indices = host["shape"].copy()
 
 
@@ -131,8 +170,8 @@ class BodyStore:
         check_supported(shape, self.shapes.type_names())
         if masses is not None and type(shape).static_only:
             raise RbgenError(
-                f"a {type(shape).__name__} can only be static: use add_static"
-                + type(shape).static_only_hint
+                f"shape: a {type(shape).__name__} can only be static (use "
+                f"add_static)" + type(shape).static_only_hint
             )
         n = len(positions)
         first = self.count
@@ -186,19 +225,24 @@ class BodyStore:
         if masses is None:
             records["linear_velocity"] = 0
             records["angular_velocity"] = 0
-        self.host = np.concatenate([self.host, records]).astype(layouts.BODY.dtype)
+        self.host = np.concatenate([self.host, records])
         self.has_dynamic = bool(np.any(self.host["inv_mass"] > 0))
         self.inv_inertia = np.concatenate([self.inv_inertia, inv_inertia])
         self.device_stale = True
         return np.arange(first, first + n)
 
-    def field(self, name: str, lanes: int) -> np.ndarray:
-        """A copy of one state field of every body, (N, lanes) float32."""
+    def field(self, name: str, lanes: int, setter: str) -> StateArray:
+        """A read-only snapshot of one state field of every body, (N, lanes) float32
+        (``setter`` is named by the error an edit raises)."""
         self.sync_to_host()
-        return self.host[name][:, :lanes].copy()
+        snapshot = self.host[name][:, :lanes].copy().view(StateArray)
+        snapshot.setter = setter
+        snapshot.flags.writeable = False
+        return snapshot
 
-    def set_field(self, name: str, values, lanes: int, what: str) -> None:
-        """Replace one state field of every body (static bodies keep zero velocities)."""
+    def set_field(self, name: str, values, lanes: int, what: str) -> np.ndarray:
+        """Replace one state field of every body (static bodies keep zero velocities);
+        returns the mask of the bodies whose value changed."""
         self.sync_to_host()
         values = rows(values, self.count, lanes, what, 0)
         if name == "orientation":
@@ -206,12 +250,85 @@ class BodyStore:
         dynamic = self.host["inv_mass"] > 0
         if name in ("linear_velocity", "angular_velocity"):
             values = np.where(dynamic[:, None], values, 0.0)
-        self.host[name][:, :lanes] = values
+        new = values.astype(np.float32)
+        changed = np.any(self.host[name][:, :lanes] != new, axis=1)
+        self.host[name][:, :lanes] = new
         self.device_stale = True
+        return changed
 
-    def upload(self, queue, backups: int) -> DeviceBodies:
-        """The device arrays of the host copy (after adds or sets)."""
-        arrays = DeviceBodies(queue, self.host, self.inv_inertia, backups)
+    def set_rows(self, ids, fields: dict) -> np.ndarray:
+        """Set some fields of the bodies ``ids``: ``fields`` maps a state field name
+        (``positions``, ``orientations``, ``linear_velocities``, ``angular_velocities``) to
+        one row per id or one row for all (None: unchanged). Every value is checked
+        before any is written. Returns the ids (int64)."""
+        self.sync_to_host()
+        ids = body_ids(ids, self.count, "ids")
+        if len(np.unique(ids)) != len(ids):
+            values, counts = np.unique(ids, return_counts=True)
+            raise RbgenError(
+                f"ids: body {int(values[counts > 1][0])} is listed twice (each "
+                f"body's new state must be given once)"
+            )
+        checked = {}
+        for what, value in fields.items():
+            if value is None:
+                continue
+            name, lanes = STATE_FIELDS[what]
+            try:
+                arr = floats(value)
+            except (TypeError, ValueError):
+                raise RbgenError(
+                    f"{what} must be numbers of shape ({len(ids)}, {lanes}) or "
+                    f"({lanes},), got {type(value).__name__}"
+                ) from None
+            if arr.shape == (lanes,):
+                arr = np.broadcast_to(arr, (len(ids), lanes))
+            arr = rows(arr, len(ids), lanes, what, ids=ids)
+            if name == "orientation":
+                arr = unit_quaternions(arr, len(ids), ids=ids)
+            if name in ("linear_velocity", "angular_velocity"):
+                static = (self.host["inv_mass"][ids] == 0) & np.any(arr != 0, axis=1)
+                if np.any(static):
+                    body = int(ids[np.flatnonzero(static)[0]])
+                    raise RbgenError(
+                        f"body {body} is static: {what} must stay zero, got "
+                        f"{arr[np.flatnonzero(static)[0]].tolist()}"
+                    )
+            checked[name] = (arr, lanes)
+        for name, (arr, lanes) in checked.items():
+            self.host[name][ids, :lanes] = arr
+        if checked:
+            self.device_stale = True
+        return ids
+
+    def remove(self, ids) -> np.ndarray:
+        """Remove the bodies ``ids`` (each at most once is needed; repeats are allowed);
+        the others keep their order. Returns the mapping from old index to new index
+        (-1 for a removed body)."""
+        self.sync_to_host()
+        ids = body_ids(ids, self.count, "ids")
+        keep = np.ones(self.count, bool)
+        keep[ids] = False
+        mapping = np.full(self.count, -1, np.int64)
+        mapping[keep] = np.arange(int(keep.sum()))
+        self.host = self.host[keep]
+        self.inv_inertia = self.inv_inertia[keep]
+        self.has_dynamic = bool(np.any(self.host["inv_mass"] > 0))
+        self.device_stale = True
+        return mapping
+
+    def upload(self, queue, backups: int, previous: DeviceBodies | None = None) -> DeviceBodies:
+        """The device arrays of the host copy (after adds, sets or removals): ``previous``
+        refilled when it holds as many bodies, else new ones."""
+        if (
+            previous is not None
+            and previous.count == self.count > 0
+            and len(previous.backups) == backups
+        ):
+            previous.refill(queue, self.host, self.inv_inertia)
+            arrays = previous
+        else:
+            arrays = DeviceBodies(queue, self.host, self.inv_inertia, backups)
         self.device_stale = False
         return arrays
 
@@ -230,7 +347,12 @@ class BodyStore:
 
 def per_body(value, n, what):
     """A scalar or one value per body, as n floats; a wrong shape is refused, naming it."""
-    arr = np.asarray(value, float)
+    try:
+        arr = floats(value)
+    except (TypeError, ValueError):
+        raise RbgenError(
+            f"{what} must be a number or one number per body ({n}), got {type(value).__name__}"
+        ) from None
     if arr.ndim == 0:
         return np.full(n, float(arr))
     if arr.shape != (n,):
@@ -240,38 +362,102 @@ def per_body(value, n, what):
     return arr.astype(float)
 
 
-def rows(values, n, lanes, what, first):
-    """An (n, lanes) array of finite numbers; the first bad body is named."""
-    arr = np.asarray(values, float)
+def floats(value) -> np.ndarray:
+    """``value`` as a float64 array; text and booleans are refused (numpy would read "1"
+    as 1.0 and True as 1.0, and either given for a number is a mistake): raises TypeError
+    or ValueError, which callers turn into an RbgenError naming the argument."""
+    arr = np.asarray(value)
+    if arr.dtype.kind in "USVb":
+        raise TypeError("not a number")
+    return arr.astype(float, copy=False)
+
+
+#: the settable state fields: argument name -> (record field, lanes)
+STATE_FIELDS = {
+    "positions": ("position", 3),
+    "orientations": ("orientation", 4),
+    "linear_velocities": ("linear_velocity", 3),
+    "angular_velocities": ("angular_velocity", 3),
+}
+
+
+def _body(i, first, ids) -> int:
+    return int(first + i if ids is None else ids[i])
+
+
+def rows(values, n, lanes, what, first=0, ids=None):
+    """An (n, lanes) array of finite numbers; the first bad body is named (row i is body
+    ``first + i``, or ``ids[i]``)."""
+    try:
+        arr = floats(values)
+    except (TypeError, ValueError):
+        raise RbgenError(
+            f"{what} must be numbers of shape ({n}, {lanes}), got {type(values).__name__}"
+        ) from None
     if arr.shape != (n, lanes):
         raise RbgenError(f"{what} must have shape ({n}, {lanes}), got {arr.shape}")
     bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
     if len(bad):
         raise RbgenError(
-            f"body {first + bad[0]}: {what} has a NaN or infinite value {arr[bad[0]].tolist()}"
+            f"body {_body(bad[0], first, ids)}: {what} has a NaN or infinite "
+            f"value {arr[bad[0]].tolist()}"
         )
     return arr
 
 
-def unit_quaternions(values, n, first):
+def unit_quaternions(values, n, first=0, ids=None):
     """(n, 4) unit quaternions (identity when None); see the module docstring."""
     if values is None:
         out = np.zeros((n, 4))
         out[:, 3] = 1.0
         return out
-    q = rows(values, n, 4, "orientations", first)
+    q = rows(values, n, 4, "orientations", first, ids)
     norms = np.linalg.norm(q, axis=1)
     bad = np.flatnonzero(norms < 1e-6)
     if len(bad):
-        raise RbgenError(f"body {first + bad[0]}: orientations has a zero quaternion")
+        raise RbgenError(f"body {_body(bad[0], first, ids)}: orientations has a zero quaternion")
     off = np.flatnonzero(np.abs(norms - 1) > 1e-3)
     if len(off):
         warnings.warn(
-            f"body {first + off[0]}: orientations not unit (norm "
+            f"body {_body(off[0], first, ids)}: orientations not unit (norm "
             f"{norms[off[0]]:.4g}); normalised ({len(off)} bodies)",
             stacklevel=4,
         )
     return q / norms[:, None]
+
+
+def one_row(value, lanes: int, what: str, body: int) -> np.ndarray:
+    """One body's ``lanes`` finite numbers as a (1, lanes) array (``what`` names the
+    argument in errors, ``body`` the index the body would get)."""
+    try:
+        arr = floats(value)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.shape != (lanes,):
+        raise RbgenError(f"body {body}: {what} must be {lanes} numbers, got {value!r}")
+    return rows(arr[None], 1, lanes, what, body)
+
+
+def body_ids(ids, count: int, what: str) -> np.ndarray:
+    """Body indices as int64: an integer or a 1-D sequence of integers in [0, count)."""
+    arr = np.asarray(ids)
+    if arr.dtype == object or arr.dtype.kind not in "iu" or arr.ndim > 1:
+        if arr.size == 0 and arr.ndim == 1:
+            return np.zeros(0, np.int64)
+        raise RbgenError(
+            f"{what} must be a body index or a 1-D sequence of body indices "
+            f"(integers from 0 to {count - 1}), got "
+            f"{arr.dtype if arr.dtype != object else type(ids).__name__} "
+            f"of shape {arr.shape}"
+        )
+    arr = arr.reshape(-1).astype(np.int64)
+    bad = np.flatnonzero((arr < 0) | (arr >= count))
+    if len(bad):
+        raise RbgenError(
+            f"{what}: body {int(arr[bad[0]])} does not exist (body indices run "
+            f"from 0 to {count - 1})"
+        )
+    return arr
 
 
 def bounding_radius(shape: Shape) -> float:

@@ -26,5 +26,10 @@ class KernelBuildError(RuntimeError):
     """
 
 
+class MemoryLimitError(RbgenError, MemoryError):
+    """A World (or a buffer's growth) would need more host or device memory than there is;
+    the message names the need and the limit, and nothing was allocated."""
+
+
 class CapacityOverflowError(RuntimeError):
     """A device buffer could not be grown enough to hold a result."""

@@ -10,6 +10,11 @@ redone with every step after it: the queue is drained, each failing stage recove
 kernel wrote, the constraint history is rewound, and the steps are enqueued again. So
 no pair or contact is ever dropped. A persistent launch that gave up asks the World for
 a new plan without persistent launches (`Replan`).
+
+A redo that cannot be made (the growth does not fit in memory, a step that still
+overflows after `MAX_REDOS`, a recovery that raises) leaves the bodies restored to
+before the failed step and forgets it and the steps after it (``forget``), then raises:
+the World is as it was before that step, never part-way through one.
 """
 
 from __future__ import annotations
@@ -35,15 +40,16 @@ class Replan(Exception):
 
 
 class _InFlight:
-    """One enqueued step: its dt, backup slot, and a pinned copy of its report.
+    """One enqueued step: its dt, backup slot, the caller's tag (the World's step
+    number), and a pinned copy of its report.
 
     The copy's event is kept: pyopencl returns a NannyEvent for a copy into host
     memory, and deleting one waits for its copy."""
 
-    __slots__ = ("dt", "slot", "host", "copied")
+    __slots__ = ("dt", "slot", "tag", "host", "copied")
 
-    def __init__(self, dt, slot, host, copied):
-        self.dt, self.slot, self.host, self.copied = dt, slot, host, copied
+    def __init__(self, dt, slot, tag, host, copied):
+        self.dt, self.slot, self.tag, self.host, self.copied = dt, slot, tag, host, copied
 
 
 class StepGuard:
@@ -79,7 +85,7 @@ class StepGuard:
         self.serial += 1
         return slot
 
-    def finish_step(self, dt: float, slot: int) -> None:
+    def finish_step(self, dt: float, slot: int, tag: int = 0) -> None:
         """Gather the report of the step just enqueued and start its non-blocking read."""
         queue = self.runtime.queue
         for stage, offset in self._layout:
@@ -98,6 +104,7 @@ class StepGuard:
             _InFlight(
                 dt,
                 slot,
+                tag,
                 host,
                 cl.enqueue_copy(queue, host, buffer_of(self.report), is_blocking=False),
             )
@@ -113,12 +120,15 @@ class StepGuard:
                 found[stage] = problem
         return found
 
-    def check(self, keep: int, restore, rewind, enqueue) -> None:
+    def check(self, keep: int, restore, rewind, enqueue, afford=None, forget=None) -> None:
         """Check the oldest enqueued steps until at most ``keep`` remain unchecked; redo
         from a failed one: ``restore(slot)`` restores the bodies of that backup slot,
-        ``rewind(steps)`` forgets that many steps' constraint history, ``enqueue(dt)``
-        enqueues a step. Raises `Replan` (the steps are then forgotten, not redone) when
-        a persistent launch gave up."""
+        ``rewind(steps)`` forgets that many steps' constraint history, ``enqueue(dt,
+        tag)`` enqueues a step, ``afford(problems)`` raises when the recoveries would not
+        fit in memory, ``forget(tag)`` is told that the steps from the one tagged
+        ``tag`` are undone for good (then the error is raised). Raises `Replan` (the
+        steps are then forgotten, not redone: its argument lists their (dt, tag)) when a
+        persistent launch gave up."""
         redone = 0
         while len(self.in_flight) > keep:
             entry = self.in_flight[0]
@@ -127,13 +137,8 @@ class StepGuard:
                 self.in_flight.pop(0)
                 continue
             redone += 1
-            if redone > MAX_REDOS:
-                raise CapacityOverflowError(
-                    f"a step still overflowed after {MAX_REDOS} redos with grown buffers "
-                    f"({', '.join(f'{s.name}: {p}' for s, p in problems.items())})"
-                )
             self.runtime.queue.finish()
-            redo = [e.dt for e in self.in_flight]
+            redo = [(e.dt, e.tag) for e in self.in_flight]
             restore(entry.slot)
             rewind(len(redo))
             self.in_flight = []
@@ -142,8 +147,22 @@ class StepGuard:
                 solve.clear_abandoned()
                 self.report.fill(np.uint32(0))
                 raise Replan(redo)
+            try:
+                if redone > MAX_REDOS:
+                    raise CapacityOverflowError(
+                        f"a step still overflowed after {MAX_REDOS} redos with grown buffers "
+                        f"({', '.join(f'{s.name}: {p}' for s, p in problems.items())}); the "
+                        f"World is as it was before that step"
+                    )
+                if afford is not None:
+                    afford(problems)
+                for stage, problem in problems.items():
+                    stage.recover(problem)
+            except BaseException:
+                self.report.fill(np.uint32(0))
+                if forget is not None:
+                    forget(entry.tag)
+                raise
             self.overflows += 1
-            for stage, problem in problems.items():
-                stage.recover(problem)
-            for dt in redo:
-                enqueue(dt)
+            for dt, tag in redo:
+                enqueue(dt, tag)

@@ -259,6 +259,14 @@ CONSTRUCTION_OPTIONS = (
         "None or a dict of plan parameters",
         "expert overrides of tuned plan parameters (rbgen.plan.TUNABLES)",
     ),
+    Option(
+        "memory_limit",
+        None,
+        _optional(_integer(1)),
+        "None or a positive integer (bytes)",
+        "device memory this World may use (None: the device's global memory; OpenCL "
+        "cannot see other processes on a shared GPU); refused before allocating",
+    ),
 )
 
 STEP = {o.name: o for o in STEP_SETTINGS}
@@ -330,7 +338,7 @@ def options_table() -> str:
         default = (
             "device's choice"
             if option.default is None
-            and option.name not in ("manifold_capacity", "pair_capacity", "plan")
+            and option.name not in ("manifold_capacity", "pair_capacity", "plan", "memory_limit")
             else repr(option.default)
         )
         rows.append(f"| `{option.name}` | {default} | {option.allowed} | {option.doc} |")

@@ -11,6 +11,8 @@ A World is a thin façade over four parts, each in its own module:
 
 A step is a fixed sequence of enqueues with no blocking read; counts stay on the device;
 an overflowed buffer is grown and the step redone, so no pair or contact is dropped.
+Every check (input, memory: `rbgen.memory`) happens at construction, adds, sets, removals
+and growth, never on a step's path; a refused request leaves the World as it was.
 """
 
 from __future__ import annotations
@@ -20,11 +22,13 @@ import warnings
 import numpy as np
 import pyopencl as cl
 
-from .bodies import BodyStore, per_body
+from . import history
+from .bodies import STATE_FIELDS, BodyStore, floats, one_row, per_body
 from .codegen import KernelSpec, SpecLog
 from .device import Runtime, coerce_runtime
 from .errors import RbgenError
 from .guard import STEPS_IN_FLIGHT, Replan, StepGuard
+from .memory import WorldMemory
 from .pipeline.step import StepContext, StepPipeline
 from .plan import Plan, derive_plan
 from .settings import STEP, Settings, split_options
@@ -45,9 +49,15 @@ class World:
     are fixed. A bad value raises `RbgenError` naming the option and what it allows.
 
     Bodies: every body, static or dynamic, has an index into the state arrays
-    (``positions``, ``orientations``, ``linear_velocities``, ``angular_velocities``);
-    `rbgen.bodies` lists the checks. Shapes are immutable values: one shape object may be
-    added to several Worlds.
+    (``positions``, ``orientations``, ``linear_velocities``, ``angular_velocities``:
+    read-only snapshots; `set_state` and whole-array assignment change the state);
+    `rbgen.bodies` lists the checks. `remove_bodies` renumbers the bodies after the
+    removed ones and returns the mapping. Shapes are immutable values: one shape object
+    may be added to several Worlds.
+
+    Memory: a World that would not fit (at construction, on an add, or when a buffer
+    grows after an overflow) raises `rbgen.errors.MemoryLimitError` naming the need and
+    the limit before allocating (`rbgen.memory`).
     """
 
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), **options):
@@ -71,6 +81,13 @@ class World:
         self._spec_log = SpecLog(self.runtime)
         self.last_step_counters = {"launches": 0, "blocking_reads": 0}
         self.steps = 0
+        self._memory = WorldMemory(self, self.runtime, construction)
+        given = [
+            f"{k}={construction[k]}"
+            for k in ("pair_capacity", "manifold_capacity")
+            if construction[k] is not None
+        ]
+        self._memory.check(f"a World with {', '.join(given) or 'no bodies'}", self._memory.sizes(0))
 
     # ------------------------------------------------------------- settings
     def __getattr__(self, name):
@@ -113,17 +130,14 @@ class World:
         restitution: float = 0.0,
     ) -> int:
         """A body that never moves (planes only this way); returns its index."""
+        body = self._bodies.count
+        position = one_row(position, 3, "position", body)
+        orientation = one_row(orientation, 4, "orientation", body)
+        self._afford_add(1, shape)
         return int(
-            self._bodies.add(
-                shape,
-                np.asarray([position], float),
-                np.asarray([orientation], float),
-                None,
-                friction,
-                restitution,
-                None,
-                None,
-            )[0]
+            self._bodies.add(shape, position, orientation, None, friction, restitution, None, None)[
+                0
+            ]
         )
 
     def add_body(
@@ -138,16 +152,17 @@ class World:
         restitution: float = 0.0,
     ) -> int:
         """One dynamic body; returns its index."""
+        body = self._bodies.count
         return int(
             self.add_bodies(
                 shape,
                 mass,
-                [position],
-                [orientation],
+                one_row(position, 3, "position", body),
+                one_row(orientation, 4, "orientation", body),
                 friction,
                 restitution,
-                [linear_velocity],
-                [angular_velocity],
+                one_row(linear_velocity, 3, "linear_velocity", body),
+                one_row(angular_velocity, 3, "angular_velocity", body),
             )[0]
         )
 
@@ -163,12 +178,28 @@ class World:
         angular_velocities=None,
     ) -> np.ndarray:
         """Many dynamic bodies of one shape; ``mass``, ``friction``, ``restitution``
-        are scalars or one value per body. Returns their indices."""
+        are scalars or one value per body. Returns their indices. Too many bodies for
+        the host or the device raise `MemoryLimitError` before anything is allocated."""
         if positions is None:
             raise RbgenError("add_bodies: positions are required (an (N, 3) array)")
-        positions = np.asarray(positions, float)
+        try:
+            shape_of = np.shape(positions)
+        except ValueError:  # a ragged sequence
+            shape_of = None
+        if shape_of is None or len(shape_of) != 2 or shape_of[1] != 3:
+            raise RbgenError(
+                f"positions must be an (N, 3) array, got "
+                f"{'a ragged sequence' if shape_of is None else shape_of}"
+            )
+        self._afford_add(shape_of[0], shape)
+        try:
+            positions = floats(positions)
+        except (TypeError, ValueError):
+            raise RbgenError(
+                f"positions must be numbers of shape (N, 3), got {type(positions).__name__}"
+            ) from None
         if isinstance(shape, Plane):
-            raise RbgenError("a Plane can only be static: use add_static")
+            raise RbgenError("shape: a Plane can only be static (use add_static)")
         return self._bodies.add(
             shape,
             positions,
@@ -180,29 +211,93 @@ class World:
             angular_velocities,
         )
 
+    def _afford_add(self, count: int, shape) -> None:
+        self._memory.check_add(self._bodies, count, shape, self._pipeline)
+
+    def remove_bodies(self, ids) -> np.ndarray:
+        """Remove the bodies ``ids`` (an index or a sequence; repeats allowed) between steps.
+
+        The bodies after a removed one move down to close the gap, keeping their order
+        (the step runs over dense arrays: holes would cost every kernel every step).
+        Returns ``mapping``, an int64 array over the old indices: ``mapping[old]`` is the
+        new index, -1 for a removed body; update kept indices with ``ids =
+        mapping[ids]``. The survivors' contacts keep their warm start (renumbered);
+        nothing of a removed body is carried onto another. Buffers keep their capacity
+        (adding bodies again reuses it)."""
+        count = self._bodies.count
+        mapping = self._bodies.remove(ids)
+        if len(mapping) != count or np.any(mapping < 0):
+            history.renumber_bodies(self.runtime, self._pipeline, mapping)
+        return mapping
+
     # ------------------------------------------------------------- state
-    def _set_field(self, name, values, lanes, what):
-        self._bodies.set_field(name, values, lanes, what)
-        if self._pipeline is not None:
-            self._steps.constraints.constraints.reset()  # teleports forget the contacts
+    def set_state(
+        self,
+        ids,
+        positions=None,
+        orientations=None,
+        linear_velocities=None,
+        angular_velocities=None,
+    ) -> None:
+        """Set the state of the bodies ``ids`` (an index or a sequence of distinct
+        indices): each field given is one row per id, or one row for them all (None:
+        unchanged). Orientations are normalised; static bodies may be moved but their
+        velocities stay zero. Every value is checked before any is written: a bad one
+        raises `RbgenError` naming the body and the field, and the World is unchanged.
+        The contacts of the bodies set lose their warm start (the old impulses belong to
+        a configuration the bodies have left)."""
+        ids = self._bodies.set_rows(
+            ids,
+            {
+                "positions": positions,
+                "orientations": orientations,
+                "linear_velocities": linear_velocities,
+                "angular_velocities": angular_velocities,
+            },
+        )
+        if any(
+            v is not None for v in (positions, orientations, linear_velocities, angular_velocities)
+        ):
+            affected = np.zeros(self._bodies.count, bool)
+            affected[ids] = True
+            history.forget_bodies(self.runtime, self._pipeline, affected)
+
+    def _field(self, what):
+        name, lanes = STATE_FIELDS[what]
+        return self._bodies.field(
+            name,
+            lanes,
+            f"world.set_state(ids, {what}=...) or assign the whole array (world.{what} = values)",
+        )
+
+    def _set_field(self, what, values):
+        name, lanes = STATE_FIELDS[what]
+        changed = self._bodies.set_field(name, values, lanes, what)
+        history.forget_bodies(self.runtime, self._pipeline, changed)
 
     positions = property(
-        lambda s: s._bodies.field("position", 3),
-        lambda s, v: s._set_field("position", v, 3, "positions"),
-        doc="(N, 3) float32 centres of mass; setting teleports every body",
+        lambda s: s._field("positions"),
+        lambda s, v: s._set_field("positions", v),
+        doc="(N, 3) float32 centres of mass: a read-only snapshot. Assigning an (N, 3) "
+        "array teleports every body; `set_state` sets some.",
     )
     orientations = property(
-        lambda s: s._bodies.field("orientation", 4),
-        lambda s, v: s._set_field("orientation", v, 4, "orientations"),
-        doc="(N, 4) float32 unit quaternions (x, y, z, w)",
+        lambda s: s._field("orientations"),
+        lambda s, v: s._set_field("orientations", v),
+        doc="(N, 4) float32 unit quaternions (x, y, z, w): a read-only snapshot; assign "
+        "the whole array or use `set_state`.",
     )
     linear_velocities = property(
-        lambda s: s._bodies.field("linear_velocity", 3),
-        lambda s, v: s._set_field("linear_velocity", v, 3, "linear_velocities"),
+        lambda s: s._field("linear_velocities"),
+        lambda s, v: s._set_field("linear_velocities", v),
+        doc="(N, 3) float32 m/s: a read-only snapshot; assign the whole array (static "
+        "bodies' rows are ignored: they stay at rest) or use `set_state`.",
     )
     angular_velocities = property(
-        lambda s: s._bodies.field("angular_velocity", 3),
-        lambda s, v: s._set_field("angular_velocity", v, 3, "angular_velocities"),
+        lambda s: s._field("angular_velocities"),
+        lambda s, v: s._set_field("angular_velocities", v),
+        doc="(N, 3) float32 rad/s (world frame): a read-only snapshot; assign the whole "
+        "array (static bodies' rows are ignored) or use `set_state`.",
     )
 
     @property
@@ -234,7 +329,7 @@ class World:
         elif plan != self.plan:
             self._pipeline.replan(plan)
         self.plan = plan
-        self._device = self._bodies.upload(self.runtime.queue, STEPS_IN_FLIGHT)
+        self._device = self._bodies.upload(self.runtime.queue, STEPS_IN_FLIGHT, self._device)
         self._packed = self.shapes.pack_all().to_device(self.runtime.queue)
         self._size_pipeline(self._pipeline)
 
@@ -247,13 +342,20 @@ class World:
                 self._bodies, self.settings.gravity, self.settings.contact_margin
             )
         self._guard.attach(pipeline)
+        self._memory.record(self._bodies, self.shapes.type_names(), pipeline)
 
     # ------------------------------------------------------------- stepping
     def step(self, dt: float, substeps: int = 1) -> None:
         """Advance by ``dt`` seconds in ``substeps`` equal steps (no blocking read)."""
-        if not (isinstance(dt, (int, float, np.floating)) and np.isfinite(dt) and dt > 0):
-            raise RbgenError(f"dt must be a positive finite number, got {dt!r}")
-        if not isinstance(substeps, (int, np.integer)) or substeps < 1:
+        if isinstance(dt, (bool, np.bool_)) or not (
+            isinstance(dt, (int, float, np.integer, np.floating)) and np.isfinite(dt) and dt > 0
+        ):
+            raise RbgenError(f"dt must be a positive finite number (seconds), got {dt!r}")
+        if (
+            isinstance(substeps, (bool, np.bool_))
+            or not isinstance(substeps, (int, np.integer))
+            or substeps < 1
+        ):
             raise RbgenError(f"substeps must be a positive integer, got {substeps!r}")
         before = dict(self.runtime.counters)
         bodies = self._bodies
@@ -268,13 +370,13 @@ class World:
         self.steps += 1
         self.last_step_counters = {k: self.runtime.counters[k] - before[k] for k in before}
 
-    def _enqueue_step(self, dt: float) -> None:
+    def _enqueue_step(self, dt: float, tag: int | None = None) -> None:
         self._bodies.host_stale = True
         if self._bodies.count == 0:
             return
         slot = self._guard.next_slot()
         self._steps.enqueue(StepContext(dt, slot, self.settings, self._device, self._packed))
-        self._guard.finish_step(dt, slot)
+        self._guard.finish_step(dt, slot, self.steps if tag is None else tag)
 
     def _finish_pending(self) -> None:
         """Check every enqueued step (waits for their report copies only)."""
@@ -282,9 +384,24 @@ class World:
 
     def _check_in_flight(self, keep: int) -> None:
         try:
-            self._guard.check(keep, self._restore, self._pipeline_rewind, self._enqueue_step)
+            self._guard.check(
+                keep,
+                self._restore,
+                self._pipeline_rewind,
+                self._enqueue_step,
+                self._afford_growth,
+                self._forget_steps,
+            )
         except Replan as replan:
             self._abandon_persistent(replan.args[0])
+
+    def _afford_growth(self, problems: dict) -> None:
+        self._memory.check_growth(self._bodies, self.shapes.type_names(), self._pipeline, problems)
+
+    def _forget_steps(self, tag: int) -> None:
+        """The steps from step number ``tag`` on were undone (a redo could not be made):
+        the bodies are as they were before it, so the count goes back too."""
+        self.steps = min(self.steps, tag)
 
     def _restore(self, slot: int) -> None:
         cl.enqueue_copy(
@@ -314,8 +431,8 @@ class World:
             RuntimeWarning,
             stacklevel=4,
         )
-        for dt in redo:
-            self._enqueue_step(dt)
+        for dt, tag in redo:
+            self._enqueue_step(dt, tag)
 
     def kernel_specs(self) -> list[tuple[KernelSpec, tuple[str, ...]]]:
         """Every kernel specialisation this World has compiled, with its build options,

@@ -101,13 +101,14 @@ def test_shape_classes_are_the_registry_entries_and_bound_their_shapes(rng):
     (rbgen.mesh, rbgen.compound)."""
     from rbgen import Compound, TriangleMesh
 
-    assert shape_types() == (Sphere, Box, Capsule, ConvexHull, Plane, TriangleMesh, Compound)
+    assert set(shape_types()) == {Sphere, Box, Capsule, ConvexHull, Plane, TriangleMesh, Compound}
+    assert len(shape_types()) == 7
     for cls in shape_types():
         assert shape_type(cls.type_name) is cls
         assert layouts.constants()[cls.type_constant] == cls.type_code
         assert cls.type_constant == f"RB_SHAPE_{cls.type_name.upper()}"
         assert cls.aabb_template == f"shapes/{cls.type_name}.cl.mako"
-    assert [c.static_only for c in shape_types()] == [False, False, False, False, True, True, False]
+    assert {c for c in shape_types() if c.static_only} == {Plane, TriangleMesh}
     assert Sphere(0.7).bounding_radius() == 0.7
     assert Capsule(0.3, 1.2).bounding_radius() == pytest.approx(1.5)
     assert Box((1.0, 2.0, 2.0)).bounding_radius() == pytest.approx(3.0)

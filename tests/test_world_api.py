@@ -87,7 +87,7 @@ def test_non_unit_quaternion_is_normalised_with_a_warning(world):
 def test_setters_teleport_and_step_has_no_blocking_read(world, runtime):
     ids = world.add_bodies(BOX, mass=np.array([1.0, 2.0, 3.0]), positions=grid(3) + [0, 2, 0])
     world.step(1 / 60)
-    positions = world.positions
+    positions = world.positions.copy()  # the property is a read-only snapshot
     positions[ids] += [0, 5, 0]
     world.positions = positions
     world.linear_velocities = np.tile([1.0, 0, 0], (world.body_count, 1))

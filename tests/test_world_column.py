@@ -60,7 +60,7 @@ def rock_tipped_column(runtime, batching, steps=300, **settings):
     for _ in range(60):
         world.step(1 / 60)
     spin = np.array([0.06, 0.0, 0.0])  # about the x axis through the base edge z = 0.5
-    angular, linear = world.angular_velocities, world.linear_velocities
+    angular, linear = world.angular_velocities.copy(), world.linear_velocities.copy()
     angular[ids] = spin
     linear[ids] = np.cross(spin, world.positions[ids] - [0.0, 0.0, 0.5])
     world.angular_velocities, world.linear_velocities = angular, linear
