@@ -235,8 +235,9 @@ def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
     heights +-15 cm) rest after 5 s: no NaN, speeds < 5 cm/s, no centre below the terrain
     under it. Spheres and capsules roll without resistance: one that lands on a slope
     rolls on (at most the speed of a fall down the roughness, sqrt(10/7 g 0.3) = 2 m/s),
-    so they are held to that and to staying on the terrain, in a World of their own (on
-    the same terrain: a ball rolling into a resting box would set it moving)."""
+    so they are held to that and to staying on the terrain while over it (one may roll off
+    its edge and fall; at least half stay), in a World of their own (on the same terrain:
+    a ball rolling into a resting box would set it moving)."""
     vertices, triangles = reference.terrain(24, 1.0, rng, roughness=0.05)
     shapes = [
         rbgen.Box((0.3, 0.2, 0.25)),
@@ -263,10 +264,13 @@ def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
         p = world.positions[ids]
         speeds = np.linalg.norm(world.linear_velocities[ids], axis=1)
         assert np.all(np.isfinite(p))
-        assert speeds.max() < limit, (kinds[int(np.argmax(speeds))], speeds.max())
-        cell = np.clip(p[:, [0, 2]].astype(int), 0, 24)
+        # (a ball may roll off the terrain's edge and fall: only those over it count)
+        over = np.all((p[:, [0, 2]] >= 0) & (p[:, [0, 2]] <= 24), axis=1)
+        assert over.sum() >= (len(ids) if not rolls else len(ids) // 2), p[~over]
+        assert speeds[over].max() < limit, (kinds[int(np.argmax(speeds * over))], speeds.max())
+        cell = np.clip(p[over][:, [0, 2]].astype(int), 0, 24)
         ground = vertices[:, 1].reshape(25, 25)[cell[:, 0], cell[:, 1]]
-        assert np.all(p[:, 1] > ground - 0.2)
+        assert np.all(p[over, 1] > ground - 0.2)
 
 
 def test_compounds_against_compounds_planes_and_meshes(runtime):
