@@ -374,6 +374,20 @@ FORCE_LEVER = constant(
 )
 FORCE_MOMENT = constant("RB_FORCE_MOMENT", 4, "external forces: the moment array is given")
 
+BODY_DELTA = declare(
+    "BodyDelta",
+    [
+        ("linear", "float4", "displacement of the centre of mass since the step began; w unused"),
+        (
+            "angular",
+            "float4",
+            "rotation since the step began, as the sum of angular velocity "
+            "times substep (world frame, first order); w unused",
+        ),
+    ],
+    "How far a body moved in the substeps so far: contacts update their separations from it.",
+)
+
 SPLIT_VELOCITY = declare(
     "SplitVelocity",
     [
@@ -419,18 +433,35 @@ CONTACT_CONSTRAINT = declare(
     [
         ("normal", "float4", "unit normal from A to B (world); w: friction coefficient"),
         ("tangent1", "float4", "first friction direction, unit, orthogonal to normal"),
-        ("tangent2", "float4", "second friction direction, normal x tangent1"),
-        ("r_a", "float4", 4, "contact point k relative to A's centre of mass (world)"),
-        ("r_b", "float4", 4, "contact point k relative to B's centre of mass (world)"),
+        (
+            "tangent2",
+            "float4",
+            "second friction direction, normal x tangent1; w: the manifold's restitution",
+        ),
+        (
+            "r_a",
+            "float4",
+            4,
+            "contact point k relative to A's centre of mass (world, fixed over "
+            "the step's substeps); w: its separation at setup (m)",
+        ),
+        (
+            "r_b",
+            "float4",
+            4,
+            "contact point k relative to B's centre of mass (world); w: its "
+            "bounce velocity (m/s, 0 below the restitution threshold)",
+        ),
         ("normal_mass", "float4", "per point: 1 / (J M^-1 J^T) of the normal row"),
         ("tangent1_mass", "float4", "per point: effective mass of the tangent1 row"),
         ("tangent2_mass", "float4", "per point: effective mass of the tangent2 row"),
         (
             "velocity_target",
             "float4",
-            "per point: normal velocity the solver drives to (bounce, bias)",
+            "per point: normal velocity the solver drives to (bounce, "
+            "speculative gap) this substep",
         ),
-        ("position_target", "float4", "per point: split-impulse push velocity target"),
+        ("position_target", "float4", "per point: split-impulse push velocity target this substep"),
         ("normal_impulse", "float4", "per point: accumulated normal impulse (warm started)"),
         ("tangent1_impulse", "float4", "per point: accumulated tangent1 impulse (warm started)"),
         ("tangent2_impulse", "float4", "per point: accumulated tangent2 impulse (warm started)"),

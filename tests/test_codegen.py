@@ -13,8 +13,12 @@ from rbgen.pipeline import integrate
 
 
 def test_rendering_is_pure_and_deterministic():
-    a = integrate.TEMPLATE.spec(work_group_size=64, damping=True, gravity=True, split=False)
-    b = integrate.TEMPLATE.spec(damping=True, gravity=True, work_group_size=64, split=False)
+    a = integrate.TEMPLATE.spec(
+        work_group_size=64, damping=True, gravity=True, split=False, deltas=False
+    )
+    b = integrate.TEMPLATE.spec(
+        damping=True, gravity=True, work_group_size=64, split=False, deltas=False
+    )
     assert a == b and hash(a) == hash(b)
     codegen.render.cache_clear()
     first = a.source
@@ -22,7 +26,7 @@ def test_rendering_is_pure_and_deterministic():
     assert b.source == first
     assert "linear_damping" in first
     plain = integrate.TEMPLATE.spec(
-        work_group_size=64, damping=False, gravity=True, split=False
+        work_group_size=64, damping=False, gravity=True, split=False, deltas=False
     ).source
     assert "damping" not in plain.split("__kernel")[1], "no dead damping code when damping=False"
 
@@ -30,15 +34,15 @@ def test_rendering_is_pure_and_deterministic():
 def test_parameter_errors_name_the_parameter():
     t = integrate.TEMPLATE
     with pytest.raises(
-        TemplateParameterError, match=r"missing parameter\(s\) \['gravity', 'split'\]"
+        TemplateParameterError, match=r"missing parameter\(s\) \['deltas', 'gravity', 'split'\]"
     ):
         t.spec(work_group_size=64, damping=False)
     with pytest.raises(TemplateParameterError, match=r"unknown parameter\(s\) \['colour'\]"):
-        t.spec(work_group_size=64, damping=False, gravity=True, colour=3)
+        t.spec(work_group_size=64, damping=False, gravity=True, deltas=False, colour=3)
     with pytest.raises(TemplateParameterError, match="work_group_size=48 is not allowed"):
-        t.spec(work_group_size=48, damping=False, gravity=True, split=False)
+        t.spec(work_group_size=48, damping=False, gravity=True, split=False, deltas=False)
     with pytest.raises(TemplateParameterError, match="damping=1 is not allowed"):
-        t.spec(work_group_size=64, damping=1, gravity=True, split=False)
+        t.spec(work_group_size=64, damping=1, gravity=True, split=False, deltas=False)
 
 
 def test_strict_undefined_in_templates(tmp_path, monkeypatch):
@@ -71,7 +75,9 @@ def test_build_error_shows_log_and_numbered_lines(runtime, tmp_path):
 
 
 def test_memory_and_disk_cache(runtime, tmp_path):
-    spec = integrate.TEMPLATE.spec(work_group_size=32, damping=True, gravity=False, split=False)
+    spec = integrate.TEMPLATE.spec(
+        work_group_size=32, damping=True, gravity=False, split=False, deltas=False
+    )
     first = ProgramCache(tmp_path)
     t0 = time.perf_counter()
     p1 = first.build(runtime, spec.source, (), spec)
@@ -91,7 +97,9 @@ def test_memory_and_disk_cache(runtime, tmp_path):
 
 
 def test_corrupt_disk_binary_is_rebuilt(runtime, tmp_path):
-    spec = integrate.TEMPLATE.spec(work_group_size=16, damping=False, gravity=True, split=False)
+    spec = integrate.TEMPLATE.spec(
+        work_group_size=16, damping=False, gravity=True, split=False, deltas=False
+    )
     cache = ProgramCache(tmp_path)
     key = cache.key(runtime, spec.source, ())
     (tmp_path / f"{key}.bin").write_bytes(b"not a binary")

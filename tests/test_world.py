@@ -19,6 +19,18 @@ from rbgen.world import World
 DT = 1 / 60
 G = 9.81
 
+#: the contact tests run with one solve a step and with substeps (contacts found once a
+#: step, the solver run on them each substep)
+EFFORTS = {
+    "one_step": {"substeps": 1, "iterations": 10, "position_iterations": 4},
+    "substeps": {"substeps": 4, "iterations": 3, "position_iterations": 1},
+}
+
+
+@pytest.fixture(params=list(EFFORTS))
+def effort(request) -> dict:
+    return EFFORTS[request.param]
+
 
 def ground(world, friction=0.6, restitution=0.0, orientation=(0, 0, 0, 1), position=(0, -1, 0)):
     return world.add_static(
@@ -32,9 +44,9 @@ def ground(world, friction=0.6, restitution=0.0, orientation=(0, 0, 0, 1), posit
 
 @pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_box_resting_on_ground_does_not_drift(runtime, solver, fast_math):
+def test_box_resting_on_ground_does_not_drift(runtime, solver, fast_math, effort):
     """A unit box placed on the ground stays put: drift < 1 mm over 600 steps."""
-    world = World(runtime, solver=solver, fast_math=fast_math)
+    world = World(runtime, solver=solver, fast_math=fast_math, **effort)
     ground(world)
     world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0.3, 0.5, -0.2))
     start = world.positions[1]
@@ -43,10 +55,10 @@ def test_box_resting_on_ground_does_not_drift(runtime, solver, fast_math):
     assert np.linalg.norm(world.positions[1] - start) < 1e-3
 
 
-def _incline(runtime, mu, steps, solver="pgs", fast_math=False):
+def _incline(runtime, mu, steps, solver="pgs", fast_math=False, effort=None):
     theta = np.radians(30)
     q = (0, 0, np.sin(theta / 2), np.cos(theta / 2))  # ramp rising towards -x
-    world = World(runtime, solver=solver, fast_math=fast_math)
+    world = World(runtime, solver=solver, fast_math=fast_math, **(effort or {}))
     ground(world, friction=mu, orientation=q, position=(0, 0, 0))
     normal = np.array([-np.sin(theta), np.cos(theta), 0])
     start = 1.0 * normal + 0.5 * normal  # box centre 0.5 above the slab's top face (half 1)
@@ -59,18 +71,18 @@ def _incline(runtime, mu, steps, solver="pgs", fast_math=False):
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_box_on_incline_sticks_with_high_friction(runtime, solver):
+def test_box_on_incline_sticks_with_high_friction(runtime, solver, effort):
     """30 degree incline, mu = 0.7 > tan 30 = 0.577: the box moves < 1 mm over 300 steps."""
-    positions, _ = _incline(runtime, 0.7, 300, solver)
+    positions, _ = _incline(runtime, 0.7, 300, solver, effort=effort)
     assert np.linalg.norm(positions[-1] - positions[0]) < 1e-3
 
 
 @pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_box_slides_down_incline_with_low_friction(runtime, solver, fast_math):
+def test_box_slides_down_incline_with_low_friction(runtime, solver, fast_math, effort):
     """mu = 0.3: the box slides with a = g (sin 30 - mu cos 30) (within 5%), fitted from
     the distance travelled, s = a t^2 / 2, between steps 60 and 180."""
-    positions, theta = _incline(runtime, 0.3, 180, solver, fast_math)
+    positions, theta = _incline(runtime, 0.3, 180, solver, fast_math, effort)
     down = np.array([-np.cos(theta), -np.sin(theta), 0])
     s = (positions - positions[0]) @ down
     t = np.arange(len(s)) * DT
@@ -99,9 +111,9 @@ def test_projectile(runtime):
 
 @pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_restitution_rebound_height(runtime, solver, fast_math):
+def test_restitution_rebound_height(runtime, solver, fast_math, effort):
     """A box with e = 0.5 dropped from 1 m (bottom face) rebounds to e^2 * 1 m = 0.25 m (5%)."""
-    world = World(runtime, restitution_threshold=0.5, solver=solver, fast_math=fast_math)
+    world = World(runtime, restitution_threshold=0.5, solver=solver, fast_math=fast_math, **effort)
     ground(world, restitution=0.5)
     world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0, 1.5, 0), restitution=0.5)
     heights, bounced = [], False
@@ -116,10 +128,10 @@ def test_restitution_rebound_height(runtime, solver, fast_math):
 
 @pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_two_free_boxes_conserve_momentum(runtime, rng, solver, fast_math):
+def test_two_free_boxes_conserve_momentum(runtime, rng, solver, fast_math, effort):
     """No gravity: two boxes of masses 1 and 3 collide off-centre; linear momentum is
     conserved within 1e-4 relative (before, during and after contact)."""
-    world = World(runtime, gravity=(0, 0, 0), solver=solver, fast_math=fast_math)
+    world = World(runtime, gravity=(0, 0, 0), solver=solver, fast_math=fast_math, **effort)
     box = rbgen.Box((0.5, 0.5, 0.5))
     world.add_body(
         box,

@@ -2,7 +2,8 @@
 
 Given the solver's split-impulse push velocities, the same launch also moves
 the bodies by them and clears them (what the solver's apply_split_velocities
-does in a launch of its own).
+does in a launch of its own). Given a `BodyDelta` array (the substeps of a step),
+it also records how far each body moved since the step began.
 """
 
 from __future__ import annotations
@@ -33,6 +34,12 @@ TEMPLATE = KernelTemplate(
             "also apply (and clear) the split-impulse push velocities, saving the World the "
             "solver's apply_split_velocities launch",
         ),
+        Param(
+            "deltas",
+            (False, True),
+            "also record each body's motion since the step began (substeps: contacts update "
+            "their separations from it)",
+        ),
     ],
     doc="Semi-implicit Euler step of body velocities and transforms.",
     roles={"bodies": "inout"},
@@ -41,6 +48,7 @@ TEMPLATE = KernelTemplate(
         "damping": False,
         "gravity": True,
         "split": False,
+        "deltas": False,
     },
 )
 
@@ -58,8 +66,9 @@ class Integrator:
     """Launches `integrate_bodies` over a device array of `Body` records.
 
     A call given ``split`` (the solver's `SplitVelocity` array) runs the
-    variant that also applies and clears the push velocities (built at its
-    first use).
+    variant that also applies and clears the push velocities, one given ``deltas`` (a
+    `BodyDelta` array) the variant that records the bodies' motion since the step began
+    (each built at its first use).
     """
 
     def __init__(
@@ -77,21 +86,23 @@ class Integrator:
             damping=bool(damping),
             gravity=bool(gravity),
             split=False,
+            deltas=False,
         )
         self.damping, self.gravity = bool(damping), bool(gravity)
         program = compile_spec(runtime, self.spec)
         self.kernel = runtime.bound(program.kernel("integrate_bodies"))
         self.gravity_kernel = None if gravity else runtime.bound(program.kernel("apply_gravity"))
-        self._split_kernel = None
+        self._variants: dict = {(False, False): self.kernel}
 
-    def _kernel_for(self, split: bool):
-        if not split:
-            return self.kernel
-        if self._split_kernel is None:
-            spec = TEMPLATE.spec(**{**self.spec.values, "split": True})
+    def _kernel_for(self, split: bool, deltas: bool):
+        kernel = self._variants.get((split, deltas))
+        if kernel is None:
+            spec = TEMPLATE.spec(**{**self.spec.values, "split": split, "deltas": deltas})
             program = compile_spec(self.runtime, spec)
-            self._split_kernel = self.runtime.bound(program.kernel("integrate_bodies"))
-        return self._split_kernel
+            kernel = self._variants[split, deltas] = self.runtime.bound(
+                program.kernel("integrate_bodies")
+            )
+        return kernel
 
     def apply_gravity(self, bodies, body_count: int, dt: float, gravity=(0.0, -9.81, 0.0)):
         """v += g dt on dynamic bodies (only for an Integrator built with gravity=False)."""
@@ -120,9 +131,12 @@ class Integrator:
         angular_damping: float = 0.0,
         max_angular_step: float = DEFAULT_MAX_ANGULAR_STEP,
         split=None,
+        deltas=None,
+        first_substep: bool = True,
     ):
         """One step of ``body_count`` bodies; ``split``: push velocities to apply and clear
-        (at least ``body_count`` `SplitVelocity` records), or None."""
+        (at least ``body_count`` `SplitVelocity` records), or None; ``deltas``: `BodyDelta`
+        records of the motion since the step began, restarted when ``first_substep``."""
         if not (np.isfinite(dt) and dt > 0):
             raise RbgenError(f"dt must be a positive finite number, got {dt!r}")
         if (linear_damping or angular_damping) and not self.damping:
@@ -151,5 +165,9 @@ class Integrator:
             ]
         if split is not None:
             args.append(split)
+        if deltas is not None:
+            args += [deltas, np.uint32(bool(first_substep))]
         args.append(np.float32(max_angular_step))
-        return self._kernel_for(split is not None).over(body_count, self.work_group_size, *args)
+        return self._kernel_for(split is not None, deltas is not None).over(
+            body_count, self.work_group_size, *args
+        )

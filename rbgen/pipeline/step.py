@@ -1,7 +1,7 @@
 """The step pipeline written as data: the stages of a World step, in order.
 
     prepare -> broadphase -> [midphase] -> narrowphase -> [children] -> constraints
-            -> [batching] -> solve -> integrate
+            -> [batching] -> solve (each substep: sweeps, then integrate)
 
 `StepPipeline.stages` is that list; a step walks it, each stage enqueuing its kernels
 (no blocking read). Every stage owns the buffers it writes (the prepare stage the AABBs,
@@ -11,7 +11,7 @@ the stages before it, which it is given at construction. A stage that can fail a
 the step report (`report_words`, `report`, `problem`) and how to recover (`recover`);
 `rbgen.guard.StepGuard` checks them and redoes the step. A new stage (a midphase
 between the broadphase and the narrowphase, a joint stage beside the constraints) is
-one class here and one entry in `build_stages`.
+one class here and one entry in the list `StepPipeline` assembles.
 """
 
 from __future__ import annotations
@@ -34,12 +34,13 @@ from .broadphase import make_broadphase
 from .broadphase.pairs import PairBuffer
 from .constraints import ContactConstraints
 from .device_barrier import ABANDONED_OFFSET, clear_abandoned
-from .integrate import Integrator
+from .integrate import DEFAULT_MAX_ANGULAR_STEP, Integrator
 from .midphase import STATUS_WORDS, Midphase, needs_midphase
 from .narrowphase import Narrowphase
 from .prepare import BodyPreparation
 from .solvers.jacobi import JacobiSolver
-from .solvers.pgs import PgsSolver
+from .solvers.pgs import PgsSolver, SubstepMotion
+from .solvers.substeps import ContactRefresh
 
 #: manifolds reserved per body before the first overflow (grown on demand)
 MANIFOLDS_PER_BODY = 4
@@ -56,6 +57,11 @@ class StepContext:
     bodies: DeviceBodies
     shapes: PackedShapes
     forces: StepForces | None = None
+
+    @property
+    def h(self) -> float:
+        """A substep: dt / settings.substeps."""
+        return self.dt / self.settings.substeps
 
 
 class Stage:
@@ -129,13 +135,15 @@ class PrepareStage(Stage):
         self.aabbs = cla.empty(self.runtime.queue, max(1, body_count), layouts.AABB.dtype)
 
     def enqueue(self, step: StepContext) -> None:
-        b = step.bodies
+        b, substeps = step.bodies, step.settings.substeps
+        # (the first substep's gravity: g h = (g / substeps) dt)
+        gravity = step.settings.gravity if substeps == 1 else step.settings.gravity / substeps
         self.kernel(
             b.bodies,
             b.inertia,
             b.count,
             step.dt,
-            step.settings.gravity,
+            gravity,
             aabbs=(
                 step.shapes.shapes,
                 step.shapes.vertices,
@@ -415,9 +423,10 @@ class ConstraintStage(Stage):
             b.bodies,
             b.inertia,
             self.capacity,
-            step.dt,
+            step.h,
             warm_start=s.warm_start,
-        )
+            last_substep=s.substeps == 1,
+        )  # (the first substep's targets)
 
 
 class BatchingStage(Stage):
@@ -466,8 +475,11 @@ def slab_axis(positions: np.ndarray, gravity) -> tuple:
 
 
 class SolveStage(Stage):
-    """The contact solver's sweeps (`rbgen.pipeline.solvers`); a persistent launch reports
-    whether its device-wide barrier gave up."""
+    """The contact solver over the step's substeps (`rbgen.pipeline.solvers`): each
+    substep its warm start and sweeps, then the bodies integrated over the substep
+    (damping, the split-impulse push); from the second substep on, gravity first and the
+    contacts' targets refreshed from the bodies' motion (`solvers.substeps`). A persistent
+    launch reports whether its device-wide barrier gave up."""
 
     name = "solve"
 
@@ -499,19 +511,63 @@ class SolveStage(Stage):
                 persistent=plan.persistent,
                 fast_math=plan.fast_math,
             )
+        self.integrator = Integrator(runtime, gravity=False, damping=True)
+        self._refresh: ContactRefresh | None = None  # (made at the first substepped step)
         self.report_words = 1 if self.solver.barrier_state() is not None else 0
 
     def enqueue(self, step: StepContext) -> None:
-        c, b = self.constraints, step.bodies
-        self.solver.solve(
-            c.constraints.constraints,
-            c.constraints.count,
-            c.capacity,
-            b.bodies,
-            b.inertia,
-            b.count,
-            step.settings,
-        )
+        c, b, s = self.constraints, step.bodies, step.settings
+        constraints, count = c.constraints.constraints, c.constraints.count
+        substeps, h = s.substeps, step.h
+        split = self.solver.split_velocities(b.count) if s.position_iterations > 0 else None
+        deltas = None
+        if substeps > 1 or getattr(self.solver, "integrates", False):
+            if self._refresh is None:
+                self._refresh = ContactRefresh(self.runtime)
+            deltas = self._refresh.body_deltas(b.count)
+        if getattr(self.solver, "integrates", False):  # one launch runs every substep
+            assert isinstance(self.solver, PgsSolver)
+            motion = SubstepMotion(
+                substeps,
+                h,
+                s.gravity,
+                (1.0 - s.linear_damping) ** h,
+                (1.0 - s.angular_damping) ** h,
+                DEFAULT_MAX_ANGULAR_STEP / substeps,
+                s.penetration_slop,
+                s.penetration_recovery,
+                deltas,
+            )
+            self.solver.solve(
+                constraints, count, c.capacity, b.bodies, b.inertia, b.count, s, motion=motion
+            )
+            return
+        for k in range(substeps):
+            if k > 0:
+                assert self._refresh is not None
+                self.integrator.apply_gravity(b.bodies, b.count, h, s.gravity)
+                self._refresh(
+                    constraints,
+                    count,
+                    c.capacity,
+                    b.count,
+                    h,
+                    s.penetration_slop,
+                    s.penetration_recovery,
+                    k == substeps - 1,
+                )
+            self.solver.solve(constraints, count, c.capacity, b.bodies, b.inertia, b.count, s)
+            self.integrator(
+                b.bodies,
+                b.count,
+                h,
+                linear_damping=s.linear_damping,
+                angular_damping=s.angular_damping,
+                max_angular_step=DEFAULT_MAX_ANGULAR_STEP / substeps,
+                split=split,
+                deltas=deltas,
+                first_substep=k == 0,
+            )
 
     def report(self, queue, report, offset: int) -> None:
         cl.enqueue_copy(
@@ -542,29 +598,6 @@ class SolveStage(Stage):
 
     def clear_abandoned(self) -> None:
         clear_abandoned(self.runtime, self.solver.barrier_state())
-
-
-class IntegrateStage(Stage):
-    """Positions and orientations from the velocities, with damping and the push
-    velocities of the split impulse (`rbgen.pipeline.integrate`)."""
-
-    name = "integrate"
-
-    def __init__(self, runtime: Runtime, solve: SolveStage):
-        self.integrator = Integrator(runtime, gravity=False, damping=True)
-        self.solve = solve
-
-    def enqueue(self, step: StepContext) -> None:
-        s, b = step.settings, step.bodies
-        split = self.solve.solver.split_velocities(b.count) if s.position_iterations > 0 else None
-        self.integrator(
-            b.bodies,
-            b.count,
-            step.dt,
-            linear_damping=s.linear_damping,
-            angular_damping=s.angular_damping,
-            split=split,
-        )
 
 
 class StepPipeline:
@@ -614,7 +647,6 @@ class StepPipeline:
         rt = self.runtime
         self.batching = BatchingStage(rt, plan, self.constraints) if plan.solver == "pgs" else None
         self.solve = SolveStage(rt, plan, self.constraints, self.batching)
-        self.integrate = IntegrateStage(rt, self.solve)
         self._assemble()
 
     def _assemble(self) -> None:
@@ -629,7 +661,6 @@ class StepPipeline:
                 self.constraints,
                 self.batching,
                 self.solve,
-                self.integrate,
             )
             if s is not None
         ]

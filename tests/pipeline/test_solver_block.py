@@ -153,10 +153,13 @@ def random_face_pairs(
     """``pairs`` pairs of free bodies with full inertia tensors, each in contact through
     ``count`` points of a random tilted face (a rectangle, an edge or a triangle about the
     line of centres, points off the contact plane by a few mm), approaching at 1-2 m/s and
-    turning at up to ``spin`` rad/s, separations uniform in ``separations`` and random
-    restitution, friction 0, solved by a ContactRig of ``variant`` (``batching``: its
-    algorithm, if not the variant's): (rig, manifolds, constraints before solving, bodies
-    before)."""
+    turning at up to ``spin`` rad/s, separations uniform in ``separations`` (a (low, high)
+    range, or a list of ranges taken by the pairs in turn) and random restitution (none for
+    a pair whose points may be apart: a gap crossed within the step lands and bounces, a
+    target that fits no rigid motion of the face), friction 0, solved by a ContactRig of
+    ``variant`` (``batching``: its algorithm, if not the variant's): (rig, manifolds,
+    constraints before solving, bodies before)."""
+    ranges = separations if isinstance(separations, list) else [separations]
     positions, manifolds = [], []
     for i in range(pairs):
         normal = rng.normal(size=3)
@@ -181,15 +184,16 @@ def random_face_pairs(
             + rng.uniform(-0.003, 0.003, (count, 1)) * normal
         )
         positions += [a, b]
+        low, high = ranges[i % len(ranges)]
         manifolds.append(
             make_manifold(
                 2 * i,
                 2 * i + 1,
                 normal,
                 points,
-                rng.uniform(*separations, count),
+                rng.uniform(low, high, count),
                 friction=0.0,
-                restitution=rng.uniform(0.0, 0.8),
+                restitution=rng.uniform(0.0, 0.8) if high <= 0 else 0.0,
             )
         )
     n_bodies = 2 * pairs
@@ -427,9 +431,10 @@ def test_release_sweeps_leave_the_releasing_faces_to_the_rows_until_the_last(
     test_pushing_points_get_the_smallest_exact_impulses: a face resting on a face keeps
     its exact, order-free impulses) and else solves the rows one after another (the
     float64 Gauss-Seidel of three sweeps, the push rows always forwards), which misses the
-    exact solution (checked, so that the first half can fail). Random faces with points
-    1-4 mm apart or 2 mm deep and bodies spinning at up to 3 rad/s give both kinds, and
-    the test needs both. Global batching runs all sweeps in one launch (one work group,
+    exact solution (checked, so that the first half can fail). Random faces, every other
+    one touching at every point (targets -e v_n: one rigid motion) and the others with
+    points 1-4 mm apart or 2 mm deep, and bodies spinning at up to 3 rad/s give both kinds,
+    and the test needs both. Global batching runs all sweeps in one launch (one work group,
     or the persistent launch over every compute unit, whose sweep loop is its own),
     spatial batching one launch per colour and sweep (the pairs sit in different cells
     and slabs)."""
@@ -444,7 +449,7 @@ def test_release_sweeps_leave_the_releasing_faces_to_the_rows_until_the_last(
                 variant,
                 pairs=9,
                 spin=3.0,
-                separations=(-0.002, 0.004),
+                separations=[(-0.002, 0.0), (-0.002, 0.004)],
                 batching=batching,
             )
             assert (len(rig.batcher.launch_plan) > 1) == (batching != "global")

@@ -48,6 +48,8 @@ driver.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pyopencl.array as cl_array
 
@@ -112,8 +114,18 @@ SOLVE_GROUPS = Signature(
         Arg(lambda v: f"{_velocity_space(v)} SplitVelocity*", "split"),
         Arg("volatile __global uint*", "sync", when=_persistent),
         Arg("volatile __global long*", "warm_sums", when=_summed),
-        Arg("const uint", "body_count", when=_summed),
+        Arg("volatile __global BodyDelta*", "deltas", when=_persistent),
+        Arg("const uint", "body_count", when=lambda v: _summed(v) or _persistent(v)),
         Arg("const float", "relaxation"),
+        # a persistent launch runs the step's substeps itself (see the template)
+        Arg("const uint", "substeps", when=_persistent),
+        Arg("const float", "h", when=_persistent),
+        Arg("const float4", "gravity", when=_persistent),
+        Arg("const float", "linear_damping_factor", when=_persistent),
+        Arg("const float", "angular_damping_factor", when=_persistent),
+        Arg("const float", "max_angular_step", when=_persistent),
+        Arg("const float", "penetration_slop", when=_persistent),
+        Arg("const float", "penetration_recovery", when=_persistent),
         Arg("const uint", "group_offset"),
         Arg("const uint", "group_end", when=_serial),
         Arg("const uint", "passes"),
@@ -134,8 +146,17 @@ SOLVE_BUFFERS = (
     "split",
     "sync",
     "warm_sums",
+    "deltas",
     "body_count",
     "relaxation",
+    "substeps",
+    "h",
+    "gravity",
+    "linear_damping_factor",
+    "angular_damping_factor",
+    "max_angular_step",
+    "penetration_slop",
+    "penetration_recovery",
 )
 #: one launch's trailing scalars (bound once per kernel object)
 LAUNCH_SCALARS = (
@@ -202,6 +223,7 @@ TEMPLATE = KernelTemplate(
         "split": "inout",
         "sync": "inout",
         "warm_sums": "inout",
+        "deltas": "inout",
     },
     requires=lambda v: _parameter_rules(v),
     build_options=fast_math_options,
@@ -270,6 +292,37 @@ APPLY_WORK_GROUP_SIZE = 64
 
 #: bit flags of a `solve_groups` launch's ``passes`` argument (as in the template)
 WARM_START_PASS, FIRST_REVERSED = 1, 2
+
+
+@dataclasses.dataclass(frozen=True)
+class SubstepMotion:
+    """What a solver that integrates its substeps needs of the step: the substep count and
+    length, gravity, the damping factors (per substep), the rotation clamp (per substep),
+    the push rule, and the bodies' `BodyDelta` records."""
+
+    substeps: int
+    h: float
+    gravity: np.ndarray
+    linear_damping_factor: float
+    angular_damping_factor: float
+    max_angular_step: float
+    penetration_slop: float
+    penetration_recovery: float
+    deltas: object
+
+    def arguments(self) -> dict:
+        """The kernel arguments by name."""
+        return {
+            "substeps": np.uint32(self.substeps),
+            "h": np.float32(self.h),
+            "gravity": np.array([*self.gravity, 0.0], np.float32),
+            "linear_damping_factor": np.float32(self.linear_damping_factor),
+            "angular_damping_factor": np.float32(self.angular_damping_factor),
+            "max_angular_step": np.float32(self.max_angular_step),
+            "penetration_slop": np.float32(self.penetration_slop),
+            "penetration_recovery": np.float32(self.penetration_recovery),
+            "deltas": self.deltas,
+        }
 
 
 def check_release_sweeps(release_sweeps) -> None:
@@ -345,6 +398,8 @@ class PgsSolver(PushVelocities):
         self.max_batches = values["max_batches"]
         #: per-body fixed-point sums of the summed warm start (zero between solves)
         self._warm_sums: cl_array.Array | None = None
+        #: the deltas a solve without motion binds (never written)
+        self._idle_deltas: cl_array.Array | None = None
         #: the device-wide barrier's words over batches other than global's (which brings its own)
         self._sync = barrier_buffer(runtime) if persistent else None
         self._program = program = compile_spec(runtime, self.spec)
@@ -375,6 +430,12 @@ class PgsSolver(PushVelocities):
         state = getattr(self.batcher, "state", None)  # (a device array has no truth value)
         return self._sync if state is None else state
 
+    @property
+    def integrates(self) -> bool:
+        """Whether a solve runs the step's substeps itself and moves the bodies (a
+        persistent launch): then `solve` takes the step's `SubstepMotion`."""
+        return self.persistent
+
     def solve(
         self,
         constraints,
@@ -384,12 +445,15 @@ class PgsSolver(PushVelocities):
         inertia,
         body_count: int,
         sweeps,
+        motion: SubstepMotion | None = None,
     ) -> None:
         """Warm start (every constraint's old impulses, before any sweep),
         ``sweeps.iterations`` velocity sweeps and ``sweeps.position_iterations``
         split-impulse sweeps over the batches of the batcher's last call, launched as the
         module docstring says. ``body_count``: all bodies, static ones too (indexed as in
-        ``bodies``); the count arguments are the batcher's (unused here)."""
+        ``bodies``); the count arguments are the batcher's (unused here). A solver that
+        `integrates` runs all ``motion.substeps`` substeps and moves the bodies; without
+        ``motion`` it solves once and leaves them where they are."""
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
         check_sweeps(iterations, position_iterations, sweeps.relaxation)
         # (the sequential normal solve has no block to release: its release scalars are unused)
@@ -414,13 +478,30 @@ class PgsSolver(PushVelocities):
             given["sync"] = self.barrier_state()
         if self.spec.values["warm_start_mode"] == "summed":
             given["warm_sums"] = self._warm_sum_buffer(max(1, int(body_count)))
-            given["body_count"] = np.uint32(body_count)
+        given["body_count"] = np.uint32(body_count)
+        if self.persistent:  # (substeps 0 unless it runs the step's substeps)
+            given.update(
+                (
+                    motion
+                    if self.integrates and motion is not None
+                    else self._no_motion(body_count)
+                ).arguments()
+            )
         shared = [given[name] for name in self._buffer_names]
         for kernel in kernels:
             self._bind_buffers(kernel, *shared)
         wg = self.work_group_size
         for kernel, size in launches:
             kernel.launch(size, wg)
+
+    def _no_motion(self, body_count: int) -> SubstepMotion:
+        """A persistent solve's arguments for the warm start and sweeps alone (0 substeps:
+        the caller moves the bodies)."""
+        if self._idle_deltas is None or len(self._idle_deltas) < body_count:
+            self._idle_deltas = cl_array.zeros(
+                self.runtime.queue, max(1, body_count), layouts.BODY_DELTA.dtype
+            )
+        return SubstepMotion(0, 0.0, np.zeros(3), 1.0, 1.0, 0.0, 0.0, 0.0, self._idle_deltas)
 
     def _warm_sum_buffer(self, body_capacity: int):
         """The summed warm start's zeroed per-body sums (the kernel leaves them zero; a
@@ -463,7 +544,8 @@ class PgsSolver(PushVelocities):
                 )
                 for s in range(max(iterations, position_iterations))
             ]
-        passes = [p for p in passes if p[:3] != (0, 0, 0)]
+        if not self.persistent:  # (a persistent launch also moves the bodies: it always runs)
+            passes = [p for p in passes if p[:3] != (0, 0, 0)]
         launches = [self._launch(first, count, *p) for p in passes for first, count in plan]
         kernels = list({id(k): k for k, _ in launches}.values())
         schedule = self._schedules[key] = (launches, kernels)

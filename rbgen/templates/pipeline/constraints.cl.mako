@@ -168,7 +168,8 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
                                const float4 gravity,
                                const float restitution_threshold,
                                const float penetration_slop,
-                               const float penetration_recovery)
+                               const float penetration_recovery,
+                               const uint last_substep)
 {
     /* the narrowphase reports its true count, which may exceed our capacity
      * (the World then grows the buffers and redoes the step) */
@@ -205,7 +206,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     tangent_basis(n, &t1, &t2);
     c.normal = (float4)(n, m->friction);
     c.tangent1 = (float4)(t1, 0.0f);
-    c.tangent2 = (float4)(t2, 0.0f);
+    c.tangent2 = (float4)(t2, m->restitution);
     c.body_a = a;
     c.body_b = b;
     c.sub = sub;
@@ -221,21 +222,26 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
         float3 p = m->points[k].xyz;
         float separation = m->points[k].w;
         float3 ra = p - xa, rb = p - xb;
-        c.r_a[k] = (float4)(ra, 0.0f);
-        c.r_b[k] = (float4)(rb, 0.0f);
 
         /* normal velocity of B relative to A (> 0: separating) */
         float approach = dot3(vb + cross3(wb, rb) - va - cross3(wa, ra), n);
-        /* and before this step's gravity (prepare_bodies added g dt to the dynamic
+        /* and before this (sub)step's gravity (prepare_bodies added g dt to the dynamic
          * bodies): a bounce returns the speed the bodies came in with, not what
          * gravity adds in the step of the impact (Box2D v3 takes its relative
          * velocity before gravity too) */
         float incoming = approach - dot3(fall_b - fall_a, n);
         float bounce = incoming < -restitution_threshold ? -m->restitution * incoming : 0.0f;
+        /* (the separation and the bounce kept for later substeps' targets) */
+        c.r_a[k] = (float4)(ra, separation);
+        c.r_b[k] = (float4)(rb, bounce);
         float target;
         if (separation > 0.0f)
-            /* still apart: close the gap this step, or bounce if it would be crossed */
-            target = (bounce > 0.0f && approach * dt < -separation) ? bounce : -separation / dt;
+            /* still apart: close the gap this (sub)step, no further (the next substep,
+             * touching, bounces); in a step's last substep, bounce if the gap would be
+             * crossed (the step ends at the bounce velocity, from which the next
+             * step's setup measures the approach) */
+            target = (last_substep && bounce > 0.0f && approach * dt < -separation)
+                     ? bounce : -separation / dt;
         else
             target = bounce;
         float push = penetration_recovery / dt * max1(-separation - penetration_slop, 0.0f);

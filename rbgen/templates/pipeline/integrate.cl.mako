@@ -23,40 +23,19 @@
  *   x  += v_push dt,  q += (w_push dt / 2, 0) q (first order), renormalised
  *   (the solver's apply_split_velocities, fused here: one launch less).
 % endif
+% if deltas:
+ *   and, for the substeps of a step, how far the body moved since the step
+ *   began (BodyDelta: restarted by the first substep), from which contacts
+ *   update their separations (solvers/substeps.cl.mako).
+% endif
  */
 ${cl_constants()}
 
-${cl_structs("Body", *(("SplitVelocity",) if split else ()))}
+${cl_structs("Body", *(("SplitVelocity",) if split else ()), *(("BodyDelta",) if deltas else ()))}
 
 <%include file="/common/quaternion.cl.mako"/>
 
-/* Below this angular speed * dt, sin(a/2)/a and cos(a/2) are replaced by their
- * series (the next terms are below float precision). */
-#define SMALL_ROTATION 0.001f
-
-inline float4 quat_normalized(float4 q)
-{
-    return q * (1.0f / sqrt1(dot3(q.xyz, q.xyz) + q.w * q.w));
-}
-
-inline float4 rotate_by_angular_velocity(float4 q, float3 w, float dt, float max_angular_step)
-{
-    float speed = length3(w);
-    if (speed * dt > max_angular_step)
-        w *= max_angular_step / (dt * speed), speed = max_angular_step / dt;
-    float half_angle = 0.5f * speed * dt;
-    float4 dq;
-    if (speed * dt < SMALL_ROTATION) {
-        /* sin(s dt / 2) / s = dt/2 - dt^3 s^2 / 48 + O(s^4); cos(a) = 1 - a^2/2 + O(a^4) */
-        dq.xyz = w * (0.5f * dt - dt * dt * dt * (1.0f / 48.0f) * speed * speed);
-        dq.w = 1.0f - 0.5f * half_angle * half_angle;
-    } else {
-        dq.xyz = w * (sin(half_angle) / speed);
-        dq.w = cos(half_angle);
-    }
-    float4 turned = quat_mul(dq, q);
-    return quat_normalized(turned);
-}
+<%include file="/common/body_motion.cl.mako"/>
 
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void integrate_bodies(__global Body* bodies,
@@ -71,6 +50,10 @@ void integrate_bodies(__global Body* bodies,
 % endif
 % if split:
                       __global SplitVelocity* split,
+% endif
+% if deltas:
+                      __global BodyDelta* deltas,
+                      const uint first_substep,
 % endif
                       const float max_angular_step)
 {
@@ -95,17 +78,29 @@ void integrate_bodies(__global Body* bodies,
     body->angular_velocity.xyz = w;
     body->position.xyz += v * dt;
     body->orientation = rotate_by_angular_velocity(body->orientation, w, dt, max_angular_step);
+% if deltas:
+    float3 moved = v * dt, turned = turn_of(w, dt, max_angular_step);
+% endif
 % if split:
     /* the arithmetic of the solver's apply_split_velocities, term for term (the same
      * roundings: a World steps exactly as with that kernel) */
     float3 push = split[i].linear.xyz, h = 0.5f * dt * split[i].angular.xyz;
     body->position.xyz += push * dt;
-    float4 q = body->orientation;
-    float3 hq = h * q.xyz;
-    float4 dq = (float4)(q.w * h + (h.yzx * q.zxy - h.zxy * q.yzx), -(hq.x + hq.y + hq.z));
-    body->orientation = normalize(q + dq);
+    body->orientation = push_orientation(body->orientation, h);
     split[i].linear = (float4)(0.0f);
     split[i].angular = (float4)(0.0f);
+% if deltas:
+    moved += push * dt, turned += 2.0f * h;
+% endif
+% endif
+% if deltas:
+    if (first_substep) {
+        deltas[i].linear = (float4)(moved, 0.0f);
+        deltas[i].angular = (float4)(turned, 0.0f);
+    } else {
+        deltas[i].linear.xyz += moved;
+        deltas[i].angular.xyz += turned;
+    }
 % endif
 }
 % if not gravity:

@@ -62,6 +62,20 @@
  * touch disjoint velocities and impulses, so sweep s of each sees what it
  * would see alone. Odd sweeps visit a manifold's points backwards.
  *
+ *
+% if persistent:
+ * The launch runs the step's substeps itself (`substeps` of h each; 0: only
+ * the warm start and the sweeps, for callers that move the bodies): between
+ * substeps every body moves over h (the integrator's arithmetic,
+ * common/body_motion.cl.mako: damping, rotation, the push, and the motion
+ * since the step began in `deltas`) and takes gravity, every constraint's
+ * targets follow its bodies' motion (solvers/substeps.cl.mako's rule), then
+ * the warm start and the sweeps run again; after the last substep the bodies
+ * move over its h, so no integrator launch follows. A constraint is refreshed
+ * and summed by the lanes that solve its rows, so that no lane reads a field
+ * another work group wrote through its compute unit's cache.
+ *
+% endif
  * `order` lists constraint-edge items (layouts: ConstraintEdge). A contact's
  * item is its index in `constraints` (the contact kind is 0), and contacts
  * are the only kind this solver visits. The program may be built with
@@ -69,7 +83,8 @@
  */
 ${cl_constants()}
 
-${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity")}
+${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
+             *(("BodyDelta",) if persistent else ()))}
 
 #define MAX_BATCHES ${max_batches}
 /* what one solve_groups launch does before its sweeps (bit flags of `passes`) */
@@ -85,9 +100,12 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity")}
 #define WARM_SUM_ONE 4294967296.0f
 % endif
 
-<%include file="/common/inline_math.cl.mako"/>
 % if persistent:
+<%include file="/common/quaternion.cl.mako"/>
 <%include file="/common/device_barrier.cl.mako"/>
+<%include file="/common/body_motion.cl.mako"/>
+% else:
+<%include file="/common/inline_math.cl.mako"/>
 % endif
 <%include file="/pipeline/solvers/contact_rows.cl.mako" args="constraint_space=constraint_space"/>
 
@@ -317,6 +335,95 @@ inline void solve_batch_persistent(__global ContactConstraint* constraints,
     }
 }
 % endif
+% if persistent:
+<%include file="/pipeline/solvers/contact_targets.cl.mako"/>
+
+/* The lane that solves the push rows of batch order[first .. end - 1] for
+ * lane `lane` (see solve_groups). */
+inline uint push_owner_of(uint first, uint end, uint lane, uint push_lane, uint push_offset)
+{
+    return end - first <= push_offset ? push_lane : lane;
+}
+
+/* Refresh constraint order[i]'s targets: its velocity targets when `velocity`,
+ * its push targets when `push` (the lanes that solve those rows). */
+inline void refresh_item(__global ContactConstraint* constraints, uint item,
+                         volatile __global const BodyDelta* deltas, const float h,
+                         const float penetration_slop, const float penetration_recovery,
+                         const bool velocity, const bool push, const bool last)
+{
+    __global ContactConstraint* c = &constraints[item];
+    uint a = c->body_a, b = c->body_b;
+    float3 moved = deltas[b].linear.xyz - deltas[a].linear.xyz;
+    refresh_targets(c, moved, deltas[a].angular.xyz, deltas[b].angular.xyz, h,
+                    penetration_slop, penetration_recovery, velocity, push, last);
+}
+
+/* Every batch's targets for the next substep, each constraint by the lanes
+ * that solve its rows (its velocity rows' lane and its push rows' lane). */
+inline void refresh_batches(__global ContactConstraint* constraints, __global const uint* order,
+                            __global const uint* offsets, uint batch_count, uint lane,
+                            uint push_lane, uint push_offset,
+                            volatile __global const BodyDelta* deltas, const float h,
+                            const float penetration_slop, const float penetration_recovery,
+                            const bool last)
+{
+    const uint lanes = get_global_size(0);
+    for (uint batch = 0; batch < batch_count; ++batch) {
+        const uint first = offsets[batch], end = offsets[batch + 1];
+        const uint2 share = batch_share(first, end, batch, lane, lanes);
+        for (uint i = share.x; i < end; i += share.y)
+            refresh_item(constraints, order[i], deltas, h, penetration_slop,
+                         penetration_recovery, true, false, last);
+        const uint owner = push_owner_of(first, end, lane, push_lane, push_offset);
+        const uint2 push_share = batch_share(first, end, batch, owner, lanes);
+        for (uint i = push_share.x; i < end; i += push_share.y)
+            refresh_item(constraints, order[i], deltas, h, penetration_slop,
+                         penetration_recovery, false, true, last);
+    }
+}
+
+/* Every lanes-th body from `lane` moves over the substep h that just ended (the
+ * integrator's arithmetic: damping, rotation, the push applied and cleared,
+ * the motion since the step began added to `deltas`, restarted when `first`),
+ * then takes the next substep's gravity g h (`gravity_h`; zero after the last). */
+inline void move_bodies(volatile __global Body* bodies, volatile __global SplitVelocity* split,
+                        volatile __global BodyDelta* deltas, uint body_count, uint lane,
+                        const float h, const float linear_damping_factor,
+                        const float angular_damping_factor, const float max_angular_step,
+                        const bool first, const float3 gravity_h, const bool ok)
+{
+    const uint lanes = get_global_size(0);
+    for (uint i = lane; ok && i < body_count; i += lanes) {
+        if (bodies[i].inv_mass == 0.0f)
+            continue;
+        float3 v = bodies[i].linear_velocity.xyz * linear_damping_factor;
+        float3 w = bodies[i].angular_velocity.xyz * angular_damping_factor;
+        float4 position = bodies[i].position, orientation = bodies[i].orientation;
+        position.xyz += v * h;
+        orientation = rotate_by_angular_velocity(orientation, w, h, max_angular_step);
+        float3 moved = v * h, turned = turn_of(w, h, max_angular_step);
+        float3 push = split[i].linear.xyz, half_turn = 0.5f * h * split[i].angular.xyz;
+        position.xyz += push * h;
+        orientation = push_orientation(orientation, half_turn);
+        moved += push * h, turned += 2.0f * half_turn;
+        split[i].linear = (float4)(0.0f);
+        split[i].angular = (float4)(0.0f);
+        bodies[i].position = position;
+        bodies[i].orientation = orientation;
+        bodies[i].linear_velocity = (float4)(v + gravity_h, 0.0f);
+        bodies[i].angular_velocity = (float4)(w, 0.0f);
+        if (first) {
+            deltas[i].linear = (float4)(moved, 0.0f);
+            deltas[i].angular = (float4)(turned, 0.0f);
+        } else {
+            deltas[i].linear = (float4)(deltas[i].linear.xyz + moved, 0.0f);
+            deltas[i].angular = (float4)(deltas[i].angular.xyz + turned, 0.0f);
+        }
+    }
+}
+
+% endif
 % if summed:
 
 /* Add a velocity change to a body's fixed-point sums (linear, then angular). */
@@ -336,16 +443,20 @@ inline float3 warm_sum_vector(volatile __global const long* sums)
            * (1.0f / WARM_SUM_ONE);
 }
 
-/* Summed warm start, phase 1: the velocity changes of lane `lane`'s share of
- * the constraints order[begin .. end - 1] (every lanes-th one), added to
+/* Summed warm start, phase 1: the velocity changes of the constraints lane
+ * `lane` solves (its share of every batch: it wrote their impulses), added to
  * their dynamic bodies' sums. */
 inline void sum_warm_starts(__global const ContactConstraint* constraints,
-                            __global const uint* order, uint begin, uint end, uint lane,
+                            __global const uint* order, __global const uint* offsets,
+                            uint batch_count, uint lane,
                             volatile __global Body* bodies, __global const BodyInertia* inertia,
                             volatile __global long* warm_sums, const bool ok)
 {
     const uint lanes = get_global_size(0);
-    for (uint i = begin + lane; ok && i < end; i += lanes) {
+    for (uint batch = 0; ok && batch < batch_count; ++batch) {
+      const uint first = offsets[batch], end = offsets[batch + 1];
+      const uint2 share = batch_share(first, end, batch, lane, lanes);
+      for (uint i = share.x; i < end; i += share.y) {
         ContactConstraint c = constraints[order[i]];  /* a private copy */
         uint a = c.body_a, b = c.body_b;
         ContactBodies state;
@@ -356,6 +467,7 @@ inline void sum_warm_starts(__global const ContactConstraint* constraints,
             add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * a, state.va, state.wa);
         if (state.inv_mass_b > 0.0f)
             add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * b, state.vb, state.wb);
+      }
     }
 }
 
@@ -456,42 +568,69 @@ void solve_groups(${signature("solve_groups")})
     const uint push_lane = (lane + push_offset) % get_global_size(0);
     __global const uint* offsets = group_batches + group_offset * (MAX_BATCHES + 1);
     const uint batch_count = group_batch_count[group_offset];
-    if (passes & WARM_START_PASS) {
-% if summed:
-        /* every constraint's impulses summed per body, then every body takes its sum */
-        sum_warm_starts(constraints, order, offsets[0], offsets[batch_count], lane, bodies, inertia,
-                        warm_sums, barrier_ok);
-        device_barrier(sync, &barrier_ok);
-        take_warm_sums(bodies, warm_sums, body_count, lane, barrier_ok);
-        device_barrier(sync, &barrier_ok);
-% else:
-        for (uint step = 0; step < batch_count; ++step) {
-            const uint batch = batch_count - 1 - step;  /* the highest colour first */
-            const uint first = offsets[batch], end = offsets[batch + 1];
-            /* an unused colour (inherited colours can leave gaps), or a launch that
-             * gave up its barrier (no more work) */
-            if (first == end || !barrier_ok)
-                continue;
-            warm_start_batch(constraints, order, first, end, batch, lane, get_global_size(0),
-                             bodies, inertia);
-            device_barrier(sync, &barrier_ok);
-        }
-% endif
-    }
     const uint sweeps = max(velocity_sweeps, position_sweeps);
-    for (uint sweep = 0; sweep < sweeps; ++sweep) {
-        const Sweep s = sweep_of(sweep, passes, velocity_sweeps, position_sweeps,
-                                 velocity_release_from, position_release_from);
-        for (uint step = 0; step < batch_count; ++step) {
-            const uint batch = batch_count - 1 - step;
-            const uint first = offsets[batch], end = offsets[batch + 1];
-            if (first == end || !barrier_ok)  /* (as in the warm start) */
-                continue;
-            solve_batch_persistent(constraints, order, first, end, batch, lane, push_lane,
-                                   push_offset, bodies, inertia, split, relaxation, s);
+    /* (substeps 0: the warm start and sweeps alone, the bodies left where they are) */
+    for (uint substep = 0; substep < max(substeps, 1u); ++substep) {
+        if (substep > 0) {
+            /* the bodies move over the substep that ended and take this one's
+             * gravity; then the constraints' targets follow them */
+            move_bodies(bodies, split, deltas, body_count, lane, h, linear_damping_factor,
+                        angular_damping_factor, max_angular_step, substep == 1,
+                        gravity.xyz * h, barrier_ok);
             device_barrier(sync, &barrier_ok);
+            if (barrier_ok)
+                refresh_batches(constraints, order, offsets, batch_count, lane, push_lane,
+                                push_offset, deltas, h, penetration_slop, penetration_recovery,
+                                substep + 1u == substeps);
+% if not summed:
+            device_barrier(sync, &barrier_ok);
+% endif
+        }
+        if (passes & WARM_START_PASS) {
+% if summed:
+            /* every constraint's impulses summed per body, then every body takes its sum */
+            sum_warm_starts(constraints, order, offsets, batch_count, lane, bodies, inertia,
+                            warm_sums, barrier_ok);
+            device_barrier(sync, &barrier_ok);
+            take_warm_sums(bodies, warm_sums, body_count, lane, barrier_ok);
+            device_barrier(sync, &barrier_ok);
+% else:
+            for (uint step = 0; step < batch_count; ++step) {
+                const uint batch = batch_count - 1 - step;  /* the highest colour first */
+                const uint first = offsets[batch], end = offsets[batch + 1];
+                /* an unused colour (inherited colours can leave gaps), or a launch that
+                 * gave up its barrier (no more work) */
+                if (first == end || !barrier_ok)
+                    continue;
+                warm_start_batch(constraints, order, first, end, batch, lane,
+                                 get_global_size(0), bodies, inertia);
+                device_barrier(sync, &barrier_ok);
+            }
+% endif
+% if summed:
+        } else if (substep > 0) {
+            device_barrier(sync, &barrier_ok);  /* (the refresh before the sweeps) */
+% endif
+        }
+        for (uint sweep = 0; sweep < sweeps; ++sweep) {
+            const Sweep s = sweep_of(sweep, passes, velocity_sweeps, position_sweeps,
+                                     velocity_release_from, position_release_from);
+            for (uint step = 0; step < batch_count; ++step) {
+                const uint batch = batch_count - 1 - step;
+                const uint first = offsets[batch], end = offsets[batch + 1];
+                if (first == end || !barrier_ok)  /* (as in the warm start) */
+                    continue;
+                solve_batch_persistent(constraints, order, first, end, batch, lane, push_lane,
+                                       push_offset, bodies, inertia, split, relaxation, s);
+                device_barrier(sync, &barrier_ok);
+            }
         }
     }
+    /* the last substep's motion: no integrator launch follows */
+    if (substeps > 0)
+        move_bodies(bodies, split, deltas, body_count, lane, h, linear_damping_factor,
+                    angular_damping_factor, max_angular_step, substeps == 1, (float3)(0.0f),
+                    barrier_ok);
     device_barrier_leave(sync);
 % endif
 }
