@@ -109,7 +109,10 @@ def tunnelling(device) -> list[dict]:
 
 
 def export_tree(revision: str, into: Path) -> Path:
-    """``revision``'s rbgen and benchmarks, written under ``into`` (git archive)."""
+    """``revision``'s rbgen and benchmarks, written under ``into`` (git archive); a
+    directory holding them (a machine without the repository's history) is used as it is."""
+    if (Path(revision) / "rbgen").is_dir():
+        return Path(revision).resolve()
     archive = into / "tree.tar"
     with open(archive, "wb") as out:
         subprocess.run(
@@ -188,7 +191,11 @@ def cost(args) -> dict:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="rbgen device choice (index or name)")
-    parser.add_argument("--baseline", default="06bc3af", help="git revision to compare with")
+    parser.add_argument(
+        "--baseline",
+        default="06bc3af",
+        help="git revision (or a directory with its rbgen/ and benchmarks/) to compare with",
+    )
     parser.add_argument("--size", type=int, default=8000, help="BoxBox boxes")
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--warmup", type=int, default=10)

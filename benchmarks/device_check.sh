@@ -14,6 +14,11 @@
 #   mesh    benchmarks/midphase.py and benchmarks/terrain.py
 #   cpp     benchmarks/cpp_host.py: the C++ host beside the Python World, BoxBox 1,000 / 27,000
 #   record  benchmarks/record_overhead.py: a recorded step against a plain one
+#   holds   benchmarks/holds.py: BoxBox lattices at the default and substep candidates (issue 24)
+#   envs    benchmarks/many_envs.py: WorldBatch throughput against N (issue 29)
+#   ccd     benchmarks/continuous.py: the tunnelling table, and BoxBox 8,000 against the tree in
+#           .baseline/ (before continuous collision: `mkdir -p .baseline && git archive main
+#           rbgen benchmarks | tar -x -C .baseline`; carry it)
 # The suite alone takes about 4 minutes; a call is limited to 10, so run `suite` alone and the
 # others together.
 set -uo pipefail
@@ -48,8 +53,16 @@ for stage in "$@"; do
     record)
       run_stage record python3 benchmarks/record_overhead.py --device "$DEVICE" \
         --out "$OUT/record" ;;
+    holds)
+      run_stage holds python3 benchmarks/holds.py --device "$DEVICE" --out "$OUT/holds" ;;
+    envs)
+      run_stage envs python3 benchmarks/many_envs.py --device "$DEVICE" \
+        --envs 1,16,256,1024,4096,16384 --out "$OUT/envs" ;;
+    ccd)
+      run_stage ccd python3 benchmarks/continuous.py --device "$DEVICE" --baseline .baseline \
+        --size 8000 --out "$OUT/ccd" ;;
     *)
-      echo "device_check: unknown stage '$stage' (suite, bench, mesh, cpp, record)" >&2
+      echo "device_check: unknown stage '$stage' (suite, bench, mesh, cpp, record, holds, envs, ccd)" >&2
       exit 2 ;;
   esac
 done
