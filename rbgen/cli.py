@@ -63,14 +63,33 @@ def cmd_export(args) -> int:
     from .export import default_specs, export_kernels, export_world
 
     if args.world:
-        world = _world_for_export(args.world, args.n, args.device)
-        manifest = export_world(world, args.out)
+        world, fresh = _world_for_export(args.world, args.n, args.device)
+        command = " ".join(
+            [
+                "rbgen export --world",
+                args.world,
+                *(["--n", str(args.n)] if args.n else []),
+                *(["--dt", repr(args.dt)] if args.dt != 1 / 60 else []),
+                *(["--grow-rungs", str(args.grow_rungs)] if args.grow_rungs else []),
+                "--out",
+                args.out,
+            ]
+        )
+        manifest = export_world(
+            world,
+            args.out,
+            build=None if args.no_schedule else fresh,
+            dt=args.dt,
+            grow_rungs=args.grow_rungs,
+            command=command,
+        )
         for entry in manifest["files"]:
             names = ", ".join(k["name"] for k in entry["kernels"])
             print(f"  {args.out}/{entry['file']}: {names}")
+        schedule = "" if args.no_schedule else ", schedule.json, data/"
         print(
             f"wrote the {len(manifest['files'])} kernel files this World runs, plan.json, "
-            f"manifest.json and {manifest['header']} to {args.out} (for "
+            f"manifest.json{schedule} and {manifest['header']} to {args.out} (for "
             f"{world.runtime.traits.device_name}; plan: {world.plan.describe()})"
         )
         return 0
@@ -104,7 +123,8 @@ def cmd_export(args) -> int:
 
 def _world_for_export(scene: str, n: int | None, device):
     """The World of a preset scene (``rbgen.harness.SCENES``) or of a Python file whose
-    ``build(device)`` returns one, stepped once so that its kernels are built."""
+    ``build(device)`` returns one, stepped once so that its kernels are built, and a
+    function that makes a fresh one on the same runtime (the schedule's recordings)."""
     from pathlib import Path
 
     from .errors import RbgenError
@@ -113,6 +133,10 @@ def _world_for_export(scene: str, n: int | None, device):
 
     if scene in SCENES:
         world = build_scene(scene, n or 1000, device)[0]
+        runtime = world.runtime
+
+        def fresh():
+            return build_scene(scene, n or 1000, runtime)[0]
     elif scene.endswith(".py") and Path(scene).is_file():
         namespace: dict = {"__name__": "rbgen_export_scene", "__file__": scene}
         exec(compile(Path(scene).read_text(), scene, "exec"), namespace)  # noqa: S102
@@ -128,6 +152,10 @@ def _world_for_export(scene: str, n: int | None, device):
                 f"export --world {scene}: build(device) returned "
                 f"{type(world).__name__}, not an rbgen.World"
             )
+        runtime = world.runtime
+
+        def fresh():
+            return namespace["build"](runtime)
     else:
         raise RbgenError(
             f"export --world: {scene!r} is neither a scene ({', '.join(SCENES)}) "
@@ -135,7 +163,7 @@ def _world_for_export(scene: str, n: int | None, device):
         )
     world.step(1 / 60)
     world.statistics()  # (waits for the step: its kernels are built and run)
-    return world
+    return world, fresh
 
 
 def _parse_value(text: str):
@@ -336,6 +364,24 @@ def main(argv=None) -> int:
         "--kernel", action="append", help="template path or substring (repeatable; default: all)"
     )
     p.add_argument("--param", action="append", help="NAME=VALUE override (repeatable)")
+    p.add_argument(
+        "--dt",
+        type=float,
+        default=1 / 60,
+        help="--world: the step the schedule is recorded at (default 1/60 s)",
+    )
+    p.add_argument(
+        "--grow-rungs",
+        type=int,
+        default=None,
+        help="--world: the schedule covers each capacity up to 2^N times its "
+        "initial value (default 2)",
+    )
+    p.add_argument(
+        "--no-schedule",
+        action="store_true",
+        help="--world: kernels, header and plan only (no schedule.json, data/)",
+    )
     p.set_defaults(func=cmd_export)
 
     args = parser.parse_args(argv)

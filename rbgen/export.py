@@ -12,7 +12,10 @@ its plan, exactly what it compiled):
   roles (input / output / inout / scalar / local) and the recommended local size;
   plus the fingerprint of the device the specialisations were chosen for;
 * ``plan.json`` (a World's export): its `rbgen.plan.Plan`, every choice with its source
-  and reason.
+  and reason;
+* ``schedule.json`` and ``data/`` (a World's export with ``build``): its step as a launch
+  schedule and its buffers' initial contents, which the C++ runtime in ``rbgen/host``
+  replays (`rbgen.schedule`; ``rbgen/host/SCHEDULE.md`` describes the format).
 
 A C++ host reads the manifest, builds the ``.cl`` with ``clBuildProgram`` and
 sets arguments in the listed order using the structs of the header.
@@ -145,15 +148,40 @@ def export_kernels(
     return manifest
 
 
-def export_world(world, out_dir: str | Path) -> dict:
+def export_world(
+    world,
+    out_dir: str | Path,
+    *,
+    build=None,
+    dt: float = 1 / 60,
+    grow_rungs: int | None = None,
+    command: str | None = None,
+) -> dict:
     """Write every kernel specialisation ``world`` compiled, with the build options it used,
     its plan, the header and the manifest (what a C++ host needs to run what the World runs).
-    The World must have stepped once (its kernels are built at its first step)."""
+    The World must have stepped once (its kernels are built at its first step).
+
+    ``build``: a function returning a fresh, unstepped World of the same scene; given, the
+    export also holds the step's launch schedule at ``dt`` (`rbgen.schedule.write`),
+    covering each capacity up to ``2 ** grow_rungs`` times its value in ``world``;
+    ``command`` says how to make it again (a C++ host prints it for another device)."""
     specs = world.kernel_specs()
     if not specs:
         raise RbgenError(
             "export: the World has compiled no kernels yet; step it once first "
             "(kernels are built for its scene at the first step)"
+        )
+    if build is not None:
+        from .schedule import GROW_RUNGS
+        from .schedule.write import write_schedule
+
+        return write_schedule(
+            world,
+            build,
+            out_dir,
+            dt=dt,
+            command=command,
+            grow_rungs=GROW_RUNGS if grow_rungs is None else grow_rungs,
         )
     return export_kernels(specs, out_dir, world.runtime.traits, plan=world.plan)
 

@@ -110,6 +110,13 @@ class StepGuard:
             )
         )
 
+    def drop(self, steps: int) -> None:
+        """Forget the last ``steps`` enqueued steps (they are being redone). Their redo
+        takes their backup slots, so that a step's slot follows its place in the step
+        sequence, as a C++ host replaying `rbgen.schedule` assumes."""
+        del self.in_flight[len(self.in_flight) - steps :]
+        self.serial -= steps
+
     def problems(self, entry: _InFlight) -> dict:
         """The failing stages of a step and what each reported."""
         entry.copied.wait()
@@ -141,7 +148,7 @@ class StepGuard:
             redo = [(e.dt, e.tag) for e in self.in_flight]
             restore(entry.slot)
             rewind(len(redo))
-            self.in_flight = []
+            self.drop(len(redo))
             solve = self.pipeline.solve
             if solve in problems:
                 solve.clear_abandoned()

@@ -29,7 +29,9 @@ an overflow (the World redoes up to two) still finds the generation it
 warm-started from. The setup kernel also clears the table of the generation
 after its own (the oldest, which no redo needs), so that a step has no clearing
 launch of its own: a generation's table is empty whenever a call starts writing
-it (fresh, cleared by the call before, or cleared by `undo`).
+it (fresh, cleared by the call before, or cleared by `undo`). The first call makes all four
+generations (empty), so that every call, a redone one too, enqueues the same commands
+for its place in the ring (what `rbgen.schedule` records for a C++ host).
 """
 
 from __future__ import annotations
@@ -137,6 +139,11 @@ class ContactConstraints:
         self._current = GENERATIONS - 1
 
     @property
+    def generations(self) -> tuple:
+        """The ring's generations (None before the first call), for their capacities."""
+        return tuple(self._generations)
+
+    @property
     def constraints(self):
         """Device array of this step's constraints (valid after a call)."""
         return self._generations[self._current].constraints
@@ -198,8 +205,10 @@ class ContactConstraints:
         queue, wg = self.runtime.queue, self.work_group_size
         previous = self._generations[self._current]
         first = self.first_contact_edge
-        if previous is None:
-            previous = self._generations[self._current] = _Buffers(queue, 0, first)
+        if previous is None:  # the first call makes the whole ring, every generation empty
+            whole = [_Buffers(queue, capacity, first) for _ in range(GENERATIONS)]
+            self._generations = list(whole)
+            previous = whole[self._current]
         self._current = (self._current + 1) % GENERATIONS
         gen = self._generations[self._current]
         if gen is None or gen.capacity < capacity or gen.first_contact_edge != first:

@@ -22,7 +22,8 @@ into its compound and names the child in the manifold's sub-feature
 (`layouts.SUB_CHILD_SHIFT`), so warm starting keys each child and triangle apart.
 
 Counts stay on the device. An expansion's output buffer has a capacity; when more pairs
-exist its status word receives the size needed (nothing is written past the capacity),
+exist its status word receives the size needed (nothing is written past the capacity, and
+its count is then the capacity: the pairs stored, as the broadphase's count is),
 the World's step guard sees it in the step report, grows the buffer (`grow`) and redoes
 the step: no candidate is ever dropped. `find_pairs` does the same synchronously.
 
@@ -63,7 +64,7 @@ _PAIR_OUTPUT = (
     Arg("__global const uint*", "offsets"),
     Arg("__global Pair*", "out_pairs"),
     Arg("const uint", "out_capacity"),
-    Arg("__global const uint*", "out_count"),
+    Arg("__global uint*", "out_count"),  # (clamped to the capacity by the writer)
     Arg("__global uint*", "status"),
     Arg("const uint", "status_word"),
 )

@@ -30,10 +30,11 @@ from ..settings import Settings
 from ..shapes import PackedShapes
 from .batching import make_batcher
 from .broadphase import make_broadphase
+from .broadphase.pairs import PairBuffer
 from .constraints import ContactConstraints
 from .device_barrier import ABANDONED_OFFSET, clear_abandoned
 from .integrate import DEFAULT_MAX_ANGULAR_STEP, Integrator
-from .midphase import Midphase, needs_midphase
+from .midphase import STATUS_WORDS, Midphase, needs_midphase
 from .narrowphase import Narrowphase
 from .prepare import BodyPreparation
 from .solvers.jacobi import JacobiSolver
@@ -90,6 +91,24 @@ class Stage:
 
     def recover(self, problem) -> None:
         """Make the redo succeed (grow a buffer); the queue is drained."""
+
+    # (for hosts that replay the step without Python: `rbgen.schedule` records these)
+    def capacities(self) -> dict[str, int]:
+        """This stage's buffer capacities by name: those it grows on overflow (named in
+        `report_protocol`) and those that follow one of them lazily."""
+        return {}
+
+    def set_capacity(self, name: str, value: int) -> None:
+        """Set the capacity ``name`` to exactly ``value``, reallocating its buffers (between
+        steps; a schedule is recorded at chosen capacities)."""
+        raise KeyError(name)
+
+    def report_protocol(self) -> dict:
+        """What this stage's report words mean, as data: ``{"capacities": {name: word}}``
+        (the word holds what that capacity must hold: more than it overflowed) and
+        ``{"fatal": [{"word", "ok", "message"}]}`` (a word other than ``ok`` stops a host
+        that cannot do what `recover` does)."""
+        return {}
 
 
 class PrepareStage(Stage):
@@ -178,6 +197,36 @@ class BroadphaseStage(Stage):
         assert self.broadphase.buffer is not None
         self.broadphase.buffer.grow_for(pairs_found)
 
+    def capacities(self) -> dict[str, int]:
+        return {"pairs": self.broadphase.capacity}
+
+    def set_capacity(self, name: str, value: int) -> None:
+        assert name == "pairs"
+        if self.broadphase.buffer is None:  # (before the first query)
+            self.broadphase.buffer = PairBuffer(self.runtime, int(value))
+        else:
+            self.broadphase.buffer.allocate(int(value))
+
+    def report_protocol(self) -> dict:
+        word = layouts.BROADPHASE_STATUS.offset
+        fatal = [
+            {
+                "word": word("bad_body") // 4,
+                "ok": layouts.BP_NO_BODY,
+                "message": "a body's bounding box is NaN or inverted (a NaN state)",
+            }
+        ]
+        if "retry" in [f.name for f in layouts.BROADPHASE_STATUS.fields]:
+            fatal.append(
+                {
+                    "word": word("retry") // 4,
+                    "ok": 0,
+                    "message": "the broadphase must be redone another way (its host "
+                    "side changes its plan)",
+                }
+            )
+        return {"capacities": {"pairs": word("pairs_found") // 4}, "fatal": fatal}
+
 
 class MidphaseStage(Stage):
     """Sub-feature pairs of the pairs with a compound or a triangle mesh: compound children
@@ -221,6 +270,33 @@ class MidphaseStage(Stage):
 
     def recover(self, needed) -> None:
         self.midphase.grow(needed)
+
+    def _expansion_names(self) -> list[str]:
+        """The expansions of this world (the triangles' is made at the first step)."""
+        m = self.midphase
+        return [
+            n for n, has in (("children", m.has_children), ("triangles", m.has_triangles)) if has
+        ]
+
+    def capacities(self) -> dict[str, int]:
+        return {f"midphase.{e.name}": e.capacity for e in self.midphase.expansions()}
+
+    def set_capacity(self, name: str, value: int) -> None:
+        made = {f"midphase.{e.name}": e for e in self.midphase.expansions()}
+        if name in made:
+            made[name].capacity = 0  # (exactly: grow never shrinks)
+            made[name].grow(value)
+        elif name in (f"midphase.{n}" for n in self._expansion_names()):
+            self.midphase.capacity = int(value)  # (the first capacity of one not made yet)
+        else:
+            raise KeyError(name)
+
+    def report_protocol(self) -> dict:
+        return {
+            "capacities": {
+                f"midphase.{name}": STATUS_WORDS[name] for name in self._expansion_names()
+            }
+        }
 
 
 class NarrowphaseStage(Stage):
@@ -285,6 +361,17 @@ class NarrowphaseStage(Stage):
     def recover(self, needed) -> None:
         self.ensure(int(needed * 1.25) + 16)
 
+    def capacities(self) -> dict[str, int]:
+        return {"manifolds": self.capacity}
+
+    def set_capacity(self, name: str, value: int) -> None:
+        assert name == "manifolds"
+        self.capacity = 0  # (exactly: ensure never shrinks)
+        self.ensure(value)
+
+    def report_protocol(self) -> dict:
+        return {"capacities": {"manifolds": 0}}
+
 
 class ChildrenStage(Stage):
     """Manifolds of compound children back on their compounds, the child named in the
@@ -311,6 +398,14 @@ class ConstraintStage(Stage):
     @property
     def capacity(self) -> int:
         return self.narrowphase.capacity
+
+    def capacities(self) -> dict[str, int]:
+        # each generation of the ring follows the manifold capacity when it is next written
+        return {
+            f"constraints.{k}": g.capacity
+            for k, g in enumerate(self.constraints.generations)
+            if g is not None
+        }
 
     def enqueue(self, step: StepContext) -> None:
         c, s, b = self.constraints, step.settings, step.bodies
@@ -479,6 +574,20 @@ class SolveStage(Stage):
 
     def problem(self, words):
         return bool(words[0]) or None
+
+    def report_protocol(self) -> dict:
+        return {
+            "fatal": [
+                {
+                    "word": 0,
+                    "ok": 0,
+                    "message": "a persistent launch gave up at its device-wide barrier "
+                    "(its work groups did not all run at once); export a "
+                    "World without persistent launches for this device "
+                    "(batching='cells' or 'slabs')",
+                }
+            ]
+        }
 
     def clear_abandoned(self) -> None:
         clear_abandoned(self.runtime, self.solver.barrier_state())

@@ -97,7 +97,9 @@ def test_triangle_candidates_equal_brute_force(runtime, rng, params, count):
 
 def test_device_counts_and_no_blocking_read(runtime, rng):
     """`enqueue` reads nothing back: counts stay on the device, the status word says
-    what an overflowed output needs, and growing it makes the redo complete."""
+    what an overflowed output needs, the count is then the pairs stored (the capacity: a
+    count past it had the narrowphase's kernels write past their buffers), and growing it
+    makes the redo complete."""
     mesh, table, host, packed, bodies, aabbs = mesh_scene(runtime, rng, 200)
     pairs = mesh_pairs(rng, 200, with_others=False)
     d_pairs = cla.to_device(runtime.queue, pairs)
@@ -109,6 +111,8 @@ def test_device_counts_and_no_blocking_read(runtime, rng):
     expected = reference.brute_force(mesh, host, aabbs.get(), pairs)
     status = midphase.status.get()
     assert midphase.problem(status) == {"triangles": len(expected)}
+    assert int(midphase.count.get()[0]) == 8
+    np.testing.assert_array_equal(midphase.pairs.get()[:8], expected[:8])
     midphase.grow(midphase.problem(status))
     midphase.enqueue(bodies, len(host), packed, aabbs, d_pairs, count)
     assert midphase.problem(midphase.status.get()) is None

@@ -109,8 +109,14 @@ __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void write_child_pairs(${signature("write_child_pairs")})
 {
     uint i = get_global_id(0);
-    if (i == 0)  /* the capacity needed, 0 when everything fits */
-        status[status_word] = out_count[0] > out_capacity ? out_count[0] : 0u;
+    if (i == 0) {  /* the capacity needed (0 when everything fits); then the count of the
+                    * pairs stored, so that no later kernel reads or writes past the capacity
+                    * (this kernel's other work-items do not read it) */
+        uint found = out_count[0];
+        status[status_word] = found > out_capacity ? found : 0u;
+        if (found > out_capacity)
+            out_count[0] = out_capacity;
+    }
     if (i >= min(pair_count[0], pair_capacity))
         return;
     Pair pair = pairs[i];

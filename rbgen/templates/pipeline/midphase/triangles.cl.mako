@@ -150,8 +150,14 @@ __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void write_triangle_pairs(${signature("write_triangle_pairs")})
 {
 ${pair_prologue()}
-    if (i == 0)  /* the capacity needed, 0 when everything fits */
-        status[status_word] = out_count[0] > out_capacity ? out_count[0] : 0u;
+    if (i == 0) {  /* the capacity needed (0 when everything fits); then the count of the
+                    * pairs stored, so that no later kernel reads or writes past the capacity
+                    * (this kernel's other work-items do not read it) */
+        uint found = out_count[0];
+        status[status_word] = found > out_capacity ? found : 0u;
+        if (found > out_capacity)
+            out_count[0] = out_capacity;
+    }
     uint place = i < n ? offsets[i] : 0u;
     if (copied && place < out_capacity)
         out_pairs[place] = pair;
