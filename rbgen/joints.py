@@ -389,6 +389,46 @@ def pack_joints(
     return out
 
 
+def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    qv, qw = q[:, :3], q[:, 3:]
+    t = 2.0 * np.cross(qv, v)
+    return v + qw * t + np.cross(qv, t)
+
+
+def joint_reactions(
+    records: np.ndarray, positions: np.ndarray, orientations: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(linear, angular) impulse of each joint record on its body b in the last substep,
+    world frame: the blocks' totals plus the axial rows' scalars along the axial direction
+    of the bodies' poses now (as the solver's warm start applies them)."""
+    records = records.astype(records.dtype)
+    a, b = records["body_a"].astype(np.int64), records["body_b"].astype(np.int64)
+    world = (records["flags"] & layouts.JOINT_WORLD) != 0
+    qa = orientations[a].astype(float)
+    qb = np.where(world[:, None], [0.0, 0.0, 0.0, 1.0], orientations[b].astype(float))
+    xb = np.where(world[:, None], 0.0, positions[b].astype(float))
+    pa = positions[a].astype(float) + _rotate(qa, records["anchor_a"][:, :3].astype(float))
+    pb = xb + _rotate(qb, records["anchor_b"][:, :3].astype(float))
+    axis = _rotate(qa, records["axis_a"][:, :3].astype(float))
+    separation = pb - pa
+    length = np.linalg.norm(separation, axis=1)
+    kind = records["kind"]
+    along = -axis
+    distance = (kind == layouts.JOINT_DISTANCE) & (length > 1e-6)
+    along[distance] = separation[distance] / length[distance, None]
+    along[(kind == layouts.JOINT_DISTANCE) & ~distance] = axis[
+        (kind == layouts.JOINT_DISTANCE) & ~distance
+    ]
+    axial = records["axial_impulse"].astype(float)
+    linear = records["linear_impulse"][:, :3].astype(float)
+    angular = records["angular_impulse"][:, :3].astype(float)
+    hinge = kind == layouts.JOINT_HINGE
+    straight = (kind == layouts.JOINT_SLIDER) | (kind == layouts.JOINT_DISTANCE)
+    angular[hinge] += along[hinge] * (axial[hinge, 0] - axial[hinge, 1] + axial[hinge, 2])[:, None]
+    linear[straight] += along[straight] * (axial[straight, 0] - axial[straight, 1])[:, None]
+    return linear, angular
+
+
 class JointStore:
     """The World's joints: host records and their device array (see the module
     docstring). ``version`` counts changes of the joint list (the step's edges inherit

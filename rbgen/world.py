@@ -28,7 +28,7 @@ from .codegen import KernelSpec, SpecLog
 from .device import Runtime, coerce_runtime
 from .errors import RbgenError
 from .guard import STEPS_IN_FLIGHT, Replan, StepGuard
-from .joints import JointStore, joint_fields, pack_joints
+from .joints import JointStore, joint_fields, joint_reactions, pack_joints
 from .memory import WorldMemory
 from .pipeline.step import StepContext, StepPipeline
 from .plan import Plan, derive_plan
@@ -274,15 +274,18 @@ class World:
     @property
     def joint_impulses(self) -> np.ndarray:
         """(J, 6) float32: the reaction of each joint on body b over the last step, world
-        frame: linear impulse (N s) then angular impulse (N m s, about b's anchor); the
-        last substep's impulses times the substeps. A blocking read."""
+        frame: linear impulse (N s) then angular impulse (N m s); the last substep's
+        impulses times the substeps (a broken joint's are zero). Blocking reads."""
         self._finish_pending()
         self._joints.sync_to_host()
-        host, scale = self._joints.host, float(self.settings.substeps)
+        self._bodies.sync_to_host()
+        host = self._joints.host
+        linear, angular = joint_reactions(
+            host, self._bodies.host["position"][:, :3], self._bodies.host["orientation"]
+        )
         out = np.zeros((len(host), 6), np.float32)
-        out[:, :3] = host["linear_impulse"][:, :3] * scale
-        out[:, 3:] = host["angular_impulse"][:, :3] * scale
-        return out
+        out[:, :3], out[:, 3:] = linear, angular
+        return out * np.float32(self.settings.substeps)
 
     @property
     def joints_broken(self) -> np.ndarray:

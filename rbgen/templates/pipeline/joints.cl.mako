@@ -28,8 +28,14 @@ void prepare_joints(__global JointConstraint* joints,
         return;
     __global JointConstraint* j = &joints[i];
     uint flags = j->flags;
-    /* the last substep's impulse, times the substeps: the reaction over a step */
-    if (!(flags & RB_JOINT_BROKEN) && length(j->linear_impulse.xyz) * substeps > j->motor.z) {
+    /* the last substep's linear impulse (the block's and, across it, a slider's or
+     * distance joint's axial rows'), times the substeps: the reaction over a step */
+    float axial = 0.0f;
+    if (j->kind == RB_JOINT_SLIDER || j->kind == RB_JOINT_DISTANCE)
+        axial = j->axial_impulse.x - j->axial_impulse.y;
+    float3 block = j->linear_impulse.xyz;
+    float reaction = sqrt(dot(block, block) + axial * axial) * substeps;
+    if (!(flags & RB_JOINT_BROKEN) && reaction > j->motor.z) {
         flags |= RB_JOINT_BROKEN;
         j->flags = flags;
         j->linear_impulse = j->angular_impulse = j->axial_impulse = (float4)(0.0f);

@@ -30,9 +30,15 @@
  * by a gap lets the bodies approach by gap / h within the substep. Push rows
  * keep no accumulated impulse (each sweep's change is clamped alone).
  *
- * Accumulated impulses (for the warm start and world.joint_impulses) are kept
- * as world totals on B: the linear impulse at the lever arms ra, rb and the
- * angular impulse, so that the warm start is one application of both. */
+ * The axial rows (motor, limits, a distance's rows) measure A relative to B:
+ * the hinge angle A turned about the axis since creation, the slider offset of
+ * A's anchor from B's along the axis, the distance between the anchors.
+ *
+ * Accumulated impulses (for the warm start and world.joint_impulses): the
+ * unclamped blocks' as world totals on B (linear, at the lever arms ra, rb, and
+ * angular), the axial rows' as scalars (lower limit, upper limit, motor) along
+ * the axis of the moment, so that a clamped row's old impulse never acts
+ * across its turned direction. */
 
 /* A joint's geometry this substep: lever arms of its linear rows (A's anchor,
  * or B's for a slider, relative to A's centre; B's anchor relative to B's), the
@@ -158,11 +164,28 @@ inline float3 solve_joint_block(const Row rows[3], float3 target, __private Cont
     return change;
 }
 
-/* The warm start of a joint: its accumulated totals applied to *p. */
+/* The direction of a joint's axial rows on B (A relative to B: minus A's
+ * axis; a distance joint's: along the anchors' separation). */
+inline float3 joint_axial_direction(__global const JointConstraint* j, const JointFrame* f)
+{
+    float3 axis = quat_rotate(f->qa, j->axis_a.xyz);
+    if (j->kind != RB_JOINT_DISTANCE)
+        return -axis;
+    float length = length3(f->separation);
+    return length > 1e-6f ? f->separation * (1.0f / length) : axis;
+}
+
+/* The warm start of a joint: its accumulated impulses applied to *p. */
 inline void warm_start_joint_rows(__global const JointConstraint* j, const JointFrame* f,
                                   __private ContactBodies* p)
 {
     float3 impulse = j->linear_impulse.xyz, angular = j->angular_impulse.xyz;
+    float3 along = joint_axial_direction(j, f);
+    float4 axial = j->axial_impulse;
+    if (j->kind == RB_JOINT_HINGE)
+        angular += along * (axial.x - axial.y + axial.z);
+    else if (j->kind == RB_JOINT_SLIDER || j->kind == RB_JOINT_DISTANCE)
+        impulse += along * (axial.x - axial.y);
     p->va -= impulse * p->inv_mass_a;
     p->wa -= mul_rows(p->inv_inertia_a, cross3(f->ra, impulse) + angular);
     p->vb += impulse * p->inv_mass_b;
@@ -185,23 +208,21 @@ void solve_joint_rows(__global JointConstraint* j, const JointFrame* f,
     float lower = axial.x, upper = axial.y, motor = axial.z;
     const float3 axis = quat_rotate(f->qa, j->axis_a.xyz);
     const float4 d = joint_deviation(j, f);
+    /* the axial rows' direction on B (A relative to B) */
+    const float3 along = -axis;
 
     if (kind == RB_JOINT_HINGE && (flags & RB_JOINT_MOTOR) && !push) {
-        Row row = twist_row(axis, p);
+        Row row = twist_row(along, p);
         float most = j->motor.y / inv_h;
-        angular += axis * solve_joint_row(&row, j->motor.x, &motor, -most, most, p);
+        solve_joint_row(&row, j->motor.x, &motor, -most, most, p);
     }
     if ((flags & RB_JOINT_LIMITS) && (kind == RB_JOINT_HINGE || kind == RB_JOINT_SLIDER)) {
         const bool hinge = kind == RB_JOINT_HINGE;
-        float position = hinge ? twist_angle(d, j->axis_a.xyz) : dot3(f->separation, axis);
-        Row row = hinge ? twist_row(axis, p) : point_row(axis, f->ra, f->rb, p);
+        float position = hinge ? -twist_angle(d, j->axis_a.xyz) : dot3(f->separation, along);
+        Row row = hinge ? twist_row(along, p) : point_row(along, f->ra, f->rb, p);
         Row back = reversed_row(row);
-        float net = solve_limit_row(&row, position - j->axis_a.w, inv_h, bias, push, &lower, p);
-        net -= solve_limit_row(&back, j->axis_b.w - position, inv_h, bias, push, &upper, p);
-        if (hinge)
-            angular += axis * net;
-        else
-            linear += axis * net;
+        solve_limit_row(&row, position - j->axis_a.w, inv_h, bias, push, &lower, p);
+        solve_limit_row(&back, j->axis_b.w - position, inv_h, bias, push, &upper, p);
     }
 
     if (kind == RB_JOINT_FIXED || kind == RB_JOINT_SLIDER) {
@@ -237,16 +258,13 @@ void solve_joint_rows(__global JointConstraint* j, const JointFrame* f,
         float3 n = length > 1e-6f ? f->separation * (1.0f / length) : axis;
         float shortest = j->anchor_a.w, longest = j->anchor_b.w;
         Row row = point_row(n, f->ra, f->rb, p);
-        float net;
         if (longest - shortest <= 1e-6f) {  /* a rod: one two-sided row */
-            net = solve_joint_row(&row, -bias * (length - shortest), &lower, -FLT_MAX,
-                                  FLT_MAX, p);
+            solve_joint_row(&row, -bias * (length - shortest), &lower, -FLT_MAX, FLT_MAX, p);
         } else {
             Row back = reversed_row(row);
-            net = solve_limit_row(&row, length - shortest, inv_h, bias, push, &lower, p);
-            net -= solve_limit_row(&back, longest - length, inv_h, bias, push, &upper, p);
+            solve_limit_row(&row, length - shortest, inv_h, bias, push, &lower, p);
+            solve_limit_row(&back, longest - length, inv_h, bias, push, &upper, p);
         }
-        linear += n * net;
     }
     if (!push) {
         j->linear_impulse = (float4)(j->linear_impulse.xyz + linear, 0.0f);

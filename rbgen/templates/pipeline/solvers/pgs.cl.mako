@@ -587,9 +587,8 @@ inline void sum_warm_starts(__global const ContactConstraint* constraints,
       const uint first = offsets[batch], end = offsets[batch + 1];
       const uint2 share = batch_share(first, end, batch, lane, lanes);
       for (uint i = share.x; i < end; i += share.y) {
-        ContactConstraint c = constraints[order[i]];  /* a private copy */
-        uint a = c.body_a, b = c.body_b;
         ContactBodies state;
+        uint a, b;
 % if joints:
         if (is_joint(order[i])) {
             __global const JointConstraint* j = &joints[order[i] & RB_EDGE_INDEX_MASK];
@@ -600,16 +599,15 @@ inline void sum_warm_starts(__global const ContactConstraint* constraints,
             load_joint(j, bodies, inertia, &state, &f);
             state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
             warm_start_joint_rows(j, &f, &state);
-        } else {
+        } else
+% endif
+        {
+            ContactConstraint c = constraints[order[i]];  /* a private copy */
+            a = c.body_a, b = c.body_b;
             load_bodies(&state, bodies, inertia, a, b);
             state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
             warm_start_contact(&c, &state);
         }
-% else:
-        load_bodies(&state, bodies, inertia, a, b);
-        state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
-        warm_start_contact(&c, &state);
-% endif
         if (state.inv_mass_a > 0.0f)
             add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * a, state.va, state.wa);
         if (state.inv_mass_b > 0.0f)
