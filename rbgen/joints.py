@@ -8,7 +8,9 @@ them in each body's frame (``b=None``: the world, where they stay in world coord
 Kinds (every one takes ``break_impulse``: None, or the reaction impulse over one step,
 N s, above which the joint breaks and acts no more):
 
-* ``BallJoint(a, b, anchor)``: the anchor points of both bodies coincide;
+* ``BallJoint(a, b, anchor, friction=None)``: the anchor points of both bodies coincide;
+  ``friction`` (N m): the largest torque that resists the relative rotation (a
+  ragdoll's joints settle with it);
 * ``FixedJoint(a, b, anchor=None)``: the relative pose stays that of creation (anchor:
   where the point rows act; None: B's centre, A's when B is the world);
 * ``HingeJoint(a, b, anchor, axis, limits=None, motor=None)``: rotation about the axis
@@ -42,11 +44,13 @@ UNBREAKABLE = float(np.finfo(np.float32).max)
 
 @dataclasses.dataclass(frozen=True)
 class BallJoint:
-    """The anchor (world point at creation) of both bodies stays one point."""
+    """The anchor (world point at creation) of both bodies stays one point; ``friction``
+    (N m, None: none) resists the relative rotation up to that torque."""
 
     a: int
     b: int | None
     anchor: tuple = (0.0, 0.0, 0.0)
+    friction: float | None = None
     break_impulse: float | None = None
 
 
@@ -111,7 +115,7 @@ KINDS = {
 }
 #: the per-joint fields each kind takes besides a, b and break_impulse
 FIELDS = {
-    BallJoint: ("anchor",),
+    BallJoint: ("anchor", "friction"),
     FixedJoint: ("anchor",),
     HingeJoint: ("anchor", "axis", "limits", "motor"),
     SliderJoint: ("anchor", "axis", "limits"),
@@ -376,6 +380,15 @@ def pack_joints(
             flags = flags | np.where(present, layouts.JOINT_MOTOR, 0)
             out["motor"][:, 0] = motor[:, 0]
             out["motor"][:, 1] = motor[:, 1]
+    if kind is BallJoint:
+        friction = rows.scalars(fields.get("friction"), "friction")
+        bad = friction < 0
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            raise RbgenError(f"{rows.name(i)}: friction must be >= 0 (N m), got {friction[i]}")
+        present = ~np.isnan(friction)
+        flags = flags | np.where(present, layouts.JOINT_MOTOR, 0)
+        out["motor"][:, 1] = np.where(present, friction, 0.0)
     out["anchor_a"][:, :3] = _to_local(qa, pa - xa)
     out["anchor_b"][:, :3] = _to_local(qb, pb - xb)
     out["axis_a"][:, :3] = _to_local(qa, axis_world)
@@ -423,6 +436,8 @@ def joint_reactions(
     linear = records["linear_impulse"][:, :3].astype(float)
     angular = records["angular_impulse"][:, :3].astype(float)
     hinge = kind == layouts.JOINT_HINGE
+    ball = kind == layouts.JOINT_BALL
+    angular[ball] += axial[ball, :3]
     straight = (kind == layouts.JOINT_SLIDER) | (kind == layouts.JOINT_DISTANCE)
     angular[hinge] += along[hinge] * (axial[hinge, 0] - axial[hinge, 1] + axial[hinge, 2])[:, None]
     linear[straight] += along[straight] * (axial[straight, 0] - axial[straight, 1])[:, None]

@@ -683,7 +683,9 @@ JOINT_DISTANCE = constant(
 )
 JOINT_WORLD = constant("RB_JOINT_WORLD", 1, "JointConstraint.flags: body b is the world")
 JOINT_LIMITS = constant("RB_JOINT_LIMITS", 2, "JointConstraint.flags: limit rows")
-JOINT_MOTOR = constant("RB_JOINT_MOTOR", 4, "JointConstraint.flags: a motor row")
+JOINT_MOTOR = constant(
+    "RB_JOINT_MOTOR", 4, "JointConstraint.flags: a motor row (a ball joint: friction)"
+)
 JOINT_BROKEN = constant("RB_JOINT_BROKEN", 8, "JointConstraint.flags: broken, acts no more")
 
 JOINT_CONSTRAINT = declare(
@@ -711,8 +713,8 @@ JOINT_CONSTRAINT = declare(
         (
             "motor",
             "float4",
-            "x: motor target speed (rad/s), y: maximum torque (N m), z: break impulse "
-            "(N s; infinite: unbreakable); w unused",
+            "x: motor target speed (rad/s), y: maximum torque (N m; a ball joint's "
+            "friction torque), z: break impulse (N s; FLT_MAX: unbreakable); w unused",
         ),
         (
             "linear_impulse",
@@ -728,7 +730,7 @@ JOINT_CONSTRAINT = declare(
             "axial_impulse",
             "float4",
             "accumulated impulses of the lower limit, upper limit and motor rows "
-            "(x, y, z; part of the totals above too); w unused",
+            "(x, y, z; a ball joint's: its friction block's world angular impulse); w unused",
         ),
         ("body_a", "uint", "first body (dynamic)"),
         ("body_b", "uint", "second body (== body_a when B is the world)"),

@@ -6,7 +6,10 @@
 </%doc>
 /* Joint rows. Every joint kind is a few rows between body A and body B (the
  * world, static, when RB_JOINT_WORLD is set):
- *   ball:     3 point rows (the anchors coincide), solved as one 3x3 block;
+ *   ball:     3 point rows (the anchors coincide), solved as one 3x3 block,
+ *             and with RB_JOINT_MOTOR a friction block: 3 angular rows that
+ *             stop the relative rotation, their impulse within the maximum
+ *             torque times the substep;
  *   fixed:    the point block and 3 angular rows (the relative orientation of
  *             creation), a 3x3 block;
  *   hinge:    the point block, 2 swing rows across the axis (a 2x2 block), and
@@ -184,6 +187,8 @@ inline void warm_start_joint_rows(__global const JointConstraint* j, const Joint
     float4 axial = j->axial_impulse;
     if (j->kind == RB_JOINT_HINGE)
         angular += along * (axial.x - axial.y + axial.z);
+    else if (j->kind == RB_JOINT_BALL)
+        angular += axial.xyz;  /* the friction block's (world) */
     else if (j->kind == RB_JOINT_SLIDER || j->kind == RB_JOINT_DISTANCE)
         impulse += along * (axial.x - axial.y);
     p->va -= impulse * p->inv_mass_a;
@@ -204,6 +209,7 @@ void solve_joint_rows(__global JointConstraint* j, const JointFrame* f,
     const float bias = push ? recovery * inv_h : 0.0f;
     float3 linear = (float3)(0.0f), angular = (float3)(0.0f);
     /* accumulated impulses of the lower limit, upper limit and motor rows */
+    /* (a ball joint's friction block keeps its world impulse in the three) */
     float4 axial = push ? (float4)(0.0f) : j->axial_impulse;
     float lower = axial.x, upper = axial.y, motor = axial.z;
     const float3 axis = quat_rotate(f->qa, j->axis_a.xyz);
@@ -215,6 +221,21 @@ void solve_joint_rows(__global JointConstraint* j, const JointFrame* f,
         Row row = twist_row(along, p);
         float most = j->motor.y / inv_h;
         solve_joint_row(&row, j->motor.x, &motor, -most, most, p);
+    }
+    if (kind == RB_JOINT_BALL && (flags & RB_JOINT_MOTOR) && !push) {
+        /* friction: the relative rotation stopped, the impulse within the torque */
+        Row rows[3] = {twist_row((float3)(1.0f, 0.0f, 0.0f), p),
+                       twist_row((float3)(0.0f, 1.0f, 0.0f), p),
+                       twist_row((float3)(0.0f, 0.0f, 1.0f), p)};
+        float3 old = (float3)(lower, upper, motor);
+        float3 free = old + solve_joint_block(rows, (float3)(0.0f), p);
+        float most = j->motor.y / inv_h, size = length3(free);
+        float3 total = size > most ? free * (most / size) : free;
+        /* (the block applied its whole change: take back what the clamp removed) */
+        apply_row(&rows[0], total.x - free.x, p);
+        apply_row(&rows[1], total.y - free.y, p);
+        apply_row(&rows[2], total.z - free.z, p);
+        lower = total.x, upper = total.y, motor = total.z;
     }
     if ((flags & RB_JOINT_LIMITS) && (kind == RB_JOINT_HINGE || kind == RB_JOINT_SLIDER)) {
         const bool hinge = kind == RB_JOINT_HINGE;
