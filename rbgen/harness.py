@@ -107,9 +107,10 @@ def ragdoll_origins(n: int) -> np.ndarray:
     return np.stack([1.0 * (i % side), np.full(n, 2.4 + BELOW_PELVIS), 0.6 * (i // side)], 1)
 
 
-def _ragdoll_scene(n: int, device, **world_options):
+def _ragdoll_scene(n: int, device, ragdoll_joints: bool = True, **world_options):
     """The ragdolls scene (see the module docstring): (world, dynamic ids, 0, the thinnest
-    part's radius)."""
+    part's radius). ``ragdoll_joints=False``: the same bodies without their joints (the
+    benchmarks' baseline: what the joints cost)."""
     from .ragdolls import add_ragdolls
 
     world_options.setdefault("substeps", RAGDOLL_SUBSTEPS)
@@ -126,7 +127,7 @@ def _ragdoll_scene(n: int, device, **world_options):
         mass=1.0,
         positions=np.c_[under[:, 0], np.full(len(under), 0.5), under[:, 2]],
     )
-    bodies, _ = add_ragdolls(world, origins)
+    bodies, _ = add_ragdolls(world, origins, joints=bool(ragdoll_joints))
     return world, np.concatenate([boxes, bodies.reshape(-1)]), 0.0, 0.045
 
 

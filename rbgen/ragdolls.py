@@ -57,9 +57,12 @@ JOINTS_PER_RAGDOLL = len(JOINTS)
 BELOW_PELVIS, ABOVE_PELVIS = 1.01, 0.8
 
 
-def add_ragdolls(world, origins, friction: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
+def add_ragdolls(
+    world, origins, friction: float = 0.6, joints: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """Add a standing ragdoll with its pelvis at each of ``origins`` ((N, 3)); returns
-    (body ids (N, 11) in `PARTS` order, joint ids (N, 10) in `JOINTS` order)."""
+    (body ids (N, 11) in `PARTS` order, joint ids (N, 10) in `JOINTS` order).
+    ``joints=False``: the parts alone (no joint ids: an (N, 0) array)."""
     origins = np.asarray(origins, float).reshape(-1, 3)
     n = len(origins)
     bodies = np.zeros((n, BODIES_PER_RAGDOLL), np.int64)
@@ -67,16 +70,16 @@ def add_ragdolls(world, origins, friction: float = 0.6) -> tuple[np.ndarray, np.
         bodies[:, i] = world.add_bodies(
             shape, mass=mass, positions=origins + offset, friction=friction
         )
-    joints = np.zeros((n, JOINTS_PER_RAGDOLL), np.int64)
-    for k, (kind, a, b, anchor, axis, limits, friction) in enumerate(JOINTS):
+    made = np.zeros((n, JOINTS_PER_RAGDOLL if joints else 0), np.int64)
+    for k, (kind, a, b, anchor, axis, limits, torque) in enumerate(JOINTS if joints else ()):
         fields: dict = {
             "a": bodies[:, PART_INDEX[a]],
             "b": bodies[:, PART_INDEX[b]],
             "anchor": origins + anchor,
         }
         if kind is HingeJoint:
-            fields.update(axis=axis, limits=limits, motor=(0.0, friction))
+            fields.update(axis=axis, limits=limits, motor=(0.0, torque))
         else:
-            fields.update(friction=friction)
-        joints[:, k] = world.add_joints(kind, **fields)
-    return bodies, joints
+            fields.update(friction=torque)
+        made[:, k] = world.add_joints(kind, **fields)
+    return bodies, made
