@@ -34,11 +34,11 @@ def test_rendering_is_pure_and_deterministic():
 def test_parameter_errors_name_the_parameter():
     t = integrate.TEMPLATE
     with pytest.raises(
-        TemplateParameterError, match=r"missing parameter\(s\) \['gravity', 'split'\]"
+        TemplateParameterError, match=r"missing parameter\(s\) \['deltas', 'gravity', 'split'\]"
     ):
         t.spec(work_group_size=64, damping=False)
     with pytest.raises(TemplateParameterError, match=r"unknown parameter\(s\) \['colour'\]"):
-        t.spec(work_group_size=64, damping=False, gravity=True, colour=3)
+        t.spec(work_group_size=64, damping=False, gravity=True, deltas=False, colour=3)
     with pytest.raises(TemplateParameterError, match="work_group_size=48 is not allowed"):
         t.spec(work_group_size=48, damping=False, gravity=True, split=False, deltas=False)
     with pytest.raises(TemplateParameterError, match="damping=1 is not allowed"):

@@ -210,9 +210,9 @@ def test_exported_persistent_solver_and_colouring_build_standalone(runtime, tmp_
 
 def test_exported_world_specialisations_build_standalone(runtime, tmp_path):
     """What a World on an NVIDIA GPU runs exports on any device: the persistent solve
-    with the summed warm start (its manifest lists the per-body sums, an inout buffer,
-    and the body count between the barrier's words and the relaxation; the .cl needs
-    64-bit atomics, so it is built where the device has them) and the body preparation
+    with the summed warm start (its manifest lists the per-body sums, an inout buffer, the
+    bodies' motion and the body count between the barrier's words and the relaxation; the
+    .cl needs 64-bit atomics, so it is built where the device has them) and the body preparation
     that writes the step's backup (an out buffer after the body count)."""
     solver_args = [
         "export",
@@ -239,7 +239,8 @@ def test_exported_world_specialisations_build_standalone(runtime, tmp_path):
     solve = next(k for k in entry["kernels"] if k["name"] == "solve_groups")
     names = [a["name"] for a in solve["args"]]
     at = names.index("relaxation")
-    assert names[at - 3 : at] == ["sync", "warm_sums", "body_count"]
+    # (deltas: the bodies' motion since the step began, which the fused substeps integrate)
+    assert names[at - 4 : at] == ["sync", "warm_sums", "deltas", "body_count"]
     assert next(a for a in solve["args"] if a["name"] == "warm_sums")["role"] == "inout"
     if runtime.has_extension(INT64_ATOMICS):
         program = cl.Program(

@@ -119,7 +119,7 @@ class ContactRig:
         )
         self.warm_start = warm_start
 
-    def constraints(self, manifolds, dt=1 / 60, capacity_slack=3):
+    def constraints(self, manifolds, dt=1 / 60, capacity_slack=3, last_substep=True):
         queue = self.runtime.queue
         n = len(manifolds)
         capacity = n + capacity_slack
@@ -129,7 +129,15 @@ class ContactRig:
         self.count = cl_array.to_device(queue, np.array([n], np.uint32))
         self.capacity = capacity
         self.prepare(self.bodies, self.inertia, self.body_count, dt)
-        self.setup(self.manifolds, self.count, self.bodies, self.inertia, capacity, dt)
+        self.setup(
+            self.manifolds,
+            self.count,
+            self.bodies,
+            self.inertia,
+            capacity,
+            dt,
+            last_substep=last_substep,
+        )
         return self.setup.constraints.get()[:n]
 
     def batch(self):
@@ -189,8 +197,10 @@ class ContactRig:
         return self.bodies.get(), self.setup.constraints.get()[: len(manifolds)]
 
 
-def test_effective_masses_and_targets(runtime, rng):
-    """Normal/tangent masses match 1/(m + (r x d).I(r x d)); bounce and push targets."""
+@pytest.mark.parametrize("last_substep", [True, False])
+def test_effective_masses_and_targets(runtime, rng, last_substep):
+    """Normal/tangent masses match 1/(m + (r x d).I(r x d)); bounce and push targets (of a
+    step's last substep or an earlier one)."""
     inv_inertia = np.array([[0, 0, 0], rng.uniform(0.5, 2.0, 3)])
     speed, e, dt = 3.0, 0.4, 1 / 60
     bodies = make_bodies([[0, 0, 0], [0, 1, 0]], [0.0, 0.5], velocities=[[0, 0, 0], [0, -speed, 0]])
@@ -198,7 +208,7 @@ def test_effective_masses_and_targets(runtime, rng):
     depth = np.array([-0.05, 0.0, 0.02])
     rig = ContactRig(runtime, bodies, inv_inertia, warm_start=False)
     m = make_manifold(0, 1, [0, 1, 0], points, depth, restitution=e)
-    c = rig.constraints(np.array([m]), dt)[0]
+    c = rig.constraints(np.array([m]), dt, last_substep=last_substep)[0]
     n = np.array([0, 1.0, 0])
     slop, beta = rig.setup.penetration_slop, rig.setup.penetration_recovery
     centre = points.mean(0) - [0, 1, 0]
@@ -213,10 +223,10 @@ def test_effective_masses_and_targets(runtime, rng):
         assert c["normal_mass"][k] == pytest.approx(
             1 / (0.5 + rc @ (inv_inertia[1] * rc)), rel=1e-4
         )
-        # touching: the bounce; apart but crossed within the step: land at the contact,
-        # then bounce for the rest of the step, a mean velocity of bounce - (1 + e) gap / dt
-        bounce = e * speed - (1 + e) * max(depth[k], 0.0) / dt
-        assert c["velocity_target"][k] == pytest.approx(bounce, rel=1e-4)
+        # touching: the bounce; apart but crossed within the step: the bounce in a step's
+        # last substep (the step ends at it), else land (close the gap, no further)
+        target = e * speed if depth[k] <= 0 or last_substep else -depth[k] / dt
+        assert c["velocity_target"][k] == pytest.approx(target, rel=1e-4)
         # what later substeps need: the separation, the bounce, the restitution
         assert c["r_a"][k][3] == pytest.approx(depth[k], abs=1e-7)
         assert c["r_b"][k][3] == pytest.approx(e * speed, rel=1e-5)
@@ -275,12 +285,8 @@ def setup_reference(manifold, bodies, inv_inertia, dt, setup):
         bounce = (
             -manifold["restitution"] * approach if approach < -setup.restitution_threshold else 0.0
         )
-        if separation > 0:  # (a gap crossed within the step: land, then bounce)
-            target = (
-                bounce - (1 + manifold["restitution"]) * separation / dt
-                if bounce > 0 and approach * dt < -separation
-                else -separation / dt
-            )
+        if separation > 0:  # (a gap crossed within the last substep: bounce at once)
+            target = bounce if bounce > 0 and approach * dt < -separation else -separation / dt
         else:
             target = bounce
         out["velocity_target"][k] = target

@@ -62,9 +62,10 @@ class ContactRefresh:
         h: float,
         penetration_slop: float,
         penetration_recovery: float,
+        last_substep: bool,
     ) -> None:
         """Refresh min(``constraint_count[0]``, ``capacity``) constraints' targets for a
-        substep of ``h`` seconds."""
+        substep of ``h`` seconds (``last_substep``: the step's last)."""
         if capacity <= 0:
             return
         self.kernel.over(
@@ -77,4 +78,5 @@ class ContactRefresh:
             np.float32(h),
             np.float32(penetration_slop),
             np.float32(penetration_recovery),
+            np.uint32(bool(last_substep)),
         )

@@ -166,7 +166,8 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
                                const float dt,
                                const float restitution_threshold,
                                const float penetration_slop,
-                               const float penetration_recovery)
+                               const float penetration_recovery,
+                               const uint last_substep)
 {
     /* the narrowphase reports its true count, which may exceed our capacity
      * (the World then grows the buffers and redoes the step) */
@@ -225,10 +226,12 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
         c.r_b[k] = (float4)(rb, bounce);
         float target;
         if (separation > 0.0f)
-            /* still apart: close the gap this step, or, if it would be crossed, land
-             * and bounce within the step: the bounce less (1 + e) gap / dt */
-            target = (bounce > 0.0f && approach * dt < -separation)
-                     ? bounce - (1.0f + m->restitution) * separation / dt : -separation / dt;
+            /* still apart: close the gap this (sub)step, no further (the next substep,
+             * touching, bounces); in a step's last substep, bounce if the gap would be
+             * crossed (the step ends at the bounce velocity, from which the next
+             * step's setup measures the approach) */
+            target = (last_substep && bounce > 0.0f && approach * dt < -separation)
+                     ? bounce : -separation / dt;
         else
             target = bounce;
         float push = penetration_recovery / dt * max1(-separation - penetration_slop, 0.0f);

@@ -87,15 +87,31 @@ class SatAnswer:
     best_face: float  # best over face axes
     best_edge: float  # best over edge axes (-inf when none)
     runner_up: float  # best separation along an axis not parallel to `axis`
+    #: an edge axis within float32 rounding of the face-aligned rule's angle or depth limit
+    aligned_undecided: bool = False
 
 
-def sat(a: Placed, b: Placed, face_aligned_deg: float | None = None) -> SatAnswer:
+def _separation(a: Placed, b: Placed, axis: np.ndarray) -> float:
+    """Separation of b from a along +-axis (the larger: the line's gap)."""
+    pa, pb = a.vertices @ axis, b.vertices @ axis
+    return float(max(pb.min() - pa.max(), pa.min() - pb.max()))
+
+
+def sat(
+    a: Placed,
+    b: Placed,
+    face_aligned_deg: float | None = None,
+    face_aligned_tolerance: float = 0.0,
+) -> SatAnswer:
     """The separating-axis answer of two convex shapes in float64. ``face_aligned_deg``:
-    edge-pair axes within this angle of a face normal of either shape are no axes (the
-    box-box kernel's rule: the face axis measures that direction)."""
+    an edge-pair axis within this angle of a face normal of either shape is no axis when
+    that face is at most ``face_aligned_tolerance`` deeper than it, unless the edge axis
+    separates and the face does not (the box-box kernel's rule: the face axis measures
+    that direction, and its manifold does not flicker)."""
     axes, is_edge = [], []
     normals = np.vstack([a.normals, b.normals])
     cos_limit = None if face_aligned_deg is None else np.cos(np.radians(face_aligned_deg))
+    undecided = False
     for n in a.normals:
         axes.append(n), is_edge.append(False)
     for n in b.normals:
@@ -106,8 +122,19 @@ def sat(a: Placed, b: Placed, face_aligned_deg: float | None = None) -> SatAnswe
             s = np.linalg.norm(cross)
             if s < 1e-4:
                 continue
-            if cos_limit is not None and np.abs(normals @ (cross / s)).max() > cos_limit:
-                continue
+            if cos_limit is not None:
+                cosines = np.abs(normals @ (cross / s))
+                k = int(np.argmax(cosines))
+                if abs(cosines[k] - cos_limit) < 1e-6:
+                    undecided = True
+                if cosines[k] > cos_limit:
+                    gap = _separation(a, b, cross / s)
+                    face = _separation(a, b, normals[k])
+                    deeper = face - (gap - face_aligned_tolerance)
+                    if abs(deeper) < 1e-5 or (gap > 0 and abs(face) < 1e-5):
+                        undecided = True
+                    if deeper >= 0 and (gap <= 0 or face > 0):
+                        continue
             axes.append(cross / s), is_edge.append(True)
             axes.append(-cross / s), is_edge.append(True)
     axes = np.array(axes)
@@ -122,4 +149,5 @@ def sat(a: Placed, b: Placed, face_aligned_deg: float | None = None) -> SatAnswe
         float(separations[~is_edge].max()),
         float(separations[is_edge].max()) if is_edge.any() else -np.inf,
         float(separations[others].max()) if others.any() else -np.inf,
+        undecided,
     )

@@ -24,8 +24,10 @@ ${cl_structs("Body", "Shape", "Pair", "SatCacheEntry", "SatResult")}
 ${shared.definitions()}
 /* Feature code of the first edge-edge axis (after the 6 + 6 faces). */
 #define FIRST_EDGE_FEATURE 12u
-/* an edge pair's axis within 1 degree of a face normal is no edge axis (see edge_gap) */
+/* an edge pair's axis within 1 degree of a face normal of either box gives way to that
+ * face's axis where the face is at most this much deeper (m; see edge_gap) */
 #define FACE_ALIGNED_COS2 0.99969541f
+#define FACE_ALIGNED_TOLERANCE 1e-3f
 
 /* Two boxes seen from the first one. Every axis is measured from the nine
  * cosines r[i][j] = a_i . b_j (a_i, b_j: the boxes' unit axes in the world)
@@ -90,27 +92,24 @@ inline float second_face_gap(const BoxPair* g, uint j)
     return abs1(second_offset(g, j)) - g->extent_b[j] - reach_a;
 }
 
-/* Separation along a_i x b_j (-INFINITY when the axes are parallel, or when
- * the axis lies within FACE_ALIGNED_COS2 of a face normal of either box: a
- * face axis measures the same direction, and its clipped face manifold
- * supports a resting box at its four corners, where an edge pair chosen by a
- * few ulps of tilt gives one point and flickers with it). In a's frame the
- * axis is e_i x r_j, of length sqrt(1 - r_ij^2); its products with the
- * boxes' axes and the offset are 2x2 minors of r and t. The gap is the
+/* Separation along a_i x b_j (-INFINITY when the axes are parallel). In a's
+ * frame the axis is e_i x r_j, of length sqrt(1 - r_ij^2); its products with
+ * the boxes' axes and the offset are 2x2 minors of r and t. The gap is the
  * unnormalised one over that length (<= 1), so a negative unnormalised gap at
  * most `at_most` bounds the gap by it: then -INFINITY is returned without the
- * square root and division (the axis cannot win). */
+ * square root and division (the axis cannot win).
+ *
+ * An axis within 1 degree (FACE_ALIGNED_COS2) of a face normal of either box
+ * is also -INFINITY when that face axis is no deeper than it, within
+ * FACE_ALIGNED_TOLERANCE: the face measures the same direction, and its
+ * clipped manifold supports a resting box at four corners, where an edge pair
+ * chosen by a few mrad of tilt gives one point and flickers with it. A
+ * separating edge axis is never dropped for a face that does not separate. */
 inline float edge_gap(const BoxPair* g, uint i, uint j, float at_most, float* offset_along)
 {
     uint i1 = (i + 1u) % 3u, i2 = (i + 2u) % 3u, j1 = (j + 1u) % 3u, j2 = (j + 2u) % 3u;
     float sin2 = g->r[i1][j] * g->r[i1][j] + g->r[i2][j] * g->r[i2][j];
     if (sin2 < PARALLEL_SIN2)
-        return -INFINITY;
-    /* the axis along a face normal of a (components r_i1j, r_i2j) or of b
-     * (components r_ij1, r_ij2; |axis|^2 is the same sin2) */
-    float along_a = max1(g->r[i1][j] * g->r[i1][j], g->r[i2][j] * g->r[i2][j]);
-    float along_b = max1(g->r[i][j1] * g->r[i][j1], g->r[i][j2] * g->r[i][j2]);
-    if (max1(along_a, along_b) > FACE_ALIGNED_COS2 * sin2)
         return -INFINITY;
     float d = g->t[i2] * g->r[i1][j] - g->t[i1] * g->r[i2][j];
     float reach = g->extent_a[i1] * g->abs_r[i2][j] + g->extent_a[i2] * g->abs_r[i1][j]
@@ -119,7 +118,19 @@ inline float edge_gap(const BoxPair* g, uint i, uint j, float at_most, float* of
     float unnormalised = abs1(d) - reach;
     if (unnormalised <= 0.0f && unnormalised <= at_most)
         return -INFINITY;
-    return unnormalised / sqrt1(sin2);
+    float gap = unnormalised / sqrt1(sin2);
+    /* The axis's squared components along a_i2, a_i1 (r_i1j^2, r_i2j^2) and along
+     * b_j2, b_j1 (r_ij1^2, r_ij2^2), over |axis|^2 = sin2 (the same in both frames). */
+    float a_i2 = g->r[i1][j] * g->r[i1][j], a_i1 = g->r[i2][j] * g->r[i2][j];
+    float b_j2 = g->r[i][j1] * g->r[i][j1], b_j1 = g->r[i][j2] * g->r[i][j2];
+    float along_a = max1(a_i1, a_i2), along_b = max1(b_j1, b_j2);
+    if (max1(along_a, along_b) > FACE_ALIGNED_COS2 * sin2) {
+        float face = along_a >= along_b ? first_face_gap(g, a_i1 >= a_i2 ? i1 : i2)
+                                        : second_face_gap(g, b_j1 >= b_j2 ? j1 : j2);
+        if (face >= gap - FACE_ALIGNED_TOLERANCE && (gap <= 0.0f || face > 0.0f))
+            return -INFINITY;
+    }
+    return gap;
 }
 
 /* Separation along a feature code (last step's best axis). */

@@ -475,13 +475,13 @@ inline uint push_owner_of(uint first, uint end, uint lane, uint push_lane, uint 
 inline void refresh_item(__global ContactConstraint* constraints, uint item,
                          volatile __global const BodyDelta* deltas, const float h,
                          const float penetration_slop, const float penetration_recovery,
-                         const bool velocity, const bool push)
+                         const bool velocity, const bool push, const bool last)
 {
     __global ContactConstraint* c = &constraints[item];
     uint a = c->body_a, b = c->body_b;
     float3 moved = deltas[b].linear.xyz - deltas[a].linear.xyz;
     refresh_targets(c, moved, deltas[a].angular.xyz, deltas[b].angular.xyz, h,
-                    penetration_slop, penetration_recovery, velocity, push);
+                    penetration_slop, penetration_recovery, velocity, push, last);
 }
 
 /* Every batch's targets for the next substep, each constraint by the lanes
@@ -490,7 +490,8 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
                             __global const uint* offsets, uint batch_count, uint lane,
                             uint push_lane, uint push_offset,
                             volatile __global const BodyDelta* deltas, const float h,
-                            const float penetration_slop, const float penetration_recovery)
+                            const float penetration_slop, const float penetration_recovery,
+                            const bool last)
 {
     const uint lanes = get_global_size(0);
     for (uint batch = 0; batch < batch_count; ++batch) {
@@ -501,7 +502,7 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
             if (!is_joint(order[i]))  /* (a joint measures the poses itself) */
 % endif
             refresh_item(constraints, order[i], deltas, h, penetration_slop,
-                         penetration_recovery, true, false);
+                         penetration_recovery, true, false, last);
         const uint owner = push_owner_of(first, end, lane, push_lane, push_offset);
         const uint2 push_share = batch_share(first, end, batch, owner, lanes);
         for (uint i = push_share.x; i < end; i += push_share.y)
@@ -509,7 +510,7 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
             if (!is_joint(order[i]))
 % endif
             refresh_item(constraints, order[i], deltas, h, penetration_slop,
-                         penetration_recovery, false, true);
+                         penetration_recovery, false, true, last);
     }
 }
 
@@ -726,7 +727,8 @@ void solve_groups(${signature("solve_groups")})
             device_barrier(sync, &barrier_ok);
             if (barrier_ok)
                 refresh_batches(constraints, order, offsets, batch_count, lane, push_lane,
-                                push_offset, deltas, h, penetration_slop, penetration_recovery);
+                                push_offset, deltas, h, penetration_slop, penetration_recovery,
+                                substep + 1u == substeps);
 % if not summed:
             device_barrier(sync, &barrier_ok);
 % endif

@@ -1,0 +1,106 @@
+"""Whether the BoxBox lattices hold, and at what cost: the default against substep candidates.
+
+    python benchmarks/holds.py [--device D] [--sizes 1000 8000 27000 111375]
+                               [--candidates default s2 s4 s8] [--steps 120] [--out DIR]
+
+Issue 24's table in one run: each BoxBox lattice is built through the public API and
+stepped ``--steps`` steps (dt 1/60) from its start, once per candidate:
+
+``default``  the World's defaults (the baseline every other row names)
+``s2``       substeps=2, 5 velocity + 2 position sweeps a substep
+``s4``       substeps=4, 3 + 1
+``s8``       substeps=8, 2 + 1
+
+The first step (which builds the kernels) is not timed; ms/step is the median of the
+timing blocks of the remaining steps (`rbgen.harness.run_scene`). Each row: ms/step,
+kernel launches and blocking reads a step, boxes displaced more than 0.5 m sideways,
+the top layer's median drop, and whether the lattice holds (<= 0.5% displaced and a top
+drop <= 2 cm, the issue's bar). JSON (rbgen.bench's form, kind "holds") goes under
+``--out`` (benchmarks/results by default; '' for none).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from rbgen import bench
+from rbgen.harness import run_scene
+
+#: name -> World options (beside the defaults)
+CANDIDATES = {
+    "default": {},
+    "s2": {"substeps": 2, "iterations": 5, "position_iterations": 2},
+    "s4": {"substeps": 4, "iterations": 3, "position_iterations": 1},
+    "s8": {"substeps": 8, "iterations": 2, "position_iterations": 1},
+}
+BASELINE = "default"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", default=None, help="rbgen device choice (index or name)")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 8000, 27000, 111375])
+    parser.add_argument(
+        "--candidates", nargs="+", default=list(CANDIDATES), choices=list(CANDIDATES)
+    )
+    parser.add_argument("--steps", type=int, default=120, help="steps from the start")
+    parser.add_argument("--out", default=str(bench.RESULTS_DIR))
+    args = parser.parse_args(argv)
+    candidates = [BASELINE] + [c for c in args.candidates if c != BASELINE]
+
+    results = []
+    print(
+        f"{'boxes':>8} {'candidate':10} {'ms/step':>8} {'launches':>8} {'reads':>5} "
+        f"{'displaced':>9} {'top drop':>9}  holds",
+        flush=True,
+    )
+    for n in args.sizes:
+        base = None
+        for name in candidates:
+            s = run_scene(
+                "boxbox",
+                n,
+                args.steps - 1,
+                device=args.device,
+                progress=False,
+                warmup=1,
+                **CANDIDATES[name],
+            )
+            top = s["layer_drop"][-1] if s["layer_drop"] else 0.0
+            ok = s["displaced"] <= 0.005 * n and top <= 0.02 and s["nans"] == 0
+            print(
+                f"{n:>8,} {name:10} {s['ms_per_step']:>8.2f} {s['launches_per_step']:>8} "
+                f"{s['blocking_reads_per_step']:>5} {s['displaced']:>9} "
+                f"{100 * top:>7.2f}cm  {'yes' if ok else 'NO'}",
+                flush=True,
+            )
+            result = bench.scene_result(s, 1)
+            result.update(
+                name=f"boxbox {n} {name}",
+                candidate=name,
+                options=CANDIDATES[name],
+                top_drop=top,
+                holds=ok,
+                baseline=base,
+            )
+            results.append(result)
+            if name == BASELINE:
+                base = {"name": f"boxbox {n} {BASELINE}", "ms": s["ms_per_step"]}
+    if args.out:
+        record = bench.make_record(
+            "holds",
+            results,
+            bench.device_record(args.device),
+            {
+                "steps": args.steps,
+                "dt": 1 / 60,
+                "candidates": {c: CANDIDATES[c] for c in candidates},
+            },
+        )
+        print(f"wrote {bench.write_results(record, args.out)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
