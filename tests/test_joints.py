@@ -457,3 +457,39 @@ def test_a_step_with_joints_reads_nothing_back(runtime):
     world.step(DT)
     assert world.last_step_counters["blocking_reads"] == 0
     assert not world._joints.dirty
+
+
+def test_lanes_form_solves_joints(runtime):
+    """The GPU's cells path (a work group's lanes solve a batch, a launch per colour) on
+    any device: a World's batcher and solver swapped for the lanes form after its first
+    step; the swinging 12-link chain (4 substeps) holds as on the other forms."""
+    from rbgen.pipeline.batching import make_batcher
+    from rbgen.pipeline.solvers.pgs import PgsSolver
+
+    world = World(runtime, substeps=4, batching="cells")
+    n = 12
+    centres = np.array([[(i + 0.5) * 0.1, 5.0, 0.0] for i in range(n)])
+    s = np.sin(np.pi / 4)
+    ids = world.add_bodies(
+        rbgen.Capsule(0.02, 0.02),
+        mass=1.0,
+        positions=centres,
+        orientations=np.tile([0, 0, s, s], (n, 1)),
+    )
+    joints = world.add_joints(
+        rbgen.BallJoint,
+        a=ids,
+        b=[None] + [int(i) for i in ids[:-1]],
+        anchor=centres - (0.05, 0, 0),
+    )
+    world.step(DT)
+    pipeline = world._pipeline
+    batcher = make_batcher(runtime, "cells", solve_form="lanes")
+    pipeline.batching.batcher = batcher
+    pipeline.batching.configure(world._bodies, world.settings.gravity, world.contact_margin)
+    pipeline.solve.solver = PgsSolver(runtime, batcher, normal_solve="block", joints=True)
+    assert pipeline.solve.solver.solve_form == "lanes"
+    for _ in range(40):
+        world.step(DT)
+    assert chain_gaps(world, joints).max() < 0.01
+    assert world.positions[ids[-1]][1] < 4.5
