@@ -12,8 +12,8 @@ in the others. Scenes:
 ``pyramid``   a 2-D pyramid of unit boxes with ``n`` rows (2 cm gaps);
 ``ragdolls``  ``n`` ragdolls (11 bodies, 10 joints each: `rbgen.ragdolls`) standing in a
               grid (1 m x 0.6 m pitch) 1.4 m above a pile of unit boxes (one per
-              four ragdolls, on the ground) and dropped; 4 solver substeps unless the
-              World options say otherwise (the joint guidance, README);
+              four ragdolls, on the ground) and dropped; 4 solver substeps of 5 + 2
+              sweeps unless the World options say otherwise (`RAGDOLL_SETTINGS`);
 ``terrain``   ``n`` mixed bodies (boxes, hulls, compounds, a tenth spheres and
               capsules) rained in 4 layers onto a procedural terrain of
               2 x 1000^2 triangles (``terrain_cells=`` among the World options picks
@@ -49,8 +49,10 @@ from .world import World
 
 SCENES = ("box_pile", "boxbox", "pyramid", "ragdolls", "terrain")
 
-#: the ragdolls scene's solver substeps (README: joint guidance)
-RAGDOLL_SUBSTEPS = 4
+#: the ragdolls scene's solver settings unless the World options say otherwise (README:
+#: joint guidance): 4 substeps of 5 velocity and 2 push sweeps (the stiffness comes from
+#: the substeps; the default 10 + 4 sweeps a substep settle the pile no better)
+RAGDOLL_SETTINGS = {"substeps": 4, "iterations": 5, "position_iterations": 2}
 
 #: the timed steps are clocked in this many blocks (see the module docstring);
 #: ms_per_step is the median block's (a block that a neighbour on the machine slowed
@@ -113,7 +115,7 @@ def _ragdoll_scene(n: int, device, ragdoll_joints: bool = True, **world_options)
     benchmarks' baseline: what the joints cost)."""
     from .ragdolls import add_ragdolls
 
-    world_options.setdefault("substeps", RAGDOLL_SUBSTEPS)
+    world_options = {**RAGDOLL_SETTINGS, **world_options}
     world = World(device, **world_options)
     origins = ragdoll_origins(n)
     low, high = origins.min(axis=0), origins.max(axis=0)
