@@ -297,8 +297,8 @@ def test_unbroken_joint_with_a_break_impulse_holds(runtime):
 
 def test_ragdolls_on_boxes_settle(runtime):
     """8 ragdolls (11 bodies, 10 joints each) dropped 1.4 m onto unit boxes (the ragdolls
-    scene: 4 substeps of 5 + 2 sweeps): after 8 s every body is at rest (speed < 1 cm/s, PoCL: 0.000 by
-    7 s), none moved more than 1 mm over the last 0.5 s (no jitter), no NaN, none under the
+    scene: 4 substeps of 5 + 2 sweeps): after 8 s every body is at rest (speed < 1 cm/s),
+    none moved more than 1 mm over the last 0.5 s (no jitter), no NaN, none under the
     ground, and every joint holds (gaps < 1 cm)."""
     from rbgen.harness import build_scene
 
