@@ -3,14 +3,15 @@
     python benchmarks/ragdolls.py [--device D] [--n 10 30 100] [--steps 120] [--warmup 60]
                                   [--options JSON] [--out DIR]
 
-For each N, the ragdolls scene (`rbgen.harness`: N ragdolls of 11 bodies and 10 joints
-dropped 1.4 m onto unit boxes, 4 substeps of 5 + 2 sweeps) is timed after ``--warmup``
-steps (the fall; the pile forms while timed), and so is its baseline measured in the
-same run: the same bodies without their joints (``ragdoll_joints=False``: the parts fall
-apart; its time is the contacts' alone). Each result carries ms/step (median of 10 blocks), launches and
-blocking reads per step, the sanity of the scene, and ``joint_cost`` (ms with joints over
-ms without). Targets (issue 26): PoCL, 2 cores, 100 ragdolls <= 10 ms/step; H200,
-10,000 ragdolls <= 4 ms/step. JSON (rbgen.bench's format, kind "ragdolls") under --out.
+For each N, the ragdolls scene (`rbgen.harness`: N ragdolls of 11 bodies and 10
+joints dropped 1.4 m onto unit boxes, 4 substeps of 5 + 2 sweeps) is timed after
+``--warmup`` steps (the fall; the pile forms while timed), and so is its baseline,
+measured in the same run: the same bodies without their joints
+(``ragdoll_joints=False``: the parts fall apart; its time is the contacts' alone). Each
+result carries ms/step (median of 10 blocks), launches and blocking reads per step, the
+scene's sanity, and ``joint_cost`` (ms with joints over ms without). Targets (issue 26):
+PoCL, 2 cores, 100 ragdolls <= 10 ms/step; H200, 10,000 ragdolls <= 4 ms/step. JSON
+(rbgen.bench's format, kind "ragdolls") under --out.
 """
 
 from __future__ import annotations
