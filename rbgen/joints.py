@@ -456,6 +456,10 @@ class JointStore:
         self.dirty = False  # host records newer than the device
         self.device_newer = False  # the solver changed impulses or flags since the upload
         self.version = 0
+        #: the joined body pairs (sorted, lower body first; joints to the world left out)
+        #: as a device uint2 array, and their count (`pipeline.constraints` filters them)
+        self.pairs: cl_array.Array | None = None
+        self.pair_count = 0
 
     @property
     def count(self) -> int:
@@ -523,6 +527,13 @@ class JointStore:
             self.device.set(records)
         else:
             self.device = cl_array.to_device(self.runtime.queue, records)
+        on_world = (self.host["flags"] & layouts.JOINT_WORLD) != 0
+        a, b = self.host["body_a"][~on_world], self.host["body_b"][~on_world]
+        pairs = np.unique(np.stack([np.minimum(a, b), np.maximum(a, b)], 1), axis=0)
+        self.pair_count = len(pairs)
+        words = np.zeros((max(1, len(pairs)), 2), np.uint32)
+        words[: len(pairs)] = pairs
+        self.pairs = cl_array.to_device(self.runtime.queue, words)
         self.dirty = False
         self.device_newer = False
 

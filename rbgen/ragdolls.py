@@ -2,9 +2,9 @@
 
 The parts (standing, y up, the pelvis centre at the origin): pelvis and torso boxes, a
 head sphere, upper and lower arms and legs as capsules along y. Neighbouring parts are
-2-5 cm apart and joined across the gap (the World has no collision filter between
-jointed bodies, so parts must not overlap at their joints): ball joints at the spine,
-neck, shoulders and hips; hinges with limits at the elbows and knees. Total mass 56 kg,
+2-5 cm apart and joined across the gap (joined parts do not collide; the gaps keep the
+limbs apart from the torso and each other, which do): ball joints at the spine, neck,
+shoulders and hips; hinges with limits at the elbows and knees. Total mass 56 kg,
 height 1.8 m.
 
 `add_ragdolls` adds N ragdolls with one `World.add_bodies` call per part and one

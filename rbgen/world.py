@@ -405,7 +405,12 @@ class World:
         """Send the joint records after a change; the contacts' edges follow the joints'."""
         self._joints.upload()
         if self._pipeline is not None:
-            self._pipeline.constraints.constraints.first_contact_edge = self._joints.count
+            contacts = self._pipeline.constraints.constraints
+            contacts.first_contact_edge = self._joints.count
+            has = self._joints.count > 0
+            contacts.set_joint_pairs(
+                self._joints.pairs if has else None, self._joints.pair_count if has else 0
+            )
 
     def _size_pipeline(self, pipeline: StepPipeline) -> None:
         """Size the pipeline's buffers for the bodies, set the batching's scene geometry and

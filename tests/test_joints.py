@@ -2,8 +2,8 @@
 
 Settings follow the joint guidance (README, Joints): the default World (1 substep) for
 pendulums, hinges, motors, sliders and distance joints; 4 substeps for chains of light
-links and ragdolls; 8 substeps for heavy loads on chains (100:1), energy over long runs
-and millimetre cantilevers. Each test states what it measured on PoCL.
+links and ragdolls; 8 substeps for heavy loads on chains (100:1) and energy over long
+runs; 16 for millimetre cantilevers. Each test states what it measured on PoCL.
 """
 
 from __future__ import annotations
@@ -146,11 +146,11 @@ def test_weak_motor_accelerates_at_its_torque(runtime):
 
 def test_fixed_joint_holds_a_loaded_cantilever(runtime):
     """A 1 m, 1 kg beam fixed to the world at one end carries a 10 kg box fixed to its
-    tip: at 8 substeps the far corner of the load moves less than 1 mm from its place of
-    creation over 2 s (PoCL: 0.96 mm at the first steps, the warm start still empty;
-    77 mm at 1 substep, 4.7 mm at 4), and the load's pose relative to the beam holds
-    within 0.1 mm."""
-    world = World(runtime, substeps=8)
+    tip (touching it: jointed bodies do not collide, so the joint alone holds it): at 16
+    substeps the far corner of the load moves less than 1 mm from its place of creation
+    over 2 s (PoCL: 0.28 mm at the first steps, the warm start still empty; 1.1 mm at 8
+    substeps, 77 mm at 1), and the load's pose relative to the beam holds within 0.1 mm."""
+    world = World(runtime, substeps=16)
     beam = world.add_body(rbgen.Box((0.5, 0.05, 0.05)), mass=1.0, position=(0.5, 2, 0))
     load = world.add_body(rbgen.Box((0.1, 0.1, 0.1)), mass=10.0, position=(1.1, 2, 0))
     world.add_joint(rbgen.FixedJoint(beam, None, anchor=(0, 2, 0)))
@@ -457,6 +457,32 @@ def test_a_step_with_joints_reads_nothing_back(runtime):
     world.step(DT)
     assert world.last_step_counters["blocking_reads"] == 0
     assert not world._joints.dirty
+
+
+def test_joined_bodies_do_not_collide(runtime):
+    """Two boxes overlapping by 10 cm, joined by a fixed joint and hung from the world by
+    a ball joint: no contact pushes them apart (their manifold has no point), so their
+    relative pose holds within 0.1 mm; the same boxes unjoined are pushed apart."""
+    world = World(runtime)
+    a = world.add_body(rbgen.Box((0.2, 0.2, 0.2)), position=(0, 1, 0))
+    b = world.add_body(rbgen.Box((0.2, 0.2, 0.2)), position=(0.3, 1, 0))
+    world.add_joint(rbgen.BallJoint(a, None, anchor=(0, 1.5, 0)))
+    world.add_joint(rbgen.FixedJoint(b, a))
+    for _ in range(60):
+        world.step(DT)
+    q = world.orientations[a].astype(float)
+    relative = rotate(q * (-1, -1, -1, 1), world.positions[b] - world.positions[a])[0]
+    np.testing.assert_allclose(relative, (0.3, 0, 0), atol=1e-4)
+    c = world._pipeline.constraints.constraints
+    count = int(world.runtime.read(c.count)[0])
+    records = world.runtime.read(c.constraints)[:count]
+    assert count >= 1 and np.all(records["point_count"] == 0)
+    loose = World(runtime, gravity=(0, 0, 0))
+    loose.add_body(rbgen.Box((0.2, 0.2, 0.2)), position=(0, 1, 0))
+    loose.add_body(rbgen.Box((0.2, 0.2, 0.2)), position=(0.3, 1, 0))
+    for _ in range(30):
+        loose.step(DT)
+    assert loose.positions[1][0] - loose.positions[0][0] > 0.35
 
 
 def test_lanes_form_solves_joints(runtime):
