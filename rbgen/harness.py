@@ -10,6 +10,10 @@ in the others. Scenes:
 ``boxbox``    Bullet3's BoxBox lattice (rbgen.scenes; ``n`` one of its
               standard sizes, or any n, rounded to a cube);
 ``pyramid``   a 2-D pyramid of unit boxes with ``n`` rows (2 cm gaps);
+``ragdolls``  ``n`` ragdolls (11 bodies, 10 joints each: `rbgen.ragdolls`) standing in a
+              grid (1 m x 0.6 m pitch) 1.4 m above a pile of unit boxes (one per
+              four ragdolls, on the ground) and dropped; 4 solver substeps of 5 + 2
+              sweeps unless the World options say otherwise (`RAGDOLL_SETTINGS`);
 ``terrain``   ``n`` mixed bodies (boxes, hulls, compounds, a tenth spheres and
               capsules) rained in 4 layers onto a procedural terrain of
               2 x 1000^2 triangles (``terrain_cells=`` among the World options picks
@@ -43,7 +47,12 @@ from .errors import RbgenError
 from .shapes import Box
 from .world import World
 
-SCENES = ("box_pile", "boxbox", "pyramid", "terrain")
+SCENES = ("box_pile", "boxbox", "pyramid", "ragdolls", "terrain")
+
+#: the ragdolls scene's solver settings unless the World options say otherwise (README:
+#: joint guidance): 4 substeps of 5 velocity and 2 push sweeps (the stiffness comes from
+#: the substeps; the default 10 + 4 sweeps a substep settle the pile no better)
+RAGDOLL_SETTINGS = {"substeps": 4, "iterations": 5, "position_iterations": 2}
 
 #: the timed steps are clocked in this many blocks (see the module docstring);
 #: ms_per_step is the median block's (a block that a neighbour on the machine slowed
@@ -62,6 +71,8 @@ def build_scene(name: str, n: int, device=None, **world_options):
         raise RbgenError(f"scene size n must be a positive integer, got {n!r}")
     if name == "terrain":
         return _terrain_scene(int(n), device, **world_options)
+    if name == "ragdolls":
+        return _ragdoll_scene(int(n), device, **world_options)
     world = World(device, **world_options)
     if name == "boxbox":
         if int(n) in scene_data.STANDARD_BOXBOX_DIMS:
@@ -86,6 +97,40 @@ def build_scene(name: str, n: int, device=None, **world_options):
     world.add_static(Box((rows + 10, 1, 10)), position=(0, -1, 0))
     ids = world.add_bodies(Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
     return world, ids, 0.0, 0.5
+
+
+def ragdoll_origins(n: int) -> np.ndarray:
+    """Pelvis centres of ``n`` ragdolls in a square grid (1 m x 0.6 m pitch), their soles
+    1.4 m above the top of the box pile (2 m above the ground)."""
+    side = int(np.ceil(np.sqrt(n)))
+    i = np.arange(n)
+    from .ragdolls import BELOW_PELVIS
+
+    return np.stack([1.0 * (i % side), np.full(n, 2.4 + BELOW_PELVIS), 0.6 * (i // side)], 1)
+
+
+def _ragdoll_scene(n: int, device, ragdoll_joints: bool = True, **world_options):
+    """The ragdolls scene (see the module docstring): (world, dynamic ids, 0, the thinnest
+    part's radius). ``ragdoll_joints=False``: the same bodies without their joints (the
+    benchmarks' baseline: what the joints cost)."""
+    from .ragdolls import add_ragdolls
+
+    world_options = {**RAGDOLL_SETTINGS, **world_options}
+    world = World(device, **world_options)
+    origins = ragdoll_origins(n)
+    low, high = origins.min(axis=0), origins.max(axis=0)
+    centre = (low + high) / 2
+    extent = max(high[0] - low[0], high[2] - low[2]) / 2 + 10
+    world.add_static(Box((extent, 1, extent)), position=(centre[0], -1, centre[2]))
+    # one unit box under every second ragdoll of every second row
+    under = origins[(np.arange(n) % 2 == 0) & ((np.arange(n) // int(np.ceil(np.sqrt(n)))) % 2 == 0)]
+    boxes = world.add_bodies(
+        Box((0.5, 0.5, 0.5)),
+        mass=1.0,
+        positions=np.c_[under[:, 0], np.full(len(under), 0.5), under[:, 2]],
+    )
+    bodies, _ = add_ragdolls(world, origins, joints=bool(ragdoll_joints))
+    return world, np.concatenate([boxes, bodies.reshape(-1)]), 0.0, 0.045
 
 
 def terrain_shapes() -> list:

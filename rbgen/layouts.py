@@ -493,6 +493,7 @@ EDGE_INDEX_MASK = constant(
     "RB_EDGE_INDEX_MASK", (1 << 28) - 1, "ConstraintEdge.item: the index bits"
 )
 EDGE_CONTACT = constant("RB_EDGE_CONTACT", 0, "constraint kind: a ContactConstraint")
+EDGE_JOINT = constant("RB_EDGE_JOINT", 1, "constraint kind: a JointConstraint")
 
 CONSTRAINT_EDGE = declare(
     "ConstraintEdge",
@@ -693,3 +694,74 @@ BROADPHASE_STATUS = declare(
 )
 #: `BroadphaseStatus.retry`: the grid met more large bodies than its owner rows.
 BP_RETRY_LARGE = constant("RB_BP_RETRY_LARGE", 1, "grid: too many large bodies for owner rows")
+
+
+# --------------------------------------------------------------------------
+# Joints (owner: rbgen/joints.py, rbgen/pipeline/joints.py, solvers/joint_rows.cl.mako).
+JOINT_BALL = constant("RB_JOINT_BALL", 0, "joint kind: anchors coincide (3 point rows)")
+JOINT_FIXED = constant("RB_JOINT_FIXED", 1, "joint kind: point rows and 3 angular rows")
+JOINT_HINGE = constant("RB_JOINT_HINGE", 2, "joint kind: point rows, 2 swing rows, limits, motor")
+JOINT_SLIDER = constant(
+    "RB_JOINT_SLIDER", 3, "joint kind: 3 angular rows, 2 rows across the axis, limits"
+)
+JOINT_DISTANCE = constant(
+    "RB_JOINT_DISTANCE", 4, "joint kind: the anchors' distance kept in [min, max]"
+)
+JOINT_WORLD = constant("RB_JOINT_WORLD", 1, "JointConstraint.flags: body b is the world")
+JOINT_LIMITS = constant("RB_JOINT_LIMITS", 2, "JointConstraint.flags: limit rows")
+JOINT_MOTOR = constant(
+    "RB_JOINT_MOTOR", 4, "JointConstraint.flags: a motor row (a ball joint: friction)"
+)
+JOINT_BROKEN = constant("RB_JOINT_BROKEN", 8, "JointConstraint.flags: broken, acts no more")
+
+JOINT_CONSTRAINT = declare(
+    "JointConstraint",
+    [
+        (
+            "anchor_a",
+            "float4",
+            "anchor in A's body frame (m, about its centre of mass); w: distance joint's "
+            "min length",
+        ),
+        (
+            "anchor_b",
+            "float4",
+            "anchor in B's body frame (the world frame when B is the world); w: distance "
+            "joint's max length",
+        ),
+        ("axis_a", "float4", "unit axis in A's body frame; w: lower limit (rad or m)"),
+        ("axis_b", "float4", "unit axis in B's body frame; w: upper limit (rad or m)"),
+        (
+            "reference",
+            "float4",
+            "B's orientation relative to A's at creation, conj(q_a) q_b (quaternion)",
+        ),
+        (
+            "motor",
+            "float4",
+            "x: motor target speed (rad/s), y: maximum torque (N m; a ball joint's "
+            "friction torque), z: break impulse (N s; FLT_MAX: unbreakable); w unused",
+        ),
+        (
+            "linear_impulse",
+            "float4",
+            "accumulated impulse on B of the linear rows, world (N s, warm started); w unused",
+        ),
+        (
+            "angular_impulse",
+            "float4",
+            "accumulated angular impulse on B of the angular rows, world (N m s); w unused",
+        ),
+        (
+            "axial_impulse",
+            "float4",
+            "accumulated impulses of the lower limit, upper limit and motor rows "
+            "(x, y, z; a ball joint's: its friction block's world angular impulse); w unused",
+        ),
+        ("body_a", "uint", "first body (dynamic)"),
+        ("body_b", "uint", "second body (== body_a when B is the world)"),
+        ("kind", "uint", "RB_JOINT_*"),
+        ("flags", "uint", "RB_JOINT_WORLD | RB_JOINT_LIMITS | RB_JOINT_MOTOR | RB_JOINT_BROKEN"),
+    ],
+    "One joint between two bodies, as the solver reads it (persistent on the device).",
+)

@@ -119,6 +119,8 @@ class Plan:
     broadphase: str
     gyroscopic: bool
     shape_types: tuple[str, ...]
+    #: the World has joints: the PGS solve visits joint items too (`rbgen.pipeline.joints`)
+    joints: bool = False
     reasons: dict = dataclasses.field(compare=False, default_factory=dict)
     sources: dict = dataclasses.field(compare=False, default_factory=dict)
 
@@ -162,6 +164,7 @@ def derive_plan(
     *,
     tuned: dict | None = None,
     persistent_failed: bool = False,
+    joints: bool = False,
 ) -> Plan:
     """The plan of a World with construction ``options`` (checked, as `rbgen.settings`
     returns them) whose shapes have ``shape_types``, on a device with ``traits``.
@@ -169,6 +172,7 @@ def derive_plan(
     ``tuned``: the tuning cache's plan entry for this device (None: look it up).
     ``persistent_failed``: a persistent launch gave up on this World's device (its work
     groups did not all run at once), so none is planned.
+    ``joints``: the World has joints (only the PGS solver solves them).
     """
     if tuned is None:
         from .tuning import lookup_plan
@@ -206,6 +210,11 @@ def derive_plan(
         if solver == "pgs"
         else "set by the World's options"
     )
+    if joints and solver != "pgs":
+        raise RbgenError(
+            f"joints need solver='pgs' (the {solver} solver has no joint rows); make the "
+            f"World with solver='pgs' or without joints"
+        )
     validated = persistent_launch_validated(traits) and not persistent_failed
     batching = solve_form = warm_start_mode = None
     if solver == "pgs":
@@ -314,6 +323,7 @@ def derive_plan(
         broadphase=options["broadphase"],
         gyroscopic=bool(options["gyroscopic"]),
         shape_types=tuple(sorted(shape_types)),
+        joints=bool(joints),
         reasons=reasons,
         sources=sources,
     )

@@ -178,6 +178,14 @@ STEP_SETTINGS = (
         "fraction of the penetration the push sweeps remove a step",
     ),
     Option(
+        "joint_recovery",
+        0.5,
+        _number(0.0, 1.0),
+        "a number in [0, 1]",
+        "fraction of a joint's error (anchors apart, axes turned, a limit crossed) the "
+        "push sweeps remove a substep, without adding momentum",
+    ),
+    Option(
         "linear_damping",
         0.0,
         _number(0.0, 1.0, open_hi=True),

@@ -22,13 +22,14 @@ import warnings
 import numpy as np
 import pyopencl as cl
 
-from . import history
+from . import history, layouts
 from .bodies import STATE_FIELDS, BodyStore, floats, one_row, per_body
 from .codegen import KernelSpec, SpecLog
 from .device import Runtime, coerce_runtime
 from .errors import RbgenError
 from .forces import ExternalForces
 from .guard import STEPS_IN_FLIGHT, Replan, StepGuard
+from .joints import JointStore, joint_fields, joint_reactions, pack_joints
 from .memory import WorldMemory
 from .pipeline.step import StepContext, StepPipeline
 from .plan import Plan, derive_plan
@@ -77,6 +78,7 @@ class World:
         #: this World's own; a WorldBatch gives one environment's, so that its colouring
         #: does not depend on the number of environments)
         self._batching_scene: BodyStore | None = None
+        self._joints = JointStore(self.runtime)
         #: the plan of the current scene (rederived when the shape types change)
         self.plan: Plan = derive_plan(self.runtime.traits, construction)
         self._pipeline: StepPipeline | None = None
@@ -236,6 +238,7 @@ class World:
             history.renumber_bodies(self.runtime, self._pipeline, mapping)
             self._forces.resize(count)
             self._forces.renumber(mapping)
+            self._joints.renumber_bodies(mapping)
         return mapping
 
     # ------------------------------------------------------------- forces
@@ -250,6 +253,67 @@ class World:
         argument (and the body), and nothing is added."""
         self._forces.resize(self._bodies.count)
         self._forces.add(ids, forces, torques, points)
+
+    # ------------------------------------------------------------- joints
+    @property
+    def joint_count(self) -> int:
+        return self._joints.count
+
+    def add_joint(self, joint) -> int:
+        """Add one joint (`rbgen.BallJoint`, `FixedJoint`, `HingeJoint`, `SliderJoint`,
+        `DistanceJoint`; anchors and axes in world coordinates now); returns its id."""
+        kind, fields = joint_fields(joint)
+        return int(self.add_joints(kind, **fields)[0])
+
+    def add_joints(self, kind, **fields) -> np.ndarray:
+        """Many joints of one ``kind`` (a joint class) at once: each field (``a``, ``b``,
+        ``break_impulse`` and the kind's own, as its class names them) is one value for
+        all or one per joint (``b``: None or -1 for the world). Returns their ids. A bad
+        value raises `RbgenError` naming the joint and the field; nothing is added."""
+        if self.plan.solver != "pgs":
+            raise RbgenError(
+                f"joints need solver='pgs' (this World's solver is {self.plan.solver!r}, "
+                f"which has no joint rows)"
+            )
+        self._bodies.sync_to_host()
+        host = self._bodies.host
+        records = pack_joints(
+            kind,
+            fields,
+            self._joints.count,
+            host["position"][:, :3],
+            host["orientation"],
+            host["inv_mass"] > 0,
+        )
+        return self._joints.add(records)
+
+    def remove_joints(self, ids) -> np.ndarray:
+        """Remove the joints ``ids`` between steps; the later joints move down to close
+        the gap. Returns ``mapping`` over the old ids (new id, -1 removed)."""
+        return self._joints.remove(ids)
+
+    @property
+    def joint_impulses(self) -> np.ndarray:
+        """(J, 6) float32: the reaction of each joint on body b over the last step, world
+        frame: linear impulse (N s) then angular impulse (N m s); the last substep's
+        impulses times the substeps (a broken joint's are zero). Blocking reads."""
+        self._finish_pending()
+        self._joints.sync_to_host()
+        self._bodies.sync_to_host()
+        host = self._joints.host
+        linear, angular = joint_reactions(
+            host, self._bodies.host["position"][:, :3], self._bodies.host["orientation"]
+        )
+        out = np.zeros((len(host), 6), np.float32)
+        out[:, :3], out[:, 3:] = linear, angular
+        return out * np.float32(self.settings.substeps)
+
+    @property
+    def joints_broken(self) -> np.ndarray:
+        """(J,) bool: the joints that broke (exceeded their break_impulse). A blocking read."""
+        self._finish_pending()
+        self._joints.sync_to_host()
+        return (self._joints.host["flags"] & layouts.JOINT_BROKEN) != 0
 
     # ------------------------------------------------------------- state
     def set_state(
@@ -282,6 +346,7 @@ class World:
             affected = np.zeros(self._bodies.count, bool)
             affected[ids] = True
             history.forget_bodies(self.runtime, self._pipeline, affected)
+            self._joints.forget_bodies(affected)
 
     def _field(self, what):
         name, lanes = STATE_FIELDS[what]
@@ -338,6 +403,7 @@ class World:
             self.options,
             self.shapes.type_names(),
             persistent_failed=self._persistent_failed,
+            joints=self._joints.count > 0,
         )
         if self._pipeline is None:
             self._pipeline = StepPipeline(
@@ -346,6 +412,7 @@ class World:
                 self.shapes,
                 pair_capacity=self.options["pair_capacity"],
                 manifold_capacity=self.options["manifold_capacity"],
+                joint_store=self._joints,
             )
         elif plan != self.plan:
             self._pipeline.replan(plan)
@@ -353,6 +420,18 @@ class World:
         self._device = self._bodies.upload(self.runtime.queue, STEPS_IN_FLIGHT, self._device)
         self._packed = self.shapes.pack_all().to_device(self.runtime.queue)
         self._size_pipeline(self._pipeline)
+        self._upload_joints()
+
+    def _upload_joints(self) -> None:
+        """Send the joint records after a change; the contacts' edges follow the joints'."""
+        self._joints.upload()
+        if self._pipeline is not None:
+            contacts = self._pipeline.constraints.constraints
+            contacts.first_contact_edge = self._joints.count
+            has = self._joints.count > 0
+            contacts.set_joint_pairs(
+                self._joints.pairs if has else None, self._joints.pair_count if has else 0
+            )
 
     def _size_pipeline(self, pipeline: StepPipeline) -> None:
         """Size the pipeline's buffers for the bodies, set the batching's scene geometry and
@@ -387,8 +466,12 @@ class World:
                 self._check_in_flight(keep=STEPS_IN_FLIGHT - 1)
                 if not bodies.has_dynamic and not bodies.host_stale:
                     continue  # nothing can move (empty or static-only world)
-                if bodies.device_stale:
+                if bodies.device_stale or (
+                    self._joints.dirty and (self._joints.count > 0) != self.plan.joints
+                ):
                     self._upload()
+                elif self._joints.dirty:
+                    self._upload_joints()
                 self._enqueue_step(float(dt) / int(substeps))
         self.steps += 1
         self.last_step_counters = {k: self.runtime.counters[k] - before[k] for k in before}
@@ -448,7 +531,11 @@ class World:
         self._persistent_failed = True
         old = self.plan
         self.plan = derive_plan(
-            self.runtime.traits, self.options, self.shapes.type_names(), persistent_failed=True
+            self.runtime.traits,
+            self.options,
+            self.shapes.type_names(),
+            persistent_failed=True,
+            joints=self._joints.count > 0,
         )
         self._steps.replan(self.plan)
         self._size_pipeline(self._steps)

@@ -313,18 +313,29 @@ def test_exported_jacobi_solver_builds_standalone(runtime, tmp_path, persistent)
         assert len({tuple(args) for args in names.values()}) == 1
 
 
-@pytest.mark.parametrize("options", [{}, {"solver": "jacobi"}, {"batching": "cells"}])
-def test_world_export_is_exactly_what_the_world_compiled(runtime, tmp_path, options):
+@pytest.mark.parametrize(
+    "scene, options",
+    [
+        ("boxbox", {}),
+        ("boxbox", {"solver": "jacobi"}),
+        ("boxbox", {"batching": "cells"}),
+        ("ragdolls", {}),
+        ("ragdolls", {"batching": "global"}),
+    ],
+)
+def test_world_export_is_exactly_what_the_world_compiled(runtime, tmp_path, scene, options):
     """`rbgen export --world` = what runs: every source the World handed the compiler
     (recorded as it compiled, through its spec log) is exported byte for byte, with the
-    same build options, nothing more, and the exported plan is the World's."""
+    same build options, nothing more, and the exported plan is the World's. A jointed
+    scene (ragdolls) exports its joint stage and a solver that visits joints, with the
+    joint records among its arguments."""
     from rbgen.codegen import SpecLog
     from rbgen.export import export_world
     from rbgen.harness import build_scene
 
     compiled = SpecLog(runtime)
     with compiled:  # an independent record of every compile_spec while the World is made
-        world = build_scene("boxbox", 64, runtime, **options)[0]
+        world = build_scene(scene, 64 if scene == "boxbox" else 2, runtime, **options)[0]
         world.step(1 / 60)
         world.step(1 / 60)
         world.statistics()
@@ -349,6 +360,14 @@ def test_world_export_is_exactly_what_the_world_compiled(runtime, tmp_path, opti
     plan = json.loads((tmp_path / "plan.json").read_text())
     assert plan["choices"]["batching"] == world.plan.batching
     assert manifest["plan"]["choices"]["solver"] == world.plan.solver
+    assert plan["choices"]["joints"] is (scene == "ragdolls")
+    if scene == "ragdolls":
+        templates = {e["template"]: e for e in manifest["files"]}
+        assert "pipeline/joints.cl.mako" in templates
+        solver = templates["pipeline/solvers/pgs.cl.mako"]
+        assert solver["params"]["joints"] is True
+        solve = next(k for k in solver["kernels"] if k["name"] == "solve_groups")
+        assert {"joints", "inv_h", "joint_recovery"} <= {a["name"] for a in solve["args"]}
     for entry in manifest["files"]:  # and every exported file builds standalone
         cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build(
             options=entry["build_options"]

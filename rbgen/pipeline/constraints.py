@@ -59,12 +59,18 @@ TEMPLATE = KernelTemplate(
             (True, False),
             "emit the previous-step lookup only when warm starting is on",
         ),
+        Param(
+            "filter_joints",
+            (False, True),
+            "worlds with joints: a manifold between two joined bodies gets no point",
+        ),
     ],
     doc="Contact constraints (a normal row per point, a friction pair and a twist row per "
     "manifold) from contact manifolds.",
     defaults=lambda traits: {
         "work_group_size": default_work_group_size(traits),
         "warm_start": True,
+        "filter_joints": False,
     },
 )
 
@@ -113,9 +119,11 @@ class ContactConstraints:
         self.runtime = runtime
         self.warm_start = bool(warm_start)
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
-        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size, warm_start=self.warm_start)
-        program = compile_spec(runtime, self.spec)
-        self.setup_kernel = runtime.bound(program.kernel("setup_contact_constraints"))
+        #: sorted (lower, higher) body pairs joined by a joint (device uint2 array) and their
+        #: count; None: no filter (a World without joints)
+        self.joint_pairs = None
+        self.joint_pair_count = 0
+        self._build(filter_joints=False)
         #: a stand-in for the next generation's table before that generation exists
         self._no_table = cl_array.zeros(runtime.queue, 1, np.uint32)
         #: an empty previous generation (a count of 0 and a table with no entry): what a
@@ -142,6 +150,22 @@ class ContactConstraints:
         #: step (the World redoes up to two) may need again for its warm start
         self._generations: list[_Buffers | None] = [None] * GENERATIONS
         self._current = GENERATIONS - 1
+
+    def _build(self, filter_joints: bool) -> None:
+        self.spec = TEMPLATE.spec(
+            work_group_size=self.work_group_size,
+            warm_start=self.warm_start,
+            filter_joints=bool(filter_joints),
+        )
+        program = compile_spec(self.runtime, self.spec)
+        self.setup_kernel = self.runtime.bound(program.kernel("setup_contact_constraints"))
+
+    def set_joint_pairs(self, pairs, count: int) -> None:
+        """Contacts between the joined body pairs ``pairs`` (a device uint2 array, sorted,
+        lower body first; None: no joints) get no points from the next call on."""
+        if (pairs is None) != (self.joint_pairs is None):
+            self._build(filter_joints=pairs is not None)
+        self.joint_pairs, self.joint_pair_count = pairs, int(count)
 
     @property
     def generations(self) -> tuple:
@@ -262,6 +286,8 @@ class ContactConstraints:
                 np.float32(self.warm_start_factor),
                 np.float32(self.match_distance),
             ]
+        if self.joint_pairs is not None:
+            args += [self.joint_pairs, np.uint32(self.joint_pair_count)]
         args += [
             np.float32(dt),
             np.array([*self.gravity, 0.0], dtype=np.float32),

@@ -1,7 +1,7 @@
 """The step pipeline written as data: the stages of a World step, in order.
 
     prepare -> broadphase -> [midphase] -> narrowphase -> [children] -> constraints
-            -> [batching] -> solve (each substep: sweeps, then integrate)
+            -> [joints] -> [batching] -> solve (each substep: sweeps, then integrate)
 
 `StepPipeline.stages` is that list; a step walks it, each stage enqueuing its kernels
 (no blocking read). Every stage owns the buffers it writes (the prepare stage the AABBs,
@@ -35,6 +35,7 @@ from .broadphase.pairs import PairBuffer
 from .constraints import ContactConstraints
 from .device_barrier import ABANDONED_OFFSET, clear_abandoned
 from .integrate import DEFAULT_MAX_ANGULAR_STEP, Integrator
+from .joints import JointEdges
 from .midphase import STATUS_WORDS, Midphase, needs_midphase
 from .narrowphase import Narrowphase
 from .prepare import BodyPreparation
@@ -429,6 +430,42 @@ class ConstraintStage(Stage):
         )  # (the first substep's targets)
 
 
+class JointStage(Stage):
+    """The joints' constraint edges and the break test (`rbgen.pipeline.joints`), after
+    the contact setup chose this step's edge generation. Only in worlds with joints."""
+
+    name = "joints"
+
+    def __init__(self, runtime: Runtime, constraints: ConstraintStage, store):
+        self.runtime = runtime
+        self.constraints = constraints
+        #: the World's `rbgen.joints.JointStore`
+        self.store = store
+        self.edges = JointEdges(runtime)
+        #: (joint list version, edge array) of the last step: its colours are inherited
+        self._last: tuple | None = None
+
+    def enqueue(self, step: StepContext) -> None:
+        store, c = self.store, self.constraints.constraints
+        if store.count == 0:
+            return
+        edges = c.edges
+        last = self._last
+        inherit = last is not None and last[0] == store.version
+        previous = last[1] if last is not None and inherit else edges
+        self.edges(
+            store.device,
+            store.count,
+            step.bodies.bodies,
+            edges,
+            previous,
+            inherit,
+            step.settings.substeps,
+        )
+        self._last = (store.version, edges)
+        store.device_newer = True
+
+
 class BatchingStage(Stage):
     """The PGS solver's colouring of the step's constraint edges (`rbgen.pipeline.batching`)."""
 
@@ -489,9 +526,11 @@ class SolveStage(Stage):
         plan: Plan,
         constraints: ConstraintStage,
         batching: BatchingStage | None,
+        joints: JointStage | None = None,
     ):
         self.runtime = runtime
         self.constraints = constraints
+        self.joints = joints
         self.solver: PgsSolver | JacobiSolver
         if plan.solver == "pgs":
             assert batching is not None
@@ -503,6 +542,7 @@ class SolveStage(Stage):
                 fast_math=plan.fast_math,
                 warm_start_mode=plan.warm_start_mode,
                 release_sweeps=plan.release_sweeps,
+                joints=plan.joints,
             )
         else:
             self.solver = JacobiSolver(
@@ -519,6 +559,7 @@ class SolveStage(Stage):
         c, b, s = self.constraints, step.bodies, step.settings
         constraints, count = c.constraints.constraints, c.constraints.count
         substeps, h = s.substeps, step.h
+        joints = {} if self.joints is None else {"joints": self.joints.store.device, "h": h}
         split = self.solver.split_velocities(b.count) if s.position_iterations > 0 else None
         deltas = None
         if substeps > 1 or getattr(self.solver, "integrates", False):
@@ -539,7 +580,15 @@ class SolveStage(Stage):
                 deltas,
             )
             self.solver.solve(
-                constraints, count, c.capacity, b.bodies, b.inertia, b.count, s, motion=motion
+                constraints,
+                count,
+                c.capacity,
+                b.bodies,
+                b.inertia,
+                b.count,
+                s,
+                motion=motion,
+                **joints,
             )
             return
         for k in range(substeps):
@@ -556,7 +605,9 @@ class SolveStage(Stage):
                     s.penetration_recovery,
                     k == substeps - 1,
                 )
-            self.solver.solve(constraints, count, c.capacity, b.bodies, b.inertia, b.count, s)
+            self.solver.solve(
+                constraints, count, c.capacity, b.bodies, b.inertia, b.count, s, **joints
+            )
             self.integrator(
                 b.bodies,
                 b.count,
@@ -617,8 +668,11 @@ class StepPipeline:
         pair_capacity=None,
         manifold_capacity=None,
         warm_start: bool = True,
+        joint_store=None,
     ):
         self.runtime, self.shapes = runtime, shapes
+        #: the World's `rbgen.joints.JointStore` (None: a pipeline without joints)
+        self.joint_store = joint_store
         self.pair_capacity, self.manifold_capacity = pair_capacity, manifold_capacity
         self.plan = plan
         self._build_collision(plan)
@@ -645,8 +699,13 @@ class StepPipeline:
 
     def _build_solve(self, plan: Plan) -> None:
         rt = self.runtime
+        self.joints = (
+            JointStage(rt, self.constraints, self.joint_store)
+            if plan.joints and self.joint_store is not None
+            else None
+        )
         self.batching = BatchingStage(rt, plan, self.constraints) if plan.solver == "pgs" else None
-        self.solve = SolveStage(rt, plan, self.constraints, self.batching)
+        self.solve = SolveStage(rt, plan, self.constraints, self.batching, self.joints)
         self._assemble()
 
     def _assemble(self) -> None:
@@ -659,6 +718,7 @@ class StepPipeline:
                 self.narrowphase,
                 self.children,
                 self.constraints,
+                self.joints,
                 self.batching,
                 self.solve,
             )
@@ -686,6 +746,7 @@ class StepPipeline:
             "release_sweeps",
             "ordered_rounds",
             "group_count",
+            "joints",
         )
         if any(getattr(old, c) != getattr(plan, c) for c in solve_choices):
             self._build_solve(plan)

@@ -478,8 +478,12 @@ def pgs_specs():
     """Every reachable specialisation of the PGS template (exact builds), by the rules
     between its parameters."""
     specs = []
-    for form, persistent, warm, normal in itertools.product(
-        ("serial", "lanes"), (False, True), pgs.WARM_START_MODES, ("block", "sequential")
+    for form, persistent, warm, normal, joints in itertools.product(
+        ("serial", "lanes"),
+        (False, True),
+        pgs.WARM_START_MODES,
+        ("block", "sequential"),
+        (False, True),
     ):
         try:
             specs.append(
@@ -491,6 +495,7 @@ def pgs_specs():
                     persistent=persistent,
                     fast_math=False,
                     warm_start_mode=warm,
+                    joints=joints,
                 )
             )
         except TemplateParameterError:
@@ -503,7 +508,8 @@ def test_kernel_signatures_are_the_declarations():
     (and of the Jacobi kernels) are exactly the declared arguments of that
     specialisation, names and types, in order."""
     specs = pgs_specs()
-    assert len(specs) == 8  # serial; lanes; persistent batched; persistent summed; x 2
+    # serial; lanes; persistent batched; persistent summed; x 2 normal solves x 2 (joints)
+    assert len(specs) == 16
     cases = [(spec, pgs.TEMPLATE) for spec in specs]
     cases += [
         (

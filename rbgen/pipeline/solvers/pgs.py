@@ -31,12 +31,13 @@ solve, only the last ``release_sweeps`` sweeps solve each manifold's complete bl
 the earlier ones take its all-pushing solution where it holds (a cheaper sweep).
 
 Constraint kinds: the batcher's ``order`` lists constraint-edge items
-(`layouts.CONSTRAINT_EDGE`); a contact's item is its index in the constraints, and
-contacts are the only kind the template visits. A joint kind joins by bringing its rows
-(a template beside ``contact_rows.cl.mako``), its buffer as a declared argument of
-``SOLVE_GROUPS`` (with the condition of the plans that have that kind), and a case in the
-item visits of ``pgs.cl.mako`` (``solve_copy``/``solve_rows`` and the warm starts pick
-the kind from the item's high bits, emitted only when the plan has that kind).
+(`layouts.CONSTRAINT_EDGE`); a contact's item is its index in the constraints. With
+``joints`` (a World that has joints), a joint's item (kind ``layouts.EDGE_JOINT``) names
+its record in the ``joints`` buffer, whose rows (``joint_rows.cl.mako``) are solved in
+the same batches, sweeps and launches: the item visits of ``pgs.cl.mako`` (the warm
+starts, ``solve_copy``, the serial loops) pick the kind from the item's high bits, a case
+emitted only when the plan has joints, so that a World without joints runs the contact
+solver unchanged.
 
 Arguments: ``SOLVE_GROUPS`` declares solve_groups' arguments once; the template renders
 them and `PgsSolver` binds them by name through it (`rbgen.codegen.Signature`), so the
@@ -99,6 +100,10 @@ def _serial(values) -> bool:
     return values["solve_form"] == "serial"
 
 
+def _joints(values) -> bool:
+    return values["joints"]
+
+
 #: solve_groups' arguments, in order: the template renders them, `PgsSolver` binds them.
 #: The buffers and ``relaxation`` are bound once per solve; the trailing scalars once per
 #: kernel object (`rbgen.launch.instance`), one object per distinct set of them.
@@ -106,6 +111,7 @@ SOLVE_GROUPS = Signature(
     "solve_groups",
     [
         Arg("__global ContactConstraint*", "constraints"),
+        Arg("__global JointConstraint*", "joints", when=_joints),
         Arg("__global const uint*", "order"),
         Arg("__global const uint*", "group_batches"),
         Arg("__global const uint*", "group_batch_count"),
@@ -117,6 +123,9 @@ SOLVE_GROUPS = Signature(
         Arg("volatile __global BodyDelta*", "deltas", when=_persistent),
         Arg("const uint", "body_count", when=lambda v: _summed(v) or _persistent(v)),
         Arg("const float", "relaxation"),
+        # joints: 1 / the substep, and the fraction of a joint's error pushed out a substep
+        Arg("const float", "inv_h", when=_joints),
+        Arg("const float", "joint_recovery", when=_joints),
         # a persistent launch runs the step's substeps itself (see the template)
         Arg("const uint", "substeps", when=_persistent),
         Arg("const float", "h", when=_persistent),
@@ -138,6 +147,7 @@ SOLVE_GROUPS = Signature(
 #: the buffers of a solve and ``relaxation`` (bound once per solve), in SOLVE_GROUPS' order
 SOLVE_BUFFERS = (
     "constraints",
+    "joints",
     "order",
     "group_batches",
     "group_batch_count",
@@ -149,6 +159,8 @@ SOLVE_BUFFERS = (
     "deltas",
     "body_count",
     "relaxation",
+    "inv_h",
+    "joint_recovery",
     "substeps",
     "h",
     "gravity",
@@ -209,6 +221,13 @@ TEMPLATE = KernelTemplate(
         ),
         fast_math_param(),
         Param(
+            "joints",
+            (False, True),
+            "visit joint items of the constraint-edge list too (their rows: "
+            "joint_rows.cl.mako); off for Worlds without joints, whose solve is the contact "
+            "solver alone",
+        ),
+        Param(
             "warm_start_mode",
             WARM_START_MODES,
             "batched: the warm start is a sweep over the batches (one batch step per "
@@ -224,6 +243,7 @@ TEMPLATE = KernelTemplate(
         "sync": "inout",
         "warm_sums": "inout",
         "deltas": "inout",
+        "joints": "inout",
     },
     requires=lambda v: _parameter_rules(v),
     build_options=fast_math_options,
@@ -247,6 +267,7 @@ def default_values(
         ),
         "persistent": persistent,
         "fast_math": resolve_fast_math(traits, None),
+        "joints": False,
         "warm_start_mode": "summed"
         if persistent and traits.has_extension(INT64_ATOMICS)
         else "batched",
@@ -364,6 +385,7 @@ class PgsSolver(PushVelocities):
         warm_start_mode: str | None = None,
         work_group_size: int | None = None,
         release_sweeps: int | None = None,
+        joints: bool = False,
     ):
         self.runtime = runtime
         self.batcher = batcher
@@ -389,6 +411,7 @@ class PgsSolver(PushVelocities):
         }
         values.update({k: v for k, v in overrides.items() if v is not None})
         values["max_batches"] = int(batcher.max_batches)
+        values["joints"] = bool(joints)
         check_release_sweeps(release_sweeps)
         self.release_sweeps = None if release_sweeps is None else int(release_sweeps)
         self.spec = TEMPLATE.spec(**values)
@@ -446,12 +469,16 @@ class PgsSolver(PushVelocities):
         body_count: int,
         sweeps,
         motion: SubstepMotion | None = None,
+        joints=None,
+        h: float | None = None,
     ) -> None:
         """Warm start (every constraint's old impulses, before any sweep),
         ``sweeps.iterations`` velocity sweeps and ``sweeps.position_iterations``
         split-impulse sweeps over the batches of the batcher's last call, launched as the
         module docstring says. ``body_count``: all bodies, static ones too (indexed as in
-        ``bodies``); the count arguments are the batcher's (unused here). A solver that
+        ``bodies``); the count arguments are the batcher's (unused here). A solver built
+        with joints takes the device `JointConstraint` records (``joints``, the items of
+        kind EDGE_JOINT index them), the substep ``h`` and ``sweeps.joint_recovery``. A solver that
         `integrates` runs all ``motion.substeps`` substeps and moves the bodies; without
         ``motion`` it solves once and leaves them where they are."""
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
@@ -479,6 +506,12 @@ class PgsSolver(PushVelocities):
         if self.spec.values["warm_start_mode"] == "summed":
             given["warm_sums"] = self._warm_sum_buffer(max(1, int(body_count)))
         given["body_count"] = np.uint32(body_count)
+        if self.spec.values["joints"]:
+            if joints is None or h is None or not h > 0:
+                raise RbgenError("a solver built with joints needs the joints and h > 0")
+            given["joints"] = joints
+            given["inv_h"] = np.float32(1.0 / h)
+            given["joint_recovery"] = np.float32(sweeps.joint_recovery)
         if self.persistent:  # (substeps 0 unless it runs the step's substeps)
             given.update(
                 (

@@ -21,6 +21,11 @@
 % else:
  * with zero starting impulses.
 % endif
+% if filter_joints:
+ * A manifold between two bodies joined by a joint gets no point (the joint
+ * holds them; a contact there would push against it): `joint_pairs` lists
+ * the joined pairs (lower body first), sorted.
+% endif
  */
 ${cl_constants()}
 
@@ -111,6 +116,24 @@ inline void warm_start_from(__global const ContactConstraint* old, const float m
 }
 % endif
 
+% if filter_joints:
+/* Are bodies a and b joined (a pair of the sorted list, lower body first)? */
+inline bool joined(__global const uint2* pairs, uint count, uint a, uint b)
+{
+    uint lo = min(a, b), hi = max(a, b);
+    uint first = 0, end = count;
+    while (first < end) {  /* the first pair not below (lo, hi) */
+        uint middle = (first + end) / 2;
+        uint2 p = pairs[middle];
+        if (p.x < lo || (p.x == lo && p.y < hi))
+            first = middle + 1;
+        else
+            end = middle;
+    }
+    return first < count && pairs[first].x == lo && pairs[first].y == hi;
+}
+
+% endif
 /* The edge batching colours for contact i (layouts: ConstraintEdge): its bodies,
  * its item (the contact kind is 0: the item is the index), the colour global
  * batching starts it from, and its first point (spatial batching's cell). */
@@ -164,6 +187,10 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
                                const float warm_start_factor,
                                const float match_distance,
 % endif
+% if filter_joints:
+                               __global const uint2* joint_pairs,
+                               const uint joint_pair_count,
+% endif
                                const float dt,
                                const float4 gravity,
                                const float restitution_threshold,
@@ -212,6 +239,10 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     c.sub = sub;
     uint point_count = m->point_count;
     c.point_count = point_count < RB_MAX_MANIFOLD_POINTS ? point_count : RB_MAX_MANIFOLD_POINTS;
+% if filter_joints:
+    if (joined(joint_pairs, joint_pair_count, a, b))
+        c.point_count = 0;  /* (an inactive constraint: the joint holds the pair) */
+% endif
     c.features = (uint4)(m->features[0], m->features[1], m->features[2], m->features[3]);
     c.normal_impulse = c.tangent1_impulse = c.tangent2_impulse = c.push_impulse = (float4)(0.0f);
     float velocity_target[4] = {0}, position_target[4] = {0};

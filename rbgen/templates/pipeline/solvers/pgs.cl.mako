@@ -9,6 +9,10 @@
     # copy, whose loads are all issued at once (in place, PoCL reads the fields back
     # through failed store forwarding; a copy there is a memcpy a visit)
     constraint_space = "__global" if serial else "__private"
+    # what the visits of joint items take besides a contact's arguments (joints only)
+    joint_params = (", __global JointConstraint* joints, const float inv_h, "
+                    "const float joint_recovery") if joints else ""
+    joint_args = ", joints, inv_h, joint_recovery" if joints else ""
 %>\
 /* Projected Gauss-Seidel over batched constraints. solve_groups runs the
  * warm start and the sweeps of one launch over the groups it is given, as
@@ -77,14 +81,22 @@
  *
 % endif
  * `order` lists constraint-edge items (layouts: ConstraintEdge). A contact's
- * item is its index in `constraints` (the contact kind is 0), and contacts
+ * item is its index in `constraints` (the contact kind is 0)${";" if joints else ", and contacts"}
+% if joints:
+ * a joint's is RB_EDGE_JOINT << RB_EDGE_KIND_SHIFT | its index in `joints`
+ * (joint_rows.cl.mako): joints are solved in the same batches and sweeps as
+ * contacts, their rows on the velocities and their error on the push
+ * velocities, and need no refresh between substeps (their rows measure the
+ * bodies' poses of the substep). The program may be built with
+% else:
  * are the only kind this solver visits. The program may be built with
+% endif
  * -cl-fast-relaxed-math: nothing here relies on an infinity or a NaN.
  */
 ${cl_constants()}
 
 ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
-             *(("BodyDelta",) if persistent else ()))}
+             *(("BodyDelta",) if persistent else ()), *(("JointConstraint",) if joints else ()))}
 
 #define MAX_BATCHES ${max_batches}
 /* what one solve_groups launch does before its sweeps (bit flags of `passes`) */
@@ -104,6 +116,8 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
 <%include file="/common/quaternion.cl.mako"/>
 <%include file="/common/device_barrier.cl.mako"/>
 <%include file="/common/body_motion.cl.mako"/>
+% elif joints:
+<%include file="/common/quaternion.cl.mako"/>
 % else:
 <%include file="/common/inline_math.cl.mako"/>
 % endif
@@ -222,15 +236,105 @@ inline void solve_rows(${constraint_space} ContactConstraint* c, ${velocity_spac
     if (s.push)
         store_push(&push_state, split, a, b);
 }
+% if joints:
+
+<%include file="/pipeline/solvers/joint_rows.cl.mako"/>
+
+/* Is this item of `order` a joint's? */
+inline bool is_joint(uint item)
+{
+    return item >> RB_EDGE_KIND_SHIFT == RB_EDGE_JOINT;
+}
+
+/* A joint's bodies (B static when it is the world) and its geometry this
+ * substep, from the bodies' poses. */
+inline void load_joint(__global const JointConstraint* j, ${velocity_space} const Body* bodies,
+                       __global const BodyInertia* inertia, __private ContactBodies* p,
+                       JointFrame* f)
+{
+    uint a = j->body_a, b = j->body_b;
+    load_bodies(p, bodies, inertia, a, b);
+    float3 xb = (float3)(0.0f);
+    float4 qb = (float4)(0.0f, 0.0f, 0.0f, 1.0f);
+    if (j->flags & RB_JOINT_WORLD) {
+        p->inv_mass_b = 0.0f;
+        p->inv_inertia_b[0] = p->inv_inertia_b[1] = p->inv_inertia_b[2] = (float3)(0.0f);
+    } else {
+        xb = bodies[b].position.xyz;
+        qb = bodies[b].orientation;
+    }
+    joint_frame(j, bodies[a].position.xyz, bodies[a].orientation, xb, qb, f);
+}
+
+/* The world does not move: B's velocities of a joint to the world are zero. */
+inline void still_world(__global const JointConstraint* j, __private ContactBodies* p)
+{
+    if (j->flags & RB_JOINT_WORLD)
+        p->vb = p->wb = (float3)(0.0f);
+}
+
+/* The warm start of joint `index`: its accumulated impulses applied to its
+ * bodies' velocities (a broken joint acts no more). */
+inline void warm_start_joint(__global const JointConstraint* joints, uint index,
+                             ${velocity_space} Body* bodies, __global const BodyInertia* inertia)
+{
+    __global const JointConstraint* j = &joints[index];
+    if (j->flags & RB_JOINT_BROKEN)
+        return;
+    ContactBodies state;
+    JointFrame f;
+    load_joint(j, bodies, inertia, &state, &f);
+    load_velocities(&state, bodies, j->body_a, j->body_b);
+    still_world(j, &state);
+    warm_start_joint_rows(j, &f, &state);
+    store_velocities(&state, bodies, j->body_a, j->body_b);
+}
+
+/* One sweep's rows of joint `index`, in place (joint_rows.cl.mako): its
+ * velocity rows on the velocities, its push rows on the push velocities. */
+inline void solve_joint(__global JointConstraint* joints, uint index,
+                        ${velocity_space} Body* bodies, __global const BodyInertia* inertia,
+                        ${velocity_space} SplitVelocity* split, const float inv_h,
+                        const float joint_recovery, const Sweep s)
+{
+    __global JointConstraint* j = &joints[index];
+    if (j->flags & RB_JOINT_BROKEN)
+        return;
+    uint a = j->body_a, b = j->body_b;
+    ContactBodies state;
+    JointFrame f;
+    load_joint(j, bodies, inertia, &state, &f);
+    if (s.velocity) {
+        ContactBodies velocity_state = state;
+        load_velocities(&velocity_state, bodies, a, b);
+        still_world(j, &velocity_state);
+        solve_joint_rows(j, &f, &velocity_state, inv_h, joint_recovery, false);
+        store_velocities(&velocity_state, bodies, a, b);
+    }
+    if (s.push) {
+        load_push(&state, split, a, b);
+        still_world(j, &state);
+        solve_joint_rows(j, &f, &state, inv_h, joint_recovery, true);
+        store_push(&state, split, a, b);
+    }
+}
+% endif
 % if serial:
 
 /* The warm start of a group's constraints order[begin .. end - 1], in order. */
 inline void warm_start_group_serial(__global ContactConstraint* constraints,
                                     __global const uint* order, uint begin, uint end,
-                                    __global Body* bodies, __global const BodyInertia* inertia)
+                                    __global Body* bodies, __global const BodyInertia* inertia${joint_params})
 {
-    for (uint i = begin; i < end; ++i)
+    for (uint i = begin; i < end; ++i) {
+% if joints:
+        if (is_joint(order[i])) {
+            warm_start_joint(joints, order[i] & RB_EDGE_INDEX_MASK, bodies, inertia);
+            continue;
+        }
+% endif
         warm_start_rows(&constraints[order[i]], bodies, inertia);
+    }
 }
 
 /* One sweep over a group's constraints order[begin .. end - 1], in order. */
@@ -238,10 +342,18 @@ inline void solve_group_serial(__global ContactConstraint* constraints,
                                __global const uint* order, uint begin, uint end,
                                __global Body* bodies, __global const BodyInertia* inertia,
                                __global SplitVelocity* split, const float relaxation,
-                               const Sweep s)
+                               const Sweep s${joint_params})
 {
-    for (uint i = begin; i < end; ++i)
+    for (uint i = begin; i < end; ++i) {
+% if joints:
+        if (is_joint(order[i])) {
+            solve_joint(joints, order[i] & RB_EDGE_INDEX_MASK, bodies, inertia, split, inv_h,
+                        joint_recovery, s);
+            continue;
+        }
+% endif
         solve_rows(&constraints[order[i]], bodies, inertia, split, relaxation, s);
+    }
 }
 % else:
 
@@ -251,8 +363,15 @@ inline void solve_group_serial(__global ContactConstraint* constraints,
 inline void solve_copy(__global ContactConstraint* constraints, uint index,
                        ${velocity_space} Body* bodies, __global const BodyInertia* inertia,
                        ${velocity_space} SplitVelocity* split, const float relaxation,
-                       const Sweep s)
+                       const Sweep s${joint_params})
 {
+% if joints:
+    if (is_joint(index)) {  /* (a joint's item: solved in place) */
+        solve_joint(joints, index & RB_EDGE_INDEX_MASK, bodies, inertia, split, inv_h,
+                    joint_recovery, s);
+        return;
+    }
+% endif
     ContactConstraint c = constraints[index];
     solve_rows(&c, bodies, inertia, split, relaxation, s);
     if (s.velocity) {
@@ -280,10 +399,16 @@ inline uint2 batch_share(uint first, uint end, uint batch, uint lane, uint lanes
 inline void warm_start_batch(__global const ContactConstraint* constraints,
                              __global const uint* order, uint first, uint end, uint batch,
                              uint lane, uint lanes, ${velocity_space} Body* bodies,
-                             __global const BodyInertia* inertia)
+                             __global const BodyInertia* inertia${joint_params})
 {
     const uint2 share = batch_share(first, end, batch, lane, lanes);
     for (uint i = share.x; i < end; i += share.y) {
+% if joints:
+        if (is_joint(order[i])) {
+            warm_start_joint(joints, order[i] & RB_EDGE_INDEX_MASK, bodies, inertia);
+            continue;
+        }
+% endif
         ContactConstraint c = constraints[order[i]];  /* a private copy */
         warm_start_rows(&c, bodies, inertia);
     }
@@ -296,11 +421,11 @@ inline void solve_batch_lanes(__global ContactConstraint* constraints, __global 
                               uint first, uint end, uint batch, uint lane,
                               __global Body* bodies, __global const BodyInertia* inertia,
                               __global SplitVelocity* split, const float relaxation,
-                              const Sweep s)
+                              const Sweep s${joint_params})
 {
     const uint2 share = batch_share(first, end, batch, lane, ${work_group_size}u);
     for (uint i = share.x; i < end; i += share.y)
-        solve_copy(constraints, order[i], bodies, inertia, split, relaxation, s);
+        solve_copy(constraints, order[i], bodies, inertia, split, relaxation, s${joint_args});
 }
 % endif
 % if persistent:
@@ -315,7 +440,7 @@ inline void solve_batch_persistent(__global ContactConstraint* constraints,
                                    volatile __global Body* bodies,
                                    __global const BodyInertia* inertia,
                                    volatile __global SplitVelocity* split,
-                                   const float relaxation, const Sweep s)
+                                   const float relaxation, const Sweep s${joint_params})
 {
     const uint lanes = get_global_size(0);
     const uint push_owner = end - first <= push_offset ? push_lane : lane;
@@ -324,14 +449,14 @@ inline void solve_batch_persistent(__global ContactConstraint* constraints,
         velocity_rows.push = false;
         const uint2 share = batch_share(first, end, batch, lane, lanes);
         for (uint i = share.x; i < end; i += share.y)
-            solve_copy(constraints, order[i], bodies, inertia, split, relaxation, velocity_rows);
+            solve_copy(constraints, order[i], bodies, inertia, split, relaxation, velocity_rows${joint_args});
     }
     if (s.push) {
         Sweep push_rows = s;
         push_rows.velocity = false;
         const uint2 share = batch_share(first, end, batch, push_owner, lanes);
         for (uint i = share.x; i < end; i += share.y)
-            solve_copy(constraints, order[i], bodies, inertia, split, relaxation, push_rows);
+            solve_copy(constraints, order[i], bodies, inertia, split, relaxation, push_rows${joint_args});
     }
 }
 % endif
@@ -373,11 +498,17 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
         const uint first = offsets[batch], end = offsets[batch + 1];
         const uint2 share = batch_share(first, end, batch, lane, lanes);
         for (uint i = share.x; i < end; i += share.y)
+% if joints:
+            if (!is_joint(order[i]))  /* (a joint measures the poses itself) */
+% endif
             refresh_item(constraints, order[i], deltas, h, penetration_slop,
                          penetration_recovery, true, false, last);
         const uint owner = push_owner_of(first, end, lane, push_lane, push_offset);
         const uint2 push_share = batch_share(first, end, batch, owner, lanes);
         for (uint i = push_share.x; i < end; i += push_share.y)
+% if joints:
+            if (!is_joint(order[i]))
+% endif
             refresh_item(constraints, order[i], deltas, h, penetration_slop,
                          penetration_recovery, false, true, last);
     }
@@ -450,19 +581,34 @@ inline void sum_warm_starts(__global const ContactConstraint* constraints,
                             __global const uint* order, __global const uint* offsets,
                             uint batch_count, uint lane,
                             volatile __global Body* bodies, __global const BodyInertia* inertia,
-                            volatile __global long* warm_sums, const bool ok)
+                            volatile __global long* warm_sums, const bool ok${joint_params})
 {
     const uint lanes = get_global_size(0);
     for (uint batch = 0; ok && batch < batch_count; ++batch) {
       const uint first = offsets[batch], end = offsets[batch + 1];
       const uint2 share = batch_share(first, end, batch, lane, lanes);
       for (uint i = share.x; i < end; i += share.y) {
-        ContactConstraint c = constraints[order[i]];  /* a private copy */
-        uint a = c.body_a, b = c.body_b;
         ContactBodies state;
-        load_bodies(&state, bodies, inertia, a, b);
-        state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
-        warm_start_contact(&c, &state);
+        uint a, b;
+% if joints:
+        if (is_joint(order[i])) {
+            __global const JointConstraint* j = &joints[order[i] & RB_EDGE_INDEX_MASK];
+            if (j->flags & RB_JOINT_BROKEN)
+                continue;
+            JointFrame f;
+            a = j->body_a, b = j->body_b;
+            load_joint(j, bodies, inertia, &state, &f);
+            state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
+            warm_start_joint_rows(j, &f, &state);
+        } else
+% endif
+        {
+            ContactConstraint c = constraints[order[i]];  /* a private copy */
+            a = c.body_a, b = c.body_b;
+            load_bodies(&state, bodies, inertia, a, b);
+            state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
+            warm_start_contact(&c, &state);
+        }
         if (state.inv_mass_a > 0.0f)
             add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * a, state.va, state.wa);
         if (state.inv_mass_b > 0.0f)
@@ -519,12 +665,13 @@ void solve_groups(${signature("solve_groups")})
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint begin = offsets[0], end = offsets[group_batch_count[group]];
     if (passes & WARM_START_PASS)
-        warm_start_group_serial(constraints, order, begin, end, bodies, inertia);
+        warm_start_group_serial(constraints, order, begin, end, bodies, inertia${joint_args});
     const uint sweeps = max(velocity_sweeps, position_sweeps);
     for (uint sweep = 0; sweep < sweeps; ++sweep) {
         const Sweep s = sweep_of(sweep, passes, velocity_sweeps, position_sweeps,
                                  velocity_release_from, position_release_from);
-        solve_group_serial(constraints, order, begin, end, bodies, inertia, split, relaxation, s);
+        solve_group_serial(constraints, order, begin, end, bodies, inertia, split, relaxation,
+                           s${joint_args});
     }
 % elif not persistent:
     const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
@@ -534,7 +681,7 @@ void solve_groups(${signature("solve_groups")})
         for (uint step = 0; step < batch_count; ++step) {
             const uint batch = batch_count - 1 - step;  /* the highest colour first */
             warm_start_batch(constraints, order, offsets[batch], offsets[batch + 1], batch, lane,
-                             ${work_group_size}u, bodies, inertia);
+                             ${work_group_size}u, bodies, inertia${joint_args});
             barrier(CLK_GLOBAL_MEM_FENCE);
         }
     }
@@ -545,7 +692,7 @@ void solve_groups(${signature("solve_groups")})
         for (uint step = 0; step < batch_count; ++step) {
             const uint batch = batch_count - 1 - step;
             solve_batch_lanes(constraints, order, offsets[batch], offsets[batch + 1], batch, lane,
-                              bodies, inertia, split, relaxation, s);
+                              bodies, inertia, split, relaxation, s${joint_args});
             barrier(CLK_GLOBAL_MEM_FENCE);
         }
     }
@@ -590,7 +737,7 @@ void solve_groups(${signature("solve_groups")})
 % if summed:
             /* every constraint's impulses summed per body, then every body takes its sum */
             sum_warm_starts(constraints, order, offsets, batch_count, lane, bodies, inertia,
-                            warm_sums, barrier_ok);
+                            warm_sums, barrier_ok${joint_args});
             device_barrier(sync, &barrier_ok);
             take_warm_sums(bodies, warm_sums, body_count, lane, barrier_ok);
             device_barrier(sync, &barrier_ok);
@@ -603,7 +750,7 @@ void solve_groups(${signature("solve_groups")})
                 if (first == end || !barrier_ok)
                     continue;
                 warm_start_batch(constraints, order, first, end, batch, lane,
-                                 get_global_size(0), bodies, inertia);
+                                 get_global_size(0), bodies, inertia${joint_args});
                 device_barrier(sync, &barrier_ok);
             }
 % endif
@@ -621,7 +768,8 @@ void solve_groups(${signature("solve_groups")})
                 if (first == end || !barrier_ok)  /* (as in the warm start) */
                     continue;
                 solve_batch_persistent(constraints, order, first, end, batch, lane, push_lane,
-                                       push_offset, bodies, inertia, split, relaxation, s);
+                                       push_offset, bodies, inertia, split, relaxation,
+                                       s${joint_args});
                 device_barrier(sync, &barrier_ok);
             }
         }

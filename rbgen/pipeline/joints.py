@@ -1,0 +1,62 @@
+"""The joint stage: a step's joint edges, and the break test.
+
+Joints enter the step through the constraint-edge list that batching colours
+(`layouts.CONSTRAINT_EDGE`): edges ``[0, joint_count)`` are the joints' (the contact
+setup writes its edges from ``first_contact_edge`` = the joint count on), each naming its
+joint by the item ``EDGE_JOINT << EDGE_KIND_SHIFT | index``. A joint's edge keeps the
+colour of its previous step's edge while the joint list is unchanged, so that global
+batching starts from it. The same launch breaks the joints whose reaction over the last
+step exceeded their break impulse. The joint records live on the device between steps
+(`rbgen.joints.JointStore`); this stage only reads and flags them, so a step adds one
+launch and no transfer.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..codegen import KernelTemplate, compile_spec, work_group_size_param
+from ..device import DeviceTraits, Runtime
+
+TEMPLATE = KernelTemplate(
+    "pipeline/joints.cl.mako",
+    [work_group_size_param("joints per work group; memory-bound, any size that fills a CU")],
+    doc="The joints' constraint edges of a step, and the break test.",
+    roles={"joints": "inout", "edges": "inout"},
+    defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
+)
+
+
+def default_work_group_size(traits: DeviceTraits) -> int:
+    """64 on GPUs, 16 on CPUs (as the constraint setup)."""
+    return min(64 if traits.is_gpu else 16, traits.max_work_group_size)
+
+
+class JointEdges:
+    """Launches `prepare_joints` over a World's joints."""
+
+    def __init__(self, runtime: Runtime, work_group_size: int | None = None):
+        self.runtime = runtime
+        self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
+        self.spec = TEMPLATE.spec(work_group_size=self.work_group_size)
+        self.kernel = runtime.bound(compile_spec(runtime, self.spec).kernel("prepare_joints"))
+
+    def __call__(
+        self, joints, joint_count: int, bodies, edges, previous_edges, inherit: bool, substeps
+    ):
+        """Write edges [0, joint_count) (``previous_edges``: the last step's, whose colours
+        the edges take when ``inherit``); ``substeps`` scales the last substep's impulse
+        to the step's for the break test."""
+        if joint_count == 0:
+            return None
+        return self.kernel.over(
+            joint_count,
+            self.work_group_size,
+            joints,
+            np.uint32(joint_count),
+            bodies,
+            edges,
+            previous_edges,
+            np.uint32(bool(inherit)),
+            np.float32(substeps),
+        )

@@ -1,0 +1,54 @@
+/* The joints' part of a step's constraint-edge list (layouts: ConstraintEdge):
+ * edge i is joint i's (joints come first in the list, contacts after them), so
+ * that batching colours joints and contacts together and the solver finds a
+ * joint through its edge's item. Before that, a joint whose reaction of the
+ * last step exceeded its break impulse breaks: it is marked broken, its
+ * impulses are cleared, and the solver skips it from now on.
+ */
+${cl_constants()}
+
+${cl_structs("Body", "JointConstraint", "ConstraintEdge")}
+
+<%include file="/common/quaternion.cl.mako"/>
+
+/* One work-item per joint: the break test, then its edge (bodies, item, the
+ * colour of the previous step's edge when `inherit`, B's anchor as its point).
+ * A work group is responsible for ${work_group_size} consecutive joints. */
+__kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
+void prepare_joints(__global JointConstraint* joints,
+                    const uint joint_count,
+                    __global const Body* bodies,
+                    __global ConstraintEdge* edges,
+                    __global const ConstraintEdge* previous_edges,
+                    const uint inherit,
+                    const float substeps)
+{
+    uint i = get_global_id(0);
+    if (i >= joint_count)
+        return;
+    __global JointConstraint* j = &joints[i];
+    uint flags = j->flags;
+    /* the last substep's linear impulse (the block's and, across it, a slider's or
+     * distance joint's axial rows'), times the substeps: the reaction over a step */
+    float axial = 0.0f;
+    if (j->kind == RB_JOINT_SLIDER || j->kind == RB_JOINT_DISTANCE)
+        axial = j->axial_impulse.x - j->axial_impulse.y;
+    float3 block = j->linear_impulse.xyz;
+    float reaction = sqrt(dot(block, block) + axial * axial) * substeps;
+    if (!(flags & RB_JOINT_BROKEN) && reaction > j->motor.z) {
+        flags |= RB_JOINT_BROKEN;
+        j->flags = flags;
+        j->linear_impulse = j->angular_impulse = j->axial_impulse = (float4)(0.0f);
+    }
+    uint a = j->body_a, b = j->body_b;
+    float3 anchor = j->anchor_b.xyz;
+    if (!(flags & RB_JOINT_WORLD))
+        anchor = bodies[b].position.xyz + quat_rotate(bodies[b].orientation, anchor);
+    ConstraintEdge edge;
+    edge.body_a = a;
+    edge.body_b = b;
+    edge.item = RB_EDGE_JOINT << RB_EDGE_KIND_SHIFT | i;
+    edge.colour = inherit ? previous_edges[i].colour : RB_SOLVER_NONE;
+    edge.point = (float4)(anchor, 0.0f);
+    edges[i] = edge;
+}
