@@ -32,7 +32,8 @@ from .errors import RbgenError
 
 SCHEMA = "rbgen-bench/1"
 #: (scene, n, steps, warmup): BoxBox sizes of Bullet3's GpuConvexScene, the 8,000-box
-#: pile dropped and settled (300 steps), the 20-row pyramid held for 10 s
+#: pile dropped and settled (300 steps), the 20-row pyramid held for 10 s, ragdolls (11
+#: bodies, 10 joints each) dropped on a pile of boxes (issue 26's scale: 10,000)
 STANDARD_SCENES = (
     ("boxbox", 1_000, 100, 10),
     ("boxbox", 8_000, 100, 10),
@@ -40,6 +41,8 @@ STANDARD_SCENES = (
     ("boxbox", 111_375, 100, 10),
     ("box_pile", 8_000, 300, 0),
     ("pyramid", 20, 600, 0),
+    ("ragdolls", 1_000, 120, 60),
+    ("ragdolls", 10_000, 120, 60),
 )
 #: ``--quick``: small sizes only
 QUICK_SCENES = (("boxbox", 1_000, 60, 5), ("box_pile", 1_000, 120, 0), ("pyramid", 10, 120, 0))
