@@ -290,6 +290,7 @@ class World:
     def remove_joints(self, ids) -> np.ndarray:
         """Remove the joints ``ids`` between steps; the later joints move down to close
         the gap. Returns ``mapping`` over the old ids (new id, -1 removed)."""
+        self._finish_pending()  # (a step redone after this must find the joints it ran)
         return self._joints.remove(ids)
 
     @property
@@ -517,9 +518,12 @@ class World:
         self._forces.forget(tag)
 
     def _restore(self, slot: int) -> None:
+        """The bodies and the joint records as the step of backup ``slot`` found them."""
         cl.enqueue_copy(
             self.runtime.queue, self._device.bodies.data, self._device.backups[slot].data
         )
+        if self._pipeline is not None and self._pipeline.joints is not None:
+            self._joints.restore(slot)
 
     def _pipeline_rewind(self, steps: int) -> None:
         self._steps.constraints.constraints.undo(steps)

@@ -519,3 +519,48 @@ def test_lanes_form_solves_joints(runtime):
         world.step(DT)
     assert chain_gaps(world, joints).max() < 0.01
     assert world.positions[ids[-1]][1] < 4.5
+
+
+def chain_on_boxes(runtime, **options):
+    """A 12-link chain of boxes, hung from the world at one end, draped over a row of
+    boxes on the ground (contacts between links and boxes, and boxes and ground); the
+    joint to the world breaks at 0.33 N s a step: at the start of step 5 (PoCL), the
+    step whose new pairs overflow one-pair buffers."""
+    world = World(runtime, substeps=2, **options)
+    world.add_static(rbgen.Box((6, 0.5, 6)), position=(0, -0.5, 0))
+    world.add_bodies(
+        rbgen.Box((0.2, 0.2, 0.2)), positions=[[x, 0.2, 0.0] for x in (-0.4, 0.0, 0.4)]
+    )
+    n = 12
+    centres = np.array([[-0.6 + (i + 0.5) * 0.1, 0.5, 0.02 * i] for i in range(n)])
+    links = world.add_bodies(rbgen.Box((0.045, 0.02, 0.02)), mass=0.5, positions=centres)
+    anchors = centres - (0.05, 0, 0)
+    world.add_joints(
+        rbgen.BallJoint,
+        a=links,
+        b=[None] + [int(i) for i in links[:-1]],
+        anchor=anchors,
+        break_impulse=[0.33] + [None] * (n - 1),
+    )
+    return world
+
+
+def test_a_redone_step_rewinds_the_joints(runtime):
+    """A chain on boxes with one-pair and one-manifold buffers overflows and redoes steps
+    (each redo starts from the joints' impulses and broken flags of the step's first
+    try); its bodies, joint impulses and broken flags equal, bit for bit, those of the
+    same scene with ample buffers, at every step of 1 s."""
+    small = chain_on_boxes(runtime, pair_capacity=1, manifold_capacity=1)
+    ample = chain_on_boxes(runtime)
+    for step in range(60):
+        small.step(DT)
+        ample.step(DT)
+        if step % 6 == 5:
+            np.testing.assert_array_equal(small.positions, ample.positions)
+            np.testing.assert_array_equal(small.angular_velocities, ample.angular_velocities)
+            np.testing.assert_array_equal(small.joint_impulses, ample.joint_impulses)
+            np.testing.assert_array_equal(small.joints_broken, ample.joints_broken)
+    assert small.overflows >= 2 and ample.overflows == 0
+    assert ample.statistics()["contacts"] > 0
+    assert np.any(np.abs(ample.joint_impulses) > 0)
+    assert ample.joints_broken.tolist() == [True] + [False] * 11

@@ -442,19 +442,25 @@ class JointStage(Stage):
         #: the World's `rbgen.joints.JointStore`
         self.store = store
         self.edges = JointEdges(runtime)
-        #: (joint list version, edge array) of the last step: its colours are inherited
-        self._last: tuple | None = None
+        #: the joint list version each generation of the constraint ring wrote its joint
+        #: edges at (by ring index): a step inherits the colours of the generation before
+        #: its own when that version is the current one. Read from the ring, not from the
+        #: last step enqueued, so that a redone step inherits exactly what its first try
+        #: did (the ring was rewound).
+        self._versions: dict[int, int] = {}
 
     def enqueue(self, step: StepContext) -> None:
         store, c = self.store, self.constraints.constraints
         if store.count == 0:
             return
+        current = c.generation_index
         edges = c.edges
-        last = self._last
-        inherit = last is not None and last[0] == store.version
-        previous = last[1] if last is not None and inherit else edges
+        before = (current - 1) % len(c.generations)
+        inherit = self._versions.get(before) == store.version
+        previous = c.generations[before].edges if inherit else edges
         self.edges(
             store.device,
+            store.backups[step.slot],
             store.count,
             step.bodies.bodies,
             edges,
@@ -462,7 +468,7 @@ class JointStage(Stage):
             inherit,
             step.settings.substeps,
         )
-        self._last = (store.version, edges)
+        self._versions[current] = store.version
         store.device_newer = True
 
 

@@ -56,9 +56,11 @@ def test_prepare_joints_matches_reference(runtime, n, inherit):
     queue = runtime.queue
     d_joints = cl_array.to_device(queue, joints if n else layouts.JOINT_CONSTRAINT.zeros(1))
     d_edges = cl_array.to_device(queue, layouts.CONSTRAINT_EDGE.zeros(max(1, n)))
+    d_backup = cl_array.to_device(queue, layouts.JOINT_CONSTRAINT.zeros(max(1, n)))
     stage = JointEdges(runtime)
     stage(
         d_joints,
+        d_backup,
         n,
         cl_array.to_device(queue, bodies),
         d_edges,
@@ -68,6 +70,8 @@ def test_prepare_joints_matches_reference(runtime, n, inherit):
     )
     edges = runtime.read(d_edges)[:n]
     after = runtime.read(d_joints)[:n]
+    # the backup holds each joint as the launch found it (before the break test)
+    np.testing.assert_array_equal(runtime.read(d_backup)[:n], joints)
 
     on_world = (joints["flags"] & layouts.JOINT_WORLD) != 0
     b = joints["body_b"]

@@ -11,11 +11,14 @@ ${cl_structs("Body", "JointConstraint", "ConstraintEdge")}
 
 <%include file="/common/quaternion.cl.mako"/>
 
-/* One work-item per joint: the break test, then its edge (bodies, item, the
+/* One work-item per joint: first the joint, as the step found it, goes to
+ * `backup` (the World's copy of its step slot: a redone step starts again from
+ * it, impulses and broken flag), then the break test, then its edge (bodies, item, the
  * colour of the previous step's edge when `inherit`, B's anchor as its point).
  * A work group is responsible for ${work_group_size} consecutive joints. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void prepare_joints(__global JointConstraint* joints,
+                    __global JointConstraint* backup,
                     const uint joint_count,
                     __global const Body* bodies,
                     __global ConstraintEdge* edges,
@@ -27,6 +30,7 @@ void prepare_joints(__global JointConstraint* joints,
     if (i >= joint_count)
         return;
     __global JointConstraint* j = &joints[i];
+    backup[i] = *j;
     uint flags = j->flags;
     /* the last substep's linear impulse (the block's and, across it, a slider's or
      * distance joint's axial rows'), times the substeps: the reaction over a step */
