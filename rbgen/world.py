@@ -57,9 +57,9 @@ class World:
     removed ones and returns the mapping. Shapes are immutable values: one shape object
     may be added to several Worlds.
 
-    Memory: a World that would not fit (at construction, on an add, or when a buffer
-    grows after an overflow) raises `rbgen.errors.MemoryLimitError` naming the need and
-    the limit before allocating (`rbgen.memory`).
+    Memory: a World that would not fit (at construction, on an add of bodies or joints,
+    or when a buffer grows after an overflow) raises `rbgen.errors.MemoryLimitError`
+    naming the need and the limit before allocating (`rbgen.memory`).
     """
 
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), **options):
@@ -276,6 +276,9 @@ class World:
                 f"which has no joint rows)"
             )
         self._bodies.sync_to_host()
+        if "a" in fields:  # (else pack_joints names the missing field)
+            added = len(np.atleast_1d(np.asarray(fields["a"], dtype=object)))
+            self._memory.check_joints(self._bodies, added, self._pipeline)
         host = self._bodies.host
         records = pack_joints(
             kind,
