@@ -498,19 +498,29 @@ class JointStore:
         self.version += 1
         return mapping
 
-    def renumber_bodies(self, mapping: np.ndarray) -> None:
+    def renumber_bodies(self, mapping: np.ndarray) -> np.ndarray:
         """Bodies were removed (``mapping``: old body -> new, -1 removed): joints of a
-        removed body go, the others follow their bodies."""
+        removed body go (at either end), the others follow their bodies, in order, with
+        their impulses and broken flags. Returns the joints' mapping, old id -> new id
+        (-1 removed)."""
         if not self.count:
-            return
+            return np.zeros(0, np.int64)
         self.sync_to_host()
         a = mapping[self.host["body_a"].astype(np.int64)]
         b = mapping[self.host["body_b"].astype(np.int64)]
         keep = (a >= 0) & (b >= 0)
+        joints = np.where(keep, np.cumsum(keep) - 1, -1).astype(np.int64)
+        if (
+            np.all(keep)
+            and np.array_equal(a, self.host["body_a"])
+            and np.array_equal(b, self.host["body_b"])
+        ):
+            return joints  # (no joint moved)
         self.host = self.host[keep]
         self.host["body_a"], self.host["body_b"] = a[keep], b[keep]
         self.dirty = True
         self.version += 1
+        return joints
 
     def forget_bodies(self, affected: np.ndarray) -> None:
         """The state of bodies ``affected`` (a mask) was set: their joints lose their

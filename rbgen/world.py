@@ -79,6 +79,9 @@ class World:
         #: does not depend on the number of environments)
         self._batching_scene: BodyStore | None = None
         self._joints = JointStore(self.runtime)
+        #: (old joint count,) int64: what the last `remove_bodies` or `remove_joints` did
+        #: to the joint ids (new id, -1 removed); empty before either
+        self.last_joint_mapping = np.zeros(0, np.int64)
         #: the plan of the current scene (rederived when the shape types change)
         self.plan: Plan = derive_plan(self.runtime.traits, construction)
         self._pipeline: StepPipeline | None = None
@@ -231,14 +234,21 @@ class World:
         new index, -1 for a removed body; update kept indices with ``ids =
         mapping[ids]``. The survivors' contacts keep their warm start (renumbered);
         nothing of a removed body is carried onto another. Buffers keep their capacity
-        (adding bodies again reuses it)."""
+        (adding bodies again reuses it).
+
+        Joints: a joint with a removed body at either end is removed with it (a joint to
+        the world goes with its body); the other joints follow their renumbered bodies,
+        keeping their order, impulses and broken flags, and move down to close the gaps.
+        `last_joint_mapping` then reports it: old joint id -> new id, -1 removed."""
         count = self._bodies.count
         mapping = self._bodies.remove(ids)
+        joints = np.arange(self._joints.count, dtype=np.int64)
         if len(mapping) != count or np.any(mapping < 0):
             history.renumber_bodies(self.runtime, self._pipeline, mapping)
             self._forces.resize(count)
             self._forces.renumber(mapping)
-            self._joints.renumber_bodies(mapping)
+            joints = self._joints.renumber_bodies(mapping)
+        self.last_joint_mapping = joints
         return mapping
 
     # ------------------------------------------------------------- forces
@@ -294,7 +304,8 @@ class World:
         """Remove the joints ``ids`` between steps; the later joints move down to close
         the gap. Returns ``mapping`` over the old ids (new id, -1 removed)."""
         self._finish_pending()  # (a step redone after this must find the joints it ran)
-        return self._joints.remove(ids)
+        self.last_joint_mapping = self._joints.remove(ids)
+        return self.last_joint_mapping
 
     @property
     def joint_impulses(self) -> np.ndarray:

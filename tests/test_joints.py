@@ -396,6 +396,46 @@ def test_remove_bodies_drops_their_joints(runtime):
     assert abs(world.positions[0][1] - 1.0) < 1e-3
 
 
+def test_remove_bodies_reports_the_joints_it_removes(runtime):
+    """Removing the middle body of a hanging three-link chain (its joints at both ends
+    go with it) reports the joints' mapping; the survivors keep their order, impulses
+    and broken flags with their bodies renumbered, and the last link, still hung from the
+    world by its own joint, keeps holding while the first link (cut below) keeps
+    hanging too; removing a body without joints moves none and reports so."""
+    world = World(runtime)
+    ids = world.add_bodies(
+        rbgen.Sphere(0.05), positions=[[0, 1.9, 0], [0, 1.8, 0], [0, 1.7, 0]], mass=1.0
+    )
+    loose = world.add_body(rbgen.Sphere(0.05), position=(3, 1, 0))
+    world.add_joints(
+        rbgen.BallJoint,
+        a=[0, 1, 2, 2],
+        b=[None, 0, 1, None],
+        anchor=[[0, 2, 0], [0, 1.85, 0], [0, 1.75, 0], [0, 1.7, 0]],
+        break_impulse=[None, None, None, 100.0],
+    )
+    for _ in range(10):
+        world.step(DT)
+    world._joints.sync_to_host()
+    before = world._joints.host.copy()
+    mapping = world.remove_bodies([int(ids[1])])
+    assert mapping.tolist() == [0, -1, 1, 2]
+    assert world.joint_count == 2
+    assert world.last_joint_mapping.tolist() == [0, -1, -1, 1]
+    after = world._joints.host
+    assert after["body_a"].tolist() == [0, 1] and after["body_b"].tolist() == [0, 1]
+    for name in ("linear_impulse", "angular_impulse", "axial_impulse", "flags", "motor"):
+        np.testing.assert_array_equal(after[name], before[name][[0, 3]])
+    for _ in range(30):
+        world.step(DT)
+    np.testing.assert_allclose(world.positions[0], (0, 1.9, 0), atol=2e-3)
+    np.testing.assert_allclose(world.positions[1], (0, 1.7, 0), atol=2e-3)
+    world.remove_bodies([2])  # the loose ball: no joint moves
+    assert world.last_joint_mapping.tolist() == [0, 1]
+    assert world.joint_count == 2 and world.positions.shape == (2, 3)
+    assert loose == 3
+
+
 def two_bodies(runtime):
     world = World(runtime)
     world.add_static(rbgen.Box((5, 1, 5)), position=(0, -1, 0))
