@@ -5,8 +5,10 @@ Joints enter the step through the constraint-edge list that batching colours
 setup writes its edges from ``first_contact_edge`` = the joint count on), each naming its
 joint by the item ``EDGE_JOINT << EDGE_KIND_SHIFT | index``. A joint's edge keeps the
 colour of its previous step's edge (the constraint ring's generation before the step's:
-a redone step inherits what its first try did) while the joint list is unchanged, so that
-global batching starts from it. The same launch first copies each joint, as the step
+a redone step inherits what its first try did) when that edge was this joint's (the same
+index and bodies: decided on the device, so that every step enqueues the same commands
+for its place in the ring, as `rbgen.schedule` records), so that global batching starts
+from it. The same launch first copies each joint, as the step
 found it, into the step slot's backup (a redone step restores the impulses and broken
 flags from it, as the bodies from theirs), then breaks the joints whose reaction over
 the last step exceeded their break impulse. The joint records live on the device between steps
@@ -52,12 +54,13 @@ class JointEdges:
         bodies,
         edges,
         previous_edges,
-        inherit: bool,
+        previous_count: int,
         substeps,
     ):
         """Copy the joints to ``backup`` (as the step found them, for a redo), then write
-        edges [0, joint_count) (``previous_edges``: the last step's, whose colours the
-        edges take when ``inherit``); ``substeps`` scales the last substep's impulse to
+        edges [0, joint_count) (``previous_edges``: the last step's, holding
+        ``previous_count`` joint edges, whose colours the same joints' edges take);
+        ``substeps`` scales the last substep's impulse to
         the step's for the break test."""
         if joint_count == 0:
             return None
@@ -70,6 +73,6 @@ class JointEdges:
             bodies,
             edges,
             previous_edges,
-            np.uint32(bool(inherit)),
+            np.uint32(previous_count),
             np.float32(substeps),
         )

@@ -442,33 +442,24 @@ class JointStage(Stage):
         #: the World's `rbgen.joints.JointStore`
         self.store = store
         self.edges = JointEdges(runtime)
-        #: the joint list version each generation of the constraint ring wrote its joint
-        #: edges at (by ring index): a step inherits the colours of the generation before
-        #: its own when that version is the current one. Read from the ring, not from the
-        #: last step enqueued, so that a redone step inherits exactly what its first try
-        #: did (the ring was rewound).
-        self._versions: dict[int, int] = {}
 
     def enqueue(self, step: StepContext) -> None:
         store, c = self.store, self.constraints.constraints
         if store.count == 0:
             return
-        current = c.generation_index
-        edges = c.edges
-        before = (current - 1) % len(c.generations)
-        inherit = self._versions.get(before) == store.version
-        previous = c.generations[before].edges if inherit else edges
+        # the colours are inherited from the ring's generation before this step's (not
+        # the last step enqueued: a redone step inherits exactly what its first try did)
+        before = c.generations[(c.generation_index - 1) % len(c.generations)]
         self.edges(
             store.device,
             store.backups[step.slot],
             store.count,
             step.bodies.bodies,
-            edges,
-            previous,
-            inherit,
+            c.edges,
+            before.edges,
+            before.first_contact_edge,
             step.settings.substeps,
         )
-        self._versions[current] = store.version
         store.device_newer = True
 
 
