@@ -29,8 +29,16 @@ ordered rounds, the lanes form of spatial batching) -- two batch sizes may colou
 environment differently; tests/test_batch.py compares end states across batch sizes
 on every device and would show it.
 
-`reset` restores environments exactly: their bodies' state, and no warm start of their
-contacts (as a fresh start has none). Observations are (envs, bodies, ...) arrays;
+Joints: the template's joints are copied into each environment, their bodies renumbered
+(a joint to a static body joins that shared body), environment after environment (joint
+j of environment k is ``k * joints + j``). The step's joint edges come before every
+contact edge and keep their relative order within an environment, so that the
+independence above holds for jointed scenes too. The batch's ``world`` must not add or
+remove joints (`reset` relies on that layout and refuses otherwise).
+
+`reset` restores environments exactly: their bodies' state, their joints as the template
+had them (impulses, broken flags), and no warm start of their contacts (as a fresh
+start has none). Observations are (envs, bodies, ...) arrays;
 `apply_forces` takes (envs, bodies, 3) arrays, for the next step.
 """
 
@@ -39,9 +47,11 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import pyopencl as cl
 
 from . import history, layouts
 from .bodies import STATE_FIELDS, floats, unit_quaternions
+from .device import buffer_of
 from .errors import RbgenError
 from .pipeline.batching.global_colouring import ORDERED_ROUNDS
 from .pipeline.reset import EnvironmentReset
@@ -52,13 +62,14 @@ from .world import World
 FIELDS = tuple(STATE_FIELDS)
 
 
-def ordered_rounds_for(bodies: int, shared: int) -> int:
+def ordered_rounds_for(bodies: int, shared: int, joints: int = 0) -> int:
     """Global batching's index-order colouring rounds for a batch: at least the most
-    whole-body pairs one environment can have, so that no environment's edges are left
+    whole-body pairs one environment can have, and its joints, so that no environment's
+    edges are left
     to the hashed rounds, whose priorities would depend on the environments before it
     (a round colours at least one link of every chain of rising indices; the loop ends
     when every edge is coloured, so the bound costs nothing when unreached)."""
-    return max(ORDERED_ROUNDS, bodies * (bodies - 1) // 2 + bodies * shared)
+    return max(ORDERED_ROUNDS, bodies * (bodies - 1) // 2 + bodies * shared + joints)
 
 
 class WorldBatch:
@@ -127,9 +138,19 @@ class WorldBatch:
         #: dynamic bodies per environment, static bodies shared by all
         self.bodies = int(dynamic.sum())
         self.shared = int((~dynamic).sum())
+        for k, (_, _, _, world) in enumerate(parts[1:], 1):
+            if world.joint_count:
+                raise RbgenError(
+                    f"build({k}) has {world.joint_count} joints: with per_env=True the "
+                    f"joints are environment 0's, copied into each (build(k) for k > 0 "
+                    f"must add none)"
+                )
+        template._joints.sync_to_host()
+        #: joints per environment (the template's)
+        self.joints = template.joint_count
         merged = {**template.settings.as_dict(), **template.options, **options}
         plan = dict(merged.get("plan") or {})
-        plan.setdefault("ordered_rounds", ordered_rounds_for(self.bodies, self.shared))
+        plan.setdefault("ordered_rounds", ordered_rounds_for(self.bodies, self.shared, self.joints))
         self.world = World(
             device if device is not None else template.runtime, **{**merged, "plan": plan}
         )
@@ -164,10 +185,27 @@ class WorldBatch:
         first_dynamic = self.world.shapes.shapes[int(dynamics[0]["shape"][0])]
         self.world._memory.check_add(self.world._bodies, len(records), first_dynamic, None)
         self.world._bodies.adopt(records, inertia, env_of)
+        self._joint_records = self._copy_joints(template._joints.host, dynamic)
+        self._pending_joint_writes: list = []  # (host arrays of enqueued resets, kept alive)
         # spatial batching's cells and slabs from environment 0 alone (not the batch's
         # largest shape or spread, which would change with N)
         self.world._batching_scene = template._bodies
         self._reset: EnvironmentReset | None = None
+
+    def _copy_joints(self, joints: np.ndarray, dynamic: np.ndarray) -> np.ndarray:
+        """The template's joint records for every environment, (envs, joints), their bodies
+        renumbered (``dynamic``: the template's dynamic-body mask); added to `world`."""
+        rank = np.where(dynamic, np.cumsum(dynamic) - 1, np.cumsum(~dynamic) - 1)
+        out = np.repeat(joints[None], self.envs, axis=0)
+        for end in ("body_a", "body_b"):
+            old = joints[end].astype(np.int64)
+            offset = np.where(dynamic[old], self.shared + rank[old], rank[old])
+            moved = dynamic[old][None, :] * (np.arange(self.envs)[:, None] * self.bodies)
+            out[end] = offset[None, :] + moved
+        if len(joints):
+            self.world._memory.check_joints(self.world._bodies, out.size, None)
+            self.world._joints.add(out.reshape(-1))
+        return out
 
     # ------------------------------------------------------------- settings
     def __getattr__(self, name):
@@ -222,6 +260,21 @@ class WorldBatch:
                 f"from 0 to {self.envs - 1})"
             )
         return arr
+
+    def joint_ids(self, env_ids=None) -> np.ndarray:
+        """(len(env_ids), joints) indices of the environments' joints in `world`."""
+        envs = self.env_ids(env_ids)
+        return envs[:, None] * self.joints + np.arange(self.joints)[None, :]
+
+    @property
+    def joint_impulses(self) -> np.ndarray:
+        """(envs, joints, 6) float32: `World.joint_impulses` by environment."""
+        return self.world.joint_impulses.reshape(self.envs, self.joints, 6)
+
+    @property
+    def joints_broken(self) -> np.ndarray:
+        """(envs, joints) bool: `World.joints_broken` by environment."""
+        return self.world.joints_broken.reshape(self.envs, self.joints)
 
     def body_ids(self, env_ids=None) -> np.ndarray:
         """(len(env_ids), bodies) indices of the environments' bodies in `world`."""
@@ -322,6 +375,40 @@ class WorldBatch:
             bodies.host_stale = True  # (the device's records are newer)
         world._forces.resize(world.body_count)
         world._forces.drop(ids)
+        self._reset_joints(envs)
+
+    def _reset_joints(self, envs: np.ndarray) -> None:
+        """The joints of ``envs`` as the template had them: in the host records when they
+        are newer than the device's (or the device has none yet), else by one
+        non-blocking write per environment into the device records."""
+        if not self.joints:
+            return
+        store = self.world._joints
+        if store.count != self.envs * self.joints:
+            raise RbgenError(
+                f"reset: the batch's world has {store.count} joints, not {self.joints} a "
+                f"environment ({self.envs * self.joints}): joints added to or removed from "
+                f"batch.world cannot be reset"
+            )
+        if store.dirty or store.device is None:
+            store.host[self.joint_ids(envs).reshape(-1)] = self._joint_records[envs].reshape(-1)
+            store.dirty = True
+            return
+        queue, size = self.world.runtime.queue, store.device.dtype.itemsize
+        self._pending_joint_writes = []
+        for k in envs:
+            records = np.ascontiguousarray(self._joint_records[k])
+            self._pending_joint_writes.append(
+                cl.enqueue_copy(
+                    queue,
+                    buffer_of(store.device),
+                    records,
+                    dst_offset=int(k) * self.joints * size,
+                    is_blocking=False,
+                )
+            )
+            self._pending_joint_writes.append(records)
+        store.device_newer = True  # (the host copy is older now)
 
     def _records(self, envs: np.ndarray, state: dict) -> np.ndarray:
         """The Body records of the environments ``envs`` after a reset to ``state``."""

@@ -33,10 +33,13 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pyopencl as cl
 import pyopencl.array as cl_array
 
 from . import layouts
+from .device import buffer_of
 from .errors import RbgenError
+from .guard import STEPS_IN_FLIGHT
 
 #: the largest float32: a break impulse never reached (the kernels avoid infinities)
 UNBREAKABLE = float(np.finfo(np.float32).max)
@@ -453,6 +456,10 @@ class JointStore:
         self.runtime = runtime
         self.host = layouts.JOINT_CONSTRAINT.zeros(0)
         self.device: cl_array.Array | None = None
+        #: one copy of the device records per step slot (`rbgen.guard.STEPS_IN_FLIGHT`),
+        #: written by the step's joint launch as the step found them: a redone step's
+        #: records are restored from its slot's (`restore`)
+        self.backups: list[cl_array.Array] = []
         self.dirty = False  # host records newer than the device
         self.device_newer = False  # the solver changed impulses or flags since the upload
         self.version = 0
@@ -491,19 +498,29 @@ class JointStore:
         self.version += 1
         return mapping
 
-    def renumber_bodies(self, mapping: np.ndarray) -> None:
+    def renumber_bodies(self, mapping: np.ndarray) -> np.ndarray:
         """Bodies were removed (``mapping``: old body -> new, -1 removed): joints of a
-        removed body go, the others follow their bodies."""
+        removed body go (at either end), the others follow their bodies, in order, with
+        their impulses and broken flags. Returns the joints' mapping, old id -> new id
+        (-1 removed)."""
         if not self.count:
-            return
+            return np.zeros(0, np.int64)
         self.sync_to_host()
         a = mapping[self.host["body_a"].astype(np.int64)]
         b = mapping[self.host["body_b"].astype(np.int64)]
         keep = (a >= 0) & (b >= 0)
+        joints = np.where(keep, np.cumsum(keep) - 1, -1).astype(np.int64)
+        if (
+            np.all(keep)
+            and np.array_equal(a, self.host["body_a"])
+            and np.array_equal(b, self.host["body_b"])
+        ):
+            return joints  # (no joint moved)
         self.host = self.host[keep]
         self.host["body_a"], self.host["body_b"] = a[keep], b[keep]
         self.dirty = True
         self.version += 1
+        return joints
 
     def forget_bodies(self, affected: np.ndarray) -> None:
         """The state of bodies ``affected`` (a mask) was set: their joints lose their
@@ -527,6 +544,7 @@ class JointStore:
             self.device.set(records)
         else:
             self.device = cl_array.to_device(self.runtime.queue, records)
+            self.backups = [cl_array.empty_like(self.device) for _ in range(STEPS_IN_FLIGHT)]
         on_world = (self.host["flags"] & layouts.JOINT_WORLD) != 0
         a, b = self.host["body_a"][~on_world], self.host["body_b"][~on_world]
         pairs = np.unique(np.stack([np.minimum(a, b), np.maximum(a, b)], 1), axis=0)
@@ -536,6 +554,15 @@ class JointStore:
         self.pairs = cl_array.to_device(self.runtime.queue, words)
         self.dirty = False
         self.device_newer = False
+
+    def restore(self, slot: int) -> None:
+        """A step is redone: the records go back to the backup its joint launch wrote in
+        step slot ``slot`` (the joint list has not changed since: the World checks every
+        step in flight before changing it)."""
+        if self.count and self.device is not None and self.backups:
+            cl.enqueue_copy(
+                self.runtime.queue, buffer_of(self.device), buffer_of(self.backups[slot])
+            )
 
 
 def joint_ids(ids, count: int) -> np.ndarray:

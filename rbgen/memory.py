@@ -12,7 +12,9 @@ size from `rbgen.layouts` (a few uint32 scratch arrays count words). The counts 
 the pipeline's own sizing: bodies; the pair capacity (`DEFAULT_PAIRS_PER_BODY` a body,
 or the ``pair_capacity`` option, or what growth reached); the manifold capacity
 (`MANIFOLDS_PER_BODY` a body, or ``manifold_capacity``, or grown), which also sizes each
-of the constraint ring's `GENERATIONS`. Scratch that no term names is covered by
+of the constraint ring's `GENERATIONS`; the joints (their records with a backup per step
+in flight, their joined pairs, and an edge each in every generation of the ring and in
+the batching's lists). Scratch that no term names is covered by
 `SCRATCH_ALLOWANCE` and `FIXED_BYTES`; a test holds the estimate between the bytes a
 World really holds and 1.5 times them, for every broadphase and solver.
 
@@ -59,6 +61,9 @@ FIXED_BYTES = 1 << 20
 ADD_TEMPORARY_FLOAT64 = 4 + 4 + 3 + 3 + 3 + 3 + 4
 #: the host mirror of one body: its record and its inverse inertia diagonal (float32)
 HOST_BYTES_PER_BODY = layouts.BODY.itemsize + 3 * WORD
+#: float64 arrays of one joint that `rbgen.joints.pack_joints` holds while it checks and
+#: packs the records (the bodies' poses at both ends, anchors, axes, limits, masks)
+ADD_JOINT_TEMPORARY_FLOAT64 = 2 * (3 + 4) + 3 * 3 + 2 * 3 + 8
 
 
 # ----------------------------------------------------------------- sizes
@@ -75,6 +80,7 @@ class Sizes:
     manifolds: int  # manifold (and constraint) capacity
     expanded: tuple = ()
     proxies: int = 0
+    joints: int = 0
 
     @property
     def narrow_pairs(self) -> int:
@@ -144,7 +150,7 @@ def estimate(
 ) -> Estimate:
     """The device buffers of a World of ``sizes`` (``kinds``: the narrowphase's shape-type
     pair queues). Each entry is (bytes of one buffer, how many such buffers)."""
-    n, p, m = sizes.bodies, sizes.pairs, sizes.manifolds
+    n, p, m, j = sizes.bodies, sizes.pairs, sizes.manifolds, sizes.joints
     q = sizes.narrow_pairs
     slots = 2 if broadphase == "sap3" else 1  # sap3 double-buffers its pairs and boxes
     one = {
@@ -166,7 +172,8 @@ def estimate(
         # manifolds, the constraint ring and the batching / solver lists
         "manifolds": (layouts.CONTACT_MANIFOLD.itemsize * m, 1),
         "constraints": (layouts.CONTACT_CONSTRAINT.itemsize * max(1, m), GENERATIONS),
-        "constraint edges": (layouts.CONSTRAINT_EDGE.itemsize * max(1, m), GENERATIONS),
+        # (a joint's edge each, then a contact's)
+        "constraint edges": (layouts.CONSTRAINT_EDGE.itemsize * max(1, m + j), GENERATIONS),
         "warm-start tables": (WORD * table_words(m), GENERATIONS),
     }
     inputs = (p, *sizes.expanded[:-1])
@@ -198,9 +205,13 @@ def estimate(
         # (9 colours) and own it per cell colour (8); global batching's bids and colour
         # masks are fewer. Per constraint: order, slot, batch, blocked flag, group list.
         one["batching per body"] = ((2 * 9 + 8) * WORD * n, 1)
-        one["batching per constraint"] = (5 * WORD * m, 1)
+        one["batching per constraint"] = (5 * WORD * (m + j), 1)
         # the summed warm start's 64-bit sums (persistent PGS on GPUs)
         one["warm-start sums"] = (layouts.WARM_SUM_WORDS * 8 * n, 1)
+    if j:
+        # the records, and a backup per step in flight (`rbgen.joints.JointStore`)
+        one["joints"] = (layouts.JOINT_CONSTRAINT.itemsize * j, 1 + STEPS_IN_FLIGHT)
+        one["joined pairs"] = (2 * WORD * j, 1)
     buffers = {name: size * count for name, (size, count) in one.items()}
     largest = max(((name, size) for name, (size, _) in one.items()), key=lambda t: t[1])
     return Estimate(sizes, buffers, largest)
@@ -337,10 +348,13 @@ class WorldMemory:
             "kinds": max(1, kinds),
         }
 
-    def sizes(self, bodies: int, pipeline=None, store=None) -> Sizes:
+    def sizes(self, bodies: int, pipeline=None, store=None, joints: int | None = None) -> Sizes:
         """The sizes a World of ``bodies`` runs with: the defaults for that many bodies,
         or what its buffers already reached (they never shrink). ``store`` (the World's
-        `rbgen.bodies.BodyStore`) gives the compound children and the expansions."""
+        `rbgen.bodies.BodyStore`) gives the compound children and the expansions;
+        ``joints``: the joint count (None: the World's now)."""
+        if joints is None:
+            joints = int(getattr(self._owner(), "joint_count", 0))
         pairs = default_pairs(bodies, self.options["pair_capacity"])
         manifolds = default_manifolds(bodies, self.options["manifold_capacity"])
         current: list[int] = []
@@ -354,7 +368,7 @@ class WorldMemory:
         for k in range(max(expansions, len(current))):
             size = expanded[-1] if expanded else pairs
             expanded.append(expanded_pairs(size, current[k] if k < len(current) else 0))
-        return Sizes(bodies, pairs, manifolds, tuple(expanded), proxies)
+        return Sizes(bodies, pairs, manifolds, tuple(expanded), proxies, joints)
 
     def need(self, bodies: int, shape_types, pipeline=None, store=None) -> Estimate:
         """The estimate of a World of ``bodies`` with ``shape_types`` (and ``pipeline``'s
@@ -374,20 +388,21 @@ class WorldMemory:
         estimate that fits."""
         need = estimate(sizes, **self._config(shape_types))
         device = self.device
+        counts = f"{sizes.bodies:,} bodies, {sizes.pairs:,} pairs, {sizes.manifolds:,} manifolds"
+        if sizes.joints:
+            counts += f", {sizes.joints:,} joints"
         name, largest = need.largest
         if largest > device.max_alloc_bytes:
             raise MemoryLimitError(
                 f"{what} needs a {name} buffer of {format_bytes(largest)} "
-                f"({sizes.bodies:,} bodies, {sizes.pairs:,} pairs, {sizes.manifolds:,} "
-                f"manifolds; about {format_bytes(need.total)} in all); {device.name} "
+                f"({counts}; about {format_bytes(need.total)} in all); {device.name} "
                 f"allocates at most {format_bytes(device.max_alloc_bytes)} in one buffer"
             )
         limit, source = self._device_limit()
         if need.total > limit:
             raise MemoryLimitError(
                 f"{what} needs about {format_bytes(need.total)} of device memory "
-                f"({sizes.bodies:,} bodies, {sizes.pairs:,} pairs, {sizes.manifolds:,} "
-                f"manifolds); the limit is {format_bytes(limit)} ({source})"
+                f"({counts}); the limit is {format_bytes(limit)} ({source})"
             )
         more = host_bytes + (max(0, need.total - self.held.total) if device.shares_host else 0)
         available, source = host_available()
@@ -452,6 +467,20 @@ class WorldMemory:
             f"adding {added:,} bodies (to {store.count:,})",
             sizes,
             tuple(t for t in shape_types if t),
+            host,
+        )
+
+    def check_joints(self, store, added: int, pipeline) -> None:
+        """Before ``added`` joints join the World's (whose bodies are ``store``'s)."""
+        count = int(getattr(self._owner(), "joint_count", 0))
+        host = (
+            layouts.JOINT_CONSTRAINT.itemsize * (2 * (count + added) + added)  # old, new, packed
+            + FLOAT64 * ADD_JOINT_TEMPORARY_FLOAT64 * added
+        )
+        self.check(
+            f"adding {added:,} joints (to {count:,})",
+            self.sizes(store.count, pipeline, store, joints=count + added),
+            store.shapes.type_names(),
             host,
         )
 

@@ -57,9 +57,9 @@ class World:
     removed ones and returns the mapping. Shapes are immutable values: one shape object
     may be added to several Worlds.
 
-    Memory: a World that would not fit (at construction, on an add, or when a buffer
-    grows after an overflow) raises `rbgen.errors.MemoryLimitError` naming the need and
-    the limit before allocating (`rbgen.memory`).
+    Memory: a World that would not fit (at construction, on an add of bodies or joints,
+    or when a buffer grows after an overflow) raises `rbgen.errors.MemoryLimitError`
+    naming the need and the limit before allocating (`rbgen.memory`).
     """
 
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), **options):
@@ -79,6 +79,9 @@ class World:
         #: does not depend on the number of environments)
         self._batching_scene: BodyStore | None = None
         self._joints = JointStore(self.runtime)
+        #: (old joint count,) int64: what the last `remove_bodies` or `remove_joints` did
+        #: to the joint ids (new id, -1 removed); empty before either
+        self.last_joint_mapping = np.zeros(0, np.int64)
         #: the plan of the current scene (rederived when the shape types change)
         self.plan: Plan = derive_plan(self.runtime.traits, construction)
         self._pipeline: StepPipeline | None = None
@@ -231,14 +234,21 @@ class World:
         new index, -1 for a removed body; update kept indices with ``ids =
         mapping[ids]``. The survivors' contacts keep their warm start (renumbered);
         nothing of a removed body is carried onto another. Buffers keep their capacity
-        (adding bodies again reuses it)."""
+        (adding bodies again reuses it).
+
+        Joints: a joint with a removed body at either end is removed with it (a joint to
+        the world goes with its body); the other joints follow their renumbered bodies,
+        keeping their order, impulses and broken flags, and move down to close the gaps.
+        `last_joint_mapping` then reports it: old joint id -> new id, -1 removed."""
         count = self._bodies.count
         mapping = self._bodies.remove(ids)
+        joints = np.arange(self._joints.count, dtype=np.int64)
         if len(mapping) != count or np.any(mapping < 0):
             history.renumber_bodies(self.runtime, self._pipeline, mapping)
             self._forces.resize(count)
             self._forces.renumber(mapping)
-            self._joints.renumber_bodies(mapping)
+            joints = self._joints.renumber_bodies(mapping)
+        self.last_joint_mapping = joints
         return mapping
 
     # ------------------------------------------------------------- forces
@@ -276,6 +286,9 @@ class World:
                 f"which has no joint rows)"
             )
         self._bodies.sync_to_host()
+        if "a" in fields:  # (else pack_joints names the missing field)
+            added = len(np.atleast_1d(np.asarray(fields["a"], dtype=object)))
+            self._memory.check_joints(self._bodies, added, self._pipeline)
         host = self._bodies.host
         records = pack_joints(
             kind,
@@ -290,7 +303,9 @@ class World:
     def remove_joints(self, ids) -> np.ndarray:
         """Remove the joints ``ids`` between steps; the later joints move down to close
         the gap. Returns ``mapping`` over the old ids (new id, -1 removed)."""
-        return self._joints.remove(ids)
+        self._finish_pending()  # (a step redone after this must find the joints it ran)
+        self.last_joint_mapping = self._joints.remove(ids)
+        return self.last_joint_mapping
 
     @property
     def joint_impulses(self) -> np.ndarray:
@@ -517,9 +532,12 @@ class World:
         self._forces.forget(tag)
 
     def _restore(self, slot: int) -> None:
+        """The bodies and the joint records as the step of backup ``slot`` found them."""
         cl.enqueue_copy(
             self.runtime.queue, self._device.bodies.data, self._device.backups[slot].data
         )
+        if self._pipeline is not None and self._pipeline.joints is not None:
+            self._joints.restore(slot)
 
     def _pipeline_rewind(self, steps: int) -> None:
         self._steps.constraints.constraints.undo(steps)

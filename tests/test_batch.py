@@ -373,3 +373,81 @@ def test_per_environment_bodies(runtime):
         rbgen.WorldBatch(4, varied_scene(runtime, extra=2), per_env=True)
     with pytest.raises(RbgenError, match=r"per_env=True needs build"):
         rbgen.WorldBatch(4, template=varied_scene(runtime)(0), per_env=True)
+
+
+def chain_scene(runtime, **options):
+    """One jointed environment: a ground plane (shared), a static post (shared), a
+    6-link capsule chain hung from the post by a hinge, its links on ball joints (the
+    last with a break impulse), falling onto a box below it."""
+
+    def build():
+        world = World(runtime, substeps=2, **options)
+        world.add_static(rbgen.Plane((0, 1, 0), 0.0))
+        post = world.add_static(rbgen.Box((0.1, 0.1, 0.1)), position=(0.0, 1.6, 0.0))
+        box = world.add_body(BOX, position=(0.4, 0.5, 0.0))
+        centres = np.array([[0.15 + 0.1 * i, 1.6, 0.0] for i in range(6)])
+        links = world.add_bodies(rbgen.Capsule(0.02, 0.02), mass=0.5, positions=centres)
+        world.add_joint(rbgen.HingeJoint(int(links[0]), post, anchor=(0.1, 1.6, 0), axis=(0, 0, 1)))
+        world.add_joints(
+            rbgen.BallJoint,
+            a=links[1:],
+            b=links[:-1],
+            anchor=centres[1:] - (0.05, 0, 0),
+            break_impulse=[None] * 4 + [0.05],
+        )
+        assert box == 2
+        return world
+
+    return build
+
+
+def run_chains(runtime, envs, steps=40, **options):
+    batch = rbgen.WorldBatch(envs, chain_scene(runtime, **options))
+    for k in range(envs):
+        rng = np.random.default_rng(500 + k)
+        batch.reset([k], state={"linear_velocities": rng.uniform(-1, 1, (1, 7, 3))})
+    for s in range(steps):
+        if s == steps // 2 and envs > 1:
+            batch.reset(np.arange(1, envs, 2))  # the odd environments start again
+        batch.step(DT)
+    return batch
+
+
+@pytest.mark.parametrize("solve", ["default", "overflow"])
+def test_jointed_environments_do_not_depend_on_the_others(runtime, solve):
+    """The template's joints are copied into every environment (bodies renumbered, the
+    hinge to the shared post kept on it): environment 0 ends bit for bit the same alone
+    and among 7 (each with its own initial velocities, the odd ones reset half way), its
+    joints' impulses and broken flags too; environment 1 (reset) ends as it does
+    when run from the reset."""
+    options = SOLVES["overflow"] if solve == "overflow" else {}
+    one = run_chains(runtime, 1, **options)
+    seven = run_chains(runtime, 7, **options)
+    assert seven.world.joint_count == 7 * 6 and seven.joints == 6
+    for f in FIELDS:
+        assert np.array_equal(getattr(one, f)[0], getattr(seven, f)[0]), f
+    assert np.array_equal(one.joint_impulses[0], seven.joint_impulses[0])
+    assert np.array_equal(one.joints_broken[0], seven.joints_broken[0])
+    # the joints hold the chain to the post: the first link's anchor stays at the post
+    first = seven.world._joints.host[seven.joint_ids([3])[0, 0]]
+    assert first["body_b"] == 1 and first["body_a"] == 2 + 3 * 7 + 1
+    assert np.all(np.abs(seven.positions[:, 1, 0] - 0.15) < 0.2)
+    assert np.all(np.abs(seven.joint_impulses[:, :5]).sum(axis=2) > 0)
+    # environments differ (their velocities) and touched the box
+    assert not np.array_equal(seven.positions[0], seven.positions[2])
+    assert seven.statistics()["contacts"] > 7
+    if solve == "overflow":
+        assert seven.overflows >= 1
+    # a reset environment ends as a batch of one run from its reset (at step 20, 20 more)
+    again = rbgen.WorldBatch(1, chain_scene(runtime, **options))
+    for _ in range(20):
+        again.step(DT)
+    for f in FIELDS:
+        assert np.array_equal(getattr(again, f)[0], getattr(seven, f)[1]), f
+    assert np.array_equal(again.joint_impulses[0], seven.joint_impulses[1])
+
+
+def test_per_env_builds_with_joints_are_refused(runtime):
+    build = chain_scene(runtime)
+    with pytest.raises(RbgenError, match=r"build\(1\) has 6 joints"):
+        rbgen.WorldBatch(2, lambda k: build(), per_env=True)

@@ -218,3 +218,58 @@ def test_estimate_counts_from_the_layouts():
         == 4000 * rbgen.layouts.CONTACT_CONSTRAINT.itemsize * rbgen.pipeline.constraints.GENERATIONS
     )
     assert one.largest == ("constraints", 4000 * rbgen.layouts.CONTACT_CONSTRAINT.itemsize)
+
+
+def jointed_world(runtime, links=40, **options):
+    """A box stack and a chain of `links` capsules on ball joints, hung from the world."""
+    world = World(runtime, **options)
+    stack(world, 4)
+    centres = np.array([[3.0, 6.0 - 0.1 * i, 0.0] for i in range(links)])
+    ids = world.add_bodies(rbgen.Capsule(0.02, 0.02), positions=centres)
+    world.add_joints(
+        rbgen.BallJoint, a=ids, b=[None] + [int(i) for i in ids[:-1]], anchor=centres + (0, 0.05, 0)
+    )
+    return world
+
+
+def test_too_many_joints_are_refused_naming_need_and_limit(runtime):
+    """A million joints (their records, backups, pairs and edges: hundreds of MiB) under a
+    memory_limit that holds the World's bodies: the add raises MemoryLimitError naming the
+    joints, the need and the limit before packing anything, and the World (bodies,
+    joints, impulses) is as it was and still steps."""
+    probe = jointed_world(runtime)
+    held = probe._memory.need(probe.body_count, probe.shapes.type_names()).total
+    world = jointed_world(runtime, memory_limit=held + 2**20)
+    for _ in range(3):
+        world.step(1 / 60)
+    before = state(world)
+    impulses = world.joint_impulses.copy()
+    start = time.perf_counter()
+    with pytest.raises(
+        MemoryLimitError, match=r"adding 1,000,000 joints \(to 40\).*joints\).*memory_limit"
+    ) as error:
+        world.add_joints(rbgen.BallJoint, a=np.full(10**6, 5), b=None)
+    assert time.perf_counter() - start < 2.0
+    assert "MiB" in str(error.value)
+    assert world.joint_count == 40
+    assert_same(state(world), before)
+    np.testing.assert_array_equal(world.joint_impulses, impulses)
+    world.step(1 / 60)
+    assert np.all(np.isfinite(world.positions))
+
+
+def test_estimate_holds_what_a_jointed_world_allocates(runtime):
+    """A World with joints: the measured bytes (joint records, their backups, joined
+    pairs, edges) stay under the estimate, which stays under 1.25 times them plus the
+    fixed allowance; the estimate counts the joints."""
+    world = jointed_world(runtime, 400)
+    for _ in range(5):
+        world.step(1 / 60)
+    _ = world.positions
+    measured = memory.device_bytes(world)
+    estimated = world._memory.held.total
+    assert measured <= estimated <= 1.25 * measured + memory.FIXED_BYTES
+    assert world._memory.held.sizes.joints == 400
+    assert world._memory.held.buffers["joints"] == 400 * rbgen.layouts.JOINT_CONSTRAINT.itemsize * (
+        1 + rbgen.guard.STEPS_IN_FLIGHT
+    )

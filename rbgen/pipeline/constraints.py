@@ -173,6 +173,11 @@ class ContactConstraints:
         return tuple(self._generations)
 
     @property
+    def generation_index(self) -> int:
+        """The ring index of this step's generation (valid after a call)."""
+        return self._current
+
+    @property
     def constraints(self):
         """Device array of this step's constraints (valid after a call)."""
         return self._generations[self._current].constraints

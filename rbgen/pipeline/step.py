@@ -442,27 +442,24 @@ class JointStage(Stage):
         #: the World's `rbgen.joints.JointStore`
         self.store = store
         self.edges = JointEdges(runtime)
-        #: (joint list version, edge array) of the last step: its colours are inherited
-        self._last: tuple | None = None
 
     def enqueue(self, step: StepContext) -> None:
         store, c = self.store, self.constraints.constraints
         if store.count == 0:
             return
-        edges = c.edges
-        last = self._last
-        inherit = last is not None and last[0] == store.version
-        previous = last[1] if last is not None and inherit else edges
+        # the colours are inherited from the ring's generation before this step's (not
+        # the last step enqueued: a redone step inherits exactly what its first try did)
+        before = c.generations[(c.generation_index - 1) % len(c.generations)]
         self.edges(
             store.device,
+            store.backups[step.slot],
             store.count,
             step.bodies.bodies,
-            edges,
-            previous,
-            inherit,
+            c.edges,
+            before.edges,
+            before.first_contact_edge,
             step.settings.substeps,
         )
-        self._last = (store.version, edges)
         store.device_newer = True
 
 

@@ -50,24 +50,37 @@ def test_prepare_joints_matches_reference(runtime, n, inherit):
     q = rng.normal(size=(body_count, 4))
     bodies["orientation"] = q / np.linalg.norm(q, axis=1, keepdims=True)
     joints = random_joints(rng, n, body_count)
+    # the previous step's edges: with ``inherit``, its first joint edges (a random count
+    # of them) name the same joints, some with other bodies or items (not inherited)
     previous = layouts.CONSTRAINT_EDGE.zeros(max(1, n))
     previous["colour"] = rng.integers(0, 40, len(previous))
+    previous_count = int(rng.integers(n // 2 + 1, n + 1)) if inherit and n else 0
+    previous["item"] = (layouts.EDGE_JOINT << layouts.EDGE_KIND_SHIFT) | np.arange(len(previous))
+    previous["body_a"][:n], previous["body_b"][:n] = joints["body_a"], joints["body_b"]
+    other = rng.random(len(previous)) < 0.3
+    previous["body_b"][other] += 1
+    contact = rng.random(len(previous)) < 0.2
+    previous["item"][contact] = np.arange(len(previous))[contact]  # (contact edges)
     substeps = 3.0
     queue = runtime.queue
     d_joints = cl_array.to_device(queue, joints if n else layouts.JOINT_CONSTRAINT.zeros(1))
     d_edges = cl_array.to_device(queue, layouts.CONSTRAINT_EDGE.zeros(max(1, n)))
+    d_backup = cl_array.to_device(queue, layouts.JOINT_CONSTRAINT.zeros(max(1, n)))
     stage = JointEdges(runtime)
     stage(
         d_joints,
+        d_backup,
         n,
         cl_array.to_device(queue, bodies),
         d_edges,
         cl_array.to_device(queue, previous),
-        inherit,
+        previous_count,
         substeps,
     )
     edges = runtime.read(d_edges)[:n]
     after = runtime.read(d_joints)[:n]
+    # the backup holds each joint as the launch found it (before the break test)
+    np.testing.assert_array_equal(runtime.read(d_backup)[:n], joints)
 
     on_world = (joints["flags"] & layouts.JOINT_WORLD) != 0
     b = joints["body_b"]
@@ -83,7 +96,9 @@ def test_prepare_joints_matches_reference(runtime, n, inherit):
         edges["item"], (layouts.EDGE_JOINT << layouts.EDGE_KIND_SHIFT) | np.arange(n)
     )
     np.testing.assert_allclose(edges["point"][:, :3], point, atol=1e-5)
-    expected_colour = previous["colour"][:n] if inherit else np.full(n, layouts.SOLVER_NONE)
+    same = (np.arange(n) < previous_count) & ~other[:n] & ~contact[:n]
+    expected_colour = np.where(same, previous["colour"][:n], layouts.SOLVER_NONE)
+    assert not inherit or n < 15 or 0 < same.sum() < n  # (both cases drawn)
     np.testing.assert_array_equal(edges["colour"], expected_colour)
 
     straight = (joints["kind"] == layouts.JOINT_SLIDER) | (joints["kind"] == layouts.JOINT_DISTANCE)

@@ -11,22 +11,28 @@ ${cl_structs("Body", "JointConstraint", "ConstraintEdge")}
 
 <%include file="/common/quaternion.cl.mako"/>
 
-/* One work-item per joint: the break test, then its edge (bodies, item, the
- * colour of the previous step's edge when `inherit`, B's anchor as its point).
+/* One work-item per joint: first the joint, as the step found it, goes to
+ * `backup` (the World's copy of its step slot: a redone step starts again from
+ * it, impulses and broken flag), then the break test, then its edge (bodies,
+ * item, B's anchor as its point, and the colour of the previous step's edge i
+ * when that edge was this joint's: the same item and bodies, among the
+ * `previous_count` joint edges the previous step wrote).
  * A work group is responsible for ${work_group_size} consecutive joints. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
 void prepare_joints(__global JointConstraint* joints,
+                    __global JointConstraint* backup,
                     const uint joint_count,
                     __global const Body* bodies,
                     __global ConstraintEdge* edges,
                     __global const ConstraintEdge* previous_edges,
-                    const uint inherit,
+                    const uint previous_count,
                     const float substeps)
 {
     uint i = get_global_id(0);
     if (i >= joint_count)
         return;
     __global JointConstraint* j = &joints[i];
+    backup[i] = *j;
     uint flags = j->flags;
     /* the last substep's linear impulse (the block's and, across it, a slider's or
      * distance joint's axial rows'), times the substeps: the reaction over a step */
@@ -48,7 +54,12 @@ void prepare_joints(__global JointConstraint* joints,
     edge.body_a = a;
     edge.body_b = b;
     edge.item = RB_EDGE_JOINT << RB_EDGE_KIND_SHIFT | i;
-    edge.colour = inherit ? previous_edges[i].colour : RB_SOLVER_NONE;
+    edge.colour = RB_SOLVER_NONE;
+    if (i < previous_count) {
+        ConstraintEdge before = previous_edges[i];
+        if (before.item == edge.item && before.body_a == a && before.body_b == b)
+            edge.colour = before.colour;
+    }
     edge.point = (float4)(anchor, 0.0f);
     edges[i] = edge;
 }
