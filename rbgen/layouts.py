@@ -466,6 +466,13 @@ CONTACT_CONSTRAINT = declare(
         ("tangent1_impulse", "float4", "per point: accumulated tangent1 impulse (warm started)"),
         ("tangent2_impulse", "float4", "per point: accumulated tangent2 impulse (warm started)"),
         ("push_impulse", "float4", "per point: accumulated split (position) impulse"),
+        (
+            "max_normal_impulse",
+            "float4",
+            "per point: the largest accumulated normal impulse of this step's velocity "
+            "sweeps (kept only where the restitution is > 0: a point that pushed in any "
+            "substep bounces)",
+        ),
         ("features", "uint4", "feature id per point (warm-starting key)"),
         ("body_a", "uint", "first body"),
         ("body_b", "uint", "second body"),
