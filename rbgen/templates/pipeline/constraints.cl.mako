@@ -244,7 +244,6 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
 % endif
     c.features = (uint4)(m->features[0], m->features[1], m->features[2], m->features[3]);
     c.normal_impulse = c.tangent1_impulse = c.tangent2_impulse = c.push_impulse = (float4)(0.0f);
-    c.max_normal_impulse = (float4)(0.0f);
     float velocity_target[4] = {0}, position_target[4] = {0};
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) {
         c.r_a[k] = c.r_b[k] = (float4)(0.0f);

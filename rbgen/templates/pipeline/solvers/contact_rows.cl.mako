@@ -533,9 +533,9 @@ void warm_start_contact(const ${constraint_space} ContactConstraint* c, __privat
 }
 
 /* Restitution, Box2D v3's b2ApplyRestitution: after the rows, every point that
- * pushed in any of the step's velocity sweeps (`pushed`: its largest
- * accumulated normal impulse, > 0; a point that stopped its approach in an
- * early substep and has lifted off since still bounces) and came in faster
+ * pushed in any of the step's velocity sweeps (bit k of `pushed` for point k;
+ * a point that stopped its approach in an early substep and has lifted off
+ * since still bounces, as with Box2D v3's maxNormalImpulse > 0) and came in faster
  * than the threshold (its bounce, r_b[k].w, > 0: the restitution times the
  * approach before the step, set up with the constraint) has its normal row
  * driven to the bounce velocity, the accumulated impulse kept >= 0. Friction is not
@@ -555,14 +555,14 @@ void warm_start_contact(const ${constraint_space} ContactConstraint* c, __privat
 inline void apply_restitution(const uint count, const float3 n, const float3 t1, const float3 t2,
                               ${constraint_space} const float4* r_a,
                               ${constraint_space} const float4* r_b, const float mass[4],
-                              const float pushed[4], float impulse[4],
+                              const uint pushed, float impulse[4],
                               __private ContactBodies* p)
 {
     float target[4] = {0.0f, 0.0f, 0.0f, 0.0f};
     bool bounces[4] = {false, false, false, false}, every = true;
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         target[k] = r_b[k].w;
-        bounces[k] = target[k] > 0.0f && pushed[k] > 0.0f;
+        bounces[k] = target[k] > 0.0f && (pushed >> k & 1u) != 0u;
         every = every && bounces[k];
     }
     bool solved = false;
@@ -642,12 +642,13 @@ void solve_contact(${constraint_space} ContactConstraint* c, __private ContactBo
     twist_total = min1(max1(twist_total, -twist_limit), twist_limit);
     apply_row(&twist, twist_total - tangent1_impulse[1], p);
     tangent1_impulse[1] = twist_total;
-    if (c->tangent2.w > 0.0f) {  /* (a restitution: the points that pushed, kept) */
-        float pushed[4];
-        unpack4(c->max_normal_impulse, pushed);
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-            pushed[k] = max1(pushed[k], normal_impulse[k]);
-        c->max_normal_impulse = pack4(pushed);
+    if (c->tangent2.w > 0.0f) {
+        /* a restitution: the points that pushed, kept in tangent2_impulse's slot 1
+         * (layouts: ContactConstraint; zero at setup) */
+        uint pushed = (uint)tangent2_impulse[1];
+        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count && normal_impulse[k] > 0.0f)
+            pushed |= 1u << k;
+        tangent2_impulse[1] = (float)pushed;
         if (restitution) {
             unpack4(c->normal_mass, normal_mass);  /* (in point order again) */
             apply_restitution(count, n, t1, t2, c->r_a, c->r_b, normal_mass, pushed,

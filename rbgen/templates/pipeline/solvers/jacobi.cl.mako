@@ -208,10 +208,6 @@ inline void store_changes(${shared} float4* changes, uint i, const __private Con
 % for field in results:
             constraints[i].${field} = c->${field};
 % endfor
-% if "normal_impulse" in results:
-            if (c->tangent2.w > 0.0f)  /* (the restitution's: contact_rows.cl.mako) */
-                constraints[i].max_normal_impulse = c->max_normal_impulse;
-% endif
         }
 </%def>
 <%def name="body_phase(memory)">\

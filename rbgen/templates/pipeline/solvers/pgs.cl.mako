@@ -384,8 +384,6 @@ inline void solve_copy(__global ContactConstraint* constraints, uint index,
         constraints[index].normal_impulse = c.normal_impulse;
         constraints[index].tangent1_impulse = c.tangent1_impulse;
         constraints[index].tangent2_impulse = c.tangent2_impulse;
-        if (c.tangent2.w > 0.0f)  /* (kept only where there is a restitution) */
-            constraints[index].max_normal_impulse = c.max_normal_impulse;
     }
     if (s.push)
         constraints[index].push_impulse = c.push_impulse;
