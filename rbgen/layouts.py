@@ -464,7 +464,13 @@ CONTACT_CONSTRAINT = declare(
         ("position_target", "float4", "per point: split-impulse push velocity target this substep"),
         ("normal_impulse", "float4", "per point: accumulated normal impulse (warm started)"),
         ("tangent1_impulse", "float4", "per point: accumulated tangent1 impulse (warm started)"),
-        ("tangent2_impulse", "float4", "per point: accumulated tangent2 impulse (warm started)"),
+        (
+            "tangent2_impulse",
+            "float4",
+            "per point: accumulated tangent2 impulse (warm started); slot 1, where the "
+            "restitution is > 0: the points that pushed in this step's velocity sweeps, "
+            "bit k for point k (a whole number 0-15; the restitution bounces those)",
+        ),
         ("push_impulse", "float4", "per point: accumulated split (position) impulse"),
         ("features", "uint4", "feature id per point (warm-starting key)"),
         ("body_a", "uint", "first body"),

@@ -324,12 +324,12 @@ def test_energy_does_not_grow_without_input(runtime, data):
     assert end <= start * (1 + FLOAT32_DRIFT) + allowance, (start, end, allowance)
 
 
-def elastic_drop(runtime, shape, mass, spin, friction):
+def elastic_drop(runtime, shape, mass, spin, friction, substeps=1):
     """(start energy, the highest energy over a second, the allowance): ``shape`` dropped
     from 1 m above a plane with restitution 1, spinning at ``spin`` rad/s about z: one
     bounce."""
     drawn = [{"shape": shape, "mass": mass}]
-    world = World(runtime)
+    world = World(runtime, substeps=substeps)
     world.add_static(rbgen.Plane((0, 1, 0), 0.0))
     world.add_body(
         shape,
@@ -360,36 +360,45 @@ def elastic_drop(runtime, shape, mass, spin, friction):
     ],
     ids=lambda case: case[0],
 )
-def test_elastic_bounce_keeps_the_energy_bound(runtime, case):
+@pytest.mark.parametrize("substeps", [1, 4, 8])
+def test_elastic_bounce_keeps_the_energy_bound(runtime, case, substeps, request):
     """Restitution 1: a bounce returns the normal speed the body came in with, measured
     before the step's gravity (which prepare_bodies adds before the contacts are set
     up), so over the second of the drop and the bounce the energy never exceeds the start
     plus what lifting the body out of one step's travel adds (a target of e times the
     approach after gravity gained about twice that)."""
-    _, shape, mass, spin, friction = case
-    start, highest, allowance = elastic_drop(runtime, shape, mass, spin, friction)
+    name, shape, mass, spin, friction = case
+    if name == "hull" and substeps == 8:
+        request.applymarker(
+            pytest.mark.xfail(
+                strict=True,
+                reason=(
+                    "solver owner (restitution pass, contact_rows.cl.mako): the bounce is "
+                    "each point's approach before the step (Box2D v3's relativeVelocity). "
+                    "At 8 substeps the hull's two points both push in the first substep; "
+                    "the rows turn it about the first, which lifts off, and the "
+                    "restitution drives the second to the step's 7.19 m/s though the "
+                    "turn already carries the body up: +482 J over 3,452 J against a "
+                    "139 J allowance (the bounce in the row target gained +2,197 J here)"
+                ),
+            )
+        )
+    start, highest, allowance = elastic_drop(runtime, shape, mass, spin, friction, substeps)
     assert highest <= start * (1 + FLOAT32_DRIFT) + allowance, (start, highest, allowance)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "solver owner (stage order, pgs/jacobi): Newton's restitution solved with sticking "
-        "friction adds energy on an off-centre impact. A 100 kg hull (HULL_CLOUDS[0]) dropped "
-        "1 m onto a plane, spinning at 1 rad/s, restitution 1, friction 1, hits on one "
-        "vertex: the point's normal row reverses its approach (7.06 m/s, before gravity) "
-        "while the friction pair stops its slip, and the rotation they leave adds +144 J "
-        "kinetic energy in the bounce step (267 J over the bound's start; 3,487 J start, "
-        "180 J allowance). Frictionless or without spin it holds (the test above). A "
-        "Poisson restitution (the compression impulses first, then e times them, as Box2D "
-        "v3's restitution pass after its relax sweeps) would not add energy; the row setup "
-        "alone cannot order that"
-    ),
-)
-def test_elastic_bounce_of_a_spinning_hull_keeps_the_energy_bound(runtime):
+@pytest.mark.parametrize("substeps", [1, 4, 8])
+def test_elastic_bounce_of_a_spinning_hull_keeps_the_energy_bound(runtime, substeps):
+    """A 100 kg hull (HULL_CLOUDS[0]) dropped 1 m onto a plane, spinning at 1 rad/s,
+    restitution 1, friction 1, hits on one vertex. The rows stop the point's approach and
+    its slip (the impact's compression), and only then does the restitution pass drive
+    the normal row alone to the bounce (Box2D v3's order): a bounce in the rows' own
+    target, solved with sticking friction, added about 267 J over the start of 3,487 J
+    and left the bound (its allowance: lifting the hull out of one step's travel); with
+    substeps, the restitution comes once, after the last substep's rows."""
     hull = rbgen.ConvexHull(HULL_CLOUDS[0])
     drawn = [{"shape": hull, "mass": 100.0}]
-    world = World(runtime)
+    world = World(runtime, substeps=substeps)
     world.add_static(rbgen.Plane((0, 1, 0), 0.0))
     world.add_body(
         hull,

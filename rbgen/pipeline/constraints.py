@@ -230,14 +230,12 @@ class ContactConstraints:
         capacity: int,
         dt: float,
         warm_start: bool = True,
-        last_substep: bool = True,
     ):
         """Set up min(``manifold_count[0]``, ``capacity``) constraints (count: a device
         uint32 array(1)); that number is written to ``self.count`` on the device.
         ``warm_start=False`` (a World whose warm_start setting is off): this call finds no
         previous constraint, so its impulses start from zero and no colour is inherited,
-        as a setup built without warm starting does. ``dt``: the first substep's length;
-        ``last_substep``: that substep is the step's last (one substep a step)."""
+        as a setup built without warm starting does. ``dt``: the first substep's length."""
         queue, wg = self.runtime.queue, self.work_group_size
         previous = self._generations[self._current]
         first = self.first_contact_edge
@@ -299,6 +297,5 @@ class ContactConstraints:
             np.float32(self.restitution_threshold),
             np.float32(self.penetration_slop),
             np.float32(self.penetration_recovery),
-            np.uint32(bool(last_substep)),
         ]
         return self.setup_kernel.over(capacity, wg, *args)

@@ -426,7 +426,6 @@ class ConstraintStage(Stage):
             self.capacity,
             step.h,
             warm_start=s.warm_start,
-            last_substep=s.substeps == 1,
         )  # (the first substep's targets)
 
 
@@ -600,10 +599,17 @@ class SolveStage(Stage):
                     h,
                     s.penetration_slop,
                     s.penetration_recovery,
-                    k == substeps - 1,
                 )
             self.solver.solve(
-                constraints, count, c.capacity, b.bodies, b.inertia, b.count, s, **joints
+                constraints,
+                count,
+                c.capacity,
+                b.bodies,
+                b.inertia,
+                b.count,
+                s,
+                restitution=k == substeps - 1,
+                **joints,
             )
             self.integrator(
                 b.bodies,

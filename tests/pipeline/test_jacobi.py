@@ -55,7 +55,8 @@ def run_jacobi(rig, solver, **settings):
 
 def random_scene(rng, bodies=37, statics=3, manifolds=101):
     """Bodies on a loose lattice (the first ``statics`` static) and manifolds between random
-    pairs of them, 1-4 points each, some penetrating, some still apart."""
+    pairs of them, 1-4 points each, some penetrating, some still apart, half of them with a
+    restitution."""
     positions = rng.uniform(-3, 3, (bodies, 3))
     inv_mass = np.r_[np.zeros(statics), rng.uniform(0.3, 2.0, bodies - statics)]
     velocities = rng.uniform(-1, 1, (bodies, 3))
@@ -82,6 +83,7 @@ def random_scene(rng, bodies=37, statics=3, manifolds=101):
                 points,
                 rng.uniform(-0.03, 0.01, count),
                 friction=float(rng.uniform(0.2, 0.9)),
+                restitution=float(rng.uniform(0.1, 1.0)) if rng.random() < 0.5 else 0.0,
             )
         )
     return body_array, inv_inertia, np.array(records)
@@ -102,7 +104,8 @@ def reference_jacobi(
     cons, bodies, world_inv_inertia, *, iterations, position_iterations, relaxation, warm_start
 ):
     """Float64 Jacobi with mass splitting, sequential normal rows and the manifold's
-    friction pair and twist row (the kernels' arithmetic in the template's order):
+    friction pair and twist row (the kernels' arithmetic in the template's order), the
+    restitution pass in the last sweep (contact_rows.cl.mako: apply_restitution):
     (velocities, angular velocities, push linear, push angular, constraints with their
     impulses)."""
     cons = cons.copy()
@@ -182,7 +185,7 @@ def reference_jacobi(
         apply(state, a, b, t1 * c["tangent1_impulse"][0] + t2 * c["tangent2_impulse"][0], ra, rb)
         twist_about(state, a, b, n, float(c["tangent1_impulse"][1]))
 
-    def solve(reverse):
+    def solve(reverse, restitution):
         def action(c, state, a, b):
             count = c["point_count"]
             order = [k for k in (range(3, -1, -1) if reverse else range(4)) if k < count]
@@ -221,6 +224,21 @@ def reference_jacobi(
             )
             twist_about(state, a, b, n, total - old)
             c["tangent1_impulse"][1] = total
+            if c["tangent2"][3] > 0:  # the points that pushed (a mask); the restitution pass
+                pushed = int(c["tangent2_impulse"][1])
+                for k in range(count):
+                    pushed |= int(c["normal_impulse"][k] > 0) << k
+                c["tangent2_impulse"][1] = pushed
+                for _round in range(8 if restitution else 0):
+                    for k in range(count):
+                        bounce = float(c["r_b"][k, 3])
+                        if not (bounce > 0 and pushed >> k & 1):
+                            continue
+                        ra, rb, n, _, _ = rows_of(c, k)
+                        old = float(c["normal_impulse"][k])
+                        target = old + c["normal_mass"][k] * (bounce - speed(state, n, ra, rb))
+                        apply(state, a, b, n * (max(0.0, target) - old), ra, rb)
+                        c["normal_impulse"][k] = max(0.0, target)
 
         return action
 
@@ -243,7 +261,7 @@ def reference_jacobi(
     if warm_start:
         sweep(v, w, warm)
     for s in range(iterations):
-        sweep(v, w, solve(reverse=s % 2 == 1))
+        sweep(v, w, solve(reverse=s % 2 == 1, restitution=s == iterations - 1))
     pv, pw = np.zeros_like(v), np.zeros_like(w)
     for _ in range(position_iterations):
         sweep(pv, pw, push)
@@ -252,7 +270,8 @@ def reference_jacobi(
 
 def device_setup(runtime, rng, **scene):
     """A ContactRig with the scene's constraints set up on the device, carrying random
-    impulses (to be warm started)."""
+    impulses (to be warm started) and, at half the points of a manifold with a restitution,
+    a random bounce (r_b.w: the approaches of the scene are below the threshold)."""
     bodies, inv_inertia, manifolds = random_scene(rng, **scene)
     rig = ContactRig(runtime, bodies, inv_inertia, warm_start=False)
     rig.constraints(manifolds)
@@ -262,6 +281,9 @@ def device_setup(runtime, rng, **scene):
         all_constraints[field][:n] = rng.uniform(
             0.0 if field == "normal_impulse" else -0.05, 0.1, (n, 4)
         ).astype(np.float32)
+    all_constraints["tangent2_impulse"][:n, 1:] = 0.0  # (slot 1: the pushed points' mask)
+    bouncy = (rng.random((n, 4)) < 0.5) & (all_constraints["tangent2"][:n, 3:] > 0)
+    all_constraints["r_b"][:n, :, 3] = np.where(bouncy, rng.uniform(0.1, 2.0, (n, 4)), 0.0)
     rig.setup.constraints.set(all_constraints)
     return rig, n
 
@@ -303,6 +325,8 @@ def test_sweeps_match_the_float64_reference(runtime, rng, persistent, work_group
             err_msg=field,
         )
     assert (np.bincount(np.r_[before["body_a"], before["body_b"]]) > 3).any()  # shared bodies
+    pushed = cons["tangent2_impulse"][:, 1].astype(int)[:, None] >> np.arange(4) & 1
+    assert ((cons["r_b"][:, :, 3] > 0) & (pushed > 0)).any()  # bounces
 
 
 @pytest.mark.parametrize("persistent", [False, True])

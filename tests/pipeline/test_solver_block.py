@@ -149,14 +149,15 @@ def random_face_pairs(
     separations=(0.0, 0.0),
     batching=None,
     normal_solve="block",
+    restitution=True,
 ):
     """``pairs`` pairs of free bodies with full inertia tensors, each in contact through
     ``count`` points of a random tilted face (a rectangle, an edge or a triangle about the
     line of centres, points off the contact plane by a few mm), approaching at 1-2 m/s and
     turning at up to ``spin`` rad/s, separations uniform in ``separations`` (a (low, high)
     range, or a list of ranges taken by the pairs in turn) and random restitution (none for
-    a pair whose points may be apart: a gap crossed within the step lands and bounces, a
-    target that fits no rigid motion of the face), friction 0, solved by a ContactRig of
+    a pair whose points may be apart, or without ``restitution``: a bounce is applied after
+    the rows, see `bounce_targets`), friction 0, solved by a ContactRig of
     ``variant`` (``batching``: its algorithm, if not the variant's): (rig, manifolds,
     constraints before solving, bodies before)."""
     ranges = separations if isinstance(separations, list) else [separations]
@@ -193,7 +194,7 @@ def random_face_pairs(
                 points,
                 rng.uniform(low, high, count),
                 friction=0.0,
-                restitution=rng.uniform(0.0, 0.8) if high <= 0 else 0.0,
+                restitution=rng.uniform(0.0, 0.8) if high <= 0 and restitution else 0.0,
             )
         )
     n_bodies = 2 * pairs
@@ -222,6 +223,15 @@ def random_face_pairs(
     manifolds = np.array(manifolds)
     cons = rig.constraints(manifolds)
     return rig, manifolds, cons, rig.bodies.get()
+
+
+def bounce_targets(constraint, count):
+    """The normal speeds a solve ends at for points that all push: each point's bounce
+    (r_b.w, e times its approach), which the restitution pass drives it to after the rows
+    (exactly, as a block, when every point of the face bounces), else its velocity
+    target."""
+    bounce = constraint["r_b"][:count, 3].astype(float)
+    return np.where(bounce > 0, bounce, constraint["velocity_target"][:count].astype(float))
 
 
 def normal_rows(manifold, constraint, before, inertia):
@@ -294,14 +304,16 @@ def test_pushing_points_get_the_smallest_exact_impulses(runtime, rng, variant, c
     pinv(K) (target - v_n), the smallest ones, all positive here (the bodies approach fast
     and turn slowly), and the velocities change by them. Random normals, points off the
     contact plane by a few mm (the lever arms' part along n does not matter), random
-    orientations (full world inertias) and restitution (targets -e v_n, one rigid motion).
-    Two points (an edge): K is regular, the totals are K^-1 (target - v_n)."""
+    orientations (full world inertias) and restitution (the rows stop the points, then the
+    restitution pass drives them to -e v_n, one rigid motion: the smallest totals of both
+    together are pinv(K) (-e v_n - v_n)). Two points (an edge): K is regular, the totals
+    are K^-1 (target - v_n)."""
     rig, manifolds, cons, before = random_face_pairs(runtime, rng, count, variant)
     inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
     out, solved = rig.solve(manifolds, iterations=1)
     for m, c, s in zip(manifolds, cons, solved):
         a, b, n, arm_a, arm_b, k_matrix, normal_speed = normal_rows(m, c, before, inertia)
-        total = np.linalg.pinv(k_matrix, rcond=1e-6) @ (c["velocity_target"][:count] - normal_speed)
+        total = np.linalg.pinv(k_matrix, rcond=1e-6) @ (bounce_targets(c, count) - normal_speed)
         assert total.min() > 0.05 * total.max()
         np.testing.assert_allclose(
             s["normal_impulse"][:count], total, rtol=2e-3, atol=1e-4 * total.max()
@@ -360,7 +372,9 @@ def test_sequential_rows_are_gauss_seidel(runtime, rng, variant, count):
     rows' speeds forward through K instead of re-reading the velocities): two sweeps, the
     points in order, then backwards, equal the float64 Gauss-Seidel of the normal rows,
     lambda_k = max(0, lambda_k + (target_k - speed_k) / K_kk) with the speeds updated after
-    every row, and the velocities change by the impulses found. Friction 0."""
+    every row, and the velocities change by the impulses found; then the restitution pass
+    (contact_rows.cl.mako: apply_restitution), RESTITUTION_ROUNDS = 8 sweeps of the rows of
+    the points that pushed in a sweep and have a bounce, to that bounce. Friction 0."""
     rig, manifolds, cons, before = random_face_pairs(
         runtime, rng, count, variant, spin=2.0, normal_solve="sequential"
     )
@@ -370,10 +384,18 @@ def test_sequential_rows_are_gauss_seidel(runtime, rng, variant, count):
         a, b, n, arm_a, arm_b, k_matrix, normal_speed = normal_rows(m, c, before, inertia)
         target = c["velocity_target"][:count].astype(float)
         total = np.zeros(count)
+        pushed = np.zeros(count)
         for order in (range(count), reversed(range(count))):
             for k in order:
                 speed = normal_speed + k_matrix @ total
                 total[k] = max(0.0, total[k] + (target[k] - speed[k]) / k_matrix[k, k])
+            pushed = np.maximum(pushed, total)
+        bounce = c["r_b"][:count, 3].astype(float)
+        for _round in range(8):
+            for k in range(count):
+                if bounce[k] > 0 and pushed[k] > 0:
+                    speed = normal_speed + k_matrix @ total
+                    total[k] = max(0.0, total[k] + (bounce[k] - speed[k]) / k_matrix[k, k])
         assert total.max() > 0.0
         np.testing.assert_allclose(
             s["normal_impulse"][:count], total, rtol=1e-3, atol=1e-4 * total.max()
@@ -451,6 +473,7 @@ def test_release_sweeps_leave_the_releasing_faces_to_the_rows_until_the_last(
                 spin=3.0,
                 separations=[(-0.002, 0.0), (-0.002, 0.004)],
                 batching=batching,
+                restitution=False,  # (the rows' solution alone)
             )
             assert (len(rig.batcher.launch_plan) > 1) == (batching != "global")
             inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)

@@ -37,10 +37,10 @@ def random_contacts(rng, n, bodies):
     return c
 
 
-def reference_targets(c, deltas, h, last):
+def reference_targets(c, deltas, h):
     """Float64: each point's separation from the deltas, then its velocity and push
-    targets (the rules of solvers/substeps.cl.mako's header; ``last``: the step's last
-    substep, where a gap crossed bounces at once; before it, a point lands first)."""
+    targets (the rules of solvers/substeps.cl.mako's header: a point apart lands, one
+    touching stops; its bounce, r_b.w, is no target: the restitution pass applies it)."""
     velocity = np.zeros((len(c), 4))
     push = np.zeros((len(c), 4))
     for i, row in enumerate(c):
@@ -55,19 +55,13 @@ def reference_targets(c, deltas, h, last):
                 + deltas["angular"][b, :3] @ np.cross(rb, n)
                 - deltas["angular"][a, :3] @ np.cross(ra, n)
             )
-            bounce, e = float(row["r_b"][k, 3]), float(row["tangent2"][3])
-            if s > 0:
-                crossed = bounce > 0 and bounce * h > e * s
-                velocity[i, k] = bounce if last and crossed else -s / h
-            else:
-                velocity[i, k] = bounce
+            velocity[i, k] = -s / h if s > 0 else 0.0
             push[i, k] = -RECOVERY / h * s if s > 0 else RECOVERY / h * max(-s - SLOP, 0.0)
     return velocity, push
 
 
-@pytest.mark.parametrize("last", [False, True])
 @pytest.mark.parametrize("n", SIZES[:-1])
-def test_refreshed_targets_match_float64(runtime, rng, n, last):
+def test_refreshed_targets_match_float64(runtime, rng, n):
     """Sizes 0, 1, 31-33 and 1,000 (not multiples of the work group); the count on the
     device is one less than the capacity, so the last constraint must stay as it was."""
     bodies = 50
@@ -81,9 +75,9 @@ def test_refreshed_targets_match_float64(runtime, rng, n, last):
     d = cla.to_device(runtime.queue, c)
     h = 1 / 240
     count_d = cla.to_device(runtime.queue, np.array([count], np.uint32))
-    refresh(d, count_d, n, bodies, h, SLOP, RECOVERY, last)
+    refresh(d, count_d, n, bodies, h, SLOP, RECOVERY)
     got = d.get()
-    velocity, push = reference_targets(c[:count], deltas, h, last)
+    velocity, push = reference_targets(c[:count], deltas, h)
     np.testing.assert_allclose(got["velocity_target"][:count], velocity, rtol=1e-4, atol=2e-3)
     np.testing.assert_allclose(got["position_target"][:count], push, rtol=1e-4, atol=2e-3)
     assert np.all(got["push_impulse"][:count] == 0)
@@ -192,9 +186,10 @@ def test_bounces_keep_their_restitution(runtime, substeps, effort):
     bounces (in at 4.4 and 2.2 m/s) leaves at e times the speed it came in with, within
     10% (in: sqrt(2 g apex); out: the velocity of the first step that rises; slower
     impacts miss up to g dt = 0.16 m/s, the bounce being measured at the step's start).
-    A point lands exactly before it bounces, and a step whose last substep crosses a gap
-    ends at the bounce velocity: a step that ended at a landing velocity would have the
-    next step's setup measure the approach from it, losing the bounce."""
+    The rows stop the points (a gap crossed lands exactly), and the restitution pass after
+    the last substep's rows bounces every point that pushed in any substep: a step that
+    ended at a landing velocity would have the next step's setup measure the approach
+    from it, losing the bounce."""
     world = rbgen.World(runtime, substeps=substeps, restitution_threshold=0.5, **effort)
     world.add_static(rbgen.Box((10, 1, 10)), position=(0, -1, 0), restitution=0.5)
     world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0, 1.5, 0), restitution=0.5)
@@ -216,9 +211,9 @@ def test_bounces_keep_their_restitution(runtime, substeps, effort):
 
 
 def test_persistent_launch_bounces_as_the_launches_do(runtime, monkeypatch):
-    """The persistent launch's refresh knows the step's last substep as the loop's does: a
-    box (e = 0.5) dropped from 1 m, 4 substeps, through two bounces (one landing in a
-    step's last substep or not: both rules run), the same trajectory either way."""
+    """The persistent launch applies the restitution after its last substep as the loop's
+    last solve does: a box (e = 0.5) dropped from 1 m, 4 substeps, through two bounces,
+    the same trajectory either way."""
     from rbgen.pipeline.solvers.pgs import PgsSolver
 
     def run():

@@ -120,6 +120,10 @@ TEMPLATE = KernelTemplate(
 
 #: the persistent kernel's ``passes`` flag for the warm start (as in the template)
 WARM_START_PASS = 1
+#: and for the restitution in its last velocity sweep
+RESTITUTION_PASS = 4
+#: a ``jacobi_sweep`` launch's ``reverse`` bits: the points backwards, the restitution
+SWEEP_REVERSED, SWEEP_RESTITUTION = 1, 2
 #: work groups of a phase launch per compute unit (a CPU balances the chunks better)
 PHASE_GROUPS_PER_UNIT = 4
 
@@ -210,13 +214,23 @@ class JacobiSolver(PushVelocities):
 
     # ------------------------------------------------------------- solving
     def solve(
-        self, constraints, constraint_count, capacity: int, bodies, inertia, body_count: int, sweeps
+        self,
+        constraints,
+        constraint_count,
+        capacity: int,
+        bodies,
+        inertia,
+        body_count: int,
+        sweeps,
+        restitution: bool = True,
     ) -> None:
         """Warm start, ``sweeps.iterations`` velocity sweeps and
         ``sweeps.position_iterations`` push sweeps over min(``constraint_count[0]``,
         ``capacity``) constraints (``constraint_count``: a device uint32 array(1)) between
-        the first ``body_count`` bodies. Rewrites the constraints' row masses for the split
-        bodies and their impulses; leaves the push velocities in `split_velocities`."""
+        the first ``body_count`` bodies (with ``restitution``, the last velocity sweep applies
+        the contacts' restitution: the step's last substep). Rewrites the constraints' row
+        masses for the split bodies and their impulses; leaves the push velocities in
+        `split_velocities`."""
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
         relaxation, warm_start = sweeps.relaxation, bool(sweeps.warm_start)
         check_sweeps(iterations, position_iterations, relaxation)
@@ -248,23 +262,30 @@ class JacobiSolver(PushVelocities):
         shared += [np.float32(relaxation), np.uint32(body_count)]
         size = self.groups * self.work_group_size
         for name, kernel in self._schedule(
-            int(iterations), int(position_iterations), bool(warm_start)
+            int(iterations), int(position_iterations), bool(warm_start), restitution
         ):
             self._binders_of(name)[0](kernel, *shared)
             kernel.launch(size, self.work_group_size)
 
-    def _schedule(self, iterations: int, position_iterations: int, warm_start: bool) -> list:
+    def _schedule(
+        self, iterations: int, position_iterations: int, warm_start: bool, restitution: bool
+    ) -> list:
         """The (kernel name, kernel object) of one call's launches, in launch order."""
         calls: list[tuple[str, tuple[int, ...]]]
         if self.persistent:
-            passes = WARM_START_PASS if warm_start else 0
+            passes = (WARM_START_PASS if warm_start else 0) | (
+                RESTITUTION_PASS if restitution else 0
+            )
             calls = [("solve_jacobi", (passes, iterations, position_iterations))]
         else:
             calls = [(f"jacobi_{phase}", (0,)) for phase in LIST_PHASES]
             if warm_start:
                 calls += [("jacobi_warm_start", (0,)), ("jacobi_average", (0,))]
             for sweep in range(iterations):
-                calls += [("jacobi_sweep", (sweep % 2,)), ("jacobi_average", (0,))]
+                flags = (SWEEP_REVERSED if sweep % 2 else 0) | (
+                    SWEEP_RESTITUTION if restitution and sweep == iterations - 1 else 0
+                )
+                calls += [("jacobi_sweep", (flags,)), ("jacobi_average", (0,))]
             for _ in range(position_iterations):
                 calls += [("jacobi_push", (0,)), ("jacobi_average_push", (0,))]
         return [(name, self._kernel(name, *scalars)) for name, scalars in calls]

@@ -312,7 +312,7 @@ def default_work_group_size(
 APPLY_WORK_GROUP_SIZE = 64
 
 #: bit flags of a `solve_groups` launch's ``passes`` argument (as in the template)
-WARM_START_PASS, FIRST_REVERSED = 1, 2
+WARM_START_PASS, FIRST_REVERSED, RESTITUTION_PASS = 1, 2, 4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -471,6 +471,7 @@ class PgsSolver(PushVelocities):
         motion: SubstepMotion | None = None,
         joints=None,
         h: float | None = None,
+        restitution: bool = True,
     ) -> None:
         """Warm start (every constraint's old impulses, before any sweep),
         ``sweeps.iterations`` velocity sweeps and ``sweeps.position_iterations``
@@ -480,14 +481,21 @@ class PgsSolver(PushVelocities):
         with joints takes the device `JointConstraint` records (``joints``, the items of
         kind EDGE_JOINT index them), the substep ``h`` and ``sweeps.joint_recovery``. A solver that
         `integrates` runs all ``motion.substeps`` substeps and moves the bodies; without
-        ``motion`` it solves once and leaves them where they are."""
+        ``motion`` it solves once and leaves them where they are. ``restitution``: the
+        last velocity sweep applies the contacts' restitution (the step's last substep;
+        a solver that `integrates` applies it in its last substep)."""
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
         check_sweeps(iterations, position_iterations, sweeps.relaxation)
         # (the sequential normal solve has no block to release: its release scalars are unused)
         release = self.release_sweeps if self.normal_solve == "block" else 0
         batcher = self.batcher
         launches, kernels = self._schedule(
-            batcher.launch_plan, iterations, position_iterations, bool(sweeps.warm_start), release
+            batcher.launch_plan,
+            iterations,
+            position_iterations,
+            bool(sweeps.warm_start),
+            release,
+            restitution,
         )
         if not launches:
             return
@@ -552,24 +560,36 @@ class PgsSolver(PushVelocities):
         position_iterations: int,
         warm_start: bool,
         release_sweeps: int | None,
+        restitution: bool = True,
     ):
         """Every launch of one call (kernel object, global size) and the distinct
-        kernel objects, computed once per plan and settings."""
-        key = (tuple(plan), iterations, position_iterations, warm_start, release_sweeps)
+        kernel objects, computed once per plan and settings; with `restitution`, the
+        launch of the last velocity sweep applies the restitution."""
+        key = (
+            tuple(plan),
+            iterations,
+            position_iterations,
+            warm_start,
+            release_sweeps,
+            restitution,
+        )
         schedule = self._schedules.get(key)
         if schedule is not None:
             return schedule
         warm = WARM_START_PASS if warm_start else 0
+        bounce = RESTITUTION_PASS if restitution and iterations > 0 else 0
         velocity_from = first_release_sweep(iterations, release_sweeps)
         position_from = first_release_sweep(position_iterations, release_sweeps)
         # (passes, velocity sweeps, position sweeps, and the first of each that may release)
         if len(plan) == 1:  # one launch: every sweep in it
-            passes = [(warm, iterations, position_iterations, velocity_from, position_from)]
+            passes = [
+                (warm | bounce, iterations, position_iterations, velocity_from, position_from)
+            ]
         else:  # one launch per colour and sweep; the warm start is a sweep of its own
             passes = [(warm, 0, 0, 0, 0)] if warm else []
             passes += [
                 (
-                    FIRST_REVERSED if s % 2 else 0,
+                    (FIRST_REVERSED if s % 2 else 0) | (bounce if s == iterations - 1 else 0),
                     int(s < iterations),
                     int(s < position_iterations),
                     int(s < velocity_from),

@@ -62,10 +62,9 @@ class ContactRefresh:
         h: float,
         penetration_slop: float,
         penetration_recovery: float,
-        last_substep: bool,
     ) -> None:
         """Refresh min(``constraint_count[0]``, ``capacity``) constraints' targets for a
-        substep of ``h`` seconds (``last_substep``: the step's last)."""
+        substep of ``h`` seconds."""
         if capacity <= 0:
             return
         self.kernel.over(
@@ -78,5 +77,4 @@ class ContactRefresh:
             np.float32(h),
             np.float32(penetration_slop),
             np.float32(penetration_recovery),
-            np.uint32(bool(last_substep)),
         )

@@ -195,8 +195,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
                                const float4 gravity,
                                const float restitution_threshold,
                                const float penetration_slop,
-                               const float penetration_recovery,
-                               const uint last_substep)
+                               const float penetration_recovery)
 {
     /* the narrowphase reports its true count, which may exceed our capacity
      * (the World then grows the buffers and redoes the step) */
@@ -265,16 +264,10 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
         /* (the separation and the bounce kept for later substeps' targets) */
         c.r_a[k] = (float4)(ra, separation);
         c.r_b[k] = (float4)(rb, bounce);
-        float target;
-        if (separation > 0.0f)
-            /* still apart: close the gap this (sub)step, no further (the next substep,
-             * touching, bounces); in a step's last substep, bounce if the gap would be
-             * crossed (the step ends at the bounce velocity, from which the next
-             * step's setup measures the approach) */
-            target = (last_substep && bounce > 0.0f && approach * dt < -separation)
-                     ? bounce : -separation / dt;
-        else
-            target = bounce;
+        /* still apart: close the gap this (sub)step, no further; touching: stop the
+         * approach (the bounce comes after the rows, in the step's last velocity
+         * sweep: contact_rows.cl.mako's apply_restitution, for points that push) */
+        float target = separation > 0.0f ? -separation / dt : 0.0f;
         float push = penetration_recovery / dt * max1(-separation - penetration_slop, 0.0f);
         velocity_target[k] = target;
         /* a point still apart may close (part of) its gap while the others

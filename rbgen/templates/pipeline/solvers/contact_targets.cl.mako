@@ -8,28 +8,21 @@
 /* Constraint *c's targets for a substep of h: each point's separation from the
  * bodies' motion (moved: B's displacement less A's; turned_a, turned_b: their
  * rotations), then its velocity target (when `velocity`) and its push target
- * with the push impulse cleared (when `push`); `last`: the step's last substep
- * (a gap crossed in it bounces at once); see solvers/substeps.cl.mako. */
+ * with the push impulse cleared (when `push`); see solvers/substeps.cl.mako. */
 inline void refresh_targets(__global ContactConstraint* c, float3 moved, float3 turned_a,
                             float3 turned_b, const float h, const float penetration_slop,
                             const float penetration_recovery, const bool velocity,
-                            const bool push, const bool last)
+                            const bool push)
 {
     uint count = c->point_count;
     float3 n = c->normal.xyz;
-    float restitution = c->tangent2.w;
     float velocity_target[4] = {0.0f, 0.0f, 0.0f, 0.0f};
     float position_target[4] = {0.0f, 0.0f, 0.0f, 0.0f};
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         float4 ra = c->r_a[k], rb = c->r_b[k];
         float separation = ra.w + dot3(n, moved) + dot3(turned_b, cross3(rb.xyz, n))
                          - dot3(turned_a, cross3(ra.xyz, n));
-        float bounce = rb.w;
-        if (separation > 0.0f)
-            velocity_target[k] = (last && bounce > 0.0f && bounce * h > restitution * separation)
-                                 ? bounce : -separation / h;
-        else
-            velocity_target[k] = bounce;
+        velocity_target[k] = separation > 0.0f ? -separation / h : 0.0f;
         float push_out = penetration_recovery / h * max1(-separation - penetration_slop, 0.0f);
         position_target[k] = separation > 0.0f ? -penetration_recovery / h * separation
                                                : push_out;

@@ -50,6 +50,12 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity")}
 
 /* `passes` of the persistent kernel: whether it runs the warm start */
 #define WARM_START_PASS 1u
+/* and whether its last velocity sweep applies the restitution
+ * (contact_rows.cl.mako: apply_restitution) */
+#define RESTITUTION_PASS 4u
+/* a sweep's `reverse` bits: the points backwards, then the restitution */
+#define SWEEP_REVERSED 1u
+#define SWEEP_RESTITUTION 2u
 
 <%include file="/common/inline_math.cl.mako"/>
 % if persistent:
@@ -230,7 +236,8 @@ inline void store_changes(${shared} float4* changes, uint i, const __private Con
 </%def>
 <%
     velocity_results = ("normal_impulse", "tangent1_impulse", "tangent2_impulse")
-    sweep = "solve_contact(c, &p, relaxation, reverse, true)"
+    sweep = ("solve_contact(c, &p, relaxation, (reverse & SWEEP_REVERSED) != 0, true, "
+             "(reverse & SWEEP_RESTITUTION) != 0)")
 %>\
 % if persistent:
 
@@ -281,7 +288,9 @@ ${body_phase("bodies")}\
         device_barrier(sync, &barrier_ok);
     }
     for (uint s = 0; s < velocity_sweeps; ++s) {
-        const bool reverse = (s & 1) != 0;
+        const uint reverse = ((s & 1) != 0 ? SWEEP_REVERSED : 0u)
+                           | ((passes & RESTITUTION_PASS) != 0 && s + 1 == velocity_sweeps
+                              ? SWEEP_RESTITUTION : 0u);
         if (barrier_ok) {
 ${constraint_phase(sweep, "bodies", velocity_results)}\
         }

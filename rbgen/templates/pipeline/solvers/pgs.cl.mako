@@ -102,6 +102,10 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
 /* what one solve_groups launch does before its sweeps (bit flags of `passes`) */
 #define WARM_START_PASS 1u
 #define FIRST_REVERSED 2u
+/* the launch's last velocity sweep is the step's: it applies the restitution
+ * (contact_rows.cl.mako: apply_restitution; in a persistent launch, in the
+ * last substep only) */
+#define RESTITUTION_PASS 4u
 % if not serial:
 /* the remainder's batch slot, solved by one lane in order */
 #define SERIAL_BATCH (MAX_BATCHES - 1)
@@ -183,6 +187,7 @@ typedef struct {
     bool reverse;            /* a manifold's points backwards */
     bool velocity_releases;  /* the block normal solve may release points */
     bool push_releases;
+    bool restitution;        /* then the restitution (the step's last velocity sweep) */
 } Sweep;
 
 /* Sweep `sweep` of a launch with solve_groups' scalars. */
@@ -195,6 +200,7 @@ inline Sweep sweep_of(uint sweep, uint passes, uint velocity_sweeps, uint positi
     s.reverse = ((passes & FIRST_REVERSED) != 0) != ((sweep & 1) != 0);
     s.velocity_releases = sweep >= velocity_release_from;
     s.push_releases = sweep >= position_release_from;
+    s.restitution = (passes & RESTITUTION_PASS) != 0 && sweep + 1 == velocity_sweeps;
     return s;
 }
 
@@ -228,7 +234,7 @@ inline void solve_rows(${constraint_space} ContactConstraint* c, ${velocity_spac
     if (s.push)
         load_push(&push_state, split, a, b);
     if (s.velocity)
-        solve_contact(c, &state, relaxation, s.reverse, s.velocity_releases);
+        solve_contact(c, &state, relaxation, s.reverse, s.velocity_releases, s.restitution);
     if (s.push)
         solve_push(c, &push_state, relaxation, s.push_releases);
     if (s.velocity)
@@ -475,13 +481,13 @@ inline uint push_owner_of(uint first, uint end, uint lane, uint push_lane, uint 
 inline void refresh_item(__global ContactConstraint* constraints, uint item,
                          volatile __global const BodyDelta* deltas, const float h,
                          const float penetration_slop, const float penetration_recovery,
-                         const bool velocity, const bool push, const bool last)
+                         const bool velocity, const bool push)
 {
     __global ContactConstraint* c = &constraints[item];
     uint a = c->body_a, b = c->body_b;
     float3 moved = deltas[b].linear.xyz - deltas[a].linear.xyz;
     refresh_targets(c, moved, deltas[a].angular.xyz, deltas[b].angular.xyz, h,
-                    penetration_slop, penetration_recovery, velocity, push, last);
+                    penetration_slop, penetration_recovery, velocity, push);
 }
 
 /* Every batch's targets for the next substep, each constraint by the lanes
@@ -490,8 +496,7 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
                             __global const uint* offsets, uint batch_count, uint lane,
                             uint push_lane, uint push_offset,
                             volatile __global const BodyDelta* deltas, const float h,
-                            const float penetration_slop, const float penetration_recovery,
-                            const bool last)
+                            const float penetration_slop, const float penetration_recovery)
 {
     const uint lanes = get_global_size(0);
     for (uint batch = 0; batch < batch_count; ++batch) {
@@ -502,7 +507,7 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
             if (!is_joint(order[i]))  /* (a joint measures the poses itself) */
 % endif
             refresh_item(constraints, order[i], deltas, h, penetration_slop,
-                         penetration_recovery, true, false, last);
+                         penetration_recovery, true, false);
         const uint owner = push_owner_of(first, end, lane, push_lane, push_offset);
         const uint2 push_share = batch_share(first, end, batch, owner, lanes);
         for (uint i = push_share.x; i < end; i += push_share.y)
@@ -510,7 +515,7 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
             if (!is_joint(order[i]))
 % endif
             refresh_item(constraints, order[i], deltas, h, penetration_slop,
-                         penetration_recovery, false, true, last);
+                         penetration_recovery, false, true);
     }
 }
 
@@ -727,8 +732,7 @@ void solve_groups(${signature("solve_groups")})
             device_barrier(sync, &barrier_ok);
             if (barrier_ok)
                 refresh_batches(constraints, order, offsets, batch_count, lane, push_lane,
-                                push_offset, deltas, h, penetration_slop, penetration_recovery,
-                                substep + 1u == substeps);
+                                push_offset, deltas, h, penetration_slop, penetration_recovery);
 % if not summed:
             device_barrier(sync, &barrier_ok);
 % endif
@@ -759,8 +763,11 @@ void solve_groups(${signature("solve_groups")})
             device_barrier(sync, &barrier_ok);  /* (the refresh before the sweeps) */
 % endif
         }
+        /* (the restitution in the last substep only) */
+        const uint substep_passes = substep + 1u >= max(substeps, 1u)
+                                    ? passes : passes & ~RESTITUTION_PASS;
         for (uint sweep = 0; sweep < sweeps; ++sweep) {
-            const Sweep s = sweep_of(sweep, passes, velocity_sweeps, position_sweeps,
+            const Sweep s = sweep_of(sweep, substep_passes, velocity_sweeps, position_sweeps,
                                      velocity_release_from, position_release_from);
             for (uint step = 0; step < batch_count; ++step) {
                 const uint batch = batch_count - 1 - step;

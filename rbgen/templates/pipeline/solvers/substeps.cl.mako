@@ -9,11 +9,9 @@
  * with s0 the separation at setup (r_a[k].w). From it, as the setup did for the
  * first substep (constraints.cl.mako), over the substep h:
  *   velocity target: -s/h while apart (close the gap, no further: a point
- *     lands exactly, and the next substep, touching, bounces it); the bounce
- *     (r_b[k].w) of a point that touches; in the step's last substep, also the
- *     bounce of a point whose gap would be crossed within it (the step must end
- *     at the bounce velocity: the next step's setup measures the approach from
- *     the velocity it ends at, and a landing velocity has lost the bounce);
+ *     lands exactly), 0 once it touches (the bounce, r_b[k].w, comes once,
+ *     after the rows of the step's last velocity sweep: contact_rows.cl.mako's
+ *     apply_restitution, for the points that push);
  *   push target: recovery/h of the penetration beyond the slop, or -recovery/h
  *     of the gap of a point still apart.
  * The push impulses start again from zero, as the push velocities do.
@@ -35,8 +33,7 @@ void refresh_contact_targets(__global ContactConstraint* constraints,
                              __global const BodyDelta* deltas,
                              const float h,
                              const float penetration_slop,
-                             const float penetration_recovery,
-                             const uint last_substep)
+                             const float penetration_recovery)
 {
     uint i = get_global_id(0);
     if (i >= min(constraint_count[0], capacity))
@@ -44,5 +41,5 @@ void refresh_contact_targets(__global ContactConstraint* constraints,
     uint a = constraints[i].body_a, b = constraints[i].body_b;
     refresh_targets(&constraints[i], deltas[b].linear.xyz - deltas[a].linear.xyz,
                     deltas[a].angular.xyz, deltas[b].angular.xyz, h, penetration_slop,
-                    penetration_recovery, true, true, last_substep != 0u);
+                    penetration_recovery, true, true);
 }
