@@ -9,7 +9,10 @@ the broadphase the pairs, the narrowphase the manifolds, ...) and reads its inpu
 the stages before it, which it is given at construction. A stage that can fail a step
 (a buffer too small, a persistent launch that gave up) declares the words it adds to
 the step report (`report_words`, `report`, `problem`) and how to recover (`recover`);
-`rbgen.guard.StepGuard` checks them and redoes the step. A new stage (a midphase
+`rbgen.guard.StepGuard` checks them and redoes the step. One convention for every
+count a stage hands on: it never exceeds what was stored (the writer clamps it and puts
+the capacity it needed in the report), so the next stage reads ``count`` entries as they
+are, and an overflowing step is redone before its results are used. A new stage (a midphase
 between the broadphase and the narrowphase, a joint stage beside the constraints) is
 one class here and one entry in the list `StepPipeline` assembles.
 """
