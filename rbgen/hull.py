@@ -69,7 +69,12 @@ def _fan(faces) -> np.ndarray:
 
 def cook(points, name: str = "ConvexHull") -> CookedHull:
     """Cook the convex hull of ``points`` (N x 3); ``name`` is used in error messages."""
-    pts = np.asarray(points, dtype=np.float64)
+    try:
+        pts = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise RbgenError(
+            f"{name}: points must be an (N, 3) array of finite numbers, got {points!r:.80}"
+        ) from None
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise RbgenError(f"{name}: points must be an (N, 3) array, got shape {pts.shape}")
     if not np.all(np.isfinite(pts)):

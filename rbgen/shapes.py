@@ -38,10 +38,27 @@ if TYPE_CHECKING:
 
 
 def _finite_vector(value, n: int, what: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    try:
+        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        arr = np.full(1, np.nan)  # not numbers: refused below, naming the argument
     if arr.shape != (n,) or not np.all(np.isfinite(arr)):
         raise RbgenError(f"{what} must be {n} finite numbers, got {value!r}")
     return arr
+
+
+def _finite_number(value, what: str) -> float:
+    """``value`` as a float, or RbgenError naming ``what`` (strings, None, sequences and
+    other non-numbers are refused here, not by numpy)."""
+    if isinstance(value, (str, bytes)) or np.ndim(value) != 0:
+        raise RbgenError(f"{what} must be a finite number, got {value!r}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise RbgenError(f"{what} must be a finite number, got {value!r}") from None
+    if not np.isfinite(number):
+        raise RbgenError(f"{what} must be a finite number, got {value!r}")
+    return number
 
 
 class Shape:
@@ -251,8 +268,8 @@ class Sphere(Shape):
     aabb_template = "shapes/sphere.cl.mako"
 
     def __init__(self, radius: float):
-        radius = float(radius)
-        if not np.isfinite(radius) or radius <= 0:
+        radius = _finite_number(radius, "Sphere radius")
+        if radius <= 0:
             raise RbgenError(f"Sphere radius must be a positive finite number, got {radius!r}")
         self.radius = radius
 
@@ -307,9 +324,9 @@ class Capsule(Shape):
     aabb_template = "shapes/capsule.cl.mako"
 
     def __init__(self, radius: float, half_height: float):
-        if not (
-            np.isfinite(radius) and radius > 0 and np.isfinite(half_height) and half_height >= 0
-        ):
+        radius = _finite_number(radius, "Capsule radius")
+        half_height = _finite_number(half_height, "Capsule half_height")
+        if not (radius > 0 and half_height >= 0):
             raise RbgenError(
                 f"Capsule needs radius > 0 and half_height >= 0, got "
                 f"radius={radius!r}, half_height={half_height!r}"
@@ -395,9 +412,8 @@ class Plane(Shape):
         length = np.linalg.norm(n)
         if length < 1e-12:
             raise RbgenError("Plane normal must not be zero")
-        if not np.isfinite(offset):
-            raise RbgenError(f"Plane offset must be finite, got {offset!r}")
-        self.normal, self.offset = n / length, float(offset)
+        offset = _finite_number(offset, "Plane offset")
+        self.normal, self.offset = n / length, offset
 
     def pack(self, record, hull_vertices):
         record["extents"] = (*self.normal, self.offset)
