@@ -48,6 +48,7 @@ def main(argv=None) -> int:
                 churn_every=args.churn_every,
                 churn=args.churn,
                 seed=args.seed,
+                progress=True,
             )
         )
         print(f"run {run + 1} done", flush=True)

@@ -22,6 +22,7 @@ import time
 import numpy as np
 
 from . import memory
+from .progress import bar
 from .shapes import Box, Capsule, ConvexHull, Sphere
 from .world import World
 
@@ -113,11 +114,13 @@ def run_soak(
     seed: int = 0,
     warmup: int | None = None,
     window: int = 50,
+    progress: bool = False,
     **options,
 ) -> SoakResult:
     """Step the churned scene ``steps`` times (see the module docstring). ``warmup``:
     steps before the start measurements (default a tenth, at least two churns);
-    ``window``: steps timed at the start and at the end."""
+    ``window``: steps timed at the start and at the end; ``progress``: a bar on stderr
+    (a 100,000-step soak takes minutes)."""
     warmup = max(2 * churn_every, steps // 10) if warmup is None else warmup
     if steps < warmup + 2 * window:
         raise ValueError(
@@ -128,26 +131,28 @@ def run_soak(
     start = {}
     timed: dict[str, list[float]] = {"start": [], "end": []}
     churned = 0
-    for i in range(steps):
-        if i and i % churn_every == 0:
-            churn_step(world, rng, side, churn)
-            churned += churn
-        if i == warmup:
-            _ = world.positions  # (waits for the steps in flight)
-            gc.collect()
-            start = {
-                "bodies": world.body_count,
-                "rss": memory.rss_bytes(),
-                "device": memory.device_bytes(world),
-            }
-        window_of = (
-            "start" if warmup <= i < warmup + window else "end" if i >= steps - window else None
-        )
-        began = time.perf_counter()
-        world.step(DT)
-        if window_of:
-            _ = world.positions  # (the step's time includes its device work)
-            timed[window_of].append(time.perf_counter() - began)
+    with bar(total=steps, desc="soak", unit="step", delay=1.0, show=progress) as steps_bar:
+        for i in range(steps):
+            if i and i % churn_every == 0:
+                churn_step(world, rng, side, churn)
+                churned += churn
+            if i == warmup:
+                _ = world.positions  # (waits for the steps in flight)
+                gc.collect()
+                start = {
+                    "bodies": world.body_count,
+                    "rss": memory.rss_bytes(),
+                    "device": memory.device_bytes(world),
+                }
+            window_of = (
+                "start" if warmup <= i < warmup + window else "end" if i >= steps - window else None
+            )
+            began = time.perf_counter()
+            world.step(DT)
+            if window_of:
+                _ = world.positions  # (the step's time includes its device work)
+                timed[window_of].append(time.perf_counter() - began)
+            steps_bar.update(1)
     digest = state_digest(world)
     gc.collect()
     return SoakResult(

@@ -37,6 +37,11 @@ from .settings import STEP, Settings, split_options
 from .shapes import Plane, Shape, ShapeTable
 
 
+def _state_property(what: str, doc: str) -> property:
+    """A World state field: reading gives the read-only snapshot, assigning sets it all."""
+    return property(lambda w: w._field(what), lambda w, v: w._set_field(what, v), doc=doc)
+
+
 class World:
     """A rigid-body world on one OpenCL device.
 
@@ -376,28 +381,24 @@ class World:
         changed = self._bodies.set_field(name, values, lanes, what)
         history.forget_bodies(self.runtime, self._pipeline, changed)
 
-    positions = property(
-        lambda s: s._field("positions"),
-        lambda s, v: s._set_field("positions", v),
-        doc="(N, 3) float32 centres of mass: a read-only snapshot. Assigning an (N, 3) "
+    positions = _state_property(
+        "positions",
+        "(N, 3) float32 centres of mass: a read-only snapshot. Assigning an (N, 3) "
         "array teleports every body; `set_state` sets some.",
     )
-    orientations = property(
-        lambda s: s._field("orientations"),
-        lambda s, v: s._set_field("orientations", v),
-        doc="(N, 4) float32 unit quaternions (x, y, z, w): a read-only snapshot; assign "
+    orientations = _state_property(
+        "orientations",
+        "(N, 4) float32 unit quaternions (x, y, z, w): a read-only snapshot; assign "
         "the whole array or use `set_state`.",
     )
-    linear_velocities = property(
-        lambda s: s._field("linear_velocities"),
-        lambda s, v: s._set_field("linear_velocities", v),
-        doc="(N, 3) float32 m/s: a read-only snapshot; assign the whole array (static "
+    linear_velocities = _state_property(
+        "linear_velocities",
+        "(N, 3) float32 m/s: a read-only snapshot; assign the whole array (static "
         "bodies' rows are ignored: they stay at rest) or use `set_state`.",
     )
-    angular_velocities = property(
-        lambda s: s._field("angular_velocities"),
-        lambda s, v: s._set_field("angular_velocities", v),
-        doc="(N, 3) float32 rad/s (world frame): a read-only snapshot; assign the whole "
+    angular_velocities = _state_property(
+        "angular_velocities",
+        "(N, 3) float32 rad/s (world frame): a read-only snapshot; assign the whole "
         "array (static bodies' rows are ignored) or use `set_state`.",
     )
 

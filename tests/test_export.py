@@ -22,6 +22,18 @@ def _scalar(arg, value):
     return {"uint": np.uint32, "float": np.float32, "int": np.int32}[arg["type"].split()[-1]](value)
 
 
+def _export(out, kernel, device=None, **params):
+    """``rbgen export --kernel KERNEL`` into ``out`` (``--device``, one ``--param`` per
+    keyword): its exit code, and the manifest's first file entry when it succeeded."""
+    argv = ["export", "--out", str(out), "--kernel", kernel]
+    argv += ["--device", device] if device else []
+    for name, value in params.items():
+        argv += ["--param", f"{name}={value}"]
+    code = main(argv)
+    entry = json.loads((out / "manifest.json").read_text())["files"][0] if code == 0 else None
+    return code, entry
+
+
 def test_exported_integrate_runs_standalone(runtime, rng, tmp_path):
     specs = default_specs(runtime.traits, ["integrate"])
     manifest = export_kernels(specs, tmp_path, runtime.traits)
@@ -112,23 +124,8 @@ def test_export_all_builds_every_file(runtime, tmp_path):
 
 
 def test_export_param_override_and_bad_names(runtime, tmp_path):
-    assert (
-        main(
-            [
-                "export",
-                "--out",
-                str(tmp_path),
-                "--kernel",
-                "integrate",
-                "--param",
-                "work_group_size=32",
-                "--param",
-                "damping=True",
-            ]
-        )
-        == 0
-    )
-    entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
+    code, entry = _export(tmp_path, "integrate", work_group_size=32, damping=True)
+    assert code == 0
     assert entry["params"]["work_group_size"] == 32 and entry["params"]["damping"] is True
     with pytest.raises(RbgenError, match="no template matches 'warp_drive'"):
         default_specs(runtime.traits, ["warp_drive"])
@@ -141,29 +138,17 @@ def test_exported_persistent_solver_and_colouring_build_standalone(runtime, tmp_
     solver's manifest lists the barrier's words before the relaxation and the bodies' motion
     arguments (it integrates), and a persistent
     solver of the serial form is refused by name."""
-    assert (
-        main(
-            [
-                "export",
-                "--out",
-                str(tmp_path),
-                "--kernel",
-                "solvers/pgs",
-                "--device",
-                runtime.device.name.strip(),
-                "--param",
-                "persistent=True",
-                "--param",
-                "solve_form=lanes",
-                "--param",
-                "warm_start_mode=batched",
-                "--param",
-                "work_group_size=32",
-            ]
-        )
-        == 0
+    device = runtime.device.name.strip()
+    code, entry = _export(
+        tmp_path,
+        "solvers/pgs",
+        device,
+        persistent=True,
+        solve_form="lanes",
+        warm_start_mode="batched",
+        work_group_size=32,
     )
-    entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
+    assert code == 0
     assert entry["params"]["persistent"] is True
     program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
     solve = next(k for k in entry["kernels"] if k["name"] == "solve_groups")
@@ -172,40 +157,12 @@ def test_exported_persistent_solver_and_colouring_build_standalone(runtime, tmp_
     # The persistent launch moves the bodies itself between and after its substeps.
     assert {"deltas", "body_count", "substeps", "gravity"} <= set(names)
     assert program.solve_groups.num_args == len(solve["args"])
-    assert (
-        main(
-            [
-                "export",
-                "--out",
-                str(tmp_path),
-                "--kernel",
-                "global_colouring",
-                "--device",
-                runtime.device.name.strip(),
-            ]
-        )
-        == 0
-    )
-    entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
+    code, entry = _export(tmp_path, "global_colouring", device)
+    assert code == 0
     program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
     colour = next(k for k in entry["kernels"] if k["name"] == "colour_global")
     assert program.colour_global.num_args == len(colour["args"])
-    assert (
-        main(
-            [
-                "export",
-                "--out",
-                str(tmp_path),
-                "--kernel",
-                "solvers/pgs",
-                "--param",
-                "persistent=True",
-                "--param",
-                "solve_form=serial",
-            ]
-        )
-        == 2
-    )
+    assert _export(tmp_path, "solvers/pgs", persistent=True, solve_form="serial")[0] == 2
 
 
 def test_exported_world_specialisations_build_standalone(runtime, tmp_path):
@@ -214,27 +171,18 @@ def test_exported_world_specialisations_build_standalone(runtime, tmp_path):
     bodies' motion and the body count between the barrier's words and the relaxation; the
     .cl needs 64-bit atomics, so it is built where the device has them) and the body preparation
     that writes the step's backup (an out buffer after the body count)."""
-    solver_args = [
-        "export",
-        "--out",
-        str(tmp_path / "solver"),
-        "--kernel",
+    device = runtime.device.name.strip()
+    code, entry = _export(
+        tmp_path / "solver",
         "solvers/pgs",
-        "--device",
-        runtime.device.name.strip(),
-        "--param",
-        "persistent=True",
-        "--param",
-        "solve_form=lanes",
-        "--param",
-        "work_group_size=32",
-        "--param",
-        "warm_start_mode=summed",
-        "--param",
-        "normal_solve=block",
-    ]
-    assert main(solver_args) == 0
-    entry = json.loads((tmp_path / "solver" / "manifest.json").read_text())["files"][0]
+        device,
+        persistent=True,
+        solve_form="lanes",
+        work_group_size=32,
+        warm_start_mode="summed",
+        normal_solve="block",
+    )
+    assert code == 0
     assert entry["params"]["warm_start_mode"] == "summed"
     solve = next(k for k in entry["kernels"] if k["name"] == "solve_groups")
     names = [a["name"] for a in solve["args"]]
@@ -247,23 +195,8 @@ def test_exported_world_specialisations_build_standalone(runtime, tmp_path):
             runtime.context, (tmp_path / "solver" / entry["file"]).read_text()
         ).build()
         assert program.solve_groups.num_args == len(solve["args"])
-    assert (
-        main(
-            [
-                "export",
-                "--out",
-                str(tmp_path / "prepare"),
-                "--kernel",
-                "pipeline/prepare",
-                "--device",
-                runtime.device.name.strip(),
-                "--param",
-                "backup=True",
-            ]
-        )
-        == 0
-    )
-    entry = json.loads((tmp_path / "prepare" / "manifest.json").read_text())["files"][0]
+    code, entry = _export(tmp_path / "prepare", "pipeline/prepare", device, backup=True)
+    assert code == 0
     prepare = next(k for k in entry["kernels"] if k["name"] == "prepare_bodies")
     names = [a["name"] for a in prepare["args"]]
     assert names[names.index("body_count") + 1] == "backup"
@@ -280,25 +213,10 @@ def test_exported_jacobi_solver_builds_standalone(runtime, tmp_path, persistent)
     loader; the phase variant's kernels all take one argument list (a C++ caller binds
     the buffers once and launches the phases in order), the persistent variant's one
     kernel takes the barrier's words before the relaxation."""
-    assert (
-        main(
-            [
-                "export",
-                "--out",
-                str(tmp_path),
-                "--kernel",
-                "jacobi",
-                "--device",
-                runtime.device.name.strip(),
-                "--param",
-                f"persistent={persistent}",
-                "--param",
-                "work_group_size=32",
-            ]
-        )
-        == 0
+    code, entry = _export(
+        tmp_path, "jacobi", runtime.device.name.strip(), persistent=persistent, work_group_size=32
     )
-    entry = json.loads((tmp_path / "manifest.json").read_text())["files"][0]
+    assert code == 0
     assert entry["params"]["persistent"] is persistent
     program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build()
     names = {k["name"]: [a["name"] for a in k["args"]] for k in entry["kernels"]}

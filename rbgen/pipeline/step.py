@@ -68,6 +68,19 @@ class StepContext:
         return self.dt / self.settings.substeps
 
 
+def copy_words(queue, report, offset: int, source, byte_count: int, src_offset: int = 0):
+    """Enqueue a copy of ``byte_count`` bytes of ``source`` (from byte ``src_offset``) into
+    the step report at word ``offset`` (what a stage's `Stage.report` does)."""
+    cl.enqueue_copy(
+        queue,
+        buffer_of(report),
+        buffer_of(source),
+        byte_count=byte_count,
+        src_offset=src_offset,
+        dst_offset=4 * offset,
+    )
+
+
 class Stage:
     """A step stage: ``enqueue(step)`` and, for stages that report, the hooks below."""
 
@@ -180,13 +193,7 @@ class BroadphaseStage(Stage):
     def report(self, queue, report, offset: int) -> None:
         assert self.broadphase.buffer is not None  # (made by the first query)
         status = self.broadphase.buffer.status
-        cl.enqueue_copy(
-            queue,
-            buffer_of(report),
-            buffer_of(status),
-            byte_count=status.nbytes,
-            dst_offset=4 * offset,
-        )
+        copy_words(queue, report, offset, status, status.nbytes)
 
     def problem(self, words):
         status = words.view(layouts.BROADPHASE_STATUS.dtype)[0]
@@ -265,13 +272,7 @@ class MidphaseStage(Stage):
 
     def report(self, queue, report, offset: int) -> None:
         status = self.midphase.status
-        cl.enqueue_copy(
-            queue,
-            buffer_of(report),
-            buffer_of(status),
-            byte_count=status.nbytes,
-            dst_offset=4 * offset,
-        )
+        copy_words(queue, report, offset, status, status.nbytes)
 
     def problem(self, words):
         return self.midphase.problem(words)
@@ -627,14 +628,7 @@ class SolveStage(Stage):
             )
 
     def report(self, queue, report, offset: int) -> None:
-        cl.enqueue_copy(
-            queue,
-            buffer_of(report),
-            buffer_of(self.solver.barrier_state()),
-            byte_count=4,
-            src_offset=ABANDONED_OFFSET,
-            dst_offset=4 * offset,
-        )
+        copy_words(queue, report, offset, self.solver.barrier_state(), 4, ABANDONED_OFFSET)
 
     def problem(self, words):
         return bool(words[0]) or None
