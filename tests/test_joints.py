@@ -317,13 +317,10 @@ def test_ragdolls_on_boxes_settle(runtime):
     assert chain_gaps(world, np.arange(world.joint_count)).max() < 0.01
 
 
-@pytest.mark.parametrize("batching", ["global", "cells", "slabs"])
-def test_every_batching_solves_joints_alike(runtime, batching):
-    """A 12-link chain swinging down from horizontal (4 substeps) on each batching
-    (global: the persistent launch with its warm start; cells and slabs: a launch per
-    colour): the chain holds (gaps < 1 cm in all) and its end swings below the pivot."""
-    world = World(runtime, substeps=4, batching=batching)
-    n = 12
+def swinging_chain(world, n: int = 12):
+    """(link ids, joint ids) of ``n`` capsule links (10 cm apart, 1 kg) laid out
+    horizontally at 5 m, the first hung from the world by a ball joint, each next from the
+    one before: let go, it swings down."""
     centres = np.array([[(i + 0.5) * 0.1, 5.0, 0.0] for i in range(n)])
     s = np.sin(np.pi / 4)
     ids = world.add_bodies(
@@ -335,6 +332,16 @@ def test_every_batching_solves_joints_alike(runtime, batching):
     joints = world.add_joints(
         rbgen.BallJoint, a=ids, b=[None] + [int(i) for i in ids[:-1]], anchor=centres - (0.05, 0, 0)
     )
+    return ids, joints
+
+
+@pytest.mark.parametrize("batching", ["global", "cells", "slabs"])
+def test_every_batching_solves_joints_alike(runtime, batching):
+    """A 12-link chain swinging down from horizontal (4 substeps) on each batching
+    (global: the persistent launch with its warm start; cells and slabs: a launch per
+    colour): the chain holds (gaps < 1 cm in all) and its end swings below the pivot."""
+    world = World(runtime, substeps=4, batching=batching)
+    ids, joints = swinging_chain(world)
     for _ in range(40):
         world.step(DT)
     assert chain_gaps(world, joints).max() < 0.01
@@ -533,21 +540,7 @@ def test_lanes_form_solves_joints(runtime):
     from rbgen.pipeline.solvers.pgs import PgsSolver
 
     world = World(runtime, substeps=4, batching="cells")
-    n = 12
-    centres = np.array([[(i + 0.5) * 0.1, 5.0, 0.0] for i in range(n)])
-    s = np.sin(np.pi / 4)
-    ids = world.add_bodies(
-        rbgen.Capsule(0.02, 0.02),
-        mass=1.0,
-        positions=centres,
-        orientations=np.tile([0, 0, s, s], (n, 1)),
-    )
-    joints = world.add_joints(
-        rbgen.BallJoint,
-        a=ids,
-        b=[None] + [int(i) for i in ids[:-1]],
-        anchor=centres - (0.05, 0, 0),
-    )
+    ids, joints = swinging_chain(world)
     world.step(DT)
     pipeline = world._pipeline
     batcher = make_batcher(runtime, "cells", solve_form="lanes")
