@@ -3,36 +3,93 @@
 By default: every device that compiles a kernel (one PoCL per CPU; pytest's
 header names the devices left out and why). ``RBGEN_TEST_DEVICES`` chooses
 instead: a comma-separated list of device choices as accepted by
-``rbgen.device.match_devices`` (index ``P:D`` or a name substring). Programs
-are cached on disk between runs, so a second run of the suite skips
-compilation.
+``rbgen.device.match_devices`` (index ``P:D`` or a name substring), or
+``shape:h200``: this machine's PoCL CPU device standing in for the H200 (its
+traits are the H200's, so every plan, template and launch is the GPU's, built
+by the CPU's compiler; see `GPU_SHAPES`). Programs are cached on disk between
+runs, so a second run of the suite skips compilation.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import os
 
 import numpy as np
 import pyopencl as cl
 import pytest
 
-from rbgen.device import Runtime, build_failure, is_pocl, list_devices, match_devices
+from rbgen.device import (
+    DeviceTraits,
+    Runtime,
+    build_failure,
+    is_pocl,
+    list_devices,
+    match_devices,
+)
 
 ENV_TEST_DEVICES = "RBGEN_TEST_DEVICES"
+
+#: GPUs a CPU device can stand in for (``RBGEN_TEST_DEVICES=shape:NAME``): the traits
+#: rbgen's plans read, as the GPU reports them. The CPU's own extensions are kept (the
+#: kernels must build there), so a plan that chooses by an extension the CPU lacks
+#: takes the path it would take on a GPU without it. What this finds: GPU-only template
+#: branches and launch shapes (persistent lanes, warps of 32, 48 KiB local memory)
+#: that do not build or give wrong results; what it cannot: the GPU compiler's own
+#: errors, timing and memory-model races. The compute units are the CPU's halved (at
+#: least 1): a persistent launch runs two work groups per compute unit, which then all
+#: run at once on the CPU's threads, so its device-wide barrier is exercised rather
+#: than given up (with the GPU's 132, most groups would wait for a thread).
+GPU_SHAPES = {
+    "h200": {
+        "platform_name": "NVIDIA CUDA",
+        "device_name": "NVIDIA H200 (shape on a CPU)",
+        "vendor": "NVIDIA Corporation",
+        "is_gpu": True,
+        "wavefront": 32,
+        "local_mem_size": 49152,
+        "max_work_group_size": 1024,
+        "driver_version": "550.54.15",
+        "opencl_version": "OpenCL 3.0 CUDA",
+    }
+}
 
 
 #: devices left out of the default set, and why (shown in pytest's header)
 _LEFT_OUT: list[str] = []
 
 
+@functools.cache
+def _cpu_device():
+    for device, shape in _DEVICES:
+        if shape is None and device.type & cl.device_type.CPU:
+            return device
+    for entry in list_devices():
+        if entry.device.type & cl.device_type.CPU and build_failure(entry.device) is None:
+            return entry.device
+    raise pytest.UsageError("a GPU shape needs a CPU OpenCL device that compiles a kernel")
+
+
 def _test_devices():
+    """(device, GPU shape name or None) pairs to test on."""
     choice = os.environ.get(ENV_TEST_DEVICES)
     if choice:
-        devices = []
+        devices: list = []
         for part in choice.split(","):
-            for d in match_devices(part.strip()):
-                if d not in devices:
-                    devices.append(d)
+            part = part.strip()
+            if part.startswith("shape:"):
+                name = part.removeprefix("shape:")
+                if name not in GPU_SHAPES:
+                    raise pytest.UsageError(
+                        f"{ENV_TEST_DEVICES}: unknown GPU shape {name!r}; choose one of "
+                        f"{sorted(GPU_SHAPES)}"
+                    )
+                devices.append((_cpu_device(), name))
+                continue
+            for d in match_devices(part):
+                if (d, None) not in devices:
+                    devices.append((d, None))
         return devices
     # every device that compiles a kernel; of several PoCL builds of this machine's CPU
     # (pyopencl's bundled one and the system's), the first that works: one CPU, one run
@@ -45,7 +102,7 @@ def _test_devices():
         elif is_pocl_cpu and pocl_cpu:
             _LEFT_OUT.append(f"{entry.index} {entry.label}: a second PoCL on the same CPU")
         else:
-            devices.append(entry.device)
+            devices.append((entry.device, None))
             pocl_cpu = pocl_cpu or is_pocl_cpu
     return devices
 
@@ -60,25 +117,60 @@ if not _DEVICES:  # fail loudly: a suite whose device tests are all skipped prov
 
 
 def pytest_report_header(config):
-    lines = [f"rbgen test devices: {', '.join(d.name.strip() for d in _DEVICES) or 'none'}"]
+    lines = [f"rbgen test devices: {', '.join(_device_id(d) for d in _DEVICES) or 'none'}"]
     lines += [f"rbgen left out {line}" for line in _LEFT_OUT]
     return lines
 
 
-_RUNTIMES: dict[int, Runtime] = {}
+_RUNTIMES: dict[tuple, Runtime] = {}
 
 
-def _device_id(device) -> str:
-    return "".join(c if c.isalnum() else "_" for c in device.name.strip())[:30]
+def _device_id(entry) -> str:
+    device, shape = entry
+    name = "".join(c if c.isalnum() else "_" for c in device.name.strip())[:30]
+    return name if shape is None else f"{shape}_shape_on_{name}"
 
 
-@pytest.fixture(params=range(len(_DEVICES)), ids=[_device_id(d) for d in _DEVICES], scope="session")
+def _entries_for(definition) -> list:
+    """The test devices of one test: every test device; for a test marked ``gpu_shape``,
+    when no test device is a GPU, also the H200's shape on the CPU (see `GPU_SHAPES`), so
+    that the GPU plans' kernels of the scenes those tests cover build and run in every
+    suite, CI's included."""
+    entries = list(_DEVICES)
+    if definition.get_closest_marker("gpu_shape") is not None and not any(
+        shape is not None or device.type & cl.device_type.GPU for device, shape in entries
+    ):
+        entries.append((_cpu_device(), "h200"))
+    return entries
+
+
+def pytest_generate_tests(metafunc):
+    if "runtime" in metafunc.fixturenames:
+        entries = _entries_for(metafunc.definition)
+        metafunc.parametrize(
+            "runtime", entries, ids=[_device_id(e) for e in entries], indirect=True, scope="session"
+        )
+
+
+@pytest.fixture(scope="session")
 def runtime(request) -> Runtime:
-    """A Runtime (context + queue) on each test device, shared by the session."""
-    i = request.param
-    if i not in _RUNTIMES:
-        _RUNTIMES[i] = Runtime(_DEVICES[i])
-    return _RUNTIMES[i]
+    """A Runtime (context + queue) on each test device, shared by the session; for a
+    GPU shape, a Runtime on the CPU device whose traits are the GPU's."""
+    device, shape = request.param
+    key = (device.int_ptr, shape)
+    if key not in _RUNTIMES:
+        runtime = Runtime(device)
+        if shape is not None:
+            runtime.traits = shaped_traits(runtime.traits, shape)
+        _RUNTIMES[key] = runtime
+    return _RUNTIMES[key]
+
+
+def shaped_traits(traits: DeviceTraits, shape: str) -> DeviceTraits:
+    """``traits`` of a CPU device as the GPU ``shape`` (`GPU_SHAPES`) would report them."""
+    return dataclasses.replace(
+        traits, **GPU_SHAPES[shape], compute_units=max(1, traits.compute_units // 2)
+    )
 
 
 @pytest.fixture

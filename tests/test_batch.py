@@ -68,6 +68,7 @@ def run_batch(runtime, envs, steps=40, reset_others_at=None, obstacle=False, **o
     return batch
 
 
+@pytest.mark.gpu_shape
 @pytest.mark.parametrize("broadphase", ["grid", "sap", "sap3"])
 def test_no_pair_across_environments(runtime, broadphase):
     """Brute force over the step's world AABBs: the broadphase's pairs are exactly the
@@ -157,6 +158,7 @@ def test_an_environment_does_not_depend_on_the_others(runtime, solve, request):
     assert many_batch.statistics()["contacts"] > 64 * 3
 
 
+@pytest.mark.gpu_shape
 def test_reset_restores_exactly(runtime):
     """An environment reset to a state then run n steps ends bit for bit where it ended
     the first time from that state (no warm start kept), while the others go on."""
@@ -413,6 +415,7 @@ def run_chains(runtime, envs, steps=40, **options):
     return batch
 
 
+@pytest.mark.gpu_shape
 @pytest.mark.parametrize("solve", ["default", "overflow"])
 def test_jointed_environments_do_not_depend_on_the_others(runtime, solve):
     """The template's joints are copied into every environment (bodies renumbered, the

@@ -241,6 +241,7 @@ def test_exported_jacobi_solver_builds_standalone(runtime, tmp_path, persistent)
         ("ragdolls", {"batching": "global"}),
     ],
 )
+@pytest.mark.gpu_shape
 def test_world_export_is_exactly_what_the_world_compiled(runtime, tmp_path, scene, options):
     """`rbgen export --world` = what runs: every source the World handed the compiler
     (recorded as it compiled, through its spec log) is exported byte for byte, with the

@@ -153,6 +153,7 @@ def test_load_mesh_round_trip(tmp_path):
 # ------------------------------------------------------------------ physics
 
 
+@pytest.mark.gpu_shape
 @pytest.mark.parametrize("direction", [(1.0, 0.0), (0.8, 0.6), (0.6, -0.8)])
 def test_box_slides_across_seams_as_on_a_plane(runtime, direction):
     """A unit box sliding at 4 m/s (friction 0.5 on both sides): on the tessellated floor
@@ -230,6 +231,7 @@ def chair(scale: float = 1.0) -> rbgen.Compound:
     )
 
 
+@pytest.mark.gpu_shape
 def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
     """Boxes, hulls and compounds dropped on a rough height field (2 x 24 x 24 triangles,
     heights +-15 cm) rest after 5 s: no NaN, speeds < 5 cm/s, no centre below the terrain
@@ -273,6 +275,7 @@ def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
         assert np.all(p[over, 1] > ground - 0.2)
 
 
+@pytest.mark.gpu_shape
 def test_compounds_against_compounds_planes_and_meshes(runtime):
     """Chairs stacked on a chair on a plane and on a mesh floor: at rest after 4 s at the
     heights their geometry gives (legs on the ground: centre of mass 0.576 m up; a chair

@@ -42,6 +42,7 @@ def ground(world, friction=0.6, restitution=0.0, orientation=(0, 0, 0, 1), posit
     )
 
 
+@pytest.mark.gpu_shape
 @pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_box_resting_on_ground_does_not_drift(runtime, solver, fast_math, effort):
@@ -70,6 +71,7 @@ def _incline(runtime, mu, steps, solver="pgs", fast_math=False, effort=None):
     return np.array(positions), theta
 
 
+@pytest.mark.gpu_shape
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_box_on_incline_sticks_with_high_friction(runtime, solver, effort):
     """30 degree incline, mu = 0.7 > tan 30 = 0.577: the box moves < 1 mm over 300 steps."""
@@ -109,6 +111,7 @@ def test_projectile(runtime):
     assert np.linalg.norm(world.positions[0] - exact) < G * DT * n * DT
 
 
+@pytest.mark.gpu_shape
 @pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_restitution_rebound_height(runtime, solver, fast_math, effort):
@@ -126,6 +129,7 @@ def test_restitution_rebound_height(runtime, solver, fast_math, effort):
     assert max(heights) == pytest.approx(0.25, rel=0.05)
 
 
+@pytest.mark.gpu_shape
 @pytest.mark.parametrize("fast_math", [False, True])
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_two_free_boxes_conserve_momentum(runtime, rng, solver, fast_math, effort):
@@ -158,6 +162,7 @@ def test_two_free_boxes_conserve_momentum(runtime, rng, solver, fast_math, effor
     assert touched
 
 
+@pytest.mark.gpu_shape
 def test_spinning_asymmetric_box_conserves_angular_momentum(runtime):
     """A free box with half extents (0.2, 0.5, 1) spinning at 4 rad/s about a tilted axis
     near its middle principal axis: world L = R I R^T w within 1% over 600 steps."""

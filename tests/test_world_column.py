@@ -10,6 +10,7 @@ import rbgen
 from rbgen.pipeline.batching import MODES as BATCHINGS
 
 
+@pytest.mark.gpu_shape
 @pytest.mark.parametrize("batching", BATCHINGS)
 def test_ten_box_column_stands(runtime, batching):
     """Closed form: at rest box k's centre is at 0.5 + k (half extent 0.5, ground top y = 0).

@@ -53,6 +53,7 @@ def deepest_point(world, body, kind, axis, sign):
     return float(np.max(sign * (centre[axis] + corners @ rotation[axis])))
 
 
+@pytest.mark.gpu_shape
 @pytest.mark.parametrize("wall", WALLS)
 @pytest.mark.parametrize("kind", ["sphere", "box"])
 @pytest.mark.parametrize("speed", SPEEDS)
@@ -153,6 +154,7 @@ OTHER_SHAPES = {
 }
 
 
+@pytest.mark.gpu_shape
 @pytest.mark.parametrize("wall", ["plane", "box", "mesh"])
 @pytest.mark.parametrize("kind", sorted(OTHER_SHAPES))
 def test_other_fast_shapes_stop_at_a_wall(runtime, wall, kind):

@@ -49,6 +49,7 @@ def test_push_in_free_flight_matches_the_closed_form(runtime):
     assert np.all(np.asarray(world.angular_velocities[0]) == 0)
 
 
+@pytest.mark.gpu_shape
 def test_push_on_frictionless_ground_matches_the_closed_form(runtime):
     """A box resting on a frictionless plane, pushed along x: the contact carries its
     weight and nothing along x, so v_x = F t / m and x - x0 = F dt^2 n (n+1) / (2m)."""
@@ -111,6 +112,7 @@ def test_a_force_acts_for_one_step_and_repeats_add_up(runtime):
     np.testing.assert_allclose(world.linear_velocities[0], expected, rtol=1e-6)
 
 
+@pytest.mark.gpu_shape
 def test_forces_act_during_every_substep(runtime):
     """`step(dt, substeps=k)`: the force acts for the whole dt, so dv = F dt / m."""
     mass = 2.0
@@ -130,6 +132,7 @@ def test_static_bodies_ignore_forces(runtime):
     assert np.all(world.linear_velocities[0] == 0)
 
 
+@pytest.mark.gpu_shape
 def test_a_redone_step_sees_the_same_forces(runtime):
     """A pair buffer too small overflows in the pushed step; the redo (grown buffer)
     replays its forces: the end state equals a World that never overflowed."""

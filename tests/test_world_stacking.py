@@ -7,7 +7,8 @@
   < 0.05 m/s by step 300 and no box sunk more than 2 cm into the ground
   (bottom face above y = -0.02). Both batching modes. The 8,000-box version is a benchmark
   (benchmarks/scenes.py, examples/box_pile.py); this is a 4 x 4 x 4 one.
-* Global batching holds a 30-layer BoxBox lattice off the ground (< 5 mm).
+* Global batching holds a 30-layer BoxBox lattice off the ground (< 5 mm), and with the
+  fast-math solver it stays finite (a strict xfail on PoCL, whose build turns it NaN).
 The pyramid and the dropped grid run every batching mode with the device's default
 solver build, and global and slabs batching (a GPU's and a CPU's default) also with the
 solver built with -cl-fast-relaxed-math (``fast_math``, the GPU default), so that a CPU
@@ -33,6 +34,7 @@ STACKING_CASES = [(mode, None) for mode in BATCHINGS] + [("global", True), ("sla
 STACKING_IDS = [f"{mode}-{'fast' if fast else 'default'}" for mode, fast in STACKING_CASES]
 
 
+@pytest.mark.gpu_shape
 @pytest.mark.parametrize("batching, fast_math", STACKING_CASES, ids=STACKING_IDS)
 def test_pyramid_of_20_rows_holds(runtime, batching, fast_math):
     world = World(runtime, batching=batching, fast_math=fast_math)
@@ -56,6 +58,7 @@ def drop_grid(world, seed=1):
     return world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
 
 
+@pytest.mark.gpu_shape
 @pytest.mark.parametrize("batching, fast_math", STACKING_CASES, ids=STACKING_IDS)
 def test_dropped_grid_comes_to_rest(runtime, batching, fast_math):
     """A fixed jitter (seed 1). Measured over seeds 0-7 on PoCL (max speed at step 300):
@@ -108,3 +111,30 @@ def test_global_batching_holds_a_tall_lattice_off_the_ground(runtime):
     assert lowest > 1.0 - 0.005
     assert world.statistics()["batches"] <= 9  # the lattice's 8 contacts a box: 8 colours
     assert np.all(np.isfinite(world.positions))
+
+
+@pytest.mark.gpu_shape
+def test_global_batching_with_the_fast_math_solver_stays_finite(runtime, request):
+    """The same 30-layer lattice, global batching, the solver built with
+    -cl-fast-relaxed-math (the GPU default): every body finite after three steps."""
+    if "portable" in runtime.traits.platform_name.lower() or "shape on a CPU" in (
+        runtime.traits.device_name
+    ):
+        request.applymarker(
+            pytest.mark.xfail(
+                strict=True,
+                reason="PoCL's build with -cl-unsafe-math-optimizations (part of fast math) "
+                "turns 147 of 1,080 velocities NaN in the first step at 6 or more sweeps "
+                "(block or sequential normal rows, with or without warm start or push "
+                "sweeps; exact math or -cl-finite-math-only alone: finite). Cause not found: "
+                "printf instrumentation moves it. NVIDIA's build of the same source ran "
+                "the BoxBox lattices finite on the H200 (issue 24's measurements)",
+            )
+        )
+    scene = boxbox_scene(6, 30, 6)
+    world = World(runtime, batching="global", fast_math=True)
+    world.add_static(rbgen.Box(scene.ground_half_extents), position=scene.ground_position)
+    world.add_bodies(rbgen.Box(scene.half_extents), mass=scene.mass, positions=scene.positions)
+    for _ in range(3):
+        world.step(DT)
+    assert np.all(np.isfinite(world.positions)) and np.all(np.isfinite(world.linear_velocities))
