@@ -62,7 +62,8 @@ _LEFT_OUT: list[str] = []
 
 @functools.cache
 def _cpu_device():
-    for device, shape in _DEVICES:
+    """The CPU device a GPU shape runs on: the test devices' CPU if there is one."""
+    for device, shape in globals().get("_DEVICES", ()):
         if shape is None and device.type & cl.device_type.CPU:
             return device
     for entry in list_devices():

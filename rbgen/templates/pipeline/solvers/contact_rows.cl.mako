@@ -469,7 +469,10 @@ inline void solve_friction_pair(float3 t1, float3 t2, float3 ra, float3 rb, floa
     float f2 = *impulse2 - relaxation * mass2 * row_speed(&row2, p);
     float length_sq = f1 * f1 + f2 * f2;
     if (length_sq > limit * limit) {
-        float scale = limit / sqrt1(length_sq);
+        /* (length_sq at least the smallest normal float: a fast-math build takes the
+         * reciprocal square root, infinite for a denormal flushed to zero, and the
+         * limit of a point that does not push is 0, so 0 * infinity would be NaN) */
+        float scale = limit / sqrt1(max1(length_sq, FLT_MIN));
         f1 *= scale;
         f2 *= scale;
     }
