@@ -136,10 +136,13 @@ def test_an_environment_does_not_depend_on_the_others(runtime, solve, request):
     if solve == "cells" and default_solve_form(runtime.traits) == "lanes":
         request.applymarker(
             pytest.mark.xfail(
-                strict=True,
+                strict=False,
                 reason="spatial batching's lanes form (GPUs) colours a group's edges by "
                 "Luby rounds on hashed edge indices, which shift with the environments "
-                "before: an environment's colours, so its solve order, depend on N",
+                "before, and places edges by atomic counters: an environment's colours, "
+                "so its solve order, may depend on N. Predicted, not yet seen: the "
+                "H200's shape on PoCL ends bit for bit equal at N = 1, 7 and 64 (with "
+                "1 and 132 compute units); strict once the H200 shows which",
             )
         )
     steps = 40
