@@ -1,7 +1,8 @@
 """Whether the BoxBox lattices hold, and at what cost: the default against substep candidates.
 
     python benchmarks/holds.py [--device D] [--sizes 1000 8000 27000 111375]
-                               [--candidates default s2 s4 s8] [--steps 120] [--out DIR]
+                               [--candidates default s2 s4 s8 ...] [--steps 120]
+                               [--repeat R] [--out DIR]
 
 Issue 24's table in one run: each BoxBox lattice is built through the public API and
 stepped ``--steps`` steps (dt 1/60) from its start, once per candidate:
@@ -10,11 +11,16 @@ stepped ``--steps`` steps (dt 1/60) from its start, once per candidate:
 ``s2``       substeps=2, 5 velocity + 2 position sweeps a substep
 ``s4``       substeps=4, 3 + 1
 ``s8``       substeps=8, 2 + 1
+``block*``   the same with the block normal solve (a manifold's normal rows together):
+             ``block`` 10 + 4 sweeps, ``block_s2`` 5 + 2 a substep of 2, ``block_s4`` 3 + 1
+             and ``block_s4_41`` 4 + 1 of 4, ``block_s8`` 2 + 1 of 8
 
-The first step (which builds the kernels) is not timed; ms/step is the median of the
-timing blocks of the remaining steps (`rbgen.harness.run_scene`). Each row: ms/step,
-kernel launches and blocking reads a step, boxes displaced more than 0.5 m sideways,
-the top layer's median drop, and whether the lattice holds (<= 0.5% displaced and a top
+A candidate is a dict of World options; ``--repeat R`` runs every candidate R times per
+size, alternating them (a shared machine's noise falls on all alike), and reports each
+run and the median. The first step (which builds the kernels) is not timed; ms/step is
+the median of the timing blocks of the remaining steps (`rbgen.harness.run_scene`). Each
+row: ms/step, kernel launches and blocking reads a step, boxes displaced more than 0.5 m
+sideways, the top layer's median drop, and whether the lattice holds (<= 0.5% displaced and a top
 drop <= 2 cm, the issue's bar). JSON (rbgen.bench's form, kind "holds") goes under
 ``--out`` (benchmarks/results by default; '' for none).
 """
@@ -22,6 +28,7 @@ drop <= 2 cm, the issue's bar). JSON (rbgen.bench's form, kind "holds") goes und
 from __future__ import annotations
 
 import argparse
+import statistics
 import sys
 
 from rbgen import bench
@@ -33,8 +40,37 @@ CANDIDATES = {
     "s2": {"substeps": 2, "iterations": 5, "position_iterations": 2},
     "s4": {"substeps": 4, "iterations": 3, "position_iterations": 1},
     "s8": {"substeps": 8, "iterations": 2, "position_iterations": 1},
+    "block": {"normal_solve": "block"},
+    "block_s2": {"normal_solve": "block", "substeps": 2, "iterations": 5, "position_iterations": 2},
+    "block_s4": {"normal_solve": "block", "substeps": 4, "iterations": 3, "position_iterations": 1},
+    "block_s4_41": {
+        "normal_solve": "block",
+        "substeps": 4,
+        "iterations": 4,
+        "position_iterations": 1,
+    },
+    "block_s8": {"normal_solve": "block", "substeps": 8, "iterations": 2, "position_iterations": 1},
 }
 BASELINE = "default"
+
+
+def _holds(n: int, s: dict) -> bool:
+    """Whether a lattice of ``n`` boxes holds (the issue's bar)."""
+    top = s["layer_drop"][-1] if s["layer_drop"] else 0.0
+    return s["displaced"] <= 0.005 * n and top <= 0.02 and s["nans"] == 0
+
+
+def _row(n: int, name: str, s: dict, median: bool = False) -> bool:
+    """Print one candidate's row; whether its lattice holds."""
+    top = s["layer_drop"][-1] if s["layer_drop"] else 0.0
+    ok = _holds(n, s)
+    print(
+        f"{n:>8,} {name:12} {s['ms_per_step']:>8.2f} {s['launches_per_step']:>8} "
+        f"{s['blocking_reads_per_step']:>5} {s['displaced']:>9} "
+        f"{100 * top:>7.2f}cm  {'yes' if ok else 'NO'}{'  (median)' if median else ''}",
+        flush=True,
+    )
+    return ok
 
 
 def main(argv=None) -> int:
@@ -45,36 +81,42 @@ def main(argv=None) -> int:
         "--candidates", nargs="+", default=list(CANDIDATES), choices=list(CANDIDATES)
     )
     parser.add_argument("--steps", type=int, default=120, help="steps from the start")
+    parser.add_argument(
+        "--repeat", type=int, default=1, help="runs of each candidate, alternated (median)"
+    )
     parser.add_argument("--out", default=str(bench.RESULTS_DIR))
     args = parser.parse_args(argv)
     candidates = [BASELINE] + [c for c in args.candidates if c != BASELINE]
 
     results = []
     print(
-        f"{'boxes':>8} {'candidate':10} {'ms/step':>8} {'launches':>8} {'reads':>5} "
+        f"{'boxes':>8} {'candidate':12} {'ms/step':>8} {'launches':>8} {'reads':>5} "
         f"{'displaced':>9} {'top drop':>9}  holds",
         flush=True,
     )
     for n in args.sizes:
         base = None
+        runs: dict[str, list[dict]] = {name: [] for name in candidates}
+        for _ in range(max(1, args.repeat)):
+            for name in candidates:
+                s = run_scene(
+                    "boxbox",
+                    n,
+                    args.steps - 1,
+                    device=args.device,
+                    progress=False,
+                    warmup=1,
+                    **CANDIDATES[name],
+                )
+                runs[name].append(s)
+                _row(n, name, s)
+        if args.repeat > 1:
+            print(f"{n:,} boxes, median of {args.repeat} alternated runs:", flush=True)
         for name in candidates:
-            s = run_scene(
-                "boxbox",
-                n,
-                args.steps - 1,
-                device=args.device,
-                progress=False,
-                warmup=1,
-                **CANDIDATES[name],
-            )
+            ms = [s["ms_per_step"] for s in runs[name]]
+            s = dict(runs[name][len(ms) // 2], ms_per_step=statistics.median(ms))
+            ok = _row(n, name, s, median=True) if args.repeat > 1 else _holds(n, s)
             top = s["layer_drop"][-1] if s["layer_drop"] else 0.0
-            ok = s["displaced"] <= 0.005 * n and top <= 0.02 and s["nans"] == 0
-            print(
-                f"{n:>8,} {name:10} {s['ms_per_step']:>8.2f} {s['launches_per_step']:>8} "
-                f"{s['blocking_reads_per_step']:>5} {s['displaced']:>9} "
-                f"{100 * top:>7.2f}cm  {'yes' if ok else 'NO'}",
-                flush=True,
-            )
             result = bench.scene_result(s, 1)
             result.update(
                 name=f"boxbox {n} {name}",
@@ -82,6 +124,7 @@ def main(argv=None) -> int:
                 options=CANDIDATES[name],
                 top_drop=top,
                 holds=ok,
+                runs_ms=ms,
                 baseline=base,
             )
             results.append(result)

@@ -258,11 +258,12 @@ def derive_plan(
     normal_solve = pick(
         "normal_solve",
         options["normal_solve"],
-        "block" if solver == "jacobi" else default_normal_solve(solve_form, batching),
-        "a serial Gauss-Seidel over whole stacks holds them with the cheaper rows"
-        if solver == "pgs" and default_normal_solve(solve_form, batching) == "sequential"
-        else "the block leaves no point-order torque where manifolds are solved "
-        "side by side or a column is split between launches",
+        "block" if solver == "jacobi" else default_normal_solve(),
+        "the block leaves no point-order torque where manifolds are solved "
+        "side by side or a column is split between launches"
+        if traits.is_gpu or solver == "jacobi" or batching != "slabs"
+        else "the block holds a 30-box column that one normal row at a time topples, "
+        "and with the CPU's default substeps the lattices",
     )
     if solver == "pgs":
         summed = persistent and traits.has_extension(INT64_ATOMICS)

@@ -8,7 +8,9 @@ Two kinds:
   run; fixed for a World (its `rbgen.plan.Plan` is derived from them).
 
 A default given as None for a construction option means "the device's choice", which the
-plan makes and explains (`Plan.reasons`). Every value is checked when set: a bad one
+plan makes and explains (`Plan.reasons`). A step setting may have its own default on CPUs
+(``cpu_default``): the effort that holds the stacks at the least cost differs between a
+GPU's side-by-side solve and a CPU's serial one. Every value is checked when set: a bad one
 raises `RbgenError` naming the option and what it allows, and leaves the World as it was.
 """
 
@@ -27,13 +29,21 @@ from .errors import RbgenError
 @dataclasses.dataclass(frozen=True)
 class Option:
     """One World option: name, default, check (returns the normalised value or raises
-    RbgenError), what it allows (for errors and the README) and why it exists."""
+    RbgenError), what it allows (for errors and the README) and why it exists.
+
+    ``cpu_default``: the default on CPU devices where it differs (None: ``default``
+    everywhere)."""
 
     name: str
     default: Any
     check: Callable[[Any], Any]
     allowed: str
     doc: str
+    cpu_default: Any = None
+
+    def default_for(self, is_gpu: bool):
+        """The default on a GPU (``is_gpu``) or a CPU device."""
+        return self.default if is_gpu or self.cpu_default is None else self.cpu_default
 
 
 def _integer(lo: int, hi: int | None = None) -> Callable[[Any], Any]:
@@ -118,6 +128,7 @@ STEP_SETTINGS = (
         "an integer from 1 to 64",
         "solver substeps a step on the step's contacts: stiffness from the substep rate "
         "holds tall stacks; each costs the sweeps below, not a collision pass",
+        cpu_default=4,
     ),
     Option(
         "iterations",
@@ -125,6 +136,7 @@ STEP_SETTINGS = (
         _integer(0, 1000),
         "an integer from 0 to 1000",
         "velocity sweeps of the solver a substep: more hold taller stacks, linearly dearer",
+        cpu_default=3,
     ),
     Option(
         "position_iterations",
@@ -132,6 +144,7 @@ STEP_SETTINGS = (
         _integer(0, 1000),
         "an integer from 0 to 1000",
         "split-impulse push sweeps a substep: remove penetration without adding momentum",
+        cpu_default=1,
     ),
     Option(
         "relaxation",
@@ -291,9 +304,10 @@ def check(option: Option, value):
         ) from None
 
 
-def split_options(options: dict) -> tuple[dict, dict]:
+def split_options(options: dict, is_gpu: bool = True) -> tuple[dict, dict]:
     """(step settings, construction options) from World keyword arguments, every value
-    checked and every default filled in; an unknown name is refused, listing the known."""
+    checked and every default filled in (a GPU's, or a CPU's where ``is_gpu`` is false);
+    an unknown name is refused, listing the known."""
     unknown = sorted(set(options) - set(STEP) - set(CONSTRUCTION))
     if unknown:
         raise RbgenError(
@@ -301,7 +315,7 @@ def split_options(options: dict) -> tuple[dict, dict]:
             f"{sorted(STEP)} (step settings) and {sorted(CONSTRUCTION)} "
             f"(construction options)"
         )
-    step = {name: check(o, options.get(name, o.default)) for name, o in STEP.items()}
+    step = {name: check(o, options.get(name, o.default_for(is_gpu))) for name, o in STEP.items()}
     construction = {
         name: check(o, options.get(name, o.default)) for name, o in CONSTRUCTION.items()
     }
@@ -349,5 +363,7 @@ def options_table() -> str:
             and option.name not in ("manifold_capacity", "pair_capacity", "plan", "memory_limit")
             else repr(option.default)
         )
+        if option.cpu_default is not None:
+            default += f" (CPU: {option.cpu_default!r})"
         rows.append(f"| `{option.name}` | {default} | {option.allowed} | {option.doc} |")
     return "\n".join(rows)

@@ -68,8 +68,11 @@ class World:
     """
 
     def __init__(self, device=None, gravity=(0.0, -9.81, 0.0), **options):
-        step_settings, construction = split_options({"gravity": gravity, **options})
+        split_options({"gravity": gravity, **options})  # refuses bad options before a device
         self.runtime: Runtime = coerce_runtime(device)
+        step_settings, construction = split_options(
+            {"gravity": gravity, **options}, self.runtime.traits.is_gpu
+        )
         object.__setattr__(self, "settings", Settings(step_settings))
         self.options = construction
         self.shapes = ShapeTable()

@@ -74,13 +74,39 @@ EXPECTED = {
             batching="slabs",
             solve_form="serial",
             persistent=False,
-            normal_solve="sequential",
+            normal_solve="block",
             warm_start_mode="batched",
             fast_math=False,
             release_sweeps=2,
         ),
     ),
 }
+
+
+# device kind -> the README's step defaults (substeps, velocity and push sweeps a substep):
+# the GPU's stay those the GPU plan was measured with; a CPU's serial solve holds the
+# lattices, a 30-box column and a 20-row pyramid at 4 substeps of 3 + 1
+# (benchmarks/holds.py, benchmarks/stacking.py)
+STEP_DEFAULTS = {True: (1, 10, 4), False: (4, 3, 1)}
+
+
+@pytest.mark.parametrize("gpu", [True, False])
+def test_step_defaults_per_device_kind(gpu):
+    step = split_options({}, gpu)[0]
+    assert (step["substeps"], step["iterations"], step["position_iterations"]) == (
+        STEP_DEFAULTS[gpu]
+    )
+    # a setting given is the setting, on either kind
+    given = split_options({"substeps": 2, "iterations": 7, "position_iterations": 0}, gpu)[0]
+    assert (given["substeps"], given["iterations"], given["position_iterations"]) == (2, 7, 0)
+
+
+def test_normal_solve_reasons():
+    """A GPU's reason for the block is the one it always had; a CPU's names the column."""
+    for device in (NVIDIA, AMD):
+        assert plan(device).reasons["normal_solve"].startswith("the block leaves no point-order")
+    assert "30-box column" in plan(CPU).reasons["normal_solve"]
+    assert plan(CPU, normal_solve="sequential").sources["normal_solve"] == "option"
 
 
 @pytest.mark.parametrize("name", list(EXPECTED))

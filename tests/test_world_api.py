@@ -10,6 +10,7 @@ import pytest
 
 import rbgen
 from rbgen import RbgenError
+from rbgen.settings import STEP_SETTINGS
 from rbgen.world import World
 
 BOX = rbgen.Box((0.5, 0.5, 0.5))
@@ -194,6 +195,17 @@ def test_step_settings_are_checked_when_set(runtime):
     assert world.iterations == 20
     with pytest.raises(RbgenError, match="unknown World option"):
         World(runtime, iteration=3)
+
+
+def test_step_defaults_follow_the_device_kind(runtime):
+    """A World takes its device kind's step defaults (`rbgen.settings`: a CPU's own where
+    one is given), and a setting given is kept on either kind."""
+    gpu = runtime.traits.is_gpu
+    world = World(runtime)
+    for option in STEP_SETTINGS:
+        expected = option.default_for(gpu)
+        assert np.all(np.asarray(getattr(world, option.name)) == np.asarray(expected))
+    assert World(runtime, substeps=1, iterations=10).substeps == 1
 
 
 def test_plan_parameters_reach_the_solve(runtime):

@@ -74,7 +74,9 @@ def test_set_state_sets_some_bodies(runtime):
     np.testing.assert_allclose(world.positions[1:], [[0, 8, 0], [0, 8, 0]])
     world.set_state(0, positions=(0, -2, 0))  # a static body may be moved
     world.step(DT)
-    y = 8.0 - 9.81 * DT * DT  # free fall: v = g dt, then x += v dt
+    # free fall over the step's substeps of h: v += g h, then x += v h, each substep
+    h, m = DT / world.substeps, world.substeps
+    y = 8.0 - 9.81 * h * h * m * (m + 1) / 2
     np.testing.assert_allclose(world.positions[1:, 1], [y, y], rtol=1e-6)
     assert world.positions[0, 1] == -2
 

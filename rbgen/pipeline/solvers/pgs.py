@@ -262,9 +262,7 @@ def default_values(
         "work_group_size": default_work_group_size(traits, solve_form, persistent),
         "max_batches": 128,
         "solve_form": solve_form,
-        "normal_solve": default_normal_solve(
-            solve_form, "global" if persistent else ("slabs" if solve_form == "serial" else "cells")
-        ),
+        "normal_solve": default_normal_solve(),
         "persistent": persistent,
         "fast_math": resolve_fast_math(traits, None),
         "joints": False,
@@ -286,13 +284,13 @@ def _parameter_rules(values: dict) -> str | None:
     return None
 
 
-def default_normal_solve(solve_form: str | None, batching: str | None = None) -> str:
-    """sequential for a serial solve over slabs: Gauss-Seidel proper over whole stacks
-    holds them with the cheaper rows (the block costs several times more there); block
-    otherwise: lanes solve a batch's manifolds side by side, so a sequential solve's
-    point-order torque is not corrected by rows solved after it and columns lean, and
-    cells split a column between launches."""
-    return "sequential" if solve_form == "serial" and batching == "slabs" else "block"
+def default_normal_solve() -> str:
+    """block on every device: lanes solve a batch's manifolds side by side, so a
+    sequential solve's point-order torque is not corrected by rows solved after it and
+    columns lean; cells split a column between launches; and a CPU's serial solve over
+    slabs, though a sequential sweep is cheaper there, topples a 30-box column with it,
+    where the block holds the column and, at the CPU's default substeps, the lattices."""
+    return "block"
 
 
 def default_work_group_size(
