@@ -20,7 +20,7 @@ import hashlib
 import os
 import warnings
 from functools import cached_property
-from typing import cast
+from typing import Any, cast
 
 import pyopencl as cl
 
@@ -253,17 +253,79 @@ def match_devices(choice: str) -> list[cl.Device]:
     return hits
 
 
+#: the device choice ``shape:NAME``: a CPU device standing in for the GPU ``NAME``
+SHAPE_PREFIX = "shape:"
+
+#: GPUs a CPU device can stand in for: the traits rbgen's plans read, as the GPU reports
+#: them. A Runtime of ``shape:NAME`` specialises, plans and launches everything as it would
+#: on that GPU, and the CPU's OpenCL builds and runs it: for checking GPU-only template
+#: branches and launch shapes (persistent lanes, warps of 32, 48 KiB of local memory) and
+#: a GPU plan's physics where no GPU is at hand; not the GPU compiler's own errors, its
+#: races or its speed. The CPU's extensions are kept (the kernels must build there), and
+#: its compute units are halved (at least 1): a persistent launch runs two work groups
+#: per compute unit, which then all run at once on the CPU's threads, so its device-wide
+#: barrier is exercised rather than given up. Its fingerprint differs from the CPU's and
+#: the GPU's, so neither's program cache, tuning or exports are mixed with it.
+GPU_SHAPES: dict[str, dict[str, Any]] = {
+    "h200": {
+        "platform_name": "NVIDIA CUDA",
+        "device_name": "NVIDIA H200 (shape on a CPU)",
+        "vendor": "NVIDIA Corporation",
+        "is_gpu": True,
+        "wavefront": 32,
+        "local_mem_size": 49152,
+        "max_work_group_size": 1024,
+        "driver_version": "550.54.15",
+        "opencl_version": "OpenCL 3.0 CUDA",
+    }
+}
+
+
+def shaped_traits(traits: DeviceTraits, shape: str) -> DeviceTraits:
+    """``traits`` of a CPU device as the GPU ``shape`` (`GPU_SHAPES`) would report them."""
+    return dataclasses.replace(
+        traits, **GPU_SHAPES[shape], compute_units=max(1, traits.compute_units // 2)
+    )
+
+
+def cpu_device() -> cl.Device:
+    """The first CPU device that compiles a kernel (a GPU shape runs on it)."""
+    for entry in list_devices():
+        if entry.device.type & cl.device_type.CPU and build_failure(entry.device) is None:
+            return entry.device
+    raise DeviceNotFoundError("a GPU shape needs a CPU OpenCL device that compiles a kernel")
+
+
+def _shape_of(choice) -> str | None:
+    """The GPU shape a device choice names (``shape:NAME``), else None."""
+    if not isinstance(choice, str) or not choice.strip().startswith(SHAPE_PREFIX):
+        return None
+    shape = choice.strip()[len(SHAPE_PREFIX) :]
+    if shape not in GPU_SHAPES:
+        raise DeviceNotFoundError(
+            f"device {choice!r}: no GPU shape {shape!r}; shapes: "
+            + ", ".join(SHAPE_PREFIX + name for name in sorted(GPU_SHAPES))
+        )
+    return shape
+
+
 class Runtime:
     """A device with its context and in-order command queue.
 
     Every rbgen object that owns kernels or buffers is built for one Runtime.
     ``profiling=True`` gives event timestamps (the tuner and benchmarks need
     them; they cost launch latency on some drivers, so the default is off).
+    ``device`` ``shape:NAME`` (`GPU_SHAPES`): the CPU device, planned for as the GPU.
     """
 
     def __init__(self, device: str | cl.Device | None = None, *, profiling: bool = False):
-        self.device = select_device(device)
+        if device is None:
+            device = os.environ.get(ENV_DEVICE) or None
+        shape = _shape_of(device)
+        self.device = cpu_device() if shape is not None else select_device(device)
         self.traits = DeviceTraits.of(self.device)
+        if shape is not None:
+            self.traits = shaped_traits(self.traits, shape)
         self.context = cl.Context([self.device])
         props = cast(
             cl.command_queue_properties,

@@ -6,13 +6,12 @@ instead: a comma-separated list of device choices as accepted by
 ``rbgen.device.match_devices`` (index ``P:D`` or a name substring), or
 ``shape:h200``: this machine's PoCL CPU device standing in for the H200 (its
 traits are the H200's, so every plan, template and launch is the GPU's, built
-by the CPU's compiler; see `GPU_SHAPES`). Programs are cached on disk between
+by the CPU's compiler; see `rbgen.device.GPU_SHAPES`). Programs are cached on disk between
 runs, so a second run of the suite skips compilation.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import os
 
@@ -21,39 +20,17 @@ import pyopencl as cl
 import pytest
 
 from rbgen.device import (
-    DeviceTraits,
+    GPU_SHAPES,
     Runtime,
     build_failure,
+    cpu_device,
     is_pocl,
     list_devices,
     match_devices,
+    shaped_traits,
 )
 
 ENV_TEST_DEVICES = "RBGEN_TEST_DEVICES"
-
-#: GPUs a CPU device can stand in for (``RBGEN_TEST_DEVICES=shape:NAME``): the traits
-#: rbgen's plans read, as the GPU reports them. The CPU's own extensions are kept (the
-#: kernels must build there), so a plan that chooses by an extension the CPU lacks
-#: takes the path it would take on a GPU without it. What this finds: GPU-only template
-#: branches and launch shapes (persistent lanes, warps of 32, 48 KiB local memory)
-#: that do not build or give wrong results; what it cannot: the GPU compiler's own
-#: errors, timing and memory-model races. The compute units are the CPU's halved (at
-#: least 1): a persistent launch runs two work groups per compute unit, which then all
-#: run at once on the CPU's threads, so its device-wide barrier is exercised rather
-#: than given up (with the GPU's 132, most groups would wait for a thread).
-GPU_SHAPES = {
-    "h200": {
-        "platform_name": "NVIDIA CUDA",
-        "device_name": "NVIDIA H200 (shape on a CPU)",
-        "vendor": "NVIDIA Corporation",
-        "is_gpu": True,
-        "wavefront": 32,
-        "local_mem_size": 49152,
-        "max_work_group_size": 1024,
-        "driver_version": "550.54.15",
-        "opencl_version": "OpenCL 3.0 CUDA",
-    }
-}
 
 
 #: devices left out of the default set, and why (shown in pytest's header)
@@ -66,10 +43,7 @@ def _cpu_device():
     for device, shape in globals().get("_DEVICES", ()):
         if shape is None and device.type & cl.device_type.CPU:
             return device
-    for entry in list_devices():
-        if entry.device.type & cl.device_type.CPU and build_failure(entry.device) is None:
-            return entry.device
-    raise pytest.UsageError("a GPU shape needs a CPU OpenCL device that compiles a kernel")
+    return cpu_device()
 
 
 def _test_devices():
@@ -165,13 +139,6 @@ def runtime(request) -> Runtime:
             runtime.traits = shaped_traits(runtime.traits, shape)
         _RUNTIMES[key] = runtime
     return _RUNTIMES[key]
-
-
-def shaped_traits(traits: DeviceTraits, shape: str) -> DeviceTraits:
-    """``traits`` of a CPU device as the GPU ``shape`` (`GPU_SHAPES`) would report them."""
-    return dataclasses.replace(
-        traits, **GPU_SHAPES[shape], compute_units=max(1, traits.compute_units // 2)
-    )
 
 
 @pytest.fixture

@@ -99,3 +99,27 @@ def test_default_passes_over_a_device_that_cannot_compile(monkeypatch):
         with pytest.warns(RuntimeWarning):
             device.default_device()
     assert broken.index in str(info.value) and "unknown target CPU 'x'" in str(info.value)
+
+
+def test_a_gpu_shape_is_the_cpu_planned_for_as_the_gpu():
+    """``shape:h200`` runs on the CPU device with the H200's traits: the World plans the
+    GPU's pipeline (global batching, the lanes form in one persistent launch, fast math),
+    the fingerprint is neither the CPU's nor a real H200's, and an unknown shape is refused
+    naming the shapes there are."""
+    from rbgen.device import GPU_SHAPES, cpu_device
+    from rbgen.world import World
+
+    shaped = Runtime("shape:h200")
+    assert shaped.device.int_ptr == cpu_device().int_ptr
+    assert shaped.traits.is_gpu and shaped.traits.wavefront == 32
+    assert shaped.traits.device_name == GPU_SHAPES["h200"]["device_name"]
+    assert shaped.traits.fingerprint != DeviceTraits.of(shaped.device).fingerprint
+    plan = World(shaped).plan
+    assert (plan.batching, plan.solve_form, plan.persistent, plan.fast_math) == (
+        "global",
+        "lanes",
+        True,
+        True,
+    )
+    with pytest.raises(DeviceNotFoundError, match="shape:h200"):
+        Runtime("shape:a100")
