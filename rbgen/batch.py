@@ -177,7 +177,7 @@ class WorldBatch:
 
     def __setattr__(self, name, value):
         if name in STEP:
-            setattr(self.world.settings, name, value)
+            setattr(self.world, name, value)  # (the World's: a new gravity wakes islands)
         else:
             object.__setattr__(self, name, value)
 
@@ -305,6 +305,7 @@ class WorldBatch:
             affected = np.zeros(bodies.count, bool)
             affected[ids] = True
             history.forget_bodies(world.runtime, world._pipeline, affected)
+            world._wake_islands(affected)
         else:
             with world._spec_log:
                 if self._reset is None:
@@ -319,6 +320,11 @@ class WorldBatch:
                     world._device.static,
                     world._steps.constraints.constraints,
                 )
+                sleeping = world._sleep_records()
+                if sleeping is not None:
+                    flags = np.zeros(self.envs, np.uint32)
+                    flags[envs] = 1
+                    sleeping.wake_environments(world._device.static, flags)
             bodies.host_stale = True  # (the device's records are newer)
         world._forces.resize(world.body_count)
         world._forces.drop(ids)
