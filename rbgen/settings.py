@@ -217,8 +217,8 @@ STEP_SETTINGS = (
         0.05,
         _number(0.0, 100.0, open_lo=True),
         "a number in (0, 100] (m/s)",
-        "with sleeping on: a body rests while |v| + |w| times its extent (its fastest "
-        "surface point) stays below this (Box2D v3's 0.05 m/s)",
+        "with sleeping on: a body rests while its speed plus its spin times its extent "
+        "(its fastest surface point) stays below this (Box2D v3's 0.05 m/s)",
     ),
     Option(
         "sleep_time",

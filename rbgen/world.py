@@ -460,7 +460,7 @@ class World:
             return
         sleeping, host = p.sleeping, self._bodies.host
         if sleeping.records is not None and sleeping.count == len(host):
-            sleeping.stale = True  # (the upload wrote every body's own inverse mass)
+            sleeping.bodies_uploaded()
             return
         extents = np.zeros(len(host), np.float32)
         dynamic = host["inv_mass"] > 0

@@ -118,16 +118,22 @@ class Sleeping:
         self.backup_count = int(backups)
         self.count = 0
         self.records: cla.Array | None = None
-        #: the host changed bodies or records since the last step: its first launches
-        #: make the device bodies and collision words agree with the records
-        self.stale = True
+        #: the host changed bodies or records since the last step while a body may be
+        #: asleep: the next step's first launches make the device bodies and collision
+        #: words agree with the records
+        self.stale = False
+        #: a body may be asleep (records with sleepers adopted, or a step ran since)
+        self.may_sleep = False
+        #: per backup slot: whether its step began stale (its redo must do as it did)
+        self._began_stale = [False] * self.backup_count
 
     def adopt(self, records: np.ndarray) -> None:
         """Replace every record by ``records`` (between steps)."""
         queue = self.runtime.queue
         n = len(records)
         host = records if n else layouts.BODY_SLEEP.zeros(1)
-        self.stale = True
+        self.may_sleep = bool(np.any(records["asleep"] != layouts.SLEEP_AWAKE))
+        self.stale = self.may_sleep
         if self.records is not None and n == self.count and n > 0:
             self.records.set(np.ascontiguousarray(host), queue=queue)
             return
@@ -136,6 +142,11 @@ class Sleeping:
         self.backups = [cla.empty_like(self.records) for _ in range(self.backup_count)]
         self.parent = cla.zeros(queue, max(1, n), np.uint32)
         self.marks = cla.zeros(queue, max(1, n), np.uint32)
+
+    def bodies_uploaded(self) -> None:
+        """The host wrote every body (each with its own inverse mass, no sleeping bit in
+        its collision word): the next step makes the sleeping ones agree again."""
+        self.stale = self.stale or self.may_sleep
 
     def read(self) -> np.ndarray:
         """The records now (a blocking read; between steps)."""
@@ -159,10 +170,11 @@ class Sleeping:
             np.uint32(decide),
         )
 
-    def begin(self, bodies, words, forces) -> None:
-        """The start of a step: a force on a sleeping body wakes its island; after a host
-        change, the bodies and collision words are made to agree with the records.
-        ``forces``: the step's `rbgen.forces.StepForces` (None: none)."""
+    def begin(self, bodies, words, forces, slot: int) -> None:
+        """The start of the step of backup ``slot``: a force on a sleeping body wakes its
+        island; after a host change, the bodies and collision words are made to agree
+        with the records. ``forces``: the step's `rbgen.forces.StepForces` (None: none)."""
+        self._began_stale[slot] = self.stale
         if self.count == 0 or (forces is None and not self.stale):
             return
         self._clear_marks()
@@ -186,6 +198,7 @@ class Sleeping:
         ``edge_capacity``; the records are first backed up into ``slot``)."""
         if self.count == 0:
             return
+        self.may_sleep = True
         n, wg = np.uint32(self.count), self.work_group_size
         self._begin.over(
             self.count,
@@ -213,7 +226,9 @@ class Sleeping:
 
     def restore(self, slot: int, bodies, words) -> None:
         """Back to the records of the step of ``slot`` (its redo), the bodies (restored
-        already) and collision words made to agree with them."""
+        already) and collision words made to agree with them; the redone step begins as
+        that step did."""
+        self.stale = self._began_stale[slot]
         if self.count == 0:
             return
         cl.enqueue_copy(self.runtime.queue, buffer_of(self.records), buffer_of(self.backups[slot]))
@@ -235,4 +250,4 @@ class Sleeping:
         self._environments.over(
             self.count, self.work_group_size, self.records, words, d_flags, np.uint32(self.count)
         )
-        self.stale = True
+        self.stale = self.stale or self.may_sleep

@@ -665,7 +665,7 @@ class WakeStage(Stage):
         self.sleeping = sleeping
 
     def enqueue(self, step: StepContext) -> None:
-        self.sleeping.begin(step.bodies.bodies, step.bodies.static, step.forces)
+        self.sleeping.begin(step.bodies.bodies, step.bodies.static, step.forces, step.slot)
 
 
 class SleepStage(Stage):

@@ -160,7 +160,7 @@ def test_start_of_step_forces_wake_islands_and_bodies_agree(runtime, rng, n):
         def arrays(self):
             return [cla.to_device(queue, a) for a in arrays]
 
-    s.begin(d_bodies, d_words, Forces())
+    s.begin(d_bodies, d_words, Forces(), 0)
     dynamic = records["inv_mass"] > 0
     asleep = records["asleep"] == layouts.SLEEP_ASLEEP
     woken = dynamic & asleep & np.isin(records["island"], records["island"][pushed & asleep])
