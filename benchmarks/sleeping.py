@@ -8,9 +8,9 @@ ground slab) is stepped ``--steps`` steps with sleeping off (the baseline) and o
 alternated in one run (``--repeats`` times each, off first): the last ``--tail`` steps are
 timed in blocks of 10 (each block ends with ``queue.finish()``; ms/step is the median
 block's), the earlier ones are the fall and the settling. Each result carries ms/step,
-the bodies asleep and the largest body speed at the end, launches and blocking reads per
-step, and (sleeping on) ``speedup``: the baseline's ms over its own, from the medians over
-the repeats. JSON (rbgen.bench's format, kind "sleeping") under --out.
+the bodies asleep (every 100 steps and at the end), the largest body speed at the end,
+launches and blocking reads per step, and (sleeping on) ``speedup``: the baseline's ms
+over its own, from the medians over the repeats. JSON (rbgen.bench's format, kind "sleeping") under --out.
 """
 
 from __future__ import annotations
@@ -32,8 +32,11 @@ def run_pile(n: int, steps: int, tail: int, device, sleeping: bool, options: dic
     """One run: the pile stepped ``steps`` steps, the last ``tail`` timed."""
     world, ids = build_scene("box_pile", n, device, sleeping=sleeping, **options)[:2]
     dt = 1 / 60
-    for _ in range(steps - tail):
+    asleep_by_step = {}
+    for k in range(1, steps - tail + 1):
         world.step(dt)
+        if k % 100 == 0:  # (a blocking read, outside the timed steps)
+            asleep_by_step[k] = int(world.asleep[ids].sum())
     world.statistics()  # (drains the queue: the timed blocks start empty)
     queue = world.runtime.queue
     blocks = []
@@ -51,6 +54,7 @@ def run_pile(n: int, steps: int, tail: int, device, sleeping: bool, options: dic
         "ms": statistics.median(blocks),
         "blocks": blocks,
         "asleep": int(world.asleep[ids].sum()),
+        "asleep_by_step": asleep_by_step,
         "max_speed": float(np.linalg.norm(v, axis=1).max()),
         "max_spin": float(np.linalg.norm(w, axis=1).max()),
         "nan": int((~np.isfinite(positions)).any(axis=1).sum()),
@@ -94,7 +98,10 @@ def main(argv=None) -> int:
                 "bodies": n,
                 "sleeping": sleeping,
                 "runs": done,
-                **{k: last[k] for k in ("asleep", "max_speed", "max_spin", "nan", "sunk")},
+                **{
+                    k: last[k]
+                    for k in ("asleep", "asleep_by_step", "max_speed", "max_spin", "nan", "sunk")
+                },
                 "launches": last["launches"],
                 "blocking_reads": last["blocking_reads"],
                 "plan": last["plan"],
@@ -108,7 +115,8 @@ def main(argv=None) -> int:
                 f"steps (runs {', '.join(f'{x:.2f}' for x in r['ms_spread'])}), asleep "
                 f"{r['asleep']}/{n}, max speed {r['max_speed']:.4f} m/s, spin "
                 f"{r['max_spin']:.4f} rad/s, nan {r['nan']}, sunk {r['sunk']}, "
-                f"{r['launches']} launches, {r['blocking_reads']} blocking reads a step",
+                f"{r['launches']} launches, {r['blocking_reads']} blocking reads a step; "
+                f"asleep by step {r['asleep_by_step']}",
                 flush=True,
             )
         print(f"box_pile {n}: sleeping on is x{on['speedup']:.2f} the speed of off", flush=True)
