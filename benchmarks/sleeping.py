@@ -10,7 +10,8 @@ timed in blocks of 10 (each block ends with ``queue.finish()``; ms/step is the m
 block's), the earlier ones are the fall and the settling. Each result carries ms/step,
 the bodies asleep (every 100 steps and at the end), the largest body speed at the end,
 launches and blocking reads per step, and (sleeping on) ``speedup``: the baseline's ms
-over its own, from the medians over the repeats. JSON (rbgen.bench's format, kind "sleeping") under --out.
+over its own, from the medians over the repeats. JSON (rbgen.bench's format, kind
+"sleeping") under --out.
 """
 
 from __future__ import annotations
