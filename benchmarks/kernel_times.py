@@ -2,6 +2,7 @@
 
 usage: python benchmarks/kernel_times.py [--device D] [--scene boxbox] [--n 8000] [--steps 10]
                                          [--batching M] [--normal-solve S] [--sleeping]
+                                         [--warmup 5]
 
 Per kernel: the median over the timed steps of its time in one step (robust to
 a step slowed by other processes on a shared CPU), and its launches per step.
@@ -33,6 +34,9 @@ def main() -> None:
     parser.add_argument(
         "--sleeping", action="store_true", help="World option sleeping=True (its kernels' cost)"
     )
+    parser.add_argument(
+        "--warmup", type=int, default=5, help="steps before the timed ones (a pile settling)"
+    )
     args = parser.parse_args()
     runtime = Runtime(args.device, profiling=True)
     options = {"batching": args.batching} if args.batching else {}
@@ -41,7 +45,7 @@ def main() -> None:
     if args.sleeping:
         options["sleeping"] = True
     world = build_scene(args.scene, args.n, runtime, **options)[0]
-    for _ in range(5):
+    for _ in range(args.warmup):
         world.step(1 / 60)
     runtime.queue.finish()
 

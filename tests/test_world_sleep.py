@@ -252,3 +252,28 @@ def test_batch_environments_sleep_independently_and_bit_for_bit(runtime, options
     assert not pushed[3][:2].any() and pushed[3][2] and np.delete(pushed, 3, axis=0).all()
     assert not reset[5].any() and np.delete(reset, [3, 5], axis=0).all()
     assert end.all()
+
+
+def test_a_jointed_island_sleeps_and_wakes_whole(runtime):
+    """Three boxes 10 cm apart on the ground, held by ball joints (jointed bodies do not
+    collide: the joints alone make them one island), and a lone box: all sleep; a push on
+    one end wakes the three and not the lone box; the joints' impulses stay finite while
+    they sleep (their rows see no inverse mass) and after they wake."""
+    world = World(runtime, sleeping=True)
+    world.add_static(rbgen.Plane((0, 1, 0), 0.0))
+    chain = world.add_bodies(BOX, positions=[[0, 0.5, 0], [1.1, 0.5, 0], [2.2, 0.5, 0]])
+    lone = world.add_body(BOX, position=(20.0, 0.5, 0))
+    for a, b in zip(chain[:-1], chain[1:]):
+        anchor = (world.positions[a] + world.positions[b]) / 2
+        world.add_joint(rbgen.BallJoint(int(a), int(b), anchor=anchor))
+    steps(world, 40)
+    assert world.asleep[1:].all()
+    assert np.isfinite(world.joint_impulses).all()
+    world.apply_forces([int(chain[0])], (0.0, 0.0, 40.0))
+    world.step(DT)
+    asleep = world.asleep
+    assert not asleep[chain].any() and asleep[lone]
+    steps(world, 60)
+    assert np.isfinite(world.joint_impulses).all() and np.isfinite(world.positions).all()
+    gaps = np.linalg.norm(np.diff(world.positions[chain], axis=0), axis=1)
+    np.testing.assert_allclose(gaps, 1.1, atol=0.01)  # (the joints held)
