@@ -24,8 +24,9 @@ four launches at the end of a step (rest timers, union-find over the edges, isla
 roots, fall asleep or wake; a lock-free union-find rather than label propagation, which
 would need as many launches as the longest chain of bodies is long), and at the start
 of a step that has forces or follows a host change while bodies may sleep, two launches
-(forces wake islands; bodies and collision words made to agree with the records). Every record is backed up by the step's first sleep launch,
-so that a redone step starts from the same sleep state (`restore`).
+(forces wake islands; bodies and collision words made to agree with the records).
+Every record is backed up by the step's first end-of-step launch, so that a redone step
+starts from the same sleep state (`restore`).
 """
 
 from __future__ import annotations
