@@ -31,6 +31,24 @@ def steps(world, count):
         world.step(DT)
 
 
+def test_a_dropped_pile_settles_asleep(runtime):
+    """50 boxes dropped in 5 layers (the box_pile scene) land, settle and sleep within 300
+    steps; asleep, every velocity is exactly 0 and no pose changes by a bit."""
+    from rbgen.harness import build_scene
+
+    world, ids = build_scene("box_pile", 50, runtime, sleeping=True)[:2]
+    steps(world, 60)
+    assert not world.asleep[ids].all()  # (still falling and settling)
+    steps(world, 240)
+    assert world.asleep[ids].all()
+    poses = world.positions.copy(), world.orientations.copy()
+    steps(world, 10)
+    assert np.array_equal(world.positions, poses[0])
+    assert np.array_equal(world.orientations, poses[1])
+    assert not world.linear_velocities.any() and not world.angular_velocities.any()
+    assert (world.positions[ids, 1] > 0.45).all()  # (on the ground, not through it)
+
+
 @pytest.mark.parametrize(
     "options",
     [{}, {"broadphase": "sap3"}, {"solver": "jacobi"}, {"batching": "global"}],
