@@ -137,7 +137,8 @@ def test_a_body_above_the_threshold_restarts_its_timer(runtime):
 
 def test_host_changes_wake_the_islands_they_touch(runtime):
     """set_state of one body wakes its island only; removing a body wakes its island and
-    keeps the other asleep under its new numbers; a new gravity wakes every island."""
+    keeps the other asleep under its new numbers; `wake` wakes the island named; a new
+    gravity wakes every island."""
     world = two_stacks(runtime)
     steps(world, 35)
     world.set_state([2], positions=(0.0, 1.6, 0.0))
@@ -151,6 +152,11 @@ def test_host_changes_wake_the_islands_they_touch(runtime):
     before = world.positions[mapping[B]].copy()
     steps(world, 5)
     assert np.array_equal(world.positions[mapping[B]], before)
+    steps(world, 40)
+    assert world.asleep[1:].all()
+    world.wake([mapping[5]])  # (by hand: B's island, not A's)
+    asleep = world.asleep
+    assert not asleep[mapping[B]].any() and asleep[mapping[[1, 2]]].all()
     world.gravity = (0.0, -9.0, 0.0)
     assert not world.asleep.any()
 
