@@ -249,6 +249,12 @@ class WorldBatch:
         lambda s: s._field("angular_velocities"), doc="(envs, bodies, 3) float32 rad/s"
     )
 
+    @property
+    def asleep(self) -> np.ndarray:
+        """(envs, bodies) bool: the bodies asleep now (World option ``sleeping``; all False
+        without it). A blocking read."""
+        return self.world.asleep[self.shared :].reshape(self.envs, self.bodies)
+
     def _rows(self, value, count: int, lanes: int, what: str, envs: np.ndarray) -> np.ndarray:
         """(count, bodies, lanes) finite numbers, or (bodies, lanes) / (lanes,) for all;
         a bad value names its environment and body."""

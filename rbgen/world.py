@@ -675,6 +675,8 @@ class World:
             if p.batching is not None
             else np.zeros(0, np.uint32)
         )
+        if plan.sleeping:
+            summary["asleep"] = int(self.asleep.sum())
         return {
             **summary,
             "pairs": pairs,

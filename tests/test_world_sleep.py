@@ -254,7 +254,7 @@ def batch_run(runtime, envs, **options):
             batch.reset([5])
         batch.step(DT)
         if s in (69, 71, 81, 119):
-            flags.append(batch.world.asleep[batch.shared :].reshape(envs, 3).copy())
+            flags.append(batch.asleep.copy())
     return batch, flags
 
 
@@ -276,6 +276,7 @@ def test_batch_environments_sleep_independently_and_bit_for_bit(runtime, options
     assert not pushed[3][:2].any() and pushed[3][2] and np.delete(pushed, 3, axis=0).all()
     assert not reset[5].any() and np.delete(reset, [3, 5], axis=0).all()
     assert end.all()
+    assert seven.statistics()["asleep"] == 7 * 3
 
 
 def test_a_jointed_island_sleeps_and_wakes_whole(runtime):
