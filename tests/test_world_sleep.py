@@ -138,7 +138,7 @@ def test_a_body_above_the_threshold_restarts_its_timer(runtime):
 def test_host_changes_wake_the_islands_they_touch(runtime):
     """set_state of one body wakes its island only; removing a body wakes its island and
     keeps the other asleep under its new numbers; `wake` wakes the island named; a new
-    gravity wakes every island."""
+    gravity wakes every island before the next step (each box then falls at v = g dt)."""
     world = two_stacks(runtime)
     steps(world, 35)
     world.set_state([2], positions=(0.0, 1.6, 0.0))
@@ -157,8 +157,10 @@ def test_host_changes_wake_the_islands_they_touch(runtime):
     world.wake([mapping[5]])  # (by hand: B's island, not A's)
     asleep = world.asleep
     assert not asleep[mapping[B]].any() and asleep[mapping[[1, 2]]].all()
-    world.gravity = (0.0, -9.0, 0.0)
+    world.gravity = (0.0, 9.0, 0.0)  # (upward: nothing resists the fall, v = g dt)
     assert not world.asleep.any()
+    world.step(DT)
+    np.testing.assert_allclose(world.linear_velocities[1:, 1], 9.0 * DT, rtol=1e-5)
 
 
 def test_sleeping_adds_four_launches_and_no_blocking_read(runtime):

@@ -134,8 +134,10 @@ class Sleeping:
         queue = self.runtime.queue
         n = len(records)
         host = records if n else layouts.BODY_SLEEP.zeros(1)
+        # (the device's bodies may still be asleep as the old records had them)
+        had_sleepers = self.may_sleep
         self.may_sleep = bool(np.any(records["asleep"] != layouts.SLEEP_AWAKE))
-        self.stale = self.may_sleep
+        self.stale = self.stale or had_sleepers or self.may_sleep
         if self.records is not None and n == self.count and n > 0:
             self.records.set(np.ascontiguousarray(host), queue=queue)
             return
