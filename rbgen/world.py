@@ -244,8 +244,9 @@ class World:
         if len(mapping) != count or np.any(mapping < 0):
             history.renumber_bodies(self.runtime, self._pipeline, mapping)
             sleeping = self._sleep_records()
-            if sleeping is not None:
-                sleeping.adopt(sleep.renumber(sleeping.read(), mapping))
+            if sleeping is not None:  # (bodies added since the last step have no record yet)
+                records = sleeping.read()
+                sleeping.adopt(sleep.renumber(records, mapping[: len(records)]))
             self._forces.resize(count)
             self._forces.renumber(mapping)
             self._joints.renumber_bodies(mapping)

@@ -163,6 +163,22 @@ def test_host_changes_wake_the_islands_they_touch(runtime):
     np.testing.assert_allclose(world.linear_velocities[1:, 1], 9.0 * DT, rtol=1e-5)
 
 
+def test_removing_bodies_added_since_the_last_step(runtime):
+    """Bodies added and removed between two steps (some without a sleep record yet): the
+    survivors keep their records in their new places, stack B sleeps on unmoved."""
+    world = two_stacks(runtime)
+    steps(world, 35)
+    first = world.add_bodies(BOX, positions=[[-10.0, 0.5, 0], [-12.0, 0.5, 0]])
+    mapping = world.remove_bodies([3, int(first[0])])
+    before = world.positions[mapping[B]].copy()
+    steps(world, 5)
+    asleep = world.asleep
+    assert asleep[mapping[B]].all() and not asleep[mapping[[1, 2, int(first[1])]]].any()
+    assert np.array_equal(world.positions[mapping[B]], before)
+    steps(world, 40)
+    assert world.asleep[1:].all()
+
+
 def test_sleeping_adds_four_launches_and_no_blocking_read(runtime):
     """The step stays a fixed sequence without a blocking read: sleeping adds its four
     end-of-step launches, from the first step on."""
