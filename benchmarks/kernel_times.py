@@ -1,7 +1,8 @@
 """Device time per kernel of a World step (OpenCL profiling events), largest first.
 
 usage: python benchmarks/kernel_times.py [--device D] [--scene boxbox] [--n 8000] [--steps 10]
-                                         [--batching M] [--normal-solve S]
+                                         [--batching M] [--normal-solve S] [--sleeping]
+                                         [--warmup 5]
 
 Per kernel: the median over the timed steps of its time in one step (robust to
 a step slowed by other processes on a shared CPU), and its launches per step.
@@ -30,13 +31,21 @@ def main() -> None:
     parser.add_argument("--batching", default=None, choices=BATCHING_MODES)
     parser.add_argument("--normal-solve", default=None, choices=["block", "sequential"])
     parser.add_argument("--top", type=int, default=15)
+    parser.add_argument(
+        "--sleeping", action="store_true", help="World option sleeping=True (its kernels' cost)"
+    )
+    parser.add_argument(
+        "--warmup", type=int, default=5, help="steps before the timed ones (a pile settling)"
+    )
     args = parser.parse_args()
     runtime = Runtime(args.device, profiling=True)
     options = {"batching": args.batching} if args.batching else {}
     if args.normal_solve:
         options["normal_solve"] = args.normal_solve
+    if args.sleeping:
+        options["sleeping"] = True
     world = build_scene(args.scene, args.n, runtime, **options)[0]
-    for _ in range(5):
+    for _ in range(args.warmup):
         world.step(1 / 60)
     runtime.queue.finish()
 

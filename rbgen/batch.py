@@ -215,7 +215,7 @@ class WorldBatch:
 
     def __setattr__(self, name, value):
         if name in STEP:
-            setattr(self.world.settings, name, value)
+            setattr(self.world, name, value)  # (the World's: a new gravity wakes islands)
         else:
             object.__setattr__(self, name, value)
 
@@ -302,6 +302,12 @@ class WorldBatch:
         lambda s: s._field("angular_velocities"), doc="(envs, bodies, 3) float32 rad/s"
     )
 
+    @property
+    def asleep(self) -> np.ndarray:
+        """(envs, bodies) bool: the bodies asleep now (World option ``sleeping``; all False
+        without it). A blocking read."""
+        return self.world.asleep[self.shared :].reshape(self.envs, self.bodies)
+
     def _rows(self, value, count: int, lanes: int, what: str, envs: np.ndarray) -> np.ndarray:
         """(count, bodies, lanes) finite numbers, or (bodies, lanes) / (lanes,) for all;
         a bad value names its environment and body."""
@@ -358,6 +364,7 @@ class WorldBatch:
             affected = np.zeros(bodies.count, bool)
             affected[ids] = True
             history.forget_bodies(world.runtime, world._pipeline, affected)
+            world._wake_islands(affected)
         else:
             with world._spec_log:
                 if self._reset is None:
@@ -372,6 +379,11 @@ class WorldBatch:
                     world._device.static,
                     world._steps.constraints.constraints,
                 )
+                sleeping = world._sleep_records()
+                if sleeping is not None:
+                    flags = np.zeros(self.envs, np.uint32)
+                    flags[envs] = 1
+                    sleeping.wake_environments(world._device.static, flags)
             bodies.host_stale = True  # (the device's records are newer)
         world._forces.resize(world.body_count)
         world._forces.drop(ids)

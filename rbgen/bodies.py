@@ -156,7 +156,11 @@ class BodyStore:
         """Bring the host copy up to date (waits for the steps in flight)."""
         self._finish()
         if self.host_stale:
-            self.host = self._read_device()[: self.count]
+            fresh = self._read_device()[: self.count]
+            # (the host's own inverse masses: the device zeroes a sleeping body's,
+            # rbgen.pipeline.sleep, and nothing else on the device changes them)
+            fresh["inv_mass"] = self.host["inv_mass"]
+            self.host = fresh
             self.host_stale = False
 
     def add(

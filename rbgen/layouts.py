@@ -771,3 +771,36 @@ JOINT_CONSTRAINT = declare(
     ],
     "One joint between two bodies, as the solver reads it (persistent on the device).",
 )
+
+
+# --------------------------------------------------------------------------
+# Sleeping (owner: rbgen/pipeline/sleep.py). A dynamic body asleep is static to every
+# other stage: its Body.inv_mass is 0 and its collision word has RB_GROUP_STATIC set;
+# its own inverse mass waits in its BodySleep record until its island wakes.
+SLEEP_AWAKE = constant("RB_SLEEP_AWAKE", 0, "BodySleep.asleep: the body moves")
+SLEEP_ASLEEP = constant("RB_SLEEP_ASLEEP", 1, "BodySleep.asleep: the body's island sleeps")
+SLEEP_WAKE = constant(
+    "RB_SLEEP_WAKE", 1, "sleep mark of an island label: wake the sleeping island of that label"
+)
+SLEEP_RESTLESS = constant(
+    "RB_SLEEP_RESTLESS",
+    2,
+    "sleep mark of an island label: a body of that awake island has not rested long enough",
+)
+
+BODY_SLEEP = declare(
+    "BodySleep",
+    [
+        ("timer", "float", "seconds the body has moved slower than the sleep threshold"),
+        (
+            "island",
+            "uint",
+            "its island's label: the lowest body index of the island (kept while asleep, so "
+            "that the island wakes whole)",
+        ),
+        ("inv_mass", "float", "the body's own inverse mass (0: static; Body.inv_mass is 0 asleep)"),
+        ("extent", "float", "largest distance from its centre of mass to its surface (m)"),
+        ("asleep", "uint", "RB_SLEEP_AWAKE or RB_SLEEP_ASLEEP"),
+    ],
+    "A body's sleep state: rest timer, island label, and what waking restores.",
+)

@@ -146,10 +146,16 @@ class Estimate:
 
 
 def estimate(
-    sizes: Sizes, *, broadphase: str = "grid", solver: str = "pgs", kinds: int = 1
+    sizes: Sizes,
+    *,
+    broadphase: str = "grid",
+    solver: str = "pgs",
+    kinds: int = 1,
+    sleeping: bool = False,
 ) -> Estimate:
     """The device buffers of a World of ``sizes`` (``kinds``: the narrowphase's shape-type
-    pair queues). Each entry is (bytes of one buffer, how many such buffers)."""
+    pair queues; ``sleeping``: the World option). Each entry is (bytes of one buffer, how
+    many such buffers)."""
     n, p, m, j = sizes.bodies, sizes.pairs, sizes.manifolds, sizes.joints
     q = sizes.narrow_pairs
     slots = 2 if broadphase == "sap3" else 1  # sap3 double-buffers its pairs and boxes
@@ -176,6 +182,9 @@ def estimate(
         "constraint edges": (layouts.CONSTRAINT_EDGE.itemsize * max(1, m + j), GENERATIONS),
         "warm-start tables": (WORD * table_words(m), GENERATIONS),
     }
+    if sleeping:  # the sleep records, their redo backups, union-find nodes and marks
+        one["sleep records"] = (layouts.BODY_SLEEP.itemsize * n, 1 + STEPS_IN_FLIGHT)
+        one["sleep islands"] = (2 * WORD * n, 1)
     inputs = (p, *sizes.expanded[:-1])
     for k, (inputs_k, outputs_k) in enumerate(zip(inputs, sizes.expanded)):
         # each expansion's counts and offsets per input pair, and its output pairs
@@ -346,6 +355,7 @@ class WorldMemory:
             "broadphase": self.options["broadphase"],
             "solver": self.options["solver"],
             "kinds": max(1, kinds),
+            "sleeping": bool(self.options.get("sleeping", False)),
         }
 
     def sizes(self, bodies: int, pipeline=None, store=None, joints: int | None = None) -> Sizes:

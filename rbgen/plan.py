@@ -121,6 +121,8 @@ class Plan:
     shape_types: tuple[str, ...]
     #: the World has joints: the PGS solve visits joint items too (`rbgen.pipeline.joints`)
     joints: bool = False
+    #: bodies at rest fall asleep (`rbgen.pipeline.sleep`; the World option ``sleeping``)
+    sleeping: bool = False
     reasons: dict = dataclasses.field(compare=False, default_factory=dict)
     sources: dict = dataclasses.field(compare=False, default_factory=dict)
 
@@ -154,6 +156,7 @@ class Plan:
         return (
             f"{solve}{', persistent launch' if self.persistent else ''}, "
             f"{'fast' if self.fast_math else 'exact'} math, {self.broadphase} broadphase"
+            f"{', sleeping islands' if self.sleeping else ''}"
         )
 
 
@@ -325,6 +328,7 @@ def derive_plan(
         gyroscopic=bool(options["gyroscopic"]),
         shape_types=tuple(sorted(shape_types)),
         joints=bool(joints),
+        sleeping=bool(options.get("sleeping", False)),
         reasons=reasons,
         sources=sources,
     )

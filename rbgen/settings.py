@@ -212,6 +212,22 @@ STEP_SETTINGS = (
         "a number in [0, 1)",
         "fraction of angular velocity lost per second",
     ),
+    Option(
+        "sleep_threshold",
+        0.05,
+        _number(0.0, 100.0, open_lo=True),
+        "a number in (0, 100] (m/s)",
+        "with sleeping on: a body rests while its speed plus its spin times its extent "
+        "(its fastest surface point) stays below this (Box2D v3's 0.05 m/s)",
+    ),
+    Option(
+        "sleep_time",
+        0.5,
+        _number(0.0, 3600.0, open_lo=True),
+        "a number in (0, 3600] (seconds)",
+        "with sleeping on: an island whose every body has rested this long falls asleep "
+        "(Box2D v3's and Jolt's 0.5 s)",
+    ),
 )
 
 #: choices that decide the kernels; fixed for a World (see `rbgen.plan`)
@@ -258,6 +274,14 @@ CONSTRUCTION_OPTIONS = (
         _flag,
         "True or False",
         "the implicit gyroscopic term: free spinning bodies keep their angular momentum",
+    ),
+    Option(
+        "sleeping",
+        False,
+        _flag,
+        "True or False",
+        "islands of bodies at rest fall asleep (static, no work) until touched, pushed or "
+        "set (rbgen.pipeline.sleep)",
     ),
     Option(
         "manifold_capacity",
@@ -338,6 +362,8 @@ class Settings:
     penetration_recovery: float
     linear_damping: float
     angular_damping: float
+    sleep_threshold: float
+    sleep_time: float
 
     def __init__(self, values: dict):
         for name, value in values.items():

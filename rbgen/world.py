@@ -23,7 +23,7 @@ import numpy as np
 import pyopencl as cl
 
 from . import history, layouts
-from .bodies import STATE_FIELDS, BodyStore, floats, one_row, per_body
+from .bodies import STATE_FIELDS, BodyStore, body_ids, bounding_radius, floats, one_row, per_body
 from .codegen import KernelSpec, SpecLog
 from .device import Runtime, coerce_runtime
 from .errors import RbgenError
@@ -31,6 +31,7 @@ from .forces import ExternalForces
 from .guard import STEPS_IN_FLIGHT, Replan, StepGuard
 from .joints import JointStore, joint_fields, joint_reactions, pack_joints
 from .memory import WorldMemory
+from .pipeline import sleep
 from .pipeline.step import StepContext, StepPipeline
 from .plan import Plan, derive_plan
 from .settings import STEP, Settings, split_options
@@ -116,7 +117,10 @@ class World:
 
     def __setattr__(self, name, value):
         if name in STEP:
+            before = np.array(self.settings.gravity) if name == "gravity" else None
             setattr(self.settings, name, value)
+            if before is not None and np.any(before != self.settings.gravity):
+                self._wake_islands(np.ones(self._bodies.count, bool))  # (all fall anew)
         else:
             object.__setattr__(self, name, value)
 
@@ -253,6 +257,10 @@ class World:
         joints = np.arange(self._joints.count, dtype=np.int64)
         if len(mapping) != count or np.any(mapping < 0):
             history.renumber_bodies(self.runtime, self._pipeline, mapping)
+            sleeping = self._sleep_records()
+            if sleeping is not None:  # (bodies added since the last step have no record yet)
+                records = sleeping.read()
+                sleeping.adopt(sleep.renumber(records, mapping[: len(records)]))
             self._forces.resize(count)
             self._forces.renumber(mapping)
             joints = self._joints.renumber_bodies(mapping)
@@ -306,14 +314,20 @@ class World:
             host["orientation"],
             host["inv_mass"] > 0,
         )
-        return self._joints.add(records)
+        ids = self._joints.add(records)
+        self._wake_islands(np.concatenate([records["body_a"], records["body_b"]]))
+        return ids
 
     def remove_joints(self, ids) -> np.ndarray:
         """Remove the joints ``ids`` between steps; the later joints move down to close
         the gap. Returns ``mapping`` over the old ids (new id, -1 removed)."""
         self._finish_pending()  # (a step redone after this must find the joints it ran)
-        self.last_joint_mapping = self._joints.remove(ids)
-        return self.last_joint_mapping
+        self._joints.sync_to_host()
+        old = self._joints.host
+        self.last_joint_mapping = mapping = self._joints.remove(ids)
+        gone = old[mapping < 0]
+        self._wake_islands(np.concatenate([gone["body_a"], gone["body_b"]]))
+        return mapping
 
     @property
     def joint_impulses(self) -> np.ndarray:
@@ -370,6 +384,7 @@ class World:
             affected[ids] = True
             history.forget_bodies(self.runtime, self._pipeline, affected)
             self._joints.forget_bodies(affected)
+            self._wake_islands(affected)
 
     def _field(self, what):
         name, lanes = STATE_FIELDS[what]
@@ -383,6 +398,7 @@ class World:
         name, lanes = STATE_FIELDS[what]
         changed = self._bodies.set_field(name, values, lanes, what)
         history.forget_bodies(self.runtime, self._pipeline, changed)
+        self._wake_islands(changed)
 
     positions = _state_property(
         "positions",
@@ -432,6 +448,7 @@ class World:
                 pair_capacity=self.options["pair_capacity"],
                 manifold_capacity=self.options["manifold_capacity"],
                 joint_store=self._joints,
+                backups=STEPS_IN_FLIGHT,
             )
         elif plan != self.plan:
             self._pipeline.replan(plan)
@@ -440,6 +457,70 @@ class World:
         self._packed = self.shapes.pack_all().to_device(self.runtime.queue)
         self._size_pipeline(self._pipeline)
         self._upload_joints()
+        self._upload_sleep()
+
+    # ------------------------------------------------------------- sleeping
+    def _sleep_records(self):
+        """The pipeline's `rbgen.pipeline.sleep.Sleeping` once it holds records (None:
+        sleeping off, or no step yet)."""
+        p = self._pipeline
+        if p is None or p.sleeping is None or p.sleeping.records is None:
+            return None
+        return p.sleeping
+
+    def _upload_sleep(self) -> None:
+        """After an upload: bodies added since the last step get awake records, and every
+        body on the device is made to agree with its record again at the next step."""
+        p = self._pipeline
+        if p is None or p.sleeping is None:
+            return
+        sleeping, host = p.sleeping, self._bodies.host
+        if sleeping.records is not None and sleeping.count == len(host):
+            sleeping.bodies_uploaded()
+            return
+        extents = np.zeros(len(host), np.float32)
+        dynamic = host["inv_mass"] > 0
+        for k in np.unique(host["shape"][dynamic]):
+            extents[dynamic & (host["shape"] == k)] = bounding_radius(self.shapes.shapes[int(k)])
+        records = sleep.fresh_records(host["inv_mass"], extents)
+        if sleeping.records is not None and sleeping.count:
+            kept = sleeping.read()
+            records[: len(kept)] = kept  # (removals renumbered them already: only adds)
+        sleeping.adopt(records)
+
+    def _wake_islands(self, ids) -> None:
+        """Wake the sleeping islands of the bodies ``ids`` (indices or a bool mask), between
+        steps (a blocking read of the records when sleeping is on)."""
+        sleeping = self._sleep_records()
+        ids = np.asarray(ids)
+        ids = np.flatnonzero(ids) if ids.dtype == bool else ids.astype(np.int64)
+        if sleeping is None or len(ids) == 0:
+            return
+        self._finish_pending()
+        records = sleeping.read()
+        # (bodies added since the last step have no record yet: they are awake)
+        if sleep.wake_islands(records, ids[ids < len(records)]):
+            sleeping.adopt(records)
+
+    def wake(self, ids=None) -> None:
+        """Wake the sleeping islands that hold the bodies ``ids`` (None: every body), between
+        steps. Bodies wake by themselves when touched, pushed or set; this is for a change
+        the World cannot see. Does nothing with sleeping off."""
+        count = self._bodies.count
+        self._wake_islands(np.arange(count) if ids is None else body_ids(ids, count, "ids"))
+
+    @property
+    def asleep(self) -> np.ndarray:
+        """(N,) bool: the bodies asleep now (all False with sleeping off or before the first
+        step). A blocking read."""
+        self._finish_pending()
+        sleeping = self._sleep_records()
+        out = np.zeros(self._bodies.count, bool)
+        if sleeping is not None:
+            records = sleeping.read()
+            n = min(len(records), len(out))
+            out[:n] = records["asleep"][:n] == layouts.SLEEP_ASLEEP
+        return out
 
     def _upload_joints(self) -> None:
         """Send the joint records after a change; the contacts' edges follow the joints'."""
@@ -542,6 +623,9 @@ class World:
         )
         if self._pipeline is not None and self._pipeline.joints is not None:
             self._joints.restore(slot)
+        sleeping = self._sleep_records()
+        if sleeping is not None:
+            sleeping.restore(slot, self._device.bodies, self._device.static)
 
     def _pipeline_rewind(self, steps: int) -> None:
         self._steps.constraints.constraints.undo(steps)
@@ -610,6 +694,8 @@ class World:
             if p.batching is not None
             else np.zeros(0, np.uint32)
         )
+        if plan.sleeping:
+            summary["asleep"] = int(self.asleep.sum())
         return {
             **summary,
             "pairs": pairs,

@@ -239,6 +239,7 @@ def test_exported_jacobi_solver_builds_standalone(runtime, tmp_path, persistent)
         ("boxbox", {"batching": "cells"}),
         ("ragdolls", {}),
         ("ragdolls", {"batching": "global"}),
+        ("boxbox", {"sleeping": True}),
     ],
 )
 @pytest.mark.gpu_shape
@@ -280,6 +281,11 @@ def test_world_export_is_exactly_what_the_world_compiled(runtime, tmp_path, scen
     assert plan["choices"]["batching"] == world.plan.batching
     assert manifest["plan"]["choices"]["solver"] == world.plan.solver
     assert plan["choices"]["joints"] is (scene == "ragdolls")
+    assert plan["choices"]["sleeping"] is bool(options.get("sleeping"))
+    if options.get("sleeping"):  # the sleep stage's kernels, and prepare's sleeping inertia
+        templates = {e["template"]: e for e in manifest["files"]}
+        assert "pipeline/sleep.cl.mako" in templates
+        assert templates["pipeline/prepare.cl.mako"]["params"]["sleeping"] is True
     if scene == "ragdolls":
         templates = {e["template"]: e for e in manifest["files"]}
         assert "pipeline/joints.cl.mako" in templates

@@ -66,6 +66,12 @@ TEMPLATE = KernelTemplate(
             (False, True),
             "apply the step's forces and torques from Python (rbgen.forces) here",
         ),
+        Param(
+            "sleeping",
+            (False, True),
+            "a body without inverse mass (a sleeping one: rbgen.pipeline.sleep) gets no "
+            "world inverse inertia either, so the solver sees it as static",
+        ),
     ],
     doc="World inverse inertia and the implicit gyroscopic term, one work-item per body.",
     roles={
@@ -83,6 +89,7 @@ TEMPLATE = KernelTemplate(
         "shape_types": (),
         "backup": False,
         "external_forces": False,
+        "sleeping": False,
     },
 )
 
@@ -120,6 +127,7 @@ class BodyPreparation:
         shape_types=(),
         backup: bool = False,
         external_forces: bool = False,
+        sleeping: bool = False,
         work_group_size: int | None = None,
     ):
         self.runtime = runtime
@@ -128,6 +136,7 @@ class BodyPreparation:
         self.shape_types = tuple(sorted(set(shape_types)))
         self.backup = bool(backup)
         self.external_forces = bool(external_forces)
+        self.sleeping = bool(sleeping)
         self.work_group_size = work_group_size or default_work_group_size(runtime.traits)
         self.spec = TEMPLATE.spec(
             work_group_size=self.work_group_size,
@@ -136,6 +145,7 @@ class BodyPreparation:
             shape_types=self.shape_types,
             backup=self.backup,
             external_forces=self.external_forces,
+            sleeping=self.sleeping,
         )
         self.kernel = runtime.bound(compile_spec(runtime, self.spec).kernel("prepare_bodies"))
 

@@ -1,7 +1,8 @@
 """The step pipeline written as data: the stages of a World step, in order.
 
-    prepare -> broadphase -> [midphase] -> narrowphase -> [children] -> constraints
-            -> [joints] -> [batching] -> solve (each substep: sweeps, then integrate)
+    [wake] -> prepare -> broadphase -> [midphase] -> narrowphase -> [children]
+           -> constraints -> [joints] -> [batching] -> solve (each substep: sweeps, then
+           integrate) -> [sleep]
 
 `StepPipeline.stages` is that list; a step walks it, each stage enqueuing its kernels
 (no blocking read). Every stage owns the buffers it writes (the prepare stage the AABBs,
@@ -42,6 +43,7 @@ from .joints import JointEdges
 from .midphase import STATUS_WORDS, Midphase, needs_midphase
 from .narrowphase import Narrowphase
 from .prepare import BodyPreparation
+from .sleep import Sleeping
 from .solvers.jacobi import JacobiSolver
 from .solvers.pgs import PgsSolver, SubstepMotion
 from .solvers.substeps import ContactRefresh
@@ -145,6 +147,7 @@ class PrepareStage(Stage):
             shape_types=plan.shape_types,
             backup=True,
             external_forces=True,
+            sleeping=plan.sleeping,
         )
         self.aabbs: cla.Array | None = None
 
@@ -651,6 +654,44 @@ class SolveStage(Stage):
         clear_abandoned(self.runtime, self.solver.barrier_state())
 
 
+class WakeStage(Stage):
+    """The start of a step with sleeping islands (`rbgen.pipeline.sleep`): a force wakes
+    its body's island before it acts; after a host change, the bodies agree with their
+    sleep records again. No launch on other steps. Only in worlds with sleeping on."""
+
+    name = "wake"
+
+    def __init__(self, sleeping: Sleeping):
+        self.sleeping = sleeping
+
+    def enqueue(self, step: StepContext) -> None:
+        self.sleeping.begin(step.bodies.bodies, step.bodies.static, step.forces, step.slot)
+
+
+class SleepStage(Stage):
+    """The end of a step with sleeping islands (`rbgen.pipeline.sleep`): rest timers, the
+    islands over the step's constraint edges, islands falling asleep or waking."""
+
+    name = "sleep"
+
+    def __init__(self, sleeping: Sleeping, constraints: ConstraintStage):
+        self.sleeping = sleeping
+        self.constraints = constraints
+
+    def enqueue(self, step: StepContext) -> None:
+        c = self.constraints.constraints
+        self.sleeping.end(
+            step.bodies.bodies,
+            step.bodies.static,
+            c.edges,
+            c.edge_count,
+            c.first_contact_edge + self.constraints.capacity,
+            step.slot,
+            step.settings,
+            step.dt,
+        )
+
+
 class StepPipeline:
     """The stages of one plan, in step order (see the module docstring).
 
@@ -669,6 +710,7 @@ class StepPipeline:
         manifold_capacity=None,
         warm_start: bool = True,
         joint_store=None,
+        backups: int = 2,
     ):
         self.runtime, self.shapes = runtime, shapes
         #: the World's `rbgen.joints.JointStore` (None: a pipeline without joints)
@@ -677,6 +719,13 @@ class StepPipeline:
         self.plan = plan
         self._build_collision(plan)
         self.constraints = ConstraintStage(runtime, self.narrowphase, warm_start)
+        #: the sleep records (None: sleeping off), kept through a replan
+        self.sleeping = Sleeping(runtime, backups) if plan.sleeping else None
+        self.wake: WakeStage | None = None
+        self.sleep: SleepStage | None = None
+        if self.sleeping is not None:
+            self.wake = WakeStage(self.sleeping)
+            self.sleep = SleepStage(self.sleeping, self.constraints)
         self._build_solve(plan)
 
     def _build_collision(self, plan: Plan) -> None:
@@ -712,6 +761,7 @@ class StepPipeline:
         self.stages: list[Stage] = [
             s
             for s in (
+                self.wake,
                 self.prepare,
                 self.broadphase,
                 self.midphase,
@@ -721,6 +771,7 @@ class StepPipeline:
                 self.joints,
                 self.batching,
                 self.solve,
+                self.sleep,
             )
             if s is not None
         ]

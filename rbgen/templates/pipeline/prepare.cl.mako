@@ -128,7 +128,14 @@ void prepare_bodies(__global Body* bodies,
     backup[i] = bodies[i];
 % endif
     float4 q = bodies[i].orientation;
+% if sleeping:
+    /* a sleeping body (inv_mass 0 while asleep) is static to the solver: no inverse
+     * inertia either (a static body's is 0 already) */
+    float3 inv_local = bodies[i].inv_mass > 0.0f ? inertia[i].inv_inertia_local.xyz
+                                                 : (float3)(0.0f);
+% else:
     float3 inv_local = inertia[i].inv_inertia_local.xyz;
+% endif
 % if gravity:
     /* gravity before the solver, so that resting contacts cancel this step's */
     if (bodies[i].inv_mass > 0.0f)
