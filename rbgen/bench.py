@@ -248,9 +248,9 @@ def format_result(r: dict) -> str:
 
 def device_record(device=None) -> dict:
     """What identifies a device and its driver in a result file."""
-    from .device import DeviceTraits, select_device
+    from .device import resolve_device
 
-    traits = DeviceTraits.of(select_device(device))
+    traits = resolve_device(device)[1]
     return {
         "name": traits.device_name,
         "platform": traits.platform_name,

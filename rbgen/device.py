@@ -309,6 +309,17 @@ def _shape_of(choice) -> str | None:
     return shape
 
 
+def resolve_device(choice: str | cl.Device | None = None) -> tuple[cl.Device, DeviceTraits]:
+    """The device a choice names (as `select_device`) and the traits rbgen plans for: its
+    own, or for ``shape:NAME`` the CPU device's as that GPU's (`GPU_SHAPES`)."""
+    if choice is None:
+        choice = os.environ.get(ENV_DEVICE) or None
+    shape = _shape_of(choice)
+    device = cpu_device() if shape is not None else select_device(choice)
+    traits = DeviceTraits.of(device)
+    return device, traits if shape is None else shaped_traits(traits, shape)
+
+
 class Runtime:
     """A device with its context and in-order command queue.
 
@@ -319,13 +330,7 @@ class Runtime:
     """
 
     def __init__(self, device: str | cl.Device | None = None, *, profiling: bool = False):
-        if device is None:
-            device = os.environ.get(ENV_DEVICE) or None
-        shape = _shape_of(device)
-        self.device = cpu_device() if shape is not None else select_device(device)
-        self.traits = DeviceTraits.of(self.device)
-        if shape is not None:
-            self.traits = shaped_traits(self.traits, shape)
+        self.device, self.traits = resolve_device(device)
         self.context = cl.Context([self.device])
         props = cast(
             cl.command_queue_properties,

@@ -123,3 +123,14 @@ def test_a_gpu_shape_is_the_cpu_planned_for_as_the_gpu():
     )
     with pytest.raises(DeviceNotFoundError, match="shape:h200"):
         Runtime("shape:a100")
+
+
+def test_a_result_file_names_the_shape_it_ran_as():
+    """`rbgen.bench.device_record` of ``shape:h200`` (benchmarks record it beside their
+    results) names the H200's shape and its fingerprint, not the CPU's."""
+    from rbgen.bench import device_record
+
+    record = device_record("shape:h200")
+    assert record["name"] == Runtime("shape:h200").traits.device_name
+    assert record["type"] == "gpu"
+    assert record["fingerprint"] == Runtime("shape:h200").traits.fingerprint
