@@ -40,6 +40,7 @@ CANDIDATES = {
     "s2": {"substeps": 2, "iterations": 5, "position_iterations": 2},
     "s4": {"substeps": 4, "iterations": 3, "position_iterations": 1},
     "s8": {"substeps": 8, "iterations": 2, "position_iterations": 1},
+    "s4_52": {"substeps": 4, "iterations": 5, "position_iterations": 2},
     "block": {"normal_solve": "block"},
     "block_s2": {"normal_solve": "block", "substeps": 2, "iterations": 5, "position_iterations": 2},
     "block_s4": {"normal_solve": "block", "substeps": 4, "iterations": 3, "position_iterations": 1},
