@@ -606,7 +606,15 @@ class SolveStage(Stage):
                     k == substeps - 1,
                 )
             self.solver.solve(
-                constraints, count, c.capacity, b.bodies, b.inertia, b.count, s, **joints
+                constraints,
+                count,
+                c.capacity,
+                b.bodies,
+                b.inertia,
+                b.count,
+                s,
+                same_geometry=k > 0,
+                **joints,
             )
             self.integrator(
                 b.bodies,

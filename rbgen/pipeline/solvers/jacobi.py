@@ -210,13 +210,22 @@ class JacobiSolver(PushVelocities):
 
     # ------------------------------------------------------------- solving
     def solve(
-        self, constraints, constraint_count, capacity: int, bodies, inertia, body_count: int, sweeps
+        self,
+        constraints,
+        constraint_count,
+        capacity: int,
+        bodies,
+        inertia,
+        body_count: int,
+        sweeps,
+        same_geometry: bool = False,
     ) -> None:
         """Warm start, ``sweeps.iterations`` velocity sweeps and
         ``sweeps.position_iterations`` push sweeps over min(``constraint_count[0]``,
         ``capacity``) constraints (``constraint_count``: a device uint32 array(1)) between
         the first ``body_count`` bodies. Rewrites the constraints' row masses for the split
-        bodies and their impulses; leaves the push velocities in `split_velocities`."""
+        bodies and their impulses; leaves the push velocities in `split_velocities`.
+        (``same_geometry``: see `Solver.solve`; this solver derives its rows every sweep.)"""
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
         relaxation, warm_start = sweeps.relaxation, bool(sweeps.warm_start)
         check_sweeps(iterations, position_iterations, relaxation)

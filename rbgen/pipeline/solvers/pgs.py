@@ -104,6 +104,12 @@ def _joints(values) -> bool:
     return values["joints"]
 
 
+def _geometry_cache(values) -> bool:
+    """The serial block solve keeps each contact's `layouts.CONTACT_GEOMETRY` for the step
+    (derived by the launches with GEOMETRY_PASS, read by every sweep)."""
+    return values["solve_form"] == "serial" and values["normal_solve"] == "block"
+
+
 #: solve_groups' arguments, in order: the template renders them, `PgsSolver` binds them.
 #: The buffers and ``relaxation`` are bound once per solve; the trailing scalars once per
 #: kernel object (`rbgen.launch.instance`), one object per distinct set of them.
@@ -111,6 +117,7 @@ SOLVE_GROUPS = Signature(
     "solve_groups",
     [
         Arg("__global ContactConstraint*", "constraints"),
+        Arg("__global ContactGeometry*", "geometry", when=_geometry_cache),
         Arg("__global JointConstraint*", "joints", when=_joints),
         Arg("__global const uint*", "order"),
         Arg("__global const uint*", "group_batches"),
@@ -147,6 +154,7 @@ SOLVE_GROUPS = Signature(
 #: the buffers of a solve and ``relaxation`` (bound once per solve), in SOLVE_GROUPS' order
 SOLVE_BUFFERS = (
     "constraints",
+    "geometry",
     "joints",
     "order",
     "group_batches",
@@ -244,6 +252,7 @@ TEMPLATE = KernelTemplate(
         "warm_sums": "inout",
         "deltas": "inout",
         "joints": "inout",
+        "geometry": "inout",
     },
     requires=lambda v: _parameter_rules(v),
     build_options=fast_math_options,
@@ -310,7 +319,7 @@ def default_work_group_size(
 APPLY_WORK_GROUP_SIZE = 64
 
 #: bit flags of a `solve_groups` launch's ``passes`` argument (as in the template)
-WARM_START_PASS, FIRST_REVERSED = 1, 2
+WARM_START_PASS, FIRST_REVERSED, GEOMETRY_PASS = 1, 2, 4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -421,6 +430,9 @@ class PgsSolver(PushVelocities):
         self._warm_sums: cl_array.Array | None = None
         #: the deltas a solve without motion binds (never written)
         self._idle_deltas: cl_array.Array | None = None
+        #: the serial block solve's per-constraint geometry (`_geometry_buffer`)
+        self.geometry_cache = _geometry_cache(values)
+        self._geometry: cl_array.Array | None = None
         #: the device-wide barrier's words over batches other than global's (which brings its own)
         self._sync = barrier_buffer(runtime) if persistent else None
         self._program = program = compile_spec(runtime, self.spec)
@@ -469,6 +481,7 @@ class PgsSolver(PushVelocities):
         motion: SubstepMotion | None = None,
         joints=None,
         h: float | None = None,
+        same_geometry: bool = False,
     ) -> None:
         """Warm start (every constraint's old impulses, before any sweep),
         ``sweeps.iterations`` velocity sweeps and ``sweeps.position_iterations``
@@ -476,7 +489,9 @@ class PgsSolver(PushVelocities):
         module docstring says. ``body_count``: all bodies, static ones too (indexed as in
         ``bodies``); the count arguments are the batcher's (unused here). A solver built
         with joints takes the device `JointConstraint` records (``joints``, the items of
-        kind EDGE_JOINT index them), the substep ``h`` and ``sweeps.joint_recovery``. A solver that
+        kind EDGE_JOINT index them), the substep ``h`` and ``sweeps.joint_recovery``. With
+        ``same_geometry`` (see `rbgen.pipeline.solvers.Solver.solve`) the serial block
+        solve reuses the ContactGeometry its previous call derived. A solver that
         `integrates` runs all ``motion.substeps`` substeps and moves the bodies; without
         ``motion`` it solves once and leaves them where they are."""
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
@@ -484,8 +499,14 @@ class PgsSolver(PushVelocities):
         # (the sequential normal solve has no block to release: its release scalars are unused)
         release = self.release_sweeps if self.normal_solve == "block" else 0
         batcher = self.batcher
+        derive = self.geometry_cache and not same_geometry
         launches, kernels = self._schedule(
-            batcher.launch_plan, iterations, position_iterations, bool(sweeps.warm_start), release
+            batcher.launch_plan,
+            iterations,
+            position_iterations,
+            bool(sweeps.warm_start),
+            release,
+            derive,
         )
         if not launches:
             return
@@ -499,6 +520,8 @@ class PgsSolver(PushVelocities):
             "split": self.split_velocities(max(1, int(body_count))),
             "relaxation": np.float32(sweeps.relaxation),
         }
+        if self.geometry_cache:
+            given["geometry"] = self._geometry_buffer(max(1, int(constraint_capacity)))
         if self.persistent:  # after a global colouring: its buffer (it may have given up)
             given["sync"] = self.barrier_state()
         if self.spec.values["warm_start_mode"] == "summed":
@@ -534,6 +557,15 @@ class PgsSolver(PushVelocities):
             )
         return SubstepMotion(0, 0.0, np.zeros(3), 1.0, 1.0, 0.0, 0.0, 0.0, self._idle_deltas)
 
+    def _geometry_buffer(self, capacity: int):
+        """The serial block solve's `layouts.CONTACT_GEOMETRY` records, one a constraint
+        slot (grown with the constraints; written by the GEOMETRY_PASS launches)."""
+        if self._geometry is None or len(self._geometry) < capacity:
+            self._geometry = cl_array.empty(
+                self.runtime.queue, capacity, layouts.CONTACT_GEOMETRY.dtype
+            )
+        return self._geometry
+
     def _warm_sum_buffer(self, body_capacity: int):
         """The summed warm start's zeroed per-body sums (the kernel leaves them zero; a
         launch whose barrier gave up may leave some behind, and the World then stops
@@ -550,10 +582,19 @@ class PgsSolver(PushVelocities):
         position_iterations: int,
         warm_start: bool,
         release_sweeps: int | None,
+        derive_geometry: bool = False,
     ):
         """Every launch of one call (kernel object, global size) and the distinct
-        kernel objects, computed once per plan and settings."""
-        key = (tuple(plan), iterations, position_iterations, warm_start, release_sweeps)
+        kernel objects, computed once per plan and settings; with ``derive_geometry`` the
+        first launch over each group derives its contacts' geometry (GEOMETRY_PASS)."""
+        key = (
+            tuple(plan),
+            iterations,
+            position_iterations,
+            warm_start,
+            release_sweeps,
+            derive_geometry,
+        )
         schedule = self._schedules.get(key)
         if schedule is not None:
             return schedule
@@ -577,6 +618,8 @@ class PgsSolver(PushVelocities):
             ]
         if not self.persistent:  # (a persistent launch also moves the bodies: it always runs)
             passes = [p for p in passes if p[:3] != (0, 0, 0)]
+        if derive_geometry and passes:
+            passes[0] = (passes[0][0] | GEOMETRY_PASS, *passes[0][1:])
         launches = [self._launch(first, count, *p) for p in passes for first, count in plan]
         kernels = list({id(k): k for k, _ in launches}.values())
         schedule = self._schedules[key] = (launches, kernels)

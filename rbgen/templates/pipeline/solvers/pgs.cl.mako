@@ -13,6 +13,9 @@
     joint_params = (", __global JointConstraint* joints, const float inv_h, "
                     "const float joint_recovery") if joints else ""
     joint_args = ", joints, inv_h, joint_recovery" if joints else ""
+    # the serial block solve derives each contact's ContactGeometry once a step (the
+    # launches with GEOMETRY_PASS) and its sweeps read it (contact_rows.cl.mako)
+    geometry_cache = serial and normal_solve == "block"
 %>\
 /* Projected Gauss-Seidel over batched constraints. solve_groups runs the
  * warm start and the sweeps of one launch over the groups it is given, as
@@ -96,12 +99,16 @@
 ${cl_constants()}
 
 ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
+             *(("ContactGeometry",) if geometry_cache else ()),
              *(("BodyDelta",) if persistent else ()), *(("JointConstraint",) if joints else ()))}
 
 #define MAX_BATCHES ${max_batches}
 /* what one solve_groups launch does before its sweeps (bit flags of `passes`) */
 #define WARM_START_PASS 1u
 #define FIRST_REVERSED 2u
+% if geometry_cache:
+#define GEOMETRY_PASS 4u
+% endif
 % if not serial:
 /* the remainder's batch slot, solved by one lane in order */
 #define SERIAL_BATCH (MAX_BATCHES - 1)
@@ -121,7 +128,7 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
 % else:
 <%include file="/common/inline_math.cl.mako"/>
 % endif
-<%include file="/pipeline/solvers/contact_rows.cl.mako" args="constraint_space=constraint_space"/>
+<%include file="/pipeline/solvers/contact_rows.cl.mako" args="constraint_space=constraint_space, geometry_cache=geometry_cache"/>
 
 inline void load_bodies(__private ContactBodies* p, ${velocity_space} const Body* bodies,
                         __global const BodyInertia* inertia, uint a, uint b)
@@ -214,7 +221,8 @@ inline void warm_start_rows(${constraint_space} const ContactConstraint* c,
 /* One sweep's rows of one constraint. The velocity and the push rows are
  * loaded first, then solved, then stored: they touch disjoint velocities, so
  * their chains overlap instead of queueing behind each other's stores. */
-inline void solve_rows(${constraint_space} ContactConstraint* c, ${velocity_space} Body* bodies,
+inline void solve_rows(${constraint_space} ContactConstraint* c,${" __global const ContactGeometry* g," if geometry_cache else ""}
+                       ${velocity_space} Body* bodies,
                        __global const BodyInertia* inertia,
                        ${velocity_space} SplitVelocity* split, const float relaxation,
                        const Sweep s)
@@ -228,9 +236,9 @@ inline void solve_rows(${constraint_space} ContactConstraint* c, ${velocity_spac
     if (s.push)
         load_push(&push_state, split, a, b);
     if (s.velocity)
-        solve_contact(c, &state, relaxation, s.reverse, s.velocity_releases);
+        solve_contact(c${", g" if geometry_cache else ""}, &state, relaxation, s.reverse, s.velocity_releases);
     if (s.push)
-        solve_push(c, &push_state, relaxation, s.push_releases);
+        solve_push(c${", g" if geometry_cache else ""}, &push_state, relaxation, s.push_releases);
     if (s.velocity)
         store_velocities(&state, bodies, a, b);
     if (s.push)
@@ -321,6 +329,27 @@ inline void solve_joint(__global JointConstraint* joints, uint index,
 % endif
 % if serial:
 
+% if geometry_cache:
+/* The ContactGeometry of a group's contacts order[begin .. end - 1] (joint
+ * items have none), for the sweeps of the step. */
+inline void store_group_geometry(__global const ContactConstraint* constraints,
+                                 __global const uint* order, uint begin, uint end,
+                                 __global const Body* bodies, __global const BodyInertia* inertia,
+                                 __global ContactGeometry* geometry)
+{
+    for (uint i = begin; i < end; ++i) {
+% if joints:
+        if (is_joint(order[i]))
+            continue;
+% endif
+        __global const ContactConstraint* c = &constraints[order[i]];
+        ContactBodies state;
+        load_bodies(&state, bodies, inertia, c->body_a, c->body_b);
+        store_geometry(c, &state, &geometry[order[i]]);
+    }
+}
+
+% endif
 /* The warm start of a group's constraints order[begin .. end - 1], in order. */
 inline void warm_start_group_serial(__global ContactConstraint* constraints,
                                     __global const uint* order, uint begin, uint end,
@@ -339,6 +368,9 @@ inline void warm_start_group_serial(__global ContactConstraint* constraints,
 
 /* One sweep over a group's constraints order[begin .. end - 1], in order. */
 inline void solve_group_serial(__global ContactConstraint* constraints,
+% if geometry_cache:
+                               __global const ContactGeometry* geometry,
+% endif
                                __global const uint* order, uint begin, uint end,
                                __global Body* bodies, __global const BodyInertia* inertia,
                                __global SplitVelocity* split, const float relaxation,
@@ -352,7 +384,7 @@ inline void solve_group_serial(__global ContactConstraint* constraints,
             continue;
         }
 % endif
-        solve_rows(&constraints[order[i]], bodies, inertia, split, relaxation, s);
+        solve_rows(&constraints[order[i]],${" &geometry[order[i]]," if geometry_cache else ""} bodies, inertia, split, relaxation, s);
     }
 }
 % else:
@@ -664,14 +696,18 @@ void solve_groups(${signature("solve_groups")})
         return;
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint begin = offsets[0], end = offsets[group_batch_count[group]];
+% if geometry_cache:
+    if (passes & GEOMETRY_PASS)
+        store_group_geometry(constraints, order, begin, end, bodies, inertia, geometry);
+% endif
     if (passes & WARM_START_PASS)
         warm_start_group_serial(constraints, order, begin, end, bodies, inertia${joint_args});
     const uint sweeps = max(velocity_sweeps, position_sweeps);
     for (uint sweep = 0; sweep < sweeps; ++sweep) {
         const Sweep s = sweep_of(sweep, passes, velocity_sweeps, position_sweeps,
                                  velocity_release_from, position_release_from);
-        solve_group_serial(constraints, order, begin, end, bodies, inertia, split, relaxation,
-                           s${joint_args});
+        solve_group_serial(constraints,${" geometry," if geometry_cache else ""} order, begin, end, bodies, inertia, split,
+                           relaxation, s${joint_args});
     }
 % elif not persistent:
     const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
