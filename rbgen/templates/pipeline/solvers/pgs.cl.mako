@@ -108,6 +108,12 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
 #define FIRST_REVERSED 2u
 % if geometry_cache:
 #define GEOMETRY_PASS 4u
+/* a prefetch of one cache line, where the compiler has it (prefetch_constraint) */
+#if defined(__has_builtin)
+#if __has_builtin(__builtin_prefetch)
+#define PREFETCH_LINES 1
+#endif
+#endif
 % endif
 % if not serial:
 /* the remainder's batch slot, solved by one lane in order */
@@ -230,7 +236,9 @@ inline void solve_rows(${constraint_space} ContactConstraint* c,${" __global con
     uint a = c->body_a, b = c->body_b;
     ContactBodies state;
     load_bodies(&state, bodies, inertia, a, b);
-    ContactBodies push_state = state;
+    ContactBodies push_state;  /* (a copy only for a sweep with push rows) */
+    if (s.push)
+        push_state = state;
     if (s.velocity)
         load_velocities(&state, bodies, a, b);
     if (s.push)
@@ -330,6 +338,26 @@ inline void solve_joint(__global JointConstraint* joints, uint index,
 % if serial:
 
 % if geometry_cache:
+/* Ask for the cache lines of constraint `index` and of its geometry before
+ * they are read: a serial sweep reads every constraint's records once, and
+ * the solve of the one before gives the loads time to arrive. (A hint only:
+ * compilers without the builtin fall back to OpenCL's prefetch.) */
+inline void prefetch_constraint(__global const ContactConstraint* constraints,
+                                __global const ContactGeometry* geometry, uint index)
+{
+    __global const char* c = (__global const char*)&constraints[index];
+    __global const char* g = (__global const char*)&geometry[index];
+#ifdef PREFETCH_LINES
+    for (uint line = 0; line < sizeof(ContactConstraint); line += 64)
+        __builtin_prefetch(c + line);
+    for (uint line = 0; line < sizeof(ContactGeometry); line += 64)
+        __builtin_prefetch(g + line);
+#else
+    prefetch(c, sizeof(ContactConstraint));
+    prefetch(g, sizeof(ContactGeometry));
+#endif
+}
+
 /* The ContactGeometry of a group's contacts order[begin .. end - 1] (joint
  * items have none), for the sweeps of the step. */
 inline void store_group_geometry(__global const ContactConstraint* constraints,
@@ -383,6 +411,10 @@ inline void solve_group_serial(__global ContactConstraint* constraints,
                         joint_recovery, s);
             continue;
         }
+% endif
+% if geometry_cache:
+        if (i + 1 < end)
+            prefetch_constraint(constraints, geometry, order[i + 1]);
 % endif
         solve_rows(&constraints[order[i]],${" &geometry[order[i]]," if geometry_cache else ""} bodies, inertia, split, relaxation, s);
     }
