@@ -1,7 +1,7 @@
 """The CPU path's step time against a baseline tree, alternated in one run.
 
-usage: PYTHONPATH=. python benchmarks/cpu_solve.py --baseline DIR [--n 8000] [--steps 10]
-                                                    [--rounds 3] [--scene boxbox]
+usage: PYTHONPATH=. python benchmarks/cpu_solve.py --baseline DIR [--device D] [--n 8000]
+                                                    [--steps 10] [--rounds 3] [--scene boxbox]
 
 DIR is a copy of another commit's ``rbgen`` (e.g. ``git archive BASE rbgen | tar -x -C
 DIR``). Each round runs one process on the baseline, then one on this tree (the order
@@ -40,7 +40,7 @@ def _cpu_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def worker(scene: str, n: int, steps: int, out: str) -> None:
+def worker(device, scene: str, n: int, steps: int, out: str) -> None:
     """One measurement in this process's rbgen (PYTHONPATH): JSON to ``out``."""
     import time
 
@@ -49,7 +49,7 @@ def worker(scene: str, n: int, steps: int, out: str) -> None:
     from rbgen.device import Runtime
     from rbgen.harness import build_scene
 
-    runtime = Runtime(None, profiling=True)
+    runtime = Runtime(device, profiling=True)
     world = build_scene(scene, n, runtime)[0]
     for _ in range(5):
         world.step(1 / 60)
@@ -89,13 +89,14 @@ def worker(scene: str, n: int, steps: int, out: str) -> None:
     pathlib.Path(out).write_text(json.dumps(result))
 
 
-def measure(tree: str, scene: str, n: int, steps: int) -> dict:
+def measure(tree: str, device, scene: str, n: int, steps: int) -> dict:
     out = pathlib.Path(os.environ.get("TMPDIR", "/tmp")) / f"cpu_solve_{os.getpid()}.json"
     env = dict(os.environ, PYTHONPATH=tree)
     subprocess.run(
         [
             sys.executable,
             __file__,
+            *(("--device", device) if device else ()),
             "--worker",
             str(out),
             "--scene",
@@ -118,6 +119,9 @@ def measure(tree: str, scene: str, n: int, steps: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--baseline", help="a directory holding the baseline's rbgen")
+    parser.add_argument(
+        "--device", default=None, help="an OpenCL device choice (e.g. portable: PoCL)"
+    )
     parser.add_argument("--scene", default="boxbox")
     parser.add_argument("--n", type=int, default=8000)
     parser.add_argument("--steps", type=int, default=10)
@@ -125,7 +129,7 @@ def main() -> None:
     parser.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
-        worker(args.scene, args.n, args.steps, args.worker)
+        worker(args.device, args.scene, args.n, args.steps, args.worker)
         return
     if not args.baseline:
         parser.error("--baseline DIR is required")
@@ -134,7 +138,7 @@ def main() -> None:
     for r in range(args.rounds):
         order = ["baseline", "current"] if r % 2 == 0 else ["current", "baseline"]
         for name in order:
-            runs[name].append(measure(trees[name], args.scene, args.n, args.steps))
+            runs[name].append(measure(trees[name], args.device, args.scene, args.n, args.steps))
             last = runs[name][-1]
             print(
                 f"round {r}: {name:8s} wall {last['wall_ms']:7.2f} ms/step, "
