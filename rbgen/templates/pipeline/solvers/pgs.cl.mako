@@ -29,6 +29,13 @@
  * shares no dynamic body with another group of the same launch) and solves
  * its constraints one after another, in place: plain Gauss-Seidel, no
  * batches, no barriers, every row sees every earlier row's result.
+% if geometry_cache:
+ * What the rows of a contact derive from its lever arms, normal and the
+ * bodies' inertias alone (contact_rows.cl.mako: FaceBlock, FrictionRows)
+ * holds over a step: the launches with GEOMETRY_PASS (a step's first)
+ * write it to the contact's ContactGeometry record, which every sweep of
+ * the step reads, prefetching the next contact's records as it solves one.
+% endif
 % elif not persistent:
  * Lanes form: a work group is responsible for one level-1 group (a group
  * shares no dynamic body with another group of the same launch) and walks
