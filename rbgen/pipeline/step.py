@@ -613,6 +613,7 @@ class SolveStage(Stage):
                 b.count,
                 s,
                 restitution=k == substeps - 1,
+                same_geometry=k > 0,
                 **joints,
             )
             self.integrator(
