@@ -16,6 +16,8 @@
 #   record  benchmarks/record_overhead.py: a recorded step against a plain one
 #   holds   benchmarks/holds.py: BoxBox lattices at the default and substep candidates (issue 24)
 #   envs    benchmarks/many_envs.py: WorldBatch throughput against N (issue 29)
+#   cpu     benchmarks/cpu_solve.py on the machine's PoCL CPU device: BoxBox 8,000 and 27,000
+#           against the tree in .baseline/ (issue 24's CPU speed; see ccd for .baseline)
 #   ccd     benchmarks/continuous.py: the tunnelling table, and BoxBox 8,000 against the tree in
 #           .baseline/ (before continuous collision: `mkdir -p .baseline && git archive main
 #           rbgen benchmarks | tar -x -C .baseline`; carry it)
@@ -53,6 +55,11 @@ for stage in "$@"; do
     record)
       run_stage record python3 benchmarks/record_overhead.py --device "$DEVICE" \
         --out "$OUT/record" ;;
+    cpu)
+      run_stage cpu8k python3 benchmarks/cpu_solve.py --device portable --baseline .baseline \
+        --n 8000 --rounds 3
+      run_stage cpu27k python3 benchmarks/cpu_solve.py --device portable --baseline .baseline \
+        --n 27000 --steps 5 --rounds 3 ;;
     holds)
       run_stage holds python3 benchmarks/holds.py --device "$DEVICE" --out "$OUT/holds" ;;
     envs)
@@ -62,7 +69,7 @@ for stage in "$@"; do
       run_stage ccd python3 benchmarks/continuous.py --device "$DEVICE" --baseline .baseline \
         --size 8000 --out "$OUT/ccd" ;;
     *)
-      echo "device_check: unknown stage '$stage' (suite, bench, mesh, cpp, record, holds, envs, ccd)" >&2
+      echo "device_check: unknown stage '$stage' (suite, bench, mesh, cpp, record, holds, envs, ccd, cpu)" >&2
       exit 2 ;;
   esac
 done

@@ -486,6 +486,69 @@ CONTACT_CONSTRAINT = declare(
     "One contact manifold prepared for the solver: up to four normal and eight friction rows.",
 )
 
+CONTACT_GEOMETRY = declare(
+    "ContactGeometry",
+    [
+        (
+            "face_u",
+            "float4",
+            "block solve (3-4 points): each point's offset from their centre along tangent1",
+        ),
+        ("face_v", "float4", "block solve: each point's offset along tangent2"),
+        (
+            "face_spread",
+            "float4",
+            "block solve: the points' second moments suu, suv, svv; w: 1 / det",
+        ),
+        (
+            "face_arm",
+            "float4",
+            4,
+            "block solve: A's lever arm x normal of the force, moment along u, moment along "
+            "v, then B's of the force; [0].w: 1 when the block solve takes the points, else 0",
+        ),
+        ("face_turn_a", "float4", 3, "block solve: A's angular velocity change per unit of each"),
+        ("face_turn_b", "float4", 3, "block solve: B's angular velocity change per unit of each"),
+        ("face_q", "float4", 3, "block solve: the face's mobility Q, by rows"),
+        ("face_inv_q", "float4", 3, "block solve: Q's inverse, by rows"),
+        (
+            "face_k",
+            "float4",
+            4,
+            "block solve: K = G Q G^T (the points' normal rows' coupling), by rows",
+        ),
+        (
+            "friction_arm_a",
+            "float4",
+            2,
+            "friction rows (tangent1, tangent2): A's lever arm x direction",
+        ),
+        ("friction_arm_b", "float4", 2, "friction rows: B's lever arm x direction"),
+        (
+            "friction_turn_a",
+            "float4",
+            2,
+            "friction rows: A's angular velocity change per unit impulse",
+        ),
+        (
+            "friction_turn_b",
+            "float4",
+            2,
+            "friction rows: B's angular velocity change per unit impulse",
+        ),
+        (
+            "twist_turn",
+            "float4",
+            2,
+            "twist row: A's and B's angular velocity change per unit impulse; [0].w: the "
+            "points' summed distance from their centre on B",
+        ),
+    ],
+    "What the serial block solve derives of a contact constraint once a step (its lever "
+    "arms, normal and the bodies' inertias hold over the substeps) and reads every sweep "
+    "(solvers/contact_rows.cl.mako: FaceBlock, FrictionRows).",
+)
+
 # The constraint-edge list: what batching colours (contacts and, later, joints alike).
 # Edge e of a step: joints first, at fixed indices (a joint stage writes edges
 # [0, first_contact_edge)), then one edge per contact constraint, written by the

@@ -152,10 +152,12 @@ def estimate(
     solver: str = "pgs",
     kinds: int = 1,
     sleeping: bool = False,
+    contact_geometry: bool = False,
 ) -> Estimate:
     """The device buffers of a World of ``sizes`` (``kinds``: the narrowphase's shape-type
-    pair queues; ``sleeping``: the World option). Each entry is (bytes of one buffer, how
-    many such buffers)."""
+    pair queues; ``sleeping``: the World option; ``contact_geometry``: a PGS solve in the
+    serial form, a CPU's, keeps a `layouts.CONTACT_GEOMETRY` a constraint). Each entry is
+    (bytes of one buffer, how many such buffers)."""
     n, p, m, j = sizes.bodies, sizes.pairs, sizes.manifolds, sizes.joints
     q = sizes.narrow_pairs
     slots = 2 if broadphase == "sap3" else 1  # sap3 double-buffers its pairs and boxes
@@ -215,6 +217,8 @@ def estimate(
         # masks are fewer. Per constraint: order, slot, batch, blocked flag, group list.
         one["batching per body"] = ((2 * 9 + 8) * WORD * n, 1)
         one["batching per constraint"] = (5 * WORD * (m + j), 1)
+        if contact_geometry:  # the serial block solve's, a contact constraint (solvers/pgs.py)
+            one["contact geometry"] = (layouts.CONTACT_GEOMETRY.itemsize * max(1, m), 1)
         # the summed warm start's 64-bit sums (persistent PGS on GPUs)
         one["warm-start sums"] = (layouts.WARM_SUM_WORDS * 8 * n, 1)
     if j:
@@ -356,6 +360,8 @@ class WorldMemory:
             "solver": self.options["solver"],
             "kinds": max(1, kinds),
             "sleeping": bool(self.options.get("sleeping", False)),
+            # (CPU plans solve in the serial form: `rbgen.pipeline.batching.default_solve_form`)
+            "contact_geometry": not self.runtime.traits.is_gpu,
         }
 
     def sizes(self, bodies: int, pipeline=None, store=None, joints: int | None = None) -> Sizes:

@@ -616,6 +616,7 @@ class SolveStage(Stage):
                 b.count,
                 s,
                 restitution=k == substeps - 1,
+                same_geometry=k > 0,
                 **joints,
             )
             self.integrator(

@@ -553,9 +553,9 @@ def test_bindings_that_disagree_with_the_declaration_are_refused(runtime):
     kernel = instance(runtime, solver._program, "solve_groups")
     with pytest.raises(TypeError, match="6 values expected, got 5"):
         solver._bind_scalars(kernel, *[np.uint32(0)] * 5)
-    other = PgsSolver(runtime, make_batcher_for(runtime, "serial"))  # group_end: one more
+    other = PgsSolver(runtime, make_batcher_for(runtime, "serial"))  # group_end, geometry
     with pytest.raises(
-        TemplateParameterError, match="built with 14 arguments, its declaration has 15"
+        TemplateParameterError, match="built with 14 arguments, its declaration has 16"
     ):
         other._bind_scalars(kernel, *[np.uint32(0)] * 7)
     with pytest.raises(TemplateParameterError, match="declared twice"):

@@ -23,6 +23,7 @@ sequential solve (rows one after another) is float64 Gauss-Seidel over the rows.
 from __future__ import annotations
 
 import itertools
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -523,3 +524,59 @@ def test_release_sweeps_leave_the_releasing_faces_to_the_rows_until_the_last(
                         push, expected, rtol=2e-3, atol=2e-4 * max(np.abs(expected).max(), 1e-9)
                     )
     assert kinds[True] > 0 and kinds[False] > 0 and missed > 0
+
+
+def _second_solve(rig, same_geometry, inertia_scale=1.0, restitution=False):
+    """Solve the rig's constraints again (one velocity and one push sweep, warm started
+    from the first solve's impulses), as a later substep would (``restitution``: the
+    step's last), after scaling every body's world inverse inertia by ``inertia_scale``:
+    (linear, angular velocities)."""
+    if inertia_scale != 1.0:
+        inertia = rig.inertia.get()
+        inertia["inv_inertia_world"] *= inertia_scale
+        rig.inertia.set(inertia)
+    sweeps = SimpleNamespace(iterations=1, position_iterations=1, relaxation=1.0, warm_start=True)
+    setup = rig.setup
+    rig.solver.solve(
+        setup.constraints,
+        setup.count,
+        rig.capacity,
+        rig.bodies,
+        rig.inertia,
+        rig.body_count,
+        sweeps,
+        restitution=restitution,
+        same_geometry=same_geometry,
+    )
+    out = rig.bodies.get()
+    return np.concatenate([out["linear_velocity"], out["angular_velocity"]])
+
+
+@pytest.mark.parametrize("count", [2, 3, 4])
+def test_serial_block_solve_keeps_its_geometry_over_a_step(runtime, count):
+    """The serial block solve derives each constraint's geometry (ContactGeometry: the
+    face's Q, Q^-1 and K, the friction and twist rows) in a solve's first launches and,
+    told ``same_geometry`` (a later substep of the step, same lever arms and inertias),
+    reads it back instead: the second solve is then bit for bit the one that derives it
+    again. With the inertias changed in between, a solve told the geometry is the same
+    differs from one that derives it (for faces of three or four points, whose normal rows
+    come from the record; two points' normal rows use the live inertias, and friction is 0
+    here), so the record is what the sweeps read. The same holds when the second solve is
+    a step's last substep, whose restitution pass (a face of bouncing points solved as a
+    block) reads the record too; that pass changes the result."""
+    results = {}
+    for bounce, same, scale in itertools.product([False, True], [False, True], [1.0, 0.5]):
+        rig, manifolds, _, _ = random_face_pairs(
+            runtime, np.random.default_rng(7), count, "serial", spin=2.0
+        )
+        rig.sweep(iterations=2, position_iterations=1, release_sweeps=1)
+        results[bounce, same, scale] = _second_solve(rig, same, scale, bounce)
+    for bounce in (False, True):
+        np.testing.assert_array_equal(results[bounce, True, 1.0], results[bounce, False, 1.0])
+        # (inertia matters)
+        assert not np.array_equal(results[bounce, True, 0.5], results[bounce, False, 1.0])
+        if count >= 3:
+            assert not np.array_equal(results[bounce, True, 0.5], results[bounce, False, 0.5])
+        else:
+            np.testing.assert_array_equal(results[bounce, True, 0.5], results[bounce, False, 0.5])
+    assert not np.array_equal(results[True, False, 1.0], results[False, False, 1.0])

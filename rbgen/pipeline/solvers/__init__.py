@@ -44,8 +44,15 @@ class Solver(Protocol):
         inertia,
         body_count: int,
         sweeps: Sweeps,
+        restitution: bool = True,
+        same_geometry: bool = False,
     ) -> None:
-        """Warm start and sweep the step's constraints (no blocking read)."""
+        """Warm start and sweep the step's constraints (no blocking read).
+        ``restitution``: the last velocity sweep applies the contacts' restitution (the
+        step's last substep). ``same_geometry``: the constraints' lever arms and normals
+        and the bodies' world inverse inertias are those of the previous call (a later
+        substep of the same step; the restitution changes none of them), so what the
+        solver derived from them then still holds."""
 
     def split_velocities(self, body_capacity: int):
         """The push velocities the integrator applies (zero between steps)."""

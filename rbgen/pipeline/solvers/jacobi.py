@@ -223,6 +223,7 @@ class JacobiSolver(PushVelocities):
         body_count: int,
         sweeps,
         restitution: bool = True,
+        same_geometry: bool = False,
     ) -> None:
         """Warm start, ``sweeps.iterations`` velocity sweeps and
         ``sweeps.position_iterations`` push sweeps over min(``constraint_count[0]``,
@@ -230,7 +231,8 @@ class JacobiSolver(PushVelocities):
         the first ``body_count`` bodies (with ``restitution``, the last velocity sweep applies
         the contacts' restitution: the step's last substep). Rewrites the constraints' row
         masses for the split bodies and their impulses; leaves the push velocities in
-        `split_velocities`."""
+        `split_velocities`. (``same_geometry``: see `Solver.solve`; this solver derives its
+        rows every sweep.)"""
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
         relaxation, warm_start = sweeps.relaxation, bool(sweeps.warm_start)
         check_sweeps(iterations, position_iterations, relaxation)

@@ -6,7 +6,10 @@ Solve forms (template parameter ``solve_form``, the batcher's):
   barrier between them, its lanes solving the constraints of a batch at once;
 * ``serial``: a work-item per level-1 group solves the group's constraints one
   after another (Gauss-Seidel proper, no barriers): a CPU runs many small groups
-  well, and each row sees every earlier row's result.
+  well, and each row sees every earlier row's result. With the block normal solve it
+  keeps a `layouts.CONTACT_GEOMETRY` record a constraint, derived by a step's first
+  launches (``same_geometry`` false) and read by every sweep of the step: on a CPU core
+  the block solve's matrices cost more to derive than to load.
 
 Persistent solve (``persistent``, lanes form, over ``global`` batching): the one group
 of all constraints is solved by one work group per compute unit, a batch's
@@ -104,6 +107,12 @@ def _joints(values) -> bool:
     return values["joints"]
 
 
+def _geometry_cache(values) -> bool:
+    """The serial block solve keeps each contact's `layouts.CONTACT_GEOMETRY` for the step
+    (derived by the launches with GEOMETRY_PASS, read by every sweep)."""
+    return values["solve_form"] == "serial" and values["normal_solve"] == "block"
+
+
 #: solve_groups' arguments, in order: the template renders them, `PgsSolver` binds them.
 #: The buffers and ``relaxation`` are bound once per solve; the trailing scalars once per
 #: kernel object (`rbgen.launch.instance`), one object per distinct set of them.
@@ -111,6 +120,7 @@ SOLVE_GROUPS = Signature(
     "solve_groups",
     [
         Arg("__global ContactConstraint*", "constraints"),
+        Arg("__global ContactGeometry*", "geometry", when=_geometry_cache),
         Arg("__global JointConstraint*", "joints", when=_joints),
         Arg("__global const uint*", "order"),
         Arg("__global const uint*", "group_batches"),
@@ -147,6 +157,7 @@ SOLVE_GROUPS = Signature(
 #: the buffers of a solve and ``relaxation`` (bound once per solve), in SOLVE_GROUPS' order
 SOLVE_BUFFERS = (
     "constraints",
+    "geometry",
     "joints",
     "order",
     "group_batches",
@@ -244,6 +255,7 @@ TEMPLATE = KernelTemplate(
         "warm_sums": "inout",
         "deltas": "inout",
         "joints": "inout",
+        "geometry": "inout",
     },
     requires=lambda v: _parameter_rules(v),
     build_options=fast_math_options,
@@ -310,7 +322,7 @@ def default_work_group_size(
 APPLY_WORK_GROUP_SIZE = 64
 
 #: bit flags of a `solve_groups` launch's ``passes`` argument (as in the template)
-WARM_START_PASS, FIRST_REVERSED, RESTITUTION_PASS = 1, 2, 4
+WARM_START_PASS, FIRST_REVERSED, RESTITUTION_PASS, GEOMETRY_PASS = 1, 2, 4, 8
 
 
 @dataclasses.dataclass(frozen=True)
@@ -421,6 +433,9 @@ class PgsSolver(PushVelocities):
         self._warm_sums: cl_array.Array | None = None
         #: the deltas a solve without motion binds (never written)
         self._idle_deltas: cl_array.Array | None = None
+        #: the serial block solve's per-constraint geometry (`_geometry_buffer`)
+        self.geometry_cache = _geometry_cache(values)
+        self._geometry: cl_array.Array | None = None
         #: the device-wide barrier's words over batches other than global's (which brings its own)
         self._sync = barrier_buffer(runtime) if persistent else None
         self._program = program = compile_spec(runtime, self.spec)
@@ -470,6 +485,7 @@ class PgsSolver(PushVelocities):
         joints=None,
         h: float | None = None,
         restitution: bool = True,
+        same_geometry: bool = False,
     ) -> None:
         """Warm start (every constraint's old impulses, before any sweep),
         ``sweeps.iterations`` velocity sweeps and ``sweeps.position_iterations``
@@ -477,7 +493,9 @@ class PgsSolver(PushVelocities):
         module docstring says. ``body_count``: all bodies, static ones too (indexed as in
         ``bodies``); the count arguments are the batcher's (unused here). A solver built
         with joints takes the device `JointConstraint` records (``joints``, the items of
-        kind EDGE_JOINT index them), the substep ``h`` and ``sweeps.joint_recovery``. A solver that
+        kind EDGE_JOINT index them), the substep ``h`` and ``sweeps.joint_recovery``. With
+        ``same_geometry`` (see `rbgen.pipeline.solvers.Solver.solve`) the serial block
+        solve reuses the ContactGeometry its previous call derived. A solver that
         `integrates` runs all ``motion.substeps`` substeps and moves the bodies; without
         ``motion`` it solves once and leaves them where they are. ``restitution``: the
         last velocity sweep applies the contacts' restitution (the step's last substep;
@@ -487,6 +505,7 @@ class PgsSolver(PushVelocities):
         # (the sequential normal solve has no block to release: its release scalars are unused)
         release = self.release_sweeps if self.normal_solve == "block" else 0
         batcher = self.batcher
+        derive = self.geometry_cache and not same_geometry
         launches, kernels = self._schedule(
             batcher.launch_plan,
             iterations,
@@ -494,6 +513,7 @@ class PgsSolver(PushVelocities):
             bool(sweeps.warm_start),
             release,
             restitution,
+            derive,
         )
         if not launches:
             return
@@ -507,6 +527,8 @@ class PgsSolver(PushVelocities):
             "split": self.split_velocities(max(1, int(body_count))),
             "relaxation": np.float32(sweeps.relaxation),
         }
+        if self.geometry_cache:
+            given["geometry"] = self._geometry_buffer(max(1, int(constraint_capacity)))
         if self.persistent:  # after a global colouring: its buffer (it may have given up)
             given["sync"] = self.barrier_state()
         if self.spec.values["warm_start_mode"] == "summed":
@@ -542,6 +564,15 @@ class PgsSolver(PushVelocities):
             )
         return SubstepMotion(0, 0.0, np.zeros(3), 1.0, 1.0, 0.0, 0.0, 0.0, self._idle_deltas)
 
+    def _geometry_buffer(self, capacity: int):
+        """The serial block solve's `layouts.CONTACT_GEOMETRY` records, one a constraint
+        slot (grown with the constraints; written by the GEOMETRY_PASS launches)."""
+        if self._geometry is None or len(self._geometry) < capacity:
+            self._geometry = cl_array.empty(
+                self.runtime.queue, capacity, layouts.CONTACT_GEOMETRY.dtype
+            )
+        return self._geometry
+
     def _warm_sum_buffer(self, body_capacity: int):
         """The summed warm start's zeroed per-body sums (the kernel leaves them zero; a
         launch whose barrier gave up may leave some behind, and the World then stops
@@ -559,10 +590,12 @@ class PgsSolver(PushVelocities):
         warm_start: bool,
         release_sweeps: int | None,
         restitution: bool = True,
+        derive_geometry: bool = False,
     ):
         """Every launch of one call (kernel object, global size) and the distinct
         kernel objects, computed once per plan and settings; with `restitution`, the
-        launch of the last velocity sweep applies the restitution."""
+        launch of the last velocity sweep applies the restitution; with ``derive_geometry``
+        the first launch over each group derives its contacts' geometry (GEOMETRY_PASS)."""
         key = (
             tuple(plan),
             iterations,
@@ -570,6 +603,7 @@ class PgsSolver(PushVelocities):
             warm_start,
             release_sweeps,
             restitution,
+            derive_geometry,
         )
         schedule = self._schedules.get(key)
         if schedule is not None:
@@ -597,6 +631,8 @@ class PgsSolver(PushVelocities):
             ]
         if not self.persistent:  # (a persistent launch also moves the bodies: it always runs)
             passes = [p for p in passes if p[:3] != (0, 0, 0)]
+        if derive_geometry and passes:
+            passes[0] = (passes[0][0] | GEOMETRY_PASS, *passes[0][1:])
         launches = [self._launch(first, count, *p) for p in passes for first, count in plan]
         kernels = list({id(k): k for k, _ in launches}.values())
         schedule = self._schedules[key] = (launches, kernels)

@@ -6,9 +6,18 @@
   common/inline_math.cl.mako; it may pass constraint_space, the address space
   of the constraint the solve functions read and update (default __private: a
   copy the caller loaded; __global: the constraint in place, for the serial
-  form, see pgs.cl.mako).
+  form, see pgs.cl.mako); and geometry_cache (block normal solve only), with
+  which the solve functions read each constraint's FaceBlock and FrictionRows
+  from its ContactGeometry record (the struct supplied too) instead of deriving
+  them, and store_geometry writes that record.
 </%doc>
-<%page args="constraint_space='__private'"/>
+<%page args="constraint_space='__private', geometry_cache=False"/>
+<%
+    # the solve functions' extra parameter with a ContactGeometry cache
+    geometry_param = ", __global const ContactGeometry* g" if geometry_cache else ""
+    # solve_face_block's K rows (release case 2b) from the cache
+    k_param = ", __global const float4* k_rows" if geometry_cache else ""
+%>\
 /* Contact rows: per point a normal row (impulse >= 0, drives the normal
  * velocity to its target), per manifold a friction pair at the centre of the
  * points, clamped to the disc |f| <= mu * the total normal impulse, and a
@@ -42,6 +51,99 @@ inline void load_inertia(__global const BodyInertia* inertia, uint body, float3 
  * motions than the closed forms assume */
 #define FLAT_SPREAD_RATIO 1e-3f
 #define FLAT_MOBILITY_RATIO 1e-4f
+
+/* What solve_face_points needs of its points' geometry (face_block): it
+ * depends only on the lever arms, the normal, the tangents and the bodies'
+ * masses and world inverse inertias, which hold for a whole step, so a solver
+ * may derive it once a step and keep it (ContactGeometry). */
+typedef struct {
+    float u[4], v[4];          /* the points about their centre along t1, t2 (0 past count) */
+    float suu, suv, svv;       /* M = G^T G = diag(count, spread): the spread's entries */
+    float inv_spread;          /* 1 / the spread's determinant */
+    float3 arm_a[3], arm_b0;   /* lever arm x n of force, moment along u, along v (B: the
+                                  moments' arms are A's) */
+    float3 turn_a[3], turn_b[3];  /* angular velocity change per unit of each */
+    float3 q_row[3], inv_q[3];    /* the mobility Q and its inverse, by rows */
+} FaceBlock;
+
+/* The FaceBlock of `count` (3 or 4) points. Returns false when the points lie
+ * nearly on one line or Q is nearly singular (see solve_face_points). */
+bool face_block(const uint count, const float3 n, const float3 t1, const float3 t2,
+                ${constraint_space} const float4* r_a, ${constraint_space} const float4* r_b,
+                float inv_mass_a, const float3 inv_inertia_a[3],
+                float inv_mass_b, const float3 inv_inertia_b[3], __private FaceBlock* f)
+{
+    const float share = 1.0f / (float)count;
+    float3 centre_a = (float3)(0.0f), centre_b = (float3)(0.0f);
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        centre_a += r_a[k].xyz, centre_b += r_b[k].xyz;
+    centre_a *= share;
+    centre_b *= share;
+    /* M = G^T G = diag(count, spread): the points' second moments in the plane */
+    float u[4] = {0.0f, 0.0f, 0.0f, 0.0f}, v[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+    float suu = 0.0f, suv = 0.0f, svv = 0.0f;
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+        float3 d = r_a[k].xyz - centre_a;
+        u[k] = dot3(d, t1);
+        v[k] = dot3(d, t2);
+        suu += u[k] * u[k], suv += u[k] * v[k], svv += v[k] * v[k];
+    }
+    float spread_det = suu * svv - suv * suv;
+    if (!(spread_det > FLAT_SPREAD_RATIO * suu * svv))
+        return false;
+    f->suu = suu, f->suv = suv, f->svv = svv;
+    f->inv_spread = 1.0f / spread_det;
+
+    /* Q[i][j]: normal velocity change of motion i per unit of wrench j (rows
+     * of G: force, moment along u, moment along v) */
+    float3 arm_a[3] = {cross3(centre_a, n), cross3(t1, n), cross3(t2, n)};
+    float3 arm_b[3] = {cross3(centre_b, n), arm_a[1], arm_a[2]};
+    float3 turn_a[3], turn_b[3];
+    for (uint i = 0; i < 3; ++i) {
+        turn_a[i] = mul_rows(inv_inertia_a, arm_a[i]);
+        turn_b[i] = mul_rows(inv_inertia_b, arm_b[i]);
+    }
+    float q[3][3];
+    for (uint i = 0; i < 3; ++i)
+        for (uint j = i; j < 3; ++j)
+            q[i][j] = q[j][i] = dot3(arm_a[i], turn_a[j]) + dot3(arm_b[i], turn_b[j]);
+    q[0][0] += inv_mass_a + inv_mass_b;
+    /* Q^-1 by cofactors */
+    float3 q_row0 = (float3)(q[0][0], q[0][1], q[0][2]);
+    float3 q_row1 = (float3)(q[1][0], q[1][1], q[1][2]);
+    float3 q_row2 = (float3)(q[2][0], q[2][1], q[2][2]);
+    float3 inv_q0 = cross3(q_row1, q_row2), inv_q1 = cross3(q_row2, q_row0);
+    float3 inv_q2 = cross3(q_row0, q_row1);
+    float q_det = dot3(q_row0, inv_q0);
+    if (!(q_det > FLAT_MOBILITY_RATIO * q[0][0] * q[1][1] * q[2][2]))
+        return false;
+    float inv_q_det = 1.0f / q_det;
+    f->inv_q[0] = inv_q0 * inv_q_det, f->inv_q[1] = inv_q1 * inv_q_det;
+    f->inv_q[2] = inv_q2 * inv_q_det;
+    f->q_row[0] = q_row0, f->q_row[1] = q_row1, f->q_row[2] = q_row2;
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+        f->u[k] = u[k], f->v[k] = v[k];
+    for (uint i = 0; i < 3; ++i) {
+        f->arm_a[i] = arm_a[i];
+        f->turn_a[i] = turn_a[i];
+        f->turn_b[i] = turn_b[i];
+    }
+    f->arm_b0 = arm_b[0];
+    return true;
+}
+
+/* K's entries g_j . Q g_k (Q by rows; g_k = (1, u_k, v_k), (1, 0, 0) past the
+ * points). */
+inline void face_k_matrix(const float3 q_row0, const float3 q_row1, const float3 q_row2,
+                          const float3 g[4], float k_matrix[4][4])
+{
+    float3 h[4];
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+        h[k] = (float3)(dot3(q_row0, g[k]), dot3(q_row1, g[k]), dot3(q_row2, g[k]));
+    for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j)
+        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+            k_matrix[j][k] = dot3(g[j], h[k]);
+}
 
 /* Three or four points of one face: the contact problem K total = rhs on the
  * pushing points, total >= 0, and every released point reaching at least its
@@ -83,64 +185,27 @@ inline void load_inertia(__global const BodyInertia* inertia, uint body, float3 
  * solves the rows one after another. Without `releases` only case 1 is tried
  * (false when it does not hold): a cheaper sweep, exact and order-free for
  * faces resting on faces, that leaves the other faces to the rows. */
-bool solve_face_points(const uint count, const float3 n, const float3 t1, const float3 t2,
-                       ${constraint_space} const float4* r_a, ${constraint_space} const float4* r_b,
-                       const float relaxation,
-                       float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
-                       float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
-                       const float target[4], float lambda[4], const bool releases)
+bool solve_face_block(const uint count, const __private FaceBlock* f, const float3 n,
+                      const float relaxation, float inv_mass_a, float3* va, float3* wa,
+                      float inv_mass_b, float3* vb, float3* wb, const float target[4],
+                      float lambda[4], const bool releases${k_param})
 {
     const bool four = count == 4;
     const float share = 1.0f / (float)count;
-    float3 centre_a = (float3)(0.0f), centre_b = (float3)(0.0f);
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-        centre_a += r_a[k].xyz, centre_b += r_b[k].xyz;
-    centre_a *= share;
-    centre_b *= share;
-    /* M = G^T G = diag(count, spread): the points' second moments in the plane */
-    float u[4] = {0.0f, 0.0f, 0.0f, 0.0f}, v[4] = {0.0f, 0.0f, 0.0f, 0.0f};
-    float suu = 0.0f, suv = 0.0f, svv = 0.0f;
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-        float3 d = r_a[k].xyz - centre_a;
-        u[k] = dot3(d, t1);
-        v[k] = dot3(d, t2);
-        suu += u[k] * u[k], suv += u[k] * v[k], svv += v[k] * v[k];
-    }
-    float spread_det = suu * svv - suv * suv;
-    if (!(spread_det > FLAT_SPREAD_RATIO * suu * svv))
-        return false;
-    float inv_spread = 1.0f / spread_det;
-
-    /* Q[i][j]: normal velocity change of motion i per unit of wrench j (rows
-     * of G: force, moment along u, moment along v) */
-    float3 arm_a[3] = {cross3(centre_a, n), cross3(t1, n), cross3(t2, n)};
-    float3 arm_b[3] = {cross3(centre_b, n), arm_a[1], arm_a[2]};
-    float3 turn_a[3], turn_b[3];
-    for (uint i = 0; i < 3; ++i) {
-        turn_a[i] = mul_rows(inv_inertia_a, arm_a[i]);
-        turn_b[i] = mul_rows(inv_inertia_b, arm_b[i]);
-    }
-    float q[3][3];
-    for (uint i = 0; i < 3; ++i)
-        for (uint j = i; j < 3; ++j)
-            q[i][j] = q[j][i] = dot3(arm_a[i], turn_a[j]) + dot3(arm_b[i], turn_b[j]);
-    q[0][0] += inv_mass_a + inv_mass_b;
-    /* Q^-1 by cofactors */
-    float3 q_row0 = (float3)(q[0][0], q[0][1], q[0][2]);
-    float3 q_row1 = (float3)(q[1][0], q[1][1], q[1][2]);
-    float3 q_row2 = (float3)(q[2][0], q[2][1], q[2][2]);
-    float3 inv_q0 = cross3(q_row1, q_row2), inv_q1 = cross3(q_row2, q_row0);
-    float3 inv_q2 = cross3(q_row0, q_row1);
-    float q_det = dot3(q_row0, inv_q0);
-    if (!(q_det > FLAT_MOBILITY_RATIO * q[0][0] * q[1][1] * q[2][2]))
-        return false;
-    float inv_q_det = 1.0f / q_det;
-    inv_q0 *= inv_q_det, inv_q1 *= inv_q_det, inv_q2 *= inv_q_det;
+    const __private float* u = f->u;
+    const __private float* v = f->v;
+    const float suu = f->suu, suv = f->suv, svv = f->svv, inv_spread = f->inv_spread;
+    const __private float3* arm_a = f->arm_a;
+    const __private float3* turn_a = f->turn_a;
+    const __private float3* turn_b = f->turn_b;
+    const float3 arm_b0 = f->arm_b0;
+    const float3 q_row0 = f->q_row[0], q_row1 = f->q_row[1], q_row2 = f->q_row[2];
+    const float3 inv_q0 = f->inv_q[0], inv_q1 = f->inv_q[1], inv_q2 = f->inv_q[2];
 
     /* the normal velocity now (affine in u, v), and the wrench of the current
      * impulses; rhs_k = target_k - velocity_k + (K lambda)_k, what K total must reach */
     float3 dw = *wb - *wa;
-    float3 speed = (float3)(dot3(n, *vb - *va) + dot3(*wb, arm_b[0]) - dot3(*wa, arm_a[0]),
+    float3 speed = (float3)(dot3(n, *vb - *va) + dot3(*wb, arm_b0) - dot3(*wa, arm_a[0]),
                             dot3(dw, arm_a[1]), dot3(dw, arm_a[2]));
     float3 wrench = (float3)(0.0f);
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
@@ -197,17 +262,26 @@ bool solve_face_points(const uint count, const float3 n, const float3 t1, const 
     }
     if (!valid) {
         /* 2b. two, one or none pushing: K's entries g_j . Q g_k */
-        float3 h[4];
         float k_matrix[4][4];
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
-            h[k] = (float3)(dot3(q_row0, g[k]), dot3(q_row1, g[k]), dot3(q_row2, g[k]));
-        for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j)
-            for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
-                k_matrix[j][k] = dot3(g[j], h[k]);
+% if geometry_cache:
+        for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) {
+            float4 row = k_rows[j];
+            k_matrix[j][0] = row.x, k_matrix[j][1] = row.y, k_matrix[j][2] = row.z;
+            k_matrix[j][3] = row.w;
+        }
+        /* the first candidate that holds is taken (a core runs one manifold:
+         * the others are skipped) */
+% else:
+        face_k_matrix(q_row0, q_row1, q_row2, g, k_matrix);
         /* every candidate is evaluated (independent work, overlapped; no
          * branch out of the loops), the first that holds is taken */
+% endif
         for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i)
             for (uint j = i + 1; j < RB_MAX_MANIFOLD_POINTS; ++j) {
+% if geometry_cache:
+                if (valid)
+                    break;
+% endif
                 float kii = k_matrix[i][i], kij = k_matrix[i][j], kjj = k_matrix[j][j];
                 float det = kii * kjj - kij * kij;
                 bool holds = j < count && det > FLAT_SPREAD_RATIO * kii * kjj;
@@ -224,6 +298,10 @@ bool solve_face_points(const uint count, const float3 n, const float3 t1, const 
                 }
             }
         for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i) {
+% if geometry_cache:
+            if (valid)
+                break;
+% endif
             float x_i = positive_part(rhs[i]) / (i < count ? k_matrix[i][i] : 1.0f);
             bool holds = i < count;
             for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i)
@@ -252,6 +330,21 @@ bool solve_face_points(const uint count, const float3 n, const float3 t1, const 
     *wa -= turn_a[0] * applied.x + turn_a[1] * applied.y + turn_a[2] * applied.z;
     *wb += turn_b[0] * applied.x + turn_b[1] * applied.y + turn_b[2] * applied.z;
     return true;
+}
+
+/* solve_face_block on the points' FaceBlock. */
+bool solve_face_points(const uint count, const float3 n, const float3 t1, const float3 t2,
+                       ${constraint_space} const float4* r_a, ${constraint_space} const float4* r_b,
+                       const float relaxation,
+                       float inv_mass_a, const float3 inv_inertia_a[3], float3* va, float3* wa,
+                       float inv_mass_b, const float3 inv_inertia_b[3], float3* vb, float3* wb,
+                       const float target[4], float lambda[4], const bool releases)
+{
+    FaceBlock f;
+    return face_block(count, n, t1, t2, r_a, r_b, inv_mass_a, inv_inertia_a, inv_mass_b,
+                      inv_inertia_b, &f)
+           && solve_face_block(count, &f, n, relaxation, inv_mass_a, va, wa, inv_mass_b, vb,
+                               wb, target, lambda, releases${", 0" if geometry_cache else ""});
 }
 
 /* solve_normal_block for one or two points (an edge on a face, a corner): the contact problem K total = rhs, total >= 0, with the
@@ -456,17 +549,44 @@ inline void solve_normal_rows(const uint count, const float3 n, ${constraint_spa
     p->wb += turn_b;
 }
 
-/* A friction pair at lever arms ra, rb: the accumulated (f1, f2) is clamped
- * to the disc |f| <= limit. Always inlined: as a call (PoCL declines to
- * inline it) the bodies' state would go through memory. */
+/* A manifold's friction rows: the pair along tangent1 and tangent2 at the
+ * centre of its points, the twist row about the normal, and the points'
+ * summed distance from B's centre point (the twist's lever times the count).
+ * Like a FaceBlock they hold for a step. */
+typedef struct {
+    Row tangent1, tangent2, twist;
+    float radius;
+} FrictionRows;
+
+inline void friction_rows(${constraint_space} const ContactConstraint* c,
+                          const __private ContactBodies* p, __private FrictionRows* rows)
+{
+    uint count = c->point_count;
+    float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        ra += c->r_a[k].xyz, rb += c->r_b[k].xyz;
+    float share = count > 0 ? 1.0f / (float)count : 0.0f;
+    ra *= share;
+    rb *= share;
+    rows->tangent1 = point_row(c->tangent1.xyz, ra, rb, p);
+    rows->tangent2 = point_row(c->tangent2.xyz, ra, rb, p);
+    float radius = 0.0f;
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+        radius += length3(c->r_b[k].xyz - rb);
+    rows->radius = radius;
+    rows->twist = twist_row(c->normal.xyz, p);
+}
+
+/* A friction pair (rows row1, row2): the accumulated (f1, f2) is clamped to
+ * the disc |f| <= limit. Always inlined: as a call (PoCL declines to inline
+ * it) the bodies' state would go through memory. */
 __attribute__((always_inline))
-inline void solve_friction_pair(float3 t1, float3 t2, float3 ra, float3 rb, float mass1,
-                                float mass2, float limit, float relaxation, float* impulse1,
+inline void solve_friction_pair(const Row* row1, const Row* row2, float mass1, float mass2,
+                                float limit, float relaxation, float* impulse1,
                                 float* impulse2, __private ContactBodies* p)
 {
-    Row row1 = point_row(t1, ra, rb, p), row2 = point_row(t2, ra, rb, p);
-    float f1 = *impulse1 - relaxation * mass1 * row_speed(&row1, p);
-    float f2 = *impulse2 - relaxation * mass2 * row_speed(&row2, p);
+    float f1 = *impulse1 - relaxation * mass1 * row_speed(row1, p);
+    float f2 = *impulse2 - relaxation * mass2 * row_speed(row2, p);
     float length_sq = f1 * f1 + f2 * f2;
     if (length_sq > limit * limit) {
         /* (length_sq at least the smallest normal float: a fast-math build takes the
@@ -476,8 +596,8 @@ inline void solve_friction_pair(float3 t1, float3 t2, float3 ra, float3 rb, floa
         f1 *= scale;
         f2 *= scale;
     }
-    apply_row(&row1, f1 - *impulse1, p);
-    apply_row(&row2, f2 - *impulse2, p);
+    apply_row(row1, f1 - *impulse1, p);
+    apply_row(row2, f2 - *impulse2, p);
     *impulse1 = f1;
     *impulse2 = f2;
 }
@@ -499,6 +619,110 @@ inline void reverse4(float a[4])
     t = a[1];
     a[1] = a[2], a[2] = t;
 }
+
+% if geometry_cache:
+
+/* A constraint's ContactGeometry record (layouts): its FaceBlock (three or
+ * four points, when the block solve takes them: face_arm[0].w 1, else 0) and
+ * its FrictionRows, derived from the bodies in *p. A solver writes it once a
+ * step (its lever arms, normal and the bodies' inertias hold for the step)
+ * and every sweep reads it instead of deriving it again: the same values, so
+ * the same results. */
+void store_geometry(${constraint_space} const ContactConstraint* c, const __private ContactBodies* p,
+                    __global ContactGeometry* g)
+{
+    uint count = c->point_count;
+    FaceBlock f;
+    bool block = count >= 3
+                 && face_block(count, c->normal.xyz, c->tangent1.xyz, c->tangent2.xyz, c->r_a,
+                               c->r_b, p->inv_mass_a, p->inv_inertia_a, p->inv_mass_b,
+                               p->inv_inertia_b, &f);
+    if (block) {
+        g->face_u = pack4(f.u);
+        g->face_v = pack4(f.v);
+        g->face_spread = (float4)(f.suu, f.suv, f.svv, f.inv_spread);
+        for (uint i = 0; i < 3; ++i) {
+            g->face_arm[i] = (float4)(f.arm_a[i], 0.0f);
+            g->face_turn_a[i] = (float4)(f.turn_a[i], 0.0f);
+            g->face_turn_b[i] = (float4)(f.turn_b[i], 0.0f);
+            g->face_q[i] = (float4)(f.q_row[i], 0.0f);
+            g->face_inv_q[i] = (float4)(f.inv_q[i], 0.0f);
+        }
+        g->face_arm[3] = (float4)(f.arm_b0, 0.0f);
+        float3 points[4];
+        float k_matrix[4][4];
+        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+            points[k] = (float3)(1.0f, f.u[k], f.v[k]);
+        face_k_matrix(f.q_row[0], f.q_row[1], f.q_row[2], points, k_matrix);
+        for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j)
+            g->face_k[j] = pack4(k_matrix[j]);
+    }
+    g->face_arm[0].w = block ? 1.0f : 0.0f;
+    FrictionRows rows;
+    friction_rows(c, p, &rows);
+    g->friction_arm_a[0] = (float4)(rows.tangent1.arm_a, 0.0f);
+    g->friction_arm_b[0] = (float4)(rows.tangent1.arm_b, 0.0f);
+    g->friction_turn_a[0] = (float4)(rows.tangent1.turn_a, 0.0f);
+    g->friction_turn_b[0] = (float4)(rows.tangent1.turn_b, 0.0f);
+    g->friction_arm_a[1] = (float4)(rows.tangent2.arm_a, 0.0f);
+    g->friction_arm_b[1] = (float4)(rows.tangent2.arm_b, 0.0f);
+    g->friction_turn_a[1] = (float4)(rows.tangent2.turn_a, 0.0f);
+    g->friction_turn_b[1] = (float4)(rows.tangent2.turn_b, 0.0f);
+    g->twist_turn[0] = (float4)(rows.twist.turn_a, rows.radius);
+    g->twist_turn[1] = (float4)(rows.twist.turn_b, 0.0f);
+}
+
+/* The FrictionRows stored in g (directions n, t1, t2: the constraint's). */
+inline void load_friction_rows(__global const ContactGeometry* g, const float3 n,
+                               const float3 t1, const float3 t2, __private FrictionRows* rows)
+{
+    rows->tangent1.linear = t1;
+    rows->tangent1.arm_a = g->friction_arm_a[0].xyz;
+    rows->tangent1.arm_b = g->friction_arm_b[0].xyz;
+    rows->tangent1.turn_a = g->friction_turn_a[0].xyz;
+    rows->tangent1.turn_b = g->friction_turn_b[0].xyz;
+    rows->tangent2.linear = t2;
+    rows->tangent2.arm_a = g->friction_arm_a[1].xyz;
+    rows->tangent2.arm_b = g->friction_arm_b[1].xyz;
+    rows->tangent2.turn_a = g->friction_turn_a[1].xyz;
+    rows->tangent2.turn_b = g->friction_turn_b[1].xyz;
+    rows->twist.linear = (float3)(0.0f);
+    rows->twist.arm_a = rows->twist.arm_b = n;
+    rows->twist.turn_a = g->twist_turn[0].xyz;
+    rows->twist.turn_b = g->twist_turn[1].xyz;
+    rows->radius = g->twist_turn[0].w;
+}
+
+/* solve_normal_block with three or four points' FaceBlock read from g. */
+bool solve_normal_cached(const uint count, const float3 n,
+                         ${constraint_space} const float4* r_a, ${constraint_space} const float4* r_b,
+                         const float relaxation, __private ContactBodies* p,
+                         __global const ContactGeometry* g, const float target[4],
+                         float lambda[4], const bool releases)
+{
+    if (count < 3)
+        return solve_two_points(count, n, r_a, r_b, relaxation, p->inv_mass_a, p->inv_inertia_a,
+                                &p->va, &p->wa, p->inv_mass_b, p->inv_inertia_b, &p->vb,
+                                &p->wb, target, lambda);
+    if (g->face_arm[0].w == 0.0f)
+        return false;
+    FaceBlock f;
+    unpack4(g->face_u, f.u);
+    unpack4(g->face_v, f.v);
+    float4 spread = g->face_spread;
+    f.suu = spread.x, f.suv = spread.y, f.svv = spread.z, f.inv_spread = spread.w;
+    for (uint i = 0; i < 3; ++i) {
+        f.arm_a[i] = g->face_arm[i].xyz;
+        f.turn_a[i] = g->face_turn_a[i].xyz;
+        f.turn_b[i] = g->face_turn_b[i].xyz;
+        f.q_row[i] = g->face_q[i].xyz;
+        f.inv_q[i] = g->face_inv_q[i].xyz;
+    }
+    f.arm_b0 = g->face_arm[3].xyz;
+    return solve_face_block(count, &f, n, relaxation, p->inv_mass_a, &p->va, &p->wa,
+                            p->inv_mass_b, &p->vb, &p->wb, target, lambda, releases, g->face_k);
+}
+% endif
 
 /* Apply last step's accumulated impulses of one constraint (warm start) to
  * its bodies' velocities in *p: their sum and its moment about each body's
@@ -546,7 +770,8 @@ void warm_start_contact(const ${constraint_space} ContactConstraint* c, __privat
  * adds restitution times the approach along the normal alone, so an
  * off-centre impact with sticking friction does not gain energy as a bounce
  * in the rows' own target would. The points bounce together: a face whose
- * points all bounce is solved exactly as a block (normal_solve block), else
+ * points all bounce is solved exactly as a block (normal_solve block; with a
+ * ContactGeometry cache, the step's FaceBlock from g), else
  * the rows of the bouncing points are swept RESTITUTION_ROUNDS times (one
  * sweep, as Box2D v3 has, leaves a landing face turning: the first point's
  * row lifts its corner alone). Known limit (Box2D v3's too): the bounce is
@@ -557,8 +782,8 @@ void warm_start_contact(const ${constraint_space} ContactConstraint* c, __privat
 #define RESTITUTION_ROUNDS 8
 inline void apply_restitution(const uint count, const float3 n, const float3 t1, const float3 t2,
                               ${constraint_space} const float4* r_a,
-                              ${constraint_space} const float4* r_b, const float mass[4],
-                              const uint pushed, float impulse[4],
+                              ${constraint_space} const float4* r_b${geometry_param},
+                              const float mass[4], const uint pushed, float impulse[4],
                               __private ContactBodies* p)
 {
     float target[4] = {0.0f, 0.0f, 0.0f, 0.0f};
@@ -569,7 +794,10 @@ inline void apply_restitution(const uint count, const float3 n, const float3 t1,
         every = every && bounces[k];
     }
     bool solved = false;
-% if normal_solve == "block":
+% if geometry_cache:
+    if (every)
+        solved = solve_normal_cached(count, n, r_a, r_b, 1.0f, p, g, target, impulse, true);
+% elif normal_solve == "block":
     if (every)
         solved = solve_normal_block(count, n, t1, t2, r_a, r_b, 1.0f, p->inv_mass_a,
                                     p->inv_inertia_a, &p->va, &p->wa, p->inv_mass_b,
@@ -588,7 +816,7 @@ inline void apply_restitution(const uint count, const float3 n, const float3 t1,
  * velocities in *p; `releases`: the block solve may release points (see
  * solve_normal_block; normal_solve block only); `restitution`: then apply
  * its restitution (apply_restitution: the step's last velocity sweep). */
-void solve_contact(${constraint_space} ContactConstraint* c, __private ContactBodies* p,
+void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __private ContactBodies* p,
                    const float relaxation, const bool reverse, const bool releases,
                    const bool restitution)
 {
@@ -606,7 +834,10 @@ void solve_contact(${constraint_space} ContactConstraint* c, __private ContactBo
     unpack4(c->velocity_target, target);
 
     bool solved = false;  /* by the block solve; else row after row */
-% if normal_solve == "block":
+% if geometry_cache:
+    solved = solve_normal_cached(count, n, c->r_a, c->r_b, relaxation, p, g, target,
+                                 normal_impulse, releases);
+% elif normal_solve == "block":
     solved = solve_normal_block(count, n, t1, t2, c->r_a, c->r_b, relaxation,
                                 p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa,
                                 p->inv_mass_b, p->inv_inertia_b, &p->vb, &p->wb, target,
@@ -626,24 +857,24 @@ void solve_contact(${constraint_space} ContactConstraint* c, __private ContactBo
         reverse4(normal_impulse);
     /* one friction pair at the centre of the points: |(f1, f2)| <= mu * total normal
      * impulse, and a twist row about n: |f| <= mu * total * mean point distance */
-    float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
     float total = 0.0f;
     for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-        ra += c->r_a[k].xyz, rb += c->r_b[k].xyz, total += normal_impulse[k];
+        total += normal_impulse[k];
     float share = count > 0 ? 1.0f / (float)count : 0.0f;
-    ra *= share;
-    rb *= share;
+    FrictionRows rows;
+% if geometry_cache:
+    load_friction_rows(g, n, t1, t2, &rows);
+% else:
+    friction_rows(c, p, &rows);
+% endif
     float limit = friction * total;
-    solve_friction_pair(t1, t2, ra, rb, tangent1_mass[0], tangent2_mass[0], limit, relaxation,
-                        &tangent1_impulse[0], &tangent2_impulse[0], p);
-    float radius = 0.0f;
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-        radius += length3(c->r_b[k].xyz - rb);
-    float twist_limit = limit * radius * share;
-    Row twist = twist_row(n, p);
-    float twist_total = tangent1_impulse[1] - relaxation * tangent1_mass[1] * row_speed(&twist, p);
+    solve_friction_pair(&rows.tangent1, &rows.tangent2, tangent1_mass[0], tangent2_mass[0],
+                        limit, relaxation, &tangent1_impulse[0], &tangent2_impulse[0], p);
+    float twist_limit = limit * rows.radius * share;
+    float twist_total = tangent1_impulse[1]
+                        - relaxation * tangent1_mass[1] * row_speed(&rows.twist, p);
     twist_total = min1(max1(twist_total, -twist_limit), twist_limit);
-    apply_row(&twist, twist_total - tangent1_impulse[1], p);
+    apply_row(&rows.twist, twist_total - tangent1_impulse[1], p);
     tangent1_impulse[1] = twist_total;
     if (c->tangent2.w > 0.0f) {
         /* a restitution: the points that pushed, kept in tangent2_impulse's slot 1
@@ -654,8 +885,8 @@ void solve_contact(${constraint_space} ContactConstraint* c, __private ContactBo
         tangent2_impulse[1] = (float)pushed;
         if (restitution) {
             unpack4(c->normal_mass, normal_mass);  /* (in point order again) */
-            apply_restitution(count, n, t1, t2, c->r_a, c->r_b, normal_mass, pushed,
-                              normal_impulse, p);
+            apply_restitution(count, n, t1, t2, c->r_a, c->r_b${", g" if geometry_cache else ""},
+                              normal_mass, pushed, normal_impulse, p);
         }
     }
     c->normal_impulse = pack4(normal_impulse);
@@ -665,7 +896,7 @@ void solve_contact(${constraint_space} ContactConstraint* c, __private ContactBo
 
 /* Normal rows of one constraint on its bodies' push velocities in *p (split
  * impulse); `releases` as in solve_contact. */
-void solve_push(${constraint_space} ContactConstraint* c, __private ContactBodies* p, const float relaxation,
+void solve_push(${constraint_space} ContactConstraint* c${geometry_param}, __private ContactBodies* p, const float relaxation,
                 const bool releases)
 {
     uint count = c->point_count;
@@ -675,7 +906,10 @@ void solve_push(${constraint_space} ContactConstraint* c, __private ContactBodie
     unpack4(c->normal_mass, normal_mass);
     unpack4(c->position_target, target);
     bool solved = false;  /* by the block solve; else row after row */
-% if normal_solve == "block":
+% if geometry_cache:
+    solved = solve_normal_cached(count, n, c->r_a, c->r_b, relaxation, p, g, target,
+                                 push_impulse, releases);
+% elif normal_solve == "block":
     solved = solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a,
                                 c->r_b, relaxation, p->inv_mass_a, p->inv_inertia_a, &p->va,
                                 &p->wa, p->inv_mass_b, p->inv_inertia_b, &p->vb, &p->wb,

@@ -13,6 +13,9 @@
     joint_params = (", __global JointConstraint* joints, const float inv_h, "
                     "const float joint_recovery") if joints else ""
     joint_args = ", joints, inv_h, joint_recovery" if joints else ""
+    # the serial block solve derives each contact's ContactGeometry once a step (the
+    # launches with GEOMETRY_PASS) and its sweeps read it (contact_rows.cl.mako)
+    geometry_cache = serial and normal_solve == "block"
 %>\
 /* Projected Gauss-Seidel over batched constraints. solve_groups runs the
  * warm start and the sweeps of one launch over the groups it is given, as
@@ -26,6 +29,14 @@
  * shares no dynamic body with another group of the same launch) and solves
  * its constraints one after another, in place: plain Gauss-Seidel, no
  * batches, no barriers, every row sees every earlier row's result.
+% if geometry_cache:
+ * What the rows of a contact derive from its lever arms, normal and the
+ * bodies' inertias alone (contact_rows.cl.mako: FaceBlock, FrictionRows)
+ * holds over a step: the launches with GEOMETRY_PASS (a step's first)
+ * write it to the contact's ContactGeometry record, which every sweep of
+ * the step reads (the last one's restitution too: it changes velocities only),
+ * prefetching the next contact's records as it solves one.
+% endif
 % elif not persistent:
  * Lanes form: a work group is responsible for one level-1 group (a group
  * shares no dynamic body with another group of the same launch) and walks
@@ -96,6 +107,7 @@
 ${cl_constants()}
 
 ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
+             *(("ContactGeometry",) if geometry_cache else ()),
              *(("BodyDelta",) if persistent else ()), *(("JointConstraint",) if joints else ()))}
 
 #define MAX_BATCHES ${max_batches}
@@ -106,6 +118,17 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
  * (contact_rows.cl.mako: apply_restitution; in a persistent launch, in the
  * last substep only) */
 #define RESTITUTION_PASS 4u
+% if geometry_cache:
+/* the launch first derives its contacts' ContactGeometry records (a step's
+ * first launch over a group; the sweeps of the step read them) */
+#define GEOMETRY_PASS 8u
+/* a prefetch of one cache line, where the compiler has it (prefetch_constraint) */
+#if defined(__has_builtin)
+#if __has_builtin(__builtin_prefetch)
+#define PREFETCH_LINES 1
+#endif
+#endif
+% endif
 % if not serial:
 /* the remainder's batch slot, solved by one lane in order */
 #define SERIAL_BATCH (MAX_BATCHES - 1)
@@ -125,7 +148,7 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
 % else:
 <%include file="/common/inline_math.cl.mako"/>
 % endif
-<%include file="/pipeline/solvers/contact_rows.cl.mako" args="constraint_space=constraint_space"/>
+<%include file="/pipeline/solvers/contact_rows.cl.mako" args="constraint_space=constraint_space, geometry_cache=geometry_cache"/>
 
 inline void load_bodies(__private ContactBodies* p, ${velocity_space} const Body* bodies,
                         __global const BodyInertia* inertia, uint a, uint b)
@@ -220,7 +243,8 @@ inline void warm_start_rows(${constraint_space} const ContactConstraint* c,
 /* One sweep's rows of one constraint. The velocity and the push rows are
  * loaded first, then solved, then stored: they touch disjoint velocities, so
  * their chains overlap instead of queueing behind each other's stores. */
-inline void solve_rows(${constraint_space} ContactConstraint* c, ${velocity_space} Body* bodies,
+inline void solve_rows(${constraint_space} ContactConstraint* c,${" __global const ContactGeometry* g," if geometry_cache else ""}
+                       ${velocity_space} Body* bodies,
                        __global const BodyInertia* inertia,
                        ${velocity_space} SplitVelocity* split, const float relaxation,
                        const Sweep s)
@@ -228,15 +252,18 @@ inline void solve_rows(${constraint_space} ContactConstraint* c, ${velocity_spac
     uint a = c->body_a, b = c->body_b;
     ContactBodies state;
     load_bodies(&state, bodies, inertia, a, b);
-    ContactBodies push_state = state;
+    ContactBodies push_state;  /* (a copy only for a sweep with push rows) */
+    if (s.push)
+        push_state = state;
     if (s.velocity)
         load_velocities(&state, bodies, a, b);
     if (s.push)
         load_push(&push_state, split, a, b);
     if (s.velocity)
-        solve_contact(c, &state, relaxation, s.reverse, s.velocity_releases, s.restitution);
+        solve_contact(c${", g" if geometry_cache else ""}, &state, relaxation, s.reverse, s.velocity_releases,
+                      s.restitution);
     if (s.push)
-        solve_push(c, &push_state, relaxation, s.push_releases);
+        solve_push(c${", g" if geometry_cache else ""}, &push_state, relaxation, s.push_releases);
     if (s.velocity)
         store_velocities(&state, bodies, a, b);
     if (s.push)
@@ -327,6 +354,47 @@ inline void solve_joint(__global JointConstraint* joints, uint index,
 % endif
 % if serial:
 
+% if geometry_cache:
+/* Ask for the cache lines of constraint `index` and of its geometry before
+ * they are read: a serial sweep reads every constraint's records once, and
+ * the solve of the one before gives the loads time to arrive. (A hint only:
+ * compilers without the builtin fall back to OpenCL's prefetch.) */
+inline void prefetch_constraint(__global const ContactConstraint* constraints,
+                                __global const ContactGeometry* geometry, uint index)
+{
+    __global const char* c = (__global const char*)&constraints[index];
+    __global const char* g = (__global const char*)&geometry[index];
+#ifdef PREFETCH_LINES
+    for (uint line = 0; line < sizeof(ContactConstraint); line += 64)
+        __builtin_prefetch(c + line);
+    for (uint line = 0; line < sizeof(ContactGeometry); line += 64)
+        __builtin_prefetch(g + line);
+#else
+    prefetch(c, sizeof(ContactConstraint));
+    prefetch(g, sizeof(ContactGeometry));
+#endif
+}
+
+/* The ContactGeometry of a group's contacts order[begin .. end - 1] (joint
+ * items have none), for the sweeps of the step. */
+inline void store_group_geometry(__global const ContactConstraint* constraints,
+                                 __global const uint* order, uint begin, uint end,
+                                 __global const Body* bodies, __global const BodyInertia* inertia,
+                                 __global ContactGeometry* geometry)
+{
+    for (uint i = begin; i < end; ++i) {
+% if joints:
+        if (is_joint(order[i]))
+            continue;
+% endif
+        __global const ContactConstraint* c = &constraints[order[i]];
+        ContactBodies state;
+        load_bodies(&state, bodies, inertia, c->body_a, c->body_b);
+        store_geometry(c, &state, &geometry[order[i]]);
+    }
+}
+
+% endif
 /* The warm start of a group's constraints order[begin .. end - 1], in order. */
 inline void warm_start_group_serial(__global ContactConstraint* constraints,
                                     __global const uint* order, uint begin, uint end,
@@ -345,6 +413,9 @@ inline void warm_start_group_serial(__global ContactConstraint* constraints,
 
 /* One sweep over a group's constraints order[begin .. end - 1], in order. */
 inline void solve_group_serial(__global ContactConstraint* constraints,
+% if geometry_cache:
+                               __global const ContactGeometry* geometry,
+% endif
                                __global const uint* order, uint begin, uint end,
                                __global Body* bodies, __global const BodyInertia* inertia,
                                __global SplitVelocity* split, const float relaxation,
@@ -358,7 +429,11 @@ inline void solve_group_serial(__global ContactConstraint* constraints,
             continue;
         }
 % endif
-        solve_rows(&constraints[order[i]], bodies, inertia, split, relaxation, s);
+% if geometry_cache:
+        if (i + 1 < end)
+            prefetch_constraint(constraints, geometry, order[i + 1]);
+% endif
+        solve_rows(&constraints[order[i]],${" &geometry[order[i]]," if geometry_cache else ""} bodies, inertia, split, relaxation, s);
     }
 }
 % else:
@@ -669,14 +744,18 @@ void solve_groups(${signature("solve_groups")})
         return;
     __global const uint* offsets = group_batches + group * (MAX_BATCHES + 1);
     const uint begin = offsets[0], end = offsets[group_batch_count[group]];
+% if geometry_cache:
+    if (passes & GEOMETRY_PASS)
+        store_group_geometry(constraints, order, begin, end, bodies, inertia, geometry);
+% endif
     if (passes & WARM_START_PASS)
         warm_start_group_serial(constraints, order, begin, end, bodies, inertia${joint_args});
     const uint sweeps = max(velocity_sweeps, position_sweeps);
     for (uint sweep = 0; sweep < sweeps; ++sweep) {
         const Sweep s = sweep_of(sweep, passes, velocity_sweeps, position_sweeps,
                                  velocity_release_from, position_release_from);
-        solve_group_serial(constraints, order, begin, end, bodies, inertia, split, relaxation,
-                           s${joint_args});
+        solve_group_serial(constraints,${" geometry," if geometry_cache else ""} order, begin, end, bodies, inertia, split,
+                           relaxation, s${joint_args});
     }
 % elif not persistent:
     const uint lane = get_local_id(0), group = group_offset + get_group_id(0);
