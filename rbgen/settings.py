@@ -10,7 +10,12 @@ Two kinds:
 A default given as None for a construction option means "the device's choice", which the
 plan makes and explains (`Plan.reasons`). A step setting may have its own default on CPUs
 (``cpu_default``): the effort that holds the stacks at the least cost differs between a
-GPU's side-by-side solve and a CPU's serial one. Every value is checked when set: a bad one
+GPU's side-by-side solve and a CPU's serial one. The BoxBox lattice of 27,000 holds (at
+most 0.5% of boxes displaced, top layer's median drop at most 2 cm after 120 steps) at
+8 substeps of 2 + 1 sweeps on the GPU plan (global batching, block normal solve: 91
+displaced, 0.14 cm, measured in the H200's shape on a CPU) and at 4 of 3 + 1 on the CPU
+plan (slabs, serial block solve); 4 of 3 + 1 or of 5 + 2 on the GPU plan displaced 547 and
+235 boxes, one substep of 10 + 4 dropped the top 12.4 cm. Every value is checked when set: a bad one
 raises `RbgenError` naming the option and what it allows, and leaves the World as it was.
 """
 
@@ -123,7 +128,7 @@ STEP_SETTINGS = (
     ),
     Option(
         "substeps",
-        1,
+        8,
         _integer(1, 64),
         "an integer from 1 to 64",
         "solver substeps a step on the step's contacts: stiffness from the substep rate "
@@ -132,7 +137,7 @@ STEP_SETTINGS = (
     ),
     Option(
         "iterations",
-        10,
+        2,
         _integer(0, 1000),
         "an integer from 0 to 1000",
         "velocity sweeps of the solver a substep: more hold taller stacks, linearly dearer",
@@ -140,11 +145,10 @@ STEP_SETTINGS = (
     ),
     Option(
         "position_iterations",
-        4,
+        1,
         _integer(0, 1000),
         "an integer from 0 to 1000",
         "split-impulse push sweeps a substep: remove penetration without adding momentum",
-        cpu_default=1,
     ),
     Option(
         "relaxation",
