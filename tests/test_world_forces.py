@@ -201,3 +201,29 @@ def test_removal_keeps_pending_forces_on_their_bodies(runtime):
     world.step(DT)
     assert np.all(world.linear_velocities[0] == 0)
     assert world.linear_velocities[1][2] == pytest.approx(2.0 * DT, rel=1e-6)
+
+
+def test_a_redo_does_not_take_the_forces_given_for_the_next_step(runtime):
+    """A step without forces overflows; forces are then given for the next step, and a
+    read checks the step in flight, which is redone: the redo must replay the step as it
+    ran (no forces), and the forces must act in the next step. The end state equals a
+    World that never overflowed."""
+
+    def run(pair_capacity):
+        world = World(runtime, gravity=(0, 0, 0), pair_capacity=pair_capacity)
+        xs = np.arange(6) * 1.0  # boxes of 1 m side at 1 m spacing: touching
+        world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), positions=np.c_[xs, np.zeros(6), np.zeros(6)])
+        world.step(DT)  # (no forces; overflows with the small pair buffer)
+        world.apply_forces(np.arange(6), np.c_[np.zeros(6), np.linspace(1, 6, 6), np.zeros(6)])
+        after_first = world.linear_velocities.copy()  # (checks, and redoes, the first step)
+        world.step(DT)
+        _ = world.positions
+        return world, after_first
+
+    (small, small_first), (large, large_first) = run(1), run(None)
+    assert small.overflows >= 1 and large.overflows == 0
+    np.testing.assert_array_equal(small_first, np.zeros((6, 3)))
+    np.testing.assert_array_equal(large_first, np.zeros((6, 3)))
+    for field in ("positions", "linear_velocities", "angular_velocities"):
+        assert np.array_equal(getattr(small, field), getattr(large, field)), field
+    assert np.any(small.linear_velocities[:, 1] > 0)
