@@ -34,7 +34,7 @@ Joints: the template's joints are copied into each environment, their bodies ren
 j of environment k is ``k * joints + j``). The step's joint edges come before every
 contact edge and keep their relative order within an environment, so that the
 independence above holds for jointed scenes too. The batch's ``world`` must not add or
-remove joints (`reset` relies on that layout and refuses otherwise).
+remove bodies or joints (its indexing relies on that layout and refuses otherwise).
 
 `reset` restores environments exactly: their bodies' state, their joints as the template
 had them (impulses, broken flags), and no warm start of their contacts (as a fresh
@@ -242,8 +242,22 @@ class WorldBatch:
         return {**self.world.statistics(), "envs": self.envs}
 
     # ------------------------------------------------------------- indices
+    def _check_layout(self) -> None:
+        """Refuse to index `world` when bodies were added to or removed from it: body j of
+        environment k is ``shared + k * bodies + j`` only while it holds exactly the
+        bodies the batch laid out (a reset would write over other bodies)."""
+        expected = self.shared + self.envs * self.bodies
+        if self.world.body_count != expected:
+            raise RbgenError(
+                f"the batch's world has {self.world.body_count} bodies, not the {expected} "
+                f"it laid out ({self.shared} shared + {self.envs} environments x "
+                f"{self.bodies}): bodies added to or removed from batch.world break the "
+                f"environments' layout (make a new WorldBatch instead)"
+            )
+
     def env_ids(self, env_ids=None) -> np.ndarray:
         """Environment indices as int64 (None: all); refused naming ``env_ids``."""
+        self._check_layout()
         if env_ids is None:
             return np.arange(self.envs)
         arr = np.asarray(env_ids)
@@ -283,6 +297,7 @@ class WorldBatch:
 
     # ------------------------------------------------------------- state
     def _field(self, what):
+        self._check_layout()
         name, lanes = STATE_FIELDS[what]
         snapshot = self.world._bodies.field(
             name, lanes, f"batch.reset(env_ids, state={{'{what}': ...}})"

@@ -457,3 +457,23 @@ def test_per_env_builds_with_joints_are_refused(runtime):
     build = chain_scene(runtime)
     with pytest.raises(RbgenError, match=r"build\(1\) has 6 joints"):
         rbgen.WorldBatch(2, lambda k: build(), per_env=True)
+
+
+def test_a_world_whose_bodies_changed_is_refused_and_left_as_it_was(runtime):
+    """Bodies removed from (or added to) batch.world break the layout ``shared + k *
+    bodies + j``: reset, apply_forces and the observations raise RbgenError naming the
+    body counts, and the world's bodies are as they were (a reset used to write the
+    environments' records over the wrong bodies, then fail with an IndexError)."""
+    batch = rbgen.WorldBatch(3, stack_scene(runtime))
+    batch.step(DT)
+    batch.world.remove_bodies([1])
+    before = [batch.world.positions.copy(), batch.world.linear_velocities.copy()]
+    match = r"has 15 bodies, not the 16 it laid out"
+    with pytest.raises(RbgenError, match=match):
+        batch.reset([2])
+    with pytest.raises(RbgenError, match=match):
+        batch.apply_forces(np.zeros((3, 5, 3)))
+    with pytest.raises(RbgenError, match=match):
+        _ = batch.positions
+    assert np.array_equal(batch.world.positions, before[0])
+    assert np.array_equal(batch.world.linear_velocities, before[1])
