@@ -255,6 +255,17 @@ class WorldBatch:
                 f"environments' layout (make a new WorldBatch instead)"
             )
 
+    def _check_joint_layout(self) -> None:
+        """Refuse a reset when joints were added to or removed from `world` (joint j of
+        environment k is ``k * joints + j`` only while it holds the batch's joints)."""
+        count = self.world.joint_count
+        if count != self.envs * self.joints:
+            raise RbgenError(
+                f"reset: the batch's world has {count} joints, not {self.joints} a "
+                f"environment ({self.envs * self.joints}): joints added to or removed from "
+                f"batch.world cannot be reset"
+            )
+
     def env_ids(self, env_ids=None) -> np.ndarray:
         """Environment indices as int64 (None: all); refused naming ``env_ids``."""
         self._check_layout()
@@ -358,6 +369,7 @@ class WorldBatch:
         to be checked, since a redone step would overwrite it); before the first step,
         or with host edits pending, on the host copy."""
         envs = self.env_ids(env_ids)
+        self._check_joint_layout()
         if len(np.unique(envs)) != len(envs):
             raise RbgenError("env_ids: an environment is listed twice")
         records = self._records(envs, {} if state is None else dict(state))
@@ -399,12 +411,6 @@ class WorldBatch:
         if not self.joints:
             return
         store = self.world._joints
-        if store.count != self.envs * self.joints:
-            raise RbgenError(
-                f"reset: the batch's world has {store.count} joints, not {self.joints} a "
-                f"environment ({self.envs * self.joints}): joints added to or removed from "
-                f"batch.world cannot be reset"
-            )
         if store.dirty or store.device is None:
             store.host[self.joint_ids(envs).reshape(-1)] = self._joint_records[envs].reshape(-1)
             store.dirty = True

@@ -477,3 +477,17 @@ def test_a_world_whose_bodies_changed_is_refused_and_left_as_it_was(runtime):
         _ = batch.positions
     assert np.array_equal(batch.world.positions, before[0])
     assert np.array_equal(batch.world.linear_velocities, before[1])
+
+
+def test_a_reset_after_joints_changed_is_refused_before_any_change(runtime):
+    """Joints removed from batch.world: reset raises RbgenError naming the joint counts
+    before it touches a body (it used to reset the bodies first, then raise)."""
+    batch = rbgen.WorldBatch(3, chain_scene(runtime))
+    for _ in range(3):
+        batch.step(DT)
+    batch.world.remove_joints([0])
+    before = [batch.positions.copy(), batch.linear_velocities.copy()]
+    with pytest.raises(RbgenError, match=r"has 17 joints, not 6 a environment \(18\)"):
+        batch.reset([1])
+    assert np.array_equal(batch.positions, before[0])
+    assert np.array_equal(batch.linear_velocities, before[1])
