@@ -44,7 +44,7 @@ start has none). Observations are (envs, bodies, ...) arrays;
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import numpy as np
 import pyopencl as cl
@@ -372,6 +372,11 @@ class WorldBatch:
         self._check_joint_layout()
         if len(np.unique(envs)) != len(envs):
             raise RbgenError("env_ids: an environment is listed twice")
+        if state is not None and not isinstance(state, Mapping):
+            raise RbgenError(
+                f"state must be a dict of fields ({list(FIELDS)}) to arrays, got "
+                f"{type(state).__name__}"
+            )
         records = self._records(envs, {} if state is None else dict(state))
         if len(envs) == 0:
             return

@@ -217,6 +217,7 @@ def test_observations_have_the_batch_shape(runtime):
             lambda b: b.reset([1], state={"positions": np.full((5, 3), np.nan)}),
             r"positions: environment 1, body 0 has a NaN",
         ),
+        (lambda b: b.reset([0], state=[np.zeros((5, 3))]), r"state must be a dict of fields"),
         (lambda b: b.apply_forces(np.zeros((3, 4, 3))), r"forces must have shape \(3, 5, 3\)"),
         (lambda b: b.apply_forces(np.zeros((1, 5, 3)), env_ids=[7]), r"environment 7"),
         (
