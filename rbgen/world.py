@@ -27,7 +27,7 @@ from .bodies import STATE_FIELDS, BodyStore, floats, one_row, per_body
 from .codegen import KernelSpec, SpecLog
 from .device import Runtime, coerce_runtime
 from .errors import RbgenError
-from .forces import ExternalForces
+from .forces import KEEP_STEPS, ExternalForces
 from .guard import STEPS_IN_FLIGHT, Replan, StepGuard
 from .joints import JointStore, joint_fields, joint_reactions, pack_joints
 from .memory import WorldMemory
@@ -93,6 +93,9 @@ class World:
         self._device = None
         self._guard = StepGuard(self.runtime)
         self._forces = ExternalForces(self.runtime)
+        #: step number -> the settings it ran with (a redo replays them, not the settings
+        #: changed since); the steps a redo can reach (`rbgen.forces.KEEP_STEPS`)
+        self._step_settings: dict[int, Settings] = {}
         #: every kernel specialisation this World compiled (what `rbgen export` writes)
         self._spec_log = SpecLog(self.runtime)
         self.last_step_counters = {"launches": 0, "blocking_reads": 0}
@@ -498,12 +501,24 @@ class World:
             return
         slot = self._guard.next_slot()
         tag = self.steps if tag is None else tag
+        settings = self._settings_of(tag)
         self._forces.resize(self._bodies.count)
         forces = self._forces.for_step(tag)
-        self._steps.enqueue(
-            StepContext(dt, slot, self.settings, self._device, self._packed, forces)
-        )
+        self._steps.enqueue(StepContext(dt, slot, settings, self._device, self._packed, forces))
         self._guard.finish_step(dt, slot, tag)
+
+    def _settings_of(self, tag: int) -> Settings:
+        """The settings step ``tag`` runs with: a copy of the World's made at its first
+        enqueue, which its substeps and any redo read again (settings changed after the
+        step, before it was checked, are the next step's)."""
+        settings = self._step_settings.get(tag)
+        if settings is None:
+            for old in [t for t in self._step_settings if t < tag - KEEP_STEPS]:
+                del self._step_settings[old]
+            values = self.settings.as_dict()
+            values["gravity"] = np.array(values["gravity"], copy=True)
+            settings = self._step_settings[tag] = Settings(values)
+        return settings
 
     def _finish_pending(self) -> None:
         """Check every enqueued step (waits for their report copies only)."""
@@ -531,6 +546,8 @@ class World:
         forces are dropped)."""
         self.steps = min(self.steps, tag)
         self._forces.forget(tag)
+        for old in [t for t in self._step_settings if t >= tag]:
+            del self._step_settings[old]
 
     def _restore(self, slot: int) -> None:
         """The bodies and the joint records as the step of backup ``slot`` found them."""
