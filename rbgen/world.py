@@ -319,7 +319,8 @@ class World:
     def joint_impulses(self) -> np.ndarray:
         """(J, 6) float32: the reaction of each joint on body b over the last step, world
         frame: linear impulse (N s) then angular impulse (N m s); the last substep's
-        impulses times the substeps (a broken joint's are zero). Blocking reads."""
+        impulses times the substeps it ran with (a broken joint's are zero). Blocking
+        reads."""
         self._finish_pending()
         self._joints.sync_to_host()
         self._bodies.sync_to_host()
@@ -329,7 +330,8 @@ class World:
         )
         out = np.zeros((len(host), 6), np.float32)
         out[:, :3], out[:, 3:] = linear, angular
-        return out * np.float32(self.settings.substeps)
+        ran = self._step_settings.get(self.steps - 1, self.settings)
+        return out * np.float32(ran.substeps)
 
     @property
     def joints_broken(self) -> np.ndarray:
