@@ -34,7 +34,7 @@ Joints: the template's joints are copied into each environment, their bodies ren
 j of environment k is ``k * joints + j``). The step's joint edges come before every
 contact edge and keep their relative order within an environment, so that the
 independence above holds for jointed scenes too. The batch's ``world`` must not add or
-remove joints (`reset` relies on that layout and refuses otherwise).
+remove bodies or joints (its indexing relies on that layout and refuses otherwise).
 
 `reset` restores environments exactly: their bodies' state, their joints as the template
 had them (impulses, broken flags), and no warm start of their contacts (as a fresh
@@ -44,7 +44,7 @@ start has none). Observations are (envs, bodies, ...) arrays;
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import numpy as np
 import pyopencl as cl
@@ -242,8 +242,33 @@ class WorldBatch:
         return {**self.world.statistics(), "envs": self.envs}
 
     # ------------------------------------------------------------- indices
+    def _check_layout(self) -> None:
+        """Refuse to index `world` when bodies were added to or removed from it: body j of
+        environment k is ``shared + k * bodies + j`` only while it holds exactly the
+        bodies the batch laid out (a reset would write over other bodies)."""
+        expected = self.shared + self.envs * self.bodies
+        if self.world.body_count != expected:
+            raise RbgenError(
+                f"the batch's world has {self.world.body_count} bodies, not the {expected} "
+                f"it laid out ({self.shared} shared + {self.envs} environments x "
+                f"{self.bodies}): bodies added to or removed from batch.world break the "
+                f"environments' layout (make a new WorldBatch instead)"
+            )
+
+    def _check_joint_layout(self) -> None:
+        """Refuse a reset when joints were added to or removed from `world` (joint j of
+        environment k is ``k * joints + j`` only while it holds the batch's joints)."""
+        count = self.world.joint_count
+        if count != self.envs * self.joints:
+            raise RbgenError(
+                f"reset: the batch's world has {count} joints, not {self.joints} a "
+                f"environment ({self.envs * self.joints}): joints added to or removed from "
+                f"batch.world cannot be reset"
+            )
+
     def env_ids(self, env_ids=None) -> np.ndarray:
         """Environment indices as int64 (None: all); refused naming ``env_ids``."""
+        self._check_layout()
         if env_ids is None:
             return np.arange(self.envs)
         arr = np.asarray(env_ids)
@@ -283,6 +308,7 @@ class WorldBatch:
 
     # ------------------------------------------------------------- state
     def _field(self, what):
+        self._check_layout()
         name, lanes = STATE_FIELDS[what]
         snapshot = self.world._bodies.field(
             name, lanes, f"batch.reset(env_ids, state={{'{what}': ...}})"
@@ -349,8 +375,14 @@ class WorldBatch:
         to be checked, since a redone step would overwrite it); before the first step,
         or with host edits pending, on the host copy."""
         envs = self.env_ids(env_ids)
+        self._check_joint_layout()
         if len(np.unique(envs)) != len(envs):
             raise RbgenError("env_ids: an environment is listed twice")
+        if state is not None and not isinstance(state, Mapping):
+            raise RbgenError(
+                f"state must be a dict of fields ({list(FIELDS)}) to arrays, got "
+                f"{type(state).__name__}"
+            )
         records = self._records(envs, {} if state is None else dict(state))
         if len(envs) == 0:
             return
@@ -396,12 +428,6 @@ class WorldBatch:
         if not self.joints:
             return
         store = self.world._joints
-        if store.count != self.envs * self.joints:
-            raise RbgenError(
-                f"reset: the batch's world has {store.count} joints, not {self.joints} a "
-                f"environment ({self.envs * self.joints}): joints added to or removed from "
-                f"batch.world cannot be reset"
-            )
         if store.dirty or store.device is None:
             store.host[self.joint_ids(envs).reshape(-1)] = self._joint_records[envs].reshape(-1)
             store.dirty = True

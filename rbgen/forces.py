@@ -73,8 +73,9 @@ class ExternalForces:
         self.count = 0
         self._sums = [np.zeros((0, 3)) for _ in FIELDS]
         self._used = [False] * len(FIELDS)
-        #: tag -> the uploaded forces of the steps that may be redone
-        self._steps: dict[int, StepForces] = {}
+        #: tag -> the uploaded forces of the steps that may be redone (None: the step ran
+        #: without forces, and its redo must too: forces given since are the next step's)
+        self._steps: dict[int, StepForces | None] = {}
         #: per field, uploads no step needs any more (reused: no allocation a step)
         self._spare: list[list[_Upload]] = [[] for _ in FIELDS]
 
@@ -173,6 +174,7 @@ class ExternalForces:
         if tag in self._steps:
             return self._steps[tag]
         if not self._pending:
+            self._steps[tag] = None
             return None
         uploads: list[_Upload | None] = [None] * len(FIELDS)
         for k, used in enumerate(self._used):
@@ -184,7 +186,10 @@ class ExternalForces:
         return step
 
     def _retire(self, tag: int) -> None:
-        for k, upload in enumerate(self._steps.pop(tag).uploads):
+        step = self._steps.pop(tag)
+        if step is None:
+            return
+        for k, upload in enumerate(step.uploads):
             if upload is not None:
                 self._spare[k].append(upload)
 

@@ -27,7 +27,7 @@ from .bodies import STATE_FIELDS, BodyStore, body_ids, bounding_radius, floats, 
 from .codegen import KernelSpec, SpecLog
 from .device import Runtime, coerce_runtime
 from .errors import RbgenError
-from .forces import ExternalForces
+from .forces import KEEP_STEPS, ExternalForces
 from .guard import STEPS_IN_FLIGHT, Replan, StepGuard
 from .joints import JointStore, joint_fields, joint_reactions, pack_joints
 from .memory import WorldMemory
@@ -97,6 +97,9 @@ class World:
         self._device = None
         self._guard = StepGuard(self.runtime)
         self._forces = ExternalForces(self.runtime)
+        #: step number -> the settings it ran with (a redo replays them, not the settings
+        #: changed since); the steps a redo can reach (`rbgen.forces.KEEP_STEPS`)
+        self._step_settings: dict[int, Settings] = {}
         #: every kernel specialisation this World compiled (what `rbgen export` writes)
         self._spec_log = SpecLog(self.runtime)
         self.last_step_counters = {"launches": 0, "blocking_reads": 0}
@@ -333,7 +336,8 @@ class World:
     def joint_impulses(self) -> np.ndarray:
         """(J, 6) float32: the reaction of each joint on body b over the last step, world
         frame: linear impulse (N s) then angular impulse (N m s); the last substep's
-        impulses times the substeps (a broken joint's are zero). Blocking reads."""
+        impulses times the substeps it ran with (a broken joint's are zero). Blocking
+        reads."""
         self._finish_pending()
         self._joints.sync_to_host()
         self._bodies.sync_to_host()
@@ -343,7 +347,8 @@ class World:
         )
         out = np.zeros((len(host), 6), np.float32)
         out[:, :3], out[:, 3:] = linear, angular
-        return out * np.float32(self.settings.substeps)
+        ran = self._step_settings.get(self.steps - 1, self.settings)
+        return out * np.float32(ran.substeps)
 
     @property
     def joints_broken(self) -> np.ndarray:
@@ -582,12 +587,24 @@ class World:
             return
         slot = self._guard.next_slot()
         tag = self.steps if tag is None else tag
+        settings = self._settings_of(tag)
         self._forces.resize(self._bodies.count)
         forces = self._forces.for_step(tag)
-        self._steps.enqueue(
-            StepContext(dt, slot, self.settings, self._device, self._packed, forces)
-        )
+        self._steps.enqueue(StepContext(dt, slot, settings, self._device, self._packed, forces))
         self._guard.finish_step(dt, slot, tag)
+
+    def _settings_of(self, tag: int) -> Settings:
+        """The settings step ``tag`` runs with: a copy of the World's made at its first
+        enqueue, which its substeps and any redo read again (settings changed after the
+        step, before it was checked, are the next step's)."""
+        settings = self._step_settings.get(tag)
+        if settings is None:
+            for old in [t for t in self._step_settings if t < tag - KEEP_STEPS]:
+                del self._step_settings[old]
+            values = self.settings.as_dict()
+            values["gravity"] = np.array(values["gravity"], copy=True)
+            settings = self._step_settings[tag] = Settings(values)
+        return settings
 
     def _finish_pending(self) -> None:
         """Check every enqueued step (waits for their report copies only)."""
@@ -615,6 +632,8 @@ class World:
         forces are dropped)."""
         self.steps = min(self.steps, tag)
         self._forces.forget(tag)
+        for old in [t for t in self._step_settings if t >= tag]:
+            del self._step_settings[old]
 
     def _restore(self, slot: int) -> None:
         """The bodies and the joint records as the step of backup ``slot`` found them."""

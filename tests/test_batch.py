@@ -217,6 +217,7 @@ def test_observations_have_the_batch_shape(runtime):
             lambda b: b.reset([1], state={"positions": np.full((5, 3), np.nan)}),
             r"positions: environment 1, body 0 has a NaN",
         ),
+        (lambda b: b.reset([0], state=[np.zeros((5, 3))]), r"state must be a dict of fields"),
         (lambda b: b.apply_forces(np.zeros((3, 4, 3))), r"forces must have shape \(3, 5, 3\)"),
         (lambda b: b.apply_forces(np.zeros((1, 5, 3)), env_ids=[7]), r"environment 7"),
         (
@@ -457,3 +458,37 @@ def test_per_env_builds_with_joints_are_refused(runtime):
     build = chain_scene(runtime)
     with pytest.raises(RbgenError, match=r"build\(1\) has 6 joints"):
         rbgen.WorldBatch(2, lambda k: build(), per_env=True)
+
+
+def test_a_world_whose_bodies_changed_is_refused_and_left_as_it_was(runtime):
+    """Bodies removed from (or added to) batch.world break the layout ``shared + k *
+    bodies + j``: reset, apply_forces and the observations raise RbgenError naming the
+    body counts, and the world's bodies are as they were (a reset used to write the
+    environments' records over the wrong bodies, then fail with an IndexError)."""
+    batch = rbgen.WorldBatch(3, stack_scene(runtime))
+    batch.step(DT)
+    batch.world.remove_bodies([1])
+    before = [batch.world.positions.copy(), batch.world.linear_velocities.copy()]
+    match = r"has 15 bodies, not the 16 it laid out"
+    with pytest.raises(RbgenError, match=match):
+        batch.reset([2])
+    with pytest.raises(RbgenError, match=match):
+        batch.apply_forces(np.zeros((3, 5, 3)))
+    with pytest.raises(RbgenError, match=match):
+        _ = batch.positions
+    assert np.array_equal(batch.world.positions, before[0])
+    assert np.array_equal(batch.world.linear_velocities, before[1])
+
+
+def test_a_reset_after_joints_changed_is_refused_before_any_change(runtime):
+    """Joints removed from batch.world: reset raises RbgenError naming the joint counts
+    before it touches a body (it used to reset the bodies first, then raise)."""
+    batch = rbgen.WorldBatch(3, chain_scene(runtime))
+    for _ in range(3):
+        batch.step(DT)
+    batch.world.remove_joints([0])
+    before = [batch.positions.copy(), batch.linear_velocities.copy()]
+    with pytest.raises(RbgenError, match=r"has 17 joints, not 6 a environment \(18\)"):
+        batch.reset([1])
+    assert np.array_equal(batch.positions, before[0])
+    assert np.array_equal(batch.linear_velocities, before[1])

@@ -653,3 +653,17 @@ def test_whipping_chain_of_thin_links_holds_at_16_substeps(runtime):
 )
 def test_whipping_chain_of_thin_links_holds_at_8_substeps(runtime):
     assert whipping_chain_stretch(runtime, 8) < 0.015
+
+
+def test_joint_impulses_scale_by_the_substeps_the_step_ran_with(runtime):
+    """A pendulum at rest stepped with 4 solver substeps, then set to 1 before the read:
+    the reaction over the last step is still the weight's impulse, -m g dt (the last
+    substep's impulse times the 4 substeps it ran with; scaled by the setting changed
+    since, it read a quarter of it)."""
+    world, body = pendulum(runtime, 0.0, substeps=4)
+    for _ in range(30):
+        world.step(DT)
+    world.substeps = 1
+    impulse = world.joint_impulses[0]
+    np.testing.assert_allclose(impulse[:3], (0.0, -G * DT, 0.0), atol=1e-4)
+    np.testing.assert_allclose(impulse[3:], 0.0, atol=1e-5)

@@ -239,3 +239,30 @@ def test_statistics_report_the_normal_solve_used(runtime):
     stats = world.statistics()
     assert stats["normal_solve"] == "block" and stats["batching"] == "cells"
     assert stats["contacts"] > 0
+
+
+@pytest.mark.gpu_shape
+def test_a_redone_step_keeps_the_settings_it_ran_with(runtime):
+    """Gravity is switched on after a first step without it, which overflowed (a pair
+    buffer of 1): the redo of the first step must run without gravity, as it first did.
+    Closed form (semi-implicit Euler): after the two steps v_y = g dt, one step of
+    gravity, as in a World that never overflowed; the redo with the new gravity gave
+    2 g dt."""
+
+    def run(pair_capacity):
+        world = World(runtime, gravity=(0, 0, 0), pair_capacity=pair_capacity)
+        xs = np.arange(6) * 1.0  # boxes of 1 m side at 1 m spacing: touching
+        world.add_bodies(BOX, positions=np.c_[xs, np.zeros(6), np.zeros(6)])
+        world.step(1 / 60)
+        world.gravity = (0, -9.81, 0)
+        world.iterations = 3  # (another setting: the redo keeps the first step's 10)
+        world.step(1 / 60)
+        _ = world.positions  # (checks, and redoes, the steps in flight)
+        return world
+
+    small, large = run(1), run(None)
+    assert small.overflows >= 1 and large.overflows == 0
+    np.testing.assert_allclose(small.linear_velocities[:, 1], -9.81 / 60, rtol=1e-5)
+    for field in ("positions", "linear_velocities", "angular_velocities"):
+        assert np.array_equal(getattr(small, field), getattr(large, field)), field
+    assert small.gravity[1] == -9.81 and small.iterations == 3

@@ -558,6 +558,17 @@ class SolveStage(Stage):
         self._refresh: ContactRefresh | None = None  # (made at the first substepped step)
         self.report_words = 1 if self.solver.barrier_state() is not None else 0
 
+    def resize(self, body_count: int) -> None:
+        """The bodies were uploaded (added, set or removed): the `BodyDelta` records start
+        again from zero. The substeps write a dynamic body's every step but never a static
+        body's, which must stay zero: after a removal, a static body can take the index of
+        a dynamic body that moved, and its contacts would see the ground move."""
+        deltas = None if self._refresh is None else self._refresh.deltas
+        if deltas is not None:
+            cl.enqueue_fill_buffer(
+                self.runtime.queue, buffer_of(deltas), np.uint32(0), 0, deltas.nbytes
+            )
+
     def enqueue(self, step: StepContext) -> None:
         c, b, s = self.constraints, step.bodies, step.settings
         constraints, count = c.constraints.constraints, c.constraints.count

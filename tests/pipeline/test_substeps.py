@@ -233,3 +233,22 @@ def test_persistent_launch_bounces_as_the_launches_do(runtime, monkeypatch):
     looped = run()
     np.testing.assert_allclose(fused, looped, atol=2e-5)
     assert fused[30:].max() > 0.5 + 0.2  # (it bounced)
+
+
+@pytest.mark.gpu_shape
+def test_a_static_body_that_takes_a_moved_bodys_index_stays_still(runtime):
+    """A falling sphere (index 0) is removed, so the static ground takes its index: the
+    substeps must see the ground at rest (its motion zero), not the sphere's last motion.
+    A box resting on the ground then stays at rest, as in the same World without the
+    sphere (closed form: y = 0.5, the half extent). The ground kept the sphere's last
+    BodyDelta before the fix (never written for a static body) and the box sank 6 mm."""
+    world = rbgen.World(runtime, substeps=4)
+    sphere = world.add_body(rbgen.Sphere(0.2), position=(10, 30, 0), linear_velocity=(0, -30, 0))
+    world.add_static(rbgen.Box((5, 0.5, 5)), position=(0, -0.5, 0))
+    world.add_body(rbgen.Box((0.5, 0.5, 0.5)), position=(0, 0.5, 0))
+    for _ in range(5):
+        world.step(1 / 60)
+    world.remove_bodies([sphere])
+    for _ in range(30):
+        world.step(1 / 60)
+        assert abs(world.positions[1, 1] - 0.5) < 2e-4
