@@ -87,7 +87,8 @@ EXPECTED = {
 # the GPU's stay those the GPU plan was measured with; a CPU's serial solve holds the
 # lattices, a 30-box column and a 20-row pyramid at 4 substeps of 3 + 1
 # (benchmarks/holds.py, benchmarks/stacking.py)
-STEP_DEFAULTS = {True: (1, 10, 4), False: (4, 3, 1)}
+#: (substeps, iterations, position_iterations) a GPU and a CPU default to (rbgen.settings)
+STEP_DEFAULTS = {True: (8, 2, 1), False: (4, 3, 1)}
 
 
 @pytest.mark.parametrize("gpu", [True, False])
