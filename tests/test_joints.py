@@ -189,6 +189,17 @@ def chain_gaps(world, joints) -> np.ndarray:
     return np.linalg.norm(pa - pb, axis=1)[joints]
 
 
+def worst_stretch(world, joints, length: float, steps: int) -> float:
+    """The largest total gap of ``joints`` over a chain of ``length`` m (a fraction),
+    seen every 10th of ``steps`` steps."""
+    worst = 0.0
+    for step in range(steps):
+        world.step(DT)
+        if step % 10 == 9:
+            worst = max(worst, chain_gaps(world, joints).sum() / length)
+    return worst
+
+
 def hanging_chain(world, links: int, top: float = 12.0, link: float = 0.1):
     """Capsule links (r 2 cm, 8 cm long, 2 cm apart) hanging from the world at (0, top, 0),
     joined by ball joints at their gaps; returns (body ids, joint ids)."""
@@ -206,12 +217,7 @@ def test_chain_of_100_links_holds_its_length(runtime):
     every 10th step of 2 s (PoCL: 0.34% at worst, the first steps; 1.4% at 4 substeps)."""
     world = World(runtime, substeps=8, **GUIDANCE_SWEEPS)
     _, joints = hanging_chain(world, 100)
-    worst = 0.0
-    for step in range(120):
-        world.step(DT)
-        if step % 10 == 9:
-            worst = max(worst, chain_gaps(world, joints).sum() / 10.0)
-    assert worst < 0.01
+    assert worst_stretch(world, joints, 10.0, steps=120) < 0.01
 
 
 def test_heavy_ball_on_a_light_chain(runtime):
@@ -223,12 +229,7 @@ def test_heavy_ball_on_a_light_chain(runtime):
     end = world.positions[ids[-1]] - (0, 0.05, 0)
     ball = world.add_body(rbgen.Sphere(0.2), mass=100.0, position=end - (0, 0.2, 0))
     joints = list(joints) + [world.add_joint(rbgen.BallJoint(ball, int(ids[-1]), anchor=end))]
-    worst = 0.0
-    for step in range(120):
-        world.step(DT)
-        if step % 10 == 9:
-            worst = max(worst, chain_gaps(world, joints).sum() / 2.0)
-    assert worst < 0.01
+    assert worst_stretch(world, joints, 2.0, steps=120) < 0.01
 
 
 def test_slider_keeps_its_axis_and_limits(runtime):
@@ -630,12 +631,7 @@ def whipping_chain_stretch(runtime, substeps: int, steps: int = 300) -> float:
         b=[None] + [int(i) for i in ids[:-1]],
         anchor=centres - (0.05, 0, 0),
     )
-    worst = 0.0
-    for step in range(steps):
-        world.step(DT)
-        if step % 10 == 9:
-            worst = max(worst, chain_gaps(world, joints).sum() / 10.0)
-    return worst
+    return worst_stretch(world, joints, 10.0, steps)
 
 
 def test_whipping_chain_of_thin_links_holds_at_16_substeps(runtime):
