@@ -239,7 +239,11 @@ def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
     rolls on (at most the speed of a fall down the roughness, sqrt(10/7 g 0.3) = 2 m/s),
     so they are held to that and to staying on the terrain while over it (one may roll off
     its edge and fall; at least half stay), in a World of their own (on the same terrain:
-    a ball rolling into a resting box would set it moving)."""
+    a ball rolling into a resting box would set it moving). The subject is the terrain's
+    contacts, so the solve is one substep of 10 + 4 sweeps, where everything rests by 5 s:
+    at the default efforts (4 of 3 + 1 on CPUs, 8 of 2 + 1 on GPUs) a rocking chair or hull
+    takes up to 8 s on some terrains (seed 1380154127: the chair at 0.09 m/s at 5 s, at
+    rest by 8 s), issue 24's slow settling at few sweeps a substep."""
     vertices, triangles = reference.terrain(24, 1.0, rng, roughness=0.05)
     shapes = [
         rbgen.Box((0.3, 0.2, 0.25)),
@@ -249,7 +253,7 @@ def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
         chair(0.6),
     ]
     for rolls, limit in ((False, 0.05), (True, 2.0)):
-        world = rbgen.World(runtime)
+        world = rbgen.World(runtime, substeps=1, iterations=10, position_iterations=4)
         world.add_static(rbgen.TriangleMesh(vertices, triangles))
         ids, kinds = [], []
         for k, shape in enumerate(shapes):
