@@ -172,8 +172,15 @@ def export_world(
             "(kernels are built for its scene at the first step)"
         )
     if build is not None:
+        from .batch import WorldBatch
         from .schedule import GROW_RUNGS
         from .schedule.write import write_schedule
+
+        if isinstance(world, WorldBatch):
+            raise RbgenError(
+                "export: a WorldBatch's kernels export (build=None), but not a C++ schedule: "
+                "the C++ host replays one World's steps, not a batch's resets and forces"
+            )
 
         return write_schedule(
             world,

@@ -314,6 +314,9 @@ def test_batch_export_is_exactly_what_it_compiled(runtime, tmp_path):
     out = tmp_path / "cli"
     assert main(["export", "--out", str(out), "--world", str(scene), "--device", device]) == 0
     assert json.loads((out / "plan.json").read_text())["choices"]["solver"] == batch.plan.solver
+    # a C++ schedule of a batch is refused by name (was an AttributeError)
+    with pytest.raises(RbgenError, match="WorldBatch"):
+        export_world(batch, tmp_path / "schedule", build=lambda: batch)
 
 
 def test_a_reset_after_a_step_reads_nothing_back(runtime):
