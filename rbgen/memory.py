@@ -168,6 +168,8 @@ def estimate(
         "static flags": (WORD * n, 1),
         "aabbs": (layouts.AABB.itemsize * n, 1),
         "split velocities": (layouts.SPLIT_VELOCITY.itemsize * n, 1),
+        # the step's external forces as per-substep velocity changes (linear, angular)
+        "force kicks": (2 * 4 * WORD * n, 1),
         # grid: body links, large flags, group offsets, bucket heads (two words a body)
         "broadphase scratch": (5 * WORD * n, 1),
         # pairs and the narrowphase's per-pair arrays

@@ -34,7 +34,8 @@ def free_box(runtime, mass=2.0, position=(1.0, 2.0, 3.0)):
 
 
 def test_push_in_free_flight_matches_the_closed_form(runtime):
-    """F on a free box for n steps: v = F t / m, x - x0 = F dt^2 n (n+1) / (2m)."""
+    """F on a free box for n steps of S substeps: v = F t / m, x - x0 = F h^2 N (N+1) / (2m)
+    with N = n S substeps of h = dt / S (the force acts in every substep, as gravity)."""
     rng = np.random.default_rng(1)
     mass, n = 2.5, 30
     force = rng.uniform(-20, 20, 3)
@@ -45,14 +46,19 @@ def test_push_in_free_flight_matches_the_closed_form(runtime):
     v = np.asarray(world.linear_velocities[0], float)
     x = np.asarray(world.positions[0], float) - [1.0, 2.0, 3.0]
     np.testing.assert_allclose(v, force * n * DT / mass, rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(x, force * DT**2 * n * (n + 1) / (2 * mass), rtol=1e-4, atol=1e-5)
+    substeps = world.substeps
+    h, substeps_run = DT / substeps, n * substeps
+    np.testing.assert_allclose(
+        x, force * h**2 * substeps_run * (substeps_run + 1) / (2 * mass), rtol=1e-4, atol=1e-5
+    )
     assert np.all(np.asarray(world.angular_velocities[0]) == 0)
 
 
 @pytest.mark.gpu_shape
 def test_push_on_frictionless_ground_matches_the_closed_form(runtime):
     """A box resting on a frictionless plane, pushed along x: the contact carries its
-    weight and nothing along x, so v_x = F t / m and x - x0 = F dt^2 n (n+1) / (2m)."""
+    weight and nothing along x, so v_x = F t / m and x - x0 = F h^2 N (N+1) / (2m) over
+    N = n S substeps of h = dt / S."""
     mass, force, n = 3.0, 6.0, 40
     world = World(runtime)
     world.add_static(rbgen.Plane((0, 1, 0), 0.0), friction=0.0)
@@ -62,7 +68,10 @@ def test_push_on_frictionless_ground_matches_the_closed_form(runtime):
         world.step(DT)
     v, x = world.linear_velocities[1], world.positions[1]
     assert v[0] == pytest.approx(force * n * DT / mass, rel=1e-4)
-    assert x[0] == pytest.approx(force * DT**2 * n * (n + 1) / (2 * mass), rel=1e-3)
+    h, substeps_run = DT / world.substeps, n * world.substeps
+    assert x[0] == pytest.approx(
+        force * h**2 * substeps_run * (substeps_run + 1) / (2 * mass), rel=1e-3
+    )
     assert abs(x[1] - HALF[1]) < 0.01 and abs(v[1]) < 0.05  # still on the ground
 
 
@@ -229,19 +238,15 @@ def test_a_redo_does_not_take_the_forces_given_for_the_next_step(runtime):
     assert np.any(small.linear_velocities[:, 1] > 0)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="defect: with solver substeps (settings.substeps > 1) the prepare kernel adds the "
-    "whole step's F dt / m before the first substep while gravity comes g h per substep, so "
-    "a force equal to the weight does not balance it (the body rises (k-1) k / 2 g h^2 a "
-    "step); the fix spreads F h / m over the substeps, in the substep loop and in the PGS "
-    "solver that integrates its substeps itself (solvers/pgs.cl.mako)",
-)
-def test_a_force_equal_to_the_weight_balances_gravity_with_substeps(runtime):
+@pytest.mark.gpu_shape
+@pytest.mark.parametrize("substeps", [1, 4])
+def test_a_force_equal_to_the_weight_balances_gravity_with_substeps(runtime, substeps):
     """Closed form: no net force, so a box at rest stays where it is (x and v constant),
-    whatever the solver substeps. Measured: 6.1 cm up after 1 s at 4 substeps."""
+    whatever the solver substeps: a force acts in every substep as gravity does (the
+    prepare kernel's per-substep kicks). Applied as one impulse before the first substep,
+    the box rose 6.1 cm in 1 s at 4 substeps."""
     mass = 2.0
-    world = World(runtime, substeps=4)
+    world = World(runtime, substeps=substeps)
     world.add_body(BOX, mass=mass, position=(0.0, 5.0, 0.0))
     weight = -mass * np.asarray(world.gravity, float)
     for _ in range(60):

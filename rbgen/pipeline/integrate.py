@@ -104,8 +104,12 @@ class Integrator:
             )
         return kernel
 
-    def apply_gravity(self, bodies, body_count: int, dt: float, gravity=(0.0, -9.81, 0.0)):
-        """v += g dt on dynamic bodies (only for an Integrator built with gravity=False)."""
+    def apply_gravity(
+        self, bodies, body_count: int, dt: float, gravity=(0.0, -9.81, 0.0), kicks=None
+    ):
+        """v += g dt on dynamic bodies (only for an Integrator built with gravity=False),
+        and with ``kicks`` (the prepare kernel's, 2 float4 a body) a substep's share of the
+        step's external forces."""
         if self.gravity_kernel is None:
             raise RbgenError(
                 "this Integrator applies gravity inside integrate_bodies (built with gravity=True)"
@@ -119,6 +123,8 @@ class Integrator:
             np.uint32(body_count),
             np.float32(dt),
             np.array([*gravity, 0.0], dtype=np.float32),
+            bodies if kicks is None else kicks,
+            np.uint32(kicks is not None),
         )
 
     def __call__(

@@ -23,6 +23,8 @@ the pairs and contacts it had without it.
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
 
 from .. import layouts
 from ..codegen import KernelTemplate, Param, compile_spec, work_group_size_param
@@ -81,6 +83,7 @@ TEMPLATE = KernelTemplate(
         "forces": "in",
         "lever_forces": "in",
         "moments": "in",
+        "kicks": "out",
     },
     defaults=lambda traits: {
         "work_group_size": default_work_group_size(traits),
@@ -148,6 +151,17 @@ class BodyPreparation:
             sleeping=self.sleeping,
         )
         self.kernel = runtime.bound(compile_spec(runtime, self.spec).kernel("prepare_bodies"))
+        self._kicks: cla.Array | None = None
+
+    def _scratch_kicks(self, body_count: int):
+        """A kicks buffer of at least ``body_count`` bodies, for callers that do not keep
+        the per-substep changes."""
+        kicks = self._kicks
+        if kicks is None or len(kicks) < 2 * body_count:
+            kicks = self._kicks = cla.empty(
+                self.runtime.queue, 2 * max(1, body_count), cl.cltypes.float4
+            )
+        return kicks
 
     def __call__(
         self,
@@ -159,6 +173,8 @@ class BodyPreparation:
         aabbs=None,
         backup=None,
         forces=None,
+        kicks=None,
+        h: float | None = None,
     ):
         """Prepare ``body_count`` bodies; ``gravity`` (3 numbers) is required exactly
         when built with gravity=True (v += g dt on dynamic bodies); ``aabbs``, a tuple
@@ -167,7 +183,9 @@ class BodyPreparation:
         ``body_count``) exactly when built with backup=True. ``forces`` (built with
         external_forces=True): None for a step without forces, else three float4 device
         arrays of at least ``body_count``, or None each (force, lever force, moment:
-        `rbgen.forces`; None is zero)."""
+        `rbgen.forces`; None is zero), with ``kicks`` (2 float4 a body: the velocity
+        changes each substep of ``h`` (default ``dt``) adds; written only when a force
+        array is given; None: a buffer of this BodyPreparation's own)."""
         if (gravity is not None) != self.gravity:
             raise RbgenError(
                 "gravity must be given exactly when this BodyPreparation was "
@@ -194,6 +212,9 @@ class BodyPreparation:
             arrays = [None] * 3 if forces is None else list(forces)
             args += [bodies if a is None else a for a in arrays]
             args.append(np.uint32(sum(1 << k for k, a in enumerate(arrays) if a is not None)))
+            if kicks is None and forces is not None:  # (written: a buffer of its own)
+                kicks = self._scratch_kicks(body_count)
+            args += [bodies if kicks is None else kicks, np.float32(dt if h is None else h)]
         if aabbs is not None:
             shapes, hull_vertices, boxes, margin = aabbs
             args += [shapes, hull_vertices, boxes, np.float32(margin)]

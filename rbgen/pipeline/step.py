@@ -63,6 +63,9 @@ class StepContext:
     bodies: DeviceBodies
     shapes: PackedShapes
     forces: StepForces | None = None
+    #: the prepare stage's per-substep velocity changes of the step's forces (2 float4 a
+    #: body), set when the step has forces: later substeps add them as they add g h
+    kicks: cla.Array | None = None
 
     @property
     def h(self) -> float:
@@ -150,9 +153,12 @@ class PrepareStage(Stage):
             sleeping=plan.sleeping,
         )
         self.aabbs: cla.Array | None = None
+        self.kicks: cla.Array | None = None
 
     def resize(self, body_count: int) -> None:
-        self.aabbs = cla.empty(self.runtime.queue, max(1, body_count), layouts.AABB.dtype)
+        queue, n = self.runtime.queue, max(1, body_count)
+        self.aabbs = cla.empty(queue, n, layouts.AABB.dtype)
+        self.kicks = cla.empty(queue, 2 * n, cl.cltypes.float4)
 
     def enqueue(self, step: StepContext) -> None:
         b, substeps = step.bodies, step.settings.substeps
@@ -172,7 +178,10 @@ class PrepareStage(Stage):
             ),
             backup=b.backups[step.slot],
             forces=None if step.forces is None else step.forces.arrays(),
+            kicks=self.kicks,
+            h=step.h,
         )
+        step.kicks = None if step.forces is None else self.kicks
 
 
 class BroadphaseStage(Stage):
@@ -592,6 +601,7 @@ class SolveStage(Stage):
                 s.penetration_slop,
                 s.penetration_recovery,
                 deltas,
+                step.kicks,
             )
             self.solver.solve(
                 constraints,
@@ -608,7 +618,7 @@ class SolveStage(Stage):
         for k in range(substeps):
             if k > 0:
                 assert self._refresh is not None
-                self.integrator.apply_gravity(b.bodies, b.count, h, s.gravity)
+                self.integrator.apply_gravity(b.bodies, b.count, h, s.gravity, step.kicks)
                 self._refresh(
                     constraints,
                     count,

@@ -140,6 +140,8 @@ SOLVE_GROUPS = Signature(
         Arg("const uint", "substeps", when=_persistent),
         Arg("const float", "h", when=_persistent),
         Arg("const float4", "gravity", when=_persistent),
+        Arg("__global const float4*", "kicks", when=_persistent),
+        Arg("const uint", "kicked", when=_persistent),
         Arg("const float", "linear_damping_factor", when=_persistent),
         Arg("const float", "angular_damping_factor", when=_persistent),
         Arg("const float", "max_angular_step", when=_persistent),
@@ -175,6 +177,8 @@ SOLVE_BUFFERS = (
     "substeps",
     "h",
     "gravity",
+    "kicks",
+    "kicked",
     "linear_damping_factor",
     "angular_damping_factor",
     "max_angular_step",
@@ -340,6 +344,9 @@ class SubstepMotion:
     penetration_slop: float
     penetration_recovery: float
     deltas: object
+    #: the prepare kernel's per-substep velocity changes of the step's external forces
+    #: (2 float4 a body), None for a step without forces
+    kicks: object = None
 
     def arguments(self) -> dict:
         """The kernel arguments by name."""
@@ -353,6 +360,9 @@ class SubstepMotion:
             "penetration_slop": np.float32(self.penetration_slop),
             "penetration_recovery": np.float32(self.penetration_recovery),
             "deltas": self.deltas,
+            # (without forces the argument is bound to a buffer that is not read)
+            "kicks": self.deltas if self.kicks is None else self.kicks,
+            "kicked": np.uint32(self.kicks is not None),
         }
 
 

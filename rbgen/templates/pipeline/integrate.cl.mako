@@ -105,15 +105,21 @@ void integrate_bodies(__global Body* bodies,
 }
 % if not gravity:
 
-/* v += g dt for every dynamic body: run before the contact solver so that
- * resting contacts see (and cancel) this step's gravity. A work group is
+/* v += g dt for every dynamic body, and with `kicked` the step's external forces for
+ * a substep (`kicks`: the prepare kernel's, 2 float4 a body): run before the contact
+ * solver so that resting contacts see (and cancel) them. A work group is
  * responsible for ${work_group_size} consecutive bodies. */
 __kernel __attribute__((reqd_work_group_size(${work_group_size}, 1, 1)))
-void apply_gravity(__global Body* bodies, const uint body_count, const float dt, const float4 gravity)
+void apply_gravity(__global Body* bodies, const uint body_count, const float dt, const float4 gravity,
+                   __global const float4* kicks, const uint kicked)
 {
     uint i = get_global_id(0);
     if (i >= body_count || bodies[i].inv_mass == 0.0f)
         return;
     bodies[i].linear_velocity.xyz += gravity.xyz * dt;
+    if (kicked) {  /* the step's external forces, for this substep (prepare.cl.mako) */
+        bodies[i].linear_velocity.xyz += kicks[2 * i].xyz;
+        bodies[i].angular_velocity.xyz += kicks[2 * i + 1].xyz;
+    }
 }
 % endif

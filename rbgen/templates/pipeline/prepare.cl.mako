@@ -26,12 +26,16 @@
  *   - the world inverse inertia tensor R diag(I^-1) R^T, which the solver
  *     reads for every contact row;
 % if external_forces:
- *   - the step's external forces (rbgen.forces): v += F dt / m,
- *     w += I^-1 (M - x cross F_lever) dt, with x the centre of mass at the
- *     step's start (the host never reads x to turn a force at a point into a
- *     torque); force_terms says which of the three arrays were given (bits
- *     RB_FORCE_*), the others being zero and unread. The arrays are read, not
- *     cleared: a redone step reads the same forces again.
+ *   - the step's external forces (rbgen.forces), for the first substep of h:
+ *     v += F h / m, w += I^-1 (M - x cross F_lever) h, with x the centre of mass
+ *     at the step's start (the host never reads x to turn a force at a point
+ *     into a torque); the same changes go to `kicks` (2 float4 a body: linear,
+ *     angular; zero for a static body), which every later substep adds as it
+ *     adds g h, so that a force acts through the step as gravity does.
+ *     force_terms says which of the three arrays were given (bits RB_FORCE_*),
+ *     the others being zero and unread; with none, `kicks` is not written (the
+ *     substeps are told not to read it). The arrays are read, not cleared: a
+ *     redone step reads the same forces again.
 % endif
  * Static bodies get a zero tensor.
 % if shape_types:
@@ -112,6 +116,8 @@ void prepare_bodies(__global Body* bodies,
                     __global const float4* lever_forces,
                     __global const float4* moments,
                     const uint force_terms,
+                    __global float4* kicks,
+                    const float h,
 % endif
 % if shape_types:
                     __global const Shape* shapes,
@@ -158,18 +164,24 @@ void prepare_bodies(__global Body* bodies,
     inertia[i].inv_inertia_world[2] = (float4)(dot3(r2 * inv_local, r0), dot3(r2 * inv_local, r1),
                                                 dot3(r2 * inv_local, r2), 0.0f);
 % if external_forces:
-    if (force_terms != 0 && bodies[i].inv_mass > 0.0f) {
-        float3 torque = (float3)(0.0f);
-        if (force_terms & RB_FORCE_FORCE)
-            bodies[i].linear_velocity.xyz += forces[i].xyz * (bodies[i].inv_mass * dt);
-        if (force_terms & RB_FORCE_MOMENT)
-            torque = moments[i].xyz;
-        if (force_terms & RB_FORCE_LEVER)
-            torque -= cross3(bodies[i].position.xyz, lever_forces[i].xyz);
-        bodies[i].angular_velocity.xyz +=
-            (float3)(dot3(inertia[i].inv_inertia_world[0].xyz, torque),
-                     dot3(inertia[i].inv_inertia_world[1].xyz, torque),
-                     dot3(inertia[i].inv_inertia_world[2].xyz, torque)) * dt;
+    if (force_terms != 0) {
+        float3 linear = (float3)(0.0f), angular = (float3)(0.0f);
+        if (bodies[i].inv_mass > 0.0f) {
+            float3 torque = (float3)(0.0f);
+            if (force_terms & RB_FORCE_FORCE)
+                linear = forces[i].xyz * (bodies[i].inv_mass * h);
+            if (force_terms & RB_FORCE_MOMENT)
+                torque = moments[i].xyz;
+            if (force_terms & RB_FORCE_LEVER)
+                torque -= cross3(bodies[i].position.xyz, lever_forces[i].xyz);
+            angular = (float3)(dot3(inertia[i].inv_inertia_world[0].xyz, torque),
+                               dot3(inertia[i].inv_inertia_world[1].xyz, torque),
+                               dot3(inertia[i].inv_inertia_world[2].xyz, torque)) * h;
+            bodies[i].linear_velocity.xyz += linear;
+            bodies[i].angular_velocity.xyz += angular;
+        }
+        kicks[2 * i] = (float4)(linear, 0.0f);
+        kicks[2 * i + 1] = (float4)(angular, 0.0f);
     }
 % endif
 % if shape_types:

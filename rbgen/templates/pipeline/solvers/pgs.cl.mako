@@ -597,12 +597,15 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
 /* Every lanes-th body from `lane` moves over the substep h that just ended (the
  * integrator's arithmetic: damping, rotation, the push applied and cleared,
  * the motion since the step began added to `deltas`, restarted when `first`),
- * then takes the next substep's gravity g h (`gravity_h`; zero after the last). */
+ * then takes the next substep's gravity g h (`gravity_h`; zero after the last) and,
+ * with `kick`, its share of the step's external forces (`kicks`, 2 float4 a body:
+ * the prepare kernel's). */
 inline void move_bodies(volatile __global Body* bodies, volatile __global SplitVelocity* split,
                         volatile __global BodyDelta* deltas, uint body_count, uint lane,
                         const float h, const float linear_damping_factor,
                         const float angular_damping_factor, const float max_angular_step,
-                        const bool first, const float3 gravity_h, const bool ok)
+                        const bool first, const float3 gravity_h,
+                        __global const float4* kicks, const bool kick, const bool ok)
 {
     const uint lanes = get_global_size(0);
     for (uint i = lane; ok && i < body_count; i += lanes) {
@@ -622,6 +625,8 @@ inline void move_bodies(volatile __global Body* bodies, volatile __global SplitV
         split[i].angular = (float4)(0.0f);
         bodies[i].position = position;
         bodies[i].orientation = orientation;
+        if (kick)
+            v += kicks[2 * i].xyz, w += kicks[2 * i + 1].xyz;
         bodies[i].linear_velocity = (float4)(v + gravity_h, 0.0f);
         bodies[i].angular_velocity = (float4)(w, 0.0f);
         if (first) {
@@ -807,7 +812,7 @@ void solve_groups(${signature("solve_groups")})
              * gravity; then the constraints' targets follow them */
             move_bodies(bodies, split, deltas, body_count, lane, h, linear_damping_factor,
                         angular_damping_factor, max_angular_step, substep == 1,
-                        gravity.xyz * h, barrier_ok);
+                        gravity.xyz * h, kicks, kicked != 0u, barrier_ok);
             device_barrier(sync, &barrier_ok);
             if (barrier_ok)
                 refresh_batches(constraints, order, offsets, batch_count, lane, push_lane,
@@ -864,7 +869,7 @@ void solve_groups(${signature("solve_groups")})
     if (substeps > 0)
         move_bodies(bodies, split, deltas, body_count, lane, h, linear_damping_factor,
                     angular_damping_factor, max_angular_step, substeps == 1, (float3)(0.0f),
-                    barrier_ok);
+                    kicks, false, barrier_ok);
     device_barrier_leave(sync);
 % endif
 }
