@@ -273,5 +273,20 @@ def format_summary(s: dict) -> str:
         + f"; sanity: NaNs {s['nans']}, "
         f"sunk {s['sunk']}, displaced {s.get('displaced', 0)}, "
         f"max speed {s['max_speed']:.3f} m/s, overflows {s['overflows']}, "
-        f"last box moved {100 * s['last_box_moved']:.2f} cm"
+        f"last box moved {100 * s['last_box_moved']:.2f} cm" + _layer_drops(s.get("layer_drop", []))
+    )
+
+
+def _layer_drops(drops: list) -> str:
+    """The start layers' median drops for the summary line: every layer up to 12 of
+    them, else the top layer's and the largest (the JSON record keeps them all)."""
+    if not drops:
+        return ""
+    cm = [100 * d for d in drops]
+    if len(cm) <= 12:
+        return ", layer drops (cm, bottom to top) " + " ".join(f"{d:.2f}" for d in cm)
+    worst = int(np.argmax(cm))
+    return (
+        f", layer drops: top {cm[-1]:.2f} cm, largest {cm[worst]:.2f} cm "
+        f"(layer {worst + 1} of {len(cm)})"
     )

@@ -120,3 +120,35 @@ def test_settling_counts_displaced_boxes_and_layer_drops():
     nan_end[0] = np.nan
     assert sanity.settling(start, nan_end)["displaced"] == 1
     assert sanity.settling(np.zeros((0, 3)), np.zeros((0, 3))) == {"displaced": 0, "layer_drop": []}
+
+
+def test_the_summary_line_shows_the_layer_drops():
+    """`rbgen run` / `rbgen demo`'s summary line carries the start layers' median drops:
+    every layer up to 12 (bottom first, in cm), else the top layer's and the largest with
+    its layer number; none for a scene without layers."""
+    from rbgen.harness import format_summary
+
+    summary = {
+        "scene": "boxbox",
+        "bodies": 4,
+        "ms_per_step": 1.0,
+        "launches_per_step": 14,
+        "blocking_reads_per_step": 0,
+        "pairs": 4,
+        "manifolds": 4,
+        "contacts": 16,
+        "solver": "jacobi",
+        "nans": 0,
+        "sunk": 0,
+        "displaced": 0,
+        "max_speed": 0.0,
+        "overflows": 0,
+        "last_box_moved": 0.0,
+    }
+    line = format_summary({**summary, "layer_drop": [0.0, 0.002, 0.0135]})
+    assert line.endswith("layer drops (cm, bottom to top) 0.00 0.20 1.35")
+    drops = [0.001 * k for k in range(20)]
+    drops[7] = 0.05
+    line = format_summary({**summary, "layer_drop": drops})
+    assert line.endswith("layer drops: top 1.90 cm, largest 5.00 cm (layer 8 of 20)")
+    assert "layer drops" not in format_summary({**summary, "layer_drop": []})
