@@ -208,8 +208,9 @@ def run_scene(
         if on_step is not None:
             on_step(world, s + 1)
         if (s + 1) % block == 0 or s + 1 == steps:
-            if s + 1 == steps:
-                queue.finish()
+            # the block's steps have all run when its clock stops (else the progress
+            # read-back below, outside the clock, would hide the steps still in flight)
+            queue.finish()
             now = time.perf_counter()
             blocks.append((now - block_start, s % block + 1))
             if progress:  # (the read-back after the block's clock stopped)

@@ -152,3 +152,40 @@ def test_the_summary_line_shows_the_layer_drops():
     line = format_summary({**summary, "layer_drop": drops})
     assert line.endswith("layer drops: top 1.90 cm, largest 5.00 cm (layer 8 of 20)")
     assert "layer drops" not in format_summary({**summary, "layer_drop": []})
+
+
+def test_a_timing_block_ends_after_its_steps_have_run(runtime, monkeypatch):
+    """`run_scene` stops each timing block's clock only after the queue has finished
+    (the steps in flight ran inside the block), so the progress read-back that follows,
+    outside the clock, cannot hide their device time: each block's clock read comes
+    right after a finish of the queue."""
+    from rbgen import harness
+
+    events = []
+    world, ids, top, half = harness.build_scene("boxbox", 8, runtime)
+
+    class Queue:
+        def finish(self):
+            events.append("finish")
+
+    class Runtime:
+        queue = Queue()
+        traits = runtime.traits
+
+    class Probe:
+        """The World with its queue recorded; its reads and steps are the World's."""
+
+        runtime = Runtime()
+
+        def __getattr__(self, name):
+            return getattr(world, name)
+
+    monkeypatch.setattr(harness, "build_scene", lambda *a, **k: (Probe(), ids, top, half))
+    clock = iter(range(10_000))
+    monkeypatch.setattr(
+        harness.time, "perf_counter", lambda: events.append("clock") or float(next(clock))
+    )
+    harness.run_scene("boxbox", 8, 20, runtime, progress=True)
+    reads = [i for i, e in enumerate(events) if e == "clock"][1:]  # (the first starts a block)
+    block_ends = [i for i in reads if events[i - 1] == "finish"]
+    assert len(block_ends) == harness.TIMING_BLOCKS
