@@ -29,6 +29,7 @@ import sys
 from pathlib import Path
 
 from .errors import RbgenError
+from .sanity import holding_drops, worst_drop_mm
 
 SCHEMA = "rbgen-bench/1"
 #: (scene, n, steps, warmup): BoxBox sizes of Bullet3's GpuConvexScene, the 8,000-box
@@ -46,8 +47,6 @@ STANDARD_SCENES = (
 )
 #: ``--quick``: small sizes only
 QUICK_SCENES = (("boxbox", 1_000, 60, 5), ("box_pile", 1_000, 120, 0), ("pyramid", 10, 120, 0))
-#: scenes built in the air (their layers' drops are the fall, not a failure to hold)
-DROPPED_SCENES = ("box_pile", "ragdolls")
 #: scenes whose bodies fall and spread as they land (a body moved sideways is no failure)
 SPREADING_SCENES = ("ragdolls",)
 #: a pile run for `SETTLE_STEPS` steps or more moves slower than this (m/s) at its end
@@ -231,8 +230,8 @@ def holds(result: dict) -> tuple[bool, list[str]]:
 def format_result(r: dict) -> str:
     """One line: scene, ms/step with spread, launches, sanity."""
     s = r["sanity"]
-    drops = (s.get("layer_drop") or []) if r["scene"] not in DROPPED_SCENES else []
-    drop = f", worst layer drop {1e3 * max(drops, key=abs):.1f} mm" if drops else ""
+    worst = worst_drop_mm(r["scene"], s.get("layer_drop"))
+    drop = f", worst layer drop {worst:.1f} mm" if worst is not None else ""
     verdict = "holds" if r["holds"] else "DOES NOT HOLD: " + ", ".join(r["problems"])
     return (
         f"{r['scene']} {r['bodies']:,}: {r['ms']:.2f} ms/step "
@@ -405,8 +404,10 @@ def _time(r: dict) -> str:
 def _sanity(r: dict) -> str:
     s = r["sanity"]
     # (a dropped pile's layers fall by design: its drops say nothing of holding)
-    drops = (s.get("layer_drop") or []) if r["scene"] not in DROPPED_SCENES else []
-    worst = f", worst layer drop {1e3 * max(drops, key=abs):.0f} mm" if len(drops) > 1 else ""
+    drops = holding_drops(r["scene"], s.get("layer_drop"))
+    worst = (
+        f", worst layer drop {worst_drop_mm(r['scene'], drops):.0f} mm" if len(drops) > 1 else ""
+    )
     text = (
         f"NaN {s['nans']}, sunk {s['sunk']}, displaced {s['displaced']}, "
         f"max speed {s['max_speed']:.2f} m/s{worst}"

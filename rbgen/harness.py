@@ -220,7 +220,8 @@ def run_scene(
     """Build scene ``name`` of size ``n``, run ``warmup`` then ``steps`` steps; return a summary.
 
     The summary: device, bodies, steps, ms_per_step (the median of the ms/step of
-    `TIMING_BLOCKS` blocks of steps; ms_per_step_mean: the mean of all), launches and
+    `TIMING_BLOCKS` blocks of steps, each ending when its steps have run, so that no block
+    carries another's work; ms_per_step_mean: the mean of all), launches and
     blocking_reads per step (of the last step), pairs / manifolds / contacts / batches of the last
     step, the batching, solver and normal solve it used with the release sweeps (0 for a
     sequential normal solve, None: every sweep), overflows (redone steps), and sanity: nans, sunk
@@ -319,20 +320,22 @@ def format_summary(s: dict) -> str:
         + f"; sanity: NaNs {s['nans']}, "
         f"sunk {s['sunk']}, displaced {s.get('displaced', 0)}, "
         f"max speed {s['max_speed']:.3f} m/s, overflows {s['overflows']}, "
-        f"last box moved {100 * s['last_box_moved']:.2f} cm" + _layer_drops(s.get("layer_drop", []))
+        f"last box moved {100 * s['last_box_moved']:.2f} cm"
+        + _layer_drops(sanity.holding_drops(s["scene"], s.get("layer_drop")))
     )
 
 
 def _layer_drops(drops: list) -> str:
-    """The start layers' median drops for the summary line: every layer up to 12 of
-    them, else the top layer's and the largest (the JSON record keeps them all)."""
+    """The start layers' median drops for the summary line (`rbgen.sanity.holding_drops`:
+    none for a dropped scene), in mm as `rbgen.bench` prints them: every layer up to 12
+    of them, else the top layer's and the largest (the JSON record keeps them all)."""
     if not drops:
         return ""
-    cm = [100 * d for d in drops]
-    if len(cm) <= 12:
-        return ", layer drops (cm, bottom to top) " + " ".join(f"{d:.2f}" for d in cm)
-    worst = int(np.argmax(cm))
+    mm = [1e3 * d for d in drops]
+    if len(mm) <= 12:
+        return ", layer drops (mm, bottom to top) " + " ".join(f"{d:.1f}" for d in mm)
+    worst = int(np.argmax(np.abs(mm)))
     return (
-        f", layer drops: top {cm[-1]:.2f} cm, largest {cm[worst]:.2f} cm "
-        f"(layer {worst + 1} of {len(cm)})"
+        f", layer drops: top {mm[-1]:.1f} mm, largest {mm[worst]:.1f} mm "
+        f"(layer {worst + 1} of {len(mm)})"
     )

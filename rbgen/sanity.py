@@ -20,6 +20,8 @@ import numpy as np
 DISPLACED = 0.5
 #: start heights closer than this (m) are one layer
 LAYER_TOLERANCE = 0.01
+#: scenes built in the air (their layers' drops are the fall, not a failure to hold)
+DROPPED_SCENES = ("box_pile", "ragdolls", "terrain")
 
 
 def settling(start: np.ndarray, end: np.ndarray) -> dict:
@@ -36,3 +38,15 @@ def settling(start: np.ndarray, end: np.ndarray) -> dict:
     drop = start[:, 1] - end[:, 1]
     medians = [float(np.median(drop[layer_of == k])) for k in range(len(layers))]
     return {"displaced": displaced, "layer_drop": medians}
+
+
+def holding_drops(scene: str, drops) -> list[float]:
+    """The layer drops (m) that say whether ``scene`` held: none for a scene built in the
+    air (`DROPPED_SCENES`), whose layers fall by design."""
+    return [] if scene in DROPPED_SCENES else list(drops or [])
+
+
+def worst_drop_mm(scene: str, drops) -> float | None:
+    """The largest layer drop of ``scene`` (by size, in mm), None where drops say nothing."""
+    drops = holding_drops(scene, drops)
+    return 1e3 * max(drops, key=abs) if drops else None

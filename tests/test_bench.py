@@ -123,9 +123,10 @@ def test_settling_counts_displaced_boxes_and_layer_drops():
 
 
 def test_the_summary_line_shows_the_layer_drops():
-    """`rbgen run` / `rbgen demo`'s summary line carries the start layers' median drops:
-    every layer up to 12 (bottom first, in cm), else the top layer's and the largest with
-    its layer number; none for a scene without layers."""
+    """`rbgen run` / `rbgen demo`'s summary line carries the start layers' median drops in
+    mm, as `rbgen bench`'s lines do: every layer up to 12 (bottom first), else the top
+    layer's and the largest by size with its layer number; none for a scene without
+    layers, nor for a dropped pile (its layers fall by design: `sanity.holding_drops`)."""
     from rbgen.harness import format_summary
 
     summary = {
@@ -146,12 +147,14 @@ def test_the_summary_line_shows_the_layer_drops():
         "last_box_moved": 0.0,
     }
     line = format_summary({**summary, "layer_drop": [0.0, 0.002, 0.0135]})
-    assert line.endswith("layer drops (cm, bottom to top) 0.00 0.20 1.35")
+    assert line.endswith("layer drops (mm, bottom to top) 0.0 2.0 13.5")
     drops = [0.001 * k for k in range(20)]
-    drops[7] = 0.05
+    drops[7] = -0.05
     line = format_summary({**summary, "layer_drop": drops})
-    assert line.endswith("layer drops: top 1.90 cm, largest 5.00 cm (layer 8 of 20)")
+    assert line.endswith("layer drops: top 19.0 mm, largest -50.0 mm (layer 8 of 20)")
     assert "layer drops" not in format_summary({**summary, "layer_drop": []})
+    pile = {**summary, "scene": "box_pile", "layer_drop": [1.0, 2.0]}
+    assert "layer drops" not in format_summary(pile)
 
 
 def test_a_timing_block_ends_after_its_steps_have_run(runtime, monkeypatch):
