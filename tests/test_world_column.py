@@ -107,3 +107,48 @@ def test_tipped_column_stops_rocking_with_position_correction(request, runtime, 
     late, offset = rock_tipped_column(runtime, batching)
     assert late < 0.05
     assert offset < 0.1
+
+
+def stack_column(runtime, count: int, heavy: float | None = None):
+    """(drift, drop) after 600 steps at the device's defaults: ``count`` unit boxes stacked
+    on the ground (and a box of mass ``heavy`` on top): the largest sideways move of any box
+    and the top box's drop (m)."""
+    world = rbgen.World(runtime)
+    world.add_static(rbgen.Box((20, 1, 20)), position=(0, -1, 0))
+    start = np.array([[0.0, 0.5 + k, 0.0] for k in range(count + (1 if heavy else 0))])
+    masses = [1.0] * count + ([heavy] if heavy else [])
+    ids = [
+        world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=m, position=p)
+        for m, p in zip(masses, start)
+    ]
+    for _ in range(600):
+        world.step(1 / 60)
+    p = world.positions[ids]
+    drift = float(np.hypot(p[:, 0] - start[:, 0], p[:, 2] - start[:, 2]).max())
+    return drift, float(start[-1, 1] - p[-1, 1])
+
+
+@pytest.mark.gpu_shape
+def test_a_30_box_column_stands(runtime):
+    """Issue 24: a column of 30 unit boxes stands at the defaults: < 1 cm sideways drift
+    over 10 s (its 30 contacts' slop lowers the top box about 2.5 cm on PoCL)."""
+    drift, _ = stack_column(runtime, 30)
+    assert drift < 0.01
+
+
+@pytest.mark.gpu_shape
+def test_a_heavy_box_on_a_light_column_stands(runtime, request):
+    """Issue 24: a 100 kg box on a column of ten 1 kg boxes stands: drift < 1 cm and the
+    heavy box drops < 2 cm over 10 s (the GPU default, 8 x (2 + 1), holds it in the H200's
+    shape)."""
+    if not runtime.traits.is_gpu:
+        request.applymarker(
+            pytest.mark.xfail(
+                strict=True,
+                reason="issue 24, open: at the CPU default 4 x (3 + 1) the 100:1 column "
+                "oscillates and sinks 4.26 cm (PoCL; 8 x (2 + 1) holds it, 1.52 cm): soft, "
+                "damped contact rows or a block solve along the column are the levers",
+            )
+        )
+    drift, drop = stack_column(runtime, 10, heavy=100.0)
+    assert drift < 0.01 and drop < 0.02

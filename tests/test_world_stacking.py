@@ -1,9 +1,8 @@
-"""Stacking at dt = 1/60 with the World's default substeps and sweeps (GPU: 1 substep of
-10 + 4; CPU: 4 substeps of 3 + 1 with the block normal solve).
+"""Stacking at dt = 1/60 with the World's default substeps and sweeps (GPU: 8 substeps of
+2 + 1; CPU: 4 substeps of 3 + 1 with the block normal solve).
 
 * A 20-row pyramid of unit boxes (210 boxes, 2 cm gaps within a row) holds:
-  its top box moves < 5 cm over 600 steps (every contact settles at about
-  the 1 mm slop, so the top sinks ~2 cm).
+  its top box moves < 1 cm over 600 steps (issue 24's bar).
 * A loose grid of boxes (1.5 m pitch, +-5 cm jitter) dropped on the ground comes to rest: max speed
   < 0.05 m/s by step 300 and no box sunk more than 2 cm into the ground
   (bottom face above y = -0.02). Both batching modes. The 8,000-box version is a benchmark
@@ -37,7 +36,17 @@ STACKING_IDS = [f"{mode}-{'fast' if fast else 'default'}" for mode, fast in STAC
 
 @pytest.mark.gpu_shape
 @pytest.mark.parametrize("batching, fast_math", STACKING_CASES, ids=STACKING_IDS)
-def test_pyramid_of_20_rows_holds(runtime, batching, fast_math):
+def test_pyramid_of_20_rows_holds(runtime, batching, fast_math, request):
+    """Issue 24's bar: the top box moves < 1 cm in 600 steps at the default efforts (PoCL,
+    CPU default: 0.71-0.75 cm on global and slabs; the H200's shape: 0.33-0.56 cm)."""
+    if not runtime.traits.is_gpu and batching == "cells":
+        request.applymarker(
+            pytest.mark.xfail(
+                strict=True,
+                reason="issue 24: the CPU default 4 x (3 + 1) on cells batching (not a CPU's "
+                "default batching) lets the top move 1.10 cm",
+            )
+        )
     world = World(runtime, batching=batching, fast_math=fast_math)
     world.add_static(rbgen.Box((50, 1, 50)), position=(0, -1, 0))
     ids = world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=pyramid_positions(20))
@@ -45,7 +54,7 @@ def test_pyramid_of_20_rows_holds(runtime, batching, fast_math):
     start = world.positions[top]
     for _ in range(600):
         world.step(DT)
-    assert np.linalg.norm(world.positions[top] - start) < 0.05
+    assert np.linalg.norm(world.positions[top] - start) < 0.01
     if batching == "global":
         assert world.statistics()["groups_used"] == 1  # one connected pile: one work group
     else:
