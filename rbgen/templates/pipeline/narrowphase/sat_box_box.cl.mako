@@ -100,7 +100,8 @@ inline float second_face_gap(const BoxPair* g, uint j)
  * square root and division (the axis cannot win).
  *
  * An axis within 1 degree (FACE_ALIGNED_COS2) of a face normal of either box
- * is also -INFINITY when that face axis is no deeper than it, within
+ * is also -INFINITY when that face axis (the shallower where both boxes have
+ * one) is no deeper than it, within
  * FACE_ALIGNED_TOLERANCE: the face measures the same direction, and its
  * clipped manifold supports a resting box at four corners, where an edge pair
  * chosen by a few mrad of tilt gives one point and flickers with it. A
@@ -124,12 +125,15 @@ inline float edge_gap(const BoxPair* g, uint i, uint j, float at_most, float* of
     float a_i2 = g->r[i1][j] * g->r[i1][j], a_i1 = g->r[i2][j] * g->r[i2][j];
     float b_j2 = g->r[i][j1] * g->r[i][j1], b_j1 = g->r[i][j2] * g->r[i][j2];
     float along_a = max1(a_i1, a_i2), along_b = max1(b_j1, b_j2);
-    if (max1(along_a, along_b) > FACE_ALIGNED_COS2 * sin2) {
-        float face = along_a >= along_b ? first_face_gap(g, a_i1 >= a_i2 ? i1 : i2)
-                                        : second_face_gap(g, b_j1 >= b_j2 ? j1 : j2);
-        if (face >= gap - FACE_ALIGNED_TOLERANCE && (gap <= 0.0f || face > 0.0f))
-            return -INFINITY;
-    }
+    /* the shallower of the aligned faces: a box tilted by a few mrad on another has a
+     * face of each within the angle, and either one measures the direction */
+    float face = -INFINITY;
+    if (along_a > FACE_ALIGNED_COS2 * sin2)
+        face = first_face_gap(g, a_i1 >= a_i2 ? i1 : i2);
+    if (along_b > FACE_ALIGNED_COS2 * sin2)
+        face = max1(face, second_face_gap(g, b_j1 >= b_j2 ? j1 : j2));
+    if (face >= gap - FACE_ALIGNED_TOLERANCE && (gap <= 0.0f || face > 0.0f))
+        return -INFINITY;
     return gap;
 }
 
