@@ -482,6 +482,7 @@ class WorldBatch:
             raise RbgenError("forces are required (an (envs, bodies, 3) array)")
         # (checked here, so the World's forces take them as they are)
         self.world._forces.resize(self.world.body_count)
+        self.world._give_forces()  # (their uploads must fit: MemoryLimitError otherwise)
         self.world._forces.accumulate(self.body_ids(envs).reshape(-1), *checked)
 
     # ------------------------------------------------------------- stepping

@@ -78,6 +78,9 @@ class ExternalForces:
         self._steps: dict[int, StepForces | None] = {}
         #: per field, uploads no step needs any more (reused: no allocation a step)
         self._spare: list[list[_Upload]] = [[] for _ in FIELDS]
+        #: whether the World was given forces (set by it once its memory check passed):
+        #: from then on its estimate counts the uploads (`rbgen.memory.FORCE_UPLOADS`)
+        self.given = False
 
     @property
     def _pending(self) -> bool:
@@ -121,12 +124,17 @@ class ExternalForces:
     def add(self, ids, forces, torques=None, points=None) -> None:
         """Add to the sums of bodies ``ids`` (see the module docstring); every argument
         is checked before anything is added."""
+        self.accumulate(*self.checked(ids, forces, torques, points))
+
+    def checked(self, ids, forces, torques=None, points=None) -> tuple:
+        """The arguments of `add` checked (errors name the argument and the body), as
+        `accumulate` takes them."""
         ids = body_ids(ids, self.count, "ids")
         n = len(ids)
         force = _vectors(forces, n, "forces", ids)
         torque = None if torques is None else _vectors(torques, n, "torques", ids)
         point = None if points is None else _vectors(points, n, "points", ids)
-        self.accumulate(ids, force, torque, point)
+        return ids, force, torque, point
 
     def accumulate(self, ids: np.ndarray, force, torque=None, point=None) -> None:
         """`add` without its checks: ``ids`` int64 in range, the rest (len(ids), 3) finite

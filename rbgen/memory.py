@@ -14,9 +14,13 @@ or the ``pair_capacity`` option, or what growth reached); the manifold capacity
 (`MANIFOLDS_PER_BODY` a body, or ``manifold_capacity``, or grown), which also sizes each
 of the constraint ring's `GENERATIONS`; the joints (their records with a backup per step
 in flight, their joined pairs, and an edge each in every generation of the ring and in
-the batching's lists). Scratch that no term names is covered by
-`SCRATCH_ALLOWANCE` and `FIXED_BYTES`; a test holds the estimate between the bytes a
-World really holds and 1.5 times them, for every broadphase and solver.
+the batching's lists); the substep motion records; once the World was given forces,
+their uploads (`FORCE_UPLOADS` float4 arrays a body, each with a pinned host array:
+``pinned``, host memory). Every buffer that grows with the scene has a term: tests hold
+the growth of the named bytes within 1 KiB (and 5 % above) of the growth of the bytes
+a World really holds, for every broadphase and solver, with and without forces,
+substeps, sleeping and joints. Only fixed-size tables (shapes, status words, reports)
+are left to `FIXED_BYTES`; `SCRATCH_ALLOWANCE` is a margin on top.
 
 **Limits**: host: ``MemAvailable`` of ``/proc/meminfo`` and the headroom of this
 process's cgroup (the smaller); device: its global memory (less what the other live
@@ -38,8 +42,13 @@ import pyopencl.array as cla
 
 from . import layouts
 from .errors import MemoryLimitError
+from .forces import FIELDS as FORCE_FIELDS
+from .forces import KEEP_STEPS as FORCE_KEEP_STEPS
 from .guard import STEPS_IN_FLIGHT
 from .pipeline.broadphase.base import DEFAULT_PAIRS_PER_BODY
+from .pipeline.broadphase.grid import grid_dim_for
+from .pipeline.broadphase.pairs import MAX_FOLDED_BODIES
+from .pipeline.broadphase.sap3 import CHANGES_PER_BODY
 from .pipeline.constraints import GENERATIONS
 from .pipeline.midphase import PAIRS_PER_PAIR
 from .pipeline.step import MANIFOLDS_PER_BODY
@@ -61,6 +70,11 @@ FIXED_BYTES = 1 << 20
 ADD_TEMPORARY_FLOAT64 = 4 + 4 + 3 + 3 + 3 + 3 + 4
 #: the host mirror of one body: its record and its inverse inertia diagonal (float32)
 HOST_BYTES_PER_BODY = layouts.BODY.itemsize + 3 * WORD
+#: the force uploads a World holds once it was given forces (`rbgen.forces`): one float4
+#: array a body per field, for each step a redo can reach and the step being enqueued,
+#: each with a pinned host array of the same size that it is copied from
+FORCE_UPLOADS = len(FORCE_FIELDS) * (FORCE_KEEP_STEPS + 1)
+FORCE_UPLOAD_BYTES = 4 * WORD  # (a float4 a body)
 #: float64 arrays of one joint that `rbgen.joints.pack_joints` holds while it checks and
 #: packs the records (the bodies' poses at both ends, anchors, axes, limits, masks)
 ADD_JOINT_TEMPORARY_FLOAT64 = 2 * (3 + 4) + 3 * 3 + 2 * 3 + 8
@@ -134,15 +148,31 @@ def table_words(capacity: int) -> int:
 @dataclasses.dataclass(frozen=True)
 class Estimate:
     """Device bytes of a World's buffers by name (``buffers``), with the largest single
-    buffer (``largest``: name, bytes) and the total with the allowances."""
+    buffer (``largest``: name, bytes) and the total with the allowances; ``pinned``: the
+    pinned host buffers it copies through, by name (host memory on a GPU: they count
+    against the host limit, not the device's)."""
 
     sizes: Sizes
     buffers: dict
     largest: tuple
+    pinned: dict = dataclasses.field(default_factory=dict)
 
     @property
     def total(self) -> int:
+        """Device bytes with the allowances (`SCRATCH_ALLOWANCE`, `FIXED_BYTES`)."""
         return int(sum(self.buffers.values()) * (1 + SCRATCH_ALLOWANCE)) + FIXED_BYTES
+
+    @property
+    def pinned_total(self) -> int:
+        """Bytes of the pinned host buffers."""
+        return int(sum(self.pinned.values()))
+
+    @property
+    def named(self) -> int:
+        """Every buffer a term names, device and pinned, without the allowances: what
+        `device_bytes` measures of the World, less the small fixed tables (shapes, status
+        words, reports) that `FIXED_BYTES` stands for."""
+        return int(sum(self.buffers.values())) + self.pinned_total
 
 
 def estimate(
@@ -153,11 +183,22 @@ def estimate(
     kinds: int = 1,
     sleeping: bool = False,
     contact_geometry: bool = False,
+    forces: bool = False,
 ) -> Estimate:
     """The device buffers of a World of ``sizes`` (``kinds``: the narrowphase's shape-type
     pair queues; ``sleeping``: the World option; ``contact_geometry``: a PGS solve in the
-    serial form, a CPU's, keeps a `layouts.CONTACT_GEOMETRY` a constraint). Each entry is
-    (bytes of one buffer, how many such buffers)."""
+    serial form, a CPU's, keeps a `layouts.CONTACT_GEOMETRY` a constraint; ``forces``: the
+    World was given external forces, so it holds `FORCE_UPLOADS` uploads, each a device
+    array and a pinned host array). Each entry is (bytes of one buffer, how many such
+    buffers).
+
+    Contract: every buffer that grows with the bodies, pairs, manifolds or joints has a
+    term here, for the broadphases, solvers and options a World takes (a test holds the
+    named bytes, `Estimate.named`, within a few per cent and a few KiB of what a World
+    really holds); only tables of a fixed size are left to `FIXED_BYTES`, and
+    `SCRATCH_ALLOWANCE` is a margin on top, not a place for buffers the terms forget.
+    Buffers made by a later step setting (solver substeps > 1 makes the substep motion
+    records) are counted from the start: a setting changes without a memory check."""
     n, p, m, j = sizes.bodies, sizes.pairs, sizes.manifolds, sizes.joints
     q = sizes.narrow_pairs
     slots = 2 if broadphase == "sap3" else 1  # sap3 double-buffers its pairs and boxes
@@ -170,8 +211,9 @@ def estimate(
         "split velocities": (layouts.SPLIT_VELOCITY.itemsize * n, 1),
         # the step's external forces as per-substep velocity changes (linear, angular)
         "force kicks": (2 * 4 * WORD * n, 1),
-        # grid: body links, large flags, group offsets, bucket heads (two words a body)
-        "broadphase scratch": (5 * WORD * n, 1),
+        # the bodies' motion since the step began, for the substeps' contact targets
+        # (made at the first step with solver substeps > 1, or by a persistent solve)
+        "substep motion records": (layouts.BODY_DELTA.itemsize * n, 1),
         # pairs and the narrowphase's per-pair arrays
         "pairs": (layouts.PAIR.itemsize * p, slots),
         "pair halves": (2 * WORD * p, slots),
@@ -205,10 +247,30 @@ def estimate(
             + WORD * n,
             1,
         )
+    if broadphase == "sap":
+        # the sweep's centre moments (6), log sizes, large flags and list, sort keys and
+        # bodies, pair counts and offsets; the radix sort's keys and values; sorted boxes
+        one["broadphase scratch"] = ((13 + 2) * WORD * n + layouts.AABB.itemsize * n, 1)
+        # the pairs sorted into (a, b) order: folded keys (values too past
+        # MAX_FOLDED_BODIES) and the digit table (at most a word a pair)
+        one["pair sort"] = ((2 + (n > MAX_FOLDED_BODIES)) * WORD * p, 1)
+    else:
+        # grid (sap3's full query too): body links, large flags, group offsets, and the
+        # bucket heads (`grid_dim_for` cubed)
+        one["broadphase scratch"] = (WORD * (3 * n + grid_dim_for(n) ** 3), 1)
     if broadphase == "sap3":
-        # per slot: boxes, ranks (6 endpoints), sorted endpoints (3 axes x 2); keys (3 x 2)
+        # per slot: boxes, ranks (6 endpoints), sorted endpoints (3 axes x 2); endpoint
+        # keys (3 axes x 2) and the radix sort's keys and values (2 x 2)
         one["sweep endpoints"] = ((layouts.AABB.itemsize + 12 * WORD) * n, slots)
-        one["sweep keys"] = (8 * WORD * n, 1)
+        one["sweep keys"] = (10 * WORD * n, 1)
+        # the incremental update: rank moves (6 a body); per change slot the two halves,
+        # flags, index, ranks and keep flags, the sort's keys and values and the unique
+        # pair; per old pair its keep flag and rank
+        changes = CHANGES_PER_BODY * n + 1024  # (`IncrementalSapBroadphase._update_pairs`)
+        one["incremental update"] = (
+            6 * WORD * n + (8 * WORD + layouts.PAIR.itemsize) * changes + 2 * WORD * p,
+            1,
+        )
     if solver == "jacobi":
         # two sides a constraint: slots, lists, and two float4 velocity changes each
         one["solver lists"] = ((2 * 2 * WORD + 2 * 2 * 4 * WORD) * m, 1)
@@ -227,9 +289,13 @@ def estimate(
         # the records, and a backup per step in flight (`rbgen.joints.JointStore`)
         one["joints"] = (layouts.JOINT_CONSTRAINT.itemsize * j, 1 + STEPS_IN_FLIGHT)
         one["joined pairs"] = (2 * WORD * j, 1)
+    pinned = {}
+    if forces:
+        one["force uploads"] = (FORCE_UPLOAD_BYTES * n, FORCE_UPLOADS)
+        pinned["force upload staging"] = FORCE_UPLOAD_BYTES * n * FORCE_UPLOADS
     buffers = {name: size * count for name, (size, count) in one.items()}
     largest = max(((name, size) for name, (size, _) in one.items()), key=lambda t: t[1])
-    return Estimate(sizes, buffers, largest)
+    return Estimate(sizes, buffers, largest, pinned)
 
 
 # ----------------------------------------------------------------- limits
@@ -349,7 +415,9 @@ class WorldMemory:
         self.held = estimate(Sizes(0, 0, 0), **self._config(()))  # nothing allocated yet
         _LEDGER[owner] = (runtime.device.int_ptr, self.held.total)
 
-    def _config(self, shape_types) -> dict:
+    def _config(self, shape_types, forces: bool | None = None) -> dict:
+        """The `estimate` options of this World (``forces``: whether it holds force
+        uploads; None: whether it was given forces so far)."""
         from .errors import RbgenError
         from .pipeline.narrowphase.kinds import kinds_for, pair_kernels
 
@@ -364,7 +432,13 @@ class WorldMemory:
             "sleeping": bool(self.options.get("sleeping", False)),
             # (CPU plans solve in the serial form: `rbgen.pipeline.batching.default_solve_form`)
             "contact_geometry": not self.runtime.traits.is_gpu,
+            "forces": self._forces_given() if forces is None else bool(forces),
         }
+
+    def _forces_given(self) -> bool:
+        owner = self._owner()
+        forces = getattr(owner, "_forces", None)
+        return bool(getattr(forces, "given", False))
 
     def sizes(self, bodies: int, pipeline=None, store=None, joints: int | None = None) -> Sizes:
         """The sizes a World of ``bodies`` runs with: the defaults for that many bodies,
@@ -400,11 +474,19 @@ class WorldMemory:
         if owner is not None:
             _LEDGER[owner] = (self.runtime.device.int_ptr, self.held.total)
 
-    def check(self, what: str, sizes: Sizes, shape_types=(), host_bytes: int = 0) -> Estimate:
+    def check(
+        self,
+        what: str,
+        sizes: Sizes,
+        shape_types=(),
+        host_bytes: int = 0,
+        forces: bool | None = None,
+    ) -> Estimate:
         """Raise `MemoryLimitError` when a World of ``sizes`` (and ``host_bytes`` more on
-        the host) does not fit; ``what`` names the request in the message. Returns the
-        estimate that fits."""
-        need = estimate(sizes, **self._config(shape_types))
+        the host, besides the growth of its pinned buffers) does not fit; ``what`` names
+        the request in the message; ``forces``: as `_config`. Returns the estimate that
+        fits."""
+        need = estimate(sizes, **self._config(shape_types, forces))
         device = self.device
         counts = f"{sizes.bodies:,} bodies, {sizes.pairs:,} pairs, {sizes.manifolds:,} manifolds"
         if sizes.joints:
@@ -422,19 +504,22 @@ class WorldMemory:
                 f"{what} needs about {format_bytes(need.total)} of device memory "
                 f"({counts}); the limit is {format_bytes(limit)} ({source})"
             )
-        more = host_bytes + (max(0, need.total - self.held.total) if device.shares_host else 0)
+        pinned = max(0, need.pinned_total - self.held.pinned_total)
+        buffers = max(0, need.total - self.held.total) if device.shares_host else 0
+        more = host_bytes + pinned + buffers
         available, source = host_available()
         if available is not None and more > available:
             shared = (
-                f", of which {format_bytes(more - host_bytes)} device buffers: "
+                f", {format_bytes(buffers)} device buffers: "
                 f"{device.name} allocates from host memory"
                 if device.shares_host
                 else ""
             )
+            staged = f", {format_bytes(pinned)} pinned upload buffers" if pinned else ""
             raise MemoryLimitError(
                 f"{what} needs about {format_bytes(more)} more host memory "
                 f"({format_bytes(host_bytes)} for the bodies' host copy and temporaries"
-                f"{shared}); {format_bytes(available)} is available ({source})"
+                f"{staged}{shared}); {format_bytes(available)} is available ({source})"
             )
         return need
 
@@ -500,6 +585,20 @@ class WorldMemory:
             self.sizes(store.count, pipeline, store, joints=count + added),
             store.shapes.type_names(),
             host,
+        )
+
+    def check_forces(self, store, pipeline) -> None:
+        """Before a World's first external forces (`World.apply_forces`): the uploads
+        they bring (`FORCE_UPLOADS` device arrays of a float4 a body, each with a pinned
+        host array) must fit; raises `MemoryLimitError` naming them otherwise. The World
+        marks its forces given afterwards (`rbgen.forces.ExternalForces.given`), and from
+        then on its estimates count them."""
+        self.check(
+            f"applying forces to {store.count:,} bodies (their uploads: "
+            f"{format_bytes(2 * FORCE_UPLOADS * FORCE_UPLOAD_BYTES * max(1, store.count))})",
+            self.sizes(store.count, pipeline, store),
+            store.shapes.type_names(),
+            forces=True,
         )
 
     def check_growth(self, store, shape_types, pipeline, problems: dict) -> None:

@@ -279,9 +279,21 @@ class World:
         adding the torque (point - centre of mass) x force. Calls before a step add up;
         a static body's forces are ignored. No blocking read: the sums go to the device
         with the step. Bad ids, shapes or NaN/inf values raise `RbgenError` naming the
-        argument (and the body), and nothing is added."""
+        argument (and the body), and nothing is added. The first forces a World is given
+        bring their upload buffers (`rbgen.memory.FORCE_UPLOADS` a body): when they do not
+        fit, `MemoryLimitError` says so and nothing is added."""
         self._forces.resize(self._bodies.count)
-        self._forces.add(ids, forces, torques, points)
+        checked = self._forces.checked(ids, forces, torques, points)
+        self._give_forces()
+        self._forces.accumulate(*checked)
+
+    def _give_forces(self) -> None:
+        """Before the first forces are added: check that their uploads fit (raises
+        `MemoryLimitError`), then count them in the World's memory account."""
+        if not self._forces.given:
+            self._memory.check_forces(self._bodies, self._pipeline)
+            self._forces.given = True
+            self._memory.record(self._bodies, self.shapes.type_names(), self._pipeline)
 
     # ------------------------------------------------------------- joints
     @property

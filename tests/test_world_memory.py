@@ -274,3 +274,101 @@ def test_estimate_holds_what_a_jointed_world_allocates(runtime):
     assert world._memory.held.buffers["joints"] == 400 * rbgen.layouts.JOINT_CONSTRAINT.itemsize * (
         1 + rbgen.guard.STEPS_IN_FLIGHT
     )
+
+
+def named_bytes(estimate) -> int:
+    """The bytes an estimate's terms name (device buffers and pinned host buffers),
+    without the allowances."""
+    return sum(estimate.buffers.values()) + sum(getattr(estimate, "pinned", {}).values())
+
+
+def held_bytes(runtime, scene, count, options, forces, substeps):
+    """(measured bytes, named bytes) of a World of ``scene`` with about ``count`` bodies
+    after 6 steps, given forces every step (``forces``) and ``substeps`` solver substeps."""
+    if scene == "joints":
+        world = jointed_world(runtime, count, **options)
+    elif scene == "midphase":
+        world = terrain_and_compounds(World(runtime, **options), count)
+    else:
+        world = mixed_world(runtime, count, **options)
+    world.substeps = substeps
+    for _ in range(6):
+        if forces:
+            n = world.body_count
+            world.apply_forces(
+                np.arange(n), (0, 1.0, 0), torques=(0, 0, 1), points=np.zeros((n, 3))
+            )
+        world.step(1 / 60)
+    _ = world.positions  # (waits for the steps in flight)
+    return memory.device_bytes(world), named_bytes(world._memory.held)
+
+
+#: the named bytes may exceed the measured growth by this fraction: the terms are upper
+#: bounds (the largest batching's lists, sap3's incremental scratch before it runs, the
+#: substep motion records before a substepped step)
+OVER = 0.05
+#: the measured growth may exceed the named growth by this much: per-work-group arrays
+#: (a few words a group) and rounding
+UNDER = 1024
+
+
+@pytest.mark.gpu_shape
+@pytest.mark.parametrize(
+    "scene, options, forces, substeps",
+    [
+        ("mixed", {}, False, 1),
+        ("mixed", {}, True, 4),
+        ("mixed", {"sleeping": True}, True, 2),
+        ("mixed", {"sleeping": True}, False, 1),
+        ("mixed", {"solver": "jacobi"}, True, 4),
+        ("mixed", {"broadphase": "sap"}, True, 1),
+        ("mixed", {"broadphase": "sap3"}, False, 3),
+        ("joints", {}, True, 1),
+        ("joints", {"sleeping": True}, False, 4),
+        ("midphase", {}, True, 2),
+    ],
+)
+def test_estimate_names_every_buffer_a_world_holds(runtime, scene, options, forces, substeps):
+    """Every buffer that grows with the scene has a term in `memory.estimate`: between a
+    World of about 200 bodies and one of 1,000 (same scene, options, forces, substeps),
+    the bytes the World really holds (every pyopencl buffer it reaches, pinned ones
+    too) grow by at most UNDER (1 KiB) more than the estimate's named bytes, and the
+    named growth stays within OVER (5 %) above the measured one. A buffer the estimate
+    forgets, even one word a body, grows the measured bytes by 3 KiB more and fails
+    here (the force uploads, 384 B a body, and the substep motion records, 32 B a body,
+    did). Each World's measured bytes exceed its named bytes by at most `FIXED_BYTES`
+    (the fixed tables: shapes, status words, reports)."""
+    small, small_named = held_bytes(runtime, scene, 200, options, forces, substeps)
+    large, large_named = held_bytes(runtime, scene, 1000, options, forces, substeps)
+    for measured, named in ((small, small_named), (large, large_named)):
+        assert measured <= named + memory.FIXED_BYTES
+    grown, named_grown = large - small, large_named - small_named
+    assert grown <= named_grown + UNDER, (grown, named_grown)
+    assert named_grown <= (1 + OVER) * grown, (grown, named_grown)
+
+
+def test_first_forces_are_checked_and_counted(runtime):
+    """The first `apply_forces` checks that the force uploads fit (3 fields x 4 steps of a
+    float4 a body, device and pinned) and counts them from then on: refused under a
+    memory_limit without room for them, naming the forces, with nothing added; accepted
+    with room, and the World's estimate grows by exactly the uploads."""
+    probe = World(runtime)
+    stack(probe)
+    held = probe._memory.need(probe.body_count, probe.shapes.type_names())
+    world = World(runtime, memory_limit=held.total + 64)
+    stack(world)
+    n = world.body_count
+    with pytest.raises(MemoryLimitError, match=r"applying forces to 9 bodies.*memory_limit"):
+        world.apply_forces(np.arange(n), (0, 20.0, 0))
+    assert not world._forces.given and not any(world._forces._used)
+    world.step(1 / 60)  # (no forces: the boxes fall as without them)
+    probe.step(1 / 60)
+    np.testing.assert_array_equal(world.positions, probe.positions)
+
+    before = probe._memory.held
+    probe.apply_forces([1], (0, 5.0, 0))
+    after = probe._memory.held
+    uploads = 3 * 4 * 16 * n
+    assert after.buffers["force uploads"] == uploads
+    assert after.pinned == {"force upload staging": uploads}
+    assert named_bytes(after) - named_bytes(before) == 2 * uploads
