@@ -254,3 +254,51 @@ def test_a_force_equal_to_the_weight_balances_gravity_with_substeps(runtime, sub
         world.step(DT)
     np.testing.assert_allclose(world.positions[0], [0.0, 5.0, 0.0], atol=1e-4)
     np.testing.assert_allclose(world.linear_velocities[0], 0.0, atol=1e-4)
+
+
+def _upload_buffers(world) -> list:
+    """Every pinned host buffer of the World's force uploads (kept steps and spares)."""
+    forces = world._forces
+    uploads = [u for step in forces._steps.values() if step for u in step.uploads if u]
+    uploads += [u for pool in forces._spare for u in pool]
+    return [u.buffer for u in uploads]
+
+
+def test_pinned_force_buffers_are_unmapped_when_dropped(runtime):
+    """The pinned host arrays the forces are uploaded from are mapped while their upload
+    lives, and unmapped when it goes, as the World's other pinned buffers (the step
+    report's, the pair buffer's status): pyopencl's MemoryMap unmaps on release. Seen
+    through CL_MEM_MAP_COUNT of each buffer: 1 while the World holds it; 0 once the
+    uploads of an old body count are dropped (an add resizes the forces), and 0 for
+    every one once the World itself is collected."""
+    import gc
+
+    import pyopencl as cl
+
+    world = World(runtime, gravity=(0, 0, 0))
+    world.add_bodies(BOX, positions=[[0, 0, 0], [3, 0, 0]])
+    for _ in range(6):  # (more steps than a redo reaches: spares are made and reused)
+        world.apply_forces([0, 1], (1.0, 0, 0), torques=(0, 0, 1), points=np.zeros((2, 3)))
+        world.step(DT)
+    _ = world.positions
+    held = _upload_buffers(world)
+    assert len(held) == 3 * 4  # (3 fields, the step and the 3 a redo reaches)
+    assert all(b.get_info(cl.mem_info.MAP_COUNT) == 1 for b in held)
+
+    world.add_body(BOX, position=(6, 0, 0))  # (uploads of 2 bodies are not reused for 3)
+    for _ in range(6):
+        world.apply_forces([0], (1.0, 0, 0), torques=(0, 0, 1), points=np.zeros((1, 3)))
+        world.step(DT)
+    _ = world.positions
+    runtime.queue.finish()
+    kept = {b.int_ptr for b in _upload_buffers(world)}
+    assert len(kept) == 3 * 4 and not kept & {b.int_ptr for b in held}
+    assert [b.get_info(cl.mem_info.MAP_COUNT) for b in held] == [0] * len(held)
+
+    everything = _upload_buffers(world)
+    del world
+    gc.collect()  # (a World is in reference cycles: its store calls back into it)
+    runtime.queue.finish()
+    assert [b.get_info(cl.mem_info.MAP_COUNT) for b in held + everything] == [0] * (
+        len(held) + len(everything)
+    )
