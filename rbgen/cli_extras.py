@@ -176,6 +176,13 @@ def add_sweep_parser(sub) -> None:
         help="comma-separated device choices, worker rank r of a host takes the r-th "
         "(default: the host's GPUs in order)",
     )
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=None,
+        help="seconds a parameter set may run on its worker; one that overruns fails its "
+        "row (default: no limit)",
+    )
     p.add_argument("--out", default=None, help="write the table as JSON here")
     p.set_defaults(func=cmd_sweep)
 
@@ -252,6 +259,7 @@ def cmd_sweep(args) -> int:
         measure=summary,
         workers=args.workers,
         devices=devices,
+        timeout=args.timeout,
     )
     for row in table:
         result = (

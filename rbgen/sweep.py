@@ -9,6 +9,14 @@ dict) on a worker, steps the World it returns ``steps`` times by ``dt`` and meas
 the worker's device, the seconds the run took, and the measurements. A failing task
 fails its row only; the others' results are kept.
 
+Timeouts: with ``timeout`` (seconds, default None: no limit), a task that has not
+finished that long after it started on its worker (building, stepping and measuring)
+fails its row with an error naming its parameter set and the timeout, and the worker
+takes the next task. Python cannot stop a thread: the run that overran goes on in the
+background of its worker process until it ends (a sweep on its own LocalCluster closes
+those processes at the end; with a ``client`` of yours, restart its workers,
+``client.restart()``, to reclaim one that hangs for good).
+
 Workers: without a ``client``, a `distributed.LocalCluster` of ``workers`` processes
 (default: one per GPU found, else one), closed afterwards. Every worker of the client's
 cluster is pinned to a device before the tasks run: the workers of one host are ranked,
@@ -21,7 +29,9 @@ worker. Dask is an optional dependency (``pip install rbgen[sweep]``).
 
 from __future__ import annotations
 
+import math
 import os
+import threading
 import time
 import traceback
 from collections.abc import Callable, Mapping, Sequence
@@ -78,9 +88,65 @@ def check_params(params) -> list[dict]:
     return checked
 
 
-def run_one(build: Callable, param: dict, steps: int, dt: float = 1 / 60, measure=None) -> dict:
+def check_timeout(timeout) -> float | None:
+    """``timeout`` as seconds (a positive finite number) or None (no limit); anything
+    else is refused naming it."""
+    if timeout is None:
+        return None
+    if (
+        isinstance(timeout, (bool, np.bool_))
+        or not isinstance(timeout, (int, float, np.integer, np.floating))
+        or not math.isfinite(timeout)
+        or timeout <= 0
+    ):
+        raise RbgenError(
+            f"timeout must be None (no limit) or a positive number of seconds, got {timeout!r}"
+        )
+    return float(timeout)
+
+
+def run_one(
+    build: Callable,
+    param: dict,
+    steps: int,
+    dt: float = 1 / 60,
+    measure=None,
+    timeout: float | None = None,
+) -> dict:
     """One parameter set, here: ``build(**param)``, ``steps`` steps of ``dt``, and its
-    row of the table (see the module docstring). Errors become the row's ``error``."""
+    row of the table (see the module docstring). Errors become the row's ``error``.
+    ``timeout`` (seconds, None: no limit): a run still going after that long gives a
+    failed row naming the parameter set and the timeout, and goes on in a background
+    thread until it ends (see the module docstring)."""
+    timeout = check_timeout(timeout)
+    if timeout is None:
+        return _run(build, param, steps, dt, measure)
+    done: dict = {}
+    thread = threading.Thread(
+        target=lambda: done.update(row=_run(build, param, steps, dt, measure)),
+        name=f"rbgen sweep {param!r}",
+        daemon=True,  # (one that never ends does not hold the process at exit)
+    )
+    start = time.perf_counter()
+    thread.start()
+    thread.join(timeout)
+    if "row" in done:
+        return done["row"]
+    return {
+        "params": dict(param),
+        "ok": False,
+        "error": (
+            f"parameter set {param!r}: timed out: not finished after {timeout:g} s "
+            f"(timeout={timeout:g}); the run goes on in the background of process "
+            f"{os.getpid()}"
+        ),
+        "device": None,
+        "seconds": time.perf_counter() - start,
+    }
+
+
+def _run(build: Callable, param: dict, steps: int, dt: float, measure) -> dict:
+    """`run_one` without a timeout."""
     from .batch import WorldBatch
     from .world import World
 
@@ -105,9 +171,10 @@ def run_one(build: Callable, param: dict, steps: int, dt: float = 1 / 60, measur
     return row
 
 
-def _task(index: int, build, param: dict, steps: int, dt: float, measure) -> dict:
-    """A worker's task: `run_one` plus where it ran."""
-    row = run_one(build, param, steps, dt, measure)
+def _task(index: int, build, param: dict, steps: int, dt: float, measure, timeout=None) -> dict:
+    """A worker's task: `run_one` (its ``timeout`` counted from the task's start on the
+    worker, not from its submission) plus where it ran."""
+    row = run_one(build, param, steps, dt, measure, timeout)
     row["index"] = index
     row["pid"] = os.getpid()
     row["rbgen_device"] = os.environ.get("RBGEN_DEVICE")
@@ -170,9 +237,13 @@ def sweep(
     measure: Callable | None = None,
     workers: int | None = None,
     devices: Sequence[str] | None = None,
+    timeout: float | None = None,
 ) -> list[dict]:
     """Run ``build(**p)`` for ``steps`` steps for every parameter set ``p`` of ``params``
-    as Dask tasks; returns the table (see the module docstring)."""
+    as Dask tasks; returns the table (see the module docstring). ``timeout``: seconds a
+    task may run on its worker (None: no limit); one that overruns fails its row only,
+    naming its parameter set and the timeout. Bad arguments raise `RbgenError` naming
+    them before any task is submitted."""
     if not callable(build):
         raise RbgenError(f"build must be a function returning a World, got {build!r}")
     params = check_params(params)
@@ -180,6 +251,7 @@ def sweep(
         raise RbgenError(f"steps must be a non-negative integer, got {steps!r}")
     if workers is not None and (not isinstance(workers, int) or workers < 1):
         raise RbgenError(f"workers must be a positive integer, got {workers!r}")
+    timeout = check_timeout(timeout)
     distributed = _import_dask()
     cluster = None
     if client is None:
@@ -193,7 +265,7 @@ def sweep(
     try:
         pin_workers(client, devices)
         futures = [
-            client.submit(_task, i, build, p, int(steps), float(dt), measure, pure=False)
+            client.submit(_task, i, build, p, int(steps), float(dt), measure, timeout, pure=False)
             for i, p in enumerate(params)
         ]
         table = []

@@ -4,6 +4,8 @@ here; a failing parameter set reports which and why, and the others' rows are ke
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -31,6 +33,12 @@ def sliding_box(friction, speed=2.0):
 
 def not_a_world(friction):
     return {"friction": friction}
+
+
+def slow_box(friction, sleep=0.0):
+    """`sliding_box` after ``sleep`` seconds (a task that hangs, for the timeout)."""
+    time.sleep(sleep)
+    return sliding_box(friction)
 
 
 @pytest.fixture(scope="module")
@@ -142,3 +150,49 @@ def summary_of(row):
         linear_velocities = row["linear_velocities"]
 
     return summary(State)
+
+
+def test_a_task_past_the_timeout_fails_its_row_and_the_others_come_back(client):
+    """timeout=10: the parameter set that sleeps 60 s fails its row, naming itself and
+    the timeout, about 10 s after it started (the sweep does not wait the 60 s); the
+    others' rows are the serial runs' bit for bit."""
+    params = [{"friction": 0.3}, {"friction": 0.3, "sleep": 60.0}, {"friction": 0.6}]
+    start = time.perf_counter()
+    table = rbgen.sweep(slow_box, params, steps=20, client=client, timeout=10)
+    elapsed = time.perf_counter() - start
+    assert 10 <= elapsed < 45, elapsed
+    assert [row["ok"] for row in table] == [True, False, True], [r["error"] for r in table]
+    hung = table[1]
+    assert hung["params"] == params[1]
+    assert hung["error"].startswith(
+        "parameter set {'friction': 0.3, 'sleep': 60.0}: timed out: not finished after 10 s "
+        "(timeout=10)"
+    )
+    assert 10 <= hung["seconds"] < 20
+    for row in (table[0], table[2]):
+        serial = run_one(sliding_box, row["params"], 20, DT)
+        for name in STATE:
+            assert np.array_equal(row[name], serial[name]), (row["params"], name)
+
+
+def test_run_one_times_out_and_a_fast_run_is_unchanged():
+    """run_one (a task's body) with a timeout: a run past it gives a failed row at once;
+    one within it gives the row it gives without a timeout."""
+    start = time.perf_counter()
+    row = run_one(slow_box, {"friction": 0.2, "sleep": 30.0}, 1, timeout=0.25)
+    assert time.perf_counter() - start < 5
+    assert not row["ok"] and row["device"] is None
+    assert row["error"].startswith(
+        "parameter set {'friction': 0.2, 'sleep': 30.0}: timed out: not finished after 0.25 s"
+    )
+    timed = run_one(sliding_box, {"friction": 0.2}, 10, timeout=120)
+    plain = run_one(sliding_box, {"friction": 0.2}, 10)
+    assert timed["ok"], timed["error"]
+    for name in STATE:
+        assert np.array_equal(timed[name], plain[name])
+
+
+@pytest.mark.parametrize("timeout", [0, -1.0, float("nan"), float("inf"), "5", True])
+def test_bad_timeouts_are_refused_before_any_task(timeout):
+    with pytest.raises(RbgenError, match=r"timeout must be None \(no limit\) or a positive"):
+        rbgen.sweep(sliding_box, [{"friction": 0.1}], steps=1, timeout=timeout)
