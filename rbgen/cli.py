@@ -21,20 +21,39 @@ def _optional(module: str):
 
 
 def cmd_info(args) -> int:
-    from .device import DeviceTraits, build_failure, default_device, list_devices, select_device
+    """List every device with its traits and tuned entries, marking with ``*`` the one
+    rbgen uses: ``--device`` (else ``RBGEN_DEVICE``, else the default), resolved as a
+    Runtime resolves it (`rbgen.device.resolve_device`): a GPU shape ``shape:NAME`` marks
+    the CPU device that stands in and shows the GPU traits it is planned for. A choice
+    that names no device is an error naming it (exit 2), after the listing."""
+    import os
+
+    from .device import ENV_DEVICE, DeviceTraits, build_failure, list_devices, resolve_device
+    from .errors import DeviceNotFoundError
 
     entries = list_devices()
     if not entries:
         print("no OpenCL devices found")
         return 1
+    choice, source = args.device, "--device"
+    if choice is None:
+        choice, source = os.environ.get(ENV_DEVICE) or None, ENV_DEVICE
+    chosen, planned, problem = None, None, None
     try:
-        chosen = select_device(args.device)
-    except Exception:  # noqa: BLE001 - still list the devices
-        try:
-            chosen = default_device()
-        except Exception:  # noqa: BLE001 - none compiles a kernel: list them all, say why
-            chosen = None
+        chosen, planned = resolve_device(choice)
+    except Exception as err:  # noqa: BLE001 - still list the devices
+        if choice is not None:
+            problem = f"{source} {choice!r}: {err}"
+        # (no choice: none compiles a kernel; each is listed with the compiler's words)
     tuning = _optional("rbgen.tuning")
+
+    def tuned(traits, indent: str) -> None:
+        if tuning is not None and hasattr(tuning, "describe_cache"):
+            lines = tuning.describe_cache(traits)
+            print(f"{indent}tuned entries: {len(lines)}")
+            for line in lines:
+                print(f"{indent}  {line}")
+
     for entry in entries:
         traits = DeviceTraits.of(entry.device)
         mark = "*" if entry.device == chosen else " "
@@ -43,18 +62,23 @@ def cmd_info(args) -> int:
         failure = build_failure(entry.device)
         if failure is not None:
             print(f"        cannot compile a kernel: {failure}")
-        if tuning is not None and hasattr(tuning, "describe_cache"):
-            lines = tuning.describe_cache(traits)
-            print(f"        tuned entries: {len(lines)}")
-            for line in lines:
-                print(f"          {line}")
+        tuned(traits, "        ")
+        if mark == "*" and planned is not None and planned != traits:
+            print(f"        chosen as {choice}: planned for as {planned.describe()}")
+            print(f"          fingerprint {planned.fingerprint}")
+            tuned(planned, "          ")
+    if problem is not None:
+        raise DeviceNotFoundError(problem)
     if chosen is None:
         print(
             "no device here compiles a kernel (install the system's PoCL, e.g. Debian's "
             "pocl-opencl-icd)"
         )
         return 1
-    print("(* = the device rbgen uses by default; set RBGEN_DEVICE or pass --device to change)")
+    if choice is None:
+        print("(* = the device rbgen uses by default; set RBGEN_DEVICE or pass --device to change)")
+    else:
+        print(f"(* = the device rbgen uses: {source} {choice})")
     return 0
 
 
