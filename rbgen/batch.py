@@ -62,6 +62,18 @@ from .world import World
 FIELDS = tuple(STATE_FIELDS)
 
 
+def env_runs(envs) -> list[tuple[int, int]]:
+    """The runs of consecutive environment indices in ``envs`` (distinct, any order), as
+    (first, end) pairs in increasing order: [3, 0, 1, 5, 4] -> [(0, 2), (3, 6)]."""
+    ordered = np.sort(np.asarray(envs, np.int64).reshape(-1))
+    if len(ordered) == 0:
+        return []
+    cuts = np.flatnonzero(np.diff(ordered) != 1) + 1
+    firsts = ordered[np.concatenate([[0], cuts])]
+    ends = ordered[np.concatenate([cuts - 1, [len(ordered) - 1]])] + 1
+    return [(int(a), int(b)) for a, b in zip(firsts, ends)]
+
+
 def ordered_rounds_for(bodies: int, shared: int, joints: int = 0) -> int:
     """Global batching's index-order colouring rounds for a batch: at least the most
     whole-body pairs one environment can have, and its joints, so that no environment's
@@ -196,7 +208,7 @@ class WorldBatch:
         """The template's joint records for every environment, (envs, joints), their bodies
         renumbered (``dynamic``: the template's dynamic-body mask); added to `world`."""
         rank = np.where(dynamic, np.cumsum(dynamic) - 1, np.cumsum(~dynamic) - 1)
-        out = np.repeat(joints[None], self.envs, axis=0)
+        out = np.repeat(joints[None], self.envs, axis=0)  # (C order: see `_reset_joints`)
         for end in ("body_a", "body_b"):
             old = joints[end].astype(np.int64)
             offset = np.where(dynamic[old], self.shared + rank[old], rank[old])
@@ -423,8 +435,12 @@ class WorldBatch:
 
     def _reset_joints(self, envs: np.ndarray) -> None:
         """The joints of ``envs`` as the template had them: in the host records when they
-        are newer than the device's (or the device has none yet), else by one
-        non-blocking write per environment into the device records."""
+        are newer than the device's (or the device has none yet), else by non-blocking
+        writes into the device records, one for each run of consecutive environments
+        (`env_runs`: a reset of all environments is one write, whatever their number).
+        Environment k's joints are records ``k * joints`` to ``(k + 1) * joints`` of both
+        the device records and `_joint_records` (C order), so a run's records are one
+        contiguous span of each and are written from a view, without a copy."""
         if not self.joints:
             return
         store = self.world._joints
@@ -433,19 +449,19 @@ class WorldBatch:
             store.dirty = True
             return
         queue, size = self.world.runtime.queue, store.device.dtype.itemsize
-        self._pending_joint_writes = []
-        for k in envs:
-            records = np.ascontiguousarray(self._joint_records[k])
-            self._pending_joint_writes.append(
+        records = self._joint_records
+        writes: list = [records]  # (the source of the writes, alive until they are done)
+        for first, end in env_runs(envs):
+            writes.append(
                 cl.enqueue_copy(
                     queue,
                     buffer_of(store.device),
-                    records,
-                    dst_offset=int(k) * self.joints * size,
+                    records[first:end],
+                    dst_offset=first * self.joints * size,
                     is_blocking=False,
                 )
             )
-            self._pending_joint_writes.append(records)
+        self._pending_joint_writes = writes
         store.device_newer = True  # (the host copy is older now)
 
     def _records(self, envs: np.ndarray, state: dict) -> np.ndarray:

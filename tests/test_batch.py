@@ -495,3 +495,82 @@ def test_a_reset_after_joints_changed_is_refused_before_any_change(runtime):
         batch.reset([1])
     assert np.array_equal(batch.positions, before[0])
     assert np.array_equal(batch.linear_velocities, before[1])
+
+
+def _reset_joints_one_env_at_a_time(batch, envs):
+    """The reset of the joints as it was: one device write per environment (the
+    reference the run-coalesced writes must equal bit for bit)."""
+    import pyopencl as cl
+
+    from rbgen.device import buffer_of
+
+    store = batch.world._joints
+    queue, size = batch.world.runtime.queue, store.device.dtype.itemsize
+    for k in envs:
+        records = np.ascontiguousarray(batch._joint_records[k])
+        cl.enqueue_copy(
+            queue, buffer_of(store.device), records, dst_offset=int(k) * batch.joints * size
+        )
+    store.device_newer = True
+
+
+def test_env_runs():
+    from rbgen.batch import env_runs
+
+    assert env_runs([3, 0, 1, 5, 4]) == [(0, 2), (3, 6)]
+    assert env_runs(np.arange(4096)) == [(0, 4096)]
+    assert env_runs([7]) == [(7, 8)]
+    assert env_runs(np.arange(0, 10, 2)) == [(0, 1), (2, 3), (4, 5), (6, 7), (8, 9)]
+    assert env_runs([]) == []
+
+
+@pytest.mark.parametrize("envs", [None, [5, 1, 2, 3, 7], [6]])
+def test_a_joint_reset_writes_each_run_of_environments_once(runtime, monkeypatch, envs):
+    """After steps (the device's joint records hold impulses, broken flags), a reset of
+    ``envs`` writes their joints in one device write per run of consecutive environments
+    (all 8: one write; [1, 2, 3, 5, 7]: three), and the device records, and the state
+    after more steps, are bit for bit those of the old write per environment."""
+    import pyopencl as cl
+
+    copies = []
+    enqueue_copy = cl.enqueue_copy
+
+    def counted(queue, dst, src, **kwargs):
+        if dst.int_ptr == joints.int_ptr:  # (only the writes into the joint records)
+            copies.append(kwargs.get("dst_offset"))
+        return enqueue_copy(queue, dst, src, **kwargs)
+
+    results = []
+    for coalesced in (True, False):
+        batch = run_chains(runtime, 8, steps=12)
+        _ = batch.positions  # (the steps are checked)
+        store = batch.world._joints
+        assert not store.dirty and store.device is not None  # (the device write path)
+        if coalesced:
+            joints = store.device.base_data
+            monkeypatch.setattr(cl, "enqueue_copy", counted)
+            batch.reset(envs)
+            monkeypatch.setattr(cl, "enqueue_copy", enqueue_copy)
+        else:
+            monkeypatch.setattr(
+                batch, "_reset_joints", lambda e, b=batch: _reset_joints_one_env_at_a_time(b, e)
+            )
+            batch.reset(envs)
+        batch.world.runtime.queue.finish()
+        device = store.device.get()
+        for _ in range(5):
+            batch.step(DT)
+        results.append((device, batch.positions.copy(), batch.joint_impulses.copy()))
+    size = layouts.JOINT_CONSTRAINT.itemsize * 6
+    expected = {None: [0], (5, 1, 2, 3, 7): [1 * size, 5 * size, 7 * size], (6,): [6 * size]}
+    assert copies == expected[None if envs is None else tuple(envs)]
+    (device, positions, impulses), (device0, positions0, impulses0) = results
+    assert device.tobytes() == device0.tobytes()
+    assert np.array_equal(positions, positions0) and np.array_equal(impulses, impulses0)
+    # the reset environments' joints are the template's again, the others are not
+    reset = np.arange(8) if envs is None else np.array(envs)
+    records = device.reshape(8, 6)
+    assert records[reset].tobytes() == batch._joint_records[reset].tobytes()
+    if envs is not None:
+        kept = np.setdiff1d(np.arange(8), reset)
+        assert records[kept].tobytes() != batch._joint_records[kept].tobytes()
