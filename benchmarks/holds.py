@@ -51,6 +51,8 @@ CANDIDATES = {
         "position_iterations": 1,
     },
     "block_s8": {"normal_solve": "block", "substeps": 8, "iterations": 2, "position_iterations": 1},
+    "cells_s4": {"batching": "cells", "substeps": 4, "iterations": 3, "position_iterations": 1},
+    "cells_s8": {"batching": "cells", "substeps": 8, "iterations": 2, "position_iterations": 1},
 }
 BASELINE = "default"
 
