@@ -152,3 +152,17 @@ def rng(request) -> np.random.Generator:
 
 #: Boundary sizes every data-parallel kernel is tested over (issue 2).
 SIZES = [0, 1, 31, 32, 33, 1000, 2**16 + 3]
+
+
+@pytest.fixture(scope="session")
+def headless_gl():
+    """Skips a test that draws when this machine cannot make a headless OpenGL context (a
+    GPU server without Mesa's or the driver's libGL/libEGL), naming what is missing; where
+    a context can be made (CI installs Mesa), the test runs."""
+    from rbgen.errors import RbgenError
+    from rbgen.render.renderer import gl_context
+
+    try:
+        return gl_context()
+    except RbgenError as err:
+        pytest.skip(str(err))

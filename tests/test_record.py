@@ -42,7 +42,7 @@ def leftovers(directory) -> list[str]:
 
 
 @pytest.mark.parametrize("extension", [".gif", ".mp4"])
-def test_animation_has_the_requested_number_of_frames(tmp_path, extension):
+def test_animation_has_the_requested_number_of_frames(tmp_path, extension, headless_gl):
     bodies, frames = falling(7)
     path = tmp_path / f"fall{extension}"
     with Recorder(path, fps=10, **SIZE) as recorder:
@@ -64,7 +64,7 @@ def test_animation_has_the_requested_number_of_frames(tmp_path, extension):
     assert leftovers(tmp_path) == []
 
 
-def test_png_is_the_last_frame(tmp_path):
+def test_png_is_the_last_frame(tmp_path, headless_gl):
     from PIL import Image
 
     bodies, frames = falling(3)
@@ -78,6 +78,7 @@ def test_png_is_the_last_frame(tmp_path):
 def test_usd_reopens_with_prims_time_samples_and_transforms(tmp_path):
     """Every body is a prim under /World/Bodies with one time sample per frame of its
     translate and orient ops, equal to the frames given; static bodies have none."""
+    pytest.importorskip("pxr", reason="writing .usd needs usd-core (pip install 'rbgen[usd]')")
     from pxr import Gf, Usd, UsdGeom
 
     bodies, frames = falling(5)
@@ -116,9 +117,10 @@ def test_usd_reopens_with_prims_time_samples_and_transforms(tmp_path):
             assert np.allclose(m.Transform(Gf.Vec3d(0, 0, 0)), frame.positions[i], atol=1e-5)
 
 
-def test_world_recording_reads_transforms_once_per_frame(tmp_path):
+def test_world_recording_reads_transforms_once_per_frame(tmp_path, headless_gl):
     """A World run through `record_hook` every 2 steps: 1 + steps / 2 frames in each file,
     the USD's last sample equal to the World's positions at the end."""
+    pytest.importorskip("pxr", reason="writing .usd needs usd-core (pip install 'rbgen[usd]')")
     from pxr import Usd
 
     import rbgen
@@ -146,7 +148,7 @@ def test_world_recording_reads_transforms_once_per_frame(tmp_path):
     assert np.allclose(translate.Get(3), world.positions[ids[1]], atol=1e-6)
 
 
-def test_background_recording_writes_the_same_frames(tmp_path):
+def test_background_recording_writes_the_same_frames(tmp_path, headless_gl):
     from PIL import Image
 
     bodies, frames = falling(4)
@@ -193,7 +195,7 @@ def test_bad_camera_is_refused_before_anything_is_written(tmp_path, camera, name
     assert os.listdir(tmp_path) == []
 
 
-def test_failed_recording_leaves_no_file(tmp_path):
+def test_failed_recording_leaves_no_file(tmp_path, headless_gl):
     """An error inside the recording's block drops it: no file, no temporary left; an
     existing file at the path is left as it was."""
     bodies, frames = falling(2)
@@ -208,7 +210,7 @@ def test_failed_recording_leaves_no_file(tmp_path):
     assert not (tmp_path / "empty.mp4").exists() and leftovers(tmp_path) == []
 
 
-def test_frame_of_the_wrong_size_is_refused(tmp_path):
+def test_frame_of_the_wrong_size_is_refused(tmp_path, headless_gl):
     bodies, _ = falling(1)
     recorder = Recorder(tmp_path / "x.usda")
     with pytest.raises(RbgenError, match="positions must have shape"):
@@ -217,9 +219,10 @@ def test_frame_of_the_wrong_size_is_refused(tmp_path):
     assert os.listdir(tmp_path) == []
 
 
-def test_rbgen_run_records_every_k_steps(tmp_path, capsys):
+def test_rbgen_run_records_every_k_steps(tmp_path, capsys, headless_gl):
     """`rbgen run --record` (twice): frames at step 0 and every K steps, paths printed."""
     from PIL import Image
+    pytest.importorskip("pxr", reason="writing .usd needs usd-core (pip install 'rbgen[usd]')")
     from pxr import Usd
 
     from rbgen.cli import main
@@ -260,7 +263,7 @@ def test_rbgen_run_records_every_k_steps(tmp_path, capsys):
     assert Usd.Stage.Open(str(usd)).GetEndTimeCode() == 3
 
 
-def test_rbgen_demo_writes_its_animation_and_says_where(tmp_path, capsys, monkeypatch):
+def test_rbgen_demo_writes_its_animation_and_says_where(tmp_path, capsys, monkeypatch, headless_gl):
     monkeypatch.chdir(tmp_path)
     from rbgen.cli import main
 

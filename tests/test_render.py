@@ -22,7 +22,7 @@ W, H = 160, 120
 
 
 @pytest.fixture(scope="module")
-def renderer():
+def renderer(headless_gl):
     from rbgen.render.renderer import Renderer
 
     r = Renderer(W, H, samples=0, shadows=True)
@@ -214,7 +214,7 @@ def test_bad_image_size_is_refused_naming_it():
         Renderer(10, 100000)
 
 
-def test_render_world_writes_a_png_of_a_world(tmp_path):
+def test_render_world_writes_a_png_of_a_world(tmp_path, headless_gl):
     """A World's picture (render_world, World.render): a PNG of the size asked, the bodies
     in view; a bad path or camera leaves nothing behind."""
     import warnings

@@ -122,8 +122,10 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
 /* the launch first derives its contacts' ContactGeometry records (a step's
  * first launch over a group; the sweeps of the step read them) */
 #define GEOMETRY_PASS 8u
-/* a prefetch of one cache line, where the compiler has it (prefetch_constraint) */
-#if defined(__has_builtin)
+/* a prefetch of one cache line where the compiler has it for a CPU target
+ * (prefetch_constraint): a GPU compiler may have the builtin but refuse a
+ * __global pointer for its generic argument (NVIDIA's does) */
+#if defined(__has_builtin) && (defined(__x86_64__) || defined(__aarch64__))
 #if __has_builtin(__builtin_prefetch)
 #define PREFETCH_LINES 1
 #endif
