@@ -469,7 +469,11 @@ CONTACT_CONSTRAINT = declare(
             "float4",
             "per point: accumulated tangent2 impulse (warm started); slot 1, where the "
             "restitution is > 0: the points that pushed in this step's velocity sweeps, "
-            "bit k for point k (a whole number 0-15; the restitution bounces those)",
+            "bit k for point k (a whole number 0-15; the restitution bounces those); slot "
+            "2: the total normal impulse the warm start carried into this (sub)step, slot "
+            "3: one substep of gravity on the reduced mass at the face (the sum of the "
+            "normal rows' masses): the cap on the next carry (contact_targets.cl.mako: "
+            "CARRY_GROWTH)",
         ),
         ("push_impulse", "float4", "per point: accumulated split (position) impulse"),
         ("features", "uint4", "feature id per point (warm-starting key)"),

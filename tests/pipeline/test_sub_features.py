@@ -160,6 +160,8 @@ def test_warm_start_is_keyed_by_sub_feature(runtime):
     impulses = {1: np.array([1.0, 2.0, 3.0, 4.0]), 2: np.array([10.0, 20.0, 30.0, 40.0])}
     for k in range(2):
         host["normal_impulse"][k] = impulses[int(host["sub"][k])]
+        # (as a load held the substep before: carried whole, not capped as an impact's)
+        host["tangent2_impulse"][k][2] = impulses[int(host["sub"][k])].sum()
     constraints.set(host)
 
     later = step(

@@ -13,7 +13,8 @@
  * and a separate split-impulse target that pushes out of penetration
  * beyond the slop without adding momentum),
 % if warm_start:
- * and the previous step's accumulated impulses, found through a hash table
+ * and the previous step's accumulated impulses (up to a cap that leaves out an
+ * impact's: contact_targets.cl.mako's CARRY_GROWTH), found through a hash table
  * keyed by (body a, body b, sub-feature) and matched per point by feature id,
  * else by distance
  * (friction impulses are carried as a world vector and re-projected onto the
@@ -35,6 +36,8 @@ ${cl_structs("Body", "BodyInertia", "ContactManifold", "ContactConstraint", "Con
 <%include file="/pipeline/solvers/contact_masses.cl.mako"/>
 
 <%include file="/common/hash.cl.mako"/>
+
+<%include file="/pipeline/solvers/contact_targets.cl.mako"/>
 
 /* Slot of a manifold's key (body a, body b, sub-feature) in the warm-starting
  * table (linear probing from here). */
@@ -84,7 +87,9 @@ inline uint find_previous(__global const ContactConstraint* previous, const uint
 /* Copy the impulses of the previous step's constraint j (same key): per
  * point, those of the old point with the same feature id, else of the
  * nearest old point (relative to B) within match_distance (feature ids change
- * when the narrowphase swaps its reference face on a flat contact). */
+ * when the narrowphase swaps its reference face on a flat contact), all scaled
+ * by the share a warm start carries from the old step's last substep
+ * (contact_targets.cl.mako: CARRY_GROWTH, not an impact's impulse). */
 inline void warm_start_from(__global const ContactConstraint* old, const float match_distance,
                             ContactConstraint* c)
 {
@@ -113,6 +118,15 @@ inline void warm_start_from(__global const ContactConstraint* old, const float m
     c->tangent1_impulse.x = dot3(friction, c->tangent1.xyz);
     c->tangent2_impulse.x = dot3(friction, c->tangent2.xyz);
     c->tangent1_impulse.y = old->tangent1_impulse.y;
+    /* the share the old constraint's cap allows (CARRY_GROWTH), of its total over
+     * the old points */
+    float4 old_impulse = old->normal_impulse;
+    float old_total = old_impulse.x + old_impulse.y + old_impulse.z + old_impulse.w;
+    float share = carried_share(old_total, old->tangent2_impulse.z, old->tangent2_impulse.w);
+    c->normal_impulse *= share;
+    c->tangent1_impulse.x *= share;
+    c->tangent1_impulse.y *= share;
+    c->tangent2_impulse.x *= share;
 }
 % endif
 
@@ -291,6 +305,13 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     c.tangent1_impulse *= warm_start_factor;
     c.tangent2_impulse *= warm_start_factor;
 % endif
+    /* the cap on the next carry (contact_targets.cl.mako: CARRY_GROWTH): what this
+     * one carried, and one substep of gravity (at least CARRY_ACCELERATION) on the
+     * reduced mass at the face (the sum of the normal rows' masses) */
+    float4 impulse = c.normal_impulse, normal_mass = c.normal_mass;
+    c.tangent2_impulse.z = impulse.x + impulse.y + impulse.z + impulse.w;
+    c.tangent2_impulse.w = max1(sqrt(dot3(gravity.xyz, gravity.xyz)), CARRY_ACCELERATION) * dt
+                           * (normal_mass.x + normal_mass.y + normal_mass.z + normal_mass.w);
     constraints[i] = c;
     edges[first_contact_edge + i] = contact_edge(a, b, i, colour, xb + c.r_b[0].xyz);
     insert_pair(table, table_mask, a, b, sub, i);
