@@ -11,7 +11,9 @@
    past the wall's face (mm; <= 0: it never touched deeper than its face) and "through"
    when its centre ended beyond the face. Holds when no body passes and no reach
    exceeds FAST_FRACTION r (`rbgen.pipeline.prepare`).
-2. Cost (the baseline): BoxBox with ``--size`` boxes (no fast body: its boxes rest)
+2. Cost (the baseline): BoxBox with ``--size`` boxes (no fast body: its boxes rest), both at
+   one substep of 10 + 4 sweeps (`EFFORT`; the World's default effort differs by device and
+   release),
    timed by ``benchmarks/scenes.py`` in this tree and in ``--baseline`` (a git revision
    of this repository, default 06bc3af: the branch point, without continuous
    collision), each run in its own process, alternating baseline and this tree
@@ -126,11 +128,20 @@ def export_tree(revision: str, into: Path) -> Path:
     return tree
 
 
+#: (velocity, position) sweeps of the BoxBox timing, at one substep, in both trees
+EFFORT = (10, 4)
+
+
 def time_boxbox(tree: Path, args) -> dict:
     """benchmarks/scenes.py of ``tree`` in its own process: its BoxBox result."""
     with tempfile.TemporaryDirectory() as out:
         command = [sys.executable, "benchmarks/scenes.py", "--sizes", str(args.size)]
         command += ["--steps", str(args.steps), "--warmup", str(args.warmup), "--out", out]
+        # one effort for both trees (a baseline from before substepping has one substep and
+        # no --substeps): what differs is then only continuous collision
+        command += ["--iterations", str(EFFORT[0]), "--position-iterations", str(EFFORT[1])]
+        if tree == ROOT:
+            command += ["--substeps", "1"]
         if args.device is not None:
             command += ["--device", str(args.device)]
         # (the tree's own rbgen first, whatever rbgen the interpreter has installed)

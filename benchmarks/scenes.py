@@ -2,8 +2,8 @@
 
     python benchmarks/scenes.py [--device D] [--sizes 1000 8000 27000 111375]
                                 [--steps 100] [--warmup 10] [--batching MODE]
-                                [--solver pgs|jacobi] [--iterations 10]
-                                [--position-iterations 4] [--relaxation 1.0]
+                                [--solver pgs|jacobi] [--substeps S] [--iterations N]
+                                [--position-iterations P] [--relaxation R]
                                 [--release-sweeps N]
 
 For each size, after ``--warmup`` steps: ms/step = the median over 10 blocks of
@@ -56,13 +56,23 @@ def main(argv=None) -> int:
         help="contact solver: pgs (batched Gauss-Seidel, the default) or jacobi "
         "(mass splitting, no batching)",
     )
-    parser.add_argument("--iterations", type=int, default=10)
-    parser.add_argument("--position-iterations", type=int, default=4)
+    parser.add_argument(
+        "--substeps", type=int, default=None, help="solver substeps (default: the World's)"
+    )
+    parser.add_argument(
+        "--iterations", type=int, default=None, help="velocity sweeps (default: the World's)"
+    )
+    parser.add_argument(
+        "--position-iterations",
+        type=int,
+        default=None,
+        help="position sweeps (default: the World's)",
+    )
     parser.add_argument(
         "--relaxation",
         type=float,
-        default=1.0,
-        help="successive over-relaxation of every row (World setting)",
+        default=None,
+        help="successive over-relaxation of every row (default: the World's)",
     )
     parser.add_argument(
         "--normal-solve",
@@ -87,12 +97,18 @@ def main(argv=None) -> int:
     )
     args = parser.parse_args(argv)
 
+    # only what was asked for: every other setting is the World's default (rbgen.settings)
     options = {
-        "iterations": args.iterations,
-        "position_iterations": args.position_iterations,
-        "solver": args.solver,
-        "relaxation": args.relaxation,
+        name: value
+        for name, value in (
+            ("substeps", args.substeps),
+            ("iterations", args.iterations),
+            ("position_iterations", args.position_iterations),
+            ("relaxation", args.relaxation),
+        )
+        if value is not None
     }
+    options["solver"] = args.solver
     if args.normal_solve:
         options["normal_solve"] = args.normal_solve
     if args.release_sweeps is not None:
@@ -114,9 +130,8 @@ def main(argv=None) -> int:
         if len(rows) == 1:
             print(
                 f"device: {s['device']}; {args.scene}, {args.steps} steps after {args.warmup} "
-                f"warm-up, dt 1/60, {args.iterations} iterations, "
-                f"{args.position_iterations} position iterations, relaxation "
-                f"{args.relaxation}; plan: {s['plan']}"
+                f"warm-up, dt 1/60, {s['substeps']} substeps of {s['iterations']} + "
+                f"{s['position_iterations']} sweeps; plan: {s['plan']}"
             )
             print(
                 f"{'boxes':>8} {'ms/step':>9} {'mean':>6} {'launch':>7} {'reads':>6} {'pairs':>9} "

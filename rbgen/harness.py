@@ -293,6 +293,10 @@ def run_scene(
         # (only a block normal solve releases points; a sequential one has no release sweeps)
         "release_sweeps": world.release_sweeps,
         "plan": world.plan.describe(),
+        # the effort the step ran at (the World's defaults unless the options said otherwise)
+        "substeps": world.substeps,
+        "iterations": world.iterations,
+        "position_iterations": world.position_iterations,
         "overflows": world.overflows,
         "nans": int(np.isnan(positions).any(axis=1).sum()),
         "sunk": int((positions[:, 1] < ground_top + half - 0.02).sum()),

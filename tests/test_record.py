@@ -222,6 +222,7 @@ def test_frame_of_the_wrong_size_is_refused(tmp_path, headless_gl):
 def test_rbgen_run_records_every_k_steps(tmp_path, capsys, headless_gl):
     """`rbgen run --record` (twice): frames at step 0 and every K steps, paths printed."""
     from PIL import Image
+
     pytest.importorskip("pxr", reason="writing .usd needs usd-core (pip install 'rbgen[usd]')")
     from pxr import Usd
 
