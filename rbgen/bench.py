@@ -314,16 +314,31 @@ def _write_atomic(path: Path, text: str) -> None:
 
 
 def _git_commit() -> str | None:
-    try:
+    """The checkout's commit (12 digits), with ``+dirty`` when rbgen's or the benchmarks'
+    files (results aside) differ from it: a copied or edited tree then does not claim a
+    commit it does not match."""
+    here = Path(__file__).resolve().parent
+
+    def git(*args: str) -> str:
         out = subprocess.run(
-            ["git", "rev-parse", "--short=12", "HEAD"],
-            capture_output=True,
-            text=True,
-            timeout=5,
-            check=False,
-            cwd=Path(__file__).resolve().parent,
+            ["git", *args], capture_output=True, text=True, timeout=5, check=False, cwd=here
         )
-        return out.stdout.strip() or None
+        return out.stdout.strip() if out.returncode == 0 else ""
+
+    try:
+        commit = git("rev-parse", "--short=12", "HEAD")
+        if not commit:
+            return None
+        root = Path(git("rev-parse", "--show-toplevel") or here.parent)
+        dirty = git(
+            "status",
+            "--porcelain",
+            "--",
+            str(root / "rbgen"),
+            str(root / "benchmarks"),
+            f":(exclude){root / RESULTS_DIR}",
+        )
+        return commit + ("+dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         return None
 
