@@ -122,12 +122,16 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
 /* the launch first derives its contacts' ContactGeometry records (a step's
  * first launch over a group; the sweeps of the step read them) */
 #define GEOMETRY_PASS 8u
-/* a prefetch of one cache line where the compiler has it for a CPU target
- * (prefetch_constraint): a GPU compiler may have the builtin but refuse a
- * __global pointer for its generic argument (NVIDIA's does) */
-#if defined(__has_builtin) && (defined(__x86_64__) || defined(__aarch64__))
+/* prefetch_constraint's hints, for CPU targets only (the serial form is the CPU's;
+ * a GPU compiler may have the builtin but refuse a __global pointer for its
+ * generic argument, as NVIDIA's does): a cache line at a time where the compiler
+ * has the builtin, else OpenCL's prefetch */
+#if defined(__x86_64__) || defined(__aarch64__)
+#define PREFETCH_HINTS 1
+#if defined(__has_builtin)
 #if __has_builtin(__builtin_prefetch)
 #define PREFETCH_LINES 1
+#endif
 #endif
 #endif
 % endif
@@ -359,19 +363,19 @@ inline void solve_joint(__global JointConstraint* joints, uint index,
 % if geometry_cache:
 /* Ask for the cache lines of constraint `index` and of its geometry before
  * they are read: a serial sweep reads every constraint's records once, and
- * the solve of the one before gives the loads time to arrive. (A hint only:
- * compilers without the builtin fall back to OpenCL's prefetch.) */
+ * the solve of the one before gives the loads time to arrive. (A hint only, on
+ * CPU targets: see PREFETCH_HINTS; elsewhere nothing.) */
 inline void prefetch_constraint(__global const ContactConstraint* constraints,
                                 __global const ContactGeometry* geometry, uint index)
 {
     __global const char* c = (__global const char*)&constraints[index];
     __global const char* g = (__global const char*)&geometry[index];
-#ifdef PREFETCH_LINES
+#if defined(PREFETCH_LINES)
     for (uint line = 0; line < sizeof(ContactConstraint); line += 64)
         __builtin_prefetch(c + line);
     for (uint line = 0; line < sizeof(ContactGeometry); line += 64)
         __builtin_prefetch(g + line);
-#else
+#elif defined(PREFETCH_HINTS)
     prefetch(c, sizeof(ContactConstraint));
     prefetch(g, sizeof(ContactGeometry));
 #endif
