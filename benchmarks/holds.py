@@ -2,7 +2,7 @@
 
     python benchmarks/holds.py [--device D] [--sizes 1000 8000 27000 111375]
                                [--candidates default s2 s4 s8 ...] [--steps 120]
-                               [--repeat R] [--out DIR]
+                               [--repeat R] [--trace K] [--trace-steps T] [--out DIR]
 
 Issue 24's table in one run: each BoxBox lattice is built through the public API and
 stepped ``--steps`` steps (dt 1/60) from its start, once per candidate:
@@ -22,7 +22,9 @@ the median of the timing blocks of the remaining steps (`rbgen.harness.run_scene
 row: ms/step, kernel launches and blocking reads a step, boxes displaced more than 0.5 m
 sideways, the top layer's median drop, and whether the lattice holds (<= 0.5% displaced and a top
 drop <= 2 cm, the issue's bar). JSON (rbgen.bench's form, kind "holds") goes under
-``--out`` (benchmarks/results by default; '' for none).
+``--out`` (benchmarks/results by default; '' for none). ``--trace K`` also steps each
+candidate's lattice ``--trace-steps`` steps (300 by default) and samples it every K steps
+(`trace_lattice`): a bar met at one instant may be a phase of a lattice that sways or breathes.
 """
 
 from __future__ import annotations
@@ -31,8 +33,10 @@ import argparse
 import statistics
 import sys
 
-from rbgen import bench
-from rbgen.harness import run_scene
+import numpy as np
+
+from rbgen import bench, sanity
+from rbgen.harness import build_scene, run_scene
 
 #: name -> World options (beside the defaults)
 CANDIDATES = {
@@ -76,6 +80,43 @@ def _row(n: int, name: str, s: dict, median: bool = False) -> bool:
     return ok
 
 
+def trace_lattice(n: int, options: dict, device, steps: int, every: int) -> list[dict]:
+    """The lattice of ``n`` boxes stepped ``steps`` steps from its start with ``options``,
+    sampled every ``every`` steps: displaced boxes, the top layer's median drop and the
+    worst layer's (m), and the boxes' median speed (m/s). A lattice that holds at one step
+    may be swaying or breathing: its top drop then swings from sample to sample, and its
+    displaced count grows."""
+    world, ids, *_ = build_scene("boxbox", n, device, **options)
+    start = world.positions[ids]
+    trace = []
+    for k in range(1, steps + 1):
+        world.step(1 / 60)
+        if k % every == 0 or k == steps:
+            settled = sanity.settling(start, world.positions[ids])
+            drops = settled["layer_drop"] or [0.0]
+            speed = np.linalg.norm(world.linear_velocities[ids], axis=1)
+            trace.append(
+                {
+                    "step": k,
+                    "displaced": settled["displaced"],
+                    "top_drop": drops[-1],
+                    "worst_drop": max(drops),
+                    "median_speed": float(np.median(speed)),
+                }
+            )
+    return trace
+
+
+def _print_trace(n: int, name: str, trace: list[dict]) -> None:
+    print(f"  trace of {n:,} {name}: step displaced top_cm worst_cm median_m/s", flush=True)
+    for t in trace:
+        print(
+            f"  {t['step']:>6} {t['displaced']:>9} {100 * t['top_drop']:>7.2f} "
+            f"{100 * t['worst_drop']:>8.2f} {t['median_speed']:>10.4f}",
+            flush=True,
+        )
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="rbgen device choice (index or name)")
@@ -87,8 +128,19 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--repeat", type=int, default=1, help="runs of each candidate, alternated (median)"
     )
+    parser.add_argument(
+        "--trace",
+        type=int,
+        default=0,
+        metavar="K",
+        help="also step each candidate's lattice --trace-steps steps, sampling every K "
+        "(trace_lattice); 0: no trace",
+    )
+    parser.add_argument("--trace-steps", type=int, default=300)
     parser.add_argument("--out", default=str(bench.RESULTS_DIR))
     args = parser.parse_args(argv)
+    if args.trace < 0 or (args.trace and args.trace_steps < 1):
+        parser.error("--trace must be >= 0 and --trace-steps >= 1")
     candidates = [BASELINE] + [c for c in args.candidates if c != BASELINE]
 
     results = []
@@ -130,6 +182,11 @@ def main(argv=None) -> int:
                 runs_ms=ms,
                 baseline=base,
             )
+            if args.trace:
+                result["trace"] = trace_lattice(
+                    n, CANDIDATES[name], args.device, args.trace_steps, args.trace
+                )
+                _print_trace(n, name, result["trace"])
             results.append(result)
             if name == BASELINE:
                 base = {"name": f"boxbox {n} {BASELINE}", "ms": s["ms_per_step"]}
@@ -142,6 +199,7 @@ def main(argv=None) -> int:
                 "steps": args.steps,
                 "dt": 1 / 60,
                 "candidates": {c: CANDIDATES[c] for c in candidates},
+                "trace": {"every": args.trace, "steps": args.trace_steps} if args.trace else None,
             },
         )
         print(f"wrote {bench.write_results(record, args.out)}")
