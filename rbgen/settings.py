@@ -10,12 +10,9 @@ Two kinds:
 A default given as None for a construction option means "the device's choice", which the
 plan makes and explains (`Plan.reasons`). A step setting may have its own default on CPUs
 (``cpu_default``): the effort that holds the stacks at the least cost differs between a
-GPU's side-by-side solve and a CPU's serial one. The BoxBox lattice of 27,000 holds (at
-most 0.5% of boxes displaced, top layer's median drop at most 2 cm after 120 steps) at
-8 substeps of 2 + 1 sweeps on the GPU plan (global batching, block normal solve: 91
-displaced, 0.14 cm, measured in the H200's shape on a CPU) and at 4 of 3 + 1 on the CPU
-plan (slabs, serial block solve); 4 of 3 + 1 or of 5 + 2 on the GPU plan displaced 547 and
-235 boxes, one substep of 10 + 4 dropped the top 12.4 cm. Every value is checked when set: a bad one
+GPU's side-by-side solve and a CPU's serial one: each default is the least effort at
+which the BoxBox lattices hold in `benchmarks/holds.py` (its recorded results compare the
+candidates). Every value is checked when set: a bad one
 raises `RbgenError` naming the option and what it allows, and leaves the World as it was.
 """
 

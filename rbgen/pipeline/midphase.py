@@ -185,12 +185,11 @@ def default_work_group_size(traits: DeviceTraits) -> int:
 
 def default_params(traits: DeviceTraits) -> dict:
     """The heuristic triangle-walk parameters: the global traversal on every device. On
-    CPUs local memory is ordinary cached memory and barriers cost; on the H200 staging
-    subtrees in local memory (Bullet3's scheme) was slower than walking the BVH from global
-    memory at every subtree size and work-group size `benchmarks/midphase.py` tries, in
-    pair order and shuffled: the nodes a group's walks share stay in the GPU's L1/L2 caches
-    anyway, and staging a subtree costs a barrier and reads nodes no walk visits. The
-    tuner (`search_space`) still tries the local traversal on each device."""
+    CPUs local memory is ordinary cached memory and barriers cost; on GPUs the nodes a
+    group's walks share stay in the L1/L2 caches anyway, while staging a subtree in local
+    memory (Bullet3's scheme) costs a barrier and reads nodes no walk visits
+    (`benchmarks/midphase.py` compares both). The tuner (`search_space`) still tries the
+    local traversal on each device."""
     return {
         "work_group_size": default_work_group_size(traits),
         "traversal": "global",
