@@ -24,9 +24,9 @@ import os
 import pathlib
 import subprocess
 import sys
-from collections import defaultdict
 
 import numpy as np
+from kernel_events import KernelEvents
 
 HERE = pathlib.Path(__file__).resolve().parent
 
@@ -44,8 +44,6 @@ def worker(device, scene: str, n: int, steps: int, out: str) -> None:
     """One measurement in this process's rbgen (PYTHONPATH): JSON to ``out``."""
     import time
 
-    import pyopencl as cl
-
     from rbgen.device import Runtime
     from rbgen.harness import build_scene
 
@@ -54,36 +52,22 @@ def worker(device, scene: str, n: int, steps: int, out: str) -> None:
     for _ in range(5):
         world.step(1 / 60)
     runtime.queue.finish()
-    events = []
-    original = cl.enqueue_nd_range_kernel
-    current = [0]
-
-    def recording(queue, kernel, *rest, **kw):
-        event = original(queue, kernel, *rest, **kw)
-        events.append((current[0], kernel.function_name, event))
-        return event
-
-    cl.enqueue_nd_range_kernel = recording
-    try:
+    with KernelEvents() as launches:
         start, cpu_start = time.perf_counter(), _cpu_seconds()
         for step in range(steps):
-            current[0] = step
+            launches.step = step
             world.step(1 / 60)
         runtime.queue.finish()
         wall = (time.perf_counter() - start) / steps * 1e3
         cpu = (_cpu_seconds() - cpu_start) / steps * 1e3
-    finally:
-        cl.enqueue_nd_range_kernel = original
-    per_step: dict = defaultdict(lambda: np.zeros(steps))
-    for step, name, event in events:
-        per_step[name][step] += 1e-6 * (event.profile.end - event.profile.start)
+    per_step = launches.per_step_ms(steps)
     result = {
         "device": runtime.traits.device_name,
         "wall_ms": wall,
         "cpu_ms": cpu,
         "kernel_ms": float(np.median(sum(per_step.values()))),
         "kernels": {name: float(np.median(ms)) for name, ms in per_step.items()},
-        "launches": len(events) / steps,
+        "launches": len(launches.events) / steps,
         "positions": np.asarray(world.positions, np.float32).tolist(),
     }
     pathlib.Path(out).write_text(json.dumps(result))

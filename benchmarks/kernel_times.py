@@ -11,10 +11,9 @@ a step slowed by other processes on a shared CPU), and its launches per step.
 from __future__ import annotations
 
 import argparse
-from collections import defaultdict
 
 import numpy as np
-import pyopencl as cl
+from kernel_events import KernelEvents
 
 from rbgen.pipeline.batching import MODES as BATCHING_MODES
 
@@ -49,32 +48,17 @@ def main() -> None:
         world.step(1 / 60)
     runtime.queue.finish()
 
-    events = []
-    original = cl.enqueue_nd_range_kernel
-    current = [0]  # the step being enqueued
-
-    def recording(queue, kernel, *rest, **kw):
-        event = original(queue, kernel, *rest, **kw)
-        events.append((current[0], kernel.function_name, event))
-        return event
-
-    cl.enqueue_nd_range_kernel = recording
-    try:
+    with KernelEvents() as launches:
         for step in range(args.steps):
-            current[0] = step
+            launches.step = step
             world.step(1 / 60)
         runtime.queue.finish()
-    finally:
-        cl.enqueue_nd_range_kernel = original
-    per_step, counts = defaultdict(lambda: np.zeros(args.steps)), defaultdict(int)
-    for step, name, event in events:
-        per_step[name][step] += 1e-6 * (event.profile.end - event.profile.start)
-        counts[name] += 1
+    per_step, counts = launches.per_step_ms(args.steps), launches.counts()
     totals = {name: float(np.median(ms)) for name, ms in per_step.items()}
     total = float(np.median(sum(per_step.values())))
     print(
         f"{args.scene} n={args.n} on {runtime.traits.device_name}: kernel time {total:.3f} ms/step "
-        f"(medians over {args.steps} steps), {len(events) / args.steps:.0f} launches/step"
+        f"(medians over {args.steps} steps), {len(launches.events) / args.steps:.0f} launches/step"
     )
     for name, ms in sorted(totals.items(), key=lambda kv: -kv[1])[: args.top]:
         print(f"  {ms:9.3f} ms  {counts[name] / args.steps:5.1f}x  {name}")
