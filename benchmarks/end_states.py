@@ -13,13 +13,12 @@ must compare equal on the same device.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 import numpy as np
 
 import rbgen
-from rbgen import scenes
+from rbgen import bench, scenes
 
 
 def _boxbox(world, n):
@@ -125,13 +124,18 @@ def main(argv=None) -> int:
     p.add_argument("out")
     p.add_argument("--device", default=None)
     p.add_argument("--quick", action="store_true")
-    p.add_argument("--options", default="{}", help="World options (JSON) for every scene")
+    p.add_argument(
+        "--options",
+        type=bench.world_options,
+        default={},
+        help="World options (JSON) for every scene",
+    )
     p = sub.add_parser("compare")
     p.add_argument("a")
     p.add_argument("b")
     args = parser.parse_args(argv)
     if args.command == "record":
-        record(args.out, args.device, args.quick, json.loads(args.options))
+        record(args.out, args.device, args.quick, args.options)
         return 0
     return compare(args.a, args.b)
 

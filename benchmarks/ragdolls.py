@@ -17,7 +17,6 @@ PoCL, 2 cores, 100 ragdolls <= 10 ms/step; H200, 10,000 ragdolls <= 4 ms/step. J
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 from rbgen import bench
@@ -32,10 +31,12 @@ def main(argv=None) -> int:
     parser.add_argument("--n", type=int, nargs="+", default=[10, 30, 100])
     parser.add_argument("--steps", type=int, default=120)
     parser.add_argument("--warmup", type=int, default=60)
-    parser.add_argument("--options", default="{}", help="World options as JSON")
+    parser.add_argument(
+        "--options", type=bench.world_options, default={}, help="World options as JSON"
+    )
     parser.add_argument("--out", default=str(bench.RESULTS_DIR))
     args = parser.parse_args(argv)
-    options = json.loads(args.options)
+    options = args.options
     device = bench.device_record(args.device)
     results = []
     for n in args.n:

@@ -17,7 +17,6 @@ over its own, from the medians over the repeats. JSON (rbgen.bench's format, kin
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import time
 
@@ -73,10 +72,12 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=600)
     parser.add_argument("--tail", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=2)
-    parser.add_argument("--options", default="{}", help="World options as JSON")
+    parser.add_argument(
+        "--options", type=bench.world_options, default={}, help="World options as JSON"
+    )
     parser.add_argument("--out", default=str(bench.RESULTS_DIR))
     args = parser.parse_args(argv)
-    options = json.loads(args.options)
+    options = args.options
     device = bench.device_record(args.device)
     results = []
     for n in args.n:

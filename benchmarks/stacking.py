@@ -24,7 +24,6 @@ beside a new solver is the same script on the previous commit, run in the same s
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 
@@ -155,10 +154,15 @@ def main(argv=None) -> int:
     parser.add_argument("--device", default=None)
     parser.add_argument("--quick", action="store_true", help="small sizes only")
     parser.add_argument("--only", nargs="*", default=None, help="case names to run")
-    parser.add_argument("--options", default="{}", help="World options (JSON) for every case")
+    parser.add_argument(
+        "--options",
+        type=bench.world_options,
+        default={},
+        help="World options (JSON) for every case",
+    )
     parser.add_argument("--out", default=str(bench.RESULTS_DIR))
     args = parser.parse_args(argv)
-    options = json.loads(args.options)
+    options = args.options
     results = []
     print(f"{'case':18} {'target':44} {'measured':34} {'ms/step':>8}  holds", flush=True)
     for name, run in cases(args.quick):

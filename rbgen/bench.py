@@ -245,6 +245,22 @@ def format_result(r: dict) -> str:
 # ----------------------------------------------------------------- files
 
 
+def world_options(text: str) -> dict:
+    """A benchmark's ``--options``: World options as a JSON object (an argparse ``type``:
+    anything else is refused naming the option, before any scene is built)."""
+    import argparse
+
+    try:
+        options = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise argparse.ArgumentTypeError(f"--options is not JSON ({err}): {text!r}") from None
+    if not isinstance(options, dict):
+        raise argparse.ArgumentTypeError(
+            f"--options must be a JSON object of World options, got {text!r}"
+        )
+    return options
+
+
 def device_record(device=None) -> dict:
     """What identifies a device and its driver in a result file."""
     from .device import resolve_device

@@ -192,3 +192,15 @@ def test_a_timing_block_ends_after_its_steps_have_run(runtime, monkeypatch):
     reads = [i for i, e in enumerate(events) if e == "clock"][1:]  # (the first starts a block)
     block_ends = [i for i in reads if events[i - 1] == "finish"]
     assert len(block_ends) == harness.TIMING_BLOCKS
+
+
+def test_benchmark_options_are_a_json_object_or_refused_naming_the_option():
+    import argparse
+
+    assert bench.world_options('{"substeps": 2, "iterations": 3}') == {
+        "substeps": 2,
+        "iterations": 3,
+    }
+    for bad in ("{bad", "[1, 2]", "3"):
+        with pytest.raises(argparse.ArgumentTypeError, match="--options"):
+            bench.world_options(bad)
