@@ -168,8 +168,13 @@ class ContactRig:
             relaxation=relaxation,
             warm_start=self.warm_start if warm_start is None else warm_start,
         )
+        self.run(self.solver, sweeps)
+
+    def run(self, solver, sweeps, **options):
+        """``solver`` (this rig's or another) over the constraints set up last, with the rig's
+        bodies and inertias; ``options``: the solver's own keyword arguments."""
         setup = self.setup
-        self.solver.solve(
+        solver.solve(
             setup.constraints,
             setup.count,
             self.capacity,
@@ -177,6 +182,7 @@ class ContactRig:
             self.inertia,
             self.body_count,
             sweeps,
+            **options,
         )
 
     def solve(

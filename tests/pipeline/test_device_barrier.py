@@ -79,13 +79,8 @@ def test_oversubscribed_jacobi_gives_up(runtime, rng, oversubscribed):
     rig.constraints(manifolds)
     before = rig.bodies.get()
     jacobi_solver = jacobi.JacobiSolver(runtime, persistent=True, work_group_size=32)
-    jacobi_solver.solve(
-        rig.setup.constraints,
-        rig.setup.count,
-        rig.capacity,
-        rig.bodies,
-        rig.inertia,
-        rig.body_count,
+    rig.run(
+        jacobi_solver,
         SimpleNamespace(iterations=4, position_iterations=0, relaxation=1.0, warm_start=True),
     )
     sync = jacobi_solver.sync.get()

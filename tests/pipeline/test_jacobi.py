@@ -41,16 +41,7 @@ def sweeps(iterations=1, position_iterations=0, relaxation=1.0, warm_start=True)
 
 def run_jacobi(rig, solver, **settings):
     """Solve the rig's constraints (set up last) with ``solver``."""
-    setup = rig.setup
-    solver.solve(
-        setup.constraints,
-        setup.count,
-        rig.capacity,
-        rig.bodies,
-        rig.inertia,
-        rig.body_count,
-        sweeps(**settings),
-    )
+    rig.run(solver, sweeps(**settings))
 
 
 def random_scene(rng, bodies=37, statics=3, manifolds=101):

@@ -536,18 +536,7 @@ def _second_solve(rig, same_geometry, inertia_scale=1.0, restitution=False):
         inertia["inv_inertia_world"] *= inertia_scale
         rig.inertia.set(inertia)
     sweeps = SimpleNamespace(iterations=1, position_iterations=1, relaxation=1.0, warm_start=True)
-    setup = rig.setup
-    rig.solver.solve(
-        setup.constraints,
-        setup.count,
-        rig.capacity,
-        rig.bodies,
-        rig.inertia,
-        rig.body_count,
-        sweeps,
-        restitution=restitution,
-        same_geometry=same_geometry,
-    )
+    rig.run(rig.solver, sweeps, restitution=restitution, same_geometry=same_geometry)
     out = rig.bodies.get()
     return np.concatenate([out["linear_velocity"], out["angular_velocity"]])
 
