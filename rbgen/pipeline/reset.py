@@ -10,6 +10,7 @@ reads every body back and uploads them all again.
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 import pyopencl.array as cla
 
 from ..codegen import KernelTemplate, compile_spec, work_group_size_param
@@ -39,8 +40,9 @@ class EnvironmentReset:
         program = compile_spec(runtime, self.spec)
         self._reset = runtime.bound(program.kernel("reset_bodies"))
         self._forget = runtime.bound(program.kernel("forget_contacts"))
-        # (host arrays of the last uploads, alive until their copies are done)
-        self._keep: list = []
+        #: (marker event, arrays) of the uploads still in flight: their host arrays stay
+        #: alive until the marker after them completes (checked without waiting)
+        self._keep: list[tuple[cl.Event, list]] = []
 
     def __call__(
         self,
@@ -62,15 +64,18 @@ class EnvironmentReset:
         count = len(states)
         if count == 0:
             return
-        if self._keep:
-            queue.finish()  # (the last call's uploads are done: their host arrays may go)
+        self._keep = [
+            (marker, held)
+            for marker, held in self._keep
+            if marker.command_execution_status != cl.command_execution_status.COMPLETE
+        ]
         flags = np.zeros(env_count, np.uint32)
         flags[envs] = 1
         states = np.ascontiguousarray(states)
         env_words = envs.astype(np.uint32)
         d_states = cla.to_device(queue, states, async_=True)
         d_envs = cla.to_device(queue, env_words, async_=True)
-        self._keep = [d_states, d_envs, states, env_words, flags]
+        held = [d_states, d_envs, states, env_words, flags]
         wg = self.work_group_size
         self._reset.over(
             count,
@@ -84,7 +89,7 @@ class EnvironmentReset:
         )
         if constraints is not None and constraints.capacity > 0:
             d_flags = cla.to_device(queue, flags, async_=True)
-            self._keep.append(d_flags)
+            held.append(d_flags)
             self._forget.over(
                 constraints.capacity,
                 wg,
@@ -93,3 +98,4 @@ class EnvironmentReset:
                 words,
                 d_flags,
             )
+        self._keep.append((cl.enqueue_marker(queue), held))
