@@ -8,12 +8,14 @@ Issue 24's table in one run: each BoxBox lattice is built through the public API
 stepped ``--steps`` steps (dt 1/60) from its start, once per candidate:
 
 ``default``  the World's defaults (the baseline every other row names)
+``s1``       one substep of 10 velocity + 4 position sweeps (the GPU default before substeps)
 ``s2``       substeps=2, 5 velocity + 2 position sweeps a substep
 ``s4``       substeps=4, 3 + 1
 ``s8``       substeps=8, 2 + 1
-``block*``   the same with the block normal solve (a manifold's normal rows together):
-             ``block`` 10 + 4 sweeps, ``block_s2`` 5 + 2 a substep of 2, ``block_s4`` 3 + 1
-             and ``block_s4_41`` 4 + 1 of 4, ``block_s8`` 2 + 1 of 8
+``s4_41``    substeps=4, 4 + 1; ``s4_52``: 5 + 2
+``cells_s4``, ``cells_s8``  cells batching at 4 x (3 + 1) and 8 x (2 + 1)
+(every candidate keeps the default block normal solve; ``normal_solve`` is a World option
+for a candidate that wants the sequential one)
 
 A candidate is a dict of World options; ``--repeat R`` runs every candidate R times per
 size, alternating them (a shared machine's noise falls on all alike), and reports each
@@ -41,20 +43,12 @@ from rbgen.harness import build_scene, run_scene
 #: name -> World options (beside the defaults)
 CANDIDATES = {
     "default": {},
+    "s1": {"substeps": 1, "iterations": 10, "position_iterations": 4},
     "s2": {"substeps": 2, "iterations": 5, "position_iterations": 2},
     "s4": {"substeps": 4, "iterations": 3, "position_iterations": 1},
     "s8": {"substeps": 8, "iterations": 2, "position_iterations": 1},
     "s4_52": {"substeps": 4, "iterations": 5, "position_iterations": 2},
-    "block": {"normal_solve": "block"},
-    "block_s2": {"normal_solve": "block", "substeps": 2, "iterations": 5, "position_iterations": 2},
-    "block_s4": {"normal_solve": "block", "substeps": 4, "iterations": 3, "position_iterations": 1},
-    "block_s4_41": {
-        "normal_solve": "block",
-        "substeps": 4,
-        "iterations": 4,
-        "position_iterations": 1,
-    },
-    "block_s8": {"normal_solve": "block", "substeps": 8, "iterations": 2, "position_iterations": 1},
+    "s4_41": {"substeps": 4, "iterations": 4, "position_iterations": 1},
     "cells_s4": {"batching": "cells", "substeps": 4, "iterations": 3, "position_iterations": 1},
     "cells_s8": {"batching": "cells", "substeps": 8, "iterations": 2, "position_iterations": 1},
 }
