@@ -2,7 +2,8 @@
 
     python benchmarks/holds.py [--device D] [--sizes 1000 8000 27000 111375]
                                [--candidates default s2 s4 s8 ...] [--steps 120]
-                               [--repeat R] [--trace K] [--trace-steps T] [--out DIR]
+                               [--repeat R] [--trace K] [--trace-steps T]
+                               [--window-from S] [--out DIR]
 
 Issue 24's table in one run: each BoxBox lattice is built through the public API and
 stepped ``--steps`` steps (dt 1/60) from its start, once per candidate:
@@ -26,7 +27,9 @@ sideways, the top layer's median drop, and whether the lattice holds (<= 0.5% di
 drop <= 2 cm, the issue's bar). JSON (rbgen.bench's form, kind "holds") goes under
 ``--out`` (benchmarks/results by default; '' for none). ``--trace K`` also steps each
 candidate's lattice ``--trace-steps`` steps (300 by default) and samples it every K steps
-(`trace_lattice`): a bar met at one instant may be a phase of a lattice that sways or breathes.
+(`trace_lattice`): a bar met at one instant may be a phase of a lattice that sways or breathes,
+so the samples from ``--window-from`` (step 100) on are also judged as a whole (`window`):
+the bar at every sample, the top drop's swing, and the median speed at the end.
 """
 
 from __future__ import annotations
@@ -101,6 +104,41 @@ def trace_lattice(n: int, options: dict, device, steps: int, every: int) -> list
     return trace
 
 
+def window(n: int, trace: list[dict], start: int) -> dict:
+    """The trace's samples from step ``start`` on, judged as a whole: the issue's bar
+    (<= 0.5% displaced, top drop <= 2 cm) met at every sample (``holds``), the top drop's
+    least and greatest (its swing: a breathing lattice passes or fails a one-instant bar
+    by phase), the most displaced, and the median speed at the last sample (m/s: a lattice
+    at rest reads near zero). None where no sample is that late."""
+    late = [t for t in trace if t["step"] >= start]
+    if not late:
+        return {"start": start, "holds": None}
+    tops = [t["top_drop"] for t in late]
+    worst = max(t["displaced"] for t in late)
+    return {
+        "start": start,
+        "samples": len(late),
+        "top_drop_min": min(tops),
+        "top_drop_max": max(tops),
+        "displaced_max": worst,
+        "end_median_speed": late[-1]["median_speed"],
+        "holds": worst <= 0.005 * n and max(tops) <= 0.02,
+    }
+
+
+def _print_window(w: dict) -> None:
+    if w["holds"] is None:
+        print(f"  window from step {w['start']}: no sample", flush=True)
+        return
+    print(
+        f"  window from step {w['start']} ({w['samples']} samples): top drop "
+        f"{100 * w['top_drop_min']:.2f}-{100 * w['top_drop_max']:.2f} cm, displaced <= "
+        f"{w['displaced_max']}, median speed at the end {w['end_median_speed']:.4f} m/s: "
+        f"{'holds' if w['holds'] else 'does NOT hold'} throughout",
+        flush=True,
+    )
+
+
 def _print_trace(n: int, name: str, trace: list[dict]) -> None:
     print(f"  trace of {n:,} {name}: step displaced top_cm worst_cm median_m/s", flush=True)
     for t in trace:
@@ -131,10 +169,18 @@ def main(argv=None) -> int:
         "(trace_lattice); 0: no trace",
     )
     parser.add_argument("--trace-steps", type=int, default=300)
+    parser.add_argument(
+        "--window-from",
+        type=int,
+        default=100,
+        help="the trace's window starts at this step (judged as a whole: `window`)",
+    )
     parser.add_argument("--out", default=str(bench.RESULTS_DIR))
     args = parser.parse_args(argv)
     if args.trace < 0 or (args.trace and args.trace_steps < 1):
         parser.error("--trace must be >= 0 and --trace-steps >= 1")
+    if args.trace and not 0 <= args.window_from <= args.trace_steps:
+        parser.error(f"--window-from must be in [0, --trace-steps = {args.trace_steps}]")
     candidates = [BASELINE] + [c for c in args.candidates if c != BASELINE]
 
     results = []
@@ -181,6 +227,8 @@ def main(argv=None) -> int:
                     n, CANDIDATES[name], args.device, args.trace_steps, args.trace
                 )
                 _print_trace(n, name, result["trace"])
+                result["window"] = window(n, result["trace"], args.window_from)
+                _print_window(result["window"])
             results.append(result)
             if name == BASELINE:
                 base = {"name": f"boxbox {n} {BASELINE}", "ms": s["ms_per_step"]}
@@ -193,7 +241,15 @@ def main(argv=None) -> int:
                 "steps": args.steps,
                 "dt": 1 / 60,
                 "candidates": {c: CANDIDATES[c] for c in candidates},
-                "trace": {"every": args.trace, "steps": args.trace_steps} if args.trace else None,
+                "trace": (
+                    {
+                        "every": args.trace,
+                        "steps": args.trace_steps,
+                        "window_from": args.window_from,
+                    }
+                    if args.trace
+                    else None
+                ),
             },
         )
         print(f"wrote {bench.write_results(record, args.out)}")
