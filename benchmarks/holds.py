@@ -15,6 +15,10 @@ stepped ``--steps`` steps (dt 1/60) from its start, once per candidate:
 ``s8``       substeps=8, 2 + 1
 ``s4_41``    substeps=4, 4 + 1; ``s4_52``: 5 + 2
 ``cells_s4``, ``cells_s8``  cells batching at 4 x (3 + 1) and 8 x (2 + 1)
+``s8_31``    substeps=8, 3 + 1 (the cost of the shock candidates at 8 substeps)
+``shock_s8_21``, ``shock_s8_31``, ``shock_s4_31``  shock_propagation=True at 8 x (2 + 1),
+             8 x (3 + 1) and 4 x (3 + 1): the last velocity sweep of each substep is the
+             shock sweep (a GPU plan; the CPU plan's serial block solve refuses it)
 (every candidate keeps the default block normal solve; ``normal_solve`` is a World option
 for a candidate that wants the sequential one)
 
@@ -54,6 +58,25 @@ CANDIDATES = {
     "s4_41": {"substeps": 4, "iterations": 4, "position_iterations": 1},
     "cells_s4": {"batching": "cells", "substeps": 4, "iterations": 3, "position_iterations": 1},
     "cells_s8": {"batching": "cells", "substeps": 8, "iterations": 2, "position_iterations": 1},
+    "s8_31": {"substeps": 8, "iterations": 3, "position_iterations": 1},
+    "shock_s8_21": {
+        "substeps": 8,
+        "iterations": 2,
+        "position_iterations": 1,
+        "shock_propagation": True,
+    },
+    "shock_s8_31": {
+        "substeps": 8,
+        "iterations": 3,
+        "position_iterations": 1,
+        "shock_propagation": True,
+    },
+    "shock_s4_31": {
+        "substeps": 4,
+        "iterations": 3,
+        "position_iterations": 1,
+        "shock_propagation": True,
+    },
 }
 BASELINE = "default"
 

@@ -432,7 +432,13 @@ CONTACT_CONSTRAINT = declare(
     "ContactConstraint",
     [
         ("normal", "float4", "unit normal from A to B (world); w: friction coefficient"),
-        ("tangent1", "float4", "first friction direction, unit, orthogonal to normal"),
+        (
+            "tangent1",
+            "float4",
+            "first friction direction, unit, orthogonal to normal; w: the body a shock "
+            "sweep holds still (RB_SHOCK_HOLDS_*: the lower of two dynamic bodies whose "
+            "normal is within 45 degrees of the gravity's vertical)",
+        ),
         (
             "tangent2",
             "float4",
@@ -552,6 +558,12 @@ CONTACT_GEOMETRY = declare(
     "arms, normal and the bodies' inertias hold over the substeps) and reads every sweep "
     "(solvers/contact_rows.cl.mako: FaceBlock, FrictionRows).",
 )
+
+# Shock propagation (solvers/pgs.cl.mako, SHOCK_PASS): which body of a contact the shock
+# sweep holds still, in ContactConstraint.tangent1.w (a float holding the whole number).
+SHOCK_HOLDS_NONE = constant("RB_SHOCK_HOLDS_NONE", 0, "a shock sweep moves both bodies")
+SHOCK_HOLDS_A = constant("RB_SHOCK_HOLDS_A", 1, "a shock sweep holds body A (the lower) still")
+SHOCK_HOLDS_B = constant("RB_SHOCK_HOLDS_B", 2, "a shock sweep holds body B (the lower) still")
 
 # The constraint-edge list: what batching colours (contacts and, later, joints alike).
 # Edge e of a step: joints first, at fixed indices (a joint stage writes edges

@@ -126,6 +126,33 @@ class Plan:
     reasons: dict = dataclasses.field(compare=False, default_factory=dict)
     sources: dict = dataclasses.field(compare=False, default_factory=dict)
 
+    def check_settings(self, settings) -> None:
+        """Refuse step ``settings`` this plan cannot run, naming the setting, before a
+        step enqueues anything: shock_propagation needs the PGS solver, a velocity sweep
+        before the shock sweep (iterations >= 2) and a solve that is not the serial block
+        solve with its step-long geometry cache (the CPU plan's: its cached blocks are of
+        both bodies)."""
+        if not getattr(settings, "shock_propagation", False):
+            return
+        if self.solver != "pgs":
+            raise RbgenError(
+                f"shock_propagation=True is a sweep of solver 'pgs'; this World's solver is "
+                f"{self.solver!r}: set shock_propagation=False or build it with solver='pgs'"
+            )
+        if settings.iterations < 2:
+            raise RbgenError(
+                f"shock_propagation=True needs iterations >= 2 (the last velocity sweep of a "
+                f"substep becomes the shock sweep, whose impulses are not carried; a sweep "
+                f"before it must carry the loads), got iterations={settings.iterations!r}"
+            )
+        if self.solve_form == "serial" and self.normal_solve == "block":
+            raise RbgenError(
+                "shock_propagation=True is not available with the serial block solve (this "
+                f"device's plan: {self.describe()}): build the World with "
+                "normal_solve='sequential' or batching='global', or set "
+                "shock_propagation=False"
+            )
+
     def choices(self) -> dict[str, Any]:
         """The choices as plain values (no reasons)."""
         return {

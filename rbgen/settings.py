@@ -156,6 +156,16 @@ STEP_SETTINGS = (
         "Gauss-Seidel; above 1 makes columns walk sideways)",
     ),
     Option(
+        "shock_propagation",
+        False,
+        _flag,
+        "True or False",
+        "the last velocity sweep of each substep holds the lower body of every contact "
+        "that carries a load against gravity still (solver 'pgs', iterations >= 2): a "
+        "stack's velocities agree from the ground up, so tall stacks come to rest "
+        "instead of breathing; not momentum-conserving in that sweep",
+    ),
+    Option(
         "warm_start",
         True,
         _flag,
@@ -356,6 +366,7 @@ class Settings:
     iterations: int
     position_iterations: int
     relaxation: float
+    shock_propagation: bool
     warm_start: bool
     contact_margin: float
     restitution_threshold: float

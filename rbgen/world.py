@@ -576,6 +576,7 @@ class World:
             or substeps < 1
         ):
             raise RbgenError(f"substeps must be a positive integer, got {substeps!r}")
+        self.plan.check_settings(self.settings)
         before = dict(self.runtime.counters)
         bodies = self._bodies
         with self._spec_log:

@@ -60,14 +60,24 @@ def resolve_fast_math(traits: DeviceTraits, fast_math: bool | None) -> bool:
     return bool(fast_math)
 
 
-def check_sweeps(iterations: int, position_iterations: int, relaxation: float) -> None:
-    """Refuse sweep settings no solver can run, naming them."""
+def check_sweeps(
+    iterations: int, position_iterations: int, relaxation: float, shock: bool = False
+) -> None:
+    """Refuse sweep settings no solver can run, naming them. With ``shock`` (the setting
+    shock_propagation) the last velocity sweep of a substep is a shock sweep, whose
+    impulses are not carried: at least one sweep before it must carry the loads."""
     if iterations < 0 or position_iterations < 0 or not 0.0 < relaxation < 2.0:
         raise RbgenError(
             f"need iterations >= 0, position_iterations >= 0 and "
             f"0 < relaxation < 2, got iterations={iterations!r}, "
             f"position_iterations={position_iterations!r}, "
             f"relaxation={relaxation!r}"
+        )
+    if shock and iterations < 2:
+        raise RbgenError(
+            f"shock_propagation=True needs iterations >= 2 (the last velocity sweep of a "
+            f"substep becomes the shock sweep, whose impulses are not carried; a sweep "
+            f"before it must carry the loads), got iterations={iterations!r}"
         )
 
 

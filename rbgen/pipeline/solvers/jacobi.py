@@ -37,6 +37,7 @@ import pyopencl.cltypes as cltypes
 
 from ...codegen import Arg, KernelTemplate, Param, Signature, compile_spec, work_group_size_param
 from ...device import DeviceTraits, Runtime
+from ...errors import RbgenError
 from ...launch import instance
 from ..device_barrier import barrier_buffer, persistent_groups, persistent_launch_validated
 from .common import (
@@ -236,6 +237,11 @@ class JacobiSolver(PushVelocities):
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
         relaxation, warm_start = sweeps.relaxation, bool(sweeps.warm_start)
         check_sweeps(iterations, position_iterations, relaxation)
+        if getattr(sweeps, "shock_propagation", False):
+            raise RbgenError(
+                "shock_propagation=True is a sweep of solver 'pgs' (Gauss-Seidel order); "
+                "solver 'jacobi' has none: set shock_propagation=False or solver='pgs'"
+            )
         if (
             capacity <= 0
             or body_count <= 0

@@ -326,7 +326,7 @@ def default_work_group_size(
 APPLY_WORK_GROUP_SIZE = 64
 
 #: bit flags of a `solve_groups` launch's ``passes`` argument (as in the template)
-WARM_START_PASS, FIRST_REVERSED, RESTITUTION_PASS, GEOMETRY_PASS = 1, 2, 4, 8
+WARM_START_PASS, FIRST_REVERSED, RESTITUTION_PASS, GEOMETRY_PASS, SHOCK_PASS = 1, 2, 4, 8, 16
 
 
 @dataclasses.dataclass(frozen=True)
@@ -511,7 +511,14 @@ class PgsSolver(PushVelocities):
         last velocity sweep applies the contacts' restitution (the step's last substep;
         a solver that `integrates` applies it in its last substep)."""
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
-        check_sweeps(iterations, position_iterations, sweeps.relaxation)
+        shock = bool(getattr(sweeps, "shock_propagation", False))
+        check_sweeps(iterations, position_iterations, sweeps.relaxation, shock)
+        if shock and self.geometry_cache:
+            raise RbgenError(
+                "shock_propagation=True is not available with the serial block solve: its "
+                "step-long geometry cache holds blocks of both bodies (rbgen.plan.Plan."
+                "check_settings refuses it before a World steps)"
+            )
         # (the sequential normal solve has no block to release: its release scalars are unused)
         release = self.release_sweeps if self.normal_solve == "block" else 0
         batcher = self.batcher
@@ -524,6 +531,7 @@ class PgsSolver(PushVelocities):
             release,
             restitution,
             derive,
+            shock,
         )
         if not launches:
             return
@@ -601,10 +609,12 @@ class PgsSolver(PushVelocities):
         release_sweeps: int | None,
         restitution: bool = True,
         derive_geometry: bool = False,
+        shock: bool = False,
     ):
         """Every launch of one call (kernel object, global size) and the distinct
         kernel objects, computed once per plan and settings; with `restitution`, the
-        launch of the last velocity sweep applies the restitution; with ``derive_geometry``
+        launch of the last velocity sweep applies the restitution (with ``shock``, of the
+        sweep before it: the last is a shock sweep, SHOCK_PASS); with ``derive_geometry``
         the first launch over each group derives its contacts' geometry (GEOMETRY_PASS)."""
         key = (
             tuple(plan),
@@ -614,24 +624,35 @@ class PgsSolver(PushVelocities):
             release_sweeps,
             restitution,
             derive_geometry,
+            shock,
         )
         schedule = self._schedules.get(key)
         if schedule is not None:
             return schedule
         warm = WARM_START_PASS if warm_start else 0
         bounce = RESTITUTION_PASS if restitution and iterations > 0 else 0
+        shocks = SHOCK_PASS if shock and iterations > 1 else 0
+        bounce_sweep = iterations - 1 - (1 if shocks else 0)  # (the shock sweep is the last)
         velocity_from = first_release_sweep(iterations, release_sweeps)
         position_from = first_release_sweep(position_iterations, release_sweeps)
         # (passes, velocity sweeps, position sweeps, and the first of each that may release)
         if len(plan) == 1:  # one launch: every sweep in it
             passes = [
-                (warm | bounce, iterations, position_iterations, velocity_from, position_from)
+                (
+                    warm | bounce | shocks,
+                    iterations,
+                    position_iterations,
+                    velocity_from,
+                    position_from,
+                )
             ]
         else:  # one launch per colour and sweep; the warm start is a sweep of its own
             passes = [(warm, 0, 0, 0, 0)] if warm else []
             passes += [
                 (
-                    (FIRST_REVERSED if s % 2 else 0) | (bounce if s == iterations - 1 else 0),
+                    (FIRST_REVERSED if s % 2 else 0)
+                    | (bounce if s == bounce_sweep else 0)
+                    | (shocks if s == iterations - 1 else 0),
                     int(s < iterations),
                     int(s < position_iterations),
                     int(s < velocity_from),

@@ -6,6 +6,10 @@
  * 0 of the tangent arrays) and a twist row about the normal (slot 1 of
  * tangent1).
  *
+ * The body a shock sweep holds still (tangent1.w, RB_SHOCK_HOLDS_*): of two
+ * dynamic bodies whose normal is within 45 degrees of the vertical that gravity
+ * defines, the lower (none without gravity).
+ *
  * For every point: lever arms, effective masses of its rows, the normal
  * velocity target (restitution above a threshold velocity, of the approach
  * before this step's gravity, speculative
@@ -38,6 +42,24 @@ ${cl_structs("Body", "BodyInertia", "ContactManifold", "ContactConstraint", "Con
 <%include file="/common/hash.cl.mako"/>
 
 <%include file="/pipeline/solvers/contact_targets.cl.mako"/>
+
+/* cos 45 degrees: a contact whose normal is nearer the vertical holds a load
+ * against gravity (shock_holds) */
+#define SHOCK_VERTICAL 0.70710678f
+
+/* The body a shock sweep holds still of a contact with unit normal n (A to B)
+ * between bodies of these inverse masses (layouts: RB_SHOCK_HOLDS_*). */
+inline float shock_holds(const float3 n, const float4 gravity, const float inv_mass_a,
+                         const float inv_mass_b)
+{
+    float g2 = dot3(gravity.xyz, gravity.xyz);
+    if (!(g2 > 0.0f) || !(inv_mass_a > 0.0f) || !(inv_mass_b > 0.0f))
+        return (float)RB_SHOCK_HOLDS_NONE;
+    float up = -dot3(n, gravity.xyz) * rsqrt(g2);  /* > 0: B above A */
+    if (up >= SHOCK_VERTICAL)
+        return (float)RB_SHOCK_HOLDS_A;
+    return up <= -SHOCK_VERTICAL ? (float)RB_SHOCK_HOLDS_B : (float)RB_SHOCK_HOLDS_NONE;
+}
 
 /* Slot of a manifold's key (body a, body b, sub-feature) in the warm-starting
  * table (linear probing from here). */
@@ -245,7 +267,7 @@ void setup_contact_constraints(__global const ContactManifold* manifolds,
     float3 n = m->normal.xyz, t1, t2;
     tangent_basis(n, &t1, &t2);
     c.normal = (float4)(n, m->friction);
-    c.tangent1 = (float4)(t1, 0.0f);
+    c.tangent1 = (float4)(t1, shock_holds(n, gravity, inv_mass_a, inv_mass_b));
     c.tangent2 = (float4)(t2, m->restitution);
     c.body_a = a;
     c.body_b = b;

@@ -485,6 +485,14 @@ inline float row_speed(const Row* row, const __private ContactBodies* p)
     return s.x + s.y + s.z;
 }
 
+/* 1 / (J M^-1 J^T) of a row between the bodies of *p (0 when neither moves). */
+inline float row_mass_of(const Row* row, const __private ContactBodies* p)
+{
+    float k = dot3(row->linear, row->linear) * (p->inv_mass_a + p->inv_mass_b)
+              + dot3(row->arm_a, row->turn_a) + dot3(row->arm_b, row->turn_b);
+    return k > 0.0f ? 1.0f / k : 0.0f;
+}
+
 inline void apply_row(const Row* row, float impulse, __private ContactBodies* p)
 {
     p->va -= row->linear * (impulse * p->inv_mass_a);
@@ -812,14 +820,52 @@ inline void apply_restitution(const uint count, const float3 n, const float3 t1,
         }
 }
 
+/* Whether constraint c bounces this step (a point with a bounce velocity). */
+inline bool bounces(${constraint_space} const ContactConstraint* c)
+{
+    bool any = false;
+    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < c->point_count)
+        any = any || c->r_b[k].w > 0.0f;
+    return any;
+}
+
+/* The body that `holds` names (layouts: RB_SHOCK_HOLDS_*) held still in *p: its
+ * inverse mass and inertia zero, so no row moves it and its velocities are not
+ * stored back. */
+inline void hold_still(__private ContactBodies* p, const float holds)
+{
+    if (holds == (float)RB_SHOCK_HOLDS_A) {
+        p->inv_mass_a = 0.0f;
+        p->inv_inertia_a[0] = p->inv_inertia_a[1] = p->inv_inertia_a[2] = (float3)(0.0f);
+    } else if (holds == (float)RB_SHOCK_HOLDS_B) {
+        p->inv_mass_b = 0.0f;
+        p->inv_inertia_b[0] = p->inv_inertia_b[1] = p->inv_inertia_b[2] = (float3)(0.0f);
+    }
+}
+
 /* Solve all rows of one constraint, updating its impulses and its bodies'
  * velocities in *p; `releases`: the block solve may release points (see
  * solve_normal_block; normal_solve block only); `restitution`: then apply
- * its restitution (apply_restitution: the step's last velocity sweep). */
+ * its restitution (apply_restitution: the step's last velocity sweep).
+ * `shock`: a shock sweep (pgs.cl.mako: SHOCK_PASS) holds the lower body of a
+ * contact that carries a load against gravity still (tangent1.w, hold_still),
+ * so that a stack's velocities agree from the ground up within the sweep; its
+ * rows start from the impulses the constraint carries but what they add is not
+ * kept (the warm start carries the sweeps' impulses between the bodies as
+ * they are, not one-sided ones), every row with its mass of the held bodies
+ * (row_mass_of), and a manifold that bounces this step
+ * is left to the rows and the restitution before (no pull takes its bounce back). */
 void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __private ContactBodies* p,
                    const float relaxation, const bool reverse, const bool releases,
-                   const bool restitution)
+                   const bool restitution, const bool shock)
 {
+    /* (a shock sweep holds a body of this contact still) */
+    const bool held = shock && c->tangent1.w != (float)RB_SHOCK_HOLDS_NONE;
+    if (shock) {
+        if (bounces(c))
+            return;
+        hold_still(p, c->tangent1.w);
+    }
     uint count = c->point_count;
     float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
     float friction = c->normal.w;
@@ -832,9 +878,18 @@ void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __
     unpack4(c->tangent1_mass, tangent1_mass);
     unpack4(c->tangent2_mass, tangent2_mass);
     unpack4(c->velocity_target, target);
+    if (held) {
+        /* the normal rows' masses with the held body's share gone (the block
+         * solve derives its own from *p) */
+        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+            Row row = point_row(n, c->r_a[k].xyz, c->r_b[k].xyz, p);
+            normal_mass[k] = row_mass_of(&row, p);
+        }
+    }
 
     bool solved = false;  /* by the block solve; else row after row */
 % if geometry_cache:
+    /* (no shock sweep runs over a cache: rbgen.plan.Plan.check_settings) */
     solved = solve_normal_cached(count, n, c->r_a, c->r_b, relaxation, p, g, target,
                                  normal_impulse, releases);
 % elif normal_solve == "block":
@@ -867,6 +922,11 @@ void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __
 % else:
     friction_rows(c, p, &rows);
 % endif
+    if (held) {  /* (as the normal rows') */
+        tangent1_mass[0] = row_mass_of(&rows.tangent1, p);
+        tangent2_mass[0] = row_mass_of(&rows.tangent2, p);
+        tangent1_mass[1] = row_mass_of(&rows.twist, p);
+    }
     float limit = friction * total;
     solve_friction_pair(&rows.tangent1, &rows.tangent2, tangent1_mass[0], tangent2_mass[0],
                         limit, relaxation, &tangent1_impulse[0], &tangent2_impulse[0], p);
@@ -889,6 +949,8 @@ void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __
                               normal_mass, pushed, normal_impulse, p);
         }
     }
+    if (shock)
+        return;  /* (what it added is not kept) */
     c->normal_impulse = pack4(normal_impulse);
     c->tangent1_impulse = pack4(tangent1_impulse);
     c->tangent2_impulse = pack4(tangent2_impulse);

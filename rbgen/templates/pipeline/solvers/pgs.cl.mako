@@ -118,6 +118,10 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
  * (contact_rows.cl.mako: apply_restitution; in a persistent launch, in the
  * last substep only) */
 #define RESTITUTION_PASS 4u
+/* the launch's last velocity sweep (each substep's, in a persistent launch) is
+ * a shock sweep (contact_rows.cl.mako: solve_contact's `shock`); then the
+ * restitution goes with the sweep before it */
+#define SHOCK_PASS 16u
 % if geometry_cache:
 /* the launch first derives its contacts' ContactGeometry records (a step's
  * first launch over a group; the sweeps of the step read them) */
@@ -217,6 +221,7 @@ typedef struct {
     bool velocity_releases;  /* the block normal solve may release points */
     bool push_releases;
     bool restitution;        /* then the restitution (the step's last velocity sweep) */
+    bool shock;              /* a shock sweep (SHOCK_PASS) */
 } Sweep;
 
 /* Sweep `sweep` of a launch with solve_groups' scalars. */
@@ -229,7 +234,11 @@ inline Sweep sweep_of(uint sweep, uint passes, uint velocity_sweeps, uint positi
     s.reverse = ((passes & FIRST_REVERSED) != 0) != ((sweep & 1) != 0);
     s.velocity_releases = sweep >= velocity_release_from;
     s.push_releases = sweep >= position_release_from;
-    s.restitution = (passes & RESTITUTION_PASS) != 0 && sweep + 1 == velocity_sweeps;
+    s.shock = (passes & SHOCK_PASS) != 0 && sweep + 1 == velocity_sweeps;
+    /* (the last of the sweeps before a shock sweep) */
+    const uint shock_sweeps = (passes & SHOCK_PASS) != 0 && velocity_sweeps > 1 ? 1u : 0u;
+    s.restitution = (passes & RESTITUTION_PASS) != 0
+                    && sweep + 1 + shock_sweeps == velocity_sweeps;
     return s;
 }
 
@@ -267,7 +276,7 @@ inline void solve_rows(${constraint_space} ContactConstraint* c,${" __global con
         load_push(&push_state, split, a, b);
     if (s.velocity)
         solve_contact(c${", g" if geometry_cache else ""}, &state, relaxation, s.reverse, s.velocity_releases,
-                      s.restitution);
+                      s.restitution, s.shock);
     if (s.push)
         solve_push(c${", g" if geometry_cache else ""}, &push_state, relaxation, s.push_releases);
     if (s.velocity)
