@@ -15,6 +15,9 @@
 #   cpp     benchmarks/cpp_host.py: the C++ host beside the Python World, BoxBox 1,000 / 27,000
 #   record  benchmarks/record_overhead.py: a recorded step against a plain one
 #   holds   benchmarks/holds.py: BoxBox lattices at the default and substep candidates (issue 24)
+#   shock   shock_propagation (issue 24): benchmarks/holds.py at every size, the default against
+#           the shock candidates, traced to step 300 (the window); benchmarks/stacking.py with it
+#           at 8 x (2 + 1) and 8 x (3 + 1)
 #   envs    benchmarks/many_envs.py: WorldBatch throughput against N (issue 29)
 #   cpu     benchmarks/cpu_solve.py on the machine's PoCL CPU device: BoxBox 8,000 and 27,000
 #           against the tree in .baseline/ (issue 24's CPU speed; see ccd for .baseline)
@@ -66,6 +69,14 @@ d = cpu_device(); print([e.index for e in list_devices() if e.device == d][0])")
         --n 27000 --steps 5 --rounds 3 ;;
     holds)
       run_stage holds python3 benchmarks/holds.py --device "$DEVICE" --out "$OUT/holds" ;;
+    shock)
+      run_stage shock_holds python3 benchmarks/holds.py --device "$DEVICE" \
+        --candidates default s8_31 shock_s8_21 shock_s8_31 shock_s4_31 --trace 10 \
+        --out "$OUT/shock_holds"
+      run_stage shock_stack21 python3 benchmarks/stacking.py --device "$DEVICE" \
+        --options '{"shock_propagation": true}' --out "$OUT/shock_stack21"
+      run_stage shock_stack31 python3 benchmarks/stacking.py --device "$DEVICE" \
+        --options '{"shock_propagation": true, "iterations": 3}' --out "$OUT/shock_stack31" ;;
     envs)
       run_stage envs python3 benchmarks/many_envs.py --device "$DEVICE" \
         --envs 1,16,256,1024,4096,16384 --out "$OUT/envs" ;;
@@ -73,7 +84,7 @@ d = cpu_device(); print([e.index for e in list_devices() if e.device == d][0])")
       run_stage ccd python3 benchmarks/continuous.py --device "$DEVICE" --baseline .baseline \
         --size 8000 --out "$OUT/ccd" ;;
     *)
-      echo "device_check: unknown stage '$stage' (suite, bench, mesh, cpp, record, holds, envs, ccd, cpu)" >&2
+      echo "device_check: unknown stage '$stage' (suite, bench, mesh, cpp, record, holds, shock, envs, ccd, cpu)" >&2
       exit 2 ;;
   esac
 done
