@@ -852,8 +852,11 @@ inline void hold_still(__private ContactBodies* p, const float holds)
  * so that a stack's velocities agree from the ground up within the sweep; its
  * rows start from the impulses the constraint carries but what they add is not
  * kept (the warm start carries the sweeps' impulses between the bodies as
- * they are, not one-sided ones), every row with its mass of the held bodies
- * (row_mass_of), and a manifold that bounces this step
+ * they are, not one-sided ones), its normal rows with their masses of the held
+ * bodies (row_mass_of; the block solve derives its own), its friction rows with
+ * their masses of both (under-relaxed for the held body: friction rows of the
+ * held masses, stiffer in a one-sided sweep, walked a 55-layer lattice apart),
+ * and a manifold that bounces this step
  * is left to the rows and the restitution before (no pull takes its bounce back). */
 void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __private ContactBodies* p,
                    const float relaxation, const bool reverse, const bool releases,
@@ -922,11 +925,6 @@ void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __
 % else:
     friction_rows(c, p, &rows);
 % endif
-    if (held) {  /* (as the normal rows') */
-        tangent1_mass[0] = row_mass_of(&rows.tangent1, p);
-        tangent2_mass[0] = row_mass_of(&rows.tangent2, p);
-        tangent1_mass[1] = row_mass_of(&rows.twist, p);
-    }
     float limit = friction * total;
     solve_friction_pair(&rows.tangent1, &rows.tangent2, tangent1_mass[0], tangent2_mass[0],
                         limit, relaxation, &tangent1_impulse[0], &tangent2_impulse[0], p);
