@@ -74,7 +74,7 @@ typedef struct {
 
 /* The FaceBlock of `count` (3 or 4) points. Returns false when the points lie
  * nearly on one line or Q is nearly singular (see solve_face_points). */
-bool face_block(const uint count, const float3 n, const float3 t1, const float3 t2,
+${inlined}bool face_block(const uint count, const float3 n, const float3 t1, const float3 t2,
                 ${constraint_space} const float4* r_a, ${constraint_space} const float4* r_b,
                 float inv_mass_a, const float3 inv_inertia_a[3],
                 float inv_mass_b, const float3 inv_inertia_b[3], __private FaceBlock* f)
@@ -784,7 +784,7 @@ inline void reverse4(float a[4])
  * step (its lever arms, normal and the bodies' inertias hold for the step)
  * and every sweep reads it instead of deriving it again: the same values, so
  * the same results. */
-void store_geometry(${constraint_space} const ContactConstraint* c, const __private ContactBodies* p,
+${inlined}void store_geometry(${constraint_space} const ContactConstraint* c, const __private ContactBodies* p,
                     __global ContactGeometry* g)
 {
     uint count = c->point_count;
@@ -884,7 +884,7 @@ ${inlined}bool solve_normal_cached(const uint count, const float3 n,
  * its bodies' velocities in *p: their sum and its moment about each body's
  * centre first, then one velocity change a body (one inverse-inertia product
  * a body instead of one a point and row). */
-void warm_start_contact(const ${constraint_space} ContactConstraint* c, __private ContactBodies* p)
+${inlined}void warm_start_contact(const ${constraint_space} ContactConstraint* c, __private ContactBodies* p)
 {
     uint count = c->point_count;
     float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
