@@ -151,110 +151,6 @@ inline void face_k_matrix(const float3 q_row0, const float3 q_row1, const float3
             k_matrix[j][k] = dot3(g[j], h[k]);
 }
 
-% if geometry_cache:
-/* The candidate sets of pushing points of solve_face_block's case 2, each
- * solved alone (see there): whether it holds (its totals >= 0, every other
- * point reaching rhs within the tolerance), then its totals in `total` (0 for
- * the released points; untouched when it does not hold). K by rows. */
-
-/* Point i alone pushing (none when rhs_i <= 0). */
-inline bool single_point_set(const uint count, const uint i, const float k_matrix[4][4],
-                             const float rhs[4], const float tolerance, float total[4])
-{
-    float x_i = positive_part(rhs[i]) / k_matrix[i][i];
-    bool holds = true;
-    ${unroll}for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i)
-        holds = holds && k_matrix[m][i] * x_i >= rhs[m] - tolerance;
-    if (holds) {
-        ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
-            total[k] = k == i ? x_i : 0.0f;
-    }
-    return holds;
-}
-
-/* Points i and j (i < j) pushing. */
-inline bool point_pair_set(const uint count, const uint i, const uint j,
-                           const float k_matrix[4][4], const float rhs[4],
-                           const float tolerance, float total[4])
-{
-    float kii = k_matrix[i][i], kij = k_matrix[i][j], kjj = k_matrix[j][j];
-    float det = kii * kjj - kij * kij;
-    if (!(det > FLAT_SPREAD_RATIO * kii * kjj))
-        return false;
-    float x_i = (kjj * rhs[i] - kij * rhs[j]) / det;
-    float x_j = (kii * rhs[j] - kij * rhs[i]) / det;
-    bool holds = x_i >= 0.0f && x_j >= 0.0f;
-    ${unroll}for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i && m != j)
-        holds = holds && k_matrix[m][i] * x_i + k_matrix[m][j] * x_j >= rhs[m] - tolerance;
-    if (holds) {
-        ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
-            total[k] = k == i ? x_i : k == j ? x_j : 0.0f;
-    }
-    return holds;
-}
-
-/* Three of four points pushing, point m released: the plane through their rhs,
- * the wrench Q^-1 of it and the totals its barycentric split (cofactors
- * c_i = g_j x g_l); `spread`: suu + svv, the flatness scale. */
-inline bool three_point_set(const uint m, const float3 g[4], const float rhs[4],
-                            const float tolerance, const float spread, const float3 inv_q0,
-                            const float3 inv_q1, const float3 inv_q2, float total[4])
-{
-    const uint i = m == 0 ? 1 : 0, j = m <= 1 ? 2 : 1, l = m <= 2 ? 3 : 2;
-    float3 c_i = cross3(g[j], g[l]), c_j = cross3(g[l], g[i]), c_l = cross3(g[i], g[j]);
-    float det = dot3(g[i], c_i);
-    if (!(abs1(det) > FLAT_SPREAD_RATIO * spread))
-        return false;
-    float inv_det = 1.0f / det;
-    float3 plane = (c_i * rhs[i] + c_j * rhs[j] + c_l * rhs[l]) * inv_det;
-    float3 w3 = (float3)(dot3(inv_q0, plane), dot3(inv_q1, plane), dot3(inv_q2, plane));
-    float x_i = dot3(c_i, w3) * inv_det, x_j = dot3(c_j, w3) * inv_det;
-    float x_l = dot3(c_l, w3) * inv_det;
-    if (!(x_i >= 0.0f && x_j >= 0.0f && x_l >= 0.0f
-          && dot3(g[m], plane) >= rhs[m] - tolerance))
-        return false;
-    total[m] = 0.0f, total[i] = x_i, total[j] = x_j, total[l] = x_l;
-    return true;
-}
-
-/* The set of the points with hint > 0 (none, one, two or three of four; else
- * false), as the sets above. */
-inline bool hinted_active_set(const uint count, const float hint[4], const float3 g[4],
-                              const float rhs[4], const float tolerance, const float spread,
-                              const float3 inv_q0, const float3 inv_q1, const float3 inv_q2,
-                              const float k_matrix[4][4], float total[4])
-{
-    uint pushing = 0u, first = 4u, second = 4u, released = 4u;
-    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-        if (hint[k] > 0.0f) {
-            ++pushing;
-            second = first < 4u && second == 4u ? k : second;
-            first = first == 4u ? k : first;
-        } else {
-            released = k;
-        }
-    }
-    if (pushing == 0u) {  /* none: every point reaches its target as it is */
-        bool holds = true;
-        ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-            holds = holds && rhs[k] <= 0.0f;
-        if (holds) {
-            ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
-                total[k] = 0.0f;
-        }
-        return holds;
-    }
-    if (pushing == 3u && count == 4u)
-        return three_point_set(released, g, rhs, tolerance, spread, inv_q0, inv_q1, inv_q2,
-                               total);
-    if (pushing == 2u)
-        return point_pair_set(count, first, second, k_matrix, rhs, tolerance, total);
-    if (pushing == 1u)
-        return single_point_set(count, first, k_matrix, rhs, tolerance, total);
-    return false;
-}
-
-% endif
 /* Three or four points of one face: the contact problem K total = rhs on the
  * pushing points, total >= 0, and every released point reaching at least its
  * target, solved exactly.
@@ -330,69 +226,6 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
         tolerance = max1(tolerance, OVERSHOOT_TOLERANCE * abs1(rhs[k]));
     }
 
-% if geometry_cache:
-    /* 1. all pushing, as below; 0. first, in a sweep that may release, the face's
-     * last active set (its pushing points, lambda > 0: one, two or three of four,
-     * or none), which a resting face keeps from sweep to sweep, then the points
-     * short of their targets (rhs > 0); 2. the other sets, the smaller first:
-     * one point (or none), two, three of four (the one with the lowest
-     * all-pushing total released, as below). The order is the GPU form's
-     * reversed, and the same solution: the contact problem's velocities are
-     * unique, and so are the totals of a set of at most three points (K's rows
-     * of its points are independent), so no two sets hold unless every point
-     * reaches its target exactly (targets that fit one rigid motion, where the
-     * three-point sets are the candidates) or two sets tie within the tolerance.
-     * A core solves one manifold at a time: the first set that holds ends the
-     * search. */
-    float k_matrix[4][4];
-    ${unroll}for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) {
-        float4 row = k_rows[j];
-        k_matrix[j][0] = row.x, k_matrix[j][1] = row.y, k_matrix[j][2] = row.z;
-        k_matrix[j][3] = row.w;
-    }
-    const float spread = suu + svv;
-    float total[4] = {0.0f, 0.0f, 0.0f, 0.0f}, even[4];
-    bool valid = releases
-                 && (hinted_active_set(count, lambda, g, rhs, tolerance, spread, inv_q0, inv_q1,
-                                       inv_q2, k_matrix, total)
-                     || hinted_active_set(count, rhs, g, rhs, tolerance, spread, inv_q0, inv_q1,
-                                          inv_q2, k_matrix, total));
-    if (!valid) {
-        float3 fit = (float3)(0.0f);
-        ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-            fit += g[k] * rhs[k];
-        fit = (float3)(share * fit.x, (svv * fit.y - suv * fit.z) * inv_spread,
-                       (suu * fit.z - suv * fit.y) * inv_spread);
-        float3 z = (float3)(dot3(inv_q0, fit), dot3(inv_q1, fit), dot3(inv_q2, fit));
-        float3 x = (float3)(share * z.x, (svv * z.y - suv * z.z) * inv_spread,
-                            (suu * z.z - suv * z.y) * inv_spread);
-        valid = true;
-        ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-            total[k] = even[k] = dot3(g[k], x);
-            valid = valid && total[k] >= 0.0f && abs1(rhs[k] - dot3(g[k], fit)) <= tolerance;
-        }
-        if (!valid && !releases)
-            return false;
-        for (uint i = 0; !valid && i < count; ++i)
-            valid = single_point_set(count, i, k_matrix, rhs, tolerance, total);
-        for (uint i = 0; !valid && i < count; ++i)
-            for (uint j = i + 1; !valid && j < count; ++j)
-                valid = point_pair_set(count, i, j, k_matrix, rhs, tolerance, total);
-        float lowest = FLT_MAX;
-        for (uint m = 0; !valid && four && m < 4; ++m) {
-            float candidate[4];
-            if (three_point_set(m, g, rhs, tolerance, spread, inv_q0, inv_q1, inv_q2, candidate)
-                && even[m] < lowest) {
-                lowest = even[m];
-                ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
-                    total[k] = candidate[k];
-            }
-        }
-        valid = valid || lowest < FLT_MAX;
-        if (!valid)
-            return false;
-    }
-% else:
     /* 1. all pushing: the affine fit p of rhs, wrench z = Q^-1 p, totals G M^-1 z */
     float3 fit = (float3)(0.0f);
     ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
@@ -436,11 +269,25 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
     if (!valid) {
         /* 2b. two, one or none pushing: K's entries g_j . Q g_k */
         float k_matrix[4][4];
+% if geometry_cache:
+        ${unroll}for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) {
+            float4 row = k_rows[j];
+            k_matrix[j][0] = row.x, k_matrix[j][1] = row.y, k_matrix[j][2] = row.z;
+            k_matrix[j][3] = row.w;
+        }
+        /* the first candidate that holds is taken (a core runs one manifold:
+         * the others are skipped) */
+% else:
         face_k_matrix(q_row0, q_row1, q_row2, g, k_matrix);
         /* every candidate is evaluated (independent work, overlapped; no
          * branch out of the loops), the first that holds is taken */
-        ${unroll}for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i)
-            ${unroll}for (uint j = i + 1; j < RB_MAX_MANIFOLD_POINTS; ++j) {
+% endif
+        for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i)
+            for (uint j = i + 1; j < RB_MAX_MANIFOLD_POINTS; ++j) {
+% if geometry_cache:
+                if (valid)
+                    break;
+% endif
                 float kii = k_matrix[i][i], kij = k_matrix[i][j], kjj = k_matrix[j][j];
                 float det = kii * kjj - kij * kij;
                 bool holds = j < count && det > FLAT_SPREAD_RATIO * kii * kjj;
@@ -456,7 +303,11 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
                         total[k] = k == i ? x_i : k == j ? x_j : 0.0f;
                 }
             }
-        ${unroll}for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i) {
+        for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i) {
+% if geometry_cache:
+            if (valid)
+                break;
+% endif
             float x_i = positive_part(rhs[i]) / (i < count ? k_matrix[i][i] : 1.0f);
             bool holds = i < count;
             ${unroll}for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i)
@@ -471,7 +322,6 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
             return false;
     }
 
-% endif
     float change[4];
     ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         change[k] = positive_part(lambda[k] + relaxation * (total[k] - lambda[k])) - lambda[k];
