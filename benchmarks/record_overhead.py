@@ -1,26 +1,33 @@
 """What recording costs a simulation step: a recorder against a bare copy of the transforms.
 
     python benchmarks/record_overhead.py [--device D] [--sizes 1000 8000] [--steps 300]
-                                         [--every 2 10] [--formats usd mp4]
+                                         [--every 2 10] [--formats usd mp4] [--blocking]
                                          [--out benchmarks/results]
 
 For each BoxBox size and recording interval K, the same run (rbgen.harness.run_scene,
-``--steps`` timed steps after 10 warm-up steps) four ways:
+``--steps`` timed steps after 10 warm-up steps) these ways:
 
 ``none``         no hook: the plain ms/step;
-``copy``         every K steps one read of the transforms (World.positions and
-                 .orientations, which copy the body buffer to the host once) and
-                 nothing else: the baseline, the least any recording can cost;
-``usd``          every K steps a USD recorder captures the frame (kept in memory,
-                 written at the end);
+``copy``         every K steps one blocking read of the transforms (World.positions and
+                 .orientations, which drain the queue and copy the body buffer to the
+                 host once) and nothing else: the baseline;
+``pending``      every K steps one snapshot (World.snapshot_frame: a non-blocking copy
+                 of the body buffer into pinned memory), resolved at the next snapshot,
+                 and nothing else: what a recording's copy costs without the drain;
+``usd``          every K steps a USD recorder captures the frame (a snapshot, as
+                 rbgen.record.record_hook takes it; kept in memory, written at the end);
 ``mp4``, ``gif`` every K steps a recorder in a background process captures the
                  frame (rendering and encoding off the simulation's thread).
 
-A recording keeps its promise when ``usd`` and ``mp4`` cost about what ``copy``
-costs (their ms/step minus ``none``'s, times K: ms per recorded frame). Writes
-JSON (rbgen.bench's form; each recorder's baseline is ``copy`` at the same K)
-and a Markdown table under ``--out``. A format whose needs are missing (an OpenGL
-context, imageio-ffmpeg for MP4, usd-core for USD) is left out, with the reason.
+With ``--blocking``, each recorder also runs with a blocking read at each capture (the
+recorders' reads before snapshots), as ``<format>-blocking``.
+
+A recording keeps its promise when ``usd`` and ``mp4`` cost about what ``pending``
+costs (their ms/step minus ``none``'s, times K: ms per recorded frame); ``copy`` minus
+``pending`` is what draining the queue at each frame cost. Writes JSON (rbgen.bench's
+form; each row's baseline is ``copy`` at the same K) and a Markdown table under
+``--out``. A format whose needs are missing (an OpenGL context, imageio-ffmpeg for MP4,
+usd-core for USD) is left out, with the reason.
 """
 
 from __future__ import annotations
@@ -46,6 +53,34 @@ def copy_hook(every: int):
     return on_step
 
 
+def pending_hook(every: int):
+    """A snapshot every ``every`` steps, the previous one resolved then (as a recorder
+    does); ``on_step.frames`` counts the snapshots."""
+    held: list = []
+
+    def on_step(world, step):
+        if step % every == 0:
+            held.append(world.snapshot_frame())
+            on_step.frames += 1
+            if len(held) > 1:
+                held.pop(0).result()
+
+    on_step.frames = 0
+    return on_step
+
+
+def blocking_record_hook(recorders, every: int):
+    """`record_hook` with a blocking read at each capture (the recorders before snapshots)."""
+
+    def on_step(world, step):
+        if step % every == 0:
+            frame = frame_of(world)
+            for recorder in recorders:
+                recorder.capture(world, frame)
+
+    return on_step
+
+
 def measure(n, steps, device, on_step=None) -> dict:
     return run_scene(
         "boxbox", n, steps, device=device, progress=False, warmup=WARMUP, on_step=on_step
@@ -60,6 +95,11 @@ def main(argv=None) -> int:
     parser.add_argument("--every", type=int, nargs="+", default=[2, 10])
     parser.add_argument(
         "--formats", nargs="+", default=["usd", "mp4"], choices=["usd", "mp4", "gif"]
+    )
+    parser.add_argument(
+        "--blocking",
+        action="store_true",
+        help="also run each recorder with a blocking read at each capture",
     )
     parser.add_argument("--out", default=str(bench.RESULTS_DIR))
     args = parser.parse_args(argv)
@@ -101,12 +141,8 @@ def main(argv=None) -> int:
                     f"  every {every:>3}: copy {copy['ms_per_step']:.3f} ms/step "
                     f"(+{_per_frame(copy, none, every):.3f} ms a frame)"
                 )
-                for kind in formats:
-                    recorder = Recorder(
-                        os.path.join(scratch, f"r.{kind}"), background=kind != "usd"
-                    )
-                    run = measure(n, args.steps, args.device, record_hook([recorder], every))
-                    recorder.close()
+
+                def row(kind, run, frames):
                     results.append(
                         {
                             "name": f"boxbox {n} {kind} every {every}",
@@ -118,14 +154,30 @@ def main(argv=None) -> int:
                             "ms_no_recording": none["ms_per_step"],
                             "ms_per_frame": _per_frame(run, none, every),
                             "copy_ms_per_frame": _per_frame(copy, none, every),
-                            "frames": recorder.frames,
+                            "frames": frames,
                             "baseline": base,
                         }
                     )
-                    line += (
+                    return (
                         f"; {kind} {run['ms_per_step']:.3f} ms/step "
                         f"(+{_per_frame(run, none, every):.3f} ms a frame)"
                     )
+
+                hook = pending_hook(every)
+                line += row("pending", measure(n, args.steps, args.device, hook), hook.frames)
+                for kind in formats:
+                    for reads, make_hook in (
+                        ("", record_hook),
+                        ("-blocking", blocking_record_hook),
+                    ):
+                        if reads and not args.blocking:
+                            continue
+                        recorder = Recorder(
+                            os.path.join(scratch, f"r.{kind}"), background=kind != "usd"
+                        )
+                        run = measure(n, args.steps, args.device, make_hook([recorder], every))
+                        recorder.close()
+                        line += row(kind + reads, run, recorder.frames)
                 print(line, flush=True)
     device = bench.device_record(args.device)
     record = bench.make_record(

@@ -4,7 +4,7 @@
         for step in range(300):
             world.step(1 / 60)
             if step % 2 == 0:
-                recorder.capture(world)     # one read of the transforms, nothing else
+                recorder.capture(world)     # one copy of the transforms, nothing else
 
 The format follows the extension: ``.png`` (the last frame captured), ``.gif``
 and ``.mp4`` (every frame; MP4 through the ffmpeg that imageio-ffmpeg ships),
@@ -17,6 +17,12 @@ it before anything is simulated. ``background=True`` renders and encodes in
 a separate process, so a simulation loop pays only for the copy of the
 transforms and handing them over (rendering holds Python's GIL, so a thread
 would not do).
+
+A capture of a World does not drain its queue: it enqueues a non-blocking copy of the
+transforms (`World.snapshot_frame`) and hands the previous capture's frame, whose copy
+finished long ago, to the file; `close` adds the last one. So a frame reaches the file
+one capture late (an error writing it shows at the next capture or at `close`), and the
+frames written are exactly those that blocking reads at the same steps would give.
 """
 
 from __future__ import annotations
@@ -32,7 +38,8 @@ import numpy as np
 
 from .errors import RbgenError
 from .render.camera import coerce_camera
-from .render.scene import Bodies, Frame, bodies_of, frame_of
+from .render.scene import Bodies, Frame, bodies_of
+from .snapshot import PendingFrame
 
 #: extension -> format
 FORMATS = {
@@ -95,6 +102,8 @@ class Recorder:
         self.frames = 0
         self._bodies: Bodies | None = None
         self._body_count = -1
+        #: the last capture's snapshot and its bodies, added at the next capture or close
+        self._pending: tuple[PendingFrame, Bodies] | None = None
         self._temp = _claim_temp(self.path)
         options: dict[str, Any]  # make_sink's keyword arguments
         options = {
@@ -110,19 +119,50 @@ class Recorder:
         self._closed = False
 
     # ------------------------------------------------------------- frames
-    def capture(self, world, frame: Frame | None = None) -> None:
-        """Add the World's state now as a frame: one read of its transforms (or ``frame``,
-        already read). The bodies' shapes are read again only when their number changed."""
+    def capture(self, world, frame: Frame | PendingFrame | None = None) -> None:
+        """Add the World's state now as a frame: a snapshot of its transforms
+        (`World.snapshot_frame`: a non-blocking copy), or ``frame`` (a `Frame` already
+        read, or a `PendingFrame` taken now, which several recorders may share). A pending
+        frame is added to the file at the next capture, `add` or `close`, so the queue is
+        never drained here. The bodies' shapes are read now, again only when their number
+        changed, so a frame keeps the bodies it was taken with."""
+        if self._closed:
+            raise RbgenError(f"recording {str(self.path)!r} is closed")
+        if frame is None:
+            frame = world.snapshot_frame()
         if world.body_count != self._body_count:
             self._bodies = bodies_of(world)
             self._body_count = world.body_count
         assert self._bodies is not None  # read at the first capture (the count starts at -1)
-        self.add(frame if frame is not None else frame_of(world), self._bodies)
+        if isinstance(frame, PendingFrame):
+            if frame.count != self._bodies.count:
+                raise RbgenError(
+                    f"the snapshot has {frame.count} bodies, the World {self._bodies.count} "
+                    f"now: capture a snapshot when it is taken"
+                )
+            previous, self._pending = self._pending, (frame, self._bodies)
+            self.frames += 1
+            if previous is not None:
+                self._write(previous[0].result(), previous[1])
+            return
+        self.add(frame, self._bodies)
 
     def add(self, frame: Frame, bodies: Bodies) -> None:
         """Add a frame of ``bodies`` (for transforms that do not come from a World)."""
         if self._closed:
             raise RbgenError(f"recording {str(self.path)!r} is closed")
+        self._flush()
+        self._write(frame, bodies)
+        self.frames += 1
+
+    def _flush(self) -> None:
+        """Add the pending frame, if any (waits for its copy)."""
+        if self._pending is not None:
+            pending, bodies = self._pending
+            self._pending = None
+            self._write(pending.result(), bodies)
+
+    def _write(self, frame: Frame, bodies: Bodies) -> None:
         if frame.positions.shape[0] != bodies.count:
             raise RbgenError(
                 f"frame has {frame.positions.shape[0]} bodies, bodies has {bodies.count}"
@@ -132,7 +172,6 @@ class Recorder:
         except BaseException:
             self.abort()
             raise
-        self.frames += 1
 
     # ------------------------------------------------------------- ending
     def close(self) -> Path:
@@ -140,6 +179,11 @@ class Recorder:
         frame writes nothing and raises `RbgenError`."""
         if self._closed:
             return self.path
+        try:
+            self._flush()
+        except BaseException:
+            self.abort()
+            raise
         if self.frames == 0:
             self.abort()
             raise RbgenError(f"recording {str(self.path)!r} has no frame; nothing written")
@@ -156,6 +200,7 @@ class Recorder:
     def abort(self) -> None:
         """Drop the recording: no file at ``path`` is written or changed."""
         self._closed = True
+        self._pending = None
         try:
             self._sink.cancel()
         finally:
@@ -180,14 +225,15 @@ class Recorder:
 
 def record_hook(recorders, every: int = 1):
     """``on_step(world, step)`` for `rbgen.harness.run_scene`: at step 0 and every ``every``
-    steps, one read of the transforms feeds every recorder."""
+    steps, one snapshot of the transforms (`World.snapshot_frame`, no queue drain) feeds
+    every recorder; each adds it to its file at its next capture or at `Recorder.close`."""
     if not isinstance(every, (int, np.integer)) or every < 1:
         raise RbgenError(f"record every must be a positive integer, got {every!r}")
     recorders = list(recorders)
 
     def on_step(world, step: int) -> None:
         if step % every == 0 and recorders:
-            frame = frame_of(world)
+            frame = world.snapshot_frame()
             for recorder in recorders:
                 recorder.capture(world, frame)
 

@@ -36,6 +36,7 @@ from .pipeline.step import StepContext, StepPipeline
 from .plan import Plan, derive_plan
 from .settings import STEP, Settings, split_options
 from .shapes import Plane, Shape, ShapeTable
+from .snapshot import PendingFrame, SnapshotCopies
 
 
 def _state_property(what: str, doc: str) -> property:
@@ -97,6 +98,8 @@ class World:
         self._device = None
         self._guard = StepGuard(self.runtime)
         self._forces = ExternalForces(self.runtime)
+        #: non-blocking reads of the transforms (`snapshot_frame`)
+        self._snapshots = SnapshotCopies(self.runtime)
         #: step number -> the settings it ran with (a redo replays them, not the settings
         #: changed since); the steps a redo can reach (`rbgen.forces.KEEP_STEPS`)
         self._step_settings: dict[int, Settings] = {}
@@ -438,6 +441,21 @@ class World:
         "array (static bodies' rows are ignored) or use `set_state`.",
     )
 
+    def snapshot_frame(self) -> PendingFrame:
+        """The bodies' transforms now, without draining the queue: enqueues one
+        non-blocking copy of the body records into pinned host memory and returns a
+        `rbgen.snapshot.PendingFrame`, whose ``result()`` (or ``wait()``) waits for that
+        copy only and gives the `rbgen.render.Frame` that a blocking read now
+        (`rbgen.render.frame_of`) would give, bit for bit.
+
+        The contract: steps run after the snapshot do not change it (the copy is enqueued
+        before them on the World's in-order queue, so it reads the records first); a step
+        before it that overflows is redone and the snapshot copied again after the redone
+        step; bodies added or removed after it change nothing in it (it keeps its own host
+        memory and its body count, ``count``). When nothing was stepped since the state was
+        last read or set, the host copy is the state and the frame is ready at once."""
+        return self._snapshots.take(self)
+
     @property
     def _steps(self) -> StepPipeline:
         """The step pipeline (built at the first step, when the scene's shapes are known)."""
@@ -629,12 +647,21 @@ class World:
                 keep,
                 self._restore,
                 self._pipeline_rewind,
-                self._enqueue_step,
+                self._redo_step,
                 self._afford_growth,
                 self._forget_steps,
             )
         except Replan as replan:
             self._abandon_persistent(replan.args[0])
+        self._snapshots.copy_stale(self)  # (snapshots after the last redone step)
+
+    def _redo_step(self, dt: float, tag: int) -> None:
+        """Enqueue a step again (a redo after `_restore`): the snapshots taken after the
+        failed step are copied again where they were taken, before the first later step."""
+        if self._snapshots.restoring:
+            self._snapshots.invalidate(tag)  # (the redo's first step is the failed one)
+        self._snapshots.copy_before(self, tag)
+        self._enqueue_step(dt, tag)
 
     def _afford_growth(self, problems: dict) -> None:
         self._memory.check_growth(self._bodies, self.shapes.type_names(), self._pipeline, problems)
@@ -644,6 +671,7 @@ class World:
         the bodies are as they were before it, so the count goes back too (and their
         forces are dropped)."""
         self.steps = min(self.steps, tag)
+        self._snapshots.forget(tag)
         self._forces.forget(tag)
         for old in [t for t in self._step_settings if t >= tag]:
             del self._step_settings[old]
@@ -658,6 +686,7 @@ class World:
         sleeping = self._sleep_records()
         if sleeping is not None:
             sleeping.restore(slot, self._device.bodies, self._device.static)
+        self._snapshots.restoring = True  # (the next `_redo_step` is the failed step's)
 
     def _pipeline_rewind(self, steps: int) -> None:
         self._steps.constraints.constraints.undo(steps)
@@ -687,7 +716,7 @@ class World:
             stacklevel=4,
         )
         for dt, tag in redo:
-            self._enqueue_step(dt, tag)
+            self._redo_step(dt, tag)
 
     def kernel_specs(self) -> list[tuple[KernelSpec, tuple[str, ...]]]:
         """Every kernel specialisation this World has compiled, with its build options,

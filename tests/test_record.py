@@ -283,3 +283,188 @@ def test_rbgen_run_refuses_a_bad_record_path_before_simulating(tmp_path, capsys)
     err = capsys.readouterr()
     assert ".webm" in err.err and "pyramid" not in err.out
     assert os.listdir(tmp_path) == []
+
+
+# ----------------------------------------------------------------- pending captures (issue 28)
+
+
+class ListSink:
+    """A sink that keeps what it is given (frames and their bodies), for comparisons."""
+
+    def __init__(self, kept: list):
+        self.kept = kept
+
+    def add(self, frame, bodies):
+        self.kept.append((frame, bodies))
+
+    def finish(self):
+        pass
+
+    def cancel(self):
+        pass
+
+
+@pytest.fixture
+def kept(monkeypatch):
+    """The frames every Recorder made in the test gives its sink, one list per Recorder."""
+    import rbgen.record
+
+    sinks: list[list] = []
+
+    def make_sink(**options):
+        sinks.append([])
+        return ListSink(sinks[-1])
+
+    monkeypatch.setattr(rbgen.record, "make_sink", make_sink)
+    return sinks
+
+
+def pile_world(runtime, **options):
+    import rbgen
+
+    world = rbgen.World(runtime, **options)
+    world.add_static(rbgen.Plane((0, 1, 0), 0.0))
+    world.add_bodies(
+        rbgen.Box((0.5, 0.5, 0.5)),
+        positions=[[0.15 * i, 0.5 + 1.05 * i, 0.05 * i] for i in range(6)],
+    )
+    world.add_bodies(rbgen.Sphere(0.3), positions=[[2, 1, 0], [2, 2, 0.1]])
+    return world
+
+
+def blocking_hook(recorders, every):
+    """`record_hook` as it was: a blocking read of the transforms at each capture."""
+    from rbgen.render.scene import frame_of
+
+    def on_step(world, step):
+        if step % every == 0:
+            frame = frame_of(world)
+            for recorder in recorders:
+                recorder.capture(world, frame)
+
+    return on_step
+
+
+def run_recorded(world, hook, steps=13):
+    hook(world, 0)
+    for step in range(1, steps + 1):
+        world.step(1 / 60)
+        hook(world, step)
+
+
+@pytest.mark.parametrize("options", [{}, {"pair_capacity": 1, "manifold_capacity": 1}])
+def test_pending_recording_equals_the_blocking_one(runtime, kept, options, tmp_path):
+    """The same deterministic run (with redone steps too: one-pair buffers) recorded by
+    `record_hook` (snapshots, one frame late) and by blocking reads: the same frames,
+    bit for bit, with the same bodies, and no frame is in the sink before the next
+    capture."""
+    recordings = []
+    for make_hook in (record_hook, blocking_hook):
+        world = pile_world(runtime, **options)
+        recorder = Recorder(tmp_path / "r.usda")
+        run_recorded(world, make_hook([recorder], 3))
+        recorder.close()
+        assert recorder.frames == 5
+        recordings.append(kept[-1])
+        if options:
+            assert world.overflows >= 1
+    pending, blocking = recordings
+    assert len(pending) == len(blocking) == 5
+    for (a, bodies_a), (b, bodies_b) in zip(pending, blocking):
+        np.testing.assert_array_equal(a.positions, b.positions)
+        np.testing.assert_array_equal(a.orientations, b.orientations)
+        np.testing.assert_array_equal(bodies_a.shape_index, bodies_b.shape_index)
+        np.testing.assert_array_equal(bodies_a.static, bodies_b.static)
+    assert not np.array_equal(pending[0][0].positions, pending[-1][0].positions)
+
+
+def test_pending_usd_file_equals_the_blocking_one(runtime, tmp_path):
+    """End to end: the USD files of a run recorded with snapshots and with blocking reads
+    are the same bytes."""
+    pytest.importorskip("pxr", reason="writing .usd needs usd-core (pip install 'rbgen[usd]')")
+    paths = []
+    for make_hook, name in ((record_hook, "pending.usda"), (blocking_hook, "blocking.usda")):
+        world = pile_world(runtime)
+        with Recorder(tmp_path / name) as recorder:
+            run_recorded(world, make_hook([recorder], 2), steps=8)
+        paths.append(tmp_path / name)
+    assert paths[0].read_bytes() == paths[1].read_bytes()
+
+
+def test_close_writes_the_pending_frame(runtime, tmp_path):
+    """The last capture is still pending at close: close adds it (the USD's last sample is
+    the World's state at the last capture, not at close)."""
+    pytest.importorskip("pxr", reason="writing .usd needs usd-core (pip install 'rbgen[usd]')")
+    from pxr import Usd
+
+    world = pile_world(runtime)
+    recorder = Recorder(tmp_path / "last.usd")
+    for _ in range(3):
+        world.step(1 / 60)
+        recorder.capture(world)
+    at_capture = world.positions.copy()
+    assert recorder._pending is not None and recorder.frames == 3
+    for _ in range(5):
+        world.step(1 / 60)
+    recorder.close()
+    stage = Usd.Stage.Open(str(tmp_path / "last.usd"))
+    translate = stage.GetPrimAtPath("/World/Bodies/body_000003").GetAttribute("xformOp:translate")
+    assert translate.GetTimeSamples() == [0, 1, 2]
+    assert np.array_equal(np.array(translate.Get(2), np.float32), at_capture[3])
+    assert not np.array_equal(at_capture[3], world.positions[3])
+
+
+def test_bodies_removed_between_captures_keep_each_frame_with_its_bodies(runtime, kept, tmp_path):
+    """Bodies removed (and added) while a capture is pending: the pending frame goes to the
+    file with the bodies it was taken with, the next with the new ones, and the values
+    are the blocking reads' at each capture. A snapshot captured after the count changed
+    is refused, naming both counts."""
+    from rbgen.render.scene import frame_of
+
+    world = pile_world(runtime)
+    recorder = Recorder(tmp_path / "r.usda")
+    expected = []
+    for removal in ([1, 2], [0], None):
+        for _ in range(3):
+            world.step(1 / 60)
+        recorder.capture(world)
+        expected.append(frame_of(world))
+        if removal is not None:
+            world.remove_bodies(removal)
+    world.add_bodies(rbgen_sphere(), positions=[[5, 1, 0]])
+    stale = world.snapshot_frame()
+    world.remove_bodies([0])
+    with pytest.raises(RbgenError, match="snapshot has 7 bodies, the World 6"):
+        recorder.capture(world, stale)
+    recorder.close()
+    frames = kept[-1]
+    assert [bodies.count for _, bodies in frames] == [9, 7, 6]
+    for (frame, bodies), blocking in zip(frames, expected):
+        assert frame.positions.shape[0] == bodies.count
+        np.testing.assert_array_equal(frame.positions, blocking.positions)
+        np.testing.assert_array_equal(frame.orientations, blocking.orientations)
+
+
+def rbgen_sphere():
+    import rbgen
+
+    return rbgen.Sphere(0.25)
+
+
+@pytest.mark.parametrize("steps", [0, 2])
+def test_empty_world_records_as_the_blocking_path_does(runtime, tmp_path, steps):
+    """A World with no body: the pending path ends as the blocking one does (the same
+    file, or the same error)."""
+    pytest.importorskip("pxr", reason="writing .usd needs usd-core (pip install 'rbgen[usd]')")
+    import rbgen
+
+    outcomes = []
+    for make_hook, name in ((record_hook, "pending.usda"), (blocking_hook, "blocking.usda")):
+        world = rbgen.World(runtime)
+        try:
+            with Recorder(tmp_path / name) as recorder:
+                run_recorded(world, make_hook([recorder], 1), steps=steps)
+            outcomes.append(("file", (tmp_path / name).read_bytes()))
+        except Exception as err:  # noqa: BLE001 - compared below
+            outcomes.append((type(err).__name__, str(err)))
+    assert outcomes[0] == outcomes[1]

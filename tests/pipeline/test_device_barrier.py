@@ -125,3 +125,29 @@ def test_world_redoes_an_abandoned_step_without_persistent_launches(
     assert np.array_equal(positions, reference.positions[ids])
     assert world.overflows == 0  # nothing overflowed: only the persistent launches were redone
     assert positions[:, 1].min() > 0.45  # the pile stands
+
+
+def test_snapshots_across_an_abandoned_step_are_the_redone_state(
+    runtime, oversubscribed, monkeypatch
+):
+    """Snapshots (`World.snapshot_frame`) taken after steps whose persistent launches gave
+    up, resolved late: each equals, bit for bit, the blocking read of a World that used
+    the plan without them from the start (the redo copies them again)."""
+    monkeypatch.setattr(rbgen.plan, "persistent_launch_validated", lambda traits: True)
+    world = rbgen.World(runtime, solver="jacobi")
+    small_pile(world)
+    with pytest.warns(RuntimeWarning, match="gave up waiting at a device-wide barrier"):
+        snapshots = []
+        for _ in range(6):
+            world.step(1 / 60)
+            snapshots.append(world.snapshot_frame())
+        frames = [pending.result() for pending in snapshots]
+    assert snapshots[0]._copies == 2  # (copied again after the first step's redo)
+    monkeypatch.setattr(rbgen.plan, "persistent_launch_validated", lambda traits: False)
+    assert not world.plan.persistent
+    reference = rbgen.World(runtime, solver="jacobi")
+    small_pile(reference)
+    for frame in frames:
+        reference.step(1 / 60)
+        assert np.array_equal(frame.positions, reference.positions)
+        assert np.array_equal(frame.orientations, reference.orientations)

@@ -367,6 +367,63 @@ def test_block_is_the_exact_contact_solution(runtime, rng, variant, count):
 
 
 @pytest.mark.parametrize("variant", ["lanes", "serial"])
+@pytest.mark.parametrize("count", [3, 4])
+def test_block_from_warm_started_impulses_is_the_exact_contact_solution(
+    runtime, rng, variant, count
+):
+    """As test_block_is_the_exact_contact_solution, from accumulated impulses already
+    applied (the warm start): the serial form's block solve tries the active set of a
+    face's current impulses (its pushing points) before the others, so half the faces
+    start from impulses on the reference solution's active set, scaled at random (that
+    set holds and is taken), the others from a random set of pushing points (it seldom
+    holds: the ordered search follows). Either way one iteration leaves the velocities of
+    the float64 brute-force solution for the velocities before the warm start, with
+    complementary impulses; the scenes are checked to hold faces that start from the
+    reference's set of one to count - 1 pushing points."""
+    hinted = 0
+    for _attempt in range(3):
+        rig, manifolds, cons, before = random_face_pairs(
+            runtime, rng, count, variant, pairs=9, spin=4.0, separations=(-0.002, 0.004)
+        )
+        inertia = rig.inertia.get()["inv_inertia_world"][:, :, :3].astype(float)
+        records = rig.setup.constraints.get()
+        references = []
+        for i, (m, c) in enumerate(zip(manifolds, cons)):
+            a, b, n, arm_a, arm_b, k_matrix, normal_speed = normal_rows(m, c, before, inertia)
+            target = c["velocity_target"][:count].astype(float)
+            total = brute_force_lcp(k_matrix, target - normal_speed)
+            references.append((a, b, n, arm_a, arm_b, k_matrix, normal_speed, target, total))
+            if i % 2 == 0:
+                pushing = total > 0
+                start = np.where(pushing, total * rng.uniform(0.5, 1.5, count), 0.0)
+                hinted += int(0 < pushing.sum() < count)
+            else:
+                start = np.where(rng.random(count) < 0.5, rng.uniform(0.0, 2.0, count), 0.0)
+            records["normal_impulse"][i, :count] = start
+        rig.setup.constraints.set(records)
+        rig.sweep(iterations=1, warm_start=True)
+        out, solved = rig.bodies.get(), rig.setup.constraints.get()[: len(manifolds)]
+        for s, (a, b, n, arm_a, arm_b, k_matrix, normal_speed, target, total) in zip(
+            solved, references
+        ):
+            scale = max(
+                np.abs(before["linear_velocity"][[a, b]]).max(),
+                1.0,
+                np.abs(target - normal_speed).max(),
+            )
+            assert_velocities_after(
+                out, before, inertia, a, b, n, arm_a, arm_b, total, atol=2e-4 * scale
+            )
+            impulses = s["normal_impulse"][:count].astype(float)
+            reached = normal_speed + k_matrix @ impulses
+            assert impulses.min() >= 0.0
+            pushing = impulses > 1e-4 * max(impulses.max(), 1e-9)
+            np.testing.assert_allclose(reached[pushing], target[pushing], atol=2e-4 * scale)
+            assert np.all(reached[~pushing] >= target[~pushing] - 2e-4 * scale)
+    assert hinted > 0
+
+
+@pytest.mark.parametrize("variant", ["lanes", "serial"])
 @pytest.mark.parametrize("count", [2, 3, 4])
 def test_sequential_rows_are_gauss_seidel(runtime, rng, variant, count):
     """normal_solve="sequential" (the rows one after another, whose kernel carries the

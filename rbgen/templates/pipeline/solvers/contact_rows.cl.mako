@@ -9,14 +9,20 @@
   form, see pgs.cl.mako); and geometry_cache (block normal solve only), with
   which the solve functions read each constraint's FaceBlock and FrictionRows
   from its ContactGeometry record (the struct supplied too) instead of deriving
-  them, and store_geometry writes that record.
+  them, and store_geometry writes that record; and cpu_hints (the serial form:
+  CPU devices), with which the solve functions are inlined into their callers and
+  their loops over a manifold's points unrolled (PoCL keeps them as calls over
+  stack arrays otherwise); other devices' source is unchanged by it.
 </%doc>
-<%page args="constraint_space='__private', geometry_cache=False"/>
+<%page args="constraint_space='__private', geometry_cache=False, cpu_hints=False"/>
 <%
     # the solve functions' extra parameter with a ContactGeometry cache
     geometry_param = ", __global const ContactGeometry* g" if geometry_cache else ""
     # solve_face_block's K rows (release case 2b) from the cache
     k_param = ", __global const float4* k_rows" if geometry_cache else ""
+    # cpu_hints: a solve function inlined into its caller, a loop over points unrolled
+    inlined = "__attribute__((always_inline)) inline " if cpu_hints else ""
+    unroll = '_Pragma("unroll") ' if cpu_hints else ""
 %>\
 /* Contact rows: per point a normal row (impulse >= 0, drives the normal
  * velocity to its target), per manifold a friction pair at the centre of the
@@ -68,21 +74,21 @@ typedef struct {
 
 /* The FaceBlock of `count` (3 or 4) points. Returns false when the points lie
  * nearly on one line or Q is nearly singular (see solve_face_points). */
-bool face_block(const uint count, const float3 n, const float3 t1, const float3 t2,
+${inlined}bool face_block(const uint count, const float3 n, const float3 t1, const float3 t2,
                 ${constraint_space} const float4* r_a, ${constraint_space} const float4* r_b,
                 float inv_mass_a, const float3 inv_inertia_a[3],
                 float inv_mass_b, const float3 inv_inertia_b[3], __private FaceBlock* f)
 {
     const float share = 1.0f / (float)count;
     float3 centre_a = (float3)(0.0f), centre_b = (float3)(0.0f);
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         centre_a += r_a[k].xyz, centre_b += r_b[k].xyz;
     centre_a *= share;
     centre_b *= share;
     /* M = G^T G = diag(count, spread): the points' second moments in the plane */
     float u[4] = {0.0f, 0.0f, 0.0f, 0.0f}, v[4] = {0.0f, 0.0f, 0.0f, 0.0f};
     float suu = 0.0f, suv = 0.0f, svv = 0.0f;
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         float3 d = r_a[k].xyz - centre_a;
         u[k] = dot3(d, t1);
         v[k] = dot3(d, t2);
@@ -99,13 +105,13 @@ bool face_block(const uint count, const float3 n, const float3 t1, const float3 
     float3 arm_a[3] = {cross3(centre_a, n), cross3(t1, n), cross3(t2, n)};
     float3 arm_b[3] = {cross3(centre_b, n), arm_a[1], arm_a[2]};
     float3 turn_a[3], turn_b[3];
-    for (uint i = 0; i < 3; ++i) {
+    ${unroll}for (uint i = 0; i < 3; ++i) {
         turn_a[i] = mul_rows(inv_inertia_a, arm_a[i]);
         turn_b[i] = mul_rows(inv_inertia_b, arm_b[i]);
     }
     float q[3][3];
-    for (uint i = 0; i < 3; ++i)
-        for (uint j = i; j < 3; ++j)
+    ${unroll}for (uint i = 0; i < 3; ++i)
+        ${unroll}for (uint j = i; j < 3; ++j)
             q[i][j] = q[j][i] = dot3(arm_a[i], turn_a[j]) + dot3(arm_b[i], turn_b[j]);
     q[0][0] += inv_mass_a + inv_mass_b;
     /* Q^-1 by cofactors */
@@ -121,9 +127,9 @@ bool face_block(const uint count, const float3 n, const float3 t1, const float3 
     f->inv_q[0] = inv_q0 * inv_q_det, f->inv_q[1] = inv_q1 * inv_q_det;
     f->inv_q[2] = inv_q2 * inv_q_det;
     f->q_row[0] = q_row0, f->q_row[1] = q_row1, f->q_row[2] = q_row2;
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
         f->u[k] = u[k], f->v[k] = v[k];
-    for (uint i = 0; i < 3; ++i) {
+    ${unroll}for (uint i = 0; i < 3; ++i) {
         f->arm_a[i] = arm_a[i];
         f->turn_a[i] = turn_a[i];
         f->turn_b[i] = turn_b[i];
@@ -138,10 +144,10 @@ inline void face_k_matrix(const float3 q_row0, const float3 q_row1, const float3
                           const float3 g[4], float k_matrix[4][4])
 {
     float3 h[4];
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
         h[k] = (float3)(dot3(q_row0, g[k]), dot3(q_row1, g[k]), dot3(q_row2, g[k]));
-    for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j)
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+    ${unroll}for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j)
+        ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
             k_matrix[j][k] = dot3(g[j], h[k]);
 }
 
@@ -185,7 +191,7 @@ inline void face_k_matrix(const float3 q_row0, const float3 q_row1, const float3
  * solves the rows one after another. Without `releases` only case 1 is tried
  * (false when it does not hold): a cheaper sweep, exact and order-free for
  * faces resting on faces, that leaves the other faces to the rows. */
-bool solve_face_block(const uint count, const __private FaceBlock* f, const float3 n,
+${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, const float3 n,
                       const float relaxation, float inv_mass_a, float3* va, float3* wa,
                       float inv_mass_b, float3* vb, float3* wb, const float target[4],
                       float lambda[4], const bool releases${k_param})
@@ -208,13 +214,13 @@ bool solve_face_block(const uint count, const __private FaceBlock* f, const floa
     float3 speed = (float3)(dot3(n, *vb - *va) + dot3(*wb, arm_b0) - dot3(*wa, arm_a[0]),
                             dot3(dw, arm_a[1]), dot3(dw, arm_a[2]));
     float3 wrench = (float3)(0.0f);
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         wrench += (float3)(1.0f, u[k], v[k]) * lambda[k];
     float3 reached = (float3)(dot3(q_row0, wrench), dot3(q_row1, wrench), dot3(q_row2, wrench))
                    - speed;
     float3 g[4];
     float rhs[4], tolerance = 0.0f;
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) {
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) {
         g[k] = (float3)(1.0f, u[k], v[k]);
         rhs[k] = k < count ? target[k] + dot3(g[k], reached) : 0.0f;
         tolerance = max1(tolerance, OVERSHOOT_TOLERANCE * abs1(rhs[k]));
@@ -222,7 +228,7 @@ bool solve_face_block(const uint count, const __private FaceBlock* f, const floa
 
     /* 1. all pushing: the affine fit p of rhs, wrench z = Q^-1 p, totals G M^-1 z */
     float3 fit = (float3)(0.0f);
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         fit += g[k] * rhs[k];
     fit = (float3)(share * fit.x, (svv * fit.y - suv * fit.z) * inv_spread,
                    (suu * fit.z - suv * fit.y) * inv_spread);
@@ -231,7 +237,7 @@ bool solve_face_block(const uint count, const __private FaceBlock* f, const floa
                         (suu * z.z - suv * z.y) * inv_spread);
     float total[4], even[4];
     bool valid = true;
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         total[k] = even[k] = dot3(g[k], x);
         valid = valid && total[k] >= 0.0f && abs1(rhs[k] - dot3(g[k], fit)) <= tolerance;
     }
@@ -241,7 +247,7 @@ bool solve_face_block(const uint count, const __private FaceBlock* f, const floa
     if (!valid) {
         /* 2a. three of four pushing, point m released */
         float lowest = FLT_MAX;  /* (not INFINITY: the solver may be built finite-math-only) */
-        for (uint m = 0; m < 4; ++m) if (four) {
+        ${unroll}for (uint m = 0; m < 4; ++m) if (four) {
             /* (indices picked by compare, not array subscripts: registers on GPUs) */
             uint i = m == 0 ? 1 : 0, j = m <= 1 ? 2 : 1, l = m <= 2 ? 3 : 2;
             float3 c_i = cross3(g[j], g[l]), c_j = cross3(g[l], g[i]), c_l = cross3(g[i], g[j]);
@@ -264,7 +270,7 @@ bool solve_face_block(const uint count, const __private FaceBlock* f, const floa
         /* 2b. two, one or none pushing: K's entries g_j . Q g_k */
         float k_matrix[4][4];
 % if geometry_cache:
-        for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) {
+        ${unroll}for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) {
             float4 row = k_rows[j];
             k_matrix[j][0] = row.x, k_matrix[j][1] = row.y, k_matrix[j][2] = row.z;
             k_matrix[j][3] = row.w;
@@ -289,11 +295,11 @@ bool solve_face_block(const uint count, const __private FaceBlock* f, const floa
                 float x_i = (kjj * rhs[i] - kij * rhs[j]) / det;
                 float x_j = (kii * rhs[j] - kij * rhs[i]) / det;
                 holds = holds && x_i >= 0.0f && x_j >= 0.0f;
-                for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i && m != j)
+                ${unroll}for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i && m != j)
                     holds = holds && k_matrix[m][i] * x_i + k_matrix[m][j] * x_j >= rhs[m] - tolerance;
                 if (holds && !valid) {
                     valid = true;
-                    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+                    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
                         total[k] = k == i ? x_i : k == j ? x_j : 0.0f;
                 }
             }
@@ -304,11 +310,11 @@ bool solve_face_block(const uint count, const __private FaceBlock* f, const floa
 % endif
             float x_i = positive_part(rhs[i]) / (i < count ? k_matrix[i][i] : 1.0f);
             bool holds = i < count;
-            for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i)
+            ${unroll}for (uint m = 0; m < RB_MAX_MANIFOLD_POINTS; ++m) if (m < count && m != i)
                 holds = holds && k_matrix[m][i] * x_i >= rhs[m] - tolerance;
             if (holds && !valid) {
                 valid = true;
-                for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+                ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
                     total[k] = k == i ? x_i : 0.0f;
             }
         }
@@ -317,11 +323,11 @@ bool solve_face_block(const uint count, const __private FaceBlock* f, const floa
     }
 
     float change[4];
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         change[k] = positive_part(lambda[k] + relaxation * (total[k] - lambda[k])) - lambda[k];
     /* apply: the summed impulse and its moments */
     float3 applied = (float3)(0.0f);
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         lambda[k] += change[k];
         applied += g[k] * change[k];
     }
@@ -571,7 +577,7 @@ inline void friction_rows(${constraint_space} const ContactConstraint* c,
 {
     uint count = c->point_count;
     float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         ra += c->r_a[k].xyz, rb += c->r_b[k].xyz;
     float share = count > 0 ? 1.0f / (float)count : 0.0f;
     ra *= share;
@@ -579,7 +585,7 @@ inline void friction_rows(${constraint_space} const ContactConstraint* c,
     rows->tangent1 = point_row(c->tangent1.xyz, ra, rb, p);
     rows->tangent2 = point_row(c->tangent2.xyz, ra, rb, p);
     float radius = 0.0f;
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         radius += length3(c->r_b[k].xyz - rb);
     rows->radius = radius;
     rows->twist = twist_row(c->normal.xyz, p);
@@ -636,7 +642,7 @@ inline void reverse4(float a[4])
  * step (its lever arms, normal and the bodies' inertias hold for the step)
  * and every sweep reads it instead of deriving it again: the same values, so
  * the same results. */
-void store_geometry(${constraint_space} const ContactConstraint* c, const __private ContactBodies* p,
+${inlined}void store_geometry(${constraint_space} const ContactConstraint* c, const __private ContactBodies* p,
                     __global ContactGeometry* g)
 {
     uint count = c->point_count;
@@ -649,7 +655,7 @@ void store_geometry(${constraint_space} const ContactConstraint* c, const __priv
         g->face_u = pack4(f.u);
         g->face_v = pack4(f.v);
         g->face_spread = (float4)(f.suu, f.suv, f.svv, f.inv_spread);
-        for (uint i = 0; i < 3; ++i) {
+        ${unroll}for (uint i = 0; i < 3; ++i) {
             g->face_arm[i] = (float4)(f.arm_a[i], 0.0f);
             g->face_turn_a[i] = (float4)(f.turn_a[i], 0.0f);
             g->face_turn_b[i] = (float4)(f.turn_b[i], 0.0f);
@@ -659,10 +665,10 @@ void store_geometry(${constraint_space} const ContactConstraint* c, const __priv
         g->face_arm[3] = (float4)(f.arm_b0, 0.0f);
         float3 points[4];
         float k_matrix[4][4];
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
+        ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k)
             points[k] = (float3)(1.0f, f.u[k], f.v[k]);
         face_k_matrix(f.q_row[0], f.q_row[1], f.q_row[2], points, k_matrix);
-        for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j)
+        ${unroll}for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j)
             g->face_k[j] = pack4(k_matrix[j]);
     }
     g->face_arm[0].w = block ? 1.0f : 0.0f;
@@ -702,7 +708,7 @@ inline void load_friction_rows(__global const ContactGeometry* g, const float3 n
 }
 
 /* solve_normal_block with three or four points' FaceBlock read from g. */
-bool solve_normal_cached(const uint count, const float3 n,
+${inlined}bool solve_normal_cached(const uint count, const float3 n,
                          ${constraint_space} const float4* r_a, ${constraint_space} const float4* r_b,
                          const float relaxation, __private ContactBodies* p,
                          __global const ContactGeometry* g, const float target[4],
@@ -719,7 +725,7 @@ bool solve_normal_cached(const uint count, const float3 n,
     unpack4(g->face_v, f.v);
     float4 spread = g->face_spread;
     f.suu = spread.x, f.suv = spread.y, f.svv = spread.z, f.inv_spread = spread.w;
-    for (uint i = 0; i < 3; ++i) {
+    ${unroll}for (uint i = 0; i < 3; ++i) {
         f.arm_a[i] = g->face_arm[i].xyz;
         f.turn_a[i] = g->face_turn_a[i].xyz;
         f.turn_b[i] = g->face_turn_b[i].xyz;
@@ -736,7 +742,7 @@ bool solve_normal_cached(const uint count, const float3 n,
  * its bodies' velocities in *p: their sum and its moment about each body's
  * centre first, then one velocity change a body (one inverse-inertia product
  * a body instead of one a point and row). */
-void warm_start_contact(const ${constraint_space} ContactConstraint* c, __private ContactBodies* p)
+${inlined}void warm_start_contact(const ${constraint_space} ContactConstraint* c, __private ContactBodies* p)
 {
     uint count = c->point_count;
     float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
@@ -748,7 +754,7 @@ void warm_start_contact(const ${constraint_space} ContactConstraint* c, __privat
     /* the normal impulses at their points, the friction pair at their centre
      * and the twist about n (tangent1 slot 1) */
     float3 ra = (float3)(0.0f), rb = (float3)(0.0f);
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         float3 point_impulse = n * normal_impulse[k];
         impulse += point_impulse;
         moment_a += cross3(c->r_a[k].xyz, point_impulse);
@@ -796,7 +802,7 @@ inline void apply_restitution(const uint count, const float3 n, const float3 t1,
 {
     float target[4] = {0.0f, 0.0f, 0.0f, 0.0f};
     bool bounces[4] = {false, false, false, false}, every = true;
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
         target[k] = r_b[k].w;
         bounces[k] = target[k] > 0.0f && (pushed >> k & 1u) != 0u;
         every = every && bounces[k];
@@ -812,7 +818,7 @@ inline void apply_restitution(const uint count, const float3 n, const float3 t1,
                                     p->inv_inertia_b, &p->vb, &p->wb, target, impulse, true);
 % endif
     for (uint round = 0; !solved && round < RESTITUTION_ROUNDS; ++round)
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count && bounces[k]) {
+        ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count && bounces[k]) {
             Row row = point_row(n, r_a[k].xyz, r_b[k].xyz, p);
             float total = positive_part(impulse[k] + mass[k] * (target[k] - row_speed(&row, p)));
             apply_row(&row, total - impulse[k], p);
@@ -858,7 +864,7 @@ inline void hold_still(__private ContactBodies* p, const float holds)
  * held masses, stiffer in a one-sided sweep, walked a 55-layer lattice apart),
  * and a manifold that bounces this step
  * is left to the rows and the restitution before (no pull takes its bounce back). */
-void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __private ContactBodies* p,
+${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __private ContactBodies* p,
                    const float relaxation, const bool reverse, const bool releases,
                    const bool restitution, const bool shock)
 {
@@ -916,7 +922,7 @@ void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __
     /* one friction pair at the centre of the points: |(f1, f2)| <= mu * total normal
      * impulse, and a twist row about n: |f| <= mu * total * mean point distance */
     float total = 0.0f;
-    for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+    ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
         total += normal_impulse[k];
     float share = count > 0 ? 1.0f / (float)count : 0.0f;
     FrictionRows rows;
@@ -938,7 +944,7 @@ void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __
         /* a restitution: the points that pushed, kept in tangent2_impulse's slot 1
          * (layouts: ContactConstraint; zero at setup) */
         uint pushed = (uint)tangent2_impulse[1];
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count && normal_impulse[k] > 0.0f)
+        ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count && normal_impulse[k] > 0.0f)
             pushed |= 1u << k;
         tangent2_impulse[1] = (float)pushed;
         if (restitution) {
@@ -956,7 +962,7 @@ void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __
 
 /* Normal rows of one constraint on its bodies' push velocities in *p (split
  * impulse); `releases` as in solve_contact. */
-void solve_push(${constraint_space} ContactConstraint* c${geometry_param}, __private ContactBodies* p, const float relaxation,
+${inlined}void solve_push(${constraint_space} ContactConstraint* c${geometry_param}, __private ContactBodies* p, const float relaxation,
                 const bool releases)
 {
     uint count = c->point_count;
