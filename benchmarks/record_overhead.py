@@ -36,6 +36,7 @@ import argparse
 import os
 import sys
 import tempfile
+from functools import partial
 
 from rbgen import bench
 from rbgen.harness import run_scene
@@ -66,18 +67,6 @@ def pending_hook(every: int):
                 held.pop(0).result()
 
     on_step.frames = 0
-    return on_step
-
-
-def blocking_record_hook(recorders, every: int):
-    """`record_hook` with a blocking read at each capture (the recorders before snapshots)."""
-
-    def on_step(world, step):
-        if step % every == 0:
-            frame = frame_of(world)
-            for recorder in recorders:
-                recorder.capture(world, frame)
-
     return on_step
 
 
@@ -168,7 +157,7 @@ def main(argv=None) -> int:
                 for kind in formats:
                     for reads, make_hook in (
                         ("", record_hook),
-                        ("-blocking", blocking_record_hook),
+                        ("-blocking", partial(record_hook, blocking=True)),
                     ):
                         if reads and not args.blocking:
                             continue

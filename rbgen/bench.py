@@ -194,6 +194,11 @@ def scene_result(summary: dict, warmup: int) -> dict:
         "batching": summary["batching"],
         "solver": summary["solver"],
         "normal_solve": summary["normal_solve"],
+        "plan": summary.get("plan"),
+        "plan_fallbacks": summary.get("plan_fallbacks", []),
+        # (what can add launches to a step: colours of the largest group, buffer growths)
+        "batches": summary.get("batches"),
+        "overflows": summary.get("overflows"),
         "sanity": sanity,
         "baseline": None,
     }
@@ -233,8 +238,10 @@ def format_result(r: dict) -> str:
     worst = worst_drop_mm(r["scene"], s.get("layer_drop"))
     drop = f", worst layer drop {worst:.1f} mm" if worst is not None else ""
     verdict = "holds" if r["holds"] else "DOES NOT HOLD: " + ", ".join(r["problems"])
+    fell = r.get("plan_fallbacks") or []
+    fallback = f" [fell back from the plan's {', '.join(fell)}]" if fell else ""
     return (
-        f"{r['scene']} {r['bodies']:,}: {r['ms']:.2f} ms/step "
+        f"{r['scene']} {r['bodies']:,}{fallback}: {r['ms']:.2f} ms/step "
         f"({r['ms_spread'][0]:.2f}-{r['ms_spread'][1]:.2f}), {r['launches_per_step']} "
         f"launches, {r['blocking_reads_per_step']} blocking reads; NaN {s['nans']}, sunk "
         f"{s['sunk']}, displaced {s['displaced']}, max speed {s['max_speed']:.3f} m/s"

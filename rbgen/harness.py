@@ -293,6 +293,10 @@ def run_scene(
         # (only a block normal solve releases points; a sequential one has no release sweeps)
         "release_sweeps": world.release_sweeps,
         "plan": world.plan.describe(),
+        # choices the World had to fall back from during the run (a persistent launch that
+        # gave up at its device-wide barrier: the step was redone, and later steps run
+        # without it; `rbgen.plan.Plan.sources`)
+        "plan_fallbacks": sorted(k for k, v in world.plan.sources.items() if v == "fallback"),
         # the effort the step ran at (the World's defaults unless the options said otherwise)
         "substeps": world.substeps,
         "iterations": world.iterations,

@@ -38,7 +38,7 @@ import numpy as np
 
 from .errors import RbgenError
 from .render.camera import coerce_camera
-from .render.scene import Bodies, Frame, bodies_of
+from .render.scene import Bodies, Frame, bodies_of, frame_of
 from .snapshot import PendingFrame
 
 #: extension -> format
@@ -223,17 +223,21 @@ class Recorder:
                 pass
 
 
-def record_hook(recorders, every: int = 1):
+def record_hook(recorders, every: int = 1, blocking: bool = False):
     """``on_step(world, step)`` for `rbgen.harness.run_scene`: at step 0 and every ``every``
     steps, one snapshot of the transforms (`World.snapshot_frame`, no queue drain) feeds
-    every recorder; each adds it to its file at its next capture or at `Recorder.close`."""
+    every recorder; each adds it to its file at its next capture or at `Recorder.close`.
+    ``blocking``: one blocking read instead (`rbgen.render.scene.frame_of`: the queue
+    drains, and each recorder adds the frame at once): the same frames, for a caller that
+    wants them written as they are taken, and the baseline the snapshots are measured
+    against."""
     if not isinstance(every, (int, np.integer)) or every < 1:
         raise RbgenError(f"record every must be a positive integer, got {every!r}")
     recorders = list(recorders)
 
     def on_step(world, step: int) -> None:
         if step % every == 0 and recorders:
-            frame = world.snapshot_frame()
+            frame = frame_of(world) if blocking else world.snapshot_frame()
             for recorder in recorders:
                 recorder.capture(world, frame)
 

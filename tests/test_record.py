@@ -333,16 +333,8 @@ def pile_world(runtime, **options):
 
 
 def blocking_hook(recorders, every):
-    """`record_hook` as it was: a blocking read of the transforms at each capture."""
-    from rbgen.render.scene import frame_of
-
-    def on_step(world, step):
-        if step % every == 0:
-            frame = frame_of(world)
-            for recorder in recorders:
-                recorder.capture(world, frame)
-
-    return on_step
+    """`record_hook` as it was before snapshots: a blocking read at each capture."""
+    return record_hook(recorders, every, blocking=True)
 
 
 def run_recorded(world, hook, steps=13):

@@ -151,3 +151,20 @@ def test_snapshots_across_an_abandoned_step_are_the_redone_state(
         reference.step(1 / 60)
         assert np.array_equal(frame.positions, reference.positions)
         assert np.array_equal(frame.orientations, reference.orientations)
+
+
+def test_benchmark_records_a_plan_fallback(runtime, oversubscribed, monkeypatch):
+    """A scene whose persistent launch gave up records it (`run_scene`'s plan_fallbacks, the
+    bench result's, and its printed line), so a benchmark's launch count is not read as
+    the persistent plan's."""
+    from rbgen import bench
+    from rbgen.harness import run_scene
+
+    monkeypatch.setattr(rbgen.plan, "persistent_launch_validated", lambda traits: True)
+    with pytest.warns(RuntimeWarning, match="gave up waiting at a device-wide barrier"):
+        summary = run_scene("boxbox", 8, 3, device=runtime, progress=False, batching="global")
+    assert summary["plan_fallbacks"] == ["batching"]
+    result = bench.scene_result(summary, 1)
+    assert result["plan_fallbacks"] == ["batching"]
+    assert "fell back from the plan's batching" in bench.format_result(result)
+    assert "persistent" not in result["plan"]  # (the plan the World ended with)

@@ -322,6 +322,24 @@ def test_pushing_points_get_the_smallest_exact_impulses(runtime, rng, variant, c
         assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total)
 
 
+def assert_exact_solution(out, before, inertia, solved, count, reference):
+    """The velocities ``out`` are those of the float64 solution ``total`` of ``reference`` =
+    (a, b, n, arm_a, arm_b, k_matrix, normal_speed, target, total) and the impulses the
+    solve kept in ``solved`` are complementary: non-negative, pushing points at their
+    targets, the others not approaching past them (tolerance 2e-4 of the scene's speeds)."""
+    a, b, n, arm_a, arm_b, k_matrix, normal_speed, target, total = reference
+    scale = max(
+        np.abs(before["linear_velocity"][[a, b]]).max(), 1.0, np.abs(target - normal_speed).max()
+    )
+    assert_velocities_after(out, before, inertia, a, b, n, arm_a, arm_b, total, atol=2e-4 * scale)
+    impulses = solved["normal_impulse"][:count].astype(float)
+    reached = normal_speed + k_matrix @ impulses
+    assert impulses.min() >= 0.0
+    pushing = impulses > 1e-4 * max(impulses.max(), 1e-9)
+    np.testing.assert_allclose(reached[pushing], target[pushing], atol=2e-4 * scale)
+    assert np.all(reached[~pushing] >= target[~pushing] - 2e-4 * scale)
+
+
 @pytest.mark.parametrize("variant", ["lanes", "serial"])
 @pytest.mark.parametrize("count", [2, 3, 4])
 def test_block_is_the_exact_contact_solution(runtime, rng, variant, count):
@@ -349,20 +367,8 @@ def test_block_is_the_exact_contact_solution(runtime, rng, variant, count):
             target = c["velocity_target"][:count].astype(float)
             total = brute_force_lcp(k_matrix, target - normal_speed)
             released += int((total == 0).sum())
-            scale = max(
-                np.abs(before["linear_velocity"][[a, b]]).max(),
-                1.0,
-                np.abs(target - normal_speed).max(),
-            )
-            assert_velocities_after(
-                out, before, inertia, a, b, n, arm_a, arm_b, total, atol=2e-4 * scale
-            )
-            impulses = s["normal_impulse"][:count].astype(float)
-            reached = normal_speed + k_matrix @ impulses
-            assert impulses.min() >= 0.0
-            pushing = impulses > 1e-4 * max(impulses.max(), 1e-9)
-            np.testing.assert_allclose(reached[pushing], target[pushing], atol=2e-4 * scale)
-            assert np.all(reached[~pushing] >= target[~pushing] - 2e-4 * scale)
+            reference = (a, b, n, arm_a, arm_b, k_matrix, normal_speed, target, total)
+            assert_exact_solution(out, before, inertia, s, count, reference)
     assert released > 0
 
 
@@ -372,14 +378,13 @@ def test_block_from_warm_started_impulses_is_the_exact_contact_solution(
     runtime, rng, variant, count
 ):
     """As test_block_is_the_exact_contact_solution, from accumulated impulses already
-    applied (the warm start): the serial form's block solve tries the active set of a
-    face's current impulses (its pushing points) before the others, so half the faces
-    start from impulses on the reference solution's active set, scaled at random (that
-    set holds and is taken), the others from a random set of pushing points (it seldom
-    holds: the ordered search follows). Either way one iteration leaves the velocities of
-    the float64 brute-force solution for the velocities before the warm start, with
-    complementary impulses; the scenes are checked to hold faces that start from the
-    reference's set of one to count - 1 pushing points."""
+    applied (the warm start): half the faces start from impulses on the reference
+    solution's active set, scaled at random, the others from a random set of pushing
+    points. Either way one iteration leaves the velocities of the float64 brute-force
+    solution for the velocities before the warm start, with complementary impulses (a
+    block search that starts from a face's current active set must keep this: one that
+    did was tried on the serial form and reverted); the scenes are checked to hold faces
+    that start from the reference's set of one to count - 1 pushing points."""
     hinted = 0
     for _attempt in range(3):
         rig, manifolds, cons, before = random_face_pairs(
@@ -403,23 +408,8 @@ def test_block_from_warm_started_impulses_is_the_exact_contact_solution(
         rig.setup.constraints.set(records)
         rig.sweep(iterations=1, warm_start=True)
         out, solved = rig.bodies.get(), rig.setup.constraints.get()[: len(manifolds)]
-        for s, (a, b, n, arm_a, arm_b, k_matrix, normal_speed, target, total) in zip(
-            solved, references
-        ):
-            scale = max(
-                np.abs(before["linear_velocity"][[a, b]]).max(),
-                1.0,
-                np.abs(target - normal_speed).max(),
-            )
-            assert_velocities_after(
-                out, before, inertia, a, b, n, arm_a, arm_b, total, atol=2e-4 * scale
-            )
-            impulses = s["normal_impulse"][:count].astype(float)
-            reached = normal_speed + k_matrix @ impulses
-            assert impulses.min() >= 0.0
-            pushing = impulses > 1e-4 * max(impulses.max(), 1e-9)
-            np.testing.assert_allclose(reached[pushing], target[pushing], atol=2e-4 * scale)
-            assert np.all(reached[~pushing] >= target[~pushing] - 2e-4 * scale)
+        for s, reference in zip(solved, references):
+            assert_exact_solution(out, before, inertia, s, count, reference)
     assert hinted > 0
 
 
