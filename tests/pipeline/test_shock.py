@@ -229,7 +229,7 @@ def lattice_world(runtime, nx, ny, nz, **options):
 
 def gpu_plan(runtime) -> dict:
     """World options for a plan that runs the shock sweep on this device: a GPU's own, a
-    CPU's global batching (its serial block solve refuses the shock sweep)."""
+    CPU's global batching (its serial solve form refuses the shock sweep)."""
     return {} if runtime.traits.is_gpu else {"batching": "global"}
 
 
@@ -263,14 +263,15 @@ def test_tall_lattice_comes_to_rest(runtime):
 
 
 def test_refused_where_no_shock_sweep_runs(runtime):
-    """iterations 1, the Jacobi solver and the serial block solve refuse the setting at
+    """iterations 1, the Jacobi solver and the serial solve form refuse the setting at
     step(), naming it, and the World is as it was."""
     cases = [
         ({"iterations": 1, **gpu_plan(runtime)}, "iterations >= 2"),
         ({"solver": "jacobi"}, "solver 'pgs'"),
     ]
     if not runtime.traits.is_gpu:
-        cases.append(({}, "serial block solve"))
+        cases.append(({}, "serial solve form"))
+        cases.append(({"normal_solve": "sequential"}, "serial solve form"))
     for options, words in cases:
         world = World(runtime, **options)
         world.add_static(Box((5, 1, 5)), position=(0, -1, 0))

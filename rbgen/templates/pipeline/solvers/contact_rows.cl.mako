@@ -898,7 +898,7 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
 
     bool solved = false;  /* by the block solve; else row after row */
 % if geometry_cache:
-    /* (no shock sweep runs over a cache: rbgen.plan.Plan.check_settings) */
+    /* (no shock sweep runs in the serial form: rbgen.plan.Plan.check_settings) */
     solved = solve_normal_cached(count, n, c->r_a, c->r_b, relaxation, p, g, target,
                                  normal_impulse, releases);
 % elif normal_solve == "block":
