@@ -24,6 +24,7 @@ from .pipeline.batching import default_solve_form
 from .pipeline.batching.global_colouring import ORDERED_ROUNDS
 from .pipeline.batching.spatial import default_group_count
 from .pipeline.device_barrier import persistent_launch_validated
+from .pipeline.solvers.common import check_sweeps
 from .pipeline.solvers.pgs import default_normal_solve
 
 
@@ -140,12 +141,9 @@ class Plan:
                 f"shock_propagation=True is a sweep of solver 'pgs'; this World's solver is "
                 f"{self.solver!r}: set shock_propagation=False or build it with solver='pgs'"
             )
-        if settings.iterations < 2:
-            raise RbgenError(
-                f"shock_propagation=True needs iterations >= 2 (the last velocity sweep of a "
-                f"substep becomes the shock sweep, whose impulses are not carried; a sweep "
-                f"before it must carry the loads), got iterations={settings.iterations!r}"
-            )
+        check_sweeps(
+            settings.iterations, settings.position_iterations, settings.relaxation, shock=True
+        )
         if self.solve_form == "serial":
             raise RbgenError(
                 "shock_propagation=True is not available with the serial solve form (this "
