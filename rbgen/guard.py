@@ -129,7 +129,8 @@ class StepGuard:
 
     def check(self, keep: int, restore, rewind, enqueue, afford=None, forget=None) -> None:
         """Check the oldest enqueued steps until at most ``keep`` remain unchecked; redo
-        from a failed one: ``restore(slot)`` restores the bodies of that backup slot,
+        from a failed one: ``restore(slot, tag)`` restores the bodies of that backup slot (the
+        failed step, tagged ``tag``, found them so),
         ``rewind(steps)`` forgets that many steps' constraint history, ``enqueue(dt,
         tag)`` enqueues a step, ``afford(problems)`` raises when the recoveries would not
         fit in memory, ``forget(tag)`` is told that the steps from the one tagged
@@ -146,7 +147,7 @@ class StepGuard:
             redone += 1
             self.runtime.queue.finish()
             redo = [(e.dt, e.tag) for e in self.in_flight]
-            restore(entry.slot)
+            restore(entry.slot, entry.tag)
             rewind(len(redo))
             self.drop(len(redo))
             solve = self.pipeline.solve

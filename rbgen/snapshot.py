@@ -150,10 +150,6 @@ class SnapshotCopies:
         self._free: list[_Pinned] = []
         #: pending snapshots whose copy is on the device queue (dropped ones vanish)
         self._live: weakref.WeakSet[PendingFrame] = weakref.WeakSet()
-        self._stale = 0  # live snapshots whose copy a redo replaced, not yet copied again
-        #: set by the World's restore (a redo starts): the next redone step's tag tells
-        #: which snapshots followed the failed step
-        self.restoring = False
 
     # ------------------------------------------------------------- snapshots
     def take(self, world: World) -> PendingFrame:
@@ -209,42 +205,34 @@ class SnapshotCopies:
     def invalidate(self, failed_tag: int) -> None:
         """A redo restored the bodies to before the step tagged ``failed_tag``: the
         snapshots that followed it read a state the redo replaces."""
-        self.restoring = False
         for pending in list(self._live):
-            if pending._after_tag >= failed_tag and not pending._stale:
+            if pending._after_tag >= failed_tag:
                 pending._stale = True
-                self._stale += 1
 
     def copy_before(self, world: World, tag: int) -> None:
         """A redone step tagged ``tag`` is about to be enqueued: copy again the replaced
         snapshots that come before it."""
-        if self._stale:
-            self._copy_stale(world, lambda p: p._after_tag < tag)
+        self._copy_stale(world, lambda p: p._after_tag < tag)
 
     def copy_stale(self, world: World) -> None:
         """The redo is enqueued: copy again the replaced snapshots still waiting (they
         followed its last step)."""
-        if self._stale:
-            self._copy_stale(world, lambda p: True)
+        self._copy_stale(world, lambda p: True)
 
     def _copy_stale(self, world: World, which) -> None:
-        live = sorted(self._live, key=lambda p: p._after_tag)
-        for pending in live:
+        """Copy again, in the order they were taken, the replaced snapshots ``which``
+        selects (a World keeps a few live snapshots: the scan is short)."""
+        for pending in sorted(self._live, key=lambda p: p._after_tag):
             if pending._stale and which(pending):
                 self._copy(world, pending)
                 pending._stale = False
-        # (counted again: a stale snapshot dropped unresolved has left the weak set)
-        self._stale = sum(p._stale for p in live)
 
     def forget(self, tag: int) -> None:
         """The steps from the one tagged ``tag`` were undone for good: the snapshots that
         followed them have no state to give."""
-        self.restoring = False
         for pending in list(self._live):
             if pending._after_tag >= tag:
-                if pending._stale:
-                    pending._stale = False
-                    self._stale -= 1
+                pending._stale = False
                 pending._error = (
                     f"the snapshot after step {pending.step} has no state: step {tag} "
                     f"before it could not be redone, and the World went back to before it"

@@ -658,8 +658,6 @@ class World:
     def _redo_step(self, dt: float, tag: int) -> None:
         """Enqueue a step again (a redo after `_restore`): the snapshots taken after the
         failed step are copied again where they were taken, before the first later step."""
-        if self._snapshots.restoring:
-            self._snapshots.invalidate(tag)  # (the redo's first step is the failed one)
         self._snapshots.copy_before(self, tag)
         self._enqueue_step(dt, tag)
 
@@ -676,8 +674,10 @@ class World:
         for old in [t for t in self._step_settings if t >= tag]:
             del self._step_settings[old]
 
-    def _restore(self, slot: int) -> None:
-        """The bodies and the joint records as the step of backup ``slot`` found them."""
+    def _restore(self, slot: int, failed_tag: int | None = None) -> None:
+        """The bodies and the joint records as the step of backup ``slot`` found them; for
+        a redo of the step tagged ``failed_tag``, the snapshots taken after it read a state
+        the redo replaces (`SnapshotCopies.invalidate`)."""
         cl.enqueue_copy(
             self.runtime.queue, self._device.bodies.data, self._device.backups[slot].data
         )
@@ -686,7 +686,8 @@ class World:
         sleeping = self._sleep_records()
         if sleeping is not None:
             sleeping.restore(slot, self._device.bodies, self._device.static)
-        self._snapshots.restoring = True  # (the next `_redo_step` is the failed step's)
+        if failed_tag is not None:
+            self._snapshots.invalidate(failed_tag)
 
     def _pipeline_rewind(self, steps: int) -> None:
         self._steps.constraints.constraints.undo(steps)

@@ -338,6 +338,9 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
     return true;
 }
 
+## (a build with a ContactGeometry cache reads each FaceBlock from the cache,
+## solve_normal_cached: it has no use for the two functions that derive one)
+% if not geometry_cache:
 /* solve_face_block on the points' FaceBlock. */
 bool solve_face_points(const uint count, const float3 n, const float3 t1, const float3 t2,
                        ${constraint_space} const float4* r_a, ${constraint_space} const float4* r_b,
@@ -350,8 +353,9 @@ bool solve_face_points(const uint count, const float3 n, const float3 t1, const 
     return face_block(count, n, t1, t2, r_a, r_b, inv_mass_a, inv_inertia_a, inv_mass_b,
                       inv_inertia_b, &f)
            && solve_face_block(count, &f, n, relaxation, inv_mass_a, va, wa, inv_mass_b, vb,
-                               wb, target, lambda, releases${", 0" if geometry_cache else ""});
+                               wb, target, lambda, releases);
 }
+% endif
 
 /* solve_normal_block for one or two points (an edge on a face, a corner): the contact problem K total = rhs, total >= 0, with the
  * velocity reached at a released point no slower than its target, solved
@@ -415,6 +419,7 @@ bool solve_two_points(const uint count, const float3 n,
     return true;
 }
 
+% if not geometry_cache:
 /* The normal rows of one manifold as a block: the accumulated impulses
  * lambda[k] (>= 0) of its `count` points are replaced by the exact solution of
  * the contact problem: every point that keeps a positive impulse reaches its
@@ -443,6 +448,7 @@ bool solve_normal_block(const uint count, const float3 n, const float3 t1, const
     return solve_two_points(count, n, r_a, r_b, relaxation, inv_mass_a, inv_inertia_a, va, wa,
                             inv_mass_b, inv_inertia_b, vb, wb, target, lambda);
 }
+% endif
 
 % endif
 /* The two bodies of one constraint as the solver sees them: inverse masses
