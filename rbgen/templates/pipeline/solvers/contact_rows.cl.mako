@@ -843,16 +843,27 @@ inline bool bounces(${constraint_space} const ContactConstraint* c)
 
 /* The body that `holds` names (layouts: RB_SHOCK_HOLDS_*) held still in *p: its
  * inverse mass and inertia zero, so no row moves it and its velocities are not
- * stored back. */
-inline void hold_still(__private ContactBodies* p, const float holds)
+ * stored back. Returns the share of a change of the normal impulse to keep
+ * (solve_contact): the other body's inverse mass over both bodies', so that a
+ * correction the held rows found for that body alone is kept as the impulse
+ * that stops the same approach between the bodies as they are (1 when nothing
+ * is held). */
+inline float hold_still(__private ContactBodies* p, const float holds)
 {
+    const float both = p->inv_mass_a + p->inv_mass_b;
     if (holds == (float)RB_SHOCK_HOLDS_A) {
+        const float share = p->inv_mass_b / both;
         p->inv_mass_a = 0.0f;
         p->inv_inertia_a[0] = p->inv_inertia_a[1] = p->inv_inertia_a[2] = (float3)(0.0f);
-    } else if (holds == (float)RB_SHOCK_HOLDS_B) {
+        return share;
+    }
+    if (holds == (float)RB_SHOCK_HOLDS_B) {
+        const float share = p->inv_mass_a / both;
         p->inv_mass_b = 0.0f;
         p->inv_inertia_b[0] = p->inv_inertia_b[1] = p->inv_inertia_b[2] = (float3)(0.0f);
+        return share;
     }
+    return 1.0f;
 }
 
 /* Solve all rows of one constraint, updating its impulses and its bodies'
@@ -861,25 +872,28 @@ inline void hold_still(__private ContactBodies* p, const float holds)
  * its restitution (apply_restitution: the step's last velocity sweep).
  * `shock`: a shock sweep (pgs.cl.mako: SHOCK_PASS) holds the lower body of a
  * contact that carries a load against gravity still (tangent1.w, hold_still),
- * so that a stack's velocities agree from the ground up within the sweep; its
- * rows start from the impulses the constraint carries but what they add is not
- * kept (the warm start carries the sweeps' impulses between the bodies as
- * they are, not one-sided ones), its normal rows with their masses of the held
- * bodies (row_mass_of; the block solve derives its own), its friction rows with
- * their masses of both (under-relaxed for the held body: friction rows of the
- * held masses, stiffer in a one-sided sweep, walked a 55-layer lattice apart),
- * and a manifold that bounces this step
- * is left to the rows and the restitution before (no pull takes its bounce back). */
+ * so that a stack's velocities agree from the ground up within the sweep: its
+ * normal rows with their masses of the held bodies (row_mass_of; the block
+ * solve derives its own), its friction rows with their masses of both
+ * (under-relaxed for the held body: friction rows of the held masses, stiffer
+ * in a one-sided sweep, walked a 55-layer lattice apart). What the normal rows
+ * add is kept in the free body's share (hold_still): the impulse that stops the
+ * same approach with both bodies free, so the warm start learns a stack's load
+ * from the sweep that sees it whole, without the one-sided correction's
+ * overshoot (kept whole, it pumped a 55-layer lattice apart at 1 + 1 sweeps).
+ * A manifold that bounces this step is left to the rows and the restitution
+ * before (no pull takes its bounce back). */
 ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __private ContactBodies* p,
                    const float relaxation, const bool reverse, const bool releases,
                    const bool restitution, const bool shock)
 {
     /* (a shock sweep holds a body of this contact still) */
     const bool held = shock && c->tangent1.w != (float)RB_SHOCK_HOLDS_NONE;
+    float kept_share = 1.0f;  /* (of what the normal rows add: hold_still) */
     if (shock) {
         if (bounces(c))
             return;
-        hold_still(p, c->tangent1.w);
+        kept_share = hold_still(p, c->tangent1.w);
     }
     uint count = c->point_count;
     float3 n = c->normal.xyz, t1 = c->tangent1.xyz, t2 = c->tangent2.xyz;
@@ -887,6 +901,8 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
     float normal_impulse[4], tangent1_impulse[4], tangent2_impulse[4];
     float normal_mass[4], tangent1_mass[4], tangent2_mass[4], target[4];
     unpack4(c->normal_impulse, normal_impulse);
+    float carried[4];  /* (the normal impulses before a held sweep) */
+    unpack4(c->normal_impulse, carried);
     unpack4(c->tangent1_impulse, tangent1_impulse);
     unpack4(c->tangent2_impulse, tangent2_impulse);
     unpack4(c->normal_mass, normal_mass);
@@ -959,8 +975,10 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
                               normal_mass, pushed, normal_impulse, p);
         }
     }
-    if (shock)
-        return;  /* (what it added is not kept) */
+    if (held) {
+        ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+            normal_impulse[k] = carried[k] + kept_share * (normal_impulse[k] - carried[k]);
+    }
     c->normal_impulse = pack4(normal_impulse);
     c->tangent1_impulse = pack4(tangent1_impulse);
     c->tangent2_impulse = pack4(tangent2_impulse);
