@@ -129,11 +129,8 @@ class Plan:
 
     def check_settings(self, settings) -> None:
         """Refuse step ``settings`` this plan cannot run, naming the setting, before a
-        step enqueues anything: shock_propagation needs the PGS solver, a velocity sweep
-        before the shock sweep (iterations >= 2) and a solve that is not in the serial
-        form (the CPU plan's: in its in-place walk the shock sweep blew a 55-layer
-        lattice apart, NaN within 150 steps, with the block or the sequential normal solve,
-        where the lanes forms on the same CPU rest)."""
+        step enqueues anything: shock_propagation needs the PGS solver and a velocity sweep
+        before the shock sweep (iterations >= 2)."""
         if not getattr(settings, "shock_propagation", False):
             return
         if self.solver != "pgs":
@@ -144,12 +141,6 @@ class Plan:
         check_sweeps(
             settings.iterations, settings.position_iterations, settings.relaxation, shock=True
         )
-        if self.solve_form == "serial":
-            raise RbgenError(
-                "shock_propagation=True is not available with the serial solve form (this "
-                f"device's plan: {self.describe()}): build the World with batching='global' "
-                "(the lanes form), or set shock_propagation=False"
-            )
 
     def choices(self) -> dict[str, Any]:
         """The choices as plain values (no reasons)."""

@@ -513,11 +513,6 @@ class PgsSolver(PushVelocities):
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
         shock = bool(getattr(sweeps, "shock_propagation", False))
         check_sweeps(iterations, position_iterations, sweeps.relaxation, shock)
-        if shock and self.solve_form == "serial":
-            raise RbgenError(
-                "shock_propagation=True is not available with the serial solve form "
-                "(rbgen.plan.Plan.check_settings refuses it before a World steps)"
-            )
         # (the sequential normal solve has no block to release: its release scalars are unused)
         release = self.release_sweeps if self.normal_solve == "block" else 0
         batcher = self.batcher
