@@ -926,10 +926,19 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
 
     bool solved = false;  /* by the block solve; else row after row */
 % if geometry_cache:
-    /* (the cached block is both bodies': a held sweep solves the rows in turn) */
-    if (!held)
+    if (held && count >= 3) {
+        /* the cached face block is both bodies': the held sweep's is derived, for
+         * every point pushing (else the rows in turn; no release, so no K read) */
+        FaceBlock f;
+        solved = face_block(count, n, t1, t2, c->r_a, c->r_b, p->inv_mass_a, p->inv_inertia_a,
+                            p->inv_mass_b, p->inv_inertia_b, &f)
+                 && solve_face_block(count, &f, n, relaxation, p->inv_mass_a, &p->va, &p->wa,
+                                     p->inv_mass_b, &p->vb, &p->wb, target, normal_impulse,
+                                     false, g->face_k);
+    } else {
         solved = solve_normal_cached(count, n, c->r_a, c->r_b, relaxation, p, g, target,
                                      normal_impulse, releases);
+    }
 % elif normal_solve == "block":
     solved = solve_normal_block(count, n, t1, t2, c->r_a, c->r_b, relaxation,
                                 p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa,
