@@ -21,6 +21,8 @@
 #   envs    benchmarks/many_envs.py: WorldBatch throughput against N (issue 29)
 #   cpu     benchmarks/cpu_solve.py on the machine's PoCL CPU device: BoxBox 8,000 and 27,000
 #           against the tree in .baseline/ (issue 24's CPU speed; see ccd for .baseline)
+#   shockcpu  benchmarks/holds.py on that PoCL device: the CPU default against it with
+#           shock_propagation, 8,000 and 27,000 boxes traced to step 300
 #   ccd     benchmarks/continuous.py: the tunnelling table, and BoxBox 8,000 against the tree in
 #           .baseline/ (before continuous collision: `mkdir -p .baseline && git archive main
 #           rbgen benchmarks | tar -x -C .baseline`; carry it)
@@ -30,6 +32,13 @@ set -uo pipefail
 OUT=${OUT:-/tmp/device_check}
 mkdir -p "$OUT"
 DEVICE=${RBGEN_CHECK_DEVICE:-nvidia}
+
+# The index of the CPU device that compiles (a machine may also have pyopencl's bundled PoCL,
+# which cannot: a name such as "portable" matches both).
+cpu_index() {
+  python3 -c "from rbgen.device import cpu_device, list_devices
+d = cpu_device(); print([e.index for e in list_devices() if e.device == d][0])"
+}
 
 run_stage() {
   local name=$1
@@ -59,14 +68,15 @@ for stage in "$@"; do
       run_stage record python3 benchmarks/record_overhead.py --device "$DEVICE" \
         --out "$OUT/record" ;;
     cpu)
-      # the CPU device that compiles (a machine may also have pyopencl's bundled PoCL, which
-      # cannot: a name such as "portable" matches both)
-      cpu=$(python3 -c "from rbgen.device import cpu_device, list_devices
-d = cpu_device(); print([e.index for e in list_devices() if e.device == d][0])")
+      cpu=$(cpu_index)
       run_stage cpu8k python3 benchmarks/cpu_solve.py --device "$cpu" --baseline .baseline \
         --n 8000 --rounds 3
       run_stage cpu27k python3 benchmarks/cpu_solve.py --device "$cpu" --baseline .baseline \
         --n 27000 --steps 5 --rounds 3 ;;
+    shockcpu)
+      cpu=$(cpu_index)
+      run_stage shockcpu python3 benchmarks/holds.py --device "$cpu" --sizes 8000 27000 \
+        --candidates default shock --trace 20 --out "$OUT/shockcpu" ;;
     holds)
       run_stage holds python3 benchmarks/holds.py --device "$DEVICE" --out "$OUT/holds" ;;
     shock)
@@ -84,7 +94,7 @@ d = cpu_device(); print([e.index for e in list_devices() if e.device == d][0])")
       run_stage ccd python3 benchmarks/continuous.py --device "$DEVICE" --baseline .baseline \
         --size 8000 --out "$OUT/ccd" ;;
     *)
-      echo "device_check: unknown stage '$stage' (suite, bench, mesh, cpp, record, holds, shock, envs, ccd, cpu)" >&2
+      echo "device_check: unknown stage '$stage' (suite, bench, mesh, cpp, record, holds, shock, shockcpu, envs, ccd, cpu)" >&2
       exit 2 ;;
   esac
 done

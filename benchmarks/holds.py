@@ -18,7 +18,8 @@ stepped ``--steps`` steps (dt 1/60) from its start, once per candidate:
 ``s8_31``    substeps=8, 3 + 1 (the cost of the shock candidates at 8 substeps)
 ``shock_s8_21``, ``shock_s8_31``, ``shock_s4_31``  shock_propagation=True at 8 x (2 + 1),
              8 x (3 + 1) and 4 x (3 + 1): the last velocity sweep of each substep is the
-             shock sweep (a GPU plan; the CPU plan's serial solve form refuses it)
+             shock sweep
+``shock``    shock_propagation=True at the device's default effort (a CPU's: 4 x (3 + 1))
 (every candidate keeps the default block normal solve; ``normal_solve`` is a World option
 for a candidate that wants the sequential one)
 
@@ -71,6 +72,7 @@ CANDIDATES = {
         "position_iterations": 1,
         "shock_propagation": True,
     },
+    "shock": {"shock_propagation": True},
     "shock_s4_31": {
         "substeps": 4,
         "iterations": 3,
