@@ -199,6 +199,11 @@ def scene_result(summary: dict, warmup: int) -> dict:
         # (what can add launches to a step: colours of the largest group, buffer growths)
         "batches": summary.get("batches"),
         "overflows": summary.get("overflows"),
+        # (which stage asked for each redo, the broadphase's algorithm at the end, and the
+        # last step's launches by kernel: the grid's slot emission is 32-43 of them more)
+        "overflows_by_stage": summary.get("overflows_by_stage"),
+        "broadphase": summary.get("broadphase"),
+        "launches_by_kernel": summary.get("launches_by_kernel"),
         "sanity": sanity,
         "baseline": None,
     }

@@ -136,8 +136,15 @@ class World:
 
     @property
     def overflows(self) -> int:
-        """Steps redone because a buffer overflowed (each grew the buffer)."""
+        """Steps redone because a buffer overflowed (each grew the buffer) or the
+        broadphase asked to be redone another way (`overflows_by_stage` tells which)."""
         return self._guard.overflows
+
+    @property
+    def overflows_by_stage(self) -> dict[str, int]:
+        """`overflows` by the step stage that asked for the redo (e.g. ``{"broadphase":
+        1}``; a redo that two stages asked for counts for both)."""
+        return dict(self._guard.overflows_by_stage)
 
     @property
     def release_sweeps(self) -> int | None:
@@ -726,7 +733,10 @@ class World:
     # ------------------------------------------------------------- statistics
     def statistics(self) -> dict:
         """Counts of the last step and the plan's main choices (blocking reads: call
-        outside the timed loop)."""
+        outside the timed loop); ``broadphase``: the algorithm the broadphase runs now
+        (`rbgen.pipeline.broadphase.Broadphase.describe`: the grid leaves its owner emission,
+        six launches, for slot emission, tens of them, once a query meets too many large
+        bodies)."""
         self._finish_pending()
         plan = self.plan
         summary = {
@@ -734,6 +744,11 @@ class World:
             "solver": plan.solver,
             "batching": plan.batching,
             "normal_solve": plan.normal_solve,
+            "broadphase": (
+                plan.broadphase
+                if self._pipeline is None
+                else self._pipeline.broadphase.broadphase.describe()
+            ),
             **self.last_step_counters,
         }
         if self._bodies.device_stale or self.body_count == 0 or self._pipeline is None:
