@@ -186,6 +186,9 @@ def scene_result(summary: dict, warmup: int) -> dict:
         "ms_spread": [min(blocks), max(blocks)],
         "ms_mean": summary["ms_per_step_mean"],
         "ms_blocks": blocks,
+        # (each block's last step: colours of the largest group and manifolds)
+        "batches_blocks": summary.get("batches_blocks"),
+        "manifolds_blocks": summary.get("manifolds_blocks"),
         "launches_per_step": summary["launches_per_step"],
         "blocking_reads_per_step": summary["blocking_reads_per_step"],
         "pairs": summary["pairs"],

@@ -230,7 +230,9 @@ def run_scene(
     overflows (redone steps) and overflows_by_stage, and sanity: nans, sunk (boxes whose
     centre is more than 2 cm below its resting height), max_speed (m/s), and
     last_box_moved (m; the top box of a pyramid), with displaced and layer_drop
-    (`rbgen.sanity.settling`); ms_per_step_blocks: each block's ms/step.
+    (`rbgen.sanity.settling`); ms_per_step_blocks: each block's ms/step, and
+    batches_blocks / manifolds_blocks: the colours and manifolds of each block's last step
+    (read after its clock stopped).
 
     ``on_step(world, step)``, if given, is called before the first timed step (step 0)
     and after each timed step (step 1, 2, ...), inside the timing blocks, so that what
@@ -248,6 +250,7 @@ def run_scene(
     queue.finish()
     block = max(1, int(steps) // TIMING_BLOCKS)
     blocks = []  # (seconds, steps) of each block (the last may be shorter)
+    block_counts = []  # (batches, manifolds) of each block's last step
     if on_step is not None:
         on_step(world, 0)
     block_start = time.perf_counter()
@@ -261,20 +264,23 @@ def run_scene(
         if on_step is not None:
             on_step(world, s + 1)
         if (s + 1) % block == 0 or s + 1 == steps:
-            # the block's steps have all run when its clock stops (else the progress
-            # read-back below, outside the clock, would hide the steps still in flight)
+            # the block's steps have all run when its clock stops (else the read-backs
+            # below, outside the clock, would hide the steps still in flight)
             queue.finish()
             now = time.perf_counter()
             blocks.append((now - block_start, s % block + 1))
-            if progress:  # (the read-back after the block's clock stopped)
+            # (after the clock stopped: small reads, the counts of the block's last step,
+            # to set beside its time: a step's cost follows its colours and manifolds)
+            counts = world.statistics(contacts=False)
+            block_counts.append((counts["batches"], counts["manifolds"]))
+            if progress:
                 speed = np.linalg.norm(world.linear_velocities[ids], axis=1).max()
                 print(
                     f"  step {s + 1:5d}: {1e3 * blocks[-1][0] / blocks[-1][1]:8.2f} ms/step, "
                     f"max speed {speed:.3f} m/s",
                     flush=True,
                 )
-                now = time.perf_counter()
-            block_start = now
+            block_start = time.perf_counter()
     block_ms = [1e3 * seconds / count for seconds, count in blocks]
     elapsed = sum(seconds for seconds, _ in blocks)  # (without the progress read-backs)
     stats = world.statistics()
@@ -323,6 +329,8 @@ def run_scene(
         "max_speed": float(speeds.max()) if len(speeds) else 0.0,
         "last_box_moved": float(np.linalg.norm(positions[-1] - top_start)) if len(ids) else 0.0,
         "ms_per_step_blocks": block_ms,
+        "batches_blocks": [b for b, _ in block_counts],
+        "manifolds_blocks": [m for _, m in block_counts],
         **sanity.settling(start, positions),  # displaced, layer_drop
     }
     if progress:

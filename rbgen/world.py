@@ -731,9 +731,11 @@ class World:
         return self._spec_log.specs()
 
     # ------------------------------------------------------------- statistics
-    def statistics(self) -> dict:
+    def statistics(self, contacts: bool = True) -> dict:
         """Counts of the last step and the plan's main choices (blocking reads: call
-        outside the timed loop); ``broadphase``: the algorithm the broadphase runs now
+        outside the timed loop; ``contacts=False``: without the contact points, whose count
+        reads every manifold, so that only a few words are read; "contacts" is then None);
+        ``broadphase``: the algorithm the broadphase runs now
         (`rbgen.pipeline.broadphase.Broadphase.describe`: the grid leaves its owner emission,
         six launches, for slot emission, tens of them, once a query meets too many large
         bodies)."""
@@ -764,7 +766,7 @@ class World:
         pairs = int(read(p.broadphase.broadphase.count)[0])
         constraints = p.constraints.constraints
         manifolds = int(read(constraints.count)[0])
-        points = read(constraints.constraints)[:manifolds]["point_count"]
+        points = read(constraints.constraints)[:manifolds]["point_count"] if contacts else None
         batch_counts = (
             read(p.batching.batcher.group_batch_count)
             if p.batching is not None
@@ -776,7 +778,7 @@ class World:
             **summary,
             "pairs": pairs,
             "manifolds": manifolds,
-            "contacts": int(points.sum()),
+            "contacts": None if points is None else int(points.sum()),
             "batches": int(batch_counts.max(initial=0)),
             "groups_used": int((batch_counts > 0).sum()),
         }

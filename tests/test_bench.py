@@ -232,6 +232,10 @@ def test_a_scene_records_its_broadphase_and_last_step_launches_by_kernel(runtime
     assert sum(counts.values()) == owner["launches_per_step"]
     assert all(counts[name] == 1 for name in OWNER_KERNELS)
     assert owner["overflows"] == 0 and owner["overflows_by_stage"] == {}
+    # each timing block's last step's colours and manifolds, beside its time
+    assert len(owner["batches_blocks"]) == len(owner["ms_per_step_blocks"]) == 3
+    assert owner["batches_blocks"][-1] == owner["batches"] > 0
+    assert owner["manifolds_blocks"][-1] == owner["manifolds"] > 0
     # every box larger than half the mean size: LARGE_ROWS + 1 large bodies with the ground
     monkeypatch.setitem(GridBroadphase.__init__.__kwdefaults__, "large_factor", 0.5)
     # (6 steps: the retry of the first step is redone during the third, not the last)
@@ -246,4 +250,6 @@ def test_a_scene_records_its_broadphase_and_last_step_launches_by_kernel(runtime
     result = bench.scene_result(slot, 1)
     for key in ("broadphase", "launches_by_kernel", "overflows_by_stage"):
         assert result[key] == slot[key]
+    for key in ("batches_blocks", "manifolds_blocks"):
+        assert result[key] == slot[key] and len(result[key]) == len(result["ms_blocks"])
     assert "[fell back from the plan's broadphase]" in bench.format_result(result)

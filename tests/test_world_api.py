@@ -157,6 +157,9 @@ def test_too_many_large_bodies_move_the_grid_to_slot_emission_visibly(runtime):
     assert f"more than {LARGE_ROWS} large bodies" in slot.statistics()["broadphase"]
     assert slot.overflows == 1 and slot.overflows_by_stage == {"broadphase": 1}
     assert slot_counts["write_grid_pairs"] == 1 and "write_owned_pairs" not in slot_counts
+    light, full = slot.statistics(contacts=False), slot.statistics()
+    assert light["contacts"] is None and full["contacts"] > 0
+    assert light == {**full, "contacts": None}
     assert sum(slot_counts.values()) > sum(owner_counts.values())
     np.testing.assert_allclose(slot.positions[ids], owner.positions[owner_ids], atol=1e-5)
 
