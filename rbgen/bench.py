@@ -186,6 +186,9 @@ def scene_result(summary: dict, warmup: int) -> dict:
         "ms_spread": [min(blocks), max(blocks)],
         "ms_mean": summary["ms_per_step_mean"],
         "ms_blocks": blocks,
+        # (each block's last step: colours of the largest group and manifolds)
+        "batches_blocks": summary.get("batches_blocks"),
+        "manifolds_blocks": summary.get("manifolds_blocks"),
         "launches_per_step": summary["launches_per_step"],
         "blocking_reads_per_step": summary["blocking_reads_per_step"],
         "pairs": summary["pairs"],
@@ -199,6 +202,11 @@ def scene_result(summary: dict, warmup: int) -> dict:
         # (what can add launches to a step: colours of the largest group, buffer growths)
         "batches": summary.get("batches"),
         "overflows": summary.get("overflows"),
+        # (which stage asked for each redo, the broadphase's algorithm at the end, and the
+        # last step's launches by kernel: the grid's slot emission is 32-43 of them more)
+        "overflows_by_stage": summary.get("overflows_by_stage"),
+        "broadphase": summary.get("broadphase"),
+        "launches_by_kernel": summary.get("launches_by_kernel"),
         "sanity": sanity,
         "baseline": None,
     }

@@ -341,6 +341,9 @@ class Runtime:
         #: launches and blocking reads issued through `launch` and `read`;
         #: benchmarks report them per step (on a GPU each costs as much as a small kernel).
         self.counters = {"launches": 0, "blocking_reads": 0}
+        #: launches by kernel name while `rbgen.launch.launches_by_kernel` counts them (None:
+        #: not counted; the name is a driver query, so only a diagnosed step pays for it)
+        self.kernel_launches: dict[str, int] | None = None
         #: active spec logs (`rbgen.codegen.SpecLog`): every compile_spec adds to each
         self.spec_logs: list[dict] = []
 
@@ -349,6 +352,8 @@ class Runtime:
     ) -> cl.Event:
         """Enqueue a 1-D kernel whose arguments are already set, and count it."""
         self.counters["launches"] += 1
+        if self.kernel_launches is not None:
+            count_kernel(self.kernel_launches, kernel)
         return cl.enqueue_nd_range_kernel(
             self.queue,
             kernel,
@@ -388,6 +393,12 @@ class Runtime:
 
     def __repr__(self) -> str:
         return f"Runtime({self.traits.describe()})"
+
+
+def count_kernel(counts: dict[str, int], kernel: cl.Kernel) -> None:
+    """Add one launch of ``kernel`` to ``counts`` (kernel name -> launches)."""
+    name = kernel.function_name
+    counts[name] = counts.get(name, 0) + 1
 
 
 def buffer_of(array) -> cl.Buffer:

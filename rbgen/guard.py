@@ -62,6 +62,9 @@ class StepGuard:
         self.serial = 0  # steps enqueued, picks the backup slot
         #: steps redone because a buffer overflowed (each grew the buffer)
         self.overflows = 0
+        #: those redos by the stage that asked for them (a redo two stages asked for counts
+        #: for both): a grown buffer, or the broadphase's change of algorithm
+        self.overflows_by_stage: dict[str, int] = {}
         self._pinned: dict = {}  # slot -> (pinned buffer, mapped uint32 words)
 
     def attach(self, pipeline) -> None:
@@ -172,5 +175,7 @@ class StepGuard:
                     forget(entry.tag)
                 raise
             self.overflows += 1
+            for stage in problems:
+                self.overflows_by_stage[stage.name] = self.overflows_by_stage.get(stage.name, 0) + 1
             for dt, tag in redo:
                 enqueue(dt, tag)

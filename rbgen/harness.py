@@ -44,6 +44,7 @@ import numpy as np
 from . import sanity
 from . import scenes as scene_data
 from .errors import RbgenError
+from .launch import launches_by_kernel
 from .shapes import Box
 from .world import World
 
@@ -224,11 +225,14 @@ def run_scene(
     carries another's work; ms_per_step_mean: the mean of all), launches and
     blocking_reads per step (of the last step), pairs / manifolds / contacts / batches of the last
     step, the batching, solver and normal solve it used with the release sweeps (0 for a
-    sequential normal solve, None: every sweep), overflows (redone steps), and sanity: nans, sunk
-    (boxes whose
+    sequential normal solve, None: every sweep), the broadphase's algorithm at the end,
+    plan_fallbacks (choices given up during the run), launches_by_kernel (of the last step),
+    overflows (redone steps) and overflows_by_stage, and sanity: nans, sunk (boxes whose
     centre is more than 2 cm below its resting height), max_speed (m/s), and
     last_box_moved (m; the top box of a pyramid), with displaced and layer_drop
-    (`rbgen.sanity.settling`); ms_per_step_blocks: each block's ms/step.
+    (`rbgen.sanity.settling`); ms_per_step_blocks: each block's ms/step, and
+    batches_blocks / manifolds_blocks: the colours and manifolds of each block's last step
+    (read after its clock stopped).
 
     ``on_step(world, step)``, if given, is called before the first timed step (step 0)
     and after each timed step (step 1, 2, ...), inside the timing blocks, so that what
@@ -246,28 +250,37 @@ def run_scene(
     queue.finish()
     block = max(1, int(steps) // TIMING_BLOCKS)
     blocks = []  # (seconds, steps) of each block (the last may be shorter)
+    block_counts = []  # (batches, manifolds) of each block's last step
     if on_step is not None:
         on_step(world, 0)
     block_start = time.perf_counter()
+    by_kernel: dict[str, int] = {}
     for s in range(int(steps)):
-        world.step(dt)
+        if s + 1 == steps:  # (the last step's launches by kernel name: a driver query each)
+            with launches_by_kernel(world.runtime) as by_kernel:
+                world.step(dt)
+        else:
+            world.step(dt)
         if on_step is not None:
             on_step(world, s + 1)
         if (s + 1) % block == 0 or s + 1 == steps:
-            # the block's steps have all run when its clock stops (else the progress
-            # read-back below, outside the clock, would hide the steps still in flight)
+            # the block's steps have all run when its clock stops (else the read-backs
+            # below, outside the clock, would hide the steps still in flight)
             queue.finish()
             now = time.perf_counter()
             blocks.append((now - block_start, s % block + 1))
-            if progress:  # (the read-back after the block's clock stopped)
+            # (after the clock stopped: small reads, the counts of the block's last step,
+            # to set beside its time: a step's cost follows its colours and manifolds)
+            counts = world.statistics(contacts=False)
+            block_counts.append((counts["batches"], counts["manifolds"]))
+            if progress:
                 speed = np.linalg.norm(world.linear_velocities[ids], axis=1).max()
                 print(
                     f"  step {s + 1:5d}: {1e3 * blocks[-1][0] / blocks[-1][1]:8.2f} ms/step, "
                     f"max speed {speed:.3f} m/s",
                     flush=True,
                 )
-                now = time.perf_counter()
-            block_start = now
+            block_start = time.perf_counter()
     block_ms = [1e3 * seconds / count for seconds, count in blocks]
     elapsed = sum(seconds for seconds, _ in blocks)  # (without the progress read-backs)
     stats = world.statistics()
@@ -296,22 +309,39 @@ def run_scene(
         # choices the World had to fall back from during the run (a persistent launch that
         # gave up at its device-wide barrier: the step was redone, and later steps run
         # without it; `rbgen.plan.Plan.sources`)
-        "plan_fallbacks": sorted(k for k, v in world.plan.sources.items() if v == "fallback"),
+        "plan_fallbacks": sorted(
+            [k for k, v in world.plan.sources.items() if v == "fallback"]
+            # (the grid broadphase's owner emission gave way to slot emission: a step then
+            # takes tens of launches more; `stats["broadphase"]` says why)
+            + (["broadphase"] if _broadphase_fell_back(world) else [])
+        ),
+        "broadphase": stats["broadphase"],
+        # the last step's launches by kernel name (they add up to launches_per_step)
+        "launches_by_kernel": dict(sorted(by_kernel.items())),
         # the effort the step ran at (the World's defaults unless the options said otherwise)
         "substeps": world.substeps,
         "iterations": world.iterations,
         "position_iterations": world.position_iterations,
         "overflows": world.overflows,
+        "overflows_by_stage": world.overflows_by_stage,
         "nans": int(np.isnan(positions).any(axis=1).sum()),
         "sunk": int((positions[:, 1] < ground_top + half - 0.02).sum()),
         "max_speed": float(speeds.max()) if len(speeds) else 0.0,
         "last_box_moved": float(np.linalg.norm(positions[-1] - top_start)) if len(ids) else 0.0,
         "ms_per_step_blocks": block_ms,
+        "batches_blocks": [b for b, _ in block_counts],
+        "manifolds_blocks": [m for _, m in block_counts],
         **sanity.settling(start, positions),  # displaced, layer_drop
     }
     if progress:
         print(format_summary(summary), flush=True)
     return summary
+
+
+def _broadphase_fell_back(world: World) -> bool:
+    """Whether the World's broadphase left its algorithm for another (`Broadphase.fallback`)."""
+    pipeline = world._pipeline
+    return pipeline is not None and pipeline.broadphase.broadphase.fallback is not None
 
 
 def format_summary(s: dict) -> str:

@@ -27,8 +27,13 @@ offset were always small.)
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 import numpy as np
 import pyopencl as cl
+
+from .device import count_kernel
 
 
 class BoundKernel:
@@ -128,6 +133,8 @@ class BoundKernel:
         in ``runtime.counters``."""
         runtime = self.runtime
         runtime.counters["launches"] += 1
+        if runtime.kernel_launches is not None:
+            count_kernel(runtime.kernel_launches, self.kernel)
         return cl.enqueue_nd_range_kernel(
             runtime.queue,
             self.kernel,
@@ -158,6 +165,23 @@ class _Unset:
 
 
 _UNSET = _Unset()
+
+
+@contextlib.contextmanager
+def launches_by_kernel(runtime) -> Iterator[dict[str, int]]:
+    """``with launches_by_kernel(runtime) as counts:`` counts the launches ``runtime``
+    enqueues inside the block by kernel name (``counts``: name -> launches; they add up to
+    the block's ``runtime.counters["launches"]``). Outside such a block a launch pays one
+    test for it; inside, a driver query of the name (diagnostics: a benchmark's last step)."""
+    counts: dict[str, int] = {}
+    previous, runtime.kernel_launches = runtime.kernel_launches, counts
+    try:
+        yield counts
+    finally:
+        runtime.kernel_launches = previous
+        if previous is not None:  # (an enclosing count sees these launches too)
+            for name, n in counts.items():
+                previous[name] = previous.get(name, 0) + n
 
 
 def bound(runtime, kernel: cl.Kernel) -> BoundKernel:

@@ -136,8 +136,15 @@ class World:
 
     @property
     def overflows(self) -> int:
-        """Steps redone because a buffer overflowed (each grew the buffer)."""
+        """Steps redone because a buffer overflowed (each grew the buffer) or the
+        broadphase asked to be redone another way (`overflows_by_stage` tells which)."""
         return self._guard.overflows
+
+    @property
+    def overflows_by_stage(self) -> dict[str, int]:
+        """`overflows` by the step stage that asked for the redo (e.g. ``{"broadphase":
+        1}``; a redo that two stages asked for counts for both)."""
+        return dict(self._guard.overflows_by_stage)
 
     @property
     def release_sweeps(self) -> int | None:
@@ -725,9 +732,14 @@ class World:
         return self._spec_log.specs()
 
     # ------------------------------------------------------------- statistics
-    def statistics(self) -> dict:
+    def statistics(self, contacts: bool = True) -> dict:
         """Counts of the last step and the plan's main choices (blocking reads: call
-        outside the timed loop)."""
+        outside the timed loop; ``contacts=False``: without the contact points, whose count
+        reads every manifold, so that only a few words are read; "contacts" is then None);
+        ``broadphase``: the algorithm the broadphase runs now
+        (`rbgen.pipeline.broadphase.Broadphase.describe`: the grid leaves its owner emission,
+        six launches, for slot emission, tens of them, once a query meets too many large
+        bodies)."""
         self._finish_pending()
         plan = self.plan
         summary = {
@@ -735,6 +747,11 @@ class World:
             "solver": plan.solver,
             "batching": plan.batching,
             "normal_solve": plan.normal_solve,
+            "broadphase": (
+                plan.broadphase
+                if self._pipeline is None
+                else self._pipeline.broadphase.broadphase.describe()
+            ),
             **self.last_step_counters,
         }
         if self._bodies.device_stale or self.body_count == 0 or self._pipeline is None:
@@ -750,7 +767,7 @@ class World:
         pairs = int(read(p.broadphase.broadphase.count)[0])
         constraints = p.constraints.constraints
         manifolds = int(read(constraints.count)[0])
-        points = read(constraints.constraints)[:manifolds]["point_count"]
+        points = read(constraints.constraints)[:manifolds]["point_count"] if contacts else None
         batch_counts = (
             read(p.batching.batcher.group_batch_count)
             if p.batching is not None
@@ -762,7 +779,7 @@ class World:
             **summary,
             "pairs": pairs,
             "manifolds": manifolds,
-            "contacts": int(points.sum()),
+            "contacts": None if points is None else int(points.sum()),
             "batches": int(batch_counts.max(initial=0)),
             "groups_used": int((batch_counts > 0).sum()),
         }

@@ -174,6 +174,7 @@ def test_a_timing_block_ends_after_its_steps_have_run(runtime, monkeypatch):
     class Runtime:
         queue = Queue()
         traits = runtime.traits
+        kernel_launches = None
 
     class Probe:
         """The World with its queue recorded; its reads and steps are the World's."""
@@ -204,3 +205,51 @@ def test_benchmark_options_are_a_json_object_or_refused_naming_the_option():
     for bad in ("{bad", "[1, 2]", "3"):
         with pytest.raises(argparse.ArgumentTypeError, match="--options"):
             bench.world_options(bad)
+
+
+#: the kernels of the grid broadphase's owner emission, one launch each (grid_owner.cl.mako)
+OWNER_KERNELS = (
+    "measure_grid_bodies",
+    "classify_grid_bodies",
+    "link_bucket_bodies",
+    "count_owned_pairs",
+    "place_owner_slices",
+    "write_owned_pairs",
+)
+
+
+def test_a_scene_records_its_broadphase_and_last_step_launches_by_kernel(runtime, monkeypatch):
+    """`run_scene` and the bench result record the broadphase's algorithm, the last step's
+    launches by kernel name (adding up to launches_per_step) and which stage asked for each
+    redo; a grid that met too many large bodies and left its owner emission for slot
+    emission (tens of launches a step more) is a fallback of the plan, printed as one."""
+    from rbgen.harness import run_scene
+    from rbgen.pipeline.broadphase.grid import LARGE_ROWS, GridBroadphase
+
+    owner = run_scene("boxbox", 8, 3, device=runtime, progress=False)
+    assert owner["broadphase"] == "grid, owner emission" and owner["plan_fallbacks"] == []
+    counts = owner["launches_by_kernel"]
+    assert sum(counts.values()) == owner["launches_per_step"]
+    assert all(counts[name] == 1 for name in OWNER_KERNELS)
+    assert owner["overflows"] == 0 and owner["overflows_by_stage"] == {}
+    # each timing block's last step's colours and manifolds, beside its time
+    assert len(owner["batches_blocks"]) == len(owner["ms_per_step_blocks"]) == 3
+    assert owner["batches_blocks"][-1] == owner["batches"] > 0
+    assert owner["manifolds_blocks"][-1] == owner["manifolds"] > 0
+    # every box larger than half the mean size: LARGE_ROWS + 1 large bodies with the ground
+    monkeypatch.setitem(GridBroadphase.__init__.__kwdefaults__, "large_factor", 0.5)
+    # (6 steps: the retry of the first step is redone during the third, not the last)
+    slot = run_scene("boxbox", LARGE_ROWS, 6, device=runtime, progress=False)
+    assert slot["plan_fallbacks"] == ["broadphase"]
+    assert slot["broadphase"].startswith("grid, slot emission (")
+    assert f"since a query met more than {LARGE_ROWS} large bodies" in slot["broadphase"]
+    assert slot["overflows"] == 1 and slot["overflows_by_stage"] == {"broadphase": 1}
+    counts = slot["launches_by_kernel"]
+    assert sum(counts.values()) == slot["launches_per_step"] > owner["launches_per_step"]
+    assert counts["write_grid_pairs"] == 1 and not set(OWNER_KERNELS) & set(counts)
+    result = bench.scene_result(slot, 1)
+    for key in ("broadphase", "launches_by_kernel", "overflows_by_stage"):
+        assert result[key] == slot[key]
+    for key in ("batches_blocks", "manifolds_blocks"):
+        assert result[key] == slot[key] and len(result[key]) == len(result["ms_blocks"])
+    assert "[fell back from the plan's broadphase]" in bench.format_result(result)

@@ -120,8 +120,48 @@ def test_overflow_is_redone_not_dropped(runtime):
     small = run(manifold_capacity=3, pair_capacity=2)
     ample = run()
     assert small.overflows >= 1 and ample.overflows == 0
+    # (each redo was asked for by one or both of the stages whose buffers were tiny)
+    by_stage = small.overflows_by_stage
+    assert set(by_stage) <= {"broadphase", "narrowphase"} and by_stage.get("broadphase")
+    assert max(by_stage.values()) <= small.overflows <= sum(by_stage.values())
+    assert ample.overflows_by_stage == {}
     assert small.statistics()["manifolds"] == ample.statistics()["manifolds"] >= 40
     np.testing.assert_allclose(small.positions, ample.positions, atol=1e-5)
+
+
+def test_too_many_large_bodies_move_the_grid_to_slot_emission_visibly(runtime):
+    """More large bodies than the grid's owner emission has rows (here static slabs under
+    the ground): the first step is redone with slot emission, which the World's statistics
+    and `overflows_by_stage` name, and whose launches `launches_by_kernel` shows; the
+    trajectory is that of the same boxes on the ground alone (the broadphase is exact)."""
+    from rbgen.launch import launches_by_kernel
+    from rbgen.pipeline.broadphase.grid import LARGE_ROWS
+
+    def run(slabs):
+        w = World(runtime)
+        for k in range(slabs):
+            w.add_static(rbgen.Box((20, 1, 20)), position=(0, -1 - 3 * k, 0))
+        ids = w.add_bodies(BOX, positions=grid(30) + [0, 0.01, 0])
+        for _ in range(9):
+            w.step(1 / 60)
+        with launches_by_kernel(w.runtime) as counts:
+            w.step(1 / 60)
+        assert sum(counts.values()) == w.last_step_counters["launches"]
+        return w, ids, counts
+
+    slot, ids, slot_counts = run(LARGE_ROWS + 1)
+    owner, owner_ids, owner_counts = run(1)
+    assert owner.statistics()["broadphase"] == "grid, owner emission"
+    assert owner.overflows == 0 and owner_counts["write_owned_pairs"] == 1
+    assert slot.statistics()["broadphase"].startswith("grid, slot emission")
+    assert f"more than {LARGE_ROWS} large bodies" in slot.statistics()["broadphase"]
+    assert slot.overflows == 1 and slot.overflows_by_stage == {"broadphase": 1}
+    assert slot_counts["write_grid_pairs"] == 1 and "write_owned_pairs" not in slot_counts
+    light, full = slot.statistics(contacts=False), slot.statistics()
+    assert light["contacts"] is None and full["contacts"] > 0
+    assert light == {**full, "contacts": None}
+    assert sum(slot_counts.values()) > sum(owner_counts.values())
+    np.testing.assert_allclose(slot.positions[ids], owner.positions[owner_ids], atol=1e-5)
 
 
 def test_empty_world_steps(runtime):

@@ -110,6 +110,16 @@ class Broadphase:
     def capacity(self) -> int:
         return 0 if self.buffer is None else self.buffer.capacity
 
+    @property
+    def fallback(self) -> str | None:
+        """Why this broadphase left the algorithm it was made with for the rest of its
+        queries (None: it did not; the grid's owner emission gives way to slot emission)."""
+        return None
+
+    def describe(self) -> str:
+        """The algorithm its queries run now, in a few words (benchmark records)."""
+        return self.name
+
     def enqueue(self, aabbs, static=None, read_status: bool = True) -> None:
         """Enqueue one query (no blocking read); `check` tells whether it is complete."""
         aabbs, static, n = self._arguments(aabbs, static)

@@ -180,6 +180,7 @@ class GridBroadphase(Broadphase):
         self._programs: dict[tuple[str, str], Compiled] = {}
         self._program()  # builds the kernels now
         self._bucket_ids: cla.Array | None = None
+        self._fallback: str | None = None
 
     def _program(self):
         """The program of the current emission (and bucketing)."""
@@ -194,10 +195,27 @@ class GridBroadphase(Broadphase):
             self._programs[key] = compile_spec(self.runtime, spec)
         return self._programs[key]
 
+    @property
+    def fallback(self) -> str | None:
+        return self._fallback
+
+    def describe(self) -> str:
+        """``grid, owner emission`` or ``grid, slot emission (count bucketing)``, and why
+        the owner emission was given up if it was (`fallback`)."""
+        text = f"grid, {self.emission} emission"
+        if self.emission == "slot":
+            text += f" ({self.bucketing} bucketing)"
+        return text + (f" since {self._fallback}" if self._fallback else "")
+
     def _prepare_retry(self, reason: int) -> None:
         """More large bodies than owner rows: use slot emission from now on."""
         if reason != layouts.BP_RETRY_LARGE:
             super()._prepare_retry(reason)
+        if self.emission == "owner":
+            self._fallback = (
+                f"a query met more than {LARGE_ROWS} large bodies (larger than "
+                f"{self.large_factor:g} x the bodies' geometric mean size)"
+            )
         self.emission = "slot"
         self.bucketing = default_bucketing(self.runtime.traits, "slot")
 

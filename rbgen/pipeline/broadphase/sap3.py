@@ -131,6 +131,13 @@ class IncrementalSapBroadphase(Broadphase):
         self._slot_bodies = -1
 
     @property
+    def fallback(self) -> str | None:
+        return self.full.fallback
+
+    def describe(self) -> str:
+        return f"sap3 (full queries: {self.full.describe()})"
+
+    @property
     def incremental(self) -> bool:
         """Whether the last enqueued query was incremental (not a full one)."""
         return not self._pending_full

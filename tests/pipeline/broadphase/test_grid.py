@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from rbgen.errors import RbgenError
+from rbgen.launch import launches_by_kernel
 from rbgen.pipeline.broadphase import make_broadphase
 from rbgen.pipeline.broadphase.grid import LARGE_ROWS, grid_dim_for
 from rbgen.pipeline.broadphase.reference import brute_force_pairs
@@ -16,6 +17,15 @@ from .conftest import make_aabbs
 
 #: Launches of one owner-emission query (grid_owner.cl.mako): its whole point.
 OWNER_LAUNCHES = 6
+#: its kernels, one launch each
+OWNER_KERNELS = (
+    "measure_grid_bodies",
+    "classify_grid_bodies",
+    "link_bucket_bodies",
+    "count_owned_pairs",
+    "place_owner_slices",
+    "write_owned_pairs",
+)
 
 
 @pytest.mark.parametrize("work_group_size", [None, 4])
@@ -35,6 +45,16 @@ def test_owner_emission_large_rows_and_fallback(runtime, rng, large, work_group_
     assert broadphase.check() is (large <= LARGE_ROWS)
     broadphase.find_pairs(aabbs, static)
     assert broadphase.emission == ("owner" if large <= LARGE_ROWS else "slot")
+    if large <= LARGE_ROWS:
+        assert broadphase.fallback is None and broadphase.describe() == "grid, owner emission"
+    else:
+        assert broadphase.fallback == (
+            f"a query met more than {LARGE_ROWS} large bodies (larger than 4 x the bodies' "
+            f"geometric mean size)"
+        )
+        assert broadphase.describe() == (
+            f"grid, slot emission ({broadphase.bucketing} bucketing) since {broadphase.fallback}"
+        )
     np.testing.assert_array_equal(broadphase.host_pairs(), brute_force_pairs(aabbs, static))
 
 
@@ -56,8 +76,10 @@ def test_owner_query_launch_count(runtime, rng):
         aabbs, static = make_aabbs(rng, n, "clustered")
         broadphase.find_pairs(aabbs, static)  # grows the buffer if needed
         before = runtime.counters["launches"]
-        broadphase.enqueue(aabbs, static)
+        with launches_by_kernel(runtime) as counts:
+            broadphase.enqueue(aabbs, static)
         assert runtime.counters["launches"] - before == OWNER_LAUNCHES
+        assert counts == dict.fromkeys(OWNER_KERNELS, 1)
         assert broadphase.check()
         np.testing.assert_array_equal(broadphase.host_pairs(), brute_force_pairs(aabbs, static))
 

@@ -282,8 +282,8 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
         /* every candidate is evaluated (independent work, overlapped; no
          * branch out of the loops), the first that holds is taken */
 % endif
-        for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i)
-            for (uint j = i + 1; j < RB_MAX_MANIFOLD_POINTS; ++j) {
+        ${unroll}for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i)
+            ${unroll}for (uint j = i + 1; j < RB_MAX_MANIFOLD_POINTS; ++j) {
 % if geometry_cache:
                 if (valid)
                     break;
@@ -303,7 +303,7 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
                         total[k] = k == i ? x_i : k == j ? x_j : 0.0f;
                 }
             }
-        for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i) {
+        ${unroll}for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i) {
 % if geometry_cache:
             if (valid)
                 break;

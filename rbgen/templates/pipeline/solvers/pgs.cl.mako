@@ -390,6 +390,36 @@ inline void prefetch_constraint(__global const ContactConstraint* constraints,
 #endif
 }
 
+/* Ask for the cache lines of constraint c's bodies (their records, inertias and,
+ * for a sweep with push rows, push velocities) before its rows read them: the
+ * bodies of a slab do not stay cached while a sweep streams its constraints'
+ * records through, and each row's chain starts with their velocities. (A hint
+ * only, as prefetch_constraint's.) */
+inline void prefetch_bodies(__global const ContactConstraint* c, __global const Body* bodies,
+                            __global const BodyInertia* inertia,
+                            __global const SplitVelocity* split, const bool push)
+{
+#if defined(PREFETCH_HINTS)
+    const uint body[2] = {c->body_a, c->body_b};
+    for (uint k = 0; k < 2; ++k) {
+        __global const char* record = (__global const char*)&bodies[body[k]];
+#if defined(PREFETCH_LINES)
+        /* (a Body spans two cache lines at most: its first and last byte) */
+        __builtin_prefetch(record);
+        __builtin_prefetch(record + sizeof(Body) - 1);
+        __builtin_prefetch(&inertia[body[k]]);
+        if (push)
+            __builtin_prefetch(&split[body[k]]);
+#else
+        prefetch(record, sizeof(Body));
+        prefetch(&inertia[body[k]], 1);
+        if (push)
+            prefetch(&split[body[k]], 1);
+#endif
+    }
+#endif
+}
+
 /* The ContactGeometry of a group's contacts order[begin .. end - 1] (joint
  * items have none), for the sweeps of the step. */
 inline void store_group_geometry(__global const ContactConstraint* constraints,
@@ -436,6 +466,10 @@ inline void solve_group_serial(__global ContactConstraint* constraints,
                                __global SplitVelocity* split, const float relaxation,
                                const Sweep s${joint_params})
 {
+% if geometry_cache:
+    if (begin + 1 < end)
+        prefetch_constraint(constraints, geometry, order[begin + 1]);
+% endif
     for (uint i = begin; i < end; ++i) {
 % if joints:
         if (is_joint(order[i])) {
@@ -445,8 +479,13 @@ inline void solve_group_serial(__global ContactConstraint* constraints,
         }
 % endif
 % if geometry_cache:
-        if (i + 1 < end)
-            prefetch_constraint(constraints, geometry, order[i + 1]);
+        /* (the records two constraints ahead, the bodies of the next: its
+         * record, prefetched a constraint earlier, names them; a joint item's
+         * index is no constraint's, and its prefetch a harmless hint) */
+        if (i + 2 < end)
+            prefetch_constraint(constraints, geometry, order[i + 2]);
+        if (i + 1 < end${" && !is_joint(order[i + 1])" if joints else ""})
+            prefetch_bodies(&constraints[order[i + 1]], bodies, inertia, split, s.push);
 % endif
         solve_rows(&constraints[order[i]],${" &geometry[order[i]]," if geometry_cache else ""} bodies, inertia, split, relaxation, s);
     }
