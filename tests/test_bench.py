@@ -12,6 +12,8 @@ from rbgen import bench, sanity
 from rbgen.cli import main
 from rbgen.errors import RbgenError
 
+from .pipeline.broadphase.test_grid import OWNER_KERNELS
+
 
 @pytest.fixture(scope="module")
 def quick_record(tmp_path_factory):
@@ -205,17 +207,6 @@ def test_benchmark_options_are_a_json_object_or_refused_naming_the_option():
     for bad in ("{bad", "[1, 2]", "3"):
         with pytest.raises(argparse.ArgumentTypeError, match="--options"):
             bench.world_options(bad)
-
-
-#: the kernels of the grid broadphase's owner emission, one launch each (grid_owner.cl.mako)
-OWNER_KERNELS = (
-    "measure_grid_bodies",
-    "classify_grid_bodies",
-    "link_bucket_bodies",
-    "count_owned_pairs",
-    "place_owner_slices",
-    "write_owned_pairs",
-)
 
 
 def test_a_scene_records_its_broadphase_and_last_step_launches_by_kernel(runtime, monkeypatch):
