@@ -191,10 +191,11 @@ inline void face_k_matrix(const float3 q_row0, const float3 q_row1, const float3
  * solves the rows one after another. Without `releases` only case 1 is tried
  * (false when it does not hold): a cheaper sweep, exact and order-free for
  * faces resting on faces, that leaves the other faces to the rows. */
-${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, const float3 n,
+<%def name="face_block_solver(name, cached_k)">\
+${inlined}bool ${name}(const uint count, const __private FaceBlock* f, const float3 n,
                       const float relaxation, float inv_mass_a, float3* va, float3* wa,
                       float inv_mass_b, float3* vb, float3* wb, const float target[4],
-                      float lambda[4], const bool releases${k_param})
+                      float lambda[4], const bool releases${k_param if cached_k else ""})
 {
     const bool four = count == 4;
     const float share = 1.0f / (float)count;
@@ -269,7 +270,7 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
     if (!valid) {
         /* 2b. two, one or none pushing: K's entries g_j . Q g_k */
         float k_matrix[4][4];
-% if geometry_cache:
+% if cached_k:
         ${unroll}for (uint j = 0; j < RB_MAX_MANIFOLD_POINTS; ++j) {
             float4 row = k_rows[j];
             k_matrix[j][0] = row.x, k_matrix[j][1] = row.y, k_matrix[j][2] = row.z;
@@ -284,7 +285,7 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
 % endif
         ${unroll}for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i)
             ${unroll}for (uint j = i + 1; j < RB_MAX_MANIFOLD_POINTS; ++j) {
-% if geometry_cache:
+% if cached_k:
                 if (valid)
                     break;
 % endif
@@ -304,7 +305,7 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
                 }
             }
         ${unroll}for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i) {
-% if geometry_cache:
+% if cached_k:
             if (valid)
                 break;
 % endif
@@ -337,6 +338,14 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
     *wb += turn_b[0] * applied.x + turn_b[1] * applied.y + turn_b[2] * applied.z;
     return true;
 }
+</%def>\
+${face_block_solver("solve_face_block", geometry_cache)}\
+% if geometry_cache:
+
+/* solve_face_block with K derived from the FaceBlock: a FaceBlock the sweep derives
+ * (a shock sweep's, of the held bodies: solve_contact) rather than the cached one. */
+${face_block_solver("solve_held_face_block", False)}\
+% endif
 
 ## (a build with a ContactGeometry cache reads each FaceBlock from the cache,
 ## solve_normal_cached: it has no use for the two functions that derive one)
@@ -927,14 +936,13 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
     bool solved = false;  /* by the block solve; else row after row */
 % if geometry_cache:
     if (held && count >= 3) {
-        /* the cached face block is both bodies': the held sweep's is derived, for
-         * every point pushing (else the rows in turn; no release, so no K read) */
+        /* the cached face block is both bodies': the held sweep's is derived */
         FaceBlock f;
         solved = face_block(count, n, t1, t2, c->r_a, c->r_b, p->inv_mass_a, p->inv_inertia_a,
                             p->inv_mass_b, p->inv_inertia_b, &f)
-                 && solve_face_block(count, &f, n, relaxation, p->inv_mass_a, &p->va, &p->wa,
-                                     p->inv_mass_b, &p->vb, &p->wb, target, normal_impulse,
-                                     false, g->face_k);
+                 && solve_held_face_block(count, &f, n, relaxation, p->inv_mass_a, &p->va,
+                                          &p->wa, p->inv_mass_b, &p->vb, &p->wb, target,
+                                          normal_impulse, releases);
     } else {
         solved = solve_normal_cached(count, n, c->r_a, c->r_b, relaxation, p, g, target,
                                      normal_impulse, releases);
