@@ -286,7 +286,7 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
             ${unroll}for (uint j = i + 1; j < RB_MAX_MANIFOLD_POINTS; ++j) {
 % if geometry_cache:
                 if (valid)
-                    break;
+                    continue;  /* (not break: a loop without one unrolls) */
 % endif
                 float kii = k_matrix[i][i], kij = k_matrix[i][j], kjj = k_matrix[j][j];
                 float det = kii * kjj - kij * kij;
@@ -306,7 +306,7 @@ ${inlined}bool solve_face_block(const uint count, const __private FaceBlock* f, 
         ${unroll}for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i) {
 % if geometry_cache:
             if (valid)
-                break;
+                continue;
 % endif
             float x_i = positive_part(rhs[i]) / (i < count ? k_matrix[i][i] : 1.0f);
             bool holds = i < count;
