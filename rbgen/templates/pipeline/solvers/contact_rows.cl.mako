@@ -287,7 +287,7 @@ ${inlined}bool ${name}(const uint count, const __private FaceBlock* f, const flo
             ${unroll}for (uint j = i + 1; j < RB_MAX_MANIFOLD_POINTS; ++j) {
 % if cached_k:
                 if (valid)
-                    break;
+                    continue;  /* (not break: a loop without one unrolls) */
 % endif
                 float kii = k_matrix[i][i], kij = k_matrix[i][j], kjj = k_matrix[j][j];
                 float det = kii * kjj - kij * kij;
@@ -307,7 +307,7 @@ ${inlined}bool ${name}(const uint count, const __private FaceBlock* f, const flo
         ${unroll}for (uint i = 0; i < RB_MAX_MANIFOLD_POINTS; ++i) {
 % if cached_k:
             if (valid)
-                break;
+                continue;
 % endif
             float x_i = positive_part(rhs[i]) / (i < count ? k_matrix[i][i] : 1.0f);
             bool holds = i < count;
