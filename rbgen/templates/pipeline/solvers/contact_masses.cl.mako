@@ -1,7 +1,8 @@
 <%doc>
   The effective masses of a contact constraint's rows, shared by the constraint
-  setup (constraints.cl.mako) and the Jacobi solver (jacobi.cl.mako), which
-  recomputes them for bodies split over their contacts. The including template
+  setup (constraints.cl.mako), the Jacobi solver (jacobi.cl.mako), which
+  recomputes them for bodies split over their contacts, and the PGS solver
+  (pgs.cl.mako), whose shock sweep recomputes the normal rows' with a body held. The including template
   supplies the parameter friction, the struct ContactConstraint and
   common/inline_math.cl.mako.
 </%doc>

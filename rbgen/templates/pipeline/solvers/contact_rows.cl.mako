@@ -2,8 +2,9 @@
   The rows of a contact constraint and how one constraint is solved, shared by
   the Gauss-Seidel solver (pgs.cl.mako) and the Jacobi solver with mass
   splitting (jacobi.cl.mako). The including template supplies the parameter
-  normal_solve, the structs Body, BodyInertia, ContactConstraint, and
-  common/inline_math.cl.mako; it may pass constraint_space, the address space
+  normal_solve, the structs Body, BodyInertia, ContactConstraint,
+  common/inline_math.cl.mako and contact_masses.cl.mako (row_mass: a shock
+  sweep's normal rows); it may pass constraint_space, the address space
   of the constraint the solve functions read and update (default __private: a
   copy the caller loaded; __global: the constraint in place, for the serial
   form, see pgs.cl.mako); and geometry_cache (block normal solve only), with
@@ -506,14 +507,6 @@ inline float row_speed(const Row* row, const __private ContactBodies* p)
     return s.x + s.y + s.z;
 }
 
-/* 1 / (J M^-1 J^T) of a row between the bodies of *p (0 when neither moves). */
-inline float row_mass_of(const Row* row, const __private ContactBodies* p)
-{
-    float k = dot3(row->linear, row->linear) * (p->inv_mass_a + p->inv_mass_b)
-              + dot3(row->arm_a, row->turn_a) + dot3(row->arm_b, row->turn_b);
-    return k > 0.0f ? 1.0f / k : 0.0f;
-}
-
 inline void apply_row(const Row* row, float impulse, __private ContactBodies* p)
 {
     p->va -= row->linear * (impulse * p->inv_mass_a);
@@ -856,8 +849,8 @@ inline bool bounces(${constraint_space} const ContactConstraint* c)
  * other body but not its turning: matched to a turning support's surface, a box
  * on it turns too, and in a sweep that walks a column in order each layer
  * passed a larger turn to the next (the CPU's serial form launched a 30-layer
- * lattice's top layer at 1,300 m/s within 5 steps). Returns the share of a change of the normal impulse to keep
- * (solve_contact): the other body's inverse mass over both bodies', so that a
+ * lattice's top layer at 1,300 m/s within 5 steps). Returns the share of a
+ * change of the normal impulse to keep (solve_contact): the other body's inverse mass over both bodies', so that a
  * correction the held rows found for that body alone is kept as the impulse
  * that stops the same approach between the bodies as they are (1 when nothing
  * is held). */
@@ -888,7 +881,8 @@ inline float hold_still(__private ContactBodies* p, const float holds)
  * `shock`: a shock sweep (pgs.cl.mako: SHOCK_PASS) holds the lower body of a
  * contact that carries a load against gravity still (tangent1.w, hold_still),
  * so that a stack's velocities agree from the ground up within the sweep: its
- * normal rows with their masses of the held bodies (row_mass_of; the block
+ * normal rows with their masses of the held bodies (contact_masses.cl.mako's
+ * row_mass; the block
  * solve derives its own), its friction rows with their masses of both
  * (under-relaxed for the held body: friction rows of the held masses, stiffer
  * in a one-sided sweep, walked a 55-layer lattice apart). What the normal rows
@@ -927,10 +921,9 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
     if (held) {
         /* the normal rows' masses with the held body's share gone (the block
          * solve derives its own from *p) */
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count) {
-            Row row = point_row(n, c->r_a[k].xyz, c->r_b[k].xyz, p);
-            normal_mass[k] = row_mass_of(&row, p);
-        }
+        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+            normal_mass[k] = row_mass(n, c->r_a[k].xyz, c->r_b[k].xyz, p->inv_mass_a,
+                                      p->inv_mass_b, p->inv_inertia_a, p->inv_inertia_b);
     }
 
     bool solved = false;  /* by the block solve; else row after row */

@@ -158,6 +158,7 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
 % else:
 <%include file="/common/inline_math.cl.mako"/>
 % endif
+<%include file="/pipeline/solvers/contact_masses.cl.mako"/>
 <%include file="/pipeline/solvers/contact_rows.cl.mako" args="constraint_space=constraint_space, geometry_cache=geometry_cache, cpu_hints=serial"/>
 
 inline void load_bodies(__private ContactBodies* p, ${velocity_space} const Body* bodies,
