@@ -347,13 +347,20 @@ class Runtime:
         #: active spec logs (`rbgen.codegen.SpecLog`): every compile_spec adds to each
         self.spec_logs: list[dict] = []
 
+    def count_launch(self, kernel: cl.Kernel) -> None:
+        """Count one launch of ``kernel`` (every enqueue of a kernel goes through here: `launch`
+        and `rbgen.launch.BoundKernel.launch`), by name too while
+        `rbgen.launch.launches_by_kernel` counts (the name is a driver query)."""
+        self.counters["launches"] += 1
+        if self.kernel_launches is not None:
+            name = kernel.function_name
+            self.kernel_launches[name] = self.kernel_launches.get(name, 0) + 1
+
     def launch(
         self, kernel: cl.Kernel, global_size: int, local_size: int | None, wait_for=None
     ) -> cl.Event:
         """Enqueue a 1-D kernel whose arguments are already set, and count it."""
-        self.counters["launches"] += 1
-        if self.kernel_launches is not None:
-            count_kernel(self.kernel_launches, kernel)
+        self.count_launch(kernel)
         return cl.enqueue_nd_range_kernel(
             self.queue,
             kernel,
@@ -393,12 +400,6 @@ class Runtime:
 
     def __repr__(self) -> str:
         return f"Runtime({self.traits.describe()})"
-
-
-def count_kernel(counts: dict[str, int], kernel: cl.Kernel) -> None:
-    """Add one launch of ``kernel`` to ``counts`` (kernel name -> launches)."""
-    name = kernel.function_name
-    counts[name] = counts.get(name, 0) + 1
 
 
 def buffer_of(array) -> cl.Buffer:

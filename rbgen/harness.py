@@ -306,15 +306,9 @@ def run_scene(
         # (only a block normal solve releases points; a sequential one has no release sweeps)
         "release_sweeps": world.release_sweeps,
         "plan": world.plan.describe(),
-        # choices the World had to fall back from during the run (a persistent launch that
-        # gave up at its device-wide barrier: the step was redone, and later steps run
-        # without it; `rbgen.plan.Plan.sources`)
-        "plan_fallbacks": sorted(
-            [k for k, v in world.plan.sources.items() if v == "fallback"]
-            # (the grid broadphase's owner emission gave way to slot emission: a step then
-            # takes tens of launches more; `stats["broadphase"]` says why)
-            + (["broadphase"] if _broadphase_fell_back(world) else [])
-        ),
+        # choices the World gave up during the run (`World.fallbacks`; `stats["broadphase"]`
+        # says why the broadphase did)
+        "plan_fallbacks": world.fallbacks,
         "broadphase": stats["broadphase"],
         # the last step's launches by kernel name (they add up to launches_per_step)
         "launches_by_kernel": dict(sorted(by_kernel.items())),
@@ -336,12 +330,6 @@ def run_scene(
     if progress:
         print(format_summary(summary), flush=True)
     return summary
-
-
-def _broadphase_fell_back(world: World) -> bool:
-    """Whether the World's broadphase left its algorithm for another (`Broadphase.fallback`)."""
-    pipeline = world._pipeline
-    return pipeline is not None and pipeline.broadphase.broadphase.fallback is not None
 
 
 def format_summary(s: dict) -> str:

@@ -33,8 +33,6 @@ from collections.abc import Iterator
 import numpy as np
 import pyopencl as cl
 
-from .device import count_kernel
-
 
 class BoundKernel:
     """One ``cl.Kernel`` with a cache of its argument values (see the module docstring)."""
@@ -132,9 +130,7 @@ class BoundKernel:
         """Enqueue over ``global_size`` work-items (1-D) with the arguments as set, counted
         in ``runtime.counters``."""
         runtime = self.runtime
-        runtime.counters["launches"] += 1
-        if runtime.kernel_launches is not None:
-            count_kernel(runtime.kernel_launches, self.kernel)
+        runtime.count_launch(self.kernel)
         return cl.enqueue_nd_range_kernel(
             runtime.queue,
             self.kernel,

@@ -141,6 +141,19 @@ class World:
         return self._guard.overflows
 
     @property
+    def fallbacks(self) -> list[str]:
+        """The choices this World gave up while it ran, sorted: a plan choice whose source
+        is "fallback" (`rbgen.plan.Plan.sources`: a persistent launch that gave up at its
+        device-wide barrier), and "broadphase" once the broadphase left its algorithm for
+        another (`rbgen.pipeline.broadphase.Broadphase.fallback`: the grid's owner emission,
+        six launches a query, for slot emission, tens of them). Either makes a step take
+        more launches than the plan's."""
+        given_up = [name for name, source in self.plan.sources.items() if source == "fallback"]
+        if self._pipeline is not None and self._pipeline.broadphase.broadphase.fallback:
+            given_up.append("broadphase")
+        return sorted(given_up)
+
+    @property
     def overflows_by_stage(self) -> dict[str, int]:
         """`overflows` by the step stage that asked for the redo (e.g. ``{"broadphase":
         1}``; a redo that two stages asked for counts for both)."""

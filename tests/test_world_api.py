@@ -156,6 +156,7 @@ def test_too_many_large_bodies_move_the_grid_to_slot_emission_visibly(runtime):
     assert slot.statistics()["broadphase"].startswith("grid, slot emission")
     assert f"more than {LARGE_ROWS} large bodies" in slot.statistics()["broadphase"]
     assert slot.overflows == 1 and slot.overflows_by_stage == {"broadphase": 1}
+    assert owner.fallbacks == [] and slot.fallbacks == ["broadphase"]
     assert slot_counts["write_grid_pairs"] == 1 and "write_owned_pairs" not in slot_counts
     light, full = slot.statistics(contacts=False), slot.statistics()
     assert light["contacts"] is None and full["contacts"] > 0
