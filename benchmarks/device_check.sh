@@ -15,14 +15,14 @@
 #   cpp     benchmarks/cpp_host.py: the C++ host beside the Python World, BoxBox 1,000 / 27,000
 #   record  benchmarks/record_overhead.py: a recorded step against a plain one
 #   holds   benchmarks/holds.py: BoxBox lattices at the default and substep candidates (issue 24)
-#   shock   shock_propagation (issue 24): benchmarks/holds.py at every size, the default against
-#           the shock candidates, traced to step 300 (the window); benchmarks/stacking.py with it
-#           at 8 x (2 + 1) and 8 x (3 + 1)
+#   shock   the shock sweep (issue 24): benchmarks/holds.py at every size, the default (which
+#           runs it) against the default without it and the shock candidates, traced to step
+#           300 (the window); benchmarks/stacking.py with it at 8 x (2 + 1) and 8 x (3 + 1)
 #   envs    benchmarks/many_envs.py: WorldBatch throughput against N (issue 29)
 #   cpu     benchmarks/cpu_solve.py on the machine's PoCL CPU device: BoxBox 8,000 and 27,000
 #           against the tree in .baseline/ (issue 24's CPU speed; see ccd for .baseline)
-#   shockcpu  benchmarks/holds.py on that PoCL device: the CPU default against it with
-#           shock_propagation, 8,000 and 27,000 boxes traced to step 300
+#   shockcpu  benchmarks/holds.py on that PoCL device: the CPU default (with the shock sweep)
+#           against it without, 8,000 and 27,000 boxes traced to step 300
 #   ccd     benchmarks/continuous.py: the tunnelling table, and BoxBox 8,000 against the tree in
 #           .baseline/ (before continuous collision: `mkdir -p .baseline && git archive main
 #           rbgen benchmarks | tar -x -C .baseline`; carry it)
@@ -76,12 +76,12 @@ for stage in "$@"; do
     shockcpu)
       cpu=$(cpu_index)
       run_stage shockcpu python3 benchmarks/holds.py --device "$cpu" --sizes 8000 27000 \
-        --candidates default shock --trace 20 --out "$OUT/shockcpu" ;;
+        --candidates default no_shock --trace 20 --out "$OUT/shockcpu" ;;
     holds)
       run_stage holds python3 benchmarks/holds.py --device "$DEVICE" --out "$OUT/holds" ;;
     shock)
       run_stage shock_holds python3 benchmarks/holds.py --device "$DEVICE" \
-        --candidates default s8_31 shock_s8_21 shock_s8_31 shock_s4_31 --trace 10 \
+        --candidates default no_shock s8_31 shock_s8_31 shock_s4_31 --trace 10 \
         --out "$OUT/shock_holds"
       run_stage shock_stack21 python3 benchmarks/stacking.py --device "$DEVICE" \
         --options '{"shock_propagation": true}' --out "$OUT/shock_stack21"

@@ -129,9 +129,10 @@ class Plan:
 
     def check_settings(self, settings) -> None:
         """Refuse step ``settings`` this plan cannot run, naming the setting, before a
-        step enqueues anything: shock_propagation needs the PGS solver and a velocity sweep
-        before the shock sweep (iterations >= 2)."""
-        if not getattr(settings, "shock_propagation", False):
+        step enqueues anything: shock_propagation=True needs the PGS solver and a velocity
+        sweep before the shock sweep (iterations >= 2); None (the default) asks for it only
+        where it can run (`rbgen.pipeline.solvers.common.shock_sweep`)."""
+        if getattr(settings, "shock_propagation", False) is not True:
             return
         if self.solver != "pgs":
             raise RbgenError(

@@ -157,13 +157,13 @@ STEP_SETTINGS = (
     ),
     Option(
         "shock_propagation",
-        False,
-        _flag,
-        "True or False",
+        None,
+        _optional(_flag),
+        "True, False or None (on wherever it can run: solver 'pgs', iterations >= 2)",
         "the last velocity sweep of each substep holds the lower body of every contact "
-        "that carries a load against gravity still (solver 'pgs', iterations >= 2): a "
-        "stack's velocities agree from the ground up, so tall stacks come to rest "
-        "instead of breathing; not momentum-conserving in that sweep",
+        "that carries a load against gravity still: a stack's velocities agree from the "
+        "ground up, so tall stacks come to rest instead of breathing; not "
+        "momentum-conserving in that sweep",
     ),
     Option(
         "warm_start",
@@ -366,7 +366,7 @@ class Settings:
     iterations: int
     position_iterations: int
     relaxation: float
-    shock_propagation: bool
+    shock_propagation: bool | None
     warm_start: bool
     contact_margin: float
     restitution_threshold: float
@@ -398,7 +398,14 @@ def options_table() -> str:
         default = (
             "device's choice"
             if option.default is None
-            and option.name not in ("manifold_capacity", "pair_capacity", "plan", "memory_limit")
+            and option.name
+            not in (
+                "manifold_capacity",
+                "pair_capacity",
+                "plan",
+                "memory_limit",
+                "shock_propagation",
+            )
             else repr(option.default)
         )
         if option.cpu_default is not None:

@@ -348,3 +348,32 @@ def test_refused_where_no_shock_sweep_runs(runtime):
         world.shock_propagation = False
         world.step(1 / 60)  # (and steps again once the setting is undone)
         assert world.steps == 1
+
+
+def test_default_runs_it_wherever_it_can(runtime):
+    """The default (None) is the shock sweep wherever it can run: a PGS World at
+    iterations >= 2 steps exactly as with shock_propagation=True, and one at iterations 1
+    or with solver 'jacobi' steps exactly as with False (no refusal). The scene (a box on
+    a box on the ground) has a held body, so the two settings differ on it."""
+
+    def run(shock, **options):
+        world = World(runtime, shock_propagation=shock, **options)
+        world.add_static(Box((5, 1, 5)), position=(0, -1, 0))
+        world.add_body(Box((0.5, 0.5, 0.5)), position=(0, 0.49, 0))
+        world.add_body(
+            Box((0.5, 0.5, 0.5)),
+            position=(0.1, 1.48, 0),
+            orientation=(0, np.sin(0.05), 0, np.cos(0.05)),
+        )
+        for _ in range(20):
+            world.step(1 / 60)
+        return world.positions.copy(), world.linear_velocities.copy()
+
+    assert World(runtime).shock_propagation is None
+    on, off = run(True, iterations=3), run(False, iterations=3)
+    assert not np.array_equal(on[1], off[1])  # (the scene sees the sweep)
+    for got, want in zip(run(None, iterations=3), on):
+        np.testing.assert_array_equal(got, want)
+    for options in ({"iterations": 1}, {"solver": "jacobi", "iterations": 3}):
+        for got, want in zip(run(None, **options), run(False, **options)):
+            np.testing.assert_array_equal(got, want)

@@ -60,6 +60,16 @@ def resolve_fast_math(traits: DeviceTraits, fast_math: bool | None) -> bool:
     return bool(fast_math)
 
 
+def shock_sweep(sweeps) -> bool:
+    """Whether each substep's last velocity sweep is a shock sweep under the step settings
+    ``sweeps``: their shock_propagation where it is True or False; where it is None (the
+    default), wherever the Gauss-Seidel solve can run one, that is with iterations >= 2
+    (a sweep before it carries the loads). Solver 'jacobi' runs none: it refuses only an
+    explicit True."""
+    value = getattr(sweeps, "shock_propagation", False)
+    return int(sweeps.iterations) >= 2 if value is None else bool(value)
+
+
 def check_sweeps(
     iterations: int, position_iterations: int, relaxation: float, shock: bool = False
 ) -> None:

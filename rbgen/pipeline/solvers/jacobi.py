@@ -237,7 +237,7 @@ class JacobiSolver(PushVelocities):
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
         relaxation, warm_start = sweeps.relaxation, bool(sweeps.warm_start)
         check_sweeps(iterations, position_iterations, relaxation)
-        if getattr(sweeps, "shock_propagation", False):
+        if getattr(sweeps, "shock_propagation", False) is True:
             raise RbgenError(
                 "shock_propagation=True is a sweep of solver 'pgs' (Gauss-Seidel order); "
                 "solver 'jacobi' has none: set shock_propagation=False or solver='pgs'"

@@ -79,6 +79,7 @@ from .common import (
     fast_math_param,
     normal_solve_param,
     resolve_fast_math,
+    shock_sweep,
 )
 
 #: how the warm start reaches the velocities (see the template parameter "warm_start_mode")
@@ -511,7 +512,7 @@ class PgsSolver(PushVelocities):
         last velocity sweep applies the contacts' restitution (the step's last substep;
         a solver that `integrates` applies it in its last substep)."""
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
-        shock = bool(getattr(sweeps, "shock_propagation", False))
+        shock = shock_sweep(sweeps)
         check_sweeps(iterations, position_iterations, sweeps.relaxation, shock)
         # (the sequential normal solve has no block to release: its release scalars are unused)
         release = self.release_sweeps if self.normal_solve == "block" else 0
