@@ -31,6 +31,8 @@ from rbgen.device import (
 )
 
 ENV_TEST_DEVICES = "RBGEN_TEST_DEVICES"
+#: a failing test's printed seed, to run it again on the same inputs
+ENV_TEST_SEED = "RBGEN_TEST_SEED"
 
 
 #: devices left out of the default set, and why (shown in pytest's header)
@@ -143,8 +145,10 @@ def runtime(request) -> Runtime:
 
 @pytest.fixture
 def rng(request) -> np.random.Generator:
-    """Fresh random inputs each run; the seed is printed on failure to reproduce."""
-    seed = int.from_bytes(os.urandom(4), "little")
+    """Fresh random inputs each run; the seed is printed on failure, and
+    RBGEN_TEST_SEED=<seed> reproduces them."""
+    fixed = os.environ.get(ENV_TEST_SEED)
+    seed = int(fixed) if fixed else int.from_bytes(os.urandom(4), "little")
     request.node.user_properties.append(("seed", seed))
     print(f"rng seed {seed}")
     return np.random.default_rng(seed)

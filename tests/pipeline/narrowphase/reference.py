@@ -105,7 +105,8 @@ def sat(
 ) -> SatAnswer:
     """The separating-axis answer of two convex shapes in float64. ``face_aligned_deg``:
     an edge-pair axis within this angle of a face normal of either shape is no axis when
-    that face is at most ``face_aligned_tolerance`` deeper than it, unless the edge axis
+    that face (the shallower, where a face of each shape is within the angle) is at most
+    ``face_aligned_tolerance`` deeper than it, unless the edge axis
     separates and the face does not (the box-box kernel's rule: the face axis measures
     that direction, and its manifold does not flicker)."""
     axes, is_edge = [], []
@@ -124,12 +125,13 @@ def sat(
                 continue
             if cos_limit is not None:
                 cosines = np.abs(normals @ (cross / s))
-                k = int(np.argmax(cosines))
-                if abs(cosines[k] - cos_limit) < 1e-6:
+                if np.any(np.abs(cosines - cos_limit) < 1e-6):
                     undecided = True
-                if cosines[k] > cos_limit:
+                aligned = np.flatnonzero(cosines > cos_limit)
+                if aligned.size:
                     gap = _separation(a, b, cross / s)
-                    face = _separation(a, b, normals[k])
+                    # the shallower of the aligned faces (one of each box at most)
+                    face = max(_separation(a, b, normals[k]) for k in aligned)
                     deeper = face - (gap - face_aligned_tolerance)
                     if abs(deeper) < 1e-5 or (gap > 0 and abs(face) < 1e-5):
                         undecided = True
