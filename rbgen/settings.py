@@ -159,7 +159,7 @@ STEP_SETTINGS = (
         "shock_propagation",
         None,
         _optional(_flag),
-        "True, False or None (on wherever it can run: solver 'pgs', iterations >= 2)",
+        "True, False or None (on wherever it can run: solver 'pgs', iterations >= 2, no joints)",
         "the last velocity sweep of each substep holds the lower body of every contact "
         "that carries a load against gravity still: a stack's velocities agree from the "
         "ground up, so tall stacks come to rest instead of breathing; not "

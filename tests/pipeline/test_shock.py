@@ -33,7 +33,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from rbgen import Box, World, layouts
+from rbgen import BallJoint, Box, Sphere, World, layouts
 from rbgen.errors import RbgenError
 
 from .test_constraints import ContactRig, make_bodies, make_manifold
@@ -353,10 +353,11 @@ def test_refused_where_no_shock_sweep_runs(runtime):
 def test_default_runs_it_wherever_it_can(runtime):
     """The default (None) is the shock sweep wherever it can run: a PGS World at
     iterations >= 2 steps exactly as with shock_propagation=True, and one at iterations 1
-    or with solver 'jacobi' steps exactly as with False (no refusal). The scene (a box on
+    or with solver 'jacobi' steps exactly as with False (no refusal), and so does a World
+    with joints (`shock_sweep`: jointed bodies are not held as a unit). The scene (a box on
     a box on the ground) has a held body, so the two settings differ on it."""
 
-    def run(shock, **options):
+    def run(shock, joint=False, **options):
         world = World(runtime, shock_propagation=shock, **options)
         world.add_static(Box((5, 1, 5)), position=(0, -1, 0))
         world.add_body(Box((0.5, 0.5, 0.5)), position=(0, 0.49, 0))
@@ -365,6 +366,9 @@ def test_default_runs_it_wherever_it_can(runtime):
             position=(0.1, 1.48, 0),
             orientation=(0, np.sin(0.05), 0, np.cos(0.05)),
         )
+        if joint:  # (a pendulum beside the stack)
+            ball = world.add_body(Sphere(0.1), position=(3, 1, 0))
+            world.add_joint(BallJoint(ball, None, anchor=(3, 2, 0)))
         for _ in range(20):
             world.step(1 / 60)
         return world.positions.copy(), world.linear_velocities.copy()
@@ -374,6 +378,12 @@ def test_default_runs_it_wherever_it_can(runtime):
     assert not np.array_equal(on[1], off[1])  # (the scene sees the sweep)
     for got, want in zip(run(None, iterations=3), on):
         np.testing.assert_array_equal(got, want)
-    for options in ({"iterations": 1}, {"solver": "jacobi", "iterations": 3}):
+    for options in (
+        {"iterations": 1},
+        {"solver": "jacobi", "iterations": 3},
+        {"joint": True, "iterations": 3},
+    ):
         for got, want in zip(run(None, **options), run(False, **options)):
             np.testing.assert_array_equal(got, want)
+    on, off = run(True, joint=True, iterations=3), run(False, joint=True, iterations=3)
+    assert not np.array_equal(on[1], off[1])  # (asked for, it runs with joints too)

@@ -512,7 +512,7 @@ class PgsSolver(PushVelocities):
         last velocity sweep applies the contacts' restitution (the step's last substep;
         a solver that `integrates` applies it in its last substep)."""
         iterations, position_iterations = int(sweeps.iterations), int(sweeps.position_iterations)
-        shock = shock_sweep(sweeps)
+        shock = shock_sweep(sweeps, self.spec.values["joints"])
         check_sweeps(iterations, position_iterations, sweeps.relaxation, shock)
         # (the sequential normal solve has no block to release: its release scalars are unused)
         release = self.release_sweeps if self.normal_solve == "block" else 0
