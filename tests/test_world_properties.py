@@ -368,7 +368,9 @@ def test_elastic_bounce_keeps_the_energy_bound(runtime, case, substeps, request)
     plus what lifting the body out of one step's travel adds (a target of e times the
     approach after gravity gained about twice that)."""
     name, shape, mass, spin, friction = case
-    if name == "hull" and substeps == 8:
+    # (on GPU plans, at their default 2 + 1 sweeps with the shock sweep last, the bound
+    # holds: on the H200 and in its shape; the mechanism was not isolated)
+    if name == "hull" and substeps == 8 and not runtime.traits.is_gpu:
         request.applymarker(
             pytest.mark.xfail(
                 strict=True,
@@ -379,7 +381,8 @@ def test_elastic_bounce_keeps_the_energy_bound(runtime, case, substeps, request)
                     "the rows turn it about the first, which lifts off, and the "
                     "restitution drives the second to the step's 7.19 m/s though the "
                     "turn already carries the body up: +482 J over 3,452 J against a "
-                    "139 J allowance (the bounce in the row target gained +2,197 J here)"
+                    "139 J allowance (the bounce in the row target gained +2,197 J here; "
+                    "CPU plans, 3 + 1 sweeps a substep)"
                 ),
             )
         )
