@@ -66,7 +66,7 @@ def shock_sweep(sweeps, joints: bool = False) -> bool:
     default), wherever the Gauss-Seidel solve can run one, that is with iterations >= 2
     (a sweep before it carries the loads), in a World without ``joints``. (Jointed bodies
     are not held as a unit: ragdolls dropped on boxes came to rest later with the sweep,
-    some still at 0.3-5 m/s after 8 s where all rested by 6 s without it.) Solver
+    some still at 0.3-5 m/s after 8 s where all rested by 7 s without it.) Solver
     'jacobi' runs none: it refuses only an explicit True."""
     value = getattr(sweeps, "shock_propagation", False)
     if value is None:
