@@ -34,7 +34,8 @@ class Option:
     RbgenError), what it allows (for errors and the README) and why it exists.
 
     ``cpu_default``: the default on CPU devices where it differs (None: ``default``
-    everywhere)."""
+    everywhere). ``literal_none``: a default of None means what ``allowed`` says, not the
+    device's choice (the README's table shows it as None)."""
 
     name: str
     default: Any
@@ -42,6 +43,7 @@ class Option:
     allowed: str
     doc: str
     cpu_default: Any = None
+    literal_none: bool = False
 
     def default_for(self, is_gpu: bool):
         """The default on a GPU (``is_gpu``) or a CPU device."""
@@ -164,6 +166,7 @@ STEP_SETTINGS = (
         "that carries a load against gravity still: a stack's velocities agree from the "
         "ground up, so tall stacks come to rest instead of breathing; not "
         "momentum-conserving in that sweep",
+        literal_none=True,
     ),
     Option(
         "warm_start",
@@ -300,6 +303,7 @@ CONSTRUCTION_OPTIONS = (
         _optional(_integer(1, 1 << 30)),
         "None or an integer from 1 to 2^30",
         "initial manifold buffer (grown on overflow)",
+        literal_none=True,
     ),
     Option(
         "pair_capacity",
@@ -307,6 +311,7 @@ CONSTRUCTION_OPTIONS = (
         _optional(_integer(1, 1 << 30)),
         "None or an integer from 1 to 2^30",
         "initial pair buffer (grown on overflow)",
+        literal_none=True,
     ),
     Option(
         "plan",
@@ -314,6 +319,7 @@ CONSTRUCTION_OPTIONS = (
         _plan_overrides,
         "None or a dict of plan parameters",
         "expert overrides of tuned plan parameters (rbgen.plan.TUNABLES)",
+        literal_none=True,
     ),
     Option(
         "memory_limit",
@@ -322,6 +328,7 @@ CONSTRUCTION_OPTIONS = (
         "None or a positive integer (bytes)",
         "device memory this World may use (None: the device's global memory; OpenCL "
         "cannot see other processes on a shared GPU); refused before allocating",
+        literal_none=True,
     ),
 )
 
@@ -397,15 +404,7 @@ def options_table() -> str:
     for option in STEP_SETTINGS + CONSTRUCTION_OPTIONS:
         default = (
             "device's choice"
-            if option.default is None
-            and option.name
-            not in (
-                "manifold_capacity",
-                "pair_capacity",
-                "plan",
-                "memory_limit",
-                "shock_propagation",
-            )
+            if option.default is None and not option.literal_none
             else repr(option.default)
         )
         if option.cpu_default is not None:
