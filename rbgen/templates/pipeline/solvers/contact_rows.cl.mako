@@ -918,15 +918,6 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
     unpack4(c->tangent1_mass, tangent1_mass);
     unpack4(c->tangent2_mass, tangent2_mass);
     unpack4(c->velocity_target, target);
-% if not geometry_cache:
-    if (held) {
-        /* the normal rows' masses with the held body's share gone (the block
-         * solve derives its own from *p) */
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-            normal_mass[k] = row_mass(n, c->r_a[k].xyz, c->r_b[k].xyz, p->inv_mass_a,
-                                      p->inv_mass_b, p->inv_inertia_a, p->inv_inertia_b);
-    }
-% endif
 
     bool solved = false;  /* by the block solve; else row after row */
 % if geometry_cache:
@@ -942,18 +933,19 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
         solved = solve_normal_cached(count, n, c->r_a, c->r_b, relaxation, p, g, target,
                                      normal_impulse, releases);
     }
-    if (held && !solved) {
-        /* the rows' masses with the held body's share gone (only the rows read them) */
-        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
-            normal_mass[k] = row_mass(n, c->r_a[k].xyz, c->r_b[k].xyz, p->inv_mass_a,
-                                      p->inv_mass_b, p->inv_inertia_a, p->inv_inertia_b);
-    }
 % elif normal_solve == "block":
     solved = solve_normal_block(count, n, t1, t2, c->r_a, c->r_b, relaxation,
                                 p->inv_mass_a, p->inv_inertia_a, &p->va, &p->wa,
                                 p->inv_mass_b, p->inv_inertia_b, &p->vb, &p->wb, target,
                                 normal_impulse, releases);
 % endif
+    if (held && !solved) {
+        /* the rows' masses with the held body's share gone (only the rows read them;
+         * the block solve derives its own from *p) */
+        for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
+            normal_mass[k] = row_mass(n, c->r_a[k].xyz, c->r_b[k].xyz, p->inv_mass_a,
+                                      p->inv_mass_b, p->inv_inertia_a, p->inv_inertia_b);
+    }
     /* alternate the point order between sweeps, so that no point is always first:
      * slot s visits point k = reverse ? 3 - s : s, with the per-point arrays
      * reversed to match rather than indexed by k (subscripts that stay constants
