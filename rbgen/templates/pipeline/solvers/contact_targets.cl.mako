@@ -5,8 +5,11 @@
   and the share of the impulses a warm start carries (the constraint setup's too,
   constraints.cl.mako).
   The including template supplies the struct ContactConstraint and
-  common/inline_math.cl.mako.
+  common/inline_math.cl.mako. With `private_copies` it also gets carry_impulses_private
+  and refresh_targets_private, the same arithmetic on a lane's private copy of a
+  constraint (the persistent launch's sweeps solve such copies).
 </%doc>
+<%page args="private_copies=False"/>\
 /* A warm start carries a manifold's impulses from one substep into the next (and
  * from a step's last substep into the next step's first) only up to a cap on
  * their total normal impulse: CARRY_GROWTH times the total it carried the time
@@ -37,9 +40,10 @@ inline float carried_share(const float total, const float carried, const float a
     return total > cap ? cap / total : 1.0f;
 }
 
+<%def name="target_functions(space, suffix, carries)">\
 /* Scale the impulses of *c that a warm start carries (see CARRY_GROWTH), and keep
  * their total for the next carry. */
-inline void carry_impulses(__global ContactConstraint* c)
+inline void carry_impulses${suffix}(${space} ContactConstraint* c)
 {
     float4 impulse = c->normal_impulse;
     float total = impulse.x + impulse.y + impulse.z + impulse.w;
@@ -56,9 +60,13 @@ inline void carry_impulses(__global ContactConstraint* c)
  * bodies' motion (moved: B's displacement less A's; turned_a, turned_b: their
  * rotations), then its velocity target (when `velocity`) and its push target
  * with the push impulse cleared (when `push`); see solvers/substeps.cl.mako.
+% if carries:
  * With the velocity targets, the impulses the next substep's warm start carries
  * (carry_impulses). */
-inline void refresh_targets(__global ContactConstraint* c, float3 moved, float3 turned_a,
+% else:
+ * (The impulses it carries were carried by the sweep that solved them last.) */
+% endif
+inline void refresh_targets${suffix}(${space} ContactConstraint* c, float3 moved, float3 turned_a,
                             float3 turned_b, const float h, const float penetration_slop,
                             const float penetration_recovery, const bool velocity,
                             const bool push)
@@ -79,7 +87,9 @@ inline void refresh_targets(__global ContactConstraint* c, float3 moved, float3 
     if (velocity) {
         c->velocity_target = (float4)(velocity_target[0], velocity_target[1],
                                       velocity_target[2], velocity_target[3]);
-        carry_impulses(c);  /* (into the next substep's warm start) */
+% if carries:
+        carry_impulses${suffix}(c);  /* (into the next substep's warm start) */
+% endif
     }
     if (push) {
         c->position_target = (float4)(position_target[0], position_target[1],
@@ -87,3 +97,10 @@ inline void refresh_targets(__global ContactConstraint* c, float3 moved, float3 
         c->push_impulse = (float4)(0.0f);
     }
 }
+</%def>\
+${target_functions("__global", "", True)}
+% if private_copies:
+/* (on a private copy; its velocity targets do not carry: the sweep that solved the
+ * copy last carried its impulses, pgs.cl.mako) */
+${target_functions("__private", "_private", False)}
+% endif

@@ -16,6 +16,16 @@
     # the serial block solve derives each contact's ContactGeometry once a step (the
     # launches with GEOMETRY_PASS) and its sweeps read it (contact_rows.cl.mako)
     geometry_cache = serial and normal_solve == "block"
+    # a persistent launch folds each substep's refresh, carry and warm-start sums into
+    # its sweeps (Sweep); with joints it keeps them as passes of their own (a joint's
+    # warm start measures the bodies' poses of the substep it starts)
+    fused = persistent and not joints
+    # what a fused sweep's constraint visits take besides solve_copy's arguments
+    fused_params = (", volatile __global const BodyDelta* deltas, const float h, "
+                    "const float penetration_slop, const float penetration_recovery"
+                    + (", volatile __global long* warm_sums" if summed else "")) if fused else ""
+    fused_args = (", deltas, h, penetration_slop, penetration_recovery"
+                  + (", warm_sums" if summed else "")) if fused else ""
 %>\
 /* Projected Gauss-Seidel over batched constraints. solve_groups runs the
  * warm start and the sweeps of one launch over the groups it is given, as
@@ -223,6 +233,13 @@ typedef struct {
     bool push_releases;
     bool restitution;        /* then the restitution (the step's last velocity sweep) */
     bool shock;              /* a shock sweep (SHOCK_PASS) */
+% if fused:
+    /* what a persistent launch's substeps fold into the sweep (set by solve_groups) */
+    bool refresh_velocity;   /* the velocity targets refreshed before the rows */
+    bool refresh_push;       /* the push targets refreshed (and the push cleared) */
+    bool carry;              /* after the rows, the impulses carried (carry_impulses) */
+    bool sum;                /* and their warm start added to the bodies' sums */
+% endif
 } Sweep;
 
 /* Sweep `sweep` of a launch with solve_groups' scalars. */
@@ -240,6 +257,9 @@ inline Sweep sweep_of(uint sweep, uint passes, uint velocity_sweeps, uint positi
     const uint shock_sweeps = (passes & SHOCK_PASS) != 0 && velocity_sweeps > 1 ? 1u : 0u;
     s.restitution = (passes & RESTITUTION_PASS) != 0
                     && sweep + 1 + shock_sweeps == velocity_sweeps;
+% if fused:
+    s.refresh_velocity = s.refresh_push = s.carry = s.sum = false;
+% endif
     return s;
 }
 
@@ -564,40 +584,109 @@ inline void solve_batch_lanes(__global ContactConstraint* constraints, __global 
         solve_copy(constraints, order[i], bodies, inertia, split, relaxation, s${joint_args});
 }
 % endif
-% if persistent:
+% if summed:
 
-/* Lane `lane`'s share of one batch of a sweep over the whole launch: the
- * velocity rows of its share, and the push rows of the share of lane
- * `push_lane` when the batch has at most push_offset constraints, else of
- * its own (see solve_groups). */
-inline void solve_batch_persistent(__global ContactConstraint* constraints,
-                                   __global const uint* order, uint first, uint end, uint batch,
-                                   uint lane, uint push_lane, uint push_offset,
+/* Add a velocity change to a body's fixed-point sums (linear, then angular). */
+inline void add_warm_sum(volatile __global long* sums, float3 linear, float3 angular)
+{
+    atom_add(&sums[0], convert_long_rte(linear.x * WARM_SUM_ONE));
+    atom_add(&sums[1], convert_long_rte(linear.y * WARM_SUM_ONE));
+    atom_add(&sums[2], convert_long_rte(linear.z * WARM_SUM_ONE));
+    atom_add(&sums[3], convert_long_rte(angular.x * WARM_SUM_ONE));
+    atom_add(&sums[4], convert_long_rte(angular.y * WARM_SUM_ONE));
+    atom_add(&sums[5], convert_long_rte(angular.z * WARM_SUM_ONE));
+}
+
+inline float3 warm_sum_vector(volatile __global const long* sums)
+{
+    return (float3)(convert_float(sums[0]), convert_float(sums[1]), convert_float(sums[2]))
+           * (1.0f / WARM_SUM_ONE);
+}
+
+/* Body sums `sums` taken into its velocities *v, *w, and cleared for the next warm
+ * start. */
+inline void take_warm_sum(volatile __global long* sums, float3* v, float3* w)
+{
+    *v += warm_sum_vector(sums);
+    *w += warm_sum_vector(sums + 3);
+    for (uint k = 0; k < RB_WARM_SUM_WORDS; ++k)
+        sums[k] = 0;
+}
+
+/* The velocity changes of contact *c's warm start (its impulses applied to its
+ * bodies at rest), added to its dynamic bodies' sums. */
+inline void sum_contact_warm_start(const __private ContactConstraint* c,
                                    volatile __global Body* bodies,
                                    __global const BodyInertia* inertia,
-                                   volatile __global SplitVelocity* split,
-                                   const float relaxation, const Sweep s${joint_params})
+                                   volatile __global long* warm_sums)
+{
+    const uint a = c->body_a, b = c->body_b;
+    ContactBodies state;
+    load_bodies(&state, bodies, inertia, a, b);
+    state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
+    warm_start_contact(c, &state);
+    if (state.inv_mass_a > 0.0f)
+        add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * a, state.va, state.wa);
+    if (state.inv_mass_b > 0.0f)
+        add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * b, state.vb, state.wb);
+}
+
+/* Summed warm start, phase 1: the velocity changes of the constraints lane
+ * `lane` solves (its share of every batch: it wrote their impulses), added to
+ * their dynamic bodies' sums. */
+inline void sum_warm_starts(__global const ContactConstraint* constraints,
+                            __global const uint* order, __global const uint* offsets,
+                            uint batch_count, uint lane,
+                            volatile __global Body* bodies, __global const BodyInertia* inertia,
+                            volatile __global long* warm_sums, const bool ok${joint_params})
 {
     const uint lanes = get_global_size(0);
-    const uint push_owner = end - first <= push_offset ? push_lane : lane;
-    if (s.velocity) {
-        Sweep velocity_rows = s;
-        velocity_rows.push = false;
-        const uint2 share = batch_share(first, end, batch, lane, lanes);
-        for (uint i = share.x; i < end; i += share.y)
-            solve_copy(constraints, order[i], bodies, inertia, split, relaxation, velocity_rows${joint_args});
+    for (uint batch = 0; ok && batch < batch_count; ++batch) {
+      const uint first = offsets[batch], end = offsets[batch + 1];
+      const uint2 share = batch_share(first, end, batch, lane, lanes);
+      for (uint i = share.x; i < end; i += share.y) {
+% if joints:
+        if (is_joint(order[i])) {
+            __global const JointConstraint* j = &joints[order[i] & RB_EDGE_INDEX_MASK];
+            if (j->flags & RB_JOINT_BROKEN)
+                continue;
+            ContactBodies state;
+            JointFrame f;
+            const uint a = j->body_a, b = j->body_b;
+            load_joint(j, bodies, inertia, &state, &f);
+            state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
+            warm_start_joint_rows(j, &f, &state);
+            if (state.inv_mass_a > 0.0f)
+                add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * a, state.va, state.wa);
+            if (state.inv_mass_b > 0.0f)
+                add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * b, state.vb, state.wb);
+            continue;
+        }
+% endif
+        ContactConstraint c = constraints[order[i]];  /* a private copy */
+        sum_contact_warm_start(&c, bodies, inertia, warm_sums);
+      }
     }
-    if (s.push) {
-        Sweep push_rows = s;
-        push_rows.velocity = false;
-        const uint2 share = batch_share(first, end, batch, push_owner, lanes);
-        for (uint i = share.x; i < end; i += share.y)
-            solve_copy(constraints, order[i], bodies, inertia, split, relaxation, push_rows${joint_args});
+}
+
+/* Summed warm start, phase 2: every lanes-th body from `lane` takes its sums
+ * and clears them for the next step. */
+inline void take_warm_sums(volatile __global Body* bodies, volatile __global long* warm_sums,
+                           uint body_count, uint lane, const bool ok)
+{
+    const uint lanes = get_global_size(0);
+    for (uint body = lane; ok && body < body_count; body += lanes) {
+        if (bodies[body].inv_mass > 0.0f) {
+            float3 v = bodies[body].linear_velocity.xyz, w = bodies[body].angular_velocity.xyz;
+            take_warm_sum(warm_sums + RB_WARM_SUM_WORDS * body, &v, &w);
+            bodies[body].linear_velocity = (float4)(v, 0.0f);
+            bodies[body].angular_velocity = (float4)(w, 0.0f);
+        }
     }
 }
 % endif
 % if persistent:
-<%include file="/pipeline/solvers/contact_targets.cl.mako"/>
+<%include file="/pipeline/solvers/contact_targets.cl.mako" args="private_copies=fused"/>
 
 /* The lane that solves the push rows of batch order[first .. end - 1] for
  * lane `lane` (see solve_groups). */
@@ -652,15 +741,15 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
 /* Every lanes-th body from `lane` moves over the substep h that just ended (the
  * integrator's arithmetic: damping, rotation, the push applied and cleared,
  * the motion since the step began added to `deltas`, restarted when `first`),
- * then takes the next substep's gravity g h (`gravity_h`; zero after the last) and,
- * with `kick`, its share of the step's external forces (`kicks`, 2 float4 a body:
- * the prepare kernel's). */
+ * then takes the next substep's gravity g h (`gravity_h`; zero after the last),
+ * with `kick` its share of the step's external forces (`kicks`, 2 float4 a body:
+ * the prepare kernel's)${" and, with `take`, its warm-start sums (take_warm_sums)" if summed else ""}. */
 inline void move_bodies(volatile __global Body* bodies, volatile __global SplitVelocity* split,
                         volatile __global BodyDelta* deltas, uint body_count, uint lane,
                         const float h, const float linear_damping_factor,
                         const float angular_damping_factor, const float max_angular_step,
                         const bool first, const float3 gravity_h,
-                        __global const float4* kicks, const bool kick, const bool ok)
+                        __global const float4* kicks, const bool kick,${" volatile __global long* warm_sums, const bool take," if summed else ""} const bool ok)
 {
     const uint lanes = get_global_size(0);
     for (uint i = lane; ok && i < body_count; i += lanes) {
@@ -682,7 +771,12 @@ inline void move_bodies(volatile __global Body* bodies, volatile __global SplitV
         bodies[i].orientation = orientation;
         if (kick)
             v += kicks[2 * i].xyz, w += kicks[2 * i + 1].xyz;
-        bodies[i].linear_velocity = (float4)(v + gravity_h, 0.0f);
+        v += gravity_h;
+% if summed:
+        if (take)
+            take_warm_sum(warm_sums + RB_WARM_SUM_WORDS * i, &v, &w);
+% endif
+        bodies[i].linear_velocity = (float4)(v, 0.0f);
         bodies[i].angular_velocity = (float4)(w, 0.0f);
         if (first) {
             deltas[i].linear = (float4)(moved, 0.0f);
@@ -695,83 +789,86 @@ inline void move_bodies(volatile __global Body* bodies, volatile __global SplitV
 }
 
 % endif
-% if summed:
+% if fused:
 
-/* Add a velocity change to a body's fixed-point sums (linear, then angular). */
-inline void add_warm_sum(volatile __global long* sums, float3 linear, float3 angular)
+/* One sweep's rows of contact `index` on a private copy, as solve_copy, with
+ * what the substeps fold into their sweeps (Sweep): before the rows, the
+ * copy's targets refreshed for the substep (the first sweep of every substep
+ * but the first: refresh_batches' arithmetic, by the same lanes, on the copy
+ * the rows read); after them, in the last velocity sweep of a substep that
+ * another follows, its impulses carried (carry_impulses) and, for a summed
+ * warm start, their velocity changes added to the bodies' sums, which the
+ * bodies take when they move (move_bodies). The impulses are final then, so
+ * neither needs a pass over the constraints, nor a barrier, of its own. */
+inline void solve_copy_fused(__global ContactConstraint* constraints, uint index,
+                             volatile __global Body* bodies, __global const BodyInertia* inertia,
+                             volatile __global SplitVelocity* split, const float relaxation,
+                             const Sweep s${fused_params})
 {
-    atom_add(&sums[0], convert_long_rte(linear.x * WARM_SUM_ONE));
-    atom_add(&sums[1], convert_long_rte(linear.y * WARM_SUM_ONE));
-    atom_add(&sums[2], convert_long_rte(linear.z * WARM_SUM_ONE));
-    atom_add(&sums[3], convert_long_rte(angular.x * WARM_SUM_ONE));
-    atom_add(&sums[4], convert_long_rte(angular.y * WARM_SUM_ONE));
-    atom_add(&sums[5], convert_long_rte(angular.z * WARM_SUM_ONE));
-}
-
-inline float3 warm_sum_vector(volatile __global const long* sums)
-{
-    return (float3)(convert_float(sums[0]), convert_float(sums[1]), convert_float(sums[2]))
-           * (1.0f / WARM_SUM_ONE);
-}
-
-/* Summed warm start, phase 1: the velocity changes of the constraints lane
- * `lane` solves (its share of every batch: it wrote their impulses), added to
- * their dynamic bodies' sums. */
-inline void sum_warm_starts(__global const ContactConstraint* constraints,
-                            __global const uint* order, __global const uint* offsets,
-                            uint batch_count, uint lane,
-                            volatile __global Body* bodies, __global const BodyInertia* inertia,
-                            volatile __global long* warm_sums, const bool ok${joint_params})
-{
-    const uint lanes = get_global_size(0);
-    for (uint batch = 0; ok && batch < batch_count; ++batch) {
-      const uint first = offsets[batch], end = offsets[batch + 1];
-      const uint2 share = batch_share(first, end, batch, lane, lanes);
-      for (uint i = share.x; i < end; i += share.y) {
-        ContactBodies state;
-        uint a, b;
-% if joints:
-        if (is_joint(order[i])) {
-            __global const JointConstraint* j = &joints[order[i] & RB_EDGE_INDEX_MASK];
-            if (j->flags & RB_JOINT_BROKEN)
-                continue;
-            JointFrame f;
-            a = j->body_a, b = j->body_b;
-            load_joint(j, bodies, inertia, &state, &f);
-            state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
-            warm_start_joint_rows(j, &f, &state);
-        } else
-% endif
-        {
-            ContactConstraint c = constraints[order[i]];  /* a private copy */
-            a = c.body_a, b = c.body_b;
-            load_bodies(&state, bodies, inertia, a, b);
-            state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
-            warm_start_contact(&c, &state);
-        }
-        if (state.inv_mass_a > 0.0f)
-            add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * a, state.va, state.wa);
-        if (state.inv_mass_b > 0.0f)
-            add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * b, state.vb, state.wb);
-      }
+    ContactConstraint c = constraints[index];
+    if (s.refresh_velocity || s.refresh_push) {
+        uint a = c.body_a, b = c.body_b;
+        refresh_targets_private(&c, deltas[b].linear.xyz - deltas[a].linear.xyz,
+                                deltas[a].angular.xyz, deltas[b].angular.xyz, h,
+                                penetration_slop, penetration_recovery, s.refresh_velocity,
+                                s.refresh_push);
     }
+    solve_rows(&c, bodies, inertia, split, relaxation, s);
+    if (s.carry)
+        carry_impulses_private(&c);
+% if summed:
+    if (s.sum)
+        sum_contact_warm_start(&c, bodies, inertia, warm_sums);
+% endif
+    if (s.velocity) {
+        constraints[index].normal_impulse = c.normal_impulse;
+        constraints[index].tangent1_impulse = c.tangent1_impulse;
+        constraints[index].tangent2_impulse = c.tangent2_impulse;
+    }
+    if (s.refresh_velocity)
+        constraints[index].velocity_target = c.velocity_target;
+    if (s.refresh_push)
+        constraints[index].position_target = c.position_target;
+    if (s.push || s.refresh_push)
+        constraints[index].push_impulse = c.push_impulse;
 }
+% endif
+% if persistent:
 
-/* Summed warm start, phase 2: every lanes-th body from `lane` takes its sums
- * and clears them for the next step. */
-inline void take_warm_sums(volatile __global Body* bodies, volatile __global long* warm_sums,
-                           uint body_count, uint lane, const bool ok)
+/* Lane `lane`'s share of one batch of a sweep over the whole launch: the
+ * velocity rows of its share, and the push rows of the share of lane
+ * `push_lane` when the batch has at most push_offset constraints, else of
+ * its own (see solve_groups). */
+inline void solve_batch_persistent(__global ContactConstraint* constraints,
+                                   __global const uint* order, uint first, uint end, uint batch,
+                                   uint lane, uint push_lane, uint push_offset,
+                                   volatile __global Body* bodies,
+                                   __global const BodyInertia* inertia,
+                                   volatile __global SplitVelocity* split,
+                                   const float relaxation, const Sweep s${joint_params}${fused_params})
 {
     const uint lanes = get_global_size(0);
-    for (uint body = lane; ok && body < body_count; body += lanes) {
-        volatile __global long* sums = warm_sums + RB_WARM_SUM_WORDS * body;
-        if (bodies[body].inv_mass > 0.0f) {
-            float3 linear = warm_sum_vector(sums), angular = warm_sum_vector(sums + 3);
-            bodies[body].linear_velocity = (float4)(bodies[body].linear_velocity.xyz + linear, 0.0f);
-            bodies[body].angular_velocity = (float4)(bodies[body].angular_velocity.xyz + angular, 0.0f);
-            for (uint k = 0; k < RB_WARM_SUM_WORDS; ++k)
-                sums[k] = 0;
-        }
+    const uint push_owner = end - first <= push_offset ? push_lane : lane;
+    if (s.velocity) {
+        Sweep velocity_rows = s;
+        velocity_rows.push = false;
+% if fused:
+        /* (a sweep without push rows refreshes their targets with the velocity rows') */
+        velocity_rows.refresh_push = s.refresh_push && !s.push;
+% endif
+        const uint2 share = batch_share(first, end, batch, lane, lanes);
+        for (uint i = share.x; i < end; i += share.y)
+            ${"solve_copy_fused" if fused else "solve_copy"}(constraints, order[i], bodies, inertia, split, relaxation, velocity_rows${joint_args}${fused_args});
+    }
+    if (s.push) {
+        Sweep push_rows = s;
+        push_rows.velocity = false;
+% if fused:
+        push_rows.refresh_velocity = push_rows.carry = push_rows.sum = false;
+% endif
+        const uint2 share = batch_share(first, end, batch, push_owner, lanes);
+        for (uint i = share.x; i < end; i += share.y)
+            ${"solve_copy_fused" if fused else "solve_copy"}(constraints, order[i], bodies, inertia, split, relaxation, push_rows${joint_args}${fused_args});
     }
 }
 % endif
@@ -860,31 +957,51 @@ void solve_groups(${signature("solve_groups")})
     __global const uint* offsets = group_batches + group_offset * (MAX_BATCHES + 1);
     const uint batch_count = group_batch_count[group_offset];
     const uint sweeps = max(velocity_sweeps, position_sweeps);
+% if fused:
+    /* The sweeps take over the substeps' passes over the constraints (Sweep,
+     * solve_copy_fused) where there is a velocity sweep to fold them into: each
+     * substep's last velocity sweep carries its impulses and sums their warm
+     * start, the bodies take the sums when they move, and the next substep's
+     * first sweep refreshes the targets of what it solves. */
+    const bool folded = velocity_sweeps > 0u;
+% else:
+    const bool folded = false;  /* (see `fused`: joints keep the passes) */
+% endif
     /* (substeps 0: the warm start and sweeps alone, the bodies left where they are) */
     for (uint substep = 0; substep < max(substeps, 1u); ++substep) {
+        /* the previous substep's last sweep carried (and summed) the impulses */
+        const bool carried = folded && substep > 0;
         if (substep > 0) {
             /* the bodies move over the substep that ended and take this one's
-             * gravity; then the constraints' targets follow them */
+             * gravity${" (and their warm start's sums, when carried)" if summed else ""}; then the constraints' targets follow them */
             move_bodies(bodies, split, deltas, body_count, lane, h, linear_damping_factor,
                         angular_damping_factor, max_angular_step, substep == 1,
-                        gravity.xyz * h, kicks, kicked != 0u, barrier_ok);
+                        gravity.xyz * h, kicks, kicked != 0u,${" warm_sums, carried && (passes & WARM_START_PASS) != 0," if summed else ""}
+                        barrier_ok);
             device_barrier(sync, &barrier_ok);
-            if (barrier_ok)
-                refresh_batches(constraints, order, offsets, batch_count, lane, push_lane,
-                                push_offset, deltas, h, penetration_slop, penetration_recovery);
+            if (!carried) {
+                if (barrier_ok)
+                    refresh_batches(constraints, order, offsets, batch_count, lane, push_lane,
+                                    push_offset, deltas, h, penetration_slop,
+                                    penetration_recovery);
 % if not summed:
-            device_barrier(sync, &barrier_ok);
+                device_barrier(sync, &barrier_ok);
 % endif
+            }
         }
-        if (passes & WARM_START_PASS) {
 % if summed:
+        if ((passes & WARM_START_PASS) && !carried) {
             /* every constraint's impulses summed per body, then every body takes its sum */
             sum_warm_starts(constraints, order, offsets, batch_count, lane, bodies, inertia,
                             warm_sums, barrier_ok${joint_args});
             device_barrier(sync, &barrier_ok);
             take_warm_sums(bodies, warm_sums, body_count, lane, barrier_ok);
             device_barrier(sync, &barrier_ok);
+        } else if (substep > 0 && !carried) {
+            device_barrier(sync, &barrier_ok);  /* (the refresh before the sweeps) */
+        }
 % else:
+        if (passes & WARM_START_PASS) {
             for (uint step = 0; step < batch_count; ++step) {
                 const uint batch = batch_count - 1 - step;  /* the highest colour first */
                 const uint first = offsets[batch], end = offsets[batch + 1];
@@ -896,18 +1013,20 @@ void solve_groups(${signature("solve_groups")})
                                  get_global_size(0), bodies, inertia${joint_args});
                 device_barrier(sync, &barrier_ok);
             }
-% endif
-% if summed:
-        } else if (substep > 0) {
-            device_barrier(sync, &barrier_ok);  /* (the refresh before the sweeps) */
-% endif
         }
+% endif
         /* (the restitution in the last substep only) */
-        const uint substep_passes = substep + 1u >= max(substeps, 1u)
-                                    ? passes : passes & ~RESTITUTION_PASS;
+        const bool last_substep = substep + 1u >= max(substeps, 1u);
+        const uint substep_passes = last_substep ? passes : passes & ~RESTITUTION_PASS;
         for (uint sweep = 0; sweep < sweeps; ++sweep) {
-            const Sweep s = sweep_of(sweep, substep_passes, velocity_sweeps, position_sweeps,
+            ${"Sweep" if fused else "const Sweep"} s = sweep_of(sweep, substep_passes, velocity_sweeps, position_sweeps,
                                      velocity_release_from, position_release_from);
+% if fused:
+            s.refresh_velocity = carried && sweep == 0 && s.velocity;
+            s.refresh_push = carried && sweep == 0;
+            s.carry = folded && !last_substep && sweep + 1 == velocity_sweeps;
+            s.sum = ${"s.carry && (passes & WARM_START_PASS) != 0" if summed else "false"};
+% endif
             for (uint step = 0; step < batch_count; ++step) {
                 const uint batch = batch_count - 1 - step;
                 const uint first = offsets[batch], end = offsets[batch + 1];
@@ -915,7 +1034,7 @@ void solve_groups(${signature("solve_groups")})
                     continue;
                 solve_batch_persistent(constraints, order, first, end, batch, lane, push_lane,
                                        push_offset, bodies, inertia, split, relaxation,
-                                       s${joint_args});
+                                       s${joint_args}${fused_args});
                 device_barrier(sync, &barrier_ok);
             }
         }
@@ -924,7 +1043,7 @@ void solve_groups(${signature("solve_groups")})
     if (substeps > 0)
         move_bodies(bodies, split, deltas, body_count, lane, h, linear_damping_factor,
                     angular_damping_factor, max_angular_step, substeps == 1, (float3)(0.0f),
-                    kicks, false, barrier_ok);
+                    kicks, false,${" warm_sums, false," if summed else ""} barrier_ok);
     device_barrier_leave(sync);
 % endif
 }
