@@ -22,7 +22,12 @@ Warm start (``warm_start_mode``): ``batched``, a sweep over the batches that app
 every constraint's old impulses; ``summed`` (persistent solves on devices with 64-bit
 atomics), two phases: every constraint's old impulses become velocity changes summed
 per body in 64-bit fixed point (order-free integer sums: the same bits every run), then
-every body takes its sum.
+every body takes its sum. Between the substeps of a persistent launch without joints the
+two phases fold into the launch's other work: the last velocity sweep of a substep sums
+each constraint's warm start as it solves it (its impulses are final then), and the bodies
+take the sums as they move; the first sweep of the next substep refreshes each
+constraint's targets before its rows. One device-wide barrier separates two substeps, and
+no pass over the constraints runs between them.
 
 Sweeps: `solve` runs the warm start, ``iterations`` velocity sweeps and
 ``position_iterations`` split-impulse sweeps; position sweep k is solved in the same

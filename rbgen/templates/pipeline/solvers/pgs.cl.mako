@@ -99,6 +99,13 @@
  * move over its h, so no integrator launch follows. A constraint is refreshed
  * and summed by the lanes that solve its rows, so that no lane reads a field
  * another work group wrote through its compute unit's cache.
+% if fused:
+ * Between substeps there is no pass over the constraints: a substep's last
+ * velocity sweep carries each constraint's impulses and sums their warm
+ * start as it solves it, the bodies take the sums as they move, and the next
+ * substep's first sweep refreshes each constraint's targets before its rows
+ * (solve_copy_fused): one device-wide barrier between substeps.
+% endif
  *
 % endif
  * `order` lists constraint-edge items (layouts: ConstraintEdge). A contact's
