@@ -26,6 +26,8 @@ STANDARD_BOXBOX_DIMS = {
     8_000: (20, 20, 20),
     27_000: (30, 30, 30),
     111_375: (45, 55, 45),
+    # (issue 24's largest: a wide lattice 25 boxes tall)
+    1_000_000: (200, 25, 200),
 }
 
 #: Half thickness of the ground slab (its top face is y = 0).
@@ -93,7 +95,7 @@ def boxbox_scene(nx: int, ny: int, nz: int) -> BoxScene:
 
 
 def standard_boxbox_dims(count: int) -> tuple[int, int, int]:
-    """(nx, ny, nz) for a standard BoxBox size: 1000, 8000, 27000 or 111375."""
+    """(nx, ny, nz) for a standard BoxBox size: 1000, 8000, 27000, 111375 or 1000000."""
     try:
         return STANDARD_BOXBOX_DIMS[int(count)]
     except (KeyError, ValueError, TypeError):
