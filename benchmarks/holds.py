@@ -21,6 +21,9 @@ stepped ``--steps`` steps (dt 1/60) from its start, once per candidate:
 ``shock_s8_21``, ``shock_s8_31``, ``shock_s4_31``  the shock sweep at 8 x (2 + 1),
              8 x (3 + 1) and 4 x (3 + 1): the last velocity sweep of each substep is the
              shock sweep
+``shock_release1``  the default with only the last velocity sweep of a substep solving each
+             manifold's complete block (plan release_sweeps=1; the earlier one takes its
+             all-pushing solution: a cheaper sweep)
 (every candidate but ``default`` and those named ``shock_*`` runs without the shock sweep)
 (every candidate keeps the default block normal solve; ``normal_solve`` is a World option
 for a candidate that wants the sequential one)
@@ -66,6 +69,7 @@ CANDIDATES = {
     "shock_s8_21": {"substeps": 8, "iterations": 2, "position_iterations": 1},
     "shock_s8_31": {"substeps": 8, "iterations": 3, "position_iterations": 1},
     "shock_s4_31": {"substeps": 4, "iterations": 3, "position_iterations": 1},
+    "shock_release1": {"plan": {"release_sweeps": 1}},
 }
 #: the candidates without "shock" in their name run without the shock sweep (as every
 #: World did before it was the default), those with it run it
