@@ -1,7 +1,7 @@
 """Continuous collision: the tunnelling table, and BoxBox's step time against a baseline.
 
-    python benchmarks/continuous.py [--device D] [--baseline REV] [--size 8000]
-                                    [--steps 100] [--warmup 10] [--rounds 3]
+    python benchmarks/continuous.py [--device D] [--baseline REV] [--tree REV]
+                                    [--size 8000] [--steps 100] [--warmup 10] [--rounds 3]
                                     [--skip-cost] [--out DIR]
 
 1. Tunnelling: a sphere and a box (inner radius r = 5 cm, 1 kg) shot along +z at a
@@ -21,6 +21,11 @@
    the median of its rounds' ms/step (each itself a median of 10 blocks), and the
    fastest block of all its rounds (the least disturbed on a shared machine). Also
    compared: pairs, manifolds and contact points (equal when nothing is fast).
+   This tree differs from the branch point by everything merged since, not only by
+   continuous collision: ``--tree 652f79d`` (the continuous-collision branch's head, whose
+   only changes from 06bc3af are its own) times that tree instead, which is the cost of
+   continuous collision alone. (A tree whose scenes.py has no ``--substeps`` runs its
+   one substep.)
 
 Run it from the repository root with this tree's rbgen first on the path
 (``PYTHONPATH=. python benchmarks/continuous.py``). Writes a JSON and Markdown record
@@ -115,6 +120,7 @@ def export_tree(revision: str, into: Path) -> Path:
     directory holding them (a machine without the repository's history) is used as it is."""
     if (Path(revision) / "rbgen").is_dir():
         return Path(revision).resolve()
+    into.mkdir(parents=True, exist_ok=True)
     archive = into / "tree.tar"
     with open(archive, "wb") as out:
         subprocess.run(
@@ -140,7 +146,7 @@ def time_boxbox(tree: Path, args) -> dict:
         # one effort for both trees (a baseline from before substepping has one substep and
         # no --substeps): what differs is then only continuous collision
         command += ["--iterations", str(EFFORT[0]), "--position-iterations", str(EFFORT[1])]
-        if tree == ROOT:
+        if "--substeps" in (tree / "benchmarks" / "scenes.py").read_text():
             command += ["--substeps", "1"]
         if args.device is not None:
             command += ["--device", str(args.device)]
@@ -154,10 +160,11 @@ def time_boxbox(tree: Path, args) -> dict:
 
 def cost(args) -> dict:
     with tempfile.TemporaryDirectory() as scratch:
-        baseline_tree = export_tree(args.baseline, Path(scratch))
+        baseline_tree = export_tree(args.baseline, Path(scratch) / "baseline")
+        timed_tree = ROOT if args.tree is None else export_tree(args.tree, Path(scratch) / "tree")
         runs: dict[str, list] = {"baseline": [], "this tree": []}
         for round_ in range(args.rounds):
-            for name, tree in (("baseline", baseline_tree), ("this tree", ROOT)):
+            for name, tree in (("baseline", baseline_tree), ("this tree", timed_tree)):
                 result = time_boxbox(tree, args)
                 runs[name].append(result)
                 print(
@@ -193,6 +200,7 @@ def cost(args) -> dict:
             "ms_spread": [min(times["baseline"]), max(times["baseline"])],
         },
         "ratio": this / base,
+        "tree": args.tree or "this tree",
         "fastest_block_ms": fastest,
         "same_contacts": same_contacts,
         "runs": {name: [r["ms"] for r in rs] for name, rs in runs.items()},
@@ -206,6 +214,11 @@ def main(argv=None) -> int:
         "--baseline",
         default="06bc3af",
         help="git revision (or a directory with its rbgen/ and benchmarks/) to compare with",
+    )
+    parser.add_argument(
+        "--tree",
+        default=None,
+        help="git revision (or directory) to time against the baseline instead of this tree",
     )
     parser.add_argument("--size", type=int, default=8000, help="BoxBox boxes")
     parser.add_argument("--steps", type=int, default=100)
