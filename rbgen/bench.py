@@ -347,7 +347,12 @@ def _write_atomic(path: Path, text: str) -> None:
 def _git_commit() -> str | None:
     """The checkout's commit (12 digits), with ``+dirty`` when rbgen's or the benchmarks'
     files (results aside) differ from it: a copied or edited tree then does not claim a
-    commit it does not match."""
+    commit it does not match. ``RBGEN_GIT_COMMIT``, where set, is taken as it is: the
+    caller names the commit a copied tree holds where the copy's own repository is at
+    another (the lent GPU machine's copy names the branch's commit, not the one checked out)."""
+    override = os.environ.get("RBGEN_GIT_COMMIT", "").strip()
+    if override:
+        return override
     here = Path(__file__).resolve().parent
 
     def git(*args: str) -> str:

@@ -110,6 +110,18 @@ def test_validate_names_what_is_missing():
         bench.validate(record)
 
 
+def test_a_record_names_the_commit_the_caller_gives(monkeypatch):
+    """RBGEN_GIT_COMMIT names the commit where the copy's own git cannot (taken as given);
+    without it the record names this checkout's commit, 12 hex digits (+dirty if edited)."""
+    monkeypatch.setenv("RBGEN_GIT_COMMIT", "043beb5a0b1c")
+    assert bench.make_record("scenes", [], None, {})["git_commit"] == "043beb5a0b1c"
+    monkeypatch.delenv("RBGEN_GIT_COMMIT")
+    commit = bench.make_record("scenes", [], None, {})["git_commit"]
+    if commit is not None:  # (None outside a git checkout: a copied tree)
+        head = commit.removesuffix("+dirty")
+        assert len(head) == 12 and int(head, 16) >= 0 and commit != "043beb5a0b1c"
+
+
 def test_settling_counts_displaced_boxes_and_layer_drops():
     """Two layers (y = 1 and y = 3): one box slides 0.6 m sideways (displaced), one 0.4 m
     (not); the upper layer's boxes fall 0.1 and 0.3 m (median 0.2), the lower's 0."""
