@@ -23,9 +23,15 @@
 #           against the tree in .baseline/ (issue 24's CPU speed; see ccd for .baseline)
 #   shockcpu  benchmarks/holds.py on that PoCL device: the CPU default (with the shock sweep)
 #           against it without, 8,000 and 27,000 boxes traced to step 300
-#   ccd     benchmarks/continuous.py: the tunnelling table, and BoxBox 8,000 against the tree in
-#           .baseline/ (before continuous collision: `mkdir -p .baseline && git archive main
-#           rbgen benchmarks | tar -x -C .baseline`; carry it)
+#   ccd     benchmarks/continuous.py: the tunnelling table, and the cost of continuous collision:
+#           BoxBox 8,000 in the branch's head against its branch point (`mkdir -p .baseline
+#           .ccdtree && git archive 06bc3af rbgen benchmarks | tar -x -C .baseline && git
+#           archive 652f79d rbgen benchmarks | tar -x -C .ccdtree`; carry both)
+#   anatomy benchmarks/solve_anatomy.py: where the solve's time goes (a velocity sweep, the push
+#           rows, a substep), BoxBox 1,000 and 111,375 (issue 24)
+#   barrier benchmarks/device_barrier.py: a device-wide barrier's cost, the floor of a phase
+# A record names the commit it measured; the machine's copy of the repository names another,
+# so give it: `RBGEN_GIT_COMMIT=<12 digits of HEAD> bash .whl/gpu-env.sh bash ...`.
 # The suite runs in 12 processes (pytest-xdist; about 70 s on the H200 machine's 16 cores). Only 8
 # files come back from $OUT: the stages pack everything into $OUT/device_check.tgz.
 set -uo pipefail
@@ -87,14 +93,21 @@ for stage in "$@"; do
         --options '{"shock_propagation": true}' --out "$OUT/shock_stack21"
       run_stage shock_stack31 python3 benchmarks/stacking.py --device "$DEVICE" \
         --options '{"shock_propagation": true, "iterations": 3}' --out "$OUT/shock_stack31" ;;
+    anatomy)
+      run_stage anatomy python3 benchmarks/solve_anatomy.py --device "$DEVICE" \
+        --out "$OUT/anatomy" ;;
+    barrier)
+      run_stage barrier python3 benchmarks/device_barrier.py --device "$DEVICE" \
+        --out "$OUT/barrier" ;;
     envs)
       run_stage envs python3 benchmarks/many_envs.py --device "$DEVICE" \
         --envs 1,16,256,1024,4096,16384 --out "$OUT/envs" ;;
     ccd)
       run_stage ccd python3 benchmarks/continuous.py --device "$DEVICE" --baseline .baseline \
+        --tree .ccdtree \
         --size 8000 --out "$OUT/ccd" ;;
     *)
-      echo "device_check: unknown stage '$stage' (suite, bench, mesh, cpp, record, holds, shock, shockcpu, envs, ccd, cpu)" >&2
+      echo "device_check: unknown stage '$stage' (suite, bench, mesh, cpp, record, holds, shock, shockcpu, envs, ccd, cpu, anatomy, barrier)" >&2
       exit 2 ;;
   esac
 done
