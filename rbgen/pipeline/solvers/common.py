@@ -64,10 +64,9 @@ def shock_sweep(sweeps, joints: bool = False) -> bool:
     """Whether each substep's last velocity sweep is a shock sweep under the step settings
     ``sweeps``: their shock_propagation where it is True or False; where it is None (the
     default), wherever the Gauss-Seidel solve can run one, that is with iterations >= 2
-    (a sweep before it carries the loads), in a World without ``joints``. (Jointed bodies
-    are not held as a unit: ragdolls dropped on boxes came to rest later with the sweep,
-    some still at 0.3-5 m/s after 8 s where all rested by 7 s without it.) Solver
-    'jacobi' runs none: it refuses only an explicit True."""
+    (a sweep before it carries the loads), in a World without ``joints`` (jointed bodies
+    are not held as a unit, and ragdolls dropped on boxes came to rest later with the
+    sweep: README, Settings). Solver 'jacobi' runs none: it refuses only an explicit True."""
     value = getattr(sweeps, "shock_propagation", False)
     if value is None:
         return int(sweeps.iterations) >= 2 and not joints
