@@ -13,19 +13,16 @@
    exceeds FAST_FRACTION r (`rbgen.pipeline.prepare`).
 2. Cost (the baseline): BoxBox with ``--size`` boxes (no fast body: its boxes rest), both at
    one substep of 10 + 4 sweeps (`EFFORT`; the World's default effort differs by device and
-   release),
-   timed by ``benchmarks/scenes.py`` in this tree and in ``--baseline`` (a git revision
-   of this repository, default 06bc3af: the branch point, without continuous
-   collision), each run in its own process, alternating baseline and this tree
-   ``--rounds`` times so that drift of the machine falls on both; each side's time is
-   the median of its rounds' ms/step (each itself a median of 10 blocks), and the
-   fastest block of all its rounds (the least disturbed on a shared machine). Also
-   compared: pairs, manifolds and contact points (equal when nothing is fast).
-   This tree differs from the branch point by everything merged since, not only by
-   continuous collision: ``--tree 652f79d`` (the continuous-collision branch's head, whose
-   only changes from 06bc3af are its own) times that tree instead, which is the cost of
-   continuous collision alone. (A tree whose scenes.py has no ``--substeps`` runs its
-   one substep.)
+   release), timed by ``benchmarks/scenes.py`` in ``--tree`` and in ``--baseline`` (git
+   revisions of this repository, or directories holding their rbgen/ and benchmarks/;
+   by default the continuous-collision branch's head 652f79d and its branch point 06bc3af,
+   which differ by continuous collision alone: this tree differs from the branch point by
+   everything merged since; ``--tree .`` times it all the same), each run in its own
+   process, alternating the two ``--rounds`` times so that drift of the machine falls on
+   both; each side's time is the median of its rounds' ms/step (each itself a median of
+   10 blocks), and the fastest block of all its rounds (the least disturbed on a shared
+   machine). Also compared: pairs, manifolds and contact points (equal when nothing is
+   fast). (A tree whose scenes.py has no ``--substeps`` runs its one substep.)
 
 Run it from the repository root with this tree's rbgen first on the path
 (``PYTHONPATH=. python benchmarks/continuous.py``). Writes a JSON and Markdown record
@@ -161,10 +158,10 @@ def time_boxbox(tree: Path, args) -> dict:
 def cost(args) -> dict:
     with tempfile.TemporaryDirectory() as scratch:
         baseline_tree = export_tree(args.baseline, Path(scratch) / "baseline")
-        timed_tree = ROOT if args.tree is None else export_tree(args.tree, Path(scratch) / "tree")
-        runs: dict[str, list] = {"baseline": [], "this tree": []}
+        timed_tree = export_tree(args.tree, Path(scratch) / "tree")
+        runs: dict[str, list] = {"baseline": [], "timed": []}
         for round_ in range(args.rounds):
-            for name, tree in (("baseline", baseline_tree), ("this tree", timed_tree)):
+            for name, tree in (("baseline", baseline_tree), ("timed", timed_tree)):
                 result = time_boxbox(tree, args)
                 runs[name].append(result)
                 print(
@@ -175,32 +172,31 @@ def cost(args) -> dict:
                     flush=True,
                 )
     times = {name: [r["ms"] for r in rs] for name, rs in runs.items()}
-    base, this = (statistics.median(times[n]) for n in ("baseline", "this tree"))
+    base, this = (statistics.median(times[n]) for n in ("baseline", "timed"))
     # (on a shared machine the fastest block of all rounds is the least disturbed)
     fastest = {name: min(min(r["ms_blocks"]) for r in rs) for name, rs in runs.items()}
     same_contacts = all(
-        runs["baseline"][0][k] == runs["this tree"][0][k]
-        for k in ("pairs", "manifolds", "contacts")
+        runs["baseline"][0][k] == runs["timed"][0][k] for k in ("pairs", "manifolds", "contacts")
     )
     print(
         f"BoxBox {args.size}: baseline ({args.baseline}) {base:.2f} ms/step "
-        f"[{min(times['baseline']):.2f}, {max(times['baseline']):.2f}], this tree {this:.2f} "
-        f"[{min(times['this tree']):.2f}, {max(times['this tree']):.2f}], ratio "
+        f"[{min(times['baseline']):.2f}, {max(times['baseline']):.2f}], {args.tree} {this:.2f} "
+        f"[{min(times['timed']):.2f}, {max(times['timed']):.2f}], ratio "
         f"{this / base:.3f}; fastest blocks {fastest['baseline']:.2f} and "
-        f"{fastest['this tree']:.2f} (ratio {fastest['this tree'] / fastest['baseline']:.3f}); "
+        f"{fastest['timed']:.2f} (ratio {fastest['timed'] / fastest['baseline']:.3f}); "
         f"same pairs, manifolds and points: {same_contacts}"
     )
     return {
         "name": f"boxbox {args.size}",
         "ms": this,
-        "ms_spread": [min(times["this tree"]), max(times["this tree"])],
+        "ms_spread": [min(times["timed"]), max(times["timed"])],
         "baseline": {
             "name": f"{args.baseline} (no continuous collision)",
             "ms": base,
             "ms_spread": [min(times["baseline"]), max(times["baseline"])],
         },
         "ratio": this / base,
-        "tree": args.tree or "this tree",
+        "tree": args.tree,
         "fastest_block_ms": fastest,
         "same_contacts": same_contacts,
         "runs": {name: [r["ms"] for r in rs] for name, rs in runs.items()},
@@ -217,8 +213,9 @@ def main(argv=None) -> int:
     )
     parser.add_argument(
         "--tree",
-        default=None,
-        help="git revision (or directory) to time against the baseline instead of this tree",
+        default="652f79d",
+        help="git revision (or a directory with its rbgen/ and benchmarks/; '.': this tree) "
+        "to time against the baseline",
     )
     parser.add_argument("--size", type=int, default=8000, help="BoxBox boxes")
     parser.add_argument("--steps", type=int, default=100)

@@ -11,8 +11,9 @@ Per size, these runs (World options beside the defaults):
 ``no_push``        position_iterations=0 (no split-impulse push rows);
 ``half_substeps``  substeps halved.
 
-Each run: wall ms/step, the kernels' device time a step (profiling events; median over
-``--steps`` steps after ``--warmup``), the solve kernel's share, launches. Then, from the
+Each run: wall ms/step (the median of `TIMING_BLOCKS` blocks; the queue profiles, so a
+little above a World's without), the kernels' device time a step (profiling events; median
+over ``--steps`` steps after ``--warmup``), the solve kernel's share, launches. Then, from the
 differences against ``default`` (each divided by the default's substeps): what one velocity
 sweep, the push rows and one whole substep cost the solve a substep, and a velocity sweep's
 cost per colour (a colour is a phase of the sweep: its batch, then a barrier). A
@@ -37,6 +38,9 @@ from rbgen.harness import build_scene
 
 #: the kernel of the PGS solve (every sweep of a persistent launch)
 SOLVE_KERNEL = "solve_groups"
+#: blocks of steps the wall time is taken over (each ended by draining the queue, so that
+#: the host's lead over the device carries on within a block, as in a World's run)
+TIMING_BLOCKS = 4
 
 
 def variants(substeps: int) -> dict[str, dict]:
@@ -55,14 +59,19 @@ def time_run(runtime: Runtime, n: int, options: dict, steps: int, warmup: int) -
     for _ in range(warmup):
         world.step(1 / 60)
     runtime.queue.finish()
-    walls = []
+    walls = []  # ms/step of each block of steps, ended by draining the queue
+    block = max(1, steps // TIMING_BLOCKS)
     with KernelEvents() as launches:
+        start, in_block = time.perf_counter(), 0
         for step in range(steps):
             launches.step = step
-            start = time.perf_counter()
             world.step(1 / 60)
-            runtime.queue.finish()
-            walls.append(1e3 * (time.perf_counter() - start))
+            in_block += 1
+            if in_block == block or step + 1 == steps:
+                runtime.queue.finish()
+                now = time.perf_counter()
+                walls.append(1e3 * (now - start) / in_block)
+                start, in_block = now, 0
     per_step = launches.per_step_ms(steps)
     kernel = sum(per_step.values())
     solve = per_step.get(SOLVE_KERNEL, np.zeros(steps))
