@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import math
 import os
 import platform
 import subprocess
@@ -440,12 +441,20 @@ def markdown(record: dict) -> str:
         lines += ["| case | ms (median) | spread | baseline |", "| --- | ---: | ---: | --- |"]
         for r in record["results"]:
             base = r.get("baseline")
-            base_text = f"{base['name']}: {base['ms']:.3f} ms" if isinstance(base, dict) else "-"
+            base_text = f"{base['name']}: {_ms(base['ms'])} ms" if isinstance(base, dict) else "-"
             lines.append(
-                f"| {r['name']} | {r['ms']:.3f} | {r['ms_spread'][0]:.3f}-"
-                f"{r['ms_spread'][1]:.3f} | {base_text} |"
+                f"| {r['name']} | {_ms(r['ms'])} | {_ms(r['ms_spread'][0])}-"
+                f"{_ms(r['ms_spread'][1])} | {base_text} |"
             )
     return "\n".join(lines) + "\n"
+
+
+def _ms(ms: float) -> str:
+    """A case's milliseconds: three decimals, or three significant digits below 0.1 ms (a
+    device barrier's microsecond would otherwise print as 0.001)."""
+    if ms >= 0.1 or ms <= 0:
+        return f"{ms:.3f}"
+    return f"{ms:.{2 - math.floor(math.log10(ms))}f}"
 
 
 def _time(r: dict) -> str:

@@ -256,3 +256,24 @@ def test_a_scene_records_its_broadphase_and_last_step_launches_by_kernel(runtime
     for key in ("batches_blocks", "manifolds_blocks"):
         assert result[key] == slot[key] and len(result[key]) == len(result["ms_blocks"])
     assert "[fell back from the plan's broadphase]" in bench.format_result(result)
+
+
+def test_case_times_keep_three_significant_digits_below_a_tenth_of_a_millisecond():
+    # a device barrier's microsecond must not print as 0.001 beside a 3 ms case
+    record = {
+        "kind": "device_barrier",
+        "created": "2026-12-05T00:00:00Z",
+        "rbgen_version": "0",
+        "results": [
+            {"name": "a", "ms": 0.0010837, "ms_spread": [0.00107, 0.0011], "baseline": None},
+            {
+                "name": "b",
+                "ms": 3.0,
+                "ms_spread": [2.5, 3.25],
+                "baseline": {"name": "a", "ms": 2.95e-05},
+            },
+        ],
+    }
+    text = bench.markdown(record)
+    assert "| a | 0.00108 | 0.00107-0.00110 | - |" in text
+    assert "| b | 3.000 | 2.500-3.250 | a: 0.0000295 ms |" in text
