@@ -478,11 +478,12 @@ def pgs_specs():
     """Every reachable specialisation of the PGS template (exact builds), by the rules
     between its parameters."""
     specs = []
-    for form, persistent, warm, normal, joints in itertools.product(
+    for form, persistent, warm, normal, joints, fold in itertools.product(
         ("serial", "lanes"),
         (False, True),
         pgs.WARM_START_MODES,
         ("block", "sequential"),
+        (False, True),
         (False, True),
     ):
         try:
@@ -496,6 +497,7 @@ def pgs_specs():
                     fast_math=False,
                     warm_start_mode=warm,
                     joints=joints,
+                    fold_substeps=fold,
                 )
             )
         except TemplateParameterError:
@@ -508,8 +510,9 @@ def test_kernel_signatures_are_the_declarations():
     (and of the Jacobi kernels) are exactly the declared arguments of that
     specialisation, names and types, in order."""
     specs = pgs_specs()
-    # serial; lanes; persistent batched; persistent summed; x 2 normal solves x 2 (joints)
-    assert len(specs) == 16
+    # (serial; lanes; persistent batched; persistent summed) x 2 normal solves x 2 (joints),
+    # and the persistent ones without joints folded or not: 16 + 4
+    assert len(specs) == 20
     cases = [(spec, pgs.TEMPLATE) for spec in specs]
     cases += [
         (

@@ -177,6 +177,49 @@ def test_persistent_launch_runs_the_substeps_as_the_launches_do(runtime, monkeyp
     assert np.abs(fused[1]).max() < 0.05  # (and they came to rest)
 
 
+@pytest.mark.parametrize("effort", [{}, {"iterations": 3, "position_iterations": 2}])
+def test_folded_substeps_do_the_passes_arithmetic_bit_for_bit(runtime, monkeypatch, effort):
+    """A persistent launch without joints folds each substep's refresh of the targets,
+    carry of the impulses and summed warm start into its sweeps (pgs.cl.mako:
+    solve_copy_fused, template parameter fold_substeps); the same launch built with the
+    passes of their own does the same arithmetic in the same order: equal bits, exact
+    builds (fast math lets each program reorder its own way), stacked boxes settling over
+    40 steps of 8 substeps with damping, at the default effort (with its shock sweep) and at
+    another, whose push sweeps outnumber nothing and end after the velocity sweeps."""
+    from rbgen.pipeline.solvers import pgs
+
+    def run():
+        world = rbgen.World(
+            runtime,
+            batching="global",
+            substeps=8,
+            fast_math=False,
+            linear_damping=0.1,
+            angular_damping=0.2,
+            **effort,
+        )
+        ids = stacked_boxes(world)
+        world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=2.0, position=(0.3, 6.0, 0.2))
+        for _ in range(40):
+            world.step(1 / 60)
+        folded = world._pipeline.solve.solver.spec.values["fold_substeps"]
+        state = (
+            world.positions,
+            world.orientations,
+            world.linear_velocities,
+            world.angular_velocities,
+        )
+        return folded, ids, state
+
+    folded, ids, fused = run()
+    monkeypatch.setattr(pgs, "default_fold_substeps", lambda persistent, joints: False)
+    unfolded, _, passes = run()
+    assert folded and not unfolded
+    for got, want in zip(fused, passes):
+        np.testing.assert_array_equal(got, want)
+    assert np.abs(fused[2][ids]).max() < 0.05  # (the stack came to rest)
+
+
 @pytest.mark.parametrize(
     "substeps,effort",
     [(1, {}), (4, {}), (8, {"iterations": 2, "position_iterations": 1, "normal_solve": "block"})],

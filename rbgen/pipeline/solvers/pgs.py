@@ -249,6 +249,15 @@ TEMPLATE = KernelTemplate(
             "solver alone",
         ),
         Param(
+            "fold_substeps",
+            (False, True),
+            "persistent launches without joints: each substep's refresh of the targets, "
+            "carry of the impulses and summed warm start done by the sweeps as they visit "
+            "the constraints (one device-wide barrier between substeps); off: passes of "
+            "their own, the same arithmetic (a joint's warm start needs them: it measures "
+            "the poses of the substep it starts)",
+        ),
+        Param(
             "warm_start_mode",
             WARM_START_MODES,
             "batched: the warm start is a sweep over the batches (one batch step per "
@@ -288,14 +297,28 @@ def default_values(
         "persistent": persistent,
         "fast_math": resolve_fast_math(traits, None),
         "joints": False,
+        "fold_substeps": default_fold_substeps(persistent, joints=False),
         "warm_start_mode": "summed"
         if persistent and traits.has_extension(INT64_ATOMICS)
         else "batched",
     }
 
 
+def default_fold_substeps(persistent: bool, joints: bool) -> bool:
+    """Whether a solve folds its substeps' passes into its sweeps (the template parameter
+    "fold_substeps"): wherever it can, a persistent launch without joints; it saves two
+    device-wide barriers and two passes over the constraints a substep and does the same
+    arithmetic in the same order (the same bits on an exact build)."""
+    return bool(persistent) and not joints
+
+
 def _parameter_rules(values: dict) -> str | None:
     """What the solver template's parameters must agree on (None: they do)."""
+    if values["fold_substeps"] and not (values["persistent"] and not values["joints"]):
+        return (
+            "fold_substeps needs persistent=True and joints=False (only a persistent "
+            "launch runs the substeps; a joint's warm start needs the passes)"
+        )
     if values["persistent"] and values["solve_form"] != "lanes":
         return "persistent needs solve_form='lanes' (the work groups share the batches)"
     if values["warm_start_mode"] == "summed" and not values["persistent"]:
@@ -438,6 +461,7 @@ class PgsSolver(PushVelocities):
         values.update({k: v for k, v in overrides.items() if v is not None})
         values["max_batches"] = int(batcher.max_batches)
         values["joints"] = bool(joints)
+        values["fold_substeps"] = default_fold_substeps(persistent, values["joints"])
         check_release_sweeps(release_sweeps)
         self.release_sweeps = None if release_sweeps is None else int(release_sweeps)
         self.spec = TEMPLATE.spec(**values)

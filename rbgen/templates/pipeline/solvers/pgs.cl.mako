@@ -17,9 +17,9 @@
     # launches with GEOMETRY_PASS) and its sweeps read it (contact_rows.cl.mako)
     geometry_cache = serial and normal_solve == "block"
     # a persistent launch folds each substep's refresh, carry and warm-start sums into
-    # its sweeps (Sweep); with joints it keeps them as passes of their own (a joint's
-    # warm start measures the bodies' poses of the substep it starts)
-    fused = persistent and not joints
+    # its sweeps (Sweep; pgs.py: fold_substeps); with joints it keeps them as passes of
+    # their own (a joint's warm start measures the bodies' poses of the substep it starts)
+    fused = fold_substeps
     # what a fused sweep's constraint visits take besides solve_copy's arguments
     fused_params = (", volatile __global const BodyDelta* deltas, const float h, "
                     "const float penetration_slop, const float penetration_recovery"
