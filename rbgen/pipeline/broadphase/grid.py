@@ -17,8 +17,10 @@ blocking read):
    (``bucketing="list"``, one atomic exchange: no sort, no scan); each pair
    is written by its lower body (its owner) into the owner's slice, so the
    list comes out sorted without a global sort: a small owner visits the
-   cells around its own, a large owner (at most LARGE_ROWS, else the query
-   asks to be redone with slot emission) ranks its partners by prefix counts.
+   cells that can hold an overlapping body's lower corner (from one below
+   its lower corner's cell to its upper corner's: 8 to 27), a large owner
+   (at most LARGE_ROWS, else the query asks to be redone with slot
+   emission) ranks its partners by prefix counts.
    Slice offsets are scanned per work group and the group totals by one
    work group.
 
@@ -26,18 +28,17 @@ blocking read):
    times the geometric mean size are fine, the rest coarse, and each level's
    cell is set by its largest body. Why: one cell for all makes every body
    visit cells sized for the largest small one (ragdoll parts falling on a
-   pile of boxes more than twice their size would search cells sized for
-   the boxes), while the bodies that differ most from the typical one are
-   few. A fine owner visits
-   the 27 fine cells around its own and the 8 to 27 coarse cells that can
-   hold a coarse partner; a coarse owner visits the 27 coarse cells around
-   its own, where fine bodies are filed a second time (the template header's
-   contract: every pair found once, by its owner). A coarse body thus meets
-   the candidates a one-level grid gives every body and a fine body far fewer.
-   The threshold is the geometric mean's, known on the device before any
-   body is filed (no quantile, no extra pass); 2x keeps a size spread of 2
-   (most scenes of one kind of body, and equal sizes) in one level, which
-   is then the one-level grid with no coarse list filled or read.
+   pile of boxes more than twice their size would search cells sized for the
+   boxes), while the bodies that differ most from the typical one are few. A
+   fine owner visits fine cells for fine partners and coarse cells for coarse
+   ones; a coarse owner visits coarse cells, where fine bodies are filed a
+   second time (the template header's contract: every pair found once, by its
+   owner). A coarse body thus meets no more candidates than in a one-level
+   grid, and a fine body far fewer. The threshold follows the geometric mean,
+   known on the device before any body is filed (no quantile, no extra pass);
+   2x keeps a size spread of 2 (most scenes of one kind of body, and equal
+   sizes) in one level, which is then the one-level grid with no coarse list
+   filled or read.
 ``emission="slot"`` (grid.cl.mako): ``measure_bodies`` +
    Reduce, ``classify_sizes`` + Reduce max; the boxes in bucket order and
    the bucket starts (large bodies get a key past every bucket and end the

@@ -38,21 +38,22 @@
  *                 only when the coarse level is not empty).
  *
  * Contract: the owner finds every pair it owns exactly once.
- *   - A fine owner walks FINE_TABLE in the 27 fine cells around its own
- *     (fine partners) and COARSE_TABLE in the coarse cells from one below its
- *     lower corner's to its upper corner's on each axis, 2 or 3 a side
- *     (coarse partners).
- *   - A coarse owner walks COARSE_TABLE and SPLIT_TABLE in the 27 coarse
- *     cells around its own (coarse and fine partners).
+ *   - A fine owner walks FINE_TABLE in fine cells (fine partners) and
+ *     COARSE_TABLE in coarse cells (coarse partners).
+ *   - A coarse owner walks COARSE_TABLE and SPLIT_TABLE in coarse cells
+ *     (coarse and fine partners).
  *   - Every grid owner tests the large bodies of higher index.
+ *   - The cells walked in a table are those from one below the cell of the
+ *     owner's lower corner to the cell of its upper corner on each axis:
+ *     the partners filed there are no larger than a cell, so an overlapping
+ *     one has its lower corner at most one cell below the owner's and none
+ *     above the owner's upper corner; the owner is no larger than a cell
+ *     either, so that is 2 or 3 cells a side.
  * Each body is filed once in each table it appears in, and each pair kind
  * (fine-fine, fine-coarse, coarse-fine, coarse-coarse) is read from exactly
  * one table by exactly one side, its lower body: the owner takes partners of
- * higher index only. The cells walked cover every cell a partner's lower
- * corner can lie in (a partner overlapping the owner has its lower corner at
- * most one cell below the owner's lower corner, none above its upper corner),
- * and they are at most 3 a side, so with grid_dim >= 3 their buckets are
- * distinct and no list is walked twice.
+ * higher index only. With grid_dim >= 3 the at most 3 cells a side fall in
+ * distinct buckets, so no list is walked twice.
  *
  * A large body (at most LARGE_ROWS, else status->retry asks for slot
  * emission) owns its pairs with every body of higher index: each such body
@@ -323,25 +324,43 @@ inline uint walk_bucket_list(__global const Aabb* aabbs,
     return found;
 }
 
-/* Walks the lists of `table` (links in `next`) in the 27 cells around the
- * cell with folded coordinates `home`; as walk_bucket_list. */
-inline uint walk_27_cells(__global const Aabb* aabbs,
-                          __global const uint* static_flags,
-                          const int grid_dim,
-                          __global const uint* table_heads,
-                          __global const uint* next,
-                          int3 home,
-                          uint self,
-                          float3 lower,
-                          float3 upper,
-                          __global Pair* pairs,
-                          uint at,
-                          uint capacity)
+/* The cells, in a grid of side `side`, that can hold the lower corner of a
+ * body of that grid's level overlapping box lower..upper (of a body filed in
+ * that grid or a finer one): from one below the lower corner's cell to the
+ * upper corner's on each axis, 2 or 3 a side. Returns the first, folded
+ * (the env_cell of a body of collision word `word`); *span is 0 or 1 a side:
+ * the cells after it. */
+inline int3 cells_to_visit(float3 lower, float3 upper, float side, uint word, int grid_dim,
+                           int3* span)
 {
-    /* The 27 list heads first: independent loads, in flight together. */
+    int3 low = env_cell(cell_of(lower, side), word);
+    *span = clamp(env_cell(cell_of(upper, side), word) - low, (int3)(0), (int3)(1));
+    return folded_cell(low, grid_dim);
+}
+
+/* Walks the lists of one bucket table (links in `next`) in the cells from
+ * one below folded cell `home` to `home` + `span` on each axis (see
+ * cells_to_visit); as walk_bucket_list. */
+inline uint walk_cells(__global const Aabb* aabbs,
+                       __global const uint* static_flags,
+                       const int grid_dim,
+                       __global const uint* table_heads,
+                       __global const uint* next,
+                       int3 home,
+                       int3 span,
+                       uint self,
+                       float3 lower,
+                       float3 upper,
+                       __global Pair* pairs,
+                       uint at,
+                       uint capacity)
+{
+    /* The list heads first: independent loads, in flight together. */
     uint heads[27];
     for (int neighbour = 0; neighbour < 27; ++neighbour)
-        heads[neighbour] = table_heads[neighbour_bucket(home, neighbour, grid_dim)];
+        heads[neighbour] = all(neighbour_offset(neighbour) <= span)
+                               ? table_heads[neighbour_bucket(home, neighbour, grid_dim)]
+                               : NO_BODY;
     uint found = 0;
     for (int neighbour = 0; neighbour < 27; ++neighbour)
         found += walk_bucket_list(aabbs, static_flags, next, heads[neighbour], self, lower, upper,
@@ -374,39 +393,27 @@ inline uint visit_owned_partners(__global const Aabb* aabbs,
     uint coarse_bits = grid_sizes[LARGEST_COARSE];
     float coarse_cell = grid_cell_size(as_float(coarse_bits));
     uint found = 0;
+    int3 span;
     if (level == FINE) {
         float fine_cell = grid_cell_size(as_float(grid_sizes[LARGEST_FINE]));
-        int3 home = folded_cell(env_cell(cell_of(lower, fine_cell), word), grid_dim);
-        found += walk_27_cells(aabbs, static_flags, grid_dim,
-                               bucket_heads + table_start(FINE_TABLE, grid_dim), next_body, home,
-                               self, lower, upper, pairs, first, capacity);
+        int3 home = cells_to_visit(lower, upper, fine_cell, word, grid_dim, &span);
+        found += walk_cells(aabbs, static_flags, grid_dim,
+                            bucket_heads + table_start(FINE_TABLE, grid_dim), next_body, home,
+                            span, self, lower, upper, pairs, first, capacity);
         if (coarse_bits != 0) {
-            /* Coarse cells from one below the lower corner's to the upper
-             * corner's: 2 or 3 a side (a fine body is smaller than a coarse
-             * cell). */
-            int3 low = env_cell(cell_of(lower, coarse_cell), word);
-            int3 span = clamp(env_cell(cell_of(upper, coarse_cell), word) - low, (int3)(0),
-                              (int3)(1));
-            int3 folded = folded_cell(low, grid_dim);
-            __global const uint* coarse_heads = bucket_heads + table_start(COARSE_TABLE, grid_dim);
-            for (int dz = -1; dz <= span.z; ++dz)
-                for (int dy = -1; dy <= span.y; ++dy)
-                    for (int dx = -1; dx <= span.x; ++dx) {
-                        int m = 9 * (dz + 1) + 3 * (dy + 1) + (dx + 1);
-                        found += walk_bucket_list(
-                            aabbs, static_flags, next_body,
-                            coarse_heads[neighbour_bucket(folded, m, grid_dim)], self, lower,
-                            upper, pairs, first + found, capacity);
-                    }
+            home = cells_to_visit(lower, upper, coarse_cell, word, grid_dim, &span);
+            found += walk_cells(aabbs, static_flags, grid_dim,
+                                bucket_heads + table_start(COARSE_TABLE, grid_dim), next_body,
+                                home, span, self, lower, upper, pairs, first + found, capacity);
         }
     } else {
-        int3 home = folded_cell(env_cell(cell_of(lower, coarse_cell), word), grid_dim);
-        found += walk_27_cells(aabbs, static_flags, grid_dim,
-                               bucket_heads + table_start(COARSE_TABLE, grid_dim), next_body,
-                               home, self, lower, upper, pairs, first, capacity);
-        found += walk_27_cells(aabbs, static_flags, grid_dim,
-                               bucket_heads + table_start(SPLIT_TABLE, grid_dim), next_split,
-                               home, self, lower, upper, pairs, first + found, capacity);
+        int3 home = cells_to_visit(lower, upper, coarse_cell, word, grid_dim, &span);
+        found += walk_cells(aabbs, static_flags, grid_dim,
+                            bucket_heads + table_start(COARSE_TABLE, grid_dim), next_body, home,
+                            span, self, lower, upper, pairs, first, capacity);
+        found += walk_cells(aabbs, static_flags, grid_dim,
+                            bucket_heads + table_start(SPLIT_TABLE, grid_dim), next_split, home,
+                            span, self, lower, upper, pairs, first + found, capacity);
     }
     for (uint row = 0; row < large_total; ++row) {
         uint other = large_bodies[row];
