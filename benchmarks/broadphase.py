@@ -171,6 +171,8 @@ def run_trees(args, inputs) -> None:
         ]
         if args.device:
             command += ["--device", args.device]
+        if args.profile:
+            command.append("--profile")
         for round_ in range(args.rounds):
             for label, tree in trees:
                 env = {**os.environ, "PYTHONPATH": str(tree)}
