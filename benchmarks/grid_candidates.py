@@ -10,7 +10,9 @@ and bodies of lower index included), bucket folding as on the device
 (``grid_dim_for``); environment 0 only (a World). Each fine factor is one row
 (levels by `reference.grid_levels`); ``fine_factor = large_factor`` (4) is the
 one-level grid; the first row is the one-level grid with the 27 cells around the
-owner's own visited (the query before two levels). Also printed: the overlapping
+owner's own visited (the query before two levels), the last the default fine factor
+with a bucket per cell (no folding: the candidates that folding far cells onto the
+visited buckets adds). Also printed: the overlapping
 pairs per grid body (what the candidates are for), and the mean candidates over fine
 and over coarse bodies apart.
 """
@@ -53,11 +55,16 @@ def bucket(cell: np.ndarray, dim: int) -> np.ndarray:
 
 
 def count_owner_visits(
-    aabbs, words, fine_factor: float, large_factor: float = 4.0, all_27: bool = False
+    aabbs,
+    words,
+    fine_factor: float,
+    large_factor: float = 4.0,
+    all_27: bool = False,
+    folded: bool = True,
 ) -> dict:
     """Cells visited and candidates walked per grid body of the owner query, as means
     (``all_27``: every owner walks the 27 cells around its own, the rule before
-    cells_to_visit)."""
+    cells_to_visit; ``folded=False``: a bucket per cell, what folding adds)."""
     from rbgen.pipeline.broadphase.grid import grid_dim_for
     from rbgen.pipeline.broadphase.reference import COARSE, FINE, grid_levels
 
@@ -69,8 +76,15 @@ def count_owner_visits(
     dim = grid_dim_for(len(lower))
     fine_side, coarse_side = cell_size(size[fine]), cell_size(size[coarse])
 
+    def key(cell):
+        if folded:
+            return bucket(cell, dim)
+        cell = cell + (1 << 20)  # (21 bits an axis: one key per cell)
+        return (cell[..., 2] << 42) | (cell[..., 1] << 21) | cell[..., 0]
+
     def table(bodies, side):
-        return np.bincount(bucket(cells(lower[bodies], side), dim), minlength=dim**3)
+        """Bodies filed per key: (sorted keys, counts)."""
+        return np.unique(key(cells(lower[bodies], side)), return_counts=True)
 
     def walk(owners, lists, side):
         """(heads read, entries walked) per owner: the cells from one below the lower
@@ -78,8 +92,11 @@ def count_owner_visits(
         low = cells(lower[owners], side)
         span = np.clip(cells(upper[owners], side) - low, 0, 1)
         visited = np.all(OFFSETS[None] <= span[:, None, :], axis=2) | all_27
-        around = bucket(low[:, None, :] + OFFSETS[None], dim)
-        return visited.sum(axis=1), (lists[around] * visited).sum(axis=1)
+        around = key(low[:, None, :] + OFFSETS[None])
+        keys, counts = lists
+        at = np.clip(np.searchsorted(keys, around), 0, len(keys) - 1)
+        entries = np.where(keys[at] == around, counts[at], 0)
+        return visited.sum(axis=1), (entries * visited).sum(axis=1)
 
     heads = np.zeros(len(lower), np.int64)
     walked = np.zeros(len(lower), np.int64)
@@ -135,9 +152,11 @@ def main(argv=None) -> None:
         f"{'fine factor':>11} {'fine':>7} {'coarse':>6} {'large':>5} {'fine cell':>9} "
         f"{'coarse cell':>11} {'heads':>6} {'candidates':>10} {'(fine':>7} {'coarse)':>8}"
     )
-    rows = [("1 level, 27", 4.0, True)] + [(f"{f:g}", f, False) for f in args.fine_factors]
-    for label, factor, all_27 in rows:
-        row = count_owner_visits(aabbs, words, factor, all_27=all_27)
+    rows = [("1 level, 27", 4.0, True, True)]
+    rows += [(f"{f:g}", f, False, True) for f in args.fine_factors]
+    rows += [("2, unfolded", 2.0, False, False)]
+    for label, factor, all_27, folded in rows:
+        row = count_owner_visits(aabbs, words, factor, all_27=all_27, folded=folded)
         print(
             f"{label:>11} {row['fine']:>7} {row['coarse']:>6} {row['large']:>5} "
             f"{row['fine_cell']:>9.3f} {row['coarse_cell']:>11.3f} {row['heads']:>6.1f} "
