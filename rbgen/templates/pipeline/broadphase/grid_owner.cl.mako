@@ -90,7 +90,6 @@ ${cl_structs("Aabb", "Pair", "BroadphaseStatus")}
 #define FINE_TABLE 0u
 #define COARSE_TABLE 1u
 #define SPLIT_TABLE 2u
-#define TABLES 3u
 /* The size statistics (grid_sizes): the bits of the largest fine and coarse
  * sizes (0: the level is empty). */
 #define LARGEST_FINE 0
