@@ -1,7 +1,10 @@
-"""Broadphase pair finding on the BoxBox scene (ground + N boxes), per algorithm.
+"""Broadphase pair finding per algorithm: the BoxBox scene (ground + N boxes), ragdolls.
 
-For each size and algorithm: one warm-up query (builds kernels, grows the pair
-buffer), then ``--repeats`` complete queries (``enqueue`` + ``check``). Reported:
+For each input and algorithm: one warm-up query (builds kernels, grows the pair
+buffer), then ``--repeats`` complete queries (``enqueue`` + ``check``). Inputs: BoxBox
+with each of ``--sizes`` boxes, and the ragdolls scene (`rbgen.harness`: ragdoll parts
+falling on a pile of boxes, two sizes) with each of ``--ragdolls`` ragdolls, its world
+AABBs after ``--steps`` steps. Reported:
 the median device time (profiling markers around the query's enqueues), the
 median wall time (enqueue to completed status read), launches per query, the
 pairs found and the reference count from a numpy grid (``grid_pairs``), with
@@ -13,18 +16,33 @@ An algorithm may carry options: ``grid:emission=slot`` (the default is owner),
 sap3 is measured in steady state (the same boxes every query, as in a resting
 stack): its incremental path then finds no endpoint crossings.
 
+``--baseline REV`` (a git revision of this repository, or a directory holding its
+rbgen/) times the same inputs with that tree's rbgen as well, each tree in its own
+process, alternating ``--rounds`` times (drift of the machine falls on both); the rows
+are labelled by tree.
+
 usage: python benchmarks/broadphase.py [--device D] [--sizes 8000 27000 111375]
+                                       [--ragdolls 300] [--steps 60]
                                        [--algorithms grid sap sap3] [--repeats 10]
+                                       [--baseline REV] [--rounds 2]
                                        [--profile]  (adds the slowest kernels of a query)
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
+import subprocess
+import sys
+import tarfile
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def measure(runtime, name: str, aabbs, static, reference, repeats: int) -> dict:
@@ -97,10 +115,80 @@ def kernel_breakdown(runtime, broadphase, aabbs, static) -> list[tuple[float, st
     return sorted(((ms, name) for name, ms in totals.items()), reverse=True)
 
 
+def export_tree(revision: str, into: Path) -> Path:
+    """``revision``'s rbgen written under ``into`` (git archive); a directory holding an
+    rbgen/ is used as it is."""
+    if (Path(revision) / "rbgen").is_dir():
+        return Path(revision).resolve()
+    archive = into / "tree.tar"
+    with open(archive, "wb") as out:
+        subprocess.run(
+            ["git", "-C", str(ROOT), "archive", revision, "rbgen"], stdout=out, check=True
+        )
+    tree = into / "baseline"
+    with tarfile.open(archive) as tar:
+        tar.extractall(tree, filter="data")
+    return tree
+
+
+def make_inputs(args) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(label, aabbs, static) of every input the arguments name."""
+    from rbgen.scenes import scene_aabbs, standard_boxbox_scene
+
+    inputs = []
+    for size in args.sizes:
+        aabbs, static = scene_aabbs(standard_boxbox_scene(size))
+        inputs.append((f"boxbox {size}", aabbs, static))
+    if args.ragdolls:
+        from grid_candidates import scene_aabbs_after  # (this script's directory)
+
+        for n in args.ragdolls:
+            aabbs, words = scene_aabbs_after("ragdolls", n, args.steps, args.device)
+            inputs.append((f"ragdolls {n}", aabbs, words))
+    return inputs
+
+
+def run_trees(args, inputs) -> None:
+    """This script on the saved inputs in each tree's process, ``--rounds`` times."""
+    with tempfile.TemporaryDirectory() as scratch:
+        files = []
+        for k, (label, aabbs, static) in enumerate(inputs):
+            files.append(os.path.join(scratch, f"input{k}.npz"))
+            np.savez(files[-1], aabbs=aabbs, static=static, label=label)
+        trees = [
+            (f"baseline {args.baseline}", export_tree(args.baseline, Path(scratch))),
+            ("this tree", ROOT),
+        ]
+        command = [
+            sys.executable,
+            __file__,
+            "--inputs",
+            *files,
+            "--repeats",
+            str(args.repeats),
+            "--algorithms",
+            *args.algorithms,
+        ]
+        if args.device:
+            command += ["--device", args.device]
+        if args.profile:
+            command.append("--profile")
+        for round_ in range(args.rounds):
+            for label, tree in trees:
+                env = {**os.environ, "PYTHONPATH": str(tree)}
+                print(f"round {round_ + 1}, {label}:", flush=True)
+                subprocess.run(command, env=env, check=True)
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="device choice passed to rbgen.Runtime")
-    parser.add_argument("--sizes", type=int, nargs="+", default=[8000, 27000, 111375])
+    parser.add_argument("--sizes", type=int, nargs="*", default=[8000, 27000, 111375])
+    parser.add_argument("--ragdolls", type=int, nargs="*", default=[])
+    parser.add_argument("--steps", type=int, default=60, help="ragdolls: steps before")
+    parser.add_argument("--baseline", default=None, help="git revision or tree to compare")
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--inputs", nargs="*", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--algorithms", nargs="+", default=["grid", "sap", "sap3"])
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument(
@@ -112,24 +200,32 @@ def main(argv=None) -> None:
 
     from rbgen.device import Runtime
     from rbgen.pipeline.broadphase.reference import grid_pairs
-    from rbgen.scenes import scene_aabbs, standard_boxbox_scene
 
+    if args.inputs is None:
+        inputs = make_inputs(args)
+        if args.baseline:
+            run_trees(args, inputs)
+            return
+    else:
+        inputs = []
+        for path in args.inputs:
+            with np.load(path) as saved:
+                inputs.append((str(saved["label"]), saved["aabbs"], saved["static"]))
     runtime = Runtime(args.device, profiling=True)
     print(f"device: {runtime.traits.describe()}")
     width = max(9, *(len(a) for a in args.algorithms))
     print(
-        f"{'boxes':>7} {'algorithm':>{width}} {'device ms':>10} {'wall ms':>9} {'launches':>8} "
+        f"{'input':>14} {'algorithm':>{width}} {'device ms':>10} {'wall ms':>9} {'launches':>8} "
         f"{'pairs':>8} {'reference':>9} {'ok':>3}"
     )
-    for size in args.sizes:
-        aabbs, static = scene_aabbs(standard_boxbox_scene(size))
+    for label, aabbs, static in inputs:
         reference = grid_pairs(aabbs, static)
         device_aabbs = cla.to_device(runtime.queue, aabbs)
         device_static = cla.to_device(runtime.queue, static)
         for name in args.algorithms:
             row = measure(runtime, name, device_aabbs, device_static, reference, args.repeats)
             print(
-                f"{size:>7} {name:>{width}} {row['device_ms']:>10.3f} {row['wall_ms']:>9.3f} "
+                f"{label:>14} {name:>{width}} {row['device_ms']:>10.3f} {row['wall_ms']:>9.3f} "
                 f"{row['launches']:>8} {row['pairs']:>8} {len(reference):>9} "
                 f"{'yes' if row['ok'] else 'NO':>3}",
                 flush=True,
@@ -138,7 +234,7 @@ def main(argv=None) -> None:
                 for ms, kernel in kernel_breakdown(
                     runtime, row["broadphase"], device_aabbs, device_static
                 )[:8]:
-                    print(f"{'':>{width + 9}} {ms:>10.3f}  {kernel}")
+                    print(f"{'':>{width + 16}} {ms:>10.3f}  {kernel}")
 
 
 if __name__ == "__main__":

@@ -46,7 +46,7 @@ from .forces import FIELDS as FORCE_FIELDS
 from .forces import KEEP_STEPS as FORCE_KEEP_STEPS
 from .guard import STEPS_IN_FLIGHT
 from .pipeline.broadphase.base import DEFAULT_PAIRS_PER_BODY
-from .pipeline.broadphase.grid import grid_dim_for
+from .pipeline.broadphase.grid import OWNER_TABLES, grid_dim_for
 from .pipeline.broadphase.pairs import MAX_FOLDED_BODIES
 from .pipeline.broadphase.sap3 import CHANGES_PER_BODY
 from .pipeline.constraints import GENERATIONS
@@ -255,9 +255,9 @@ def estimate(
         # MAX_FOLDED_BODIES) and the digit table (at most a word a pair)
         one["pair sort"] = ((2 + (n > MAX_FOLDED_BODIES)) * WORD * p, 1)
     else:
-        # grid (sap3's full query too): body links, large flags, group offsets, and the
-        # bucket heads (`grid_dim_for` cubed)
-        one["broadphase scratch"] = (WORD * (3 * n + grid_dim_for(n) ** 3), 1)
+        # grid (sap3's full query too): body links (two levels), levels, group offsets,
+        # and the bucket heads (`grid_dim_for` cubed, a table per OWNER_TABLES)
+        one["broadphase scratch"] = (WORD * (4 * n + OWNER_TABLES * grid_dim_for(n) ** 3), 1)
     if broadphase == "sap3":
         # per slot: boxes, ranks (6 endpoints), sorted endpoints (3 axes x 2); endpoint
         # keys (3 axes x 2) and the radix sort's keys and values (2 x 2)

@@ -14,7 +14,8 @@ Algorithms, chosen per world by name with `make_broadphase` (options in
 brackets; every one also takes ``capacity`` and ``work_group_size``):
 
 ``"grid"``  uniform grid (grid.py): similar sizes, any density
-            [large_factor, emission="owner"|"slot",
+            [large_factor, fine_factor (owner emission's two levels),
+            emission="owner"|"slot",
             bucketing="list" (owner) | "sort"|"count" (slot)];
 ``"sap"``   one-axis sweep and prune (sap.py): no cell size to choose
             [large_factor, shape="gpu"|"cpu"];

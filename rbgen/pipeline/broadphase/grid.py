@@ -16,11 +16,29 @@ blocking read):
    reductions; each small body joins the linked list of its bucket
    (``bucketing="list"``, one atomic exchange: no sort, no scan); each pair
    is written by its lower body (its owner) into the owner's slice, so the
-   list comes out sorted without a global sort: a small owner visits all 27
-   cells around its own, a large owner (at most LARGE_ROWS, else the query
-   asks to be redone with slot emission) ranks its partners by prefix counts.
+   list comes out sorted without a global sort: a small owner visits the
+   cells that can hold an overlapping body's lower corner (from one below
+   its lower corner's cell to its upper corner's: 8 to 27), a large owner
+   (at most LARGE_ROWS, else the query asks to be redone with slot
+   emission) ranks its partners by prefix counts.
    Slice offsets are scanned per work group and the group totals by one
    work group.
+
+   The small bodies form two grid levels: those within ``fine_factor`` (2)
+   times the geometric mean size are fine, the rest coarse, and each level's
+   cell is set by its largest body. Why: one cell for all makes every body
+   visit cells sized for the largest small one (ragdoll parts falling on a
+   pile of boxes more than twice their size would search cells sized for the
+   boxes), while the bodies that differ most from the typical one are few. A
+   fine owner visits fine cells for fine partners and coarse cells for coarse
+   ones; a coarse owner visits coarse cells, where fine bodies are filed a
+   second time (the template header's contract: every pair found once, by its
+   owner). A coarse body thus meets no more candidates than in a one-level
+   grid, and a fine body far fewer. The threshold follows the geometric mean,
+   known on the device before any body is filed (no quantile, no extra pass);
+   2x keeps a size spread of 2 (most scenes of one kind of body, and equal
+   sizes) in one level, which is then the one-level grid with no coarse list
+   filled or read.
 ``emission="slot"`` (grid.cl.mako): ``measure_bodies`` +
    Reduce, ``classify_sizes`` + Reduce max; the boxes in bucket order and
    the bucket starts (large bodies get a key past every bucket and end the
@@ -38,7 +56,8 @@ not (it is ordered by construction or afterwards).
 Exactness: overlapping small bodies must land in adjacent cells; with the
 1% slack on the cell side this holds while coordinates stay within about
 80,000 cell sides of the origin (float32 rounding of lower / cell), e.g.
-160 km for 2 m cells.
+160 km for 2 m cells; with two levels, the fine cell's sides (40 km for
+0.5 m fine cells).
 
 The cell is as small as the small bodies allow (a cell holds about one
 body in a dense packing), so ``large_factor`` only decides which bodies are
@@ -114,6 +133,12 @@ OWNER_TEMPLATE = KernelTemplate(
 #: Bodies larger than this many times the geometric mean size are large (kept
 #: out of the grid). 4 keeps ordinary size spreads in the grid.
 DEFAULT_LARGE_FACTOR = 4.0
+#: Owner emission: grid bodies up to this many times the geometric mean size are
+#: fine (the others coarse). 2 keeps the fine cell within 2x the typical body
+#: (8x its volume) while bodies of one size, or of a spread within 2x, all stay fine.
+DEFAULT_FINE_FACTOR = 2.0
+#: Bucket tables of owner emission: fine, coarse, fine bodies by coarse cell.
+OWNER_TABLES = 3
 #: Owner emission handles at most this many large bodies (ground slabs, walls);
 #: with more, a query is redone with slot emission.
 LARGE_ROWS = 8
@@ -151,8 +176,9 @@ def grid_dim_for(body_count: int) -> int:
 
 
 class GridBroadphase(Broadphase):
-    """``GridBroadphase(runtime, large_factor=4.0, emission=None, bucketing=None,
-    capacity=None, work_group_size=None)``; see `Broadphase` and the module docstring."""
+    """``GridBroadphase(runtime, large_factor=4.0, fine_factor=2.0, emission=None,
+    bucketing=None, capacity=None, work_group_size=None)``; see `Broadphase` and the
+    module docstring (``fine_factor`` >= ``large_factor``: one grid level)."""
 
     name = "grid"
 
@@ -161,6 +187,7 @@ class GridBroadphase(Broadphase):
         runtime,
         *,
         large_factor: float = DEFAULT_LARGE_FACTOR,
+        fine_factor: float = DEFAULT_FINE_FACTOR,
         emission: str | None = None,
         bucketing: str | None = None,
         capacity=None,
@@ -168,6 +195,7 @@ class GridBroadphase(Broadphase):
     ):
         super().__init__(runtime, capacity=capacity, work_group_size=work_group_size)
         self.large_factor = check_large_factor(large_factor)
+        self.fine_factor = check_large_factor(fine_factor, "fine_factor")
         self.emission = emission or default_emission(runtime.traits)
         if self.emission not in BUCKETINGS:
             raise RbgenError(f"emission must be one of {list(BUCKETINGS)}, got {emission!r}")
@@ -235,16 +263,17 @@ class GridBroadphase(Broadphase):
         """The six launches of grid_owner.cl.mako."""
         program, buffer, wg = self._program(), self.buffer, self.work_group_size
         dim = grid_dim_for(n)
-        bucket_count, groups = dim**3, -(-n // wg)
+        bucket_count, groups = OWNER_TABLES * dim**3, -(-n // wg)
         measure_groups = min(groups, MEASURE_GROUPS)
         partials = self.exact("log_size_partials", measure_groups, np.float32)
         heads, next_body = self.exact("bucket_heads", bucket_count), self.exact("next_body", n)
-        large_flags = self.exact("large_flags", n)
+        next_split = self.exact("next_split", n)
+        levels = self.exact("body_levels", n)
         large_count, large_bodies = (
             self.exact("large_count", 1),
             self.exact("large_bodies", LARGE_ROWS),
         )
-        largest = self.exact("largest_small_bits", 1)
+        sizes = self.exact("grid_sizes", 2)
         status = buffer.status.base_data
         self.launch(
             program.kernel("measure_grid_bodies"),
@@ -255,7 +284,7 @@ class GridBroadphase(Broadphase):
             partials.base_data,
             heads.base_data,
             large_count.base_data,
-            largest.base_data,
+            sizes.base_data,
             status,
         )
         self.launch(
@@ -266,11 +295,12 @@ class GridBroadphase(Broadphase):
             np.uint32(n),
             partials.base_data,
             np.uint32(measure_groups),
+            np.float32(self.fine_factor),
             np.float32(self.large_factor),
-            large_flags.base_data,
+            levels.base_data,
             large_count.base_data,
             large_bodies.base_data,
-            largest.base_data,
+            sizes.base_data,
             status,
         )
         self.launch(
@@ -280,10 +310,11 @@ class GridBroadphase(Broadphase):
             static.base_data,
             np.uint32(n),
             np.int32(dim),
-            large_flags.base_data,
-            largest.base_data,
+            levels.base_data,
+            sizes.base_data,
             heads.base_data,
             next_body.base_data,
+            next_split.base_data,
         )
 
         visit = (
@@ -291,10 +322,11 @@ class GridBroadphase(Broadphase):
             static.base_data,
             np.uint32(n),
             np.int32(dim),
-            large_flags.base_data,
-            largest.base_data,
+            levels.base_data,
+            sizes.base_data,
             heads.base_data,
             next_body.base_data,
+            next_split.base_data,
             large_count.base_data,
             large_bodies.base_data,
         )

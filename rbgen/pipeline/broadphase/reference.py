@@ -7,6 +7,8 @@ overlap), pairs (a, b) with a < b, never two static bodies, sorted by (a, b).
 `brute_force_pairs` tests every pair (O(n^2), blockwise): the ground truth in
 tests. `grid_pairs` is a vectorised uniform grid for large scenes (benchmark
 sanity counts at 100k bodies), exact because cells are keyed without hashing.
+`grid_levels` is the owner-emission grid's split into fine, coarse and large
+bodies (grid_owner.cl.mako), for tests and candidate counts.
 Neither imports scipy (the benchmark machine has none).
 """
 
@@ -117,3 +119,32 @@ def grid_pairs(aabbs, static=None, large_factor: float = 4.0) -> np.ndarray:
     if not found_a:
         return np.zeros((0, 2), np.uint32)
     return _finish(np.concatenate(found_a), np.concatenate(found_b), static)
+
+
+#: `grid_levels` codes, as body_levels in grid_owner.cl.mako
+FINE, COARSE, LARGE = 0, 1, 2
+
+
+def grid_levels(
+    aabbs, words=None, fine_factor: float = 2.0, large_factor: float = 4.0
+) -> np.ndarray:
+    """Each body's level in the owner-emission grid (FINE, COARSE or LARGE), by the
+    kernel's rule in float32: size (largest side) x 1.01 within ``fine_factor`` times the
+    geometric mean size is fine, within ``large_factor`` times it coarse, else large;
+    shared static geometry (collision word 0xFFFFFFFF) is large. The device sums the
+    log sizes in another order, so a body within rounding of a threshold may differ."""
+    lower, upper = split_aabbs(aabbs)
+    size = np.max(upper.astype(np.float32) - lower.astype(np.float32), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_size = np.where(np.isfinite(size), np.log2(np.maximum(size, 1e-30)), 40.0)
+    mean = np.float32(np.clip(log_size, -40.0, 40.0).mean()) if len(size) else np.float32(0)
+    geometric = np.float32(np.exp2(mean))
+    slack = np.float32(1.01)
+    with np.errstate(invalid="ignore"):
+        fine = size * slack <= np.float32(fine_factor) * geometric
+        small = size * slack <= np.float32(large_factor) * geometric
+    if words is not None:
+        shared = np.asarray(words).reshape(-1) == 0xFFFFFFFF
+        fine &= ~shared
+        small &= ~shared
+    return np.where(fine & small, FINE, np.where(small, COARSE, LARGE)).astype(np.uint32)
