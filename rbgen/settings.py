@@ -273,7 +273,8 @@ CONSTRUCTION_OPTIONS = (
         "grid",
         _choice("grid", "sap", "sap3"),
         "'grid', 'sap' or 'sap3'",
-        "grid for similar sizes; sap / sap3 (incremental) for widely varying sizes",
+        "grid for similar sizes (a second, coarser level of cells for bodies over twice the "
+        "typical size); sap / sap3 (incremental) for widely varying sizes",
     ),
     Option(
         "fast_math",
