@@ -181,7 +181,7 @@ def test_persistent_launch_runs_the_substeps_as_the_launches_do(runtime, monkeyp
 def test_folded_substeps_do_the_passes_arithmetic_bit_for_bit(runtime, monkeypatch, effort):
     """A persistent launch without joints folds each substep's refresh of the targets,
     carry of the impulses and summed warm start into its sweeps (pgs.cl.mako:
-    solve_copy_fused, template parameter fold_substeps); the same launch built with the
+    solve_copy, template parameter fold_substeps); the same launch built with the
     passes of their own does the same arithmetic in the same order: equal bits, exact
     builds (fast math lets each program reorder its own way), stacked boxes settling over
     40 steps of 8 substeps with damping, at the default effort (with its shock sweep) and at

@@ -104,7 +104,7 @@
  * velocity sweep carries each constraint's impulses and sums their warm
  * start as it solves it, the bodies take the sums as they move, and the next
  * substep's first sweep refreshes each constraint's targets before its rows
- * (solve_copy_fused): one device-wide barrier between substeps.
+ * (solve_copy): one device-wide barrier between substeps.
 % endif
  *
 % endif
@@ -520,32 +520,6 @@ inline void solve_group_serial(__global ContactConstraint* constraints,
 }
 % else:
 
-/* One sweep's rows of the constraint at `index`, solved on a private copy
- * (every load issued at once, none repeated); the impulses solved are
- * written back. */
-inline void solve_copy(__global ContactConstraint* constraints, uint index,
-                       ${velocity_space} Body* bodies, __global const BodyInertia* inertia,
-                       ${velocity_space} SplitVelocity* split, const float relaxation,
-                       const Sweep s${joint_params})
-{
-% if joints:
-    if (is_joint(index)) {  /* (a joint's item: solved in place) */
-        solve_joint(joints, index & RB_EDGE_INDEX_MASK, bodies, inertia, split, inv_h,
-                    joint_recovery, s);
-        return;
-    }
-% endif
-    ContactConstraint c = constraints[index];
-    solve_rows(&c, bodies, inertia, split, relaxation, s);
-    if (s.velocity) {
-        constraints[index].normal_impulse = c.normal_impulse;
-        constraints[index].tangent1_impulse = c.tangent1_impulse;
-        constraints[index].tangent2_impulse = c.tangent2_impulse;
-    }
-    if (s.push)
-        constraints[index].push_impulse = c.push_impulse;
-}
-
 /* The constraints order[begin], order[begin + stride], ... below `end` that
  * lane `lane` of `lanes` solves of batch `batch` (order[first .. end - 1]):
  * (begin, stride). The serial slot is lane 0's alone, in order. */
@@ -577,20 +551,6 @@ inline void warm_start_batch(__global const ContactConstraint* constraints,
     }
 }
 % endif
-% if not serial and not persistent:
-
-/* Lane `lane`'s share of one batch of a sweep (a work group's lanes). */
-inline void solve_batch_lanes(__global ContactConstraint* constraints, __global const uint* order,
-                              uint first, uint end, uint batch, uint lane,
-                              __global Body* bodies, __global const BodyInertia* inertia,
-                              __global SplitVelocity* split, const float relaxation,
-                              const Sweep s${joint_params})
-{
-    const uint2 share = batch_share(first, end, batch, lane, ${work_group_size}u);
-    for (uint i = share.x; i < end; i += share.y)
-        solve_copy(constraints, order[i], bodies, inertia, split, relaxation, s${joint_args});
-}
-% endif
 % if summed:
 
 /* Add a velocity change to a body's fixed-point sums (linear, then angular). */
@@ -620,6 +580,17 @@ inline void take_warm_sum(volatile __global long* sums, float3* v, float3* w)
         sums[k] = 0;
 }
 
+/* A constraint's velocity changes (`state`'s velocities, from rest), added to
+ * the sums of its dynamic bodies a and b. */
+inline void add_warm_sums(const __private ContactBodies* state, uint a, uint b,
+                          volatile __global long* warm_sums)
+{
+    if (state->inv_mass_a > 0.0f)
+        add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * a, state->va, state->wa);
+    if (state->inv_mass_b > 0.0f)
+        add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * b, state->vb, state->wb);
+}
+
 /* The velocity changes of contact *c's warm start (its impulses applied to its
  * bodies at rest), added to its dynamic bodies' sums. */
 inline void sum_contact_warm_start(const __private ContactConstraint* c,
@@ -632,10 +603,7 @@ inline void sum_contact_warm_start(const __private ContactConstraint* c,
     load_bodies(&state, bodies, inertia, a, b);
     state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
     warm_start_contact(c, &state);
-    if (state.inv_mass_a > 0.0f)
-        add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * a, state.va, state.wa);
-    if (state.inv_mass_b > 0.0f)
-        add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * b, state.vb, state.wb);
+    add_warm_sums(&state, a, b, warm_sums);
 }
 
 /* Summed warm start, phase 1: the velocity changes of the constraints lane
@@ -663,10 +631,7 @@ inline void sum_warm_starts(__global const ContactConstraint* constraints,
             load_joint(j, bodies, inertia, &state, &f);
             state.va = state.wa = state.vb = state.wb = (float3)(0.0f);
             warm_start_joint_rows(j, &f, &state);
-            if (state.inv_mass_a > 0.0f)
-                add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * a, state.va, state.wa);
-            if (state.inv_mass_b > 0.0f)
-                add_warm_sum(warm_sums + RB_WARM_SUM_WORDS * b, state.vb, state.wb);
+            add_warm_sums(&state, a, b, warm_sums);
             continue;
         }
 % endif
@@ -796,23 +761,37 @@ inline void move_bodies(volatile __global Body* bodies, volatile __global SplitV
 }
 
 % endif
-% if fused:
+% if not serial:
 
-/* One sweep's rows of contact `index` on a private copy, as solve_copy, with
- * what the substeps fold into their sweeps (Sweep): before the rows, the
- * copy's targets refreshed for the substep (the first sweep of every substep
- * but the first: refresh_batches' arithmetic, by the same lanes, on the copy
- * the rows read); after them, in the last velocity sweep of a substep that
- * another follows, its impulses carried (carry_impulses) and, for a summed
- * warm start, their velocity changes added to the bodies' sums, which the
- * bodies take when they move (move_bodies). The impulses are final then, so
- * neither needs a pass over the constraints, nor a barrier, of its own. */
-inline void solve_copy_fused(__global ContactConstraint* constraints, uint index,
-                             volatile __global Body* bodies, __global const BodyInertia* inertia,
-                             volatile __global SplitVelocity* split, const float relaxation,
-                             const Sweep s${fused_params})
+/* One sweep's rows of the constraint at `index`, solved on a private copy
+ * (every load issued at once, none repeated); the impulses solved are
+ * written back.
+% if fused:
+ * With what the substeps fold into their sweeps (Sweep): before the rows,
+ * the copy's targets refreshed for the substep (the first sweep of every
+ * substep but the first: refresh_batches' arithmetic, by the same lanes, on
+ * the copy the rows read); after them, in the last velocity sweep of a
+ * substep that another follows, its impulses carried (carry_impulses) and,
+ * for a summed warm start, their velocity changes added to the bodies' sums,
+ * which the bodies take when they move (move_bodies). The impulses are final
+ * then, so neither needs a pass over the constraints, nor a barrier, of its
+ * own.
+% endif
+ */
+inline void solve_copy(__global ContactConstraint* constraints, uint index,
+                       ${velocity_space} Body* bodies, __global const BodyInertia* inertia,
+                       ${velocity_space} SplitVelocity* split, const float relaxation,
+                       const Sweep s${joint_params}${fused_params})
 {
+% if joints:
+    if (is_joint(index)) {  /* (a joint's item: solved in place) */
+        solve_joint(joints, index & RB_EDGE_INDEX_MASK, bodies, inertia, split, inv_h,
+                    joint_recovery, s);
+        return;
+    }
+% endif
     ContactConstraint c = constraints[index];
+% if fused:
     if (s.refresh_velocity || s.refresh_push) {
         uint a = c.body_a, b = c.body_b;
         refresh_targets_private(&c, deltas[b].linear.xyz - deltas[a].linear.xyz,
@@ -820,24 +799,45 @@ inline void solve_copy_fused(__global ContactConstraint* constraints, uint index
                                 penetration_slop, penetration_recovery, s.refresh_velocity,
                                 s.refresh_push);
     }
+% endif
     solve_rows(&c, bodies, inertia, split, relaxation, s);
+% if fused:
     if (s.carry)
         carry_impulses_private(&c);
 % if summed:
     if (s.sum)
         sum_contact_warm_start(&c, bodies, inertia, warm_sums);
 % endif
+% endif
     if (s.velocity) {
         constraints[index].normal_impulse = c.normal_impulse;
         constraints[index].tangent1_impulse = c.tangent1_impulse;
         constraints[index].tangent2_impulse = c.tangent2_impulse;
     }
+% if fused:
     if (s.refresh_velocity)
         constraints[index].velocity_target = c.velocity_target;
     if (s.refresh_push)
         constraints[index].position_target = c.position_target;
     if (s.push || s.refresh_push)
+% else:
+    if (s.push)
+% endif
         constraints[index].push_impulse = c.push_impulse;
+}
+% endif
+% if not serial and not persistent:
+
+/* Lane `lane`'s share of one batch of a sweep (a work group's lanes). */
+inline void solve_batch_lanes(__global ContactConstraint* constraints, __global const uint* order,
+                              uint first, uint end, uint batch, uint lane,
+                              __global Body* bodies, __global const BodyInertia* inertia,
+                              __global SplitVelocity* split, const float relaxation,
+                              const Sweep s${joint_params})
+{
+    const uint2 share = batch_share(first, end, batch, lane, ${work_group_size}u);
+    for (uint i = share.x; i < end; i += share.y)
+        solve_copy(constraints, order[i], bodies, inertia, split, relaxation, s${joint_args});
 }
 % endif
 % if persistent:
@@ -865,7 +865,7 @@ inline void solve_batch_persistent(__global ContactConstraint* constraints,
 % endif
         const uint2 share = batch_share(first, end, batch, lane, lanes);
         for (uint i = share.x; i < end; i += share.y)
-            ${"solve_copy_fused" if fused else "solve_copy"}(constraints, order[i], bodies, inertia, split, relaxation, velocity_rows${joint_args}${fused_args});
+            solve_copy(constraints, order[i], bodies, inertia, split, relaxation, velocity_rows${joint_args}${fused_args});
     }
     if (s.push) {
         Sweep push_rows = s;
@@ -875,7 +875,7 @@ inline void solve_batch_persistent(__global ContactConstraint* constraints,
 % endif
         const uint2 share = batch_share(first, end, batch, push_owner, lanes);
         for (uint i = share.x; i < end; i += share.y)
-            ${"solve_copy_fused" if fused else "solve_copy"}(constraints, order[i], bodies, inertia, split, relaxation, push_rows${joint_args}${fused_args});
+            solve_copy(constraints, order[i], bodies, inertia, split, relaxation, push_rows${joint_args}${fused_args});
     }
 }
 % endif
@@ -966,7 +966,7 @@ void solve_groups(${signature("solve_groups")})
     const uint sweeps = max(velocity_sweeps, position_sweeps);
 % if fused:
     /* The sweeps take over the substeps' passes over the constraints (Sweep,
-     * solve_copy_fused) where there is a velocity sweep to fold them into: each
+     * solve_copy) where there is a velocity sweep to fold them into: each
      * substep's last velocity sweep carries its impulses and sums their warm
      * start, the bodies take the sums when they move, and the next substep's
      * first sweep refreshes the targets of what it solves. */
