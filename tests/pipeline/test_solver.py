@@ -505,14 +505,31 @@ def pgs_specs():
     return specs
 
 
+def test_fold_substeps_changes_only_the_persistent_launches_without_joints():
+    """fold_substeps folds the substeps' passes into the sweeps where the launch runs the
+    substeps and has no joints; every other specialisation renders the same source either
+    way (so that a default spec made persistent=False, or given joints, still builds)."""
+    by_values = {}
+    for spec in pgs_specs():
+        values = dict(spec.values)
+        by_values.setdefault(values.pop("fold_substeps") and True, {})[
+            tuple(sorted(values.items()))
+        ] = spec
+    assert by_values[True].keys() == by_values[False].keys()
+    for key, folded in by_values[True].items():
+        values = dict(key)
+        changes = values["persistent"] and not values["joints"]
+        assert (folded.source != by_values[False][key].source) == changes, values
+
+
 def test_kernel_signatures_are_the_declarations():
     """The parameter lists in the generated source of every reachable PGS specialisation
     (and of the Jacobi kernels) are exactly the declared arguments of that
     specialisation, names and types, in order."""
     specs = pgs_specs()
-    # (serial; lanes; persistent batched; persistent summed) x 2 normal solves x 2 (joints),
-    # and the persistent ones without joints folded or not: 16 + 4
-    assert len(specs) == 20
+    # (serial; lanes; persistent batched; persistent summed) x 2 normal solves x 2 (joints)
+    # x 2 (fold_substeps: it changes the persistent launches without joints alone)
+    assert len(specs) == 32
     cases = [(spec, pgs.TEMPLATE) for spec in specs]
     cases += [
         (

@@ -251,11 +251,11 @@ TEMPLATE = KernelTemplate(
         Param(
             "fold_substeps",
             (False, True),
-            "persistent launches without joints: each substep's refresh of the targets, "
-            "carry of the impulses and summed warm start done by the sweeps as they visit "
-            "the constraints (one device-wide barrier between substeps); off: passes of "
-            "their own, the same arithmetic (a joint's warm start needs them: it measures "
-            "the poses of the substep it starts)",
+            "a persistent launch without joints does each substep's refresh of the "
+            "targets, carry of the impulses and summed warm start in the sweeps as they "
+            "visit the constraints (one device-wide barrier between substeps); off, or any "
+            "other launch: passes of their own, the same arithmetic (a joint's warm start "
+            "needs them: it measures the poses of the substep it starts)",
         ),
         Param(
             "warm_start_mode",
@@ -314,11 +314,6 @@ def default_fold_substeps(persistent: bool, joints: bool) -> bool:
 
 def _parameter_rules(values: dict) -> str | None:
     """What the solver template's parameters must agree on (None: they do)."""
-    if values["fold_substeps"] and not (values["persistent"] and not values["joints"]):
-        return (
-            "fold_substeps needs persistent=True and joints=False (only a persistent "
-            "launch runs the substeps; a joint's warm start needs the passes)"
-        )
     if values["persistent"] and values["solve_form"] != "lanes":
         return "persistent needs solve_form='lanes' (the work groups share the batches)"
     if values["warm_start_mode"] == "summed" and not values["persistent"]:

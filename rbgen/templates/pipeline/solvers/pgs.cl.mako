@@ -19,7 +19,7 @@
     # a persistent launch folds each substep's refresh, carry and warm-start sums into
     # its sweeps (Sweep; pgs.py: fold_substeps); with joints it keeps them as passes of
     # their own (a joint's warm start measures the bodies' poses of the substep it starts)
-    fused = fold_substeps
+    fused = fold_substeps and persistent and not joints
     # what a fused sweep's constraint visits take besides solve_copy's arguments
     fused_params = (", volatile __global const BodyDelta* deltas, const float h, "
                     "const float penetration_slop, const float penetration_recovery"
