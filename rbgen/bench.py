@@ -439,8 +439,11 @@ def markdown(record: dict) -> str:
             )
     else:
         lines += ["| case | ms (median) | spread | baseline |", "| --- | ---: | ---: | --- |"]
+        by_name = {r.get("name"): r for r in record["results"]}
         for r in record["results"]:
             base = r.get("baseline")
+            if isinstance(base, str) and base in by_name:  # (a case of the same record)
+                base = by_name[base]
             base_text = f"{base['name']}: {_ms(base['ms'])} ms" if isinstance(base, dict) else "-"
             lines.append(
                 f"| {r['name']} | {_ms(r['ms'])} | {_ms(r['ms_spread'][0])}-"

@@ -277,3 +277,16 @@ def test_case_times_keep_three_significant_digits_below_a_tenth_of_a_millisecond
     text = bench.markdown(record)
     assert "| a | 0.00108 | 0.00107-0.00110 | - |" in text
     assert "| b | 3.000 | 2.500-3.250 | a: 0.0000295 ms |" in text
+
+
+def test_a_baseline_named_by_a_case_of_the_same_record_is_shown_with_its_time():
+    record = {
+        "kind": "ragdolls",
+        "created": "2026-12-05T00:00:00Z",
+        "rbgen_version": "0",
+        "results": [
+            {"name": "bare", "ms": 5.0, "ms_spread": [4.0, 6.0], "baseline": None},
+            {"name": "joints", "ms": 9.0, "ms_spread": [8.0, 10.0], "baseline": "bare"},
+        ],
+    }
+    assert "| joints | 9.000 | 8.000-10.000 | bare: 5.000 ms |" in bench.markdown(record)
