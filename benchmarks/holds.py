@@ -70,6 +70,7 @@ CANDIDATES = {
     "shock_s8_31": {"substeps": 8, "iterations": 3, "position_iterations": 1},
     "shock_s4_31": {"substeps": 4, "iterations": 3, "position_iterations": 1},
     "shock_release1": {"plan": {"release_sweeps": 1}},
+    "shock_columns": {"batching": "columns"},
 }
 #: the candidates without "shock" in their name run without the shock sweep (as every
 #: World did before it was the default), those with it run it

@@ -50,7 +50,7 @@ class Tunable:
 
 def _batching_candidates(traits: DeviceTraits) -> list:
     """Persistent global batching first where the device is validated for it."""
-    spatial = ["cells", "slabs"] if traits.is_gpu else ["slabs", "cells"]
+    spatial = ["cells", "slabs", "columns"] if traits.is_gpu else ["slabs", "columns", "cells"]
     return (["global"] + spatial) if persistent_launch_validated(traits) else spatial
 
 
@@ -65,7 +65,7 @@ _CANDIDATES = {
     ],
 }
 _ALSO_ALLOWED = {
-    "batching": lambda v: v in ("global", "cells", "slabs"),
+    "batching": lambda v: v in ("global", "cells", "slabs", "columns"),
     "release_sweeps": lambda v: (
         v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
     ),

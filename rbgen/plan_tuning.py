@@ -47,7 +47,7 @@ def relevant(name: str, values: dict) -> bool:
     if name == "ordered_rounds":
         return values["batching"] == "global"
     if name == "group_count":
-        return values["batching"] in ("cells", "slabs")
+        return values["batching"] in ("cells", "slabs", "columns")
     if name == "release_sweeps":
         return values["normal_solve"] == "block"
     return True

@@ -257,8 +257,8 @@ CONSTRUCTION_OPTIONS = (
     Option(
         "batching",
         None,
-        _choice("global", "cells", "slabs", none=True),
-        "None (the device's choice), 'global', 'cells' or 'slabs'",
+        _choice("global", "cells", "slabs", "columns", none=True),
+        "None (the device's choice), 'global', 'cells', 'slabs' or 'columns'",
         "how PGS colours constraints for parallel solving (rbgen.pipeline.batching)",
     ),
     Option(

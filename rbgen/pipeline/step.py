@@ -496,9 +496,11 @@ class BatchingStage(Stage):
     def configure(self, bodies, gravity, contact_margin: float) -> None:
         """Scene geometry of spatial batching (from the host copy of the bodies)."""
         radius = max((bounding_radius(s) for s in bodies.dynamic_shapes()), default=0.0)
+        slabs, columns = horizontal_axes(bodies.dynamic_positions(), gravity)
         self.batcher.configure(
             cell_size=2.0 * radius + 2.0 * contact_margin + 1e-3,
-            slab_axis=slab_axis(bodies.dynamic_positions(), gravity),
+            slab_axis=slabs,
+            column_axis=columns,
         )
 
     def enqueue(self, step: StepContext) -> None:
@@ -512,15 +514,15 @@ class BatchingStage(Stage):
         )
 
 
-def slab_axis(positions: np.ndarray, gravity) -> tuple:
-    """Slabs lie across the coordinate axis, of the two least along gravity, on which the
-    dynamic bodies spread widest (a pile then spreads over most slabs)."""
-    candidates = np.argsort(np.abs(np.asarray(gravity, float)))[:2]
-    if len(positions) == 0:
-        return tuple(float(i == candidates[0]) for i in range(3))
-    spread = positions.max(axis=0) - positions.min(axis=0)
-    best = max(candidates, key=lambda axis: spread[axis])
-    return tuple(float(i == best) for i in range(3))
+def horizontal_axes(positions: np.ndarray, gravity) -> tuple[tuple, tuple]:
+    """The two coordinate axes least along gravity, the one on which the dynamic bodies
+    spread widest first: the slabs' axis (a pile then spreads over most slabs), then the
+    columns' second axis."""
+    candidates = list(np.argsort(np.abs(np.asarray(gravity, float)))[:2])
+    if len(positions):
+        spread = positions.max(axis=0) - positions.min(axis=0)
+        candidates.sort(key=lambda axis: -spread[axis])
+    return tuple(tuple(float(i == axis) for i in range(3)) for axis in candidates)  # type: ignore[return-value]
 
 
 class SolveStage(Stage):
@@ -667,7 +669,7 @@ class SolveStage(Stage):
                     "message": "a persistent launch gave up at its device-wide barrier "
                     "(its work groups did not all run at once); export a "
                     "World without persistent launches for this device "
-                    "(batching='cells' or 'slabs')",
+                    "(batching='cells', 'slabs' or 'columns')",
                 }
             ]
         }

@@ -23,7 +23,7 @@ from rbgen.pipeline.batching.global_colouring import GlobalBatcher
 
 #: an item kind other than the contacts' (edges of a joint-like kind, made up here)
 OTHER_KIND = 1
-SPATIAL = [("cells", "lanes"), ("cells", "serial"), ("slabs", "lanes"), ("slabs", "serial")]
+SPATIAL = [(mode, form) for mode in ("cells", "slabs", "columns") for form in ("lanes", "serial")]
 
 
 def random_graph(rng, n_bodies, n_constraints, static_fraction=0.1, chain=False):
@@ -205,7 +205,7 @@ def test_batches_are_independent(runtime, rng, n_bodies, n_constraints, mode, so
     assert device_batches <= 2 * reference + 2
 
 
-@pytest.mark.parametrize("mode", ["global", "cells", "slabs"])
+@pytest.mark.parametrize("mode", ["global", "cells", "slabs", "columns"])
 @pytest.mark.parametrize("n_bodies,n_constraints", [(9, 31), (100, 333), (2000, 5003)])
 def test_edges_of_other_kinds_share_the_colours(runtime, rng, n_bodies, n_constraints, mode):
     """Edges of two kinds (contacts and a made-up other kind, items tagged by kind and
@@ -460,12 +460,17 @@ def test_unknown_algorithm_and_solve_form_are_refused(runtime):
         batcher(edges, cl_array.to_device(runtime.queue, np.array([1], np.uint32)), None, 2, 1)
 
 
+@pytest.mark.parametrize("mode", ["slabs", "columns"])
 @pytest.mark.parametrize("solve_form", ["lanes", "serial"])
-def test_slabs_keep_each_stack_in_one_group(runtime, solve_form):
-    """Slabs across x: stacks 8 boxes tall on a 6 x 6 grid (pitch 1.6 m, slabs 1.5 m),
-    edges between vertical neighbours and the ground: every stack's edges share one group
-    (a slab runs along gravity), the stacks of one slab share its group, and nothing lands
-    in the leftovers (no body is wider than a slab)."""
+def test_slabs_and_columns_keep_each_stack_in_one_group(runtime, solve_form, mode):
+    """Slabs across x, columns across x and z: stacks 8 boxes tall on a 6 x 6 grid (pitch
+    1.6 m, cells 1.5 m), edges between vertical neighbours and the ground: every stack's
+    edges share one group (a slab or a column runs along gravity) and nothing lands in the
+    leftovers (no body is wider than a cell). The stacks of one slab share its group; the
+    columns, one stack each, spread over groups enough to keep 16 cores busy where the 6
+    slabs (3 a colour) could not: with 50 groups a colour, 9 columns a colour land in at
+    least 8 groups of their colour (a hash: two columns of a colour may share a group,
+    which is as correct)."""
     side, height = 6, 8
     positions, a, b = [[0.0, -1.0, 0.0]], [], []
     for x in range(side):
@@ -482,14 +487,22 @@ def test_slabs_keep_each_stack_in_one_group(runtime, solve_form):
     bodies["position"][:, :3] = positions
     a, b = np.array(a, np.uint32), np.array(b, np.uint32)
     edges = make_edges(a, b, positions[b] + [0.2, -0.5, 0.2])
-    batcher = new_batcher(runtime, "slabs", solve_form, group_count=50)
+    batcher = new_batcher(runtime, mode, solve_form, group_count=50)
     order, offsets, batch_counts, groups = batch_records(
         runtime, batcher, edges, bodies, bodies["inv_mass"] > 0
     )
     stacks = groups.reshape(side * side, height)
     assert np.all(stacks == stacks[:, :1]), "a stack split over groups"
     slab = np.floor((1.6 * np.arange(side) + 0.9) / 1.5).astype(int)
-    assert len(np.unique(stacks[:, 0])) == len(np.unique(slab)) > 1
+    if mode == "slabs":
+        assert len(np.unique(stacks[:, 0])) == len(np.unique(slab)) > 1
+    else:
+        u, v = np.meshgrid(slab, slab, indexing="ij")
+        colour = (u & 1 | (v & 1) << 1).ravel()
+        assert len(batcher.launch_plan) == 5
+        assert np.array_equal(stacks[:, 0] // 50, colour), "a column in another colour's groups"
+        for c in range(4):
+            assert len(np.unique(stacks[colour == c, 0])) >= 8, f"colour {c}"
     assert not np.any(groups == batcher.launch_plan[-1][0]), "leftovers"
 
 
@@ -557,7 +570,7 @@ def test_cells_spread_a_pile_and_route_oversized_bodies_to_leftovers(runtime, rn
     assert np.count_nonzero(touching == leftover) >= 1
 
 
-@pytest.mark.parametrize("mode", ["cells", "slabs"])
+@pytest.mark.parametrize("mode", ["cells", "slabs", "columns"])
 def test_serial_form_lists_each_group_in_index_order(runtime, rng, mode):
     """Serial form: each group's edges are listed in index order (one work-item lists
     them, no atomics decide the order), and the count on the device may be below the

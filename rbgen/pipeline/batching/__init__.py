@@ -40,7 +40,7 @@ from ...device import DeviceTraits, Runtime
 from ...errors import RbgenError
 
 #: batching algorithms by name (see the module docstring)
-MODES = ("global", "cells", "slabs")
+MODES = ("global", "cells", "slabs", "columns")
 #: how a solver walks a group (see `rbgen.pipeline.solvers.pgs`): "lanes": a work
 #: group's lanes solve a batch together, batch after batch; "serial": one work-item
 #: solves its group's constraints in index order (a group is one batch)
@@ -76,7 +76,7 @@ class Batcher(Protocol):
         """Enqueue the batching of the first ``edge_count[0]`` constraint edges (a device
         uint32 array(1)); ``edge_capacity`` bounds the count."""
 
-    def configure(self, *, cell_size: float, slab_axis) -> None:
+    def configure(self, *, cell_size: float, slab_axis, column_axis=None) -> None:
         """Scene geometry of the spatial algorithms (the others ignore it)."""
 
     def read_batches(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -90,7 +90,7 @@ def make_batcher(runtime: Runtime, mode: str, **options) -> Batcher:
 
     if mode == "global":
         return GlobalBatcher(runtime, **options)
-    if mode in ("cells", "slabs"):
+    if mode in ("cells", "slabs", "columns"):
         return SpatialBatcher(runtime, mode=mode, **options)
     raise RbgenError(f"batching must be one of {MODES}, got {mode!r}")
 

@@ -98,7 +98,7 @@ class GlobalBatcher:
         self.group_batches = cl_array.zeros(queue, self.max_batches + 1, np.uint32)
         self.group_batch_count = cl_array.zeros(queue, 1, np.uint32)
 
-    def configure(self, *, cell_size: float, slab_axis) -> None:
+    def configure(self, *, cell_size: float, slab_axis, column_axis=None) -> None:
         """(no scene geometry: the colouring is topological)"""
 
     def ensure_capacity(self, body_capacity: int, edge_capacity: int) -> None:

@@ -3,12 +3,15 @@
 Level 1: an edge belongs to the cell of its point (`layouts.CONSTRAINT_EDGE`; a
 contact's first point). ``cells``: cubes of at least the largest dynamic body's size, 8
 colours by the parity of their coordinates; ``slabs``: slabs across one horizontal axis
-(``slab_axis``), 2 colours. Cells of one colour are a whole cell apart, so their edges
-share no body and a colour is one solver launch over many groups; an edge whose body
-another group of its colour has claimed (a body wider than a cell) goes to a leftover
-group solved alone, so correctness never depends on sizes. A sweep is one launch per
+(``slab_axis``), 2 colours; ``columns``: columns along gravity, square across the two
+horizontal axes (``slab_axis``, ``column_axis``), 4 colours. Cells of one colour are a
+whole cell apart, so their edges share no body and a colour is one solver launch over many
+groups; an edge whose body another group of its colour has claimed (a body wider than a
+cell) goes to a leftover group solved alone, so correctness never depends on sizes. A sweep is one launch per
 colour plus one for the leftovers. Slabs hold whole stacks, which a serial solve then
-walks in index order (from the ground up for piles built bottom-up).
+walks in index order (from the ground up for piles built bottom-up); columns hold whole
+stacks too, and a lattice 20 stacks wide has 10 slabs a colour (at most 10 busy cores)
+but 100 columns a colour.
 
 Level 2 (solve form ``lanes``): each group is coloured into batches by one work group
 (maximal independent sets grown by rounds of lowest-priority-wins); the last batch slot
@@ -27,7 +30,7 @@ from ...errors import RbgenError
 from . import SOLVE_FORMS, default_solve_form, read_batches
 
 #: the spatial algorithms and their colours (parity of 3 cell coordinates, or of the slab)
-COLOURS = {"cells": 8, "slabs": 2}
+COLOURS = {"cells": 8, "slabs": 2, "columns": 4}
 
 TEMPLATE = KernelTemplate(
     "pipeline/batching/spatial.cl.mako",
@@ -46,8 +49,10 @@ TEMPLATE = KernelTemplate(
         Param(
             "mode",
             tuple(COLOURS),
-            "cells (8 colour launches + leftovers per sweep, piles spread over the device) "
-            "or slabs (2 colour launches + leftovers per sweep, a stack whole in a group)",
+            "cells (8 colour launches + leftovers per sweep, piles spread over the device), "
+            "slabs (2 colour launches + leftovers per sweep, a stack whole in a group) or "
+            "columns (4 colour launches + leftovers per sweep, a stack whole in a group, "
+            "many groups a colour)",
         ),
         Param(
             "solve_form",
@@ -94,7 +99,8 @@ class SpatialBatcher:
 
     ``cell_size`` must be at least the largest dynamic body's diameter plus the contact
     margin (smaller only costs leftovers); slabs lie across ``slab_axis`` (a unit
-    vector). Both are set with `configure` before a call.
+    vector), columns across it and ``column_axis``. They are set with `configure` before
+    a call.
     """
 
     def __init__(
@@ -120,6 +126,7 @@ class SpatialBatcher:
         self.max_batches = int(max_batches)
         self.cell_size = None if cell_size is None else float(cell_size)
         self.slab_axis: tuple[float, ...] = (1.0, 0.0, 0.0)
+        self.column_axis: tuple[float, ...] = (0.0, 0.0, 1.0)
         self.cell_colours = COLOURS[mode]
         self.work_group_size = work_group_size or default_work_group_size(traits)
         per_colour = int(group_count or default_group_count(traits))
@@ -150,10 +157,13 @@ class SpatialBatcher:
         self.group_batches = cl_array.zeros(queue, g * (self.max_batches + 1), np.uint32)
         self.group_batch_count = cl_array.zeros(queue, g, np.uint32)
 
-    def configure(self, *, cell_size: float, slab_axis) -> None:
-        """The cell side (m) and the slabs' axis of the scene."""
+    def configure(self, *, cell_size: float, slab_axis, column_axis=None) -> None:
+        """The cell side (m), the slabs' axis of the scene and the columns' second axis
+        (None: keep the last; both horizontal, at right angles)."""
         self.cell_size = float(cell_size)
         self.slab_axis = tuple(float(v) for v in slab_axis)
+        if column_axis is not None:
+            self.column_axis = tuple(float(v) for v in column_axis)
 
     def ensure_capacity(self, body_capacity: int, edge_capacity: int) -> None:
         """Grow the per-body and per-edge scratch (never shrinks)."""
@@ -198,7 +208,13 @@ class SpatialBatcher:
         # lanes: also the atomic slots in the group lists
         slots = (self.group_counts, self.edge_slot) if self.batches else ()
         if edge_capacity > 0:
-            axis = (unit4(self.slab_axis, "slab_axis"),) if self.mode == "slabs" else ()
+            axis = {
+                "slabs": (unit4(self.slab_axis, "slab_axis"),),
+                "columns": (
+                    unit4(self.slab_axis, "slab_axis"),
+                    unit4(self.column_axis, "column_axis"),
+                ),
+            }.get(self.mode, ())
             k["assign_cells"].over(
                 edge_capacity,
                 wg,

@@ -9,6 +9,12 @@
  * Cells get one of 8 colours by the parity of their coordinates, and each
  * colour's cells are hashed into groups_per_colour groups: two cells of one
  * colour are a whole cell apart, so their edges share no body.
+% elif mode == "columns":
+ * The cells are columns along gravity (square in the plane of slab_axis and
+ * column_axis, infinite along the third axis), coloured by the parity of their
+ * two coordinates (4 colours) and hashed into groups_per_colour groups. A
+ * column holds whole stacks, as a slab does, and a scene as wide as a few
+ * slabs has many columns: work for every core of a CPU.
 % else:
  * The cells are slabs across slab_axis (infinite along the other two axes),
  * coloured by the parity of their index (2 colours); consecutive slabs of a
@@ -58,6 +64,9 @@ inline uint cell_colour(int3 cell)
 {
     return (uint)(cell.x & 1) | ((uint)(cell.y & 1) << 1) | ((uint)(cell.z & 1) << 2);
 }
+% elif mode == "columns":
+/* column colours (parity of the two column coordinates) */
+#define CELL_COLOURS 4
 % else:
 /* slab colours (parity of the slab index) */
 #define CELL_COLOURS 2
@@ -130,7 +139,7 @@ inline bool claim_body(volatile __global uint* body_owner, uint colour, uint bod
     return held == RB_SOLVER_NONE || held == group;
 }
 
-/* One work-item per edge: the ${"cell" if mode == "cells" else "slab"} of its point gives a colour and a group;
+/* One work-item per edge: the ${{"cells": "cell", "columns": "column"}.get(mode, "slab")} of its point gives a colour and a group;
  * if another group of that colour already holds one of its dynamic bodies it
  * goes to the leftover group. ${"Its slot in its group's list is counted too. " if solve_form == "lanes" else ""}A work group is responsible for
  * ${work_group_size} consecutive edges. */
@@ -146,8 +155,11 @@ void assign_cells(__global const ConstraintEdge* edges,
                   __global uint* edge_group,
                   const uint body_count,
                   const uint groups_per_colour,
-% if mode == "slabs":
+% if mode in ("slabs", "columns"):
                   const float4 slab_axis,
+% endif
+% if mode == "columns":
+                  const float4 column_axis,
 % endif
                   const float inv_cell_size)
 {
@@ -160,6 +172,12 @@ void assign_cells(__global const ConstraintEdge* edges,
     int3 cell = cell_of_scaled(point * inv_cell_size);
     uint colour = cell_colour(cell);
     uint hash = mix32((uint)cell.x * 73856093u ^ (uint)cell.y * 19349663u ^ (uint)cell.z * 83492791u);
+    uint group = colour * groups_per_colour + hash % groups_per_colour;
+% elif mode == "columns":
+    int u = cell_index(dot3(point, slab_axis.xyz) * inv_cell_size);
+    int v = cell_index(dot3(point, column_axis.xyz) * inv_cell_size);
+    uint colour = (uint)(u & 1) | ((uint)(v & 1) << 1);
+    uint hash = mix32((uint)(u >> 1) * 73856093u ^ (uint)(v >> 1) * 83492791u);
     uint group = colour * groups_per_colour + hash % groups_per_colour;
 % else:
     int slab = cell_index(dot3(point, slab_axis.xyz) * inv_cell_size);
