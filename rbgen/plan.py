@@ -22,7 +22,7 @@ from .device import INT64_ATOMICS, DeviceTraits
 from .errors import RbgenError
 from .pipeline.batching import default_solve_form
 from .pipeline.batching.global_colouring import ORDERED_ROUNDS
-from .pipeline.batching.spatial import default_group_count
+from .pipeline.batching.spatial import default_group_count, default_spatial_mode
 from .pipeline.device_barrier import persistent_launch_validated
 from .pipeline.solvers.common import check_sweeps
 from .pipeline.solvers.pgs import default_normal_solve
@@ -48,9 +48,18 @@ class Tunable:
         return value
 
 
+#: why a device without a persistent launch batches as it does (default_spatial_mode)
+SPATIAL_REASONS = {
+    "cells": "cells spread any pile over the device's compute units",
+    "slabs": "slabs keep stacks whole for a serial solve, over every core",
+    "columns": "columns keep stacks whole for a serial solve, with work for many cores",
+}
+
+
 def _batching_candidates(traits: DeviceTraits) -> list:
     """Persistent global batching first where the device is validated for it."""
-    spatial = ["cells", "slabs", "columns"] if traits.is_gpu else ["slabs", "columns", "cells"]
+    first = default_spatial_mode(traits)
+    spatial = [first] + [m for m in ("slabs", "columns", "cells") if m != first]
     return (["global"] + spatial) if persistent_launch_validated(traits) else spatial
 
 
@@ -242,18 +251,14 @@ def derive_plan(
         batching = pick(
             "batching",
             options["batching"],
-            "global" if capable else ("cells" if traits.is_gpu else "slabs"),
+            "global" if capable else default_spatial_mode(traits),
             "one colouring and one solver launch a step over every compute unit"
             if capable
-            else (
-                "cells spread any pile over the device's compute units"
-                if traits.is_gpu
-                else "slabs keep stacks whole for a serial solve, over every core"
-            ),
+            else SPATIAL_REASONS[default_spatial_mode(traits)],
             tunable=True,
         )
         if persistent_failed and batching == "global":
-            batching = "cells" if traits.is_gpu else "slabs"
+            batching = default_spatial_mode(traits)
             sources["batching"] = "fallback"
             reasons["batching"] = (
                 "a persistent launch gave up on this device (its work "
@@ -281,7 +286,7 @@ def derive_plan(
         "block" if solver == "jacobi" else default_normal_solve(),
         "the block leaves no point-order torque where manifolds are solved "
         "side by side or a column is split between launches"
-        if traits.is_gpu or solver == "jacobi" or batching != "slabs"
+        if traits.is_gpu or solver == "jacobi" or batching not in ("slabs", "columns")
         else "the block holds a 30-box column that one normal row at a time topples, "
         "and with the CPU's default substeps the lattices",
     )

@@ -102,6 +102,19 @@ def test_step_defaults_per_device_kind(gpu):
     assert (given["substeps"], given["iterations"], given["position_iterations"]) == (2, 7, 0)
 
 
+def test_cpus_with_many_cores_batch_over_columns():
+    """A CPU's serial solve keeps whole stacks in a group: slabs up to 8 cores, columns
+    beyond (slabs give a 20-stack lattice 10 groups a colour). The normal-solve reason of
+    a column's serial solve is the slabs'."""
+    import dataclasses
+
+    many = dataclasses.replace(CPU, compute_units=16)
+    assert plan(CPU).batching == "slabs" and plan(many).batching == "columns"
+    assert "many cores" in plan(many).reasons["batching"]
+    assert "30-box column" in plan(many).reasons["normal_solve"]
+    assert TUNABLES["batching"].candidates(many)[0] == "columns"
+
+
 def test_normal_solve_reasons():
     """A GPU's reason for the block is the one it always had; a CPU's names the column."""
     for device in (NVIDIA, AMD):

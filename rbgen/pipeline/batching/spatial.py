@@ -7,11 +7,11 @@ colours by the parity of their coordinates; ``slabs``: slabs across one horizont
 horizontal axes (``slab_axis``, ``column_axis``), 4 colours. Cells of one colour are a
 whole cell apart, so their edges share no body and a colour is one solver launch over many
 groups; an edge whose body another group of its colour has claimed (a body wider than a
-cell) goes to a leftover group solved alone, so correctness never depends on sizes. A sweep is one launch per
-colour plus one for the leftovers. Slabs hold whole stacks, which a serial solve then
-walks in index order (from the ground up for piles built bottom-up); columns hold whole
-stacks too, and a lattice 20 stacks wide has 10 slabs a colour (at most 10 busy cores)
-but 100 columns a colour.
+cell) goes to a leftover group solved alone, so correctness never depends on sizes. A
+sweep is one launch per colour plus one for the leftovers. Slabs hold whole stacks, which a
+serial solve then walks in index order (from the ground up for piles built bottom-up);
+columns hold whole stacks too, and a lattice 20 stacks wide has 10 slabs a colour (at most
+10 busy cores) but 100 columns a colour (default_spatial_mode).
 
 Level 2 (solve form ``lanes``): each group is coloured into batches by one work group
 (maximal independent sets grown by rounds of lowest-priority-wins); the last batch slot
@@ -66,10 +66,27 @@ TEMPLATE = KernelTemplate(
     defaults=lambda traits: {
         "work_group_size": default_work_group_size(traits),
         "max_batches": 128,
-        "mode": "cells" if traits.is_gpu else "slabs",
+        "mode": default_spatial_mode(traits),
         "solve_form": default_solve_form(traits),
     },
 )
+
+
+#: CPUs with more cores than this batch over columns rather than slabs
+COLUMNS_FROM_CORES = 8
+
+
+def default_spatial_mode(traits: DeviceTraits) -> str:
+    """The spatial batching a device runs when it has no persistent launch: cells on GPUs
+    (any pile spread over the compute units); on CPUs, whose serial solve wants whole
+    stacks in a group, slabs up to COLUMNS_FROM_CORES cores and columns beyond. Slabs cost
+    2 launches a sweep and give a lattice 20 stacks wide 10 groups a colour, which keep 8
+    cores busy but not 16; columns cost 4 and give it 100. Measured on BoxBox from the
+    start (benchmarks/holds.py, records of e24f5f2): 2 cores run slabs faster, 16 cores
+    columns, and both hold alike."""
+    if traits.is_gpu:
+        return "cells"
+    return "columns" if traits.compute_units > COLUMNS_FROM_CORES else "slabs"
 
 
 def default_work_group_size(traits: DeviceTraits) -> int:
