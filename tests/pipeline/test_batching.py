@@ -451,7 +451,7 @@ def test_global_mode_refuses_bad_ordered_rounds(runtime, rounds):
 
 def test_unknown_algorithm_and_solve_form_are_refused(runtime):
     with pytest.raises(RbgenError, match="batching must be one of"):
-        make_batcher(runtime, "columns")
+        make_batcher(runtime, "hexagons")
     with pytest.raises(RbgenError, match="solve_form must be one of"):
         make_batcher(runtime, "cells", solve_form="tpu")
     batcher = make_batcher(runtime, "cells")  # no cell size yet
