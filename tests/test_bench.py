@@ -258,35 +258,34 @@ def test_a_scene_records_its_broadphase_and_last_step_launches_by_kernel(runtime
     assert "[fell back from the plan's broadphase]" in bench.format_result(result)
 
 
-def test_case_times_keep_three_significant_digits_below_a_tenth_of_a_millisecond():
-    # a device barrier's microsecond must not print as 0.001 beside a 3 ms case
-    record = {
-        "kind": "device_barrier",
+def cases_record(kind, *cases):
+    """A record of ``kind`` whose results are (name, ms, spread, baseline) cases."""
+    return {
+        "kind": kind,
         "created": "2026-12-05T00:00:00Z",
         "rbgen_version": "0",
         "results": [
-            {"name": "a", "ms": 0.0010837, "ms_spread": [0.00107, 0.0011], "baseline": None},
-            {
-                "name": "b",
-                "ms": 3.0,
-                "ms_spread": [2.5, 3.25],
-                "baseline": {"name": "a", "ms": 2.95e-05},
-            },
+            {"name": name, "ms": ms, "ms_spread": list(spread), "baseline": baseline}
+            for name, ms, spread, baseline in cases
         ],
     }
-    text = bench.markdown(record)
+
+
+def test_case_times_keep_three_significant_digits_below_a_tenth_of_a_millisecond():
+    # a device barrier's microsecond must not print as 0.001 beside a 3 ms case
+    text = bench.markdown(
+        cases_record(
+            "device_barrier",
+            ("a", 0.0010837, (0.00107, 0.0011), None),
+            ("b", 3.0, (2.5, 3.25), {"name": "a", "ms": 2.95e-05}),
+        )
+    )
     assert "| a | 0.00108 | 0.00107-0.00110 | - |" in text
     assert "| b | 3.000 | 2.500-3.250 | a: 0.0000295 ms |" in text
 
 
 def test_a_baseline_named_by_a_case_of_the_same_record_is_shown_with_its_time():
-    record = {
-        "kind": "ragdolls",
-        "created": "2026-12-05T00:00:00Z",
-        "rbgen_version": "0",
-        "results": [
-            {"name": "bare", "ms": 5.0, "ms_spread": [4.0, 6.0], "baseline": None},
-            {"name": "joints", "ms": 9.0, "ms_spread": [8.0, 10.0], "baseline": "bare"},
-        ],
-    }
+    record = cases_record(
+        "ragdolls", ("bare", 5.0, (4.0, 6.0), None), ("joints", 9.0, (8.0, 10.0), "bare")
+    )
     assert "| joints | 9.000 | 8.000-10.000 | bare: 5.000 ms |" in bench.markdown(record)
