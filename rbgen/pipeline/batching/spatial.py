@@ -81,9 +81,8 @@ def default_spatial_mode(traits: DeviceTraits) -> str:
     (any pile spread over the compute units); on CPUs, whose serial solve wants whole
     stacks in a group, slabs up to COLUMNS_FROM_CORES cores and columns beyond. Slabs cost
     2 launches a sweep and give a lattice 20 stacks wide 10 groups a colour, which keep 8
-    cores busy but not 16; columns cost 4 and give it 100. Measured on BoxBox from the
-    start (benchmarks/holds.py, records of e24f5f2): 2 cores run slabs faster, 16 cores
-    columns, and both hold alike."""
+    cores busy but not 16; columns cost 4 and give it 100, so they pay only where the
+    cores outnumber a scene's slabs (benchmarks/holds.py: candidate shock_columns)."""
     if traits.is_gpu:
         return "cells"
     return "columns" if traits.compute_units > COLUMNS_FROM_CORES else "slabs"
