@@ -20,7 +20,7 @@ from typing import Any
 
 from .device import INT64_ATOMICS, DeviceTraits
 from .errors import RbgenError
-from .pipeline.batching import default_solve_form
+from .pipeline.batching import MODES, SPATIAL_MODES, default_solve_form
 from .pipeline.batching.global_colouring import ORDERED_ROUNDS
 from .pipeline.batching.spatial import default_group_count, default_spatial_mode
 from .pipeline.device_barrier import persistent_launch_validated
@@ -59,7 +59,7 @@ SPATIAL_REASONS = {
 def _batching_candidates(traits: DeviceTraits) -> list:
     """Persistent global batching first where the device is validated for it."""
     first = default_spatial_mode(traits)
-    spatial = [first] + [m for m in ("slabs", "columns", "cells") if m != first]
+    spatial = [first] + [m for m in SPATIAL_MODES if m != first]
     return (["global"] + spatial) if persistent_launch_validated(traits) else spatial
 
 
@@ -74,7 +74,7 @@ _CANDIDATES = {
     ],
 }
 _ALSO_ALLOWED = {
-    "batching": lambda v: v in ("global", "cells", "slabs", "columns"),
+    "batching": lambda v: v in MODES,
     "release_sweeps": lambda v: (
         v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
     ),

@@ -20,6 +20,7 @@ import time
 from collections.abc import Callable
 
 from .device import Runtime
+from .pipeline.batching import SPATIAL_MODES
 from .plan import TUNABLES, derive_plan
 from .settings import split_options
 from .tuning import NOISE, PLAN_ENTRY, PLAN_VERSION, load_cache, pick_winner, save_cache
@@ -47,7 +48,7 @@ def relevant(name: str, values: dict) -> bool:
     if name == "ordered_rounds":
         return values["batching"] == "global"
     if name == "group_count":
-        return values["batching"] in ("cells", "slabs", "columns")
+        return values["batching"] in SPATIAL_MODES
     if name == "release_sweeps":
         return values["normal_solve"] == "block"
     return True

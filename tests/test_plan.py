@@ -102,6 +102,18 @@ def test_step_defaults_per_device_kind(gpu):
     assert (given["substeps"], given["iterations"], given["position_iterations"]) == (2, 7, 0)
 
 
+def test_the_batching_names_are_one_list():
+    """The option's choices, the batchers and the spatial colours name the same algorithms."""
+    from rbgen.pipeline.batching import MODES, SPATIAL_MODES
+    from rbgen.pipeline.batching.spatial import COLOURS
+    from rbgen.settings import CONSTRUCTION, check
+
+    assert all(check(CONSTRUCTION["batching"], mode) == mode for mode in MODES)
+    with pytest.raises(RbgenError, match="batching"):
+        check(CONSTRUCTION["batching"], "hexagons")
+    assert tuple(COLOURS) == SPATIAL_MODES and MODES == ("global", *SPATIAL_MODES)
+
+
 def test_cpus_with_many_cores_batch_over_columns():
     """A CPU's serial solve keeps whole stacks in a group: slabs up to 8 cores, columns
     beyond (slabs give a 20-stack lattice 10 groups a colour). The normal-solve reason of

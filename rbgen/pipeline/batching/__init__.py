@@ -40,7 +40,9 @@ from ...device import DeviceTraits, Runtime
 from ...errors import RbgenError
 
 #: batching algorithms by name (see the module docstring)
-MODES = ("global", "cells", "slabs", "columns")
+#: the spatial algorithms (spatial.py), and every algorithm: global colouring first
+SPATIAL_MODES = ("cells", "slabs", "columns")
+MODES = ("global",) + SPATIAL_MODES
 #: how a solver walks a group (see `rbgen.pipeline.solvers.pgs`): "lanes": a work
 #: group's lanes solve a batch together, batch after batch; "serial": one work-item
 #: solves its group's constraints in index order (a group is one batch)
@@ -90,7 +92,7 @@ def make_batcher(runtime: Runtime, mode: str, **options) -> Batcher:
 
     if mode == "global":
         return GlobalBatcher(runtime, **options)
-    if mode in ("cells", "slabs", "columns"):
+    if mode in SPATIAL_MODES:
         return SpatialBatcher(runtime, mode=mode, **options)
     raise RbgenError(f"batching must be one of {MODES}, got {mode!r}")
 
