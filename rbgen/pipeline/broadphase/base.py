@@ -52,10 +52,10 @@ def default_work_group_size(traits: DeviceTraits) -> int:
     return min(128 if traits.is_gpu else 64, traits.max_work_group_size)
 
 
-def check_large_factor(value, name: str = "large_factor") -> float:
-    """A body whose size exceeds ``value`` times the typical size is tested apart from the
-    others (grid, sap), or in the grid's coarse level (``fine_factor``); it must be a
-    positive finite number."""
+def check_size_factor(value, name: str = "large_factor") -> float:
+    """A multiple of the typical size that sorts bodies by size: above ``large_factor``
+    a body is tested apart from the others (grid, sap), above ``fine_factor`` it is in the
+    grid's coarse level. It must be a positive finite number (the error names ``name``)."""
     if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
         raise RbgenError(f"{name} must be a positive finite number, got {value!r}")
     return float(value)

@@ -83,7 +83,7 @@ from ...codegen import (
     work_group_size_param,
 )
 from ...errors import RbgenError
-from .base import Broadphase, check_large_factor, default_work_group_size
+from .base import Broadphase, check_size_factor, default_work_group_size
 from .pairs import key_bits
 
 TEMPLATE = KernelTemplate(
@@ -194,8 +194,8 @@ class GridBroadphase(Broadphase):
         work_group_size=None,
     ):
         super().__init__(runtime, capacity=capacity, work_group_size=work_group_size)
-        self.large_factor = check_large_factor(large_factor)
-        self.fine_factor = check_large_factor(fine_factor, "fine_factor")
+        self.large_factor = check_size_factor(large_factor)
+        self.fine_factor = check_size_factor(fine_factor, "fine_factor")
         self.emission = emission or default_emission(runtime.traits)
         if self.emission not in BUCKETINGS:
             raise RbgenError(f"emission must be one of {list(BUCKETINGS)}, got {emission!r}")

@@ -24,7 +24,7 @@ import numpy as np
 
 from ... import layouts
 from ...codegen import KernelTemplate, Param, compile_spec, work_group_size_param
-from .base import Broadphase, check_large_factor, default_work_group_size
+from .base import Broadphase, check_size_factor, default_work_group_size
 
 TEMPLATE = KernelTemplate(
     "pipeline/broadphase/sap.cl.mako",
@@ -66,7 +66,7 @@ class SapBroadphase(Broadphase):
         work_group_size=None,
     ):
         super().__init__(runtime, capacity=capacity, work_group_size=work_group_size)
-        self.large_factor = check_large_factor(large_factor)
+        self.large_factor = check_size_factor(large_factor)
         self.shape = shape or runtime.traits.kind
         self.program = compile_spec(
             runtime, TEMPLATE.spec(work_group_size=self.work_group_size, shape=self.shape)
