@@ -7,10 +7,10 @@ A persistent launch of G work groups x W lanes passes ``--phases`` device-wide b
 phase ``touch`` lanes first read another lane's word and write their own (one dependent global
 hop, as a batch's constraints read the velocities the last batch wrote). The time a barrier is
 the difference between that launch and one of a single phase, over the phases (profiling
-events, the best of 3). G is the persistent launch's own (one group per compute unit: the only
-size whose groups all run at once everywhere), W 256 (the PGS solve's) and 64. The baseline,
-timed in the same run: one work group of W lanes with a work-group barrier per phase, the
-least a phase can cost.
+events, the best of 3). G is 1, 4, 16 and one group per compute unit (a persistent launch's
+own: the only size whose groups all run at once everywhere), W 256 (the PGS solve's) and 64.
+The baseline, timed in the same run: one work group of W lanes with a work-group barrier per
+phase, the least a phase can cost.
 
 JSON (rbgen.bench's form, kind "device_barrier") and a Markdown table go under ``--out``
 (benchmarks/results; '' for none).
@@ -88,12 +88,14 @@ def main() -> None:
     phases_kernel = cl.Kernel(program, "phases")
     local_kernel = cl.Kernel(program, "local_phases")
     queue = runtime.queue
-    groups = persistent_groups(runtime.traits)
+    most = persistent_groups(runtime.traits)
     data = cl.Buffer(runtime.context, cl.mem_flags.READ_WRITE, 4 << 20)
     phases = max(1, int(args.phases))
-    print(f"device-wide barrier on {runtime.traits.describe()}: {groups} groups", flush=True)
+    print(f"device-wide barrier on {runtime.traits.describe()}: up to {most} groups", flush=True)
     results = []
-    for lanes in (256, 64):
+    for lanes, groups in [(w, g) for w in (256, 64) for g in sorted({1, 4, 16, most})]:
+        if groups > most:
+            continue
         lanes = min(lanes, runtime.traits.max_work_group_size)
         for touch in (0, groups * lanes):
             label = "no work" if touch == 0 else "a dependent hop a lane"
@@ -106,7 +108,7 @@ def main() -> None:
             floor = per_phase_us(local, phases)
             sync = barrier_buffer(runtime)
 
-            def persistent(count, touch=touch, lanes=lanes, sync=sync):
+            def persistent(count, touch=touch, lanes=lanes, sync=sync, groups=groups):
                 return phases_kernel(
                     queue,
                     (groups * lanes,),
