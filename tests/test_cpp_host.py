@@ -9,12 +9,15 @@ and ICD loader are needed: ``.ci/run`` installs them on Debian).
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
 
 import numpy as np
+import pyopencl
 import pytest
 
 import rbgen
@@ -56,12 +59,36 @@ def export(runtime, scene: str, n: int, out: Path, **options) -> Path:
     return out
 
 
+def host_environment() -> dict:
+    """The environment the C++ host runs in: its ICD loader (the system's) must see the
+    device pyopencl exported for. pyopencl's wheels bundle PoCL with an ICD file of their
+    own, which the system's loader does not read; on a machine with no ICD files of its
+    own (no /etc/OpenCL/vendors), OCL_ICD_VENDORS names a folder holding that file, its
+    library by absolute path. Elsewhere (the system's PoCL installed, or OCL_ICD_VENDORS
+    set) the environment is left as it is: two PoCLs in one process are best avoided."""
+    env = dict(os.environ)
+    system = Path("/etc/OpenCL/vendors")
+    if "OCL_ICD_VENDORS" in env or any(system.glob("*.icd")):
+        return env
+    libs = Path(pyopencl.__file__).resolve().parent / ".libs"
+    bundled = sorted(libs.glob("*.icd"))
+    if bundled:
+        folder = Path(tempfile.mkdtemp(prefix="rbgen-icd-"))
+        for icd in bundled:
+            library = Path(icd.read_text().strip())
+            library = library if library.is_absolute() else libs / library
+            (folder / icd.name).write_text(f"{library}\n")
+        env["OCL_ICD_VENDORS"] = str(folder)
+    return env
+
+
 def run(binary: Path, directory: Path, steps: int, *options: str) -> subprocess.CompletedProcess:
     return subprocess.run(
         [str(binary), str(directory), str(steps), *options],
         capture_output=True,
         text=True,
         timeout=600,
+        env=host_environment(),
     )
 
 
