@@ -8,6 +8,7 @@ and ICD loader are needed: ``.ci/run`` installs them on Debian).
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import re
@@ -59,13 +60,15 @@ def export(runtime, scene: str, n: int, out: Path, **options) -> Path:
     return out
 
 
+@functools.cache
 def host_environment() -> dict:
-    """The environment the C++ host runs in: its ICD loader (the system's) must see the
-    device pyopencl exported for. pyopencl's wheels bundle PoCL with an ICD file of their
-    own, which the system's loader does not read; on a machine with no ICD files of its
-    own (no /etc/OpenCL/vendors), OCL_ICD_VENDORS names a folder holding that file, its
-    library by absolute path. Elsewhere (the system's PoCL installed, or OCL_ICD_VENDORS
-    set) the environment is left as it is: two PoCLs in one process are best avoided."""
+    """The environment the C++ host runs in (made once a session): its ICD loader (the
+    system's) must see the device pyopencl exported for. pyopencl's wheels bundle PoCL with
+    an ICD file of their own, which the system's loader does not read; on a machine with no
+    ICD files of its own (no /etc/OpenCL/vendors), OCL_ICD_VENDORS names a folder holding
+    that file, its library by absolute path. Elsewhere (the system's PoCL installed, or
+    OCL_ICD_VENDORS set) the environment is left as it is: two PoCLs in one process are
+    best avoided."""
     env = dict(os.environ)
     system = Path("/etc/OpenCL/vendors")
     if "OCL_ICD_VENDORS" in env or any(system.glob("*.icd")):
