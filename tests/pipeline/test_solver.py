@@ -505,10 +505,10 @@ def pgs_specs():
     return specs
 
 
-def test_fold_substeps_changes_only_the_persistent_launches_without_joints():
+def test_fold_substeps_changes_only_the_persistent_launches():
     """fold_substeps folds the substeps' passes into the sweeps where the launch runs the
-    substeps and has no joints; every other specialisation renders the same source either
-    way (so that a default spec made persistent=False, or given joints, still builds)."""
+    substeps; every other specialisation renders the same source either way (so that a
+    default spec made persistent=False still builds)."""
     by_values = {}
     for spec in pgs_specs():
         values = dict(spec.values)
@@ -518,7 +518,7 @@ def test_fold_substeps_changes_only_the_persistent_launches_without_joints():
     assert by_values[True].keys() == by_values[False].keys()
     for key, folded in by_values[True].items():
         values = dict(key)
-        changes = values["persistent"] and not values["joints"]
+        changes = values["persistent"]
         assert (folded.source != by_values[False][key].source) == changes, values
 
 
@@ -528,7 +528,7 @@ def test_kernel_signatures_are_the_declarations():
     specialisation, names and types, in order."""
     specs = pgs_specs()
     # (serial; lanes; persistent batched; persistent summed) x 2 normal solves x 2 (joints)
-    # x 2 (fold_substeps: it changes the persistent launches without joints alone)
+    # x 2 (fold_substeps: it changes the persistent launches alone)
     assert len(specs) == 32
     cases = [(spec, pgs.TEMPLATE) for spec in specs]
     cases += [

@@ -212,12 +212,48 @@ def test_folded_substeps_do_the_passes_arithmetic_bit_for_bit(runtime, monkeypat
         return folded, ids, state
 
     folded, ids, fused = run()
-    monkeypatch.setattr(pgs, "default_fold_substeps", lambda persistent, joints: False)
+    monkeypatch.setattr(pgs, "default_fold_substeps", lambda persistent: False)
     unfolded, _, passes = run()
     assert folded and not unfolded
     for got, want in zip(fused, passes):
         np.testing.assert_array_equal(got, want)
     assert np.abs(fused[2][ids]).max() < 0.05  # (the stack came to rest)
+
+
+def test_folded_substeps_with_joints_do_the_passes_arithmetic_bit_for_bit(runtime, monkeypatch):
+    """With joints, a persistent launch folds its contacts' refresh, carry and warm-start
+    sums into the sweeps and keeps the joints' warm start as a pass after the bodies move
+    (pgs.cl.mako: fold_substeps; the bodies then take every sum behind a barrier); built
+    with every pass of its own it does the same arithmetic in the same order: equal bits,
+    exact builds, 3 ragdolls (hinges, balls, limits) falling onto a box and the ground over
+    30 steps at the ragdoll settings, summed warm start."""
+    from rbgen.harness import build_scene
+    from rbgen.pipeline.solvers import pgs
+
+    if not runtime.has_extension(pgs.INT64_ATOMICS):
+        pytest.skip(f"{runtime.traits.device_name} has no {pgs.INT64_ATOMICS}")
+
+    def run():
+        world, ids, _, _ = build_scene("ragdolls", 3, runtime, batching="global", fast_math=False)
+        for _ in range(30):
+            world.step(1 / 60)
+        solver = world._pipeline.solve.solver
+        state = (
+            world.positions,
+            world.orientations,
+            world.linear_velocities,
+            world.angular_velocities,
+        )
+        return solver.spec.values, ids, state
+
+    folded, ids, fused = run()
+    monkeypatch.setattr(pgs, "default_fold_substeps", lambda persistent: False)
+    unfolded, _, passes = run()
+    assert folded["joints"] and folded["fold_substeps"] and not unfolded["fold_substeps"]
+    assert folded["warm_start_mode"] == "summed"
+    for got, want in zip(fused, passes):
+        np.testing.assert_array_equal(got, want)
+    assert np.isfinite(fused[0]).all() and (fused[0][ids, 1] > -0.1).all()
 
 
 @pytest.mark.parametrize(

@@ -22,12 +22,14 @@ Warm start (``warm_start_mode``): ``batched``, a sweep over the batches that app
 every constraint's old impulses; ``summed`` (persistent solves on devices with 64-bit
 atomics), two phases: every constraint's old impulses become velocity changes summed
 per body in 64-bit fixed point (order-free integer sums: the same bits every run), then
-every body takes its sum. Between the substeps of a persistent launch without joints the
-two phases fold into the launch's other work: the last velocity sweep of a substep sums
-each constraint's warm start as it solves it (its impulses are final then), and the bodies
-take the sums as they move; the first sweep of the next substep refreshes each
-constraint's targets before its rows. One device-wide barrier separates two substeps, and
-no pass over the constraints runs between them.
+every body takes its sum. Between the substeps of a persistent launch the contacts' part
+of the two phases folds into the launch's other work: the last velocity sweep of a
+substep sums each contact's warm start as it solves it (its impulses are final then), and
+the bodies take the sums as they move; the first sweep of the next substep refreshes each
+contact's targets before its rows. Without joints one device-wide barrier separates two
+substeps, and no pass over the constraints runs between them; with joints a pass over the
+joints sums their warm start after the bodies move (it measures the poses of the substep
+it starts), and the bodies take every sum behind two barriers more.
 
 Sweeps: `solve` runs the warm start, ``iterations`` velocity sweeps and
 ``position_iterations`` split-impulse sweeps; position sweep k is solved in the same
@@ -251,11 +253,12 @@ TEMPLATE = KernelTemplate(
         Param(
             "fold_substeps",
             (False, True),
-            "a persistent launch without joints does each substep's refresh of the "
-            "targets, carry of the impulses and summed warm start in the sweeps as they "
-            "visit the constraints (one device-wide barrier between substeps); off, or any "
-            "other launch: passes of their own, the same arithmetic (a joint's warm start "
-            "needs them: it measures the poses of the substep it starts)",
+            "a persistent launch does each substep's refresh of the contacts' targets, "
+            "carry of their impulses and summed warm start in the sweeps as they visit "
+            "them (without joints, one device-wide barrier between substeps; a joint's "
+            "warm start stays a pass after the bodies move: it measures the poses of the "
+            "substep it starts); off, or any other launch: passes of their own, the same "
+            "arithmetic",
         ),
         Param(
             "warm_start_mode",
@@ -297,19 +300,20 @@ def default_values(
         "persistent": persistent,
         "fast_math": resolve_fast_math(traits, None),
         "joints": False,
-        "fold_substeps": default_fold_substeps(persistent, joints=False),
+        "fold_substeps": default_fold_substeps(persistent),
         "warm_start_mode": "summed"
         if persistent and traits.has_extension(INT64_ATOMICS)
         else "batched",
     }
 
 
-def default_fold_substeps(persistent: bool, joints: bool) -> bool:
+def default_fold_substeps(persistent: bool) -> bool:
     """Whether a solve folds its substeps' passes into its sweeps (the template parameter
-    "fold_substeps"): wherever it can, a persistent launch without joints; it saves two
-    device-wide barriers and two passes over the constraints a substep and does the same
-    arithmetic in the same order (the same bits on an exact build)."""
-    return bool(persistent) and not joints
+    "fold_substeps"): wherever it can, a persistent launch. It saves a pass over the
+    contacts a substep (their refresh), and without joints two device-wide barriers and
+    the warm-start pass too, and does the same arithmetic in the same order (the same
+    bits on an exact build)."""
+    return bool(persistent)
 
 
 def _parameter_rules(values: dict) -> str | None:
@@ -456,7 +460,7 @@ class PgsSolver(PushVelocities):
         values.update({k: v for k, v in overrides.items() if v is not None})
         values["max_batches"] = int(batcher.max_batches)
         values["joints"] = bool(joints)
-        values["fold_substeps"] = default_fold_substeps(persistent, values["joints"])
+        values["fold_substeps"] = default_fold_substeps(persistent)
         check_release_sweeps(release_sweeps)
         self.release_sweeps = None if release_sweeps is None else int(release_sweeps)
         self.spec = TEMPLATE.spec(**values)

@@ -17,9 +17,9 @@
     # launches with GEOMETRY_PASS) and its sweeps read it (contact_rows.cl.mako)
     geometry_cache = serial and normal_solve == "block"
     # a persistent launch folds each substep's refresh, carry and warm-start sums into
-    # its sweeps (Sweep; pgs.py: fold_substeps); with joints it keeps them as passes of
-    # their own (a joint's warm start measures the bodies' poses of the substep it starts)
-    fused = fold_substeps and persistent and not joints
+    # its sweeps (Sweep; pgs.py: fold_substeps); with joints, the joints' warm start
+    # stays a pass of its own (it measures the bodies' poses of the substep it starts)
+    fused = fold_substeps and persistent
     # what a fused sweep's constraint visits take besides solve_copy's arguments
     fused_params = (", volatile __global const BodyDelta* deltas, const float h, "
                     "const float penetration_slop, const float penetration_recovery"
@@ -613,7 +613,7 @@ inline void sum_warm_starts(__global const ContactConstraint* constraints,
                             __global const uint* order, __global const uint* offsets,
                             uint batch_count, uint lane,
                             volatile __global Body* bodies, __global const BodyInertia* inertia,
-                            volatile __global long* warm_sums, const bool ok${joint_params})
+                            volatile __global long* warm_sums,${" const bool contacts," if joints else ""} const bool ok${joint_params})
 {
     const uint lanes = get_global_size(0);
     for (uint batch = 0; ok && batch < batch_count; ++batch) {
@@ -634,6 +634,8 @@ inline void sum_warm_starts(__global const ContactConstraint* constraints,
             add_warm_sums(&state, a, b, warm_sums);
             continue;
         }
+        if (!contacts)  /* (the sweep that carried them summed them) */
+            continue;
 % endif
         ContactConstraint c = constraints[order[i]];  /* a private copy */
         sum_contact_warm_start(&c, bodies, inertia, warm_sums);
@@ -972,7 +974,7 @@ void solve_groups(${signature("solve_groups")})
      * first sweep refreshes the targets of what it solves. */
     const bool folded = velocity_sweeps > 0u;
 % else:
-    const bool folded = false;  /* (see `fused`: joints keep the passes) */
+    const bool folded = false;  /* (fold_substeps off: the passes of their own) */
 % endif
     /* (substeps 0: the warm start and sweeps alone, the bodies left where they are) */
     for (uint substep = 0; substep < max(substeps, 1u); ++substep) {
@@ -981,9 +983,14 @@ void solve_groups(${signature("solve_groups")})
         if (substep > 0) {
             /* the bodies move over the substep that ended and take this one's
              * gravity${" (and their warm start's sums, when carried)" if summed else ""}; then the constraints' targets follow them */
+<%
+    # the bodies take the sums as they move when the sweeps summed every warm start
+    # (with joints, the joints' warm starts are summed after the move: take_warm_sums)
+    take = "false" if joints else "carried && (passes & WARM_START_PASS) != 0"
+%>\
             move_bodies(bodies, split, deltas, body_count, lane, h, linear_damping_factor,
                         angular_damping_factor, max_angular_step, substep == 1,
-                        gravity.xyz * h, kicks, kicked != 0u,${" warm_sums, carried && (passes & WARM_START_PASS) != 0," if summed else ""}
+                        gravity.xyz * h, kicks, kicked != 0u,${" warm_sums, %s," % take if summed else ""}
                         barrier_ok);
             device_barrier(sync, &barrier_ok);
             if (!carried) {
@@ -996,11 +1003,23 @@ void solve_groups(${signature("solve_groups")})
 % endif
             }
         }
-% if summed:
+% if summed and joints:
+        if ((passes & WARM_START_PASS) != 0u) {
+            /* every joint's impulses (and every contact's, unless the sweeps that
+             * carried them summed them) summed per body, then every body takes its sum */
+            sum_warm_starts(constraints, order, offsets, batch_count, lane, bodies, inertia,
+                            warm_sums, !carried, barrier_ok${joint_args});
+            device_barrier(sync, &barrier_ok);
+            take_warm_sums(bodies, warm_sums, body_count, lane, barrier_ok);
+            device_barrier(sync, &barrier_ok);
+        } else if (substep > 0 && !carried) {
+            device_barrier(sync, &barrier_ok);  /* (the refresh before the sweeps) */
+        }
+% elif summed:
         if ((passes & WARM_START_PASS) && !carried) {
             /* every constraint's impulses summed per body, then every body takes its sum */
             sum_warm_starts(constraints, order, offsets, batch_count, lane, bodies, inertia,
-                            warm_sums, barrier_ok${joint_args});
+                            warm_sums, barrier_ok);
             device_barrier(sync, &barrier_ok);
             take_warm_sums(bodies, warm_sums, body_count, lane, barrier_ok);
             device_barrier(sync, &barrier_ok);
