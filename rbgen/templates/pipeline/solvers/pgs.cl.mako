@@ -1003,23 +1003,19 @@ void solve_groups(${signature("solve_groups")})
 % endif
             }
         }
-% if summed and joints:
-        if ((passes & WARM_START_PASS) != 0u) {
-            /* every joint's impulses (and every contact's, unless the sweeps that
-             * carried them summed them) summed per body, then every body takes its sum */
+% if summed:
+<%
+    # a joint's warm start is always a pass of its own (it measures the poses of the
+    # substep it starts); the contacts' joins it unless the sweeps that carried them
+    # summed them
+    sum_pass = "" if joints else " && !carried"
+    summed_what = ("joint's impulses (and every contact's, unless the sweeps that\n"
+                   "             * carried them summed them)") if joints else "constraint's impulses"
+%>\
+        if ((passes & WARM_START_PASS) != 0u${sum_pass}) {
+            /* every ${summed_what} summed per body, then every body takes its sum */
             sum_warm_starts(constraints, order, offsets, batch_count, lane, bodies, inertia,
-                            warm_sums, !carried, barrier_ok${joint_args});
-            device_barrier(sync, &barrier_ok);
-            take_warm_sums(bodies, warm_sums, body_count, lane, barrier_ok);
-            device_barrier(sync, &barrier_ok);
-        } else if (substep > 0 && !carried) {
-            device_barrier(sync, &barrier_ok);  /* (the refresh before the sweeps) */
-        }
-% elif summed:
-        if ((passes & WARM_START_PASS) && !carried) {
-            /* every constraint's impulses summed per body, then every body takes its sum */
-            sum_warm_starts(constraints, order, offsets, batch_count, lane, bodies, inertia,
-                            warm_sums, barrier_ok);
+                            warm_sums,${" !carried," if joints else ""} barrier_ok${joint_args});
             device_barrier(sync, &barrier_ok);
             take_warm_sums(bodies, warm_sums, body_count, lane, barrier_ok);
             device_barrier(sync, &barrier_ok);
