@@ -280,11 +280,7 @@ def main(argv=None) -> int:
     parser.add_argument("--build", default=None, help="a directory to build rbgen_run in (kept)")
     parser.add_argument("--cl-include", default=None, help="the directory holding CL/cl.h")
     parser.add_argument("--cl-library", default=None, help="libOpenCL to link against")
-    parser.add_argument(
-        "--out",
-        default=str(bench.RESULTS_DIR),
-        help="directory of the JSON and Markdown results ('' for none)",
-    )
+    bench.add_out_argument(parser)
     args = parser.parse_args(argv)
 
     work = Path(tempfile.mkdtemp(prefix="rbgen-cpp-host-"))

@@ -79,7 +79,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None, help="rbgen device choice (index or name)")
     parser.add_argument("--phases", type=int, default=2000)
-    parser.add_argument("--out", default=str(bench.RESULTS_DIR))
+    bench.add_out_argument(parser)
     args = parser.parse_args()
     runtime = Runtime(args.device, profiling=True)
     barrier = (TEMPLATE_DIR / "common" / "device_barrier.cl.mako").read_text()

@@ -220,7 +220,7 @@ def main(argv=None) -> int:
         default=100,
         help="the trace's window starts at this step (judged as a whole: `window`)",
     )
-    parser.add_argument("--out", default=str(bench.RESULTS_DIR))
+    bench.add_out_argument(parser)
     args = parser.parse_args(argv)
     if args.trace < 0 or (args.trace and args.trace_steps < 1):
         parser.error("--trace must be >= 0 and --trace-steps >= 1")

@@ -94,7 +94,7 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--push", type=float, default=20.0)
-    parser.add_argument("--out", default=str(bench.RESULTS_DIR))
+    bench.add_out_argument(parser)
     args = parser.parse_args(argv)
     sizes = [int(n) for n in args.envs.split(",")]
     if args.quick:
@@ -144,7 +144,8 @@ def main(argv=None) -> int:
         bench.device_record(args.device),
         {"dt": DT, "steps": args.steps, "repeats": args.repeats, "boxes_per_env": BOXES},
     )
-    print(f"wrote {bench.write_results(record, args.out)}")
+    if args.out:
+        print(f"wrote {bench.write_results(record, args.out)}")
     return 0
 
 

@@ -105,6 +105,8 @@ def reuse(
 
 
 def main(argv=None) -> int:
+    from rbgen import bench
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None)
     parser.add_argument("--cells", type=int, default=1000)
@@ -112,16 +114,14 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--order", choices=("grid", "shuffled", "both"), default="both")
     parser.add_argument("--brute-force", type=int, default=256)
-    parser.add_argument(
-        "--out", default=None, help="results directory ('' for none; default benchmarks/results)"
-    )
+    bench.add_out_argument(parser)
     args = parser.parse_args(argv)
 
     import time
 
     import pyopencl.array as cla
 
-    from rbgen import bench, layouts
+    from rbgen import layouts
     from rbgen.device import Runtime
     from rbgen.pipeline import midphase_reference as reference
     from rbgen.pipeline.midphase import Midphase, default_params, search_space
@@ -213,8 +213,7 @@ def main(argv=None) -> int:
         f"{'equal' if brute_ok else 'DIFFERENT'}; all {len(found):,} candidates of "
         f"{args.bodies:,} bodies: {len(found) / args.bodies:.2f} triangles a body"
     )
-    out = bench.RESULTS_DIR if args.out is None else args.out
-    if out:
+    if args.out:
         settings = {
             "cells": args.cells,
             "triangles": mesh.triangle_count,
@@ -231,7 +230,7 @@ def main(argv=None) -> int:
         record = bench.make_record(
             "benchmarks/midphase.py", results, bench.device_record(args.device), settings
         )
-        print(f"wrote {bench.write_results(record, out)}")
+        print(f"wrote {bench.write_results(record, args.out)}")
     return 0 if brute_ok and all(r["equal_to_baseline"] for r in results) else 1
 
 

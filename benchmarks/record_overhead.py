@@ -90,7 +90,7 @@ def main(argv=None) -> int:
         action="store_true",
         help="also run each recorder with a blocking read at each capture",
     )
-    parser.add_argument("--out", default=str(bench.RESULTS_DIR))
+    bench.add_out_argument(parser)
     args = parser.parse_args(argv)
     gl, left_out = None, {}
     try:
@@ -183,7 +183,8 @@ def main(argv=None) -> int:
             "left_out": left_out,
         },
     )
-    print(f"wrote {bench.write_results(record, args.out)}")
+    if args.out:
+        print(f"wrote {bench.write_results(record, args.out)}")
     return 0
 
 

@@ -82,7 +82,7 @@ def main(argv=None) -> int:
     parser.add_argument("--bodies", type=int, nargs="+", default=[1000, 8000])
     parser.add_argument("--size", default="640x360")
     parser.add_argument("--frames", type=int, default=20)
-    parser.add_argument("--out", default=str(bench.RESULTS_DIR))
+    bench.add_out_argument(parser)
     args = parser.parse_args(argv)
     width, height = (int(v) for v in args.size.split("x"))
     gl = gl_context().info
@@ -128,8 +128,8 @@ def main(argv=None) -> int:
             "llvmpipe_threads": os.environ.get("LP_NUM_THREADS"),
         },
     )
-    path = bench.write_results(record, args.out)
-    print(f"wrote {path}")
+    if args.out:
+        print(f"wrote {bench.write_results(record, args.out)}")
     return 0
 
 

@@ -90,11 +90,7 @@ def main(argv=None) -> int:
         "all-pushing solution or the rows (default: the plan's; >= "
         "--iterations: every sweep)",
     )
-    parser.add_argument(
-        "--out",
-        default=str(bench.RESULTS_DIR),
-        help="directory of the JSON and Markdown results ('' for none)",
-    )
+    bench.add_out_argument(parser)
     args = parser.parse_args(argv)
 
     # only what was asked for: every other setting is the World's default (rbgen.settings)

@@ -75,7 +75,7 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--options", type=bench.world_options, default={}, help="World options as JSON"
     )
-    parser.add_argument("--out", default=str(bench.RESULTS_DIR))
+    bench.add_out_argument(parser)
     args = parser.parse_args(argv)
     options = args.options
     device = bench.device_record(args.device)
@@ -136,7 +136,8 @@ def main(argv=None) -> int:
             "plan": results[0]["plan"] if results else None,
         },
     )
-    print("wrote", bench.write_results(record, args.out))
+    if args.out:
+        print("wrote", bench.write_results(record, args.out))
     return 0
 
 

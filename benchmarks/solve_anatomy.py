@@ -93,7 +93,7 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 111375])
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--warmup", type=int, default=20)
-    parser.add_argument("--out", default=str(bench.RESULTS_DIR))
+    bench.add_out_argument(parser)
     args = parser.parse_args()
     runtime = Runtime(args.device, profiling=True)
     print(f"solve anatomy on {runtime.traits.describe()}", flush=True)

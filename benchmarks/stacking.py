@@ -160,7 +160,7 @@ def main(argv=None) -> int:
         default={},
         help="World options (JSON) for every case",
     )
-    parser.add_argument("--out", default=str(bench.RESULTS_DIR))
+    bench.add_out_argument(parser)
     args = parser.parse_args(argv)
     options = args.options
     results = []
@@ -188,7 +188,8 @@ def main(argv=None) -> int:
     record = bench.make_record(
         "stacking", results, bench.device_record(args.device), {"options": options, "dt": DT}
     )
-    print(f"wrote {bench.write_results(record, args.out)}")
+    if args.out:
+        print(f"wrote {bench.write_results(record, args.out)}")
     return 0 if all(r["holds"] for r in results) else 1
 
 

@@ -76,6 +76,8 @@ def midphase_ms(runtime, inputs: dict, params: dict, repeats: int):
 
 
 def main(argv=None) -> int:
+    from rbgen import bench
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default=None)
     parser.add_argument("--cells", type=int, default=1000)
@@ -83,12 +85,9 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--warmup", type=int, default=600)
     parser.add_argument("--repeats", type=int, default=20)
-    parser.add_argument(
-        "--out", default=None, help="results directory ('' for none; default benchmarks/results)"
-    )
+    bench.add_out_argument(parser)
     args = parser.parse_args(argv)
 
-    from rbgen import bench
     from rbgen.device import Runtime
     from rbgen.harness import run_scene
     from rbgen.pipeline.midphase import default_params
@@ -180,8 +179,7 @@ def main(argv=None) -> int:
             f"{name:>34} {ms:>9.3f} {min(samples):>8.3f}-{max(samples):<8.3f} "
             f"{global_ms / ms:>10.2f}x  ({found:,} pairs out)"
         )
-    out = bench.RESULTS_DIR if args.out is None else args.out
-    if out:
+    if args.out:
         settings = {
             "cells": args.cells,
             "triangles": triangles,
@@ -198,7 +196,7 @@ def main(argv=None) -> int:
         record = bench.make_record(
             "benchmarks/terrain.py", results, bench.device_record(args.device), settings
         )
-        print(f"wrote {bench.write_results(record, out)}")
+        print(f"wrote {bench.write_results(record, args.out)}")
     return 0
 
 

@@ -316,6 +316,16 @@ def make_record(kind: str, results: list, device: dict | None, settings: dict) -
     }
 
 
+def add_out_argument(parser) -> None:
+    """Every benchmark's ``--out``: the directory its JSON and Markdown results go to
+    (`RESULTS_DIR` by default); ``--out ''`` writes nothing (a probe run)."""
+    parser.add_argument(
+        "--out",
+        default=str(RESULTS_DIR),
+        help="directory of the JSON and Markdown results ('' for none)",
+    )
+
+
 def write_results(record: dict, out_dir=RESULTS_DIR, stem: str | None = None) -> Path:
     """Write ``record`` as ``<out_dir>/<kind>-<device>-<time>.json`` and a Markdown table
     beside it (each through a temporary file renamed); returns the JSON path."""

@@ -289,3 +289,34 @@ def test_a_baseline_named_by_a_case_of_the_same_record_is_shown_with_its_time():
         "ragdolls", ("bare", 5.0, (4.0, 6.0), None), ("joints", 9.0, (8.0, 10.0), "bare")
     )
     assert "| joints | 9.000 | 8.000-10.000 | bare: 5.000 ms |" in bench.markdown(record)
+
+
+def test_every_benchmark_takes_out_through_one_argument_where_empty_writes_nothing():
+    """`bench.add_out_argument`: ``--out`` defaults to benchmarks/results and ``--out ''``
+    parses to '' (each benchmark writes its records only under a non-empty ``--out``);
+    every benchmark script defines its ``--out`` through it, so the two agree."""
+    import argparse
+    import pathlib
+    import re
+
+    parser = argparse.ArgumentParser()
+    bench.add_out_argument(parser)
+    assert parser.parse_args([]).out == str(bench.RESULTS_DIR)
+    assert parser.parse_args(["--out", ""]).out == ""
+    scripts = sorted((pathlib.Path(__file__).parents[1] / "benchmarks").glob("*.py"))
+    assert len(scripts) > 10
+    for script in scripts:
+        text = script.read_text()
+        assert not re.search(r"add_argument\(\s*\"--out\"", text), script.name
+        lines = text.splitlines()
+        for i, line in enumerate(lines):
+            if "bench.write_results(" not in line:
+                continue
+            # the block the write is in opens with `if args.out:`
+            indent = len(line) - len(line.lstrip())
+            opener = next(
+                above
+                for above in reversed(lines[:i])
+                if above.strip() and len(above) - len(above.lstrip()) < indent
+            )
+            assert opener.strip() == "if args.out:", (script.name, i + 1)
