@@ -398,11 +398,23 @@ def template_source_hash(path: str) -> str:
 # Building and caching programs
 
 
+def driver_caches_kernels(device: cl.Device) -> bool:
+    """Whether ``device``'s driver keeps compiled kernels on disk itself, so that
+    `ProgramCache` keeps no binaries of its own for it: PoCL (pyopencl's bundled build and
+    the system's) caches every program and compiled kernel by source and options, and,
+    asked for a program's binary, generates code for all of its kernels beyond what the
+    launches compile: on a 2-core CPU a whole persistent solver's program takes minutes
+    more (cold caches, one test of the summed warm start: 470 s with the binary written,
+    120 s without), and a second run needs none of it."""
+    return "portable computing language" in device.platform.name.lower()
+
+
 class ProgramCache:
     """Built programs by (source hash, device fingerprint, options).
 
-    Memory first, then binaries on disk. A corrupt or stale binary is ignored
-    and rebuilt from source. ``stats`` counts hits for tests and reports.
+    Memory first, then binaries on disk (not for a driver that caches its own,
+    `driver_caches_kernels`). A corrupt or stale binary is ignored and rebuilt
+    from source. ``stats`` counts hits for tests and reports.
     """
 
     def __init__(self, directory: Path | None = None):
@@ -433,14 +445,16 @@ class ProgramCache:
             if program is not None:
                 self.stats["memory_hits"] += 1
                 return program
-        program = self._from_disk(runtime, key, options)
+        binaries = not driver_caches_kernels(runtime.device)
+        program = self._from_disk(runtime, key, options) if binaries else None
         if program is not None:
             self.stats["disk_hits"] += 1
         else:
             with build_feedback(spec.path if spec is not None else "generated source"):
                 program = self._from_source(runtime, source, options, spec)
             self.stats["builds"] += 1
-            self._to_disk(program, key)
+            if binaries:
+                self._to_disk(program, key)
         with self._lock:
             self._memory[mem_key] = program
         return program

@@ -7,7 +7,13 @@ import time
 import pytest
 
 from rbgen import codegen
-from rbgen.codegen import KernelTemplate, Param, ProgramCache, power_of_two
+from rbgen.codegen import (
+    KernelTemplate,
+    Param,
+    ProgramCache,
+    driver_caches_kernels,
+    power_of_two,
+)
 from rbgen.errors import KernelBuildError, TemplateParameterError
 from rbgen.pipeline import integrate
 
@@ -85,15 +91,32 @@ def test_memory_and_disk_cache(runtime, tmp_path):
     assert first.stats == {"memory_hits": 0, "disk_hits": 0, "builds": 1}
     assert first.build(runtime, spec.source, (), spec) is p1
     assert first.stats["memory_hits"] == 1
-    assert list(tmp_path.glob("*.bin")), "binary written to disk"
     second = ProgramCache(tmp_path)  # a new process would start like this
     p2 = second.build(runtime, spec.source, (), spec)
-    assert second.stats == {"memory_hits": 0, "disk_hits": 1, "builds": 0}
     assert p2.integrate_bodies is not None and p2.apply_gravity is not None
     print(f"cold build {cold * 1e3:.0f} ms")
+    if driver_caches_kernels(runtime.device):  # (PoCL: its own cache, none of rbgen's)
+        assert not list(tmp_path.glob("*.bin")), "no binary of rbgen's for this driver"
+        assert second.stats == {"memory_hits": 0, "disk_hits": 0, "builds": 1}
+        return
+    assert list(tmp_path.glob("*.bin")), "binary written to disk"
+    assert second.stats == {"memory_hits": 0, "disk_hits": 1, "builds": 0}
     # options are part of the key
     second.build(runtime, spec.source, ("-cl-fast-relaxed-math",), spec)
     assert second.stats["builds"] == 1
+
+
+def test_only_pocl_keeps_its_own_kernel_cache():
+    """`driver_caches_kernels`, by the platform's name: PoCL's (bundled or the system's)
+    yes, NVIDIA's and others' no."""
+    from types import SimpleNamespace
+
+    def device(platform):
+        return SimpleNamespace(platform=SimpleNamespace(name=platform))
+
+    assert driver_caches_kernels(device("Portable Computing Language"))
+    assert not driver_caches_kernels(device("NVIDIA CUDA"))
+    assert not driver_caches_kernels(device("AMD Accelerated Parallel Processing"))
 
 
 def test_corrupt_disk_binary_is_rebuilt(runtime, tmp_path):
