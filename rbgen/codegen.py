@@ -403,9 +403,8 @@ def driver_caches_kernels(device: cl.Device) -> bool:
     `ProgramCache` keeps no binaries of its own for it: PoCL (pyopencl's bundled build and
     the system's) caches every program and compiled kernel by source and options, and,
     asked for a program's binary, generates code for all of its kernels beyond what the
-    launches compile: on a 2-core CPU a whole persistent solver's program takes minutes
-    more (cold caches, one test of the summed warm start: 470 s with the binary written,
-    120 s without), and a second run needs none of it."""
+    launches compile (for a persistent solver's program, minutes of a small CPU's time),
+    which a second run, served from PoCL's cache, does not need."""
     return "portable computing language" in device.platform.name.lower()
 
 
