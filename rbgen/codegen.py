@@ -34,7 +34,7 @@ import pyopencl as cl
 from mako.lookup import TemplateLookup
 
 from . import layouts
-from .device import Runtime
+from .device import Runtime, is_pocl
 from .errors import KernelBuildError, TemplateParameterError
 from .progress import build_feedback
 
@@ -405,7 +405,7 @@ def driver_caches_kernels(device: cl.Device) -> bool:
     asked for a program's binary, generates code for all of its kernels beyond what the
     launches compile (for a persistent solver's program, minutes of a small CPU's time),
     which a second run, served from PoCL's cache, does not need."""
-    return "portable computing language" in device.platform.name.lower()
+    return is_pocl(device)
 
 
 class ProgramCache:

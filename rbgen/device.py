@@ -186,9 +186,11 @@ def build_failure(device: cl.Device) -> str | None:
     return _build_failures[key]
 
 
-def is_pocl(entry: DeviceEntry) -> bool:
-    """Whether a listed device is PoCL's (pyopencl's bundled build or the system's)."""
-    return "pocl" in entry.label.lower() or "portable" in entry.label.lower()
+def is_pocl(device: cl.Device) -> bool:
+    """Whether a device is PoCL's (pyopencl's bundled build or the system's), by its
+    platform's name."""
+    name = device.platform.name.lower()
+    return "pocl" in name or "portable computing language" in name
 
 
 def default_device() -> cl.Device:
@@ -222,7 +224,7 @@ def default_device() -> cl.Device:
         if entry.device.type & cl.device_type.GPU:
             return entry.device
     for entry in usable:
-        if is_pocl(entry):
+        if is_pocl(entry.device):
             return entry.device
     return usable[0].device
 

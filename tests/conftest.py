@@ -73,7 +73,7 @@ def _test_devices():
     devices, pocl_cpu = [], False
     for entry in list_devices():
         reason = build_failure(entry.device)
-        is_pocl_cpu = bool(entry.device.type & cl.device_type.CPU) and is_pocl(entry)
+        is_pocl_cpu = bool(entry.device.type & cl.device_type.CPU) and is_pocl(entry.device)
         if reason is not None:
             _LEFT_OUT.append(f"{entry.index} {entry.label}: cannot compile a kernel ({reason})")
         elif is_pocl_cpu and pocl_cpu:
