@@ -1009,11 +1009,10 @@ void solve_groups(${signature("solve_groups")})
     # substep it starts); the contacts' joins it unless the sweeps that carried them
     # summed them
     sum_pass = "" if joints else " && !carried"
-    summed_what = ("joint's impulses (and every contact's, unless the sweeps that\n"
-                   "             * carried them summed them)") if joints else "constraint's impulses"
 %>\
         if ((passes & WARM_START_PASS) != 0u${sum_pass}) {
-            /* every ${summed_what} summed per body, then every body takes its sum */
+            /* the warm start's impulses summed per body (a contact's unless the sweep
+             * that carried it summed it), then every body takes its sum */
             sum_warm_starts(constraints, order, offsets, batch_count, lane, bodies, inertia,
                             warm_sums,${" !carried," if joints else ""} barrier_ok${joint_args});
             device_barrier(sync, &barrier_ok);
