@@ -8,6 +8,7 @@ and ICD loader are needed: ``.ci/run`` installs them on Debian).
 
 from __future__ import annotations
 
+import atexit
 import functools
 import json
 import os
@@ -66,9 +67,9 @@ def host_environment() -> dict:
     system's) must see the device pyopencl exported for. pyopencl's wheels bundle PoCL with
     an ICD file of their own, which the system's loader does not read; on a machine with no
     ICD files of its own (no /etc/OpenCL/vendors), OCL_ICD_VENDORS names a folder holding
-    that file, its library by absolute path. Elsewhere (the system's PoCL installed, or
-    OCL_ICD_VENDORS set) the environment is left as it is: two PoCLs in one process are
-    best avoided."""
+    that file, its library by absolute path (the folder is removed when the session ends).
+    Elsewhere (the system's PoCL installed, or OCL_ICD_VENDORS set) the environment is left
+    as it is: two PoCLs in one process are best avoided."""
     env = dict(os.environ)
     system = Path("/etc/OpenCL/vendors")
     if "OCL_ICD_VENDORS" in env or any(system.glob("*.icd")):
@@ -77,6 +78,7 @@ def host_environment() -> dict:
     bundled = sorted(libs.glob("*.icd"))
     if bundled:
         folder = Path(tempfile.mkdtemp(prefix="rbgen-icd-"))
+        atexit.register(shutil.rmtree, folder, True)
         for icd in bundled:
             library = Path(icd.read_text().strip())
             library = library if library.is_absolute() else libs / library
