@@ -89,21 +89,12 @@ def test_tipped_column_stops_rocking(runtime, batching):
 
 
 @pytest.mark.parametrize("batching", BATCHINGS)
-def test_tipped_column_stops_rocking_with_position_correction(request, runtime, batching):
+def test_tipped_column_stops_rocking_with_position_correction(runtime, batching):
     """With the default split-impulse position sweeps the same column must come to rest
-    as it does without them (every speed below 0.05 m/s within 5 s) and stay upright.
-    A CPU's default (4 substeps of 3 + 1, block normal solve) brings it to rest on every
-    batching; a GPU's (1 substep of 10 + 4) is not yet known to."""
-    if runtime.traits.is_gpu:
-        request.applymarker(
-            pytest.mark.xfail(
-                reason="known defect: split-impulse pushes feed energy into a rocking "
-                "column's sway (the pushes that lift an interface's deeper edge raise "
-                "the column without taking the speed that sank it), which at 1 substep "
-                "of 10 + 4 sweeps can settle at ~0.27 m/s instead of decaying (issue 24)",
-                strict=False,
-            )
-        )
+    as it does without them (every speed below 0.05 m/s within 5 s) and stay upright, at
+    every device's defaults: a CPU's (4 substeps of 3 + 1) and a GPU's (8 substeps of
+    2 + 1 with the shock sweep). At the GPUs' former default of 1 substep of 10 + 4 the
+    pushes fed the column's sway, and it settled rocking at about 0.27 m/s."""
     late, offset = rock_tipped_column(runtime, batching)
     assert late < 0.05
     assert offset < 0.1
