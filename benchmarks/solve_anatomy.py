@@ -13,7 +13,8 @@ Per size, these runs (World options beside the defaults):
 
 Each run: wall ms/step (the median of `TIMING_BLOCKS` blocks; the queue profiles, so a
 little above a World's without), the kernels' device time a step (profiling events; median
-over ``--steps`` steps after ``--warmup``), the solve kernel's share, launches. Then, from the
+over ``--steps`` steps after ``--warmup``), the solve kernel's share, launches, and what the
+device's compiler made of the solve kernel (`rbgen.codegen.kernel_resources`). Then, from the
 differences against ``default`` (each divided by the default's substeps): what one velocity
 sweep, the push rows and one whole substep cost the solve a substep, and a velocity sweep's
 cost per colour (a colour is a phase of the sweep: its batch, then a barrier). A
@@ -33,6 +34,7 @@ import numpy as np
 from kernel_events import KernelEvents
 
 from rbgen import bench
+from rbgen.codegen import kernel_names, kernel_resources
 from rbgen.device import Runtime
 from rbgen.harness import build_scene
 
@@ -84,7 +86,18 @@ def time_run(runtime: Runtime, n: int, options: dict, steps: int, warmup: int) -
         "substeps": int(world.substeps),
         # (after the clock: small reads) the colours of the last step's largest group
         "batches": int(world.statistics(contacts=False)["batches"]),
+        "solve_resources": solve_resources(world),
     }
+
+
+def solve_resources(world) -> dict:
+    """What the device's compiler made of the World's solve kernel
+    (`rbgen.codegen.kernel_resources`: on NVIDIA a largest work group of 256 means over 128
+    registers a work-item, and private memory is what it spilled)."""
+    for spec, options in world.kernel_specs():
+        if SOLVE_KERNEL in kernel_names(spec.source):
+            return kernel_resources(world.runtime, spec, options)[SOLVE_KERNEL]
+    return {}
 
 
 def main() -> None:
@@ -122,7 +135,14 @@ def main() -> None:
                     else {"name": f"boxbox {n} default", "ms": default["wall_ms"]},
                     **{
                         k: r[k]
-                        for k in ("kernel_ms", "solve_ms", "launches", "substeps", "batches")
+                        for k in (
+                            "kernel_ms",
+                            "solve_ms",
+                            "launches",
+                            "substeps",
+                            "batches",
+                            "solve_resources",
+                        )
                     },
                 }
             )
@@ -132,6 +152,7 @@ def main() -> None:
         removed = substeps - runs["half_substeps"]["substeps"]
         substep = (solve - runs["half_substeps"]["solve_ms"]) / max(1, removed)
         colours = max(1, default["batches"])
+        print(f"  {SOLVE_KERNEL} on this device: {default['solve_resources']}")
         print(
             f"  a substep of the default costs the solve {substep:.3f} ms: a velocity sweep "
             f"{sweep:.3f} ms ({1e3 * sweep / colours:.1f} us a colour of {colours}), the push "

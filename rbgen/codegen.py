@@ -572,6 +572,37 @@ def compile_spec(runtime: Runtime, spec: KernelSpec, options: Iterable[str] = ()
     return c
 
 
+#: what `kernel_resources` reads of each kernel (clGetKernelWorkGroupInfo), by its name there
+RESOURCE_QUERIES = (
+    ("max_work_group_size", cl.kernel_work_group_info.WORK_GROUP_SIZE),
+    ("private_mem_bytes", cl.kernel_work_group_info.PRIVATE_MEM_SIZE),
+    ("local_mem_bytes", cl.kernel_work_group_info.LOCAL_MEM_SIZE),
+    ("work_group_multiple", cl.kernel_work_group_info.PREFERRED_WORK_GROUP_SIZE_MULTIPLE),
+)
+
+
+def kernel_resources(
+    runtime: Runtime, spec: KernelSpec, options: Iterable[str] = ()
+) -> dict[str, dict[str, int]]:
+    """What the device's compiler made of each kernel of ``spec`` built with ``options``
+    (as `compile_spec` builds it; a build rbgen already made is not repeated), by kernel
+    name: the largest work group it can run (on a GPU, its registers a work-item bound
+    it: 256 on NVIDIA means more than 128), a work-item's private memory (on NVIDIA the
+    registers it spilled and its stack), a work group's local memory, and the preferred
+    multiple of the work-group size (the warp or wavefront on GPUs). A kernel that needs
+    more registers than its launch allows fails to launch; one that spills pays for it in
+    every dependent chain."""
+    compiled = compile_spec(runtime, spec, options)
+    device = runtime.device
+    return {
+        name: {
+            key: int(cast(int, compiled.kernel(name).get_work_group_info(query, device)))
+            for key, query in RESOURCE_QUERIES
+        }
+        for name in kernel_names(spec.source)
+    }
+
+
 class SpecLog:
     """Every (spec, build options) compiled on one runtime for one owner, in first-use
     order.

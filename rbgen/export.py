@@ -9,8 +9,11 @@ its plan, exactly what it compiled):
   static asserts on sizes and offsets;
 * ``manifest.json``: for every file its template, specialisation parameters,
   build options, source hash, and per kernel the argument names, C types and
-  roles (input / output / inout / scalar / local) and the recommended local size;
-  plus the fingerprint of the device the specialisations were chosen for;
+  roles (input / output / inout / scalar / local) and the recommended local size,
+  and (a World's export) what the device's compiler made of it
+  (`rbgen.codegen.kernel_resources`: the largest work group it runs, private memory
+  a work-item, local memory a work group); plus the fingerprint of the device the
+  specialisations were chosen for;
 * ``plan.json`` (a World's export): its `rbgen.plan.Plan`, every choice with its source
   and reason;
 * ``schedule.json`` and ``data/`` (a World's export with ``build``): its step as a launch
@@ -32,7 +35,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from . import __version__, layouts
-from .codegen import TEMPLATES, KernelSpec, KernelTemplate, kernel_signatures
+from .codegen import TEMPLATES, KernelSpec, KernelTemplate, kernel_resources, kernel_signatures
 from .device import DeviceTraits
 from .errors import RbgenError
 
@@ -78,12 +81,15 @@ def export_kernels(
     traits: DeviceTraits | None = None,
     build_options: Iterable[str] = (),
     plan=None,
+    runtime=None,
 ) -> dict:
     """Write the specs' sources, the layouts header and the manifest; return the manifest.
 
     ``specs``: `KernelSpec`s, or (spec, build options) pairs as a World compiled them
     (the options then replace the spec's own plus ``build_options``). ``plan``: a
-    `rbgen.plan.Plan` to write as plan.json and into the manifest."""
+    `rbgen.plan.Plan` to write as plan.json and into the manifest. ``runtime``: the
+    `rbgen.device.Runtime` the specs were built on; given, each kernel's entry carries
+    ``resources`` on its device (`rbgen.codegen.kernel_resources`)."""
     specs = list(specs)
     if not specs:
         raise RbgenError("export: no kernel specs given")
@@ -106,6 +112,7 @@ def export_kernels(
         (out / fname).write_text(source)
         roles = spec.template.roles if spec.template is not None else {}
         local = _local_sizes(source)
+        resources = {} if runtime is None else kernel_resources(runtime, spec, options)
         entries.append(
             {
                 "file": fname,
@@ -114,7 +121,12 @@ def export_kernels(
                 "build_options": list(options),
                 "source_sha256": hashlib.sha256(source.encode()).hexdigest(),
                 "kernels": [
-                    {"name": name, "args": args, "local_size": local.get(name)}
+                    {
+                        "name": name,
+                        "args": args,
+                        "local_size": local.get(name),
+                        **({"resources": resources[name]} if name in resources else {}),
+                    }
                     for name, args in kernel_signatures(source, roles).items()
                 ],
             }
@@ -190,7 +202,9 @@ def export_world(
             command=command,
             grow_rungs=GROW_RUNGS if grow_rungs is None else grow_rungs,
         )
-    return export_kernels(specs, out_dir, world.runtime.traits, plan=world.plan)
+    return export_kernels(
+        specs, out_dir, world.runtime.traits, plan=world.plan, runtime=world.runtime
+    )
 
 
 def default_specs(traits: DeviceTraits, names: Iterable[str] | None = None) -> list[KernelSpec]:

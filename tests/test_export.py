@@ -11,6 +11,7 @@ import pytest
 
 from rbgen import layouts
 from rbgen.cli import main
+from rbgen.codegen import RESOURCE_QUERIES
 from rbgen.device import INT64_ATOMICS
 from rbgen.errors import RbgenError
 from rbgen.export import default_specs, export_kernels
@@ -293,10 +294,26 @@ def test_world_export_is_exactly_what_the_world_compiled(runtime, tmp_path, scen
         assert solver["params"]["joints"] is True
         solve = next(k for k in solver["kernels"] if k["name"] == "solve_groups")
         assert {"joints", "inv_h", "joint_recovery"} <= {a["name"] for a in solve["args"]}
-    for entry in manifest["files"]:  # and every exported file builds standalone
-        cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build(
+    # and every exported file builds standalone, into kernels with the resources the
+    # manifest gives them (what the device's compiler made of the World's own build)
+    queries = dict(RESOURCE_QUERIES)
+    for entry in manifest["files"]:
+        program = cl.Program(runtime.context, (tmp_path / entry["file"]).read_text()).build(
             options=entry["build_options"]
         )
+        for kernel in entry["kernels"]:
+            resources = kernel["resources"]
+            assert set(resources) == set(queries), kernel["name"]
+            standalone = getattr(program, kernel["name"])
+            for key, query in queries.items():
+                assert resources[key] == standalone.get_work_group_info(query, runtime.device), (
+                    entry["file"],
+                    kernel["name"],
+                    key,
+                )
+            # a kernel with a required work-group size must be able to run it
+            if kernel["local_size"] is not None:
+                assert kernel["local_size"] <= resources["max_work_group_size"], kernel["name"]
 
 
 def test_export_world_from_the_command_line(runtime, tmp_path):

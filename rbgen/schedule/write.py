@@ -61,7 +61,9 @@ def write_schedule(
             if (kernel.spec, kernel.options) not in specs:
                 specs.append((kernel.spec, kernel.options))
         out = Path(out_dir)
-        manifest = export_kernels(specs, out, world.runtime.traits, plan=world.plan)
+        manifest = export_kernels(
+            specs, out, world.runtime.traits, plan=world.plan, runtime=world.runtime
+        )
         files = {spec_options: entry for spec_options, entry in zip(specs, manifest["files"])}
         programs: list[dict] = []
         program_index: dict = {}
