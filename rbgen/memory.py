@@ -186,11 +186,11 @@ def estimate(
     forces: bool = False,
 ) -> Estimate:
     """The device buffers of a World of ``sizes`` (``kinds``: the narrowphase's shape-type
-    pair queues; ``sleeping``: the World option; ``contact_geometry``: a PGS solve in the
-    serial form, a CPU's, keeps a `layouts.CONTACT_GEOMETRY` a constraint; ``forces``: the
-    World was given external forces, so it holds `FORCE_UPLOADS` uploads, each a device
-    array and a pinned host array). Each entry is (bytes of one buffer, how many such
-    buffers).
+    pair queues; ``sleeping``: the World option; ``contact_geometry``: the PGS solve keeps a
+    `layouts.CONTACT_GEOMETRY` a constraint (the block solve's serial form and persistent
+    launch); ``forces``: the World was given external forces, so it holds `FORCE_UPLOADS`
+    uploads, each a device array and a pinned host array). Each entry is (bytes of one
+    buffer, how many such buffers).
 
     Contract: every buffer that grows with the bodies, pairs, manifolds or joints has a
     term here, for the broadphases, solvers and options a World takes (a test holds the
@@ -281,7 +281,7 @@ def estimate(
         # masks are fewer. Per constraint: order, slot, batch, blocked flag, group list.
         one["batching per body"] = ((2 * 9 + 8) * WORD * n, 1)
         one["batching per constraint"] = (5 * WORD * (m + j), 1)
-        if contact_geometry:  # the serial block solve's, a contact constraint (solvers/pgs.py)
+        if contact_geometry:  # the block solve's, a contact constraint (solvers/pgs.py)
             one["contact geometry"] = (layouts.CONTACT_GEOMETRY.itemsize * max(1, m), 1)
         # the summed warm start's 64-bit sums (persistent PGS on GPUs)
         one["warm-start sums"] = (layouts.WARM_SUM_WORDS * 8 * n, 1)
@@ -430,10 +430,25 @@ class WorldMemory:
             "solver": self.options["solver"],
             "kinds": max(1, kinds),
             "sleeping": bool(self.options.get("sleeping", False)),
-            # (CPU plans solve in the serial form: `rbgen.pipeline.batching.default_solve_form`)
-            "contact_geometry": not self.runtime.traits.is_gpu,
+            "contact_geometry": self._keeps_contact_geometry(),
             "forces": self._forces_given() if forces is None else bool(forces),
         }
+
+    def _keeps_contact_geometry(self) -> bool:
+        """Whether the World's plan solves with a ContactGeometry record a constraint
+        (`rbgen.pipeline.solvers.pgs.default_contact_geometry`)."""
+        from .pipeline.solvers.pgs import default_contact_geometry
+
+        plan = getattr(self._owner(), "plan", None)
+        if plan is None or plan.solver != "pgs":
+            return False
+        return default_contact_geometry(
+            {
+                "normal_solve": plan.normal_solve,
+                "solve_form": plan.solve_form,
+                "persistent": plan.persistent,
+            }
+        )
 
     def _forces_given(self) -> bool:
         owner = self._owner()

@@ -98,6 +98,7 @@ class ContactRig:
         fast_math=None,
         warm_start_mode=None,
         batcher_options=None,
+        contact_geometry=None,
     ):
         self.runtime = runtime
         queue = runtime.queue
@@ -117,6 +118,7 @@ class ContactRig:
             fast_math=fast_math,
             warm_start_mode=warm_start_mode,
             work_group_size=work_group_size,
+            contact_geometry=contact_geometry,
         )
         self.warm_start = warm_start
 

@@ -478,11 +478,12 @@ def pgs_specs():
     """Every reachable specialisation of the PGS template (exact builds), by the rules
     between its parameters."""
     specs = []
-    for form, persistent, warm, normal, joints, fold in itertools.product(
+    for form, persistent, warm, normal, joints, fold, geometry in itertools.product(
         ("serial", "lanes"),
         (False, True),
         pgs.WARM_START_MODES,
         ("block", "sequential"),
+        (False, True),
         (False, True),
         (False, True),
     ):
@@ -498,6 +499,7 @@ def pgs_specs():
                     warm_start_mode=warm,
                     joints=joints,
                     fold_substeps=fold,
+                    contact_geometry=geometry,
                 )
             )
         except TemplateParameterError:
@@ -528,8 +530,9 @@ def test_kernel_signatures_are_the_declarations():
     specialisation, names and types, in order."""
     specs = pgs_specs()
     # (serial; lanes; persistent batched; persistent summed) x 2 normal solves x 2 (joints)
-    # x 2 (fold_substeps: it changes the persistent launches alone)
-    assert len(specs) == 32
+    # x 2 (fold_substeps: it changes the persistent launches alone), and the block solves of
+    # the serial form and the persistent launches once more with contact_geometry
+    assert len(specs) == 32 + 3 * 4
     cases = [(spec, pgs.TEMPLATE) for spec in specs]
     cases += [
         (

@@ -28,6 +28,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from rbgen import layouts
 from tests.pipeline.test_constraints import ContactRig, make_bodies, make_manifold
 
 CORNERS = np.array([[0.5, -0.5, 0.5], [-0.5, -0.5, 0.5], [-0.5, -0.5, -0.5], [0.5, -0.5, -0.5]])
@@ -616,3 +617,60 @@ def test_serial_block_solve_keeps_its_geometry_over_a_step(runtime, count):
         else:
             np.testing.assert_array_equal(results[bounce, True, 0.5], results[bounce, False, 0.5])
     assert not np.array_equal(results[True, False, 1.0], results[False, False, 1.0])
+
+
+@pytest.mark.parametrize("shock", [False, True])
+@pytest.mark.parametrize("variant", ["serial", "persistent"])
+def test_contact_geometry_is_what_every_sweep_would_derive(runtime, rng, variant, shock):
+    """A block solve that keeps its contacts' geometry for the step (the template
+    parameter contact_geometry: ContactGeometry records derived by the launch, read by
+    every sweep) does the arithmetic of one that derives it again in each sweep: with
+    friction, a warm start, restitution and, with ``shock``, shock sweeps (whose held
+    bodies take no turn from the friction rows read from the record, as from rows derived
+    with their zero inertia), the velocities, push velocities and impulses are equal bit
+    for bit (exact builds), in the serial form and in the persistent launch."""
+    from tests.pipeline.test_shock import GRAVITY, random_pairs
+
+    bodies, inv_inertia, manifolds = random_pairs(rng, 29, vertical=True, restitution=0.4)
+    manifolds["points"][:, :, 3] = rng.uniform(-0.01, 0.0, (len(manifolds), 4))  # to push
+    manifolds["restitution"][::2] = 0.0  # (a shock sweep leaves a bouncing manifold alone)
+    impulses = rng.uniform(0.0, 0.3, (len(manifolds), 4)).astype(np.float32)
+    results = []
+    for geometry in (False, True):
+        rig = ContactRig(
+            runtime,
+            bodies,
+            inv_inertia,
+            variant=variant,
+            fast_math=False,
+            contact_geometry=geometry,
+        )
+        assert rig.solver.spec.values["contact_geometry"] == geometry
+        rig.setup.gravity = GRAVITY
+        rig.setup.restitution_threshold = 0.5
+        rig.constraints(manifolds)
+        records = rig.setup.constraints.get()
+        records["normal_impulse"][: len(manifolds)] = impulses  # something to warm start
+        rig.setup.constraints.set(records)
+        rig.batch()
+        sweeps = SimpleNamespace(
+            iterations=3,
+            position_iterations=2,
+            relaxation=1.0,
+            warm_start=True,
+            shock_propagation=shock,
+        )
+        rig.run(rig.solver, sweeps)
+        split = rig.solver.split_velocities(rig.body_count).get()
+        results.append((rig.bodies.get(), split, rig.setup.constraints.get()[: len(manifolds)]))
+    (bodies_d, split_d, cons_d), (bodies_c, split_c, cons_c) = results
+    for field in ("linear_velocity", "angular_velocity"):
+        np.testing.assert_array_equal(bodies_c[field], bodies_d[field], err_msg=field)
+    for field in split_d.dtype.names:
+        np.testing.assert_array_equal(split_c[field], split_d[field], err_msg=field)
+    for field in ("normal_impulse", "tangent1_impulse", "tangent2_impulse", "push_impulse"):
+        np.testing.assert_array_equal(cons_c[field], cons_d[field], err_msg=field)
+    # (what the sweeps solved: friction, pushes, and with shock, contacts held)
+    assert np.abs(cons_d["tangent1_impulse"][:, 0]).max() > 1e-3
+    assert np.abs(cons_d["push_impulse"]).max() > 0.0
+    assert (cons_d["tangent1"][:, 3] != layouts.SHOCK_HOLDS_NONE).any()

@@ -116,9 +116,10 @@ def _joints(values) -> bool:
 
 
 def _geometry_cache(values) -> bool:
-    """The serial block solve keeps each contact's `layouts.CONTACT_GEOMETRY` for the step
-    (derived by the launches with GEOMETRY_PASS, read by every sweep)."""
-    return values["solve_form"] == "serial" and values["normal_solve"] == "block"
+    """The block solve keeps each contact's `layouts.CONTACT_GEOMETRY` for the step
+    (derived by the launches with GEOMETRY_PASS, read by every sweep): the template
+    parameter ``contact_geometry``."""
+    return values["contact_geometry"]
 
 
 #: solve_groups' arguments, in order: the template renders them, `PgsSolver` binds them.
@@ -261,6 +262,15 @@ TEMPLATE = KernelTemplate(
             "arithmetic",
         ),
         Param(
+            "contact_geometry",
+            (False, True),
+            "block normal solve, serial form or persistent launch: what the rows of a "
+            "contact derive from its lever arms, normal and the bodies' inertias alone "
+            "(its face block and friction rows; they hold over a step) is derived once a "
+            "step into a ContactGeometry record a constraint, which every sweep reads "
+            "(loads in place of arithmetic on each visit's chain)",
+        ),
+        Param(
             "warm_start_mode",
             WARM_START_MODES,
             "batched: the warm start is a sweep over the batches (one batch step per "
@@ -292,7 +302,7 @@ def default_values(
     """The solver's parameters for a device and a batching of this solve form (the
     template's defaults: a default World's plan on that device)."""
     solve_form = solve_form or ("lanes" if traits.is_gpu else "serial")
-    return {
+    values = {
         "work_group_size": default_work_group_size(traits, solve_form, persistent),
         "max_batches": 128,
         "solve_form": solve_form,
@@ -305,6 +315,18 @@ def default_values(
         if persistent and traits.has_extension(INT64_ATOMICS)
         else "batched",
     }
+    values["contact_geometry"] = default_contact_geometry(values)
+    return values
+
+
+def default_contact_geometry(values: dict) -> bool:
+    """Whether a solve with these template values keeps its contacts' geometry for the
+    step (the template parameter "contact_geometry"): wherever it can, a block normal
+    solve in the serial form or a persistent launch. A visit then loads its face block
+    and friction rows instead of deriving them again in each of a step's sweeps."""
+    return values["normal_solve"] == "block" and (
+        values["solve_form"] == "serial" or bool(values["persistent"])
+    )
 
 
 def default_fold_substeps(persistent: bool) -> bool:
@@ -320,6 +342,15 @@ def _parameter_rules(values: dict) -> str | None:
     """What the solver template's parameters must agree on (None: they do)."""
     if values["persistent"] and values["solve_form"] != "lanes":
         return "persistent needs solve_form='lanes' (the work groups share the batches)"
+    if values["contact_geometry"] and values["normal_solve"] != "block":
+        return "contact_geometry=True needs normal_solve='block' (the geometry is its block's)"
+    if values["contact_geometry"] and not (
+        values["solve_form"] == "serial" or values["persistent"]
+    ):
+        return (
+            "contact_geometry=True needs the serial form or a persistent launch (the "
+            "launches that derive the records come before every sweep that reads them)"
+        )
     if values["warm_start_mode"] == "summed" and not values["persistent"]:
         return (
             "warm_start_mode='summed' needs persistent=True (its two phases are "
@@ -434,6 +465,7 @@ class PgsSolver(PushVelocities):
         work_group_size: int | None = None,
         release_sweeps: int | None = None,
         joints: bool = False,
+        contact_geometry: bool | None = None,
     ):
         self.runtime = runtime
         self.batcher = batcher
@@ -458,6 +490,9 @@ class PgsSolver(PushVelocities):
             "fast_math": None if fast_math is None else resolve_fast_math(traits, fast_math),
         }
         values.update({k: v for k, v in overrides.items() if v is not None})
+        values["contact_geometry"] = (
+            default_contact_geometry(values) if contact_geometry is None else bool(contact_geometry)
+        )
         values["max_batches"] = int(batcher.max_batches)
         values["joints"] = bool(joints)
         values["fold_substeps"] = default_fold_substeps(persistent)

@@ -874,6 +874,19 @@ inline float hold_still(__private ContactBodies* p, const float holds)
     return 1.0f;
 }
 
+% if geometry_cache:
+/* The held body's turns (hold_still: RB_SHOCK_HOLDS_*) of friction rows read
+ * from a ContactGeometry record made zero, as friction_rows gives them for a
+ * held body's zero inertia. */
+inline void hold_rows_still(__private FrictionRows* rows, const float holds)
+{
+    if (holds == (float)RB_SHOCK_HOLDS_A)
+        rows->tangent1.turn_a = rows->tangent2.turn_a = rows->twist.turn_a = (float3)(0.0f);
+    if (holds == (float)RB_SHOCK_HOLDS_B)
+        rows->tangent1.turn_b = rows->tangent2.turn_b = rows->twist.turn_b = (float3)(0.0f);
+}
+
+% endif
 /* Solve all rows of one constraint, updating its impulses and its bodies'
  * velocities in *p; `releases`: the block solve may release points (see
  * solve_normal_block; normal_solve block only); `restitution`: then apply
@@ -967,6 +980,8 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
     FrictionRows rows;
 % if geometry_cache:
     load_friction_rows(g, n, t1, t2, &rows);
+    if (held)  /* (as friction_rows derives them from *p: the held body does not turn) */
+        hold_rows_still(&rows, c->tangent1.w);
 % else:
     friction_rows(c, p, &rows);
 % endif

@@ -13,9 +13,10 @@
     joint_params = (", __global JointConstraint* joints, const float inv_h, "
                     "const float joint_recovery") if joints else ""
     joint_args = ", joints, inv_h, joint_recovery" if joints else ""
-    # the serial block solve derives each contact's ContactGeometry once a step (the
-    # launches with GEOMETRY_PASS) and its sweeps read it (contact_rows.cl.mako)
-    geometry_cache = serial and normal_solve == "block"
+    # the block solve derives each contact's ContactGeometry once a step (the launches
+    # with GEOMETRY_PASS) and its sweeps read it (contact_rows.cl.mako; the template
+    # parameter contact_geometry: serial or persistent solves)
+    geometry_cache = contact_geometry
     # a persistent launch folds each substep's refresh, carry and warm-start sums into
     # its sweeps (Sweep; pgs.py: fold_substeps); with joints, the joints' warm start
     # stays a pass of its own (it measures the bodies' poses of the substep it starts)
@@ -59,6 +60,16 @@
  * constraints, a batch's constraints spread over all their lanes, with a
  * device-wide barrier after each batch (common/device_barrier.cl.mako): the
  * whole solve is one launch, and every compute unit takes part.
+% if geometry_cache:
+ * What the rows of a contact derive from its lever arms, normal and the
+ * bodies' inertias alone (contact_rows.cl.mako: FaceBlock, FrictionRows)
+ * holds over the step: a launch with GEOMETRY_PASS first writes it to each
+ * contact's ContactGeometry record (every lane a share of all contacts), and
+ * its sweeps, behind at least one device-wide barrier, read it instead of
+ * deriving it (a shock sweep's held face block excepted). No lane has read a
+ * record before the launch writes it, so no compute unit's cache holds a
+ * stale copy.
+% endif
 % endif
 % if not serial:
  *
@@ -661,6 +672,31 @@ inline void take_warm_sums(volatile __global Body* bodies, volatile __global lon
 % endif
 % if persistent:
 <%include file="/pipeline/solvers/contact_targets.cl.mako" args="private_copies=fused"/>
+% if geometry_cache:
+
+/* Lane `lane`'s share of the ContactGeometry records of the contacts
+ * order[begin .. end - 1] (every lanes-th item from `lane`, whatever its
+ * batch; joint items have none), for the sweeps of the launch. */
+inline void store_launch_geometry(__global const ContactConstraint* constraints,
+                                  __global const uint* order, uint begin, uint end, uint lane,
+                                  volatile __global const Body* bodies,
+                                  __global const BodyInertia* inertia,
+                                  __global ContactGeometry* geometry)
+{
+    const uint lanes = get_global_size(0);
+    for (uint i = begin + lane; i < end; i += lanes) {
+        const uint item = order[i];
+% if joints:
+        if (is_joint(item))
+            continue;
+% endif
+        ContactConstraint c = constraints[item];  /* a private copy */
+        ContactBodies state;
+        load_bodies(&state, bodies, inertia, c.body_a, c.body_b);
+        store_geometry(&c, &state, &geometry[item]);
+    }
+}
+% endif
 
 /* The lane that solves the push rows of batch order[first .. end - 1] for
  * lane `lane` (see solve_groups). */
@@ -780,7 +816,7 @@ inline void move_bodies(volatile __global Body* bodies, volatile __global SplitV
  * own.
 % endif
  */
-inline void solve_copy(__global ContactConstraint* constraints, uint index,
+inline void solve_copy(__global ContactConstraint* constraints,${" __global const ContactGeometry* geometry," if geometry_cache else ""} uint index,
                        ${velocity_space} Body* bodies, __global const BodyInertia* inertia,
                        ${velocity_space} SplitVelocity* split, const float relaxation,
                        const Sweep s${joint_params}${fused_params})
@@ -802,7 +838,7 @@ inline void solve_copy(__global ContactConstraint* constraints, uint index,
                                 s.refresh_push);
     }
 % endif
-    solve_rows(&c, bodies, inertia, split, relaxation, s);
+    solve_rows(&c,${" &geometry[index]," if geometry_cache else ""} bodies, inertia, split, relaxation, s);
 % if fused:
     if (s.carry)
         carry_impulses_private(&c);
@@ -848,7 +884,7 @@ inline void solve_batch_lanes(__global ContactConstraint* constraints, __global 
  * velocity rows of its share, and the push rows of the share of lane
  * `push_lane` when the batch has at most push_offset constraints, else of
  * its own (see solve_groups). */
-inline void solve_batch_persistent(__global ContactConstraint* constraints,
+inline void solve_batch_persistent(__global ContactConstraint* constraints,${"\n                                   __global const ContactGeometry* geometry," if geometry_cache else ""}
                                    __global const uint* order, uint first, uint end, uint batch,
                                    uint lane, uint push_lane, uint push_offset,
                                    volatile __global Body* bodies,
@@ -867,7 +903,7 @@ inline void solve_batch_persistent(__global ContactConstraint* constraints,
 % endif
         const uint2 share = batch_share(first, end, batch, lane, lanes);
         for (uint i = share.x; i < end; i += share.y)
-            solve_copy(constraints, order[i], bodies, inertia, split, relaxation, velocity_rows${joint_args}${fused_args});
+            solve_copy(constraints,${" geometry," if geometry_cache else ""} order[i], bodies, inertia, split, relaxation, velocity_rows${joint_args}${fused_args});
     }
     if (s.push) {
         Sweep push_rows = s;
@@ -877,7 +913,7 @@ inline void solve_batch_persistent(__global ContactConstraint* constraints,
 % endif
         const uint2 share = batch_share(first, end, batch, push_owner, lanes);
         for (uint i = share.x; i < end; i += share.y)
-            solve_copy(constraints, order[i], bodies, inertia, split, relaxation, push_rows${joint_args}${fused_args});
+            solve_copy(constraints,${" geometry," if geometry_cache else ""} order[i], bodies, inertia, split, relaxation, push_rows${joint_args}${fused_args});
     }
 }
 % endif
@@ -976,6 +1012,17 @@ void solve_groups(${signature("solve_groups")})
 % else:
     const bool folded = false;  /* (fold_substeps off: the passes of their own) */
 % endif
+% if geometry_cache:
+    /* the step's ContactGeometry, read by the sweeps behind the warm start's
+     * barriers, or behind one of its own */
+    if ((passes & GEOMETRY_PASS) != 0u) {
+        if (barrier_ok)
+            store_launch_geometry(constraints, order, offsets[0], offsets[batch_count], lane,
+                                  bodies, inertia, geometry);
+        if ((passes & WARM_START_PASS) == 0u)
+            device_barrier(sync, &barrier_ok);
+    }
+% endif
     /* (substeps 0: the warm start and sweeps alone, the bodies left where they are) */
     for (uint substep = 0; substep < max(substeps, 1u); ++substep) {
         /* the previous substep's last sweep carried (and summed) the impulses */
@@ -1053,7 +1100,7 @@ void solve_groups(${signature("solve_groups")})
                 const uint first = offsets[batch], end = offsets[batch + 1];
                 if (first == end || !barrier_ok)  /* (as in the warm start) */
                     continue;
-                solve_batch_persistent(constraints, order, first, end, batch, lane, push_lane,
+                solve_batch_persistent(constraints,${" geometry," if geometry_cache else ""} order, first, end, batch, lane, push_lane,
                                        push_offset, bodies, inertia, split, relaxation,
                                        s${joint_args}${fused_args});
                 device_barrier(sync, &barrier_ok);
