@@ -522,6 +522,15 @@ CONTACT_GEOMETRY = declare(
         ("face_q", "float4", 3, "block solve: the face's mobility Q, by rows"),
         ("face_inv_q", "float4", 3, "block solve: Q's inverse, by rows"),
         (
+            "held_q",
+            "float4",
+            3,
+            "a shock sweep's block solve (a contact whose tangent1.w holds a body still): "
+            "Q with the held body's mass and inertia zero, by rows; [0].w: 1 when the "
+            "block solve takes the points so, else 0",
+        ),
+        ("held_inv_q", "float4", 3, "a shock sweep's block solve: held_q's inverse, by rows"),
+        (
             "face_k",
             "float4",
             4,
@@ -554,7 +563,7 @@ CONTACT_GEOMETRY = declare(
             "points' summed distance from their centre on B",
         ),
     ],
-    "What the serial block solve derives of a contact constraint once a step (its lever "
+    "What the block solve derives of a contact constraint once a step (its lever "
     "arms, normal and the bodies' inertias hold over the substeps) and reads every sweep "
     "(solvers/contact_rows.cl.mako: FaceBlock, FrictionRows).",
 )

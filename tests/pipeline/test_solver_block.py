@@ -625,10 +625,11 @@ def test_contact_geometry_is_what_every_sweep_would_derive(runtime, rng, variant
     """A block solve that keeps its contacts' geometry for the step (the template
     parameter contact_geometry: ContactGeometry records derived by the launch, read by
     every sweep) does the arithmetic of one that derives it again in each sweep: with
-    friction, a warm start, restitution and, with ``shock``, shock sweeps (whose held
-    bodies take no turn from the friction rows read from the record, as from rows derived
-    with their zero inertia), the velocities, push velocities and impulses are equal bit
-    for bit (exact builds), in the serial form and in the persistent launch."""
+    friction, a warm start, restitution and, with ``shock``, shock sweeps (whose face
+    block of the held bodies comes from the record too, and whose held bodies take no turn
+    from the friction rows read from it, as from rows derived with their zero inertia), the
+    velocities, push velocities and impulses are equal bit for bit (exact builds), in the
+    serial form and in the persistent launch."""
     from tests.pipeline.test_shock import GRAVITY, random_pairs
 
     bodies, inv_inertia, manifolds = random_pairs(rng, 29, vertical=True, restitution=0.4)

@@ -343,8 +343,8 @@ ${inlined}bool ${name}(const uint count, const __private FaceBlock* f, const flo
 ${face_block_solver("solve_face_block", geometry_cache)}\
 % if geometry_cache:
 
-/* solve_face_block with K derived from the FaceBlock: a FaceBlock the sweep derives
- * (a shock sweep's, of the held bodies: solve_contact) rather than the cached one. */
+/* solve_face_block with K derived from the FaceBlock: a shock sweep's, of the held
+ * bodies (solve_contact), whose K the record does not keep. */
 ${face_block_solver("solve_held_face_block", False)}\
 % endif
 
@@ -680,6 +680,25 @@ ${inlined}void store_geometry(${constraint_space} const ContactConstraint* c, co
             g->face_k[j] = pack4(k_matrix[j]);
     }
     g->face_arm[0].w = block ? 1.0f : 0.0f;
+    /* a shock sweep's face block (solve_contact: `held`), with the held body's
+     * mass and inertia zero as hold_still leaves them */
+    const float holds = c->tangent1.w;
+    bool held_block = false;
+    if (count >= 3 && holds != (float)RB_SHOCK_HOLDS_NONE) {
+        const bool a = holds == (float)RB_SHOCK_HOLDS_A;
+        const float3 none[3] = {(float3)(0.0f), (float3)(0.0f), (float3)(0.0f)};
+        FaceBlock h;
+        held_block = face_block(count, c->normal.xyz, c->tangent1.xyz, c->tangent2.xyz, c->r_a,
+                                c->r_b, a ? 0.0f : p->inv_mass_a, a ? none : p->inv_inertia_a,
+                                a ? p->inv_mass_b : 0.0f, a ? p->inv_inertia_b : none, &h);
+        if (held_block) {
+            ${unroll}for (uint i = 0; i < 3; ++i) {
+                g->held_q[i] = (float4)(h.q_row[i], 0.0f);
+                g->held_inv_q[i] = (float4)(h.inv_q[i], 0.0f);
+            }
+        }
+    }
+    g->held_q[0].w = held_block ? 1.0f : 0.0f;
     FrictionRows rows;
     friction_rows(c, p, &rows);
     g->friction_arm_a[0] = (float4)(rows.tangent1.arm_a, 0.0f);
@@ -715,6 +734,33 @@ inline void load_friction_rows(__global const ContactGeometry* g, const float3 n
     rows->radius = g->twist_turn[0].w;
 }
 
+/* The FaceBlock of three or four points read from g: both bodies' (`holds`
+ * RB_SHOCK_HOLDS_NONE), or a shock sweep's with the body `holds` names held
+ * still (its turns zero, Q from held_q). False when the block solve does not
+ * take the points so (the rows do). */
+inline bool load_face_block(__global const ContactGeometry* g, const float holds,
+                            __private FaceBlock* f)
+{
+    const bool held = holds != (float)RB_SHOCK_HOLDS_NONE;
+    if ((held ? g->held_q[0].w : g->face_arm[0].w) == 0.0f)
+        return false;
+    unpack4(g->face_u, f->u);
+    unpack4(g->face_v, f->v);
+    float4 spread = g->face_spread;
+    f->suu = spread.x, f->suv = spread.y, f->svv = spread.z, f->inv_spread = spread.w;
+    const bool still_a = holds == (float)RB_SHOCK_HOLDS_A;
+    const bool still_b = holds == (float)RB_SHOCK_HOLDS_B;
+    ${unroll}for (uint i = 0; i < 3; ++i) {
+        f->arm_a[i] = g->face_arm[i].xyz;
+        f->turn_a[i] = still_a ? (float3)(0.0f) : g->face_turn_a[i].xyz;
+        f->turn_b[i] = still_b ? (float3)(0.0f) : g->face_turn_b[i].xyz;
+        f->q_row[i] = held ? g->held_q[i].xyz : g->face_q[i].xyz;
+        f->inv_q[i] = held ? g->held_inv_q[i].xyz : g->face_inv_q[i].xyz;
+    }
+    f->arm_b0 = g->face_arm[3].xyz;
+    return true;
+}
+
 /* solve_normal_block with three or four points' FaceBlock read from g. */
 ${inlined}bool solve_normal_cached(const uint count, const float3 n,
                          ${constraint_space} const float4* r_a, ${constraint_space} const float4* r_b,
@@ -726,21 +772,9 @@ ${inlined}bool solve_normal_cached(const uint count, const float3 n,
         return solve_two_points(count, n, r_a, r_b, relaxation, p->inv_mass_a, p->inv_inertia_a,
                                 &p->va, &p->wa, p->inv_mass_b, p->inv_inertia_b, &p->vb,
                                 &p->wb, target, lambda);
-    if (g->face_arm[0].w == 0.0f)
-        return false;
     FaceBlock f;
-    unpack4(g->face_u, f.u);
-    unpack4(g->face_v, f.v);
-    float4 spread = g->face_spread;
-    f.suu = spread.x, f.suv = spread.y, f.svv = spread.z, f.inv_spread = spread.w;
-    ${unroll}for (uint i = 0; i < 3; ++i) {
-        f.arm_a[i] = g->face_arm[i].xyz;
-        f.turn_a[i] = g->face_turn_a[i].xyz;
-        f.turn_b[i] = g->face_turn_b[i].xyz;
-        f.q_row[i] = g->face_q[i].xyz;
-        f.inv_q[i] = g->face_inv_q[i].xyz;
-    }
-    f.arm_b0 = g->face_arm[3].xyz;
+    if (!load_face_block(g, (float)RB_SHOCK_HOLDS_NONE, &f))
+        return false;
     return solve_face_block(count, &f, n, relaxation, p->inv_mass_a, &p->va, &p->wa,
                             p->inv_mass_b, &p->vb, &p->wb, target, lambda, releases, g->face_k);
 }
@@ -935,10 +969,9 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
     bool solved = false;  /* by the block solve; else row after row */
 % if geometry_cache:
     if (held && count >= 3) {
-        /* the cached face block is both bodies': the held sweep's is derived */
+        /* the held sweep's face block (K derived: the record keeps both bodies') */
         FaceBlock f;
-        solved = face_block(count, n, t1, t2, c->r_a, c->r_b, p->inv_mass_a, p->inv_inertia_a,
-                            p->inv_mass_b, p->inv_inertia_b, &f)
+        solved = load_face_block(g, c->tangent1.w, &f)
                  && solve_held_face_block(count, &f, n, relaxation, p->inv_mass_a, &p->va,
                                           &p->wa, p->inv_mass_b, &p->vb, &p->wb, target,
                                           normal_impulse, releases);

@@ -66,7 +66,7 @@
  * holds over the step: a launch with GEOMETRY_PASS first writes it to each
  * contact's ContactGeometry record (every lane a share of all contacts), and
  * its sweeps, behind at least one device-wide barrier, read it instead of
- * deriving it (a shock sweep's held face block excepted). No lane has read a
+ * deriving it (a shock sweep's face block of the held bodies too). No lane has read a
  * record before the launch writes it, so no compute unit's cache holds a
  * stale copy.
 % endif
