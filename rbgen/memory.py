@@ -435,20 +435,10 @@ class WorldMemory:
         }
 
     def _keeps_contact_geometry(self) -> bool:
-        """Whether the World's plan solves with a ContactGeometry record a constraint
-        (`rbgen.pipeline.solvers.pgs.default_contact_geometry`)."""
-        from .pipeline.solvers.pgs import default_contact_geometry
-
+        """Whether the World's current plan solves with a ContactGeometry record a
+        constraint (`rbgen.plan.Plan.contact_geometry`)."""
         plan = getattr(self._owner(), "plan", None)
-        if plan is None or plan.solver != "pgs":
-            return False
-        return default_contact_geometry(
-            {
-                "normal_solve": plan.normal_solve,
-                "solve_form": plan.solve_form,
-                "persistent": plan.persistent,
-            }
-        )
+        return bool(plan is not None and plan.contact_geometry)
 
     def _forces_given(self) -> bool:
         owner = self._owner()

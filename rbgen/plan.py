@@ -25,7 +25,7 @@ from .pipeline.batching.global_colouring import ORDERED_ROUNDS
 from .pipeline.batching.spatial import default_group_count, default_spatial_mode
 from .pipeline.device_barrier import persistent_launch_validated
 from .pipeline.solvers.common import check_sweeps
-from .pipeline.solvers.pgs import default_normal_solve
+from .pipeline.solvers.pgs import default_contact_geometry, default_normal_solve
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,7 +40,9 @@ class Tunable:
         return list(_CANDIDATES[self.name](traits))
 
     def check(self, value, traits: DeviceTraits):
-        if value not in self.candidates(traits) and not _ALSO_ALLOWED[self.name](value):
+        # (typed: True is not the candidate 1, nor 1 the candidate True)
+        listed = any(type(value) is type(c) and value == c for c in self.candidates(traits))
+        if not listed and not _ALSO_ALLOWED[self.name](value):
             raise RbgenError(
                 f"plan parameter {self.name}={value!r} is not allowed on "
                 f"{traits.device_name}; candidates: {self.candidates(traits)}"
@@ -72,6 +74,8 @@ _CANDIDATES = {
         max(1, default_group_count(traits) // 2),
         2 * default_group_count(traits),
     ],
+    # (the default first: kept by the CPUs' serial form, not by GPUs' persistent launch)
+    "contact_geometry": lambda traits: [not traits.is_gpu, traits.is_gpu],
 }
 _ALSO_ALLOWED = {
     "batching": lambda v: v in MODES,
@@ -80,6 +84,7 @@ _ALSO_ALLOWED = {
     ),
     "ordered_rounds": lambda v: isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2**32,
     "group_count": lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 4096,
+    "contact_geometry": lambda v: isinstance(v, bool),
 }
 
 #: plan parameters `rbgen tune` chooses per device (the first candidate is the hand-set
@@ -99,6 +104,11 @@ TUNABLES = {
             "(fewest colours) before hashed rounds finish the step",
         ),
         Tunable("group_count", "spatial batching: groups per colour (work for every core)"),
+        Tunable(
+            "contact_geometry",
+            "block normal solve, serial form or persistent launch: each contact's face "
+            "block and friction rows derived once a step and loaded by every sweep",
+        ),
     )
 }
 
@@ -133,6 +143,9 @@ class Plan:
     joints: bool = False
     #: bodies at rest fall asleep (`rbgen.pipeline.sleep`; the World option ``sleeping``)
     sleeping: bool = False
+    #: the PGS block solve keeps a ContactGeometry record a contact for the step
+    #: (`rbgen.pipeline.solvers.pgs`, the template parameter contact_geometry)
+    contact_geometry: bool = False
     reasons: dict = dataclasses.field(compare=False, default_factory=dict)
     sources: dict = dataclasses.field(compare=False, default_factory=dict)
 
@@ -333,6 +346,33 @@ def derive_plan(
         "two groups per compute unit on GPUs, eight per core on CPUs",
         tunable=True,
     )
+    form = {"normal_solve": normal_solve, "solve_form": solve_form, "persistent": persistent}
+    can_keep = (
+        solver == "pgs" and normal_solve == "block" and (solve_form == "serial" or persistent)
+    )
+    contact_geometry = pick(
+        "contact_geometry",
+        None,
+        can_keep and default_contact_geometry(form),
+        "a CPU core loads a contact's face block faster than it derives it; a GPU lane's "
+        "visit is the block solve itself, and the records' loads slow large scenes"
+        if can_keep
+        else "only the block solve's serial form or persistent launch keeps it",
+        tunable=True,
+    )
+    if contact_geometry and not can_keep:
+        if sources["contact_geometry"] == "option":
+            raise RbgenError(
+                "plan parameter contact_geometry=True needs the PGS block normal solve in "
+                f"the serial form or a persistent launch; this plan solves "
+                f"{solver!r} ({normal_solve} normal solve, {solve_form} form, "
+                f"{'persistent' if persistent else 'launch per colour'})"
+            )
+        contact_geometry = False  # (tuned under another batching)
+        sources["contact_geometry"] = "default"
+        reasons["contact_geometry"] = (
+            "only the block solve's serial form or persistent launch keeps it"
+        )
     return Plan(
         device=traits.fingerprint,
         device_name=traits.device_name,
@@ -351,6 +391,7 @@ def derive_plan(
         shape_types=tuple(sorted(shape_types)),
         joints=bool(joints),
         sleeping=bool(options.get("sleeping", False)),
+        contact_geometry=bool(contact_geometry),
         reasons=reasons,
         sources=sources,
     )

@@ -51,6 +51,10 @@ def relevant(name: str, values: dict) -> bool:
         return values["batching"] in SPATIAL_MODES
     if name == "release_sweeps":
         return values["normal_solve"] == "block"
+    if name == "contact_geometry":
+        return values["normal_solve"] == "block" and (
+            values["solve_form"] == "serial" or values["batching"] == "global"
+        )
     return True
 
 
@@ -108,7 +112,9 @@ def tune_plan(
     timings = []
     for name, tunable in TUNABLES.items():
         plan = derive_plan(traits, {**options, "plan": chosen}, ("box",), tuned={})
-        if not relevant(name, {**chosen, "normal_solve": plan.normal_solve}):
+        if not relevant(
+            name, {**chosen, "normal_solve": plan.normal_solve, "solve_form": plan.solve_form}
+        ):
             continue
         results = []
         for value in tunable.candidates(traits):

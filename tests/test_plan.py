@@ -52,6 +52,7 @@ EXPECTED = {
             warm_start_mode="summed",
             fast_math=True,
             release_sweeps=2,
+            contact_geometry=False,
         ),
     ),
     "other gpu": (
@@ -65,6 +66,7 @@ EXPECTED = {
             warm_start_mode="batched",
             fast_math=True,
             release_sweeps=2,
+            contact_geometry=False,
         ),
     ),
     "cpu": (
@@ -78,6 +80,7 @@ EXPECTED = {
             warm_start_mode="batched",
             fast_math=False,
             release_sweeps=2,
+            contact_geometry=True,
         ),
     ),
 }
@@ -194,6 +197,31 @@ def test_every_tunable_lists_its_default_first():
         p = plan(device)
         for name, tunable in TUNABLES.items():
             assert tunable.candidates(device)[0] == getattr(p, name), (device.vendor, name)
+
+
+def test_contact_geometry_where_the_block_solve_can_keep_it():
+    """The block solve keeps its contacts' geometry for the step in the CPU's serial form
+    by default, not in a GPU's persistent launch (the default there: off); a plan override
+    turns it on where the launch can keep it, and is refused, naming it, where it cannot
+    (a launch per colour, the sequential normal solve, Jacobi), while a tuned value that no
+    longer applies is dropped."""
+    assert plan(CPU).contact_geometry and not plan(NVIDIA).contact_geometry
+    on = plan(NVIDIA, plan={"contact_geometry": True})
+    assert on.contact_geometry and on.persistent and on.sources["contact_geometry"] == "option"
+    assert not plan(CPU, plan={"contact_geometry": False}).contact_geometry
+    for options in (
+        {"batching": "cells"},
+        {"normal_solve": "sequential"},
+        {"solver": "jacobi"},
+    ):
+        with pytest.raises(RbgenError, match="contact_geometry=True needs"):
+            plan(NVIDIA, plan={"contact_geometry": True}, **options)
+    dropped = plan(NVIDIA, tuned={"contact_geometry": True}, batching="cells")
+    assert not dropped.contact_geometry and dropped.sources["contact_geometry"] == "default"
+    with pytest.raises(RbgenError, match="contact_geometry"):
+        plan(CPU, plan={"contact_geometry": 1})
+    with pytest.raises(RbgenError, match="release_sweeps"):  # (not the candidate 1)
+        plan(CPU, plan={"release_sweeps": True})
 
 
 def test_jacobi_plans_no_batching():

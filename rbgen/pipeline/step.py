@@ -557,6 +557,7 @@ class SolveStage(Stage):
                 warm_start_mode=plan.warm_start_mode,
                 release_sweeps=plan.release_sweeps,
                 joints=plan.joints,
+                contact_geometry=plan.contact_geometry,
             )
         else:
             self.solver = JacobiSolver(
@@ -822,6 +823,7 @@ class StepPipeline:
             "ordered_rounds",
             "group_count",
             "joints",
+            "contact_geometry",
         )
         if any(getattr(old, c) != getattr(plan, c) for c in solve_choices):
             self._build_solve(plan)

@@ -675,3 +675,32 @@ def test_contact_geometry_is_what_every_sweep_would_derive(runtime, rng, variant
     assert np.abs(cons_d["tangent1_impulse"][:, 0]).max() > 1e-3
     assert np.abs(cons_d["push_impulse"]).max() > 0.0
     assert (cons_d["tangent1"][:, 3] != layouts.SHOCK_HOLDS_NONE).any()
+
+
+def test_a_world_keeps_contact_geometry_as_its_plan_says(runtime):
+    """The plan parameter contact_geometry reaches the World's solver: a persistent launch
+    told to keep its contacts' geometry steps a dropped stack of boxes exactly as one that
+    derives it in every sweep (exact builds), and the serial form keeps it by default on a
+    CPU."""
+    from rbgen import Box, World
+
+    ends = []
+    for keep in (False, True):
+        world = World(runtime, batching="global", fast_math=False, plan={"contact_geometry": keep})
+        world.add_static(Box((5.0, 0.5, 5.0)), position=(0.0, -0.5, 0.0))
+        positions = [(0.03 * k, 0.52 + 1.02 * k, -0.02 * k) for k in range(5)]
+        world.add_bodies(Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
+        for _ in range(20):
+            world.step(1 / 60)
+        solver = world._pipeline.solve.solver
+        assert solver.persistent and solver.spec.values["contact_geometry"] == keep
+        ends.append(world.positions.copy())
+    np.testing.assert_array_equal(ends[0], ends[1])
+    # (the stack came down onto the ground and stands: each box a metre above the last)
+    np.testing.assert_allclose(ends[0][-5:, 1], 0.5 + np.arange(5), atol=0.03)
+    if not runtime.traits.is_gpu:
+        cpu = World(runtime)
+        cpu.add_bodies(Box((0.5, 0.5, 0.5)), mass=1.0, positions=[(0.0, 1.0, 0.0)])
+        cpu.step(1 / 60)
+        assert cpu.plan.contact_geometry
+        assert cpu._pipeline.solve.solver.spec.values["contact_geometry"]

@@ -321,12 +321,13 @@ def default_values(
 
 def default_contact_geometry(values: dict) -> bool:
     """Whether a solve with these template values keeps its contacts' geometry for the
-    step (the template parameter "contact_geometry"): wherever it can, a block normal
-    solve in the serial form or a persistent launch. A visit then loads its face block
-    and friction rows instead of deriving them again in each of a step's sweeps."""
-    return values["normal_solve"] == "block" and (
-        values["solve_form"] == "serial" or bool(values["persistent"])
-    )
+    step (the template parameter "contact_geometry"): the block normal solve's serial
+    form, a CPU's, whose core loads a record faster than it derives one. A persistent
+    launch can keep it too, but does not by default: on NVIDIA GPUs a visit's chain is
+    the block solve itself, not the derivation the record saves, and in large scenes the
+    record's loads (a second record a contact, read in every sweep) made it slower. The
+    plan chooses (`rbgen.plan`: a tunable, `rbgen tune --what plan` measures both)."""
+    return values["normal_solve"] == "block" and values["solve_form"] == "serial"
 
 
 def default_fold_substeps(persistent: bool) -> bool:
