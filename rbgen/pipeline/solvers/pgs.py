@@ -6,10 +6,14 @@ Solve forms (template parameter ``solve_form``, the batcher's):
   barrier between them, its lanes solving the constraints of a batch at once;
 * ``serial``: a work-item per level-1 group solves the group's constraints one
   after another (Gauss-Seidel proper, no barriers): a CPU runs many small groups
-  well, and each row sees every earlier row's result. With the block normal solve it
-  keeps a `layouts.CONTACT_GEOMETRY` record a constraint, derived by a step's first
-  launches (``same_geometry`` false) and read by every sweep of the step: on a CPU core
-  the block solve's matrices cost more to derive than to load.
+  well, and each row sees every earlier row's result.
+
+Contact geometry (``contact_geometry``, the block normal solve in the serial form or a
+persistent launch): a `layouts.CONTACT_GEOMETRY` record a constraint (its face block, the
+shock sweep's face block of the held bodies, its friction rows), derived by a step's first
+launches (``same_geometry`` false; a persistent launch before its warm start) and read by
+every sweep of the step: on a CPU core the block solve's matrices cost more to derive than to
+load. The plan chooses it (`default_contact_geometry`).
 
 Persistent solve (``persistent``, lanes form, over ``global`` batching): the one group
 of all constraints is solved by one work group per compute unit, a batch's
