@@ -37,6 +37,14 @@ def test_moot_parameters_are_skipped():
     assert not relevant("group_count", {"batching": "global", "normal_solve": "block"})
     assert not relevant("release_sweeps", {"batching": "slabs", "normal_solve": "sequential"})
     assert relevant("batching", {"batching": "slabs", "normal_solve": "sequential"})
+    # (the contact geometry: the block solve's serial form or persistent launch)
+    lanes = {"batching": "cells", "normal_solve": "block", "solve_form": "lanes"}
+    assert not relevant("contact_geometry", lanes)
+    assert relevant("contact_geometry", {**lanes, "batching": "global"})
+    assert relevant("contact_geometry", {**lanes, "batching": "slabs", "solve_form": "serial"})
+    assert not relevant(
+        "contact_geometry", {**lanes, "solve_form": "serial", "normal_solve": "sequential"}
+    )
 
 
 @pytest.fixture
@@ -52,7 +60,13 @@ def test_a_tuned_plan_reaches_new_worlds(cache_root, runtime):
     the device's cache, and a World made afterwards plans with them (source "tuned")."""
     lines = []
     entry = tune_plan(runtime, scene=TuningScene("boxbox", 64, 1, 3), progress=lines.append)
-    assert set(entry["values"]) == {"batching", "release_sweeps", "ordered_rounds", "group_count"}
+    assert set(entry["values"]) == {
+        "batching",
+        "release_sweeps",
+        "ordered_rounds",
+        "group_count",
+        "contact_geometry",
+    }
     assert entry["timings"] and all(t["ms_per_step"] > 0 for t in entry["timings"])
     assert len(lines) == len(entry["timings"])
     assert tuning.lookup_plan(runtime.traits) == entry["values"]
