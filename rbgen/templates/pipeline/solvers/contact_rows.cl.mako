@@ -921,8 +921,15 @@ inline void hold_rows_still(__private FrictionRows* rows, const float holds)
 }
 
 % endif
-/* Solve all rows of one constraint, updating its impulses and its bodies'
- * velocities in *p; `releases`: the block solve may release points (see
+/* Solve one sweep's rows of one constraint, updating its impulses and its
+ * bodies' velocities in *p: its velocity rows, or with `push` its split-impulse
+ * push rows (its normal rows alone, on the push velocities in *p, to
+ * position_target, into push_impulse; `reverse`, `restitution` and `shock` are
+ * the velocity rows'). Both kinds reach the normal rows through one call of the
+ * block solve, so that a caller that picks the kind at run time (a persistent
+ * launch's visit, pgs.cl.mako) carries one copy of it: on NVIDIA GPUs each
+ * inlined copy of the block solve added registers and spills to the whole
+ * launch. `releases`: the block solve may release points (see
  * solve_normal_block; normal_solve block only); `restitution`: then apply
  * its restitution (apply_restitution: the step's last velocity sweep).
  * `shock`: a shock sweep (pgs.cl.mako: SHOCK_PASS) holds the lower body of a
@@ -940,9 +947,10 @@ inline void hold_rows_still(__private FrictionRows* rows, const float holds)
  * A manifold that bounces this step is left to the rows and the restitution
  * before (no pull takes its bounce back). */
 ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_param}, __private ContactBodies* p,
-                   const float relaxation, const bool reverse, const bool releases,
-                   const bool restitution, const bool shock)
+                   const float relaxation, const bool velocity_reverse, const bool releases,
+                   const bool restitution, const bool velocity_shock, const bool push)
 {
+    const bool reverse = velocity_reverse && !push, shock = velocity_shock && !push;
     /* (a shock sweep holds a body of this contact still) */
     const bool held = shock && c->tangent1.w != (float)RB_SHOCK_HOLDS_NONE;
     float kept_share = 1.0f;  /* (of what the normal rows add: hold_still) */
@@ -956,7 +964,8 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
     float friction = c->normal.w;
     float normal_impulse[4], tangent1_impulse[4], tangent2_impulse[4];
     float normal_mass[4], tangent1_mass[4], tangent2_mass[4], target[4];
-    unpack4(c->normal_impulse, normal_impulse);
+    /* (a push sweep's normal rows: their impulses and targets in these) */
+    unpack4(push ? c->push_impulse : c->normal_impulse, normal_impulse);
     float carried[4];  /* (the normal impulses before a held sweep) */
     unpack4(c->normal_impulse, carried);
     unpack4(c->tangent1_impulse, tangent1_impulse);
@@ -964,7 +973,7 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
     unpack4(c->normal_mass, normal_mass);
     unpack4(c->tangent1_mass, tangent1_mass);
     unpack4(c->tangent2_mass, tangent2_mass);
-    unpack4(c->velocity_target, target);
+    unpack4(push ? c->position_target : c->velocity_target, target);
 
     bool solved = false;  /* by the block solve; else row after row */
 % if geometry_cache:
@@ -1004,6 +1013,10 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
                           normal_impulse, p);
     if (reverse)
         reverse4(normal_impulse);
+    if (push) {
+        c->push_impulse = pack4(normal_impulse);
+        return;
+    }
     /* one friction pair at the centre of the points: |(f1, f2)| <= mu * total normal
      * impulse, and a twist row about n: |f| <= mu * total * mean point distance */
     float total = 0.0f;
@@ -1054,24 +1067,5 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
 ${inlined}void solve_push(${constraint_space} ContactConstraint* c${geometry_param}, __private ContactBodies* p, const float relaxation,
                 const bool releases)
 {
-    uint count = c->point_count;
-    float3 n = c->normal.xyz;
-    float push_impulse[4], normal_mass[4], target[4];
-    unpack4(c->push_impulse, push_impulse);
-    unpack4(c->normal_mass, normal_mass);
-    unpack4(c->position_target, target);
-    bool solved = false;  /* by the block solve; else row after row */
-% if geometry_cache:
-    solved = solve_normal_cached(count, n, c->r_a, c->r_b, relaxation, p, g, target,
-                                 push_impulse, releases);
-% elif normal_solve == "block":
-    solved = solve_normal_block(count, n, c->tangent1.xyz, c->tangent2.xyz, c->r_a,
-                                c->r_b, relaxation, p->inv_mass_a, p->inv_inertia_a, &p->va,
-                                &p->wa, p->inv_mass_b, p->inv_inertia_b, &p->vb, &p->wb,
-                                target, push_impulse, releases);
-% endif
-    if (!solved)
-        solve_normal_rows(count, n, c->r_a, c->r_b, normal_mass, target, relaxation, false,
-                          push_impulse, p);
-    c->push_impulse = pack4(push_impulse);
+    solve_contact(c${", g" if geometry_cache else ""}, p, relaxation, false, releases, false, false, true);
 }

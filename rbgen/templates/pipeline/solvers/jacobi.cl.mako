@@ -237,7 +237,7 @@ inline void store_changes(${shared} float4* changes, uint i, const __private Con
 <%
     velocity_results = ("normal_impulse", "tangent1_impulse", "tangent2_impulse")
     sweep = ("solve_contact(c, &p, relaxation, (reverse & SWEEP_REVERSED) != 0, true, "
-             "(reverse & SWEEP_RESTITUTION) != 0, false)")
+             "(reverse & SWEEP_RESTITUTION) != 0, false, false)")
 %>\
 % if persistent:
 

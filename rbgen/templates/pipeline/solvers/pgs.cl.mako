@@ -294,6 +294,33 @@ inline void warm_start_rows(${constraint_space} const ContactConstraint* c,
     store_velocities(&state, bodies, a, b);
 }
 
+% if persistent:
+/* One sweep's rows of one constraint: its velocity rows or its push rows, one
+ * kind a visit (s.velocity or s.push: solve_batch_persistent), picked at run
+ * time through one solve_contact, so that the launch carries one copy of the
+ * rows' code. */
+inline void solve_rows(${constraint_space} ContactConstraint* c,${" __global const ContactGeometry* g," if geometry_cache else ""}
+                       ${velocity_space} Body* bodies,
+                       __global const BodyInertia* inertia,
+                       ${velocity_space} SplitVelocity* split, const float relaxation,
+                       const Sweep s)
+{
+    const uint a = c->body_a, b = c->body_b;
+    const bool push = s.push;
+    ContactBodies state;
+    load_bodies(&state, bodies, inertia, a, b);
+    if (push)
+        load_push(&state, split, a, b);
+    else
+        load_velocities(&state, bodies, a, b);
+    solve_contact(c${", g" if geometry_cache else ""}, &state, relaxation, s.reverse,
+                  push ? s.push_releases : s.velocity_releases, s.restitution, s.shock, push);
+    if (push)
+        store_push(&state, split, a, b);
+    else
+        store_velocities(&state, bodies, a, b);
+}
+% else:
 /* One sweep's rows of one constraint. The velocity and the push rows are
  * loaded first, then solved, then stored: they touch disjoint velocities, so
  * their chains overlap instead of queueing behind each other's stores. */
@@ -315,7 +342,7 @@ inline void solve_rows(${constraint_space} ContactConstraint* c,${" __global con
         load_push(&push_state, split, a, b);
     if (s.velocity)
         solve_contact(c${", g" if geometry_cache else ""}, &state, relaxation, s.reverse, s.velocity_releases,
-                      s.restitution, s.shock);
+                      s.restitution, s.shock, false);
     if (s.push)
         solve_push(c${", g" if geometry_cache else ""}, &push_state, relaxation, s.push_releases);
     if (s.velocity)
@@ -323,6 +350,7 @@ inline void solve_rows(${constraint_space} ContactConstraint* c,${" __global con
     if (s.push)
         store_push(&push_state, split, a, b);
 }
+% endif
 % if joints:
 
 <%include file="/pipeline/solvers/joint_rows.cl.mako"/>
@@ -894,26 +922,27 @@ inline void solve_batch_persistent(__global ContactConstraint* constraints,${"\n
 {
     const uint lanes = get_global_size(0);
     const uint push_owner = end - first <= push_offset ? push_lane : lane;
-    if (s.velocity) {
-        Sweep velocity_rows = s;
-        velocity_rows.push = false;
+    /* the velocity rows of its share, then the push rows of push_owner's: one
+     * loop over the two kinds, so that the launch carries one copy of a visit */
+    #pragma unroll 1
+    for (uint kind = 0; kind < 2; ++kind) {
+        const bool push = kind == 1;
+        if (push ? !s.push : !s.velocity)
+            continue;
+        Sweep rows = s;
+        rows.velocity = !push;
+        rows.push = push;
 % if fused:
-        /* (a sweep without push rows refreshes their targets with the velocity rows') */
-        velocity_rows.refresh_push = s.refresh_push && !s.push;
+        if (push) {
+            rows.refresh_velocity = rows.carry = rows.sum = false;
+        } else {
+            /* (a sweep without push rows refreshes their targets with the velocity rows') */
+            rows.refresh_push = s.refresh_push && !s.push;
+        }
 % endif
-        const uint2 share = batch_share(first, end, batch, lane, lanes);
+        const uint2 share = batch_share(first, end, batch, push ? push_owner : lane, lanes);
         for (uint i = share.x; i < end; i += share.y)
-            solve_copy(constraints,${" geometry," if geometry_cache else ""} order[i], bodies, inertia, split, relaxation, velocity_rows${joint_args}${fused_args});
-    }
-    if (s.push) {
-        Sweep push_rows = s;
-        push_rows.velocity = false;
-% if fused:
-        push_rows.refresh_velocity = push_rows.carry = push_rows.sum = false;
-% endif
-        const uint2 share = batch_share(first, end, batch, push_owner, lanes);
-        for (uint i = share.x; i < end; i += share.y)
-            solve_copy(constraints,${" geometry," if geometry_cache else ""} order[i], bodies, inertia, split, relaxation, push_rows${joint_args}${fused_args});
+            solve_copy(constraints,${" geometry," if geometry_cache else ""} order[i], bodies, inertia, split, relaxation, rows${joint_args}${fused_args});
     }
 }
 % endif
