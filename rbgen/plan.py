@@ -25,7 +25,12 @@ from .pipeline.batching.global_colouring import ORDERED_ROUNDS
 from .pipeline.batching.spatial import default_group_count, default_spatial_mode
 from .pipeline.device_barrier import persistent_launch_validated
 from .pipeline.solvers.common import check_sweeps
-from .pipeline.solvers.pgs import default_contact_geometry, default_normal_solve
+from .pipeline.solvers.pgs import (
+    can_keep_contact_geometry,
+    default_contact_geometry,
+    default_normal_solve,
+    default_values,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,6 +70,13 @@ def _batching_candidates(traits: DeviceTraits) -> list:
     return (["global"] + spatial) if persistent_launch_validated(traits) else spatial
 
 
+def _contact_geometry_candidates(traits: DeviceTraits) -> list:
+    """The solver's default on the device's own solve form first (kept by a CPU's serial
+    form, not by a GPU's launch), then the other."""
+    kept = bool(default_values(traits)["contact_geometry"])
+    return [kept, not kept]
+
+
 _CANDIDATES = {
     "batching": _batching_candidates,
     "release_sweeps": lambda traits: [2, 1, 3, None],
@@ -74,8 +86,7 @@ _CANDIDATES = {
         max(1, default_group_count(traits) // 2),
         2 * default_group_count(traits),
     ],
-    # (the default first: kept by the CPUs' serial form, not by GPUs' persistent launch)
-    "contact_geometry": lambda traits: [not traits.is_gpu, traits.is_gpu],
+    "contact_geometry": lambda traits: _contact_geometry_candidates(traits),
 }
 _ALSO_ALLOWED = {
     "batching": lambda v: v in MODES,
@@ -347,9 +358,7 @@ def derive_plan(
         tunable=True,
     )
     form = {"normal_solve": normal_solve, "solve_form": solve_form, "persistent": persistent}
-    can_keep = (
-        solver == "pgs" and normal_solve == "block" and (solve_form == "serial" or persistent)
-    )
+    can_keep = solver == "pgs" and can_keep_contact_geometry(form)
     contact_geometry = pick(
         "contact_geometry",
         None,

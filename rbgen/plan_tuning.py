@@ -21,6 +21,7 @@ from collections.abc import Callable
 
 from .device import Runtime
 from .pipeline.batching import SPATIAL_MODES
+from .pipeline.solvers.pgs import can_keep_contact_geometry
 from .plan import TUNABLES, derive_plan
 from .settings import split_options
 from .tuning import NOISE, PLAN_ENTRY, PLAN_VERSION, load_cache, pick_winner, save_cache
@@ -52,9 +53,7 @@ def relevant(name: str, values: dict) -> bool:
     if name == "release_sweeps":
         return values["normal_solve"] == "block"
     if name == "contact_geometry":
-        return values["normal_solve"] == "block" and (
-            values["solve_form"] == "serial" or values["batching"] == "global"
-        )
+        return can_keep_contact_geometry(values)
     return True
 
 
@@ -113,7 +112,13 @@ def tune_plan(
     for name, tunable in TUNABLES.items():
         plan = derive_plan(traits, {**options, "plan": chosen}, ("box",), tuned={})
         if not relevant(
-            name, {**chosen, "normal_solve": plan.normal_solve, "solve_form": plan.solve_form}
+            name,
+            {
+                **chosen,
+                "normal_solve": plan.normal_solve,
+                "solve_form": plan.solve_form,
+                "persistent": plan.persistent,
+            },
         ):
             continue
         results = []

@@ -38,9 +38,14 @@ def test_moot_parameters_are_skipped():
     assert not relevant("release_sweeps", {"batching": "slabs", "normal_solve": "sequential"})
     assert relevant("batching", {"batching": "slabs", "normal_solve": "sequential"})
     # (the contact geometry: the block solve's serial form or persistent launch)
-    lanes = {"batching": "cells", "normal_solve": "block", "solve_form": "lanes"}
+    lanes = {
+        "batching": "cells",
+        "normal_solve": "block",
+        "solve_form": "lanes",
+        "persistent": False,
+    }
     assert not relevant("contact_geometry", lanes)
-    assert relevant("contact_geometry", {**lanes, "batching": "global"})
+    assert relevant("contact_geometry", {**lanes, "batching": "global", "persistent": True})
     assert relevant("contact_geometry", {**lanes, "batching": "slabs", "solve_form": "serial"})
     assert not relevant(
         "contact_geometry", {**lanes, "solve_form": "serial", "normal_solve": "sequential"}

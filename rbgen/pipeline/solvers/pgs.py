@@ -323,6 +323,17 @@ def default_values(
     return values
 
 
+def can_keep_contact_geometry(values: dict) -> bool:
+    """Whether a solve with these template values (``normal_solve``, ``solve_form``,
+    ``persistent``) can keep its contacts' geometry for the step: the block normal solve
+    (the geometry is its block's) in the serial form or a persistent launch, whose
+    launches derive the records before every sweep that reads them. The template's rules,
+    the plan and `rbgen tune` ask this one function."""
+    return values["normal_solve"] == "block" and (
+        values["solve_form"] == "serial" or bool(values["persistent"])
+    )
+
+
 def default_contact_geometry(values: dict) -> bool:
     """Whether a solve with these template values keeps its contacts' geometry for the
     step (the template parameter "contact_geometry"): the block normal solve's serial
@@ -331,7 +342,7 @@ def default_contact_geometry(values: dict) -> bool:
     the block solve itself, not the derivation the record saves, and in large scenes the
     record's loads (a second record a contact, read in every sweep) made it slower. The
     plan chooses (`rbgen.plan`: a tunable, `rbgen tune --what plan` measures both)."""
-    return values["normal_solve"] == "block" and values["solve_form"] == "serial"
+    return can_keep_contact_geometry(values) and values["solve_form"] == "serial"
 
 
 def default_fold_substeps(persistent: bool) -> bool:
@@ -347,14 +358,11 @@ def _parameter_rules(values: dict) -> str | None:
     """What the solver template's parameters must agree on (None: they do)."""
     if values["persistent"] and values["solve_form"] != "lanes":
         return "persistent needs solve_form='lanes' (the work groups share the batches)"
-    if values["contact_geometry"] and values["normal_solve"] != "block":
-        return "contact_geometry=True needs normal_solve='block' (the geometry is its block's)"
-    if values["contact_geometry"] and not (
-        values["solve_form"] == "serial" or values["persistent"]
-    ):
+    if values["contact_geometry"] and not can_keep_contact_geometry(values):
         return (
-            "contact_geometry=True needs the serial form or a persistent launch (the "
-            "launches that derive the records come before every sweep that reads them)"
+            "contact_geometry=True needs normal_solve='block' (the geometry is its block's) "
+            "in the serial form or a persistent launch (the launches that derive the records "
+            "come before every sweep that reads them)"
         )
     if values["warm_start_mode"] == "summed" and not values["persistent"]:
         return (
