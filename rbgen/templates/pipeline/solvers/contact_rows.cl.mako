@@ -964,15 +964,10 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
     float friction = c->normal.w;
     float normal_impulse[4], tangent1_impulse[4], tangent2_impulse[4];
     float normal_mass[4], tangent1_mass[4], tangent2_mass[4], target[4];
-    /* (a push sweep's normal rows: their impulses and targets in these) */
+    /* (a push sweep's normal rows: their impulses and targets in these; the
+     * friction rows' fields are read below the push rows' return) */
     unpack4(push ? c->push_impulse : c->normal_impulse, normal_impulse);
-    float carried[4];  /* (the normal impulses before a held sweep) */
-    unpack4(c->normal_impulse, carried);
-    unpack4(c->tangent1_impulse, tangent1_impulse);
-    unpack4(c->tangent2_impulse, tangent2_impulse);
     unpack4(c->normal_mass, normal_mass);
-    unpack4(c->tangent1_mass, tangent1_mass);
-    unpack4(c->tangent2_mass, tangent2_mass);
     unpack4(push ? c->position_target : c->velocity_target, target);
 
     bool solved = false;  /* by the block solve; else row after row */
@@ -1017,6 +1012,10 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
         c->push_impulse = pack4(normal_impulse);
         return;
     }
+    unpack4(c->tangent1_impulse, tangent1_impulse);
+    unpack4(c->tangent2_impulse, tangent2_impulse);
+    unpack4(c->tangent1_mass, tangent1_mass);
+    unpack4(c->tangent2_mass, tangent2_mass);
     /* one friction pair at the centre of the points: |(f1, f2)| <= mu * total normal
      * impulse, and a twist row about n: |f| <= mu * total * mean point distance */
     float total = 0.0f;
@@ -1054,6 +1053,8 @@ ${inlined}void solve_contact(${constraint_space} ContactConstraint* c${geometry_
         }
     }
     if (held) {
+        float carried[4];  /* (the normal impulses before this sweep: not yet stored) */
+        unpack4(c->normal_impulse, carried);
         ${unroll}for (uint k = 0; k < RB_MAX_MANIFOLD_POINTS; ++k) if (k < count)
             normal_impulse[k] = carried[k] + kept_share * (normal_impulse[k] - carried[k]);
     }
