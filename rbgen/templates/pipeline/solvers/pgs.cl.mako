@@ -434,6 +434,36 @@ inline void solve_joint(__global JointConstraint* joints, uint index,
     }
 }
 % endif
+% if geometry_cache:
+
+/* The ContactGeometry records of the contacts order[begin], order[begin +
+ * stride], ... below `end` (joint items have none), for the sweeps of the
+ * step: a serial group's all (stride 1), or a persistent launch lane's share
+ * of them (every lanes-th item from its lane, whatever its batch). */
+inline void store_geometry_share(__global const ContactConstraint* constraints,
+                                 __global const uint* order, uint begin, uint end, uint stride,
+                                 ${velocity_space} const Body* bodies,
+                                 __global const BodyInertia* inertia,
+                                 __global ContactGeometry* geometry)
+{
+    for (uint i = begin; i < end; i += stride) {
+        const uint item = order[i];
+% if joints:
+        if (is_joint(item))
+            continue;
+% endif
+% if constraint_space == "__private":
+        const ContactConstraint copy = constraints[item];  /* (as the sweeps read it) */
+        __private const ContactConstraint* c = &copy;
+% else:
+        __global const ContactConstraint* c = &constraints[item];
+% endif
+        ContactBodies state;
+        load_bodies(&state, bodies, inertia, c->body_a, c->body_b);
+        store_geometry(c, &state, &geometry[item]);
+    }
+}
+% endif
 % if serial:
 
 % if geometry_cache:
@@ -486,27 +516,8 @@ inline void prefetch_bodies(__global const ContactConstraint* c, __global const 
     }
 #endif
 }
-
-/* The ContactGeometry of a group's contacts order[begin .. end - 1] (joint
- * items have none), for the sweeps of the step. */
-inline void store_group_geometry(__global const ContactConstraint* constraints,
-                                 __global const uint* order, uint begin, uint end,
-                                 __global const Body* bodies, __global const BodyInertia* inertia,
-                                 __global ContactGeometry* geometry)
-{
-    for (uint i = begin; i < end; ++i) {
-% if joints:
-        if (is_joint(order[i]))
-            continue;
 % endif
-        __global const ContactConstraint* c = &constraints[order[i]];
-        ContactBodies state;
-        load_bodies(&state, bodies, inertia, c->body_a, c->body_b);
-        store_geometry(c, &state, &geometry[order[i]]);
-    }
-}
 
-% endif
 /* The warm start of a group's constraints order[begin .. end - 1], in order. */
 inline void warm_start_group_serial(__global ContactConstraint* constraints,
                                     __global const uint* order, uint begin, uint end,
@@ -700,31 +711,6 @@ inline void take_warm_sums(volatile __global Body* bodies, volatile __global lon
 % endif
 % if persistent:
 <%include file="/pipeline/solvers/contact_targets.cl.mako" args="private_copies=fused"/>
-% if geometry_cache:
-
-/* Lane `lane`'s share of the ContactGeometry records of the contacts
- * order[begin .. end - 1] (every lanes-th item from `lane`, whatever its
- * batch; joint items have none), for the sweeps of the launch. */
-inline void store_launch_geometry(__global const ContactConstraint* constraints,
-                                  __global const uint* order, uint begin, uint end, uint lane,
-                                  volatile __global const Body* bodies,
-                                  __global const BodyInertia* inertia,
-                                  __global ContactGeometry* geometry)
-{
-    const uint lanes = get_global_size(0);
-    for (uint i = begin + lane; i < end; i += lanes) {
-        const uint item = order[i];
-% if joints:
-        if (is_joint(item))
-            continue;
-% endif
-        ContactConstraint c = constraints[item];  /* a private copy */
-        ContactBodies state;
-        load_bodies(&state, bodies, inertia, c.body_a, c.body_b);
-        store_geometry(&c, &state, &geometry[item]);
-    }
-}
-% endif
 
 /* The lane that solves the push rows of batch order[first .. end - 1] for
  * lane `lane` (see solve_groups). */
@@ -977,7 +963,7 @@ void solve_groups(${signature("solve_groups")})
     const uint begin = offsets[0], end = offsets[group_batch_count[group]];
 % if geometry_cache:
     if (passes & GEOMETRY_PASS)
-        store_group_geometry(constraints, order, begin, end, bodies, inertia, geometry);
+        store_geometry_share(constraints, order, begin, end, 1u, bodies, inertia, geometry);
 % endif
     if (passes & WARM_START_PASS)
         warm_start_group_serial(constraints, order, begin, end, bodies, inertia${joint_args});
@@ -1046,8 +1032,8 @@ void solve_groups(${signature("solve_groups")})
      * barriers, or behind one of its own */
     if ((passes & GEOMETRY_PASS) != 0u) {
         if (barrier_ok)
-            store_launch_geometry(constraints, order, offsets[0], offsets[batch_count], lane,
-                                  bodies, inertia, geometry);
+            store_geometry_share(constraints, order, offsets[0] + lane, offsets[batch_count],
+                                 get_global_size(0), bodies, inertia, geometry);
         if ((passes & WARM_START_PASS) == 0u)
             device_barrier(sync, &barrier_ok);
     }
