@@ -712,6 +712,43 @@ inline void take_warm_sums(volatile __global Body* bodies, volatile __global lon
 % if persistent:
 <%include file="/pipeline/solvers/contact_targets.cl.mako" args="private_copies=fused"/>
 
+<%
+    # group_slot's shape: two halves of the work group (velocity rows, push rows of
+    # a small batch), each of `slot_warps` warps of `warp_lanes` lanes (32: NVIDIA's warp),
+    # filled in pairs of slots
+    warp_lanes = min(32, max(work_group_size // 2, 1))
+    slot_warps = max(work_group_size // 2 // warp_lanes, 1)
+    slot_pair = min(2, warp_lanes)
+%>\
+/* The slot of local lane `local_lane` in the order a batch's constraints fill a
+ * work group (solve_groups: lane = slot * groups + group). The first half of
+ * the slots is the first half of the lanes, the second the second (a small
+ * batch's push rows, push_offset). Within a half, pairs of consecutive slots
+ * go round its warps (slot s: warp (s / 2) % warps, lanes 2 (s / (2 warps))
+ * and the next), so that a compute unit's few constraints of a small batch run
+ * as a few warps, which its schedulers (four on NVIDIA's, a work group's warps
+ * dealt to them in turn) issue side by side, rather than as lanes of one warp
+ * that one scheduler issues, each load for every lane's bodies; the second
+ * half's warps start half-way round, so that the push rows run on other
+ * schedulers than the velocity rows beside them (without it, small scenes
+ * were slower; README: where a GPU step's time goes). A permutation of the
+ * lanes for any work-group size. */
+inline uint group_slot(const uint local_lane)
+{
+% if work_group_size >= 2:
+    const uint part = local_lane / ${work_group_size // 2}u;
+    const uint in_part = local_lane % ${work_group_size // 2}u;
+    const uint lane = in_part % ${warp_lanes}u;
+    uint warp = in_part / ${warp_lanes}u;
+    if (part == 1u)
+        warp = (warp + ${slot_warps - slot_warps // 2}u) % ${slot_warps}u;
+    return part * ${work_group_size // 2}u
+           + ((lane / ${slot_pair}u) * ${slot_warps}u + warp) * ${slot_pair}u + lane % ${slot_pair}u;
+% else:
+    return local_lane;
+% endif
+}
+
 /* The lane that solves the push rows of batch order[first .. end - 1] for
  * lane `lane` (see solve_groups). */
 inline uint push_owner_of(uint first, uint end, uint lane, uint push_lane, uint push_offset)
@@ -1001,18 +1038,19 @@ void solve_groups(${signature("solve_groups")})
     __local uint barrier_ok;
     /* (the colouring before, on the same `sync`, may have given up) */
     device_barrier_start(sync, &barrier_ok);
-    /* A batch's constraints go round the work groups first (lane k: local lane
+    /* A batch's constraints go round the work groups first (lane k: slot
      * k / groups of group k % groups), so that a batch smaller than the launch
      * is solved by a lane or a few on every compute unit rather than by full
      * warps of the first few: a lane's constraint is a long chain of
-     * instructions, and a compute unit issues those of all its busy warps. */
-    const uint lane = get_local_id(0) * get_num_groups(0) + get_group_id(0);
-    /* In a batch of at most push_offset constraints (one warp's worth of lanes
-     * on every compute unit), a constraint's push rows are solved by the lane a
-     * warp further on the same compute unit, idle otherwise, so that the sweeps
-     * that solve both run them side by side as two warps' instruction streams;
-     * in a larger batch that lane has rows of its own. */
-    const uint push_offset = min(32u, ${work_group_size}u / 2u) * get_num_groups(0);
+     * instructions, and a compute unit issues those of all its busy warps.
+     * Within a work group the slots go round its warps (group_slot). */
+    const uint lane = group_slot(get_local_id(0)) * get_num_groups(0) + get_group_id(0);
+    /* In a batch of at most push_offset constraints (half a work group's slots
+     * on every compute unit), a constraint's push rows are solved by the lane
+     * half a work group further on the same compute unit, idle otherwise, so
+     * that the sweeps that solve both run them side by side as other warps'
+     * instruction streams; in a larger batch that lane has rows of its own. */
+    const uint push_offset = ${work_group_size // 2}u * get_num_groups(0);
     const uint push_lane = (lane + push_offset) % get_global_size(0);
     __global const uint* offsets = group_batches + group_offset * (MAX_BATCHES + 1);
     const uint batch_count = group_batch_count[group_offset];
