@@ -306,15 +306,20 @@ def test_gyroscopic_term_conserves_angular_momentum(runtime):
     assert largest_change > 0.5 * np.linalg.norm(w0)
 
 
-@pytest.mark.parametrize("columns", [7, 48])
-def test_persistent_solve_matches_the_one_group_solve_bit_for_bit(runtime, rng, columns):
+@pytest.mark.parametrize("columns, work_group_size", [(7, 32), (48, 32), (7, 256), (160, 256)])
+def test_persistent_solve_matches_the_one_group_solve_bit_for_bit(
+    runtime, rng, columns, work_group_size
+):
     """Over the same batches (global batching's colours depend on the edges alone), the
     persistent launch (every compute unit, a barrier across them after each batch) does
     the one-work-group solve's arithmetic in the same order: equal results, velocities,
     push velocities and impulses alike, for a pile of columns with warm starting. The
     persistent launch hands a small batch's push rows to other lanes than its velocity
-    rows (pgs.cl.mako: push_lane), a large one's not: 48 columns make batches larger than
-    that threshold on a device of few compute units (PoCL: 32 x 2 lanes). Both are exact
+    rows (pgs.cl.mako: push_lane), a large one's not: 48 columns at 32 lanes a group and
+    160 at 256 make batches larger than that threshold (half a work group's lanes on every
+    compute unit) on a device of few compute units. At 256 lanes a group (a GPU's) the
+    slots go round the work group's warps (group_slot: a permutation, so every constraint
+    is solved once, by one lane). Both are exact
     builds (fast_math=False): -cl-fast-relaxed-math lets the compiler contract and reorder
     each kernel's arithmetic its own way, so only exact builds promise equal bits; both
     warm-start batch by batch (the summed warm start adds in another order:
@@ -336,7 +341,7 @@ def test_persistent_solve_matches_the_one_group_solve_bit_for_bit(runtime, rng, 
             bodies,
             inv_inertia,
             variant=variant,
-            work_group_size=32,
+            work_group_size=work_group_size,
             fast_math=False,
             warm_start_mode="batched",
         )
