@@ -30,7 +30,7 @@ import sys
 from pathlib import Path
 
 from .errors import RbgenError
-from .sanity import holding_drops, worst_drop_mm
+from .sanity import SPREADING_SCENES, displaced_text, holding_drops, worst_drop_mm
 
 SCHEMA = "rbgen-bench/1"
 #: (scene, n, steps, warmup): BoxBox sizes of Bullet3's GpuConvexScene, the 8,000-box
@@ -48,8 +48,6 @@ STANDARD_SCENES = (
 )
 #: ``--quick``: small sizes only
 QUICK_SCENES = (("boxbox", 1_000, 60, 5), ("box_pile", 1_000, 120, 0), ("pyramid", 10, 120, 0))
-#: scenes whose bodies fall and spread as they land (a body moved sideways is no failure)
-SPREADING_SCENES = ("ragdolls",)
 #: a pile run for `SETTLE_STEPS` steps or more moves slower than this (m/s) at its end
 REST_SPEED = 0.1
 #: a scene holds with at most this fraction of its boxes displaced (the BoxBox lattice's
@@ -482,7 +480,7 @@ def _sanity(r: dict) -> str:
         f", worst layer drop {worst_drop_mm(r['scene'], drops):.0f} mm" if len(drops) > 1 else ""
     )
     text = (
-        f"NaN {s['nans']}, sunk {s['sunk']}, displaced {s['displaced']}, "
+        f"NaN {s['nans']}, sunk {s['sunk']}, {displaced_text(r['scene'], s['displaced'])}, "
         f"max speed {s['max_speed']:.2f} m/s{worst}"
     )
     return text if r["holds"] else f"**does not hold** ({', '.join(r['problems'])}): {text}"

@@ -344,7 +344,7 @@ def format_summary(s: dict) -> str:
             else "Jacobi solver, no batching"
         )
         + f"; sanity: NaNs {s['nans']}, "
-        f"sunk {s['sunk']}, displaced {s.get('displaced', 0)}, "
+        f"sunk {s['sunk']}, {sanity.displaced_text(s['scene'], s.get('displaced', 0))}, "
         f"max speed {s['max_speed']:.3f} m/s, overflows {s['overflows']}, "
         f"last box moved {100 * s['last_box_moved']:.2f} cm"
         + _layer_drops(sanity.holding_drops(s["scene"], s.get("layer_drop")))

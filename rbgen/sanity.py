@@ -22,6 +22,8 @@ DISPLACED = 0.5
 LAYER_TOLERANCE = 0.01
 #: scenes built in the air (their layers' drops are the fall, not a failure to hold)
 DROPPED_SCENES = ("box_pile", "ragdolls", "terrain")
+#: scenes whose bodies fall and spread as they land (a body moved sideways is no failure)
+SPREADING_SCENES = ("ragdolls",)
 
 
 def settling(start: np.ndarray, end: np.ndarray) -> dict:
@@ -38,6 +40,15 @@ def settling(start: np.ndarray, end: np.ndarray) -> dict:
     drop = start[:, 1] - end[:, 1]
     medians = [float(np.median(drop[layer_of == k])) for k in range(len(layers))]
     return {"displaced": displaced, "layer_drop": medians}
+
+
+def displaced_text(scene: str, displaced: int) -> str:
+    """The displaced count as a summary line shows it: for a scene whose bodies spread by
+    design (`SPREADING_SCENES`), counted as moved sideways and marked as not judged, so
+    that it does not read as a failure."""
+    if scene in SPREADING_SCENES:
+        return f"moved sideways {displaced} (not judged: dropped)"
+    return f"displaced {displaced}"
 
 
 def holding_drops(scene: str, drops) -> list[float]:

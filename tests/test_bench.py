@@ -97,6 +97,34 @@ def test_a_scene_that_does_not_hold_has_its_time_struck_out():
     assert "~~1.50~~" in bench._time(result) and "does not hold" in bench._sanity(result)
 
 
+def test_a_dropped_pile_counts_its_bodies_moved_sideways_without_judging_them():
+    """Ragdolls dropped on a pile spread as they land: the bodies moved sideways are shown
+    as such, not as a displaced count that reads like a failure, and do not fail the
+    scene; the same count fails a lattice."""
+    sanity = {
+        "nans": 0,
+        "sunk": 0,
+        "displaced": 4642,
+        "layer_drop": [],
+        "max_speed": 5.7,
+        "overflows": 0,
+        "last_box_moved": 0.0,
+    }
+    result = {"scene": "ragdolls", "bodies": 11256, "sanity": sanity, "warmup": 0, "steps": 120}
+    result["holds"], result["problems"] = bench.holds(result)
+    assert result["holds"]
+    text = bench._sanity(result)
+    assert "moved sideways 4642 (not judged: dropped)" in text and "displaced" not in text
+    lattice = {**result, "scene": "boxbox"}
+    lattice["holds"], lattice["problems"] = bench.holds(lattice)
+    assert not lattice["holds"] and "displaced 4642" in bench._sanity(lattice)
+    # (`rbgen run`'s summary line words it the same way)
+    from rbgen.sanity import displaced_text
+
+    assert displaced_text("ragdolls", 7) == "moved sideways 7 (not judged: dropped)"
+    assert displaced_text("pyramid", 7) == "displaced 7"
+
+
 def test_validate_names_what_is_missing():
     with pytest.raises(RbgenError, match="lacks"):
         bench.validate({"schema": bench.SCHEMA})
