@@ -10,16 +10,13 @@ Skipped where no clang is installed (the CI's machines have none; developers' ma
 
 from __future__ import annotations
 
-import itertools
 import shutil
 import subprocess
 
 import pytest
 
 from rbgen.device import Runtime
-from rbgen.errors import RbgenError
 from rbgen.export import default_specs
-from rbgen.pipeline.solvers import pgs
 from tests.pipeline.test_solver import pgs_specs
 
 CLANG = next(
@@ -45,33 +42,6 @@ FRONT_END = [
 ]
 
 
-def gpu_persistent_pgs_specs():
-    """Every reachable persistent PGS specialisation at a GPU's work-group size, fast math on
-    (what a GPU's World runs), by the rules between the template's parameters."""
-    specs = []
-    for warm, joints, fold, geometry in itertools.product(
-        pgs.WARM_START_MODES, (False, True), (False, True), (False, True)
-    ):
-        try:
-            specs.append(
-                pgs.TEMPLATE.spec(
-                    work_group_size=256,
-                    max_batches=128,
-                    solve_form="lanes",
-                    normal_solve="block",
-                    persistent=True,
-                    fast_math=True,
-                    warm_start_mode=warm,
-                    joints=joints,
-                    fold_substeps=fold,
-                    contact_geometry=geometry,
-                )
-            )
-        except RbgenError:
-            pass  # (a combination the parameters' rules refuse)
-    return specs
-
-
 @pytest.mark.skipif(CLANG is None, reason="needs clang's OpenCL C front end")
 def test_generated_opencl_parses_as_opencl_c_2_for_nvptx(tmp_path):
     """Every template's default specialisation for the H200's traits, every persistent PGS
@@ -79,7 +49,15 @@ def test_generated_opencl_parses_as_opencl_c_2_for_nvptx(tmp_path):
     OpenCL C 2.0 for nvptx without an error; the failures name the specialisation and the
     first errors."""
     traits = Runtime("shape:h200").traits
-    specs = default_specs(traits) + gpu_persistent_pgs_specs() + pgs_specs()
+    # (the persistent launches as a GPU's World runs them: 256 lanes, fast math)
+    gpu_persistent = pgs_specs(
+        forms=("lanes",),
+        persistent_choices=(True,),
+        normal_solves=("block",),
+        lanes_work_group_size=256,
+        fast_math=True,
+    )
+    specs = default_specs(traits) + gpu_persistent + pgs_specs()
     assert len(specs) > 60  # (the three sets, none silently empty)
     failures = []
     for index, spec in enumerate(specs):

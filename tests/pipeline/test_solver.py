@@ -479,15 +479,22 @@ def test_launch_schedule(runtime, batching):
         assert solver._schedule(batcher.launch_plan, 0, 0, False, release_sweeps)[0] == []
 
 
-def pgs_specs():
-    """Every reachable specialisation of the PGS template (exact builds), by the rules
-    between its parameters."""
+def pgs_specs(
+    *,
+    forms=("serial", "lanes"),
+    persistent_choices=(False, True),
+    normal_solves=("block", "sequential"),
+    lanes_work_group_size=64,
+    fast_math=False,
+):
+    """Every reachable specialisation of the PGS template among the choices given (by
+    default every one, exact builds), by the rules between its parameters."""
     specs = []
     for form, persistent, warm, normal, joints, fold, geometry in itertools.product(
-        ("serial", "lanes"),
-        (False, True),
+        forms,
+        persistent_choices,
         pgs.WARM_START_MODES,
-        ("block", "sequential"),
+        normal_solves,
         (False, True),
         (False, True),
         (False, True),
@@ -495,12 +502,12 @@ def pgs_specs():
         try:
             specs.append(
                 pgs.TEMPLATE.spec(
-                    work_group_size=1 if form == "serial" else 64,
+                    work_group_size=1 if form == "serial" else lanes_work_group_size,
                     max_batches=128,
                     solve_form=form,
                     normal_solve=normal,
                     persistent=persistent,
-                    fast_math=False,
+                    fast_math=fast_math,
                     warm_start_mode=warm,
                     joints=joints,
                     fold_substeps=fold,
