@@ -334,7 +334,7 @@ def run_scene(
 
 def format_summary(s: dict) -> str:
     return (
-        f"{s['scene']} {s['bodies']:,} boxes: {s['ms_per_step']:.2f} ms/step, "
+        f"{s['scene']} {s['bodies']:,} bodies: {s['ms_per_step']:.2f} ms/step, "
         f"{s['launches_per_step']} launches and {s['blocking_reads_per_step']} blocking reads "
         f"per step; {s['pairs']:,} pairs, {s['manifolds']:,} manifolds, {s['contacts']:,} "
         f"contact points, "
