@@ -86,7 +86,7 @@ _CANDIDATES = {
         max(1, default_group_count(traits) // 2),
         2 * default_group_count(traits),
     ],
-    "contact_geometry": lambda traits: _contact_geometry_candidates(traits),
+    "contact_geometry": _contact_geometry_candidates,
 }
 _ALSO_ALLOWED = {
     "batching": lambda v: v in MODES,
@@ -359,6 +359,7 @@ def derive_plan(
     )
     form = {"normal_solve": normal_solve, "solve_form": solve_form, "persistent": persistent}
     can_keep = solver == "pgs" and can_keep_contact_geometry(form)
+    not_kept = "only the block solve's serial form or persistent launch keeps it"
     contact_geometry = pick(
         "contact_geometry",
         None,
@@ -366,7 +367,7 @@ def derive_plan(
         "a CPU core loads a contact's face block faster than it derives it; a GPU lane's "
         "visit is the block solve itself, and the records' loads slow large scenes"
         if can_keep
-        else "only the block solve's serial form or persistent launch keeps it",
+        else not_kept,
         tunable=True,
     )
     if contact_geometry and not can_keep:
@@ -378,10 +379,7 @@ def derive_plan(
                 f"{'persistent' if persistent else 'launch per colour'})"
             )
         contact_geometry = False  # (tuned under another batching)
-        sources["contact_geometry"] = "default"
-        reasons["contact_geometry"] = (
-            "only the block solve's serial form or persistent launch keeps it"
-        )
+        sources["contact_geometry"], reasons["contact_geometry"] = "default", not_kept
     return Plan(
         device=traits.fingerprint,
         device_name=traits.device_name,
