@@ -944,7 +944,7 @@ inline void solve_batch_persistent(__global ContactConstraint* constraints,${"\n
                                    const float relaxation, const Sweep s${joint_params}${fused_params})
 {
     const uint lanes = get_global_size(0);
-    const uint push_owner = end - first <= push_offset ? push_lane : lane;
+    const uint push_owner = push_owner_of(first, end, lane, push_lane, push_offset);
     /* the velocity rows of its share, then the push rows of push_owner's: one
      * loop over the two kinds, so that the launch carries one copy of a visit */
     #pragma unroll 1
