@@ -1,7 +1,7 @@
 """Throughput of many environments in one pipeline against the number of environments.
 
     python benchmarks/many_envs.py [--device D] [--envs 1,16,256,4096,16384] [--quick]
-                                   [--steps 100] [--repeats 3] [--out DIR]
+                                   [--steps 100] [--repeats 3] [--options JSON] [--out DIR]
 
 Each environment: 16 unit boxes (4 columns of 4, 1.05 m apart) on the shared ground
 plane, pushed every step by random horizontal forces (one (envs, 16, 3) array through
@@ -9,7 +9,8 @@ plane, pushed every step by random horizontal forces (one (envs, 16, 3) array th
 space (rbgen.WorldBatch). Baseline, named ``world_N`` and measured in the same run: one
 World of the same N x 16 boxes with the environments set apart in space (a 5 m grid,
 so none touch), the same ground and the same pushes -- what the batch costs over the
-plain pipeline for the same bodies.
+plain pipeline for the same bodies. ``--options``: World options (JSON) for both, so that a
+solver setting is compared on the same scene.
 
 Per N it prints and records ms/step (median of ``--repeats`` runs of ``--steps`` steps,
 the spread), body-steps/s, launches and blocking reads a step. JSON and Markdown go to
@@ -40,20 +41,20 @@ def env_positions() -> np.ndarray:
     return np.array([[x, 0.5 + k, z] for x, z in columns for k in range(4)])
 
 
-def one_env(device):
-    world = rbgen.World(device)
+def one_env(device, options=None):
+    world = rbgen.World(device, **(options or {}))
     world.add_static(rbgen.Plane((0, 1, 0), 0.0))
     world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=env_positions())
     return world
 
 
-def spread_world(device, envs: int):
+def spread_world(device, envs: int, options=None):
     """The baseline: the same bodies in one World, environments 5 m apart."""
     side = int(np.ceil(np.sqrt(envs)))
     k = np.arange(envs)
     offsets = np.stack([(k % side) * PITCH, np.zeros(envs), (k // side) * PITCH], axis=1)
     positions = (offsets[:, None, :] + env_positions()[None]).reshape(-1, 3)
-    world = rbgen.World(device)
+    world = rbgen.World(device, **(options or {}))
     world.add_static(rbgen.Plane((0, 1, 0), 0.0))
     world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
     return world
@@ -94,6 +95,12 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--push", type=float, default=20.0)
+    parser.add_argument(
+        "--options",
+        type=bench.world_options,
+        default={},
+        help="World options (JSON) for the batch and its baseline",
+    )
     bench.add_out_argument(parser)
     args = parser.parse_args(argv)
     sizes = [int(n) for n in args.envs.split(",")]
@@ -106,9 +113,9 @@ def main(argv=None) -> int:
         flush=True,
     )
     for envs in sizes:
-        batch = rbgen.WorldBatch(envs, lambda: one_env(args.device))
+        batch = rbgen.WorldBatch(envs, lambda: one_env(args.device, args.options))
         batch_times, counters = timed(batch, args.push, envs, args.steps, args.repeats, True)
-        world = spread_world(args.device, envs)
+        world = spread_world(args.device, envs, args.options)
         world_times, world_counters = timed(world, args.push, envs, args.steps, args.repeats, False)
         bodies = envs * BOXES
         ms, base_ms = statistics.median(batch_times), statistics.median(world_times)
@@ -142,7 +149,13 @@ def main(argv=None) -> int:
         "many_envs",
         results,
         bench.device_record(args.device),
-        {"dt": DT, "steps": args.steps, "repeats": args.repeats, "boxes_per_env": BOXES},
+        {
+            "dt": DT,
+            "steps": args.steps,
+            "repeats": args.repeats,
+            "boxes_per_env": BOXES,
+            "options": args.options,
+        },
     )
     if args.out:
         print(f"wrote {bench.write_results(record, args.out)}")
