@@ -41,11 +41,16 @@ def env_positions() -> np.ndarray:
     return np.array([[x, 0.5 + k, z] for x, z in columns for k in range(4)])
 
 
-def one_env(device, options=None):
+def boxes_on_ground(device, positions, options=None):
+    """A World (``options``) of unit boxes at ``positions`` on the ground plane."""
     world = rbgen.World(device, **(options or {}))
     world.add_static(rbgen.Plane((0, 1, 0), 0.0))
-    world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=env_positions())
+    world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
     return world
+
+
+def one_env(device, options=None):
+    return boxes_on_ground(device, env_positions(), options)
 
 
 def spread_world(device, envs: int, options=None):
@@ -54,10 +59,7 @@ def spread_world(device, envs: int, options=None):
     k = np.arange(envs)
     offsets = np.stack([(k % side) * PITCH, np.zeros(envs), (k // side) * PITCH], axis=1)
     positions = (offsets[:, None, :] + env_positions()[None]).reshape(-1, 3)
-    world = rbgen.World(device, **(options or {}))
-    world.add_static(rbgen.Plane((0, 1, 0), 0.0))
-    world.add_bodies(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, positions=positions)
-    return world
+    return boxes_on_ground(device, positions, options)
 
 
 def timed(sim, push, envs: int, steps: int, repeats: int, batch: bool):
