@@ -30,7 +30,15 @@ import sys
 from pathlib import Path
 
 from .errors import RbgenError
-from .sanity import SPREADING_SCENES, displaced_text, holding_drops, worst_drop_mm
+from .sanity import (
+    DROPPED_SCENES,
+    RESTING_SPEED,
+    SPREADING_SCENES,
+    displaced_text,
+    holding_drops,
+    moving_text,
+    worst_drop_mm,
+)
 
 SCHEMA = "rbgen-bench/1"
 #: (scene, n, steps, warmup): BoxBox sizes of Bullet3's GpuConvexScene, the 8,000-box
@@ -108,6 +116,8 @@ SANITY_KEYS = (
     "overflows",
     "last_box_moved",
 )
+#: sanity keys a record may lack (older records have none of them)
+OPTIONAL_SANITY_KEYS = ("moving",)
 
 
 # ----------------------------------------------------------------- running
@@ -174,7 +184,7 @@ def run(
 def scene_result(summary: dict, warmup: int) -> dict:
     """One result of kind "scenes" from a `run_scene` summary."""
     blocks = summary.get("ms_per_step_blocks") or [summary["ms_per_step"]]
-    sanity = {key: summary.get(key) for key in SANITY_KEYS}
+    sanity = {key: summary.get(key) for key in SANITY_KEYS + OPTIONAL_SANITY_KEYS}
     result = {
         "name": f"{summary['scene']} {summary['bodies']}",
         "scene": summary["scene"],
@@ -215,9 +225,11 @@ def scene_result(summary: dict, warmup: int) -> dict:
 
 def holds(result: dict) -> tuple[bool, list[str]]:
     """Whether a scene held, and what did not: no NaN, no box sunk, at most
-    `DISPLACED_FRACTION` of the boxes displaced, the BoxBox lattice's top layer dropped at
-    most `TOP_DROP`, and a pile run long enough to settle (`SETTLE_STEPS`) at rest by its
-    last step."""
+    `DISPLACED_FRACTION` of the boxes displaced, and of a scene built at rest (not in
+    `rbgen.sanity.DROPPED_SCENES`) at most as many moving faster than
+    `rbgen.sanity.RESTING_SPEED` at the end (where the record has the count), the BoxBox
+    lattice's top layer dropped at most `TOP_DROP`, and a pile run long enough to settle
+    (`SETTLE_STEPS`) at rest by its last step."""
     s = result["sanity"]
     problems = [
         f"{s[key]} {label}" for key, label in (("nans", "NaN"), ("sunk", "sunk")) if s.get(key)
@@ -227,6 +239,11 @@ def holds(result: dict) -> tuple[bool, list[str]]:
         and (s.get("displaced") or 0) > DISPLACED_FRACTION * result["bodies"]
     ):
         problems.append(f"{s['displaced']} displaced")
+    if (
+        result["scene"] not in DROPPED_SCENES
+        and (s.get("moving") or 0) > DISPLACED_FRACTION * result["bodies"]
+    ):
+        problems.append(f"{s['moving']} moving faster than {RESTING_SPEED} m/s")
     drops = s.get("layer_drop") or []
     if result["scene"] == "boxbox" and drops and drops[-1] > TOP_DROP:
         problems.append(f"top layer dropped {100 * drops[-1]:.1f} cm")
@@ -251,7 +268,8 @@ def format_result(r: dict) -> str:
         f"{r['scene']} {r['bodies']:,}{fallback}: {r['ms']:.2f} ms/step "
         f"({r['ms_spread'][0]:.2f}-{r['ms_spread'][1]:.2f}), {r['launches_per_step']} "
         f"launches, {r['blocking_reads_per_step']} blocking reads; NaN {s['nans']}, sunk "
-        f"{s['sunk']}, displaced {s['displaced']}, max speed {s['max_speed']:.3f} m/s"
+        f"{s['sunk']}, displaced {s['displaced']}{moving_text(r['scene'], s.get('moving'))}, "
+        f"max speed {s['max_speed']:.3f} m/s"
         f"{drop}: {verdict}"
     )
 
@@ -480,8 +498,8 @@ def _sanity(r: dict) -> str:
         f", worst layer drop {worst_drop_mm(r['scene'], drops):.0f} mm" if len(drops) > 1 else ""
     )
     text = (
-        f"NaN {s['nans']}, sunk {s['sunk']}, {displaced_text(r['scene'], s['displaced'])}, "
-        f"max speed {s['max_speed']:.2f} m/s{worst}"
+        f"NaN {s['nans']}, sunk {s['sunk']}, {displaced_text(r['scene'], s['displaced'])}"
+        f"{moving_text(r['scene'], s.get('moving'))}, max speed {s['max_speed']:.2f} m/s{worst}"
     )
     return text if r["holds"] else f"**does not hold** ({', '.join(r['problems'])}): {text}"
 

@@ -285,7 +285,8 @@ def run_scene(
     elapsed = sum(seconds for seconds, _ in blocks)  # (without the progress read-backs)
     stats = world.statistics()
     positions = world.positions[ids]
-    speeds = np.linalg.norm(world.linear_velocities[ids], axis=1)
+    velocities = world.linear_velocities[ids]
+    speeds = np.linalg.norm(velocities, axis=1)
     summary = {
         "scene": name,
         "device": world.runtime.traits.device_name,
@@ -325,11 +326,21 @@ def run_scene(
         "ms_per_step_blocks": block_ms,
         "batches_blocks": [b for b, _ in block_counts],
         "manifolds_blocks": [m for _, m in block_counts],
-        **sanity.settling(start, positions),  # displaced, layer_drop
+        # displaced, layer_drop, moving (of the boxes built at rest that do not overhang)
+        **sanity.settling(start, positions, velocities, _resting(name, start, half)),
     }
     if progress:
         print(format_summary(summary), flush=True)
     return summary
+
+
+def _resting(name: str, start: np.ndarray, half: float):
+    """The boxes of scene ``name`` that should rest (`rbgen.sanity.settling`'s ``resting``):
+    those that do not overhang (cubes of half extent ``half``: `rbgen.sanity.overhanging`);
+    None (every body) for a scene built in the air, whose count is shown but not judged."""
+    if name in sanity.DROPPED_SCENES:
+        return None
+    return ~sanity.overhanging(start, np.full(3, half))
 
 
 def format_summary(s: dict) -> str:
@@ -344,8 +355,9 @@ def format_summary(s: dict) -> str:
             else "Jacobi solver, no batching"
         )
         + f"; sanity: NaNs {s['nans']}, "
-        f"sunk {s['sunk']}, {sanity.displaced_text(s['scene'], s.get('displaced', 0))}, "
-        f"max speed {s['max_speed']:.3f} m/s, overflows {s['overflows']}, "
+        f"sunk {s['sunk']}, {sanity.displaced_text(s['scene'], s.get('displaced', 0))}"
+        f"{sanity.moving_text(s['scene'], s.get('moving'))}, max speed {s['max_speed']:.3f} m/s, "
+        f"overflows {s['overflows']}, "
         f"last box moved {100 * s['last_box_moved']:.2f} cm"
         + _layer_drops(sanity.holding_drops(s["scene"], s.get("layer_drop")))
     )

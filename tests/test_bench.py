@@ -46,7 +46,8 @@ def test_quick_bench_json_follows_the_schema(quick_record):
         assert r["holds"] is (r["problems"] == [])
         if r["scene"] != "box_pile":  # (20 steps in, the pile is still landing)
             assert s["nans"] == 0 and s["sunk"] == 0
-            assert r["holds"] is (s["displaced"] <= bench.DISPLACED_FRACTION * r["bodies"])
+            limit = bench.DISPLACED_FRACTION * r["bodies"]
+            assert r["holds"] is (s["displaced"] <= limit and s["moving"] <= limit)
     boxbox = record["results"][0]
     assert boxbox["bodies"] == 1000 and len(boxbox["sanity"]["layer_drop"]) == 10
 
@@ -125,6 +126,64 @@ def test_a_dropped_pile_counts_its_bodies_moved_sideways_without_judging_them():
     assert displaced_text("pyramid", 7) == "displaced 7"
 
 
+def test_overhanging_boxes_are_those_whose_centre_is_on_the_edge_of_their_support():
+    """`sanity.overhanging` against brute force on BoxBox lattices of odd sizes (every pair
+    of boxes of adjacent layers, the bounding rectangle of their shared footprints), and
+    the closed form: every layer above the ground has one edge row along x and one along
+    z whose centres sit on the edge of the layer below, (ny - 1)(nx + nz - 1) boxes."""
+    from rbgen import scenes
+
+    for dims in ((1, 1, 1), (3, 4, 2), (5, 3, 7), (1, 6, 1)):
+        scene = scenes.boxbox_scene(*dims)
+        p = scene.positions.astype(float)
+        mask = sanity.overhanging(p, scene.half_extents)
+        brute = np.zeros(len(p), bool)
+        for i, (x, y, z) in enumerate(p):
+            below = [q for q in p if abs(q[1] - (y - 2)) < 1e-6]
+            if y < 1.5:
+                continue  # (the ground holds the lowest layer)
+            shared = [
+                (max(x, q[0]) - 1, min(x, q[0]) + 1, max(z, q[2]) - 1, min(z, q[2]) + 1)
+                for q in below
+            ]
+            shared = [r for r in shared if r[1] > r[0] and r[3] > r[2]]
+            brute[i] = not shared or not (
+                min(r[0] for r in shared) < x < max(r[1] for r in shared)
+                and min(r[2] for r in shared) < z < max(r[3] for r in shared)
+            )
+        nx, ny, nz = dims
+        assert np.array_equal(mask, brute), dims
+        assert mask.sum() == (ny - 1) * (nx + nz - 1), dims
+    assert not sanity.overhanging(np.zeros((0, 3)), np.ones(3)).any()
+
+
+def test_a_lattice_whose_boxes_keep_moving_does_not_hold():
+    """A stack can keep its layers' heights while its boxes fall and are pushed back up
+    every substep: more than `DISPLACED_FRACTION` of a lattice's boxes faster than
+    `RESTING_SPEED` at the end fails it, where a dropped scene's moving bodies are shown
+    but not judged, and a record from before the count (no ``moving``) is judged as it
+    was."""
+    sanity = {
+        "nans": 0,
+        "sunk": 0,
+        "displaced": 0,
+        "layer_drop": [0.0, 0.001],
+        "max_speed": 0.3,
+        "overflows": 0,
+        "last_box_moved": 0.0,
+        "moving": 6,
+    }
+    lattice = {"scene": "boxbox", "bodies": 1000, "sanity": sanity, "warmup": 0, "steps": 120}
+    assert bench.holds(lattice) == (False, ["6 moving faster than 0.05 m/s"])
+    assert bench.holds({**lattice, "sanity": {**sanity, "moving": 5}}) == (True, [])
+    old = {key: value for key, value in sanity.items() if key != "moving"}
+    assert bench.holds({**lattice, "sanity": old}) == (True, [])
+    assert "moving" not in bench._sanity({**lattice, "sanity": old, "holds": True})
+    pile = {**lattice, "scene": "box_pile", "steps": 100}
+    pile["holds"], pile["problems"] = bench.holds(pile)
+    assert pile["holds"] and "moving 6 (not judged: dropped)" in bench._sanity(pile)
+
+
 def test_validate_names_what_is_missing():
     with pytest.raises(RbgenError, match="lacks"):
         bench.validate({"schema": bench.SCHEMA})
@@ -164,6 +223,22 @@ def test_settling_counts_displaced_boxes_and_layer_drops():
     assert sanity.settling(np.zeros((0, 3)), np.zeros((0, 3))) == {"displaced": 0, "layer_drop": []}
 
 
+def test_settling_counts_the_boxes_that_are_not_at_rest():
+    """With the velocities, ``moving`` counts the boxes faster than `RESTING_SPEED` (m/s,
+    the length of the velocity): at the speed is at rest, a NaN is moving."""
+    start = np.zeros((5, 3))
+    r = sanity.RESTING_SPEED
+    velocities = np.array(
+        [[0, 0, 0], [r, 0, 0], [0.6 * r, 0, 0.81 * r], [0, -1, 0], [np.nan, 0, 0]], float
+    )
+    result = sanity.settling(start, start, velocities)
+    assert result["moving"] == 3  # (0.6^2 + 0.81^2 > 1: the third is just faster)
+    assert "moving" not in sanity.settling(start, start)
+    resting = np.array([True, True, False, True, False])  # (the others are not judged)
+    assert sanity.settling(start, start, velocities, resting)["moving"] == 1
+    assert sanity.settling(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)))["moving"] == 0
+
+
 def test_the_summary_line_shows_the_layer_drops():
     """`rbgen run` / `rbgen demo`'s summary line carries the start layers' median drops in
     mm, as `rbgen bench`'s lines do: every layer up to 12 (bottom first), else the top
@@ -190,6 +265,8 @@ def test_the_summary_line_shows_the_layer_drops():
     }
     line = format_summary({**summary, "layer_drop": [0.0, 0.002, 0.0135]})
     assert line.endswith("layer drops (mm, bottom to top) 0.0 2.0 13.5")
+    assert "moving" not in line  # (not measured)
+    assert "displaced 0, moving 2, max speed" in format_summary({**summary, "moving": 2})
     drops = [0.001 * k for k in range(20)]
     drops[7] = -0.05
     line = format_summary({**summary, "layer_drop": drops})
