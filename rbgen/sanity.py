@@ -37,6 +37,14 @@ DROPPED_SCENES = ("box_pile", "ragdolls", "terrain")
 SPREADING_SCENES = ("ragdolls",)
 
 
+def start_layers(positions: np.ndarray) -> tuple[int, np.ndarray]:
+    """How many layers the start ``positions`` ((N, 3), y up) form (heights within
+    `LAYER_TOLERANCE`), and each box's layer, lowest 0."""
+    heights = np.round(np.asarray(positions, float)[:, 1] / LAYER_TOLERANCE).astype(np.int64)
+    layers, layer_of = np.unique(heights, return_inverse=True)
+    return len(layers), layer_of
+
+
 def settling(start: np.ndarray, end: np.ndarray, velocities=None, resting=None) -> dict:
     """``{"displaced": int, "layer_drop": [median fall (m) of each start layer, lowest
     first]}`` of boxes from ``start`` to ``end`` ((N, 3) centres, y up), and with
@@ -54,10 +62,9 @@ def settling(start: np.ndarray, end: np.ndarray, velocities=None, resting=None) 
         return {"displaced": 0, "layer_drop": [], **moving}
     sideways = np.hypot(end[:, 0] - start[:, 0], end[:, 2] - start[:, 2])
     displaced = int(np.sum(~(sideways <= DISPLACED)))  # (a NaN counts as displaced)
-    heights = np.round(start[:, 1] / LAYER_TOLERANCE).astype(np.int64)
-    layers, layer_of = np.unique(heights, return_inverse=True)
+    layers, layer_of = start_layers(start)
     drop = start[:, 1] - end[:, 1]
-    medians = [float(np.median(drop[layer_of == k])) for k in range(len(layers))]
+    medians = [float(np.median(drop[layer_of == k])) for k in range(layers)]
     return {"displaced": displaced, "layer_drop": medians, **moving}
 
 
@@ -73,13 +80,12 @@ def overhanging(positions: np.ndarray, half_extents) -> np.ndarray:
     result = np.zeros(len(positions), bool)
     if len(positions) == 0:
         return result
-    heights = np.round(positions[:, 1] / LAYER_TOLERANCE).astype(np.int64)
-    layers, layer_of = np.unique(heights, return_inverse=True)
+    layers, layer_of = start_layers(positions)
     # (one box a cell of 2 hx by 2 hz within a layer: two boxes of one layer closer
     # than that in both x and z would overlap)
     cells = np.floor(positions[:, [0, 2]] / (2 * np.array([hx, hz]))).astype(np.int64)
     tolerance = 1e-6 * max(hx, hz)
-    for k in range(1, len(layers)):
+    for k in range(1, layers):
         upper = np.flatnonzero(layer_of == k)
         lower = np.flatnonzero(layer_of == k - 1)
         keys = cells[lower, 0] * (1 << 32) + cells[lower, 1]
