@@ -108,10 +108,11 @@ BASELINE = "default"
 def _holds(n: int, s: dict) -> bool:
     """Whether a lattice of ``n`` boxes holds (the issue's bar, and at rest)."""
     top = s["layer_drop"][-1] if s["layer_drop"] else 0.0
+    limit = bench.DISPLACED_FRACTION * n
     return (
-        s["displaced"] <= 0.005 * n
-        and s.get("moving", 0) <= 0.005 * n
-        and top <= 0.02
+        s["displaced"] <= limit
+        and s.get("moving", 0) <= limit
+        and top <= bench.TOP_DROP
         and s["nans"] == 0
     )
 
@@ -180,7 +181,9 @@ def window(n: int, trace: list[dict], start: int) -> dict:
         "displaced_max": worst,
         "moving_max": moving,
         "end_median_speed": late[-1]["median_speed"],
-        "holds": worst <= 0.005 * n and moving <= 0.005 * n and max(tops) <= 0.02,
+        "holds": worst <= bench.DISPLACED_FRACTION * n
+        and moving <= bench.DISPLACED_FRACTION * n
+        and max(tops) <= bench.TOP_DROP,
     }
 
 

@@ -59,7 +59,8 @@ QUICK_SCENES = (("boxbox", 1_000, 60, 5), ("box_pile", 1_000, 120, 0), ("pyramid
 #: a pile run for `SETTLE_STEPS` steps or more moves slower than this (m/s) at its end
 REST_SPEED = 0.1
 #: a scene holds with at most this fraction of its boxes displaced (the BoxBox lattice's
-#: overhanging edge boxes, whose centres sit over the edge of the box below, may topple)
+#: overhanging edge boxes, whose centres sit over the edge of the box below, may topple),
+#: and, built at rest, at most this fraction moving (`rbgen.sanity.settling`)
 DISPLACED_FRACTION = 0.005
 #: and the median drop of the BoxBox lattice's top layer at most this (m)
 TOP_DROP = 0.02
