@@ -53,6 +53,18 @@ def random_triangles(rng, n: int) -> np.ndarray:
     return np.array(out)
 
 
+def inside_prism(t: np.ndarray, p: np.ndarray) -> float:
+    """How far p's projection on triangle t's plane lies inside it (< 0: beside it),
+    in float64."""
+    normal = np.cross(t[1] - t[0], t[2] - t[0])
+    normal /= np.linalg.norm(normal)
+    return min(
+        float(np.cross(normal, t[(k + 1) % 3] - t[k]) @ (p - t[k]))
+        / np.linalg.norm(t[(k + 1) % 3] - t[k])
+        for k in range(3)
+    )
+
+
 def triangle_world(rng, n: int, shapes: list):
     """A mesh of n separate random triangles (body 0) and one body per triangle, of a
     random shape of ``shapes``, placed about its triangle (half of them touching)."""
@@ -234,8 +246,10 @@ def test_capsule_triangle_matches_reference(runtime, rng):
 @pytest.mark.parametrize("kind", ["box", "hull"])
 def test_convex_triangle_matches_reference(runtime, rng, kind):
     """Box or hull: the separating-axis answer with the triangle as a two-sided polygon,
-    except that an axis pushing the shape through the triangle, away from the side its
-    centre is on, gives way to the triangle's normal facing the centre."""
+    except that a penetrating axis pushing the shape through the triangle, away from the
+    side its centre is on, while the centre lies over the triangle, gives way to the
+    triangle's normal facing the centre (a separating axis, or a shape beside the
+    triangle, keeps the answer: `test_a_hull_beside_a_convex_fold_keeps_its_gap`)."""
     n = 500
     shapes = (
         [Box(rng.uniform(0.2, 0.9, 3)) for _ in range(3)]
@@ -267,10 +281,11 @@ def test_convex_triangle_matches_reference(runtime, rng, kind):
         height = normal @ (bodies["position"][i + 1, :3] - t[0])
         facing = normal if height >= 0 else -normal
         through = answer.axis @ facing
-        if abs(height) < 1e-4 or abs(through) < 1e-4:
+        over = inside_prism(t, bodies["position"][i + 1, :3])
+        if abs(height) < 1e-4 or abs(through) < 1e-4 or abs(over) < 1e-4:
             continue  # (a float32 coin toss)
         axis, separation = answer.axis, answer.separation
-        if through > 0:
+        if through > 0 and answer.separation < 0 and over > 0:
             axis = -facing
             separation = float((t @ axis).min() - (shape.vertices @ axis).max())
         assert (i + 1 in found) == (answer.separation <= 0), (i, answer.separation)
@@ -357,6 +372,42 @@ def test_a_sharp_ridge_keeps_its_edge_normal(runtime):
     for m in found:
         np.testing.assert_allclose(m["normal"][:3], (0, 1, 0), atol=1e-5)
         assert m["points"][0, 3] == pytest.approx(-0.01, abs=1e-5)
+
+
+@pytest.mark.parametrize("kind", ["box", "hull"])
+@pytest.mark.parametrize("gap", [0.02, -0.005])
+def test_a_hull_beside_a_convex_fold_keeps_its_gap(runtime, kind, gap):
+    """A box (or the same box as a hull) lying on a slope that falls away 15 degrees
+    from a flat plateau (a convex, active fold), its side ``gap`` from the fold line
+    (sunk by as much where the gap is negative). Its centre lies above the plateau's
+    plane but beside the plateau, and the slope runs under that plane extended: the
+    plateau's contacts, if any, are as deep as the true overlap (gap, if < 0), never the
+    depth below the plane extended (16 cm), which kicked a resting hull up by decimetres
+    on a terrain."""
+    slope = np.radians(15.0)
+    c, s = np.cos(slope), np.sin(slope)
+    v = np.array(
+        [[-2, 0, 0], [-2, 0, 2], [0, 0, 0], [0, 0, 2], [2, -2 * s / c, 0], [2, -2 * s / c, 2]],
+        float,
+    )
+    mesh = rbgen.TriangleMesh(v, np.array([[0, 1, 2], [2, 1, 3], [2, 3, 4], [4, 3, 5]]))
+    half = np.array([0.3, 0.2, 0.3])
+    corners = np.array(np.meshgrid(*[(-h, h) for h in half], indexing="ij")).reshape(3, -1).T
+    shape = Box(half) if kind == "box" else ConvexHull(corners, name="box hull")
+    table = ShapeTable()
+    index = [table.add(mesh), table.add(shape)]
+    down, up = np.array([c, -s, 0.0]), np.array([s, c, 0.0])  # along and off the slope
+    sink = min(gap, 0.0)
+    centre = (half[0] + gap) * down + (half[1] + sink) * up + (0.0, 0.0, 1.0)
+    assert centre[1] > 0.0 and centre[0] > 0.0  # above the plateau's plane, beside it
+    turn = (0.0, 0.0, -np.sin(slope / 2), np.cos(slope / 2))  # lies flat on the slope
+    bodies = make_bodies(index, [np.zeros(3), centre], [(0, 0, 0, 1), turn])
+    pairs = layouts.PAIR.zeros(4)
+    pairs["a"], pairs["b"], pairs["sub"] = 0, 1, np.arange(1, 5)
+    found = find_contacts(runtime, table, bodies, pairs, margin=0.05)
+    deepest = min(float(m["points"][: m["point_count"], 3].min()) for m in found)
+    assert len(found) >= 2  # the slope holds the box
+    assert deepest == pytest.approx(sink, abs=2e-3)
 
 
 @pytest.mark.parametrize("n", [0, 1, 17])

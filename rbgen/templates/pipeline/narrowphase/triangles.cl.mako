@@ -19,9 +19,10 @@
  * both extents; a hull: only the pairs of a hull edge and a triangle edge that form a
  * face of the Minkowski difference, found on the Gauss map and measured between the
  * edges, which scales to large hulls). When the best axis's nearest triangle feature
- * is inactive, or when it would push the shape through to the side its centre is not
- * on, the triangle's normal (facing the centre) is used instead (the part of the shape
- * over the triangle; what lies beyond that feature is its neighbour's). A face axis clips the other
+ * is inactive, or when it penetrates and would push a shape whose centre lies over the
+ * triangle through to the side its centre is not on, the triangle's normal (facing the
+ * centre) is used instead (the part of the shape over the triangle; what lies beyond
+ * that feature is its neighbour's). A face axis clips the other
  * side's polygon against the reference face's side planes (Sutherland-Hodgman; up to
  * ${max_clip} points: faces have at most ${max_face_vertices} vertices), an edge axis gives
  * the closest points of the two edges; at most four points are kept (the deepest, the
@@ -396,13 +397,20 @@ ${queued_pair()}
     bool on_inactive = (reference == 1u && !face_active) || (reference == 2u && !edge_active);
     if (on_inactive)
         best = normal_axis, reference = 0u;
-    /* nor is an axis that would push the shape through the triangle, away from the side
-     * its centre is on (a thin part driven past the plane by a fast impact, where the
-     * least penetration lies beyond the surface and a neighbour pushes back: the
-     * sphere and capsule kernels likewise take the centre's side): the normal facing
-     * the centre is, with the depth along it */
+    /* nor is a penetrating axis that would push the shape through the triangle, away
+     * from the side its centre is on, while the centre lies over the triangle (a thin
+     * part driven past the plane by a fast impact, where the least penetration lies
+     * beyond the surface and a neighbour pushes back: the sphere and capsule kernels
+     * likewise take the centre's side): the normal facing the centre is, with the depth
+     * along it. A separating axis stays (it is a true normal), and so does one of a
+     * shape whose centre lies beside the triangle: beside a convex fold the shape lies
+     * below the triangle's plane extended, and the depth along its normal would be
+     * that of the plane, not of the triangle (a resting hull kicked up by decimetres) */
     float centre_side = facing(&tri, shape_in_mesh.position);
-    bool through = centre_side * dot3(best.xyz, tri.normal) > 0.0f;
+    uint centre_over;
+    closest_on_triangle(&tri, shape_in_mesh.position, &centre_over);
+    bool through = best.w < 0.0f && centre_over == TRIANGLE_FACE &&
+                   centre_side * dot3(best.xyz, tri.normal) > 0.0f;
     if (through) {
         best = centre_side > 0.0f ? (float4)(-tri.normal, backward) : (float4)(tri.normal, forward);
         reference = 0u;
