@@ -228,6 +228,10 @@ def estimate(
         "constraint edges": (layouts.CONSTRAINT_EDGE.itemsize * max(1, m + j), GENERATIONS),
         "warm-start tables": (WORD * table_words(m), GENERATIONS),
     }
+    if solver == "pgs":
+        # the support chains' keys and links (made at the first step that runs them:
+        # rbgen.pipeline.solvers.support)
+        one["support chains"] = ((WORD + 2 * 4 * WORD) * n, 1)
     if sleeping:  # the sleep records, their redo backups, union-find nodes and marks
         one["sleep records"] = (layouts.BODY_SLEEP.itemsize * n, 1 + STEPS_IN_FLIGHT)
         one["sleep islands"] = (2 * WORD * n, 1)

@@ -169,6 +169,17 @@ STEP_SETTINGS = (
         literal_none=True,
     ),
     Option(
+        "support_chains",
+        False,
+        _optional(_flag),
+        "True, False or None (on wherever it can run: solver 'pgs', gravity, no joints)",
+        "after each substep's velocity sweeps, no body sinks into the body that holds it "
+        "up faster than their gap allows, along whole chains of supports at once "
+        "(rbgen.pipeline.solvers.support): a tall stack's weight reaches the ground "
+        "within the substep instead of a few layers a sweep; not momentum-conserving",
+        literal_none=True,
+    ),
+    Option(
         "warm_start",
         True,
         _flag,
@@ -375,6 +386,7 @@ class Settings:
     position_iterations: int
     relaxation: float
     shock_propagation: bool | None
+    support_chains: bool | None
     warm_start: bool
     contact_margin: float
     restitution_threshold: float

@@ -320,6 +320,7 @@ UNDER = 1024
         ("mixed", {}, True, 4),
         ("mixed", {"sleeping": True}, True, 2),
         ("mixed", {"sleeping": True}, False, 1),
+        ("mixed", {"support_chains": True}, False, 2),
         ("mixed", {"solver": "jacobi"}, True, 4),
         ("mixed", {"broadphase": "sap"}, True, 1),
         ("mixed", {"broadphase": "sap3"}, False, 3),

@@ -47,6 +47,8 @@ from .sleep import Sleeping
 from .solvers.jacobi import JacobiSolver
 from .solvers.pgs import PgsSolver, SubstepMotion
 from .solvers.substeps import ContactRefresh
+from .solvers.support import ROUNDS as SUPPORT_ROUNDS
+from .solvers.support import SupportBuffers, SupportChains, support_chains
 
 #: manifolds reserved per body before the first overflow (grown on demand)
 MANIFOLDS_PER_BODY = 4
@@ -568,6 +570,9 @@ class SolveStage(Stage):
             )
         self.integrator = Integrator(runtime, gravity=False, damping=True)
         self._refresh: ContactRefresh | None = None  # (made at the first substepped step)
+        # the support chains' records (a persistent solve) or launches (any other), made
+        # at the first step that runs them
+        self._support: SupportBuffers | None = None
         self.report_words = 1 if self.solver.barrier_state() is not None else 0
 
     def resize(self, body_count: int) -> None:
@@ -592,8 +597,17 @@ class SolveStage(Stage):
             if self._refresh is None:
                 self._refresh = ContactRefresh(self.runtime)
             deltas = self._refresh.body_deltas(b.count)
+        chains = support_chains(
+            s, "pgs" if isinstance(self.solver, PgsSolver) else "jacobi", self.joints is not None
+        )
         if getattr(self.solver, "integrates", False):  # one launch runs every substep
             assert isinstance(self.solver, PgsSolver)
+            support = None
+            if chains:
+                if self._support is None:
+                    self._support = SupportBuffers(self.runtime)
+                self._support.grow(b.count)
+                support = self._support
             motion = SubstepMotion(
                 substeps,
                 h,
@@ -605,6 +619,8 @@ class SolveStage(Stage):
                 s.penetration_recovery,
                 deltas,
                 step.kicks,
+                support,
+                SUPPORT_ROUNDS,
             )
             self.solver.solve(
                 constraints,
@@ -618,6 +634,11 @@ class SolveStage(Stage):
                 **joints,
             )
             return
+        chain_launches = None
+        if chains:
+            if not isinstance(self._support, SupportChains):
+                self._support = SupportChains(self.runtime)
+            chain_launches = self._support
         for k in range(substeps):
             if k > 0:
                 assert self._refresh is not None
@@ -643,6 +664,10 @@ class SolveStage(Stage):
                 same_geometry=k > 0,
                 **joints,
             )
+            if chain_launches is not None:
+                chain_launches.propagate(
+                    constraints, count, c.capacity, b.bodies, b.count, s.gravity, h, k
+                )
             self.integrator(
                 b.bodies,
                 b.count,

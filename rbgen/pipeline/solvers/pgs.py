@@ -92,6 +92,7 @@ from .common import (
     resolve_fast_math,
     shock_sweep,
 )
+from .support import SupportBuffers
 
 #: how the warm start reaches the velocities (see the template parameter "warm_start_mode")
 WARM_START_MODES = ("batched", "summed")
@@ -160,6 +161,11 @@ SOLVE_GROUPS = Signature(
         Arg("const float", "max_angular_step", when=_persistent),
         Arg("const float", "penetration_slop", when=_persistent),
         Arg("const float", "penetration_recovery", when=_persistent),
+        # the support chains after each substep's sweeps (`rbgen.pipeline.solvers.support`;
+        # support_rounds 0: none)
+        Arg("volatile __global uint*", "supports", when=_persistent),
+        Arg("volatile __global float4*", "links", when=_persistent),
+        Arg("const uint", "support_rounds", when=_persistent),
         Arg("const uint", "group_offset"),
         Arg("const uint", "group_end", when=_serial),
         Arg("const uint", "passes"),
@@ -197,6 +203,9 @@ SOLVE_BUFFERS = (
     "max_angular_step",
     "penetration_slop",
     "penetration_recovery",
+    "supports",
+    "links",
+    "support_rounds",
 )
 #: one launch's trailing scalars (bound once per kernel object)
 LAUNCH_SCALARS = (
@@ -292,6 +301,8 @@ TEMPLATE = KernelTemplate(
         "deltas": "inout",
         "joints": "inout",
         "geometry": "inout",
+        "supports": "inout",
+        "links": "inout",
     },
     requires=lambda v: _parameter_rules(v),
     build_options=fast_math_options,
@@ -419,6 +430,10 @@ class SubstepMotion:
     #: the prepare kernel's per-substep velocity changes of the step's external forces
     #: (2 float4 a body), None for a step without forces
     kicks: object = None
+    #: the support chains' records (`rbgen.pipeline.solvers.support.SupportBuffers`) and
+    #: their rounds a substep; None: no support chains
+    support: SupportBuffers | None = None
+    support_rounds: int = 0
 
     def arguments(self) -> dict:
         """The kernel arguments by name."""
@@ -435,6 +450,10 @@ class SubstepMotion:
             # (without forces the argument is bound to a buffer that is not read)
             "kicks": self.deltas if self.kicks is None else self.kicks,
             "kicked": np.uint32(self.kicks is not None),
+            # (without support chains the arguments are bound to buffers that are not read)
+            "supports": self.deltas if self.support is None else self.support.supports,
+            "links": self.deltas if self.support is None else self.support.links,
+            "support_rounds": np.uint32(self.support_rounds if self.support is not None else 0),
         }
 
 

@@ -181,6 +181,7 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
 <%include file="/common/quaternion.cl.mako"/>
 <%include file="/common/device_barrier.cl.mako"/>
 <%include file="/common/body_motion.cl.mako"/>
+<%include file="/pipeline/solvers/support_chains.cl.mako" args="velocity_space=velocity_space"/>
 % elif joints:
 <%include file="/common/quaternion.cl.mako"/>
 % else:
@@ -799,6 +800,38 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
     }
 }
 
+/* After a substep's sweeps, the support chains (support_chains.cl.mako), by every
+ * lane of the launch: every constraint of the batches (order[first .. end - 1]) offers
+ * its support (`flip`: offer_support), then the links, `rounds` rounds of pointer jumping between the two
+ * halves of `links` (body_count records each), and every body takes its gain along `up`
+ * (against gravity); a device-wide barrier after each phase. */
+inline void propagate_supports(__global const ContactConstraint* constraints,
+                               __global const uint* order, uint first, uint end,
+                               volatile __global Body* bodies, volatile __global uint* supports,
+                               volatile __global float4* links, uint body_count, uint lane,
+                               const uint rounds, const uint flip, const float3 up,
+                               const float slack, volatile __global uint* sync,
+                               __local uint* barrier_ok)
+{
+    const uint lanes = get_global_size(0);
+    for (uint j = first + lane; *barrier_ok && j < end; j += lanes)
+        offer_support(constraints, order[j], flip, supports);
+    device_barrier(sync, barrier_ok);
+    for (uint k = lane; *barrier_ok && k < body_count; k += lanes)
+        links[k] = support_link(constraints, bodies, supports, flip, up, slack, k);
+    device_barrier(sync, barrier_ok);
+    for (uint r = 0; r < rounds; ++r) {
+        const uint from = (r & 1u) * body_count, to = body_count - from;
+        for (uint k = lane; *barrier_ok && k < body_count; k += lanes)
+            links[to + k] = support_jump(links + from, k);
+        device_barrier(sync, barrier_ok);
+    }
+    const uint last = (rounds & 1u) * body_count;
+    for (uint k = lane; *barrier_ok && k < body_count; k += lanes)
+        support_apply(bodies, supports, up, links[last + k], k);
+    device_barrier(sync, barrier_ok);
+}
+
 /* Every lanes-th body from `lane` moves over the substep h that just ended (the
  * integrator's arithmetic: damping, rotation, the push applied and cleared,
  * the motion since the step began added to `deltas`, restarted when `first`),
@@ -1159,6 +1192,12 @@ void solve_groups(${signature("solve_groups")})
                 device_barrier(sync, &barrier_ok);
             }
         }
+        if (support_rounds > 0u && substeps > 0u && length(gravity.xyz) > 0.0f)
+            propagate_supports(constraints, order, offsets[0], offsets[batch_count], bodies,
+                               supports, links, body_count, lane, support_rounds,
+                               (substep & 1u) != 0u ? RB_SUPPORT_INDEX : 0u,
+                               -normalize(gravity.xyz),
+                               RB_SUPPORT_SLACK * length(gravity.xyz) * h, sync, &barrier_ok);
     }
     /* the last substep's motion: no integrator launch follows */
     if (substeps > 0)
