@@ -184,12 +184,14 @@ def estimate(
     sleeping: bool = False,
     contact_geometry: bool = False,
     forces: bool = False,
+    support_chains: bool = False,
 ) -> Estimate:
     """The device buffers of a World of ``sizes`` (``kinds``: the narrowphase's shape-type
     pair queues; ``sleeping``: the World option; ``contact_geometry``: the PGS solve keeps a
     `layouts.CONTACT_GEOMETRY` a constraint (the block solve's serial form and persistent
     launch); ``forces``: the World was given external forces, so it holds `FORCE_UPLOADS`
-    uploads, each a device array and a pinned host array). Each entry is (bytes of one
+    uploads, each a device array and a pinned host array; ``support_chains``: the World
+    option). Each entry is (bytes of one
     buffer, how many such buffers).
 
     Contract: every buffer that grows with the bodies, pairs, manifolds or joints has a
@@ -228,7 +230,7 @@ def estimate(
         "constraint edges": (layouts.CONSTRAINT_EDGE.itemsize * max(1, m + j), GENERATIONS),
         "warm-start tables": (WORD * table_words(m), GENERATIONS),
     }
-    if solver == "pgs":
+    if solver == "pgs" and support_chains:
         # the support chains' keys and links (made at the first step that runs them:
         # rbgen.pipeline.solvers.support)
         one["support chains"] = ((WORD + 2 * 4 * WORD) * n, 1)
@@ -436,6 +438,7 @@ class WorldMemory:
             "sleeping": bool(self.options.get("sleeping", False)),
             "contact_geometry": self._keeps_contact_geometry(),
             "forces": self._forces_given() if forces is None else bool(forces),
+            "support_chains": bool(self.options.get("support_chains", False)),
         }
 
     def _keeps_contact_geometry(self) -> bool:

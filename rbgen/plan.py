@@ -157,6 +157,10 @@ class Plan:
     #: the PGS block solve keeps a ContactGeometry record a contact for the step
     #: (`rbgen.pipeline.solvers.pgs`, the template parameter contact_geometry)
     contact_geometry: bool = False
+    #: the PGS solve stops bodies sinking into their supports along whole chains after
+    #: each substep's sweeps (`rbgen.pipeline.solvers.support`; the World option
+    #: ``support_chains``)
+    support_chains: bool = False
     reasons: dict = dataclasses.field(compare=False, default_factory=dict)
     sources: dict = dataclasses.field(compare=False, default_factory=dict)
 
@@ -207,6 +211,7 @@ class Plan:
             f"{solve}{', persistent launch' if self.persistent else ''}, "
             f"{'fast' if self.fast_math else 'exact'} math, {self.broadphase} broadphase"
             f"{', sleeping islands' if self.sleeping else ''}"
+            f"{', support chains' if self.support_chains else ''}"
         )
 
 
@@ -380,6 +385,22 @@ def derive_plan(
             )
         contact_geometry = False  # (tuned under another batching)
         sources["contact_geometry"], reasons["contact_geometry"] = "default", not_kept
+    support_chains = bool(options.get("support_chains", False))
+    sources["support_chains"] = "option" if support_chains else "default"
+    reasons["support_chains"] = (
+        "set by the World's options" if support_chains else "off unless the World's options ask"
+    )
+    if support_chains and solver != "pgs":
+        raise RbgenError(
+            f"support_chains=True follows the sweeps of solver 'pgs'; this World's solver is "
+            f"{solver!r}: set support_chains=False or build it with solver='pgs'"
+        )
+    if support_chains and joints:
+        support_chains = False
+        reasons["support_chains"] = (
+            "off in a World with joints: a jointed body is held by its joints too, which "
+            "the chains do not see"
+        )
     return Plan(
         device=traits.fingerprint,
         device_name=traits.device_name,
@@ -399,6 +420,7 @@ def derive_plan(
         joints=bool(joints),
         sleeping=bool(options.get("sleeping", False)),
         contact_geometry=bool(contact_geometry),
+        support_chains=support_chains,
         reasons=reasons,
         sources=sources,
     )

@@ -169,17 +169,6 @@ STEP_SETTINGS = (
         literal_none=True,
     ),
     Option(
-        "support_chains",
-        False,
-        _optional(_flag),
-        "True, False or None (on wherever it can run: solver 'pgs', gravity, no joints)",
-        "after each substep's velocity sweeps, no body sinks into the body that holds it "
-        "up faster than their gap allows, along whole chains of supports at once "
-        "(rbgen.pipeline.solvers.support): a tall stack's weight reaches the ground "
-        "within the substep instead of a few layers a sweep; not momentum-conserving",
-        literal_none=True,
-    ),
-    Option(
         "warm_start",
         True,
         _flag,
@@ -310,6 +299,17 @@ CONSTRUCTION_OPTIONS = (
         "set (rbgen.pipeline.sleep)",
     ),
     Option(
+        "support_chains",
+        False,
+        _flag,
+        "True or False",
+        "after each substep's velocity sweeps of the PGS solver, no body sinks into the "
+        "body that holds it up faster than their gap allows, along whole chains of supports "
+        "at once (rbgen.pipeline.solvers.support): a tall stack's weight reaches the ground "
+        "within the substep instead of a few layers a sweep; not momentum-conserving; off "
+        "in a World with joints (the chains do not see them) and without gravity",
+    ),
+    Option(
         "manifold_capacity",
         None,
         _optional(_integer(1, 1 << 30)),
@@ -386,7 +386,6 @@ class Settings:
     position_iterations: int
     relaxation: float
     shock_propagation: bool | None
-    support_chains: bool | None
     warm_start: bool
     contact_margin: float
     restitution_threshold: float

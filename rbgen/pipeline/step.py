@@ -48,7 +48,7 @@ from .solvers.jacobi import JacobiSolver
 from .solvers.pgs import PgsSolver, SubstepMotion
 from .solvers.substeps import ContactRefresh
 from .solvers.support import ROUNDS as SUPPORT_ROUNDS
-from .solvers.support import SupportBuffers, SupportChains, support_chains
+from .solvers.support import SupportBuffers, SupportChains
 
 #: manifolds reserved per body before the first overflow (grown on demand)
 MANIFOLDS_PER_BODY = 4
@@ -560,6 +560,7 @@ class SolveStage(Stage):
                 release_sweeps=plan.release_sweeps,
                 joints=plan.joints,
                 contact_geometry=plan.contact_geometry,
+                support_chains=plan.support_chains,
             )
         else:
             self.solver = JacobiSolver(
@@ -573,6 +574,7 @@ class SolveStage(Stage):
         # the support chains' records (a persistent solve) or launches (any other), made
         # at the first step that runs them
         self._support: SupportBuffers | None = None
+        self.support_chains = plan.solver == "pgs" and plan.support_chains
         self.report_words = 1 if self.solver.barrier_state() is not None else 0
 
     def resize(self, body_count: int) -> None:
@@ -597,9 +599,8 @@ class SolveStage(Stage):
             if self._refresh is None:
                 self._refresh = ContactRefresh(self.runtime)
             deltas = self._refresh.body_deltas(b.count)
-        chains = support_chains(
-            s, "pgs" if isinstance(self.solver, PgsSolver) else "jacobi", self.joints is not None
-        )
+        # (the plan's choice; without gravity they hold nothing up and change nothing)
+        chains = self.support_chains
         if getattr(self.solver, "integrates", False):  # one launch runs every substep
             assert isinstance(self.solver, PgsSolver)
             support = None

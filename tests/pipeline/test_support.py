@@ -186,10 +186,37 @@ def test_a_lattice_with_support_chains_sinks_less_while_its_loads_build(device):
 
 
 def test_support_chains_true_needs_the_pgs_solver():
-    world = rbgen.World(solver="jacobi", support_chains=True)
-    world.add_static(rbgen.Plane((0, 1, 0), 0.0))
-    world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0, 0.5, 0))
     with pytest.raises(RbgenError, match="support_chains=True .* solver 'pgs'"):
-        world.step(1 / 60)
+        rbgen.World(solver="jacobi", support_chains=True)
     with pytest.raises(RbgenError, match="support_chains"):
         rbgen.World(support_chains="yes")
+
+
+def test_support_chains_are_a_specialisation_of_their_own():
+    """The chains decide kernels (a construction option): a World without them runs a
+    solve with no chain phase in it, one with them on a persistent plan runs the
+    phases in its persistent launch, and a World with joints plans none (the chains do
+    not see joints), saying why."""
+
+    def solve_sources(world):
+        world.add_static(rbgen.Plane((0, 1, 0), 0.0))
+        world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0, 0.5, 0))
+        world.step(1 / 60)
+        return [
+            spec.source
+            for spec, _ in world.kernel_specs()
+            if spec.path == "pipeline/solvers/pgs.cl.mako"
+        ]
+
+    plain = solve_sources(rbgen.World("shape:h200"))
+    chained = solve_sources(rbgen.World("shape:h200", support_chains=True))
+    assert plain and chained
+    assert not any("propagate_supports" in s for s in plain)
+    assert any("propagate_supports" in s for s in chained)
+    world = rbgen.World(support_chains=True)
+    assert world.plan.support_chains
+    a = world.add_body(rbgen.Box((0.5, 0.5, 0.5)), mass=1.0, position=(0, 2, 0))
+    world.add_joint(rbgen.BallJoint(a, None, (0, 3, 0)))
+    world.step(1 / 60)
+    assert not world.plan.support_chains
+    assert "joints" in world.plan.reasons["support_chains"]

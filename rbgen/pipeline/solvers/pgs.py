@@ -108,6 +108,10 @@ def _persistent(values) -> bool:
     return values["persistent"]
 
 
+def _chained(values) -> bool:
+    return values["persistent"] and values["support_chains"]
+
+
 def _summed(values) -> bool:
     return values["warm_start_mode"] == "summed"
 
@@ -163,9 +167,9 @@ SOLVE_GROUPS = Signature(
         Arg("const float", "penetration_recovery", when=_persistent),
         # the support chains after each substep's sweeps (`rbgen.pipeline.solvers.support`;
         # support_rounds 0: none)
-        Arg("volatile __global uint*", "supports", when=_persistent),
-        Arg("volatile __global float4*", "links", when=_persistent),
-        Arg("const uint", "support_rounds", when=_persistent),
+        Arg("volatile __global uint*", "supports", when=_chained),
+        Arg("volatile __global float4*", "links", when=_chained),
+        Arg("const uint", "support_rounds", when=_chained),
         Arg("const uint", "group_offset"),
         Arg("const uint", "group_end", when=_serial),
         Arg("const uint", "passes"),
@@ -284,6 +288,14 @@ TEMPLATE = KernelTemplate(
             "(loads in place of arithmetic on each visit's chain)",
         ),
         Param(
+            "support_chains",
+            (False, True),
+            "persistent launch: after each substep's sweeps, the support chains' phases "
+            "(rbgen.pipeline.solvers.support: a body stops sinking into its support, along "
+            "whole chains); off, or any other launch: none in the kernel (other launches "
+            "run the chains' own kernels)",
+        ),
+        Param(
             "warm_start_mode",
             WARM_START_MODES,
             "batched: the warm start is a sweep over the batches (one batch step per "
@@ -325,6 +337,7 @@ def default_values(
         "persistent": persistent,
         "fast_math": resolve_fast_math(traits, None),
         "joints": False,
+        "support_chains": False,
         "fold_substeps": default_fold_substeps(persistent),
         "warm_start_mode": "summed"
         if persistent and traits.has_extension(INT64_ATOMICS)
@@ -374,6 +387,11 @@ def _parameter_rules(values: dict) -> str | None:
             "contact_geometry=True needs normal_solve='block' (the geometry is its block's) "
             "in the serial form or a persistent launch (the launches that derive the records "
             "come before every sweep that reads them)"
+        )
+    if values["support_chains"] and not values["persistent"]:
+        return (
+            "support_chains=True needs persistent=True (other solves launch the chains' "
+            "own kernels after their sweeps: rbgen.pipeline.solvers.support.SupportChains)"
         )
     if values["warm_start_mode"] == "summed" and not values["persistent"]:
         return (
@@ -450,10 +468,16 @@ class SubstepMotion:
             # (without forces the argument is bound to a buffer that is not read)
             "kicks": self.deltas if self.kicks is None else self.kicks,
             "kicked": np.uint32(self.kicks is not None),
-            # (without support chains the arguments are bound to buffers that are not read)
-            "supports": self.deltas if self.support is None else self.support.supports,
-            "links": self.deltas if self.support is None else self.support.links,
-            "support_rounds": np.uint32(self.support_rounds if self.support is not None else 0),
+            # (a kernel with the support chains' phases: `PgsSolver`, support_chains)
+            **(
+                {}
+                if self.support is None
+                else {
+                    "supports": self.support.supports,
+                    "links": self.support.links,
+                    "support_rounds": np.uint32(self.support_rounds),
+                }
+            ),
         }
 
 
@@ -498,6 +522,7 @@ class PgsSolver(PushVelocities):
         release_sweeps: int | None = None,
         joints: bool = False,
         contact_geometry: bool | None = None,
+        support_chains: bool = False,
     ):
         self.runtime = runtime
         self.batcher = batcher
@@ -527,6 +552,7 @@ class PgsSolver(PushVelocities):
         )
         values["max_batches"] = int(batcher.max_batches)
         values["joints"] = bool(joints)
+        values["support_chains"] = bool(support_chains) and persistent
         values["fold_substeps"] = default_fold_substeps(persistent)
         check_release_sweeps(release_sweeps)
         self.release_sweeps = None if release_sweeps is None else int(release_sweeps)

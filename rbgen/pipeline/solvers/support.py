@@ -25,7 +25,6 @@ import pyopencl.cltypes as cltypes
 
 from ...codegen import KernelTemplate, compile_spec, work_group_size_param
 from ...device import Runtime
-from ...errors import RbgenError
 from .substeps import default_work_group_size  # (the same rule: per constraint or body)
 
 #: rounds of pointer jumping a substep: chains of up to 2^ROUNDS bodies are solved whole
@@ -47,24 +46,6 @@ TEMPLATE = KernelTemplate(
     roles={"supports": "inout", "links": "inout", "bodies": "inout"},
     defaults=lambda traits: {"work_group_size": default_work_group_size(traits)},
 )
-
-
-def support_chains(sweeps, solver: str = "pgs", joints: bool = False) -> bool:
-    """Whether a step runs the support chains under the step settings ``sweeps``: their
-    support_chains where it is True or False; where it is None, with the PGS ``solver``,
-    in a World without ``joints`` (a jointed body is held by its joints too, which the
-    chains do not see) and with gravity (a support holds a body up against it). True with
-    another solver is refused (its sweeps are not followed by the pass)."""
-    value = getattr(sweeps, "support_chains", False)
-    if value is True and solver != "pgs":
-        raise RbgenError(
-            f"support_chains=True follows the sweeps of solver 'pgs'; this World's solver is "
-            f"{solver!r}: set support_chains=False or build it with solver='pgs'"
-        )
-    gravity = np.asarray(getattr(sweeps, "gravity", (0.0, 0.0, 0.0)), float)
-    if value is None:
-        return solver == "pgs" and not joints and bool(np.any(gravity != 0.0))
-    return bool(value)
 
 
 class SupportBuffers:

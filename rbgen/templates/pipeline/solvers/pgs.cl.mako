@@ -181,7 +181,9 @@ ${cl_structs("Body", "BodyInertia", "ContactConstraint", "SplitVelocity",
 <%include file="/common/quaternion.cl.mako"/>
 <%include file="/common/device_barrier.cl.mako"/>
 <%include file="/common/body_motion.cl.mako"/>
+% if support_chains:
 <%include file="/pipeline/solvers/support_chains.cl.mako" args="velocity_space=velocity_space"/>
+% endif
 % elif joints:
 <%include file="/common/quaternion.cl.mako"/>
 % else:
@@ -800,9 +802,11 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
     }
 }
 
+% if support_chains:
 /* After a substep's sweeps, the support chains (support_chains.cl.mako), by every
  * lane of the launch: every constraint of the batches (order[first .. end - 1]) offers
- * its support (`flip`: offer_support), then the links, `rounds` rounds of pointer jumping between the two
+ * its support (`flip`: offer_support), then the links, `rounds` rounds of pointer
+ * jumping between the two
  * halves of `links` (body_count records each), and every body takes its gain along `up`
  * (against gravity); a device-wide barrier after each phase. */
 inline void propagate_supports(__global const ContactConstraint* constraints,
@@ -832,6 +836,7 @@ inline void propagate_supports(__global const ContactConstraint* constraints,
     device_barrier(sync, barrier_ok);
 }
 
+% endif
 /* Every lanes-th body from `lane` moves over the substep h that just ended (the
  * integrator's arithmetic: damping, rotation, the push applied and cleared,
  * the motion since the step began added to `deltas`, restarted when `first`),
@@ -1192,12 +1197,16 @@ void solve_groups(${signature("solve_groups")})
                 device_barrier(sync, &barrier_ok);
             }
         }
-        if (support_rounds > 0u && substeps > 0u && length(gravity.xyz) > 0.0f)
-            propagate_supports(constraints, order, offsets[0], offsets[batch_count], bodies,
-                               supports, links, body_count, lane, support_rounds,
-                               (substep & 1u) != 0u ? RB_SUPPORT_INDEX : 0u,
-                               -normalize(gravity.xyz),
-                               RB_SUPPORT_SLACK * length(gravity.xyz) * h, sync, &barrier_ok);
+% if support_chains:
+        /* (unconditional: a device-wide barrier under a branch costs PoCL a copy of what
+         * follows it; without gravity `up` is 0 and no body gains anything) */
+        const float g = length(gravity.xyz);
+        propagate_supports(constraints, order, offsets[0], offsets[batch_count], bodies,
+                           supports, links, body_count, lane, support_rounds,
+                           (substep & 1u) != 0u ? RB_SUPPORT_INDEX : 0u,
+                           g > 0.0f ? -gravity.xyz / g : (float3)(0.0f),
+                           RB_SUPPORT_SLACK * g * h, sync, &barrier_ok);
+% endif
     }
     /* the last substep's motion: no integrator launch follows */
     if (substeps > 0)
