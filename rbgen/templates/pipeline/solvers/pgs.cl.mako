@@ -804,11 +804,12 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
 
 % if support_chains:
 /* After a substep's sweeps, the support chains (support_chains.cl.mako), by every
- * lane of the launch: every constraint of the batches (order[first .. end - 1]) offers
- * its support (`flip`: offer_support), then the links, `rounds` rounds of pointer
- * jumping between the two
- * halves of `links` (body_count records each), and every body takes its gain along `up`
- * (against gravity); a device-wide barrier after each phase. */
+ * lane of the launch, in rounds + 3 phases with a device-wide barrier after each: every
+ * constraint of the batches (order[first .. end - 1]) offers its support (`flip`:
+ * offer_support); every body's link; `rounds` rounds of pointer jumping between the two
+ * halves of `links` (body_count records each); every body takes its gain along `up`
+ * (against gravity). One loop over the phases, so that the kernel has one more barrier
+ * site, not four: PoCL's compile time grows with the sites. */
 inline void propagate_supports(__global const ContactConstraint* constraints,
                                __global const uint* order, uint first, uint end,
                                volatile __global Body* bodies, volatile __global uint* supports,
@@ -818,22 +819,25 @@ inline void propagate_supports(__global const ContactConstraint* constraints,
                                __local uint* barrier_ok)
 {
     const uint lanes = get_global_size(0);
-    for (uint j = first + lane; *barrier_ok && j < end; j += lanes)
-        offer_support(constraints, order[j], flip, supports);
-    device_barrier(sync, barrier_ok);
-    for (uint k = lane; *barrier_ok && k < body_count; k += lanes)
-        links[k] = support_link(constraints, bodies, supports, flip, up, slack, k);
-    device_barrier(sync, barrier_ok);
-    for (uint r = 0; r < rounds; ++r) {
-        const uint from = (r & 1u) * body_count, to = body_count - from;
-        for (uint k = lane; *barrier_ok && k < body_count; k += lanes)
-            links[to + k] = support_jump(links + from, k);
+    for (uint phase = 0; phase < rounds + 3u; ++phase) {
+        if (phase == 0u) {
+            for (uint j = first + lane; *barrier_ok && j < end; j += lanes)
+                offer_support(constraints, order[j], flip, supports);
+        } else if (phase == 1u) {
+            for (uint k = lane; *barrier_ok && k < body_count; k += lanes)
+                links[k] = support_link(constraints, bodies, supports, flip, up, slack, k);
+        } else if (phase < rounds + 2u) {
+            const uint r = phase - 2u;
+            const uint from = (r & 1u) * body_count, to = body_count - from;
+            for (uint k = lane; *barrier_ok && k < body_count; k += lanes)
+                links[to + k] = support_jump(links + from, k);
+        } else {
+            const uint last = (rounds & 1u) * body_count;
+            for (uint k = lane; *barrier_ok && k < body_count; k += lanes)
+                support_apply(bodies, supports, up, links[last + k], k);
+        }
         device_barrier(sync, barrier_ok);
     }
-    const uint last = (rounds & 1u) * body_count;
-    for (uint k = lane; *barrier_ok && k < body_count; k += lanes)
-        support_apply(bodies, supports, up, links[last + k], k);
-    device_barrier(sync, barrier_ok);
 }
 
 % endif
