@@ -804,40 +804,43 @@ inline void refresh_batches(__global ContactConstraint* constraints, __global co
 
 % if support_chains:
 /* After a substep's sweeps, the support chains (support_chains.cl.mako), by every
- * lane of the launch, in rounds + 3 phases with a device-wide barrier after each: every
+ * lane of the launch, in rounds + 2 phases with a device-wide barrier after each: every
  * constraint of the batches (order[first .. end - 1]) offers its support (`flip`:
  * offer_support); every body's link; `rounds` rounds of pointer jumping between the two
- * halves of `links` (body_count records each); every body takes its gain along `up`
- * (against gravity). One loop over the phases, so that the kernel has one more barrier
- * site, not four: PoCL's compile time grows with the sites. */
+ * halves of `links` (body_count records each). Then every body takes its gain along `up`
+ * (against gravity), with no barrier after it: what follows is move_bodies, whose lane
+ * for body k is this one's (the same lanes-th bodies from `lane`), so it reads the
+ * velocity this lane wrote. `run` false (a solve without substeps, which moves
+ * nothing): none of it. One loop over the phases, so that the kernel has one more
+ * barrier site, not four: PoCL's compile time grows with the sites. */
 inline void propagate_supports(__global const ContactConstraint* constraints,
                                __global const uint* order, uint first, uint end,
                                volatile __global Body* bodies, volatile __global uint* supports,
                                volatile __global float4* links, uint body_count, uint lane,
-                               const uint rounds, const uint flip, const float3 up,
+                               const bool run, const uint rounds, const uint flip, const float3 up,
                                const float slack, volatile __global uint* sync,
                                __local uint* barrier_ok)
 {
     const uint lanes = get_global_size(0);
-    for (uint phase = 0; phase < rounds + 3u; ++phase) {
+    const uint phases = run ? rounds + 2u : 0u;
+    for (uint phase = 0; phase < phases; ++phase) {
         if (phase == 0u) {
             for (uint j = first + lane; *barrier_ok && j < end; j += lanes)
                 offer_support(constraints, order[j], flip, supports);
         } else if (phase == 1u) {
             for (uint k = lane; *barrier_ok && k < body_count; k += lanes)
                 links[k] = support_link(constraints, bodies, supports, flip, up, slack, k);
-        } else if (phase < rounds + 2u) {
+        } else {
             const uint r = phase - 2u;
             const uint from = (r & 1u) * body_count, to = body_count - from;
             for (uint k = lane; *barrier_ok && k < body_count; k += lanes)
                 links[to + k] = support_jump(links + from, k);
-        } else {
-            const uint last = (rounds & 1u) * body_count;
-            for (uint k = lane; *barrier_ok && k < body_count; k += lanes)
-                support_apply(bodies, supports, up, links[last + k], k);
         }
         device_barrier(sync, barrier_ok);
     }
+    const uint last = (rounds & 1u) * body_count;
+    for (uint k = lane; run && *barrier_ok && k < body_count; k += lanes)
+        support_apply(bodies, supports, up, links[last + k], k);
 }
 
 % endif
@@ -1203,10 +1206,12 @@ void solve_groups(${signature("solve_groups")})
         }
 % if support_chains:
         /* (unconditional: a device-wide barrier under a branch costs PoCL a copy of what
-         * follows it; without gravity `up` is 0 and no body gains anything) */
+         * follows it, so a solve without substeps, which moves nothing, runs no phase
+         * through the loop's count; without gravity `up` is 0 and no body gains
+         * anything) */
         const float g = length(gravity.xyz);
         propagate_supports(constraints, order, offsets[0], offsets[batch_count], bodies,
-                           supports, links, body_count, lane, support_rounds,
+                           supports, links, body_count, lane, substeps > 0u, support_rounds,
                            (substep & 1u) != 0u ? RB_SUPPORT_INDEX : 0u,
                            g > 0.0f ? -gravity.xyz / g : (float3)(0.0f),
                            RB_SUPPORT_SLACK * g * h, sync, &barrier_ok);
