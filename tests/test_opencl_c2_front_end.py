@@ -45,9 +45,9 @@ FRONT_END = [
 @pytest.mark.skipif(CLANG is None, reason="needs clang's OpenCL C front end")
 def test_generated_opencl_parses_as_opencl_c_2_for_nvptx(tmp_path):
     """Every template's default specialisation for the H200's traits, every persistent PGS
-    specialisation at 256 lanes a group and every exact PGS specialisation parses as
-    OpenCL C 2.0 for nvptx without an error; the failures name the specialisation and the
-    first errors."""
+    specialisation at 256 lanes a group (with the support chains' phases and without) and
+    every exact PGS specialisation parses as OpenCL C 2.0 for nvptx without an error; the
+    failures name the specialisation and the first errors."""
     traits = Runtime("shape:h200").traits
     # (the persistent launches as a GPU's World runs them: 256 lanes, fast math)
     gpu_persistent = pgs_specs(
@@ -56,6 +56,7 @@ def test_generated_opencl_parses_as_opencl_c_2_for_nvptx(tmp_path):
         normal_solves=("block",),
         lanes_work_group_size=256,
         fast_math=True,
+        support_chains=(False, True),
     )
     specs = default_specs(traits) + gpu_persistent + pgs_specs()
     assert len(specs) > 60  # (the three sets, none silently empty)

@@ -486,11 +486,13 @@ def pgs_specs(
     normal_solves=("block", "sequential"),
     lanes_work_group_size=64,
     fast_math=False,
+    support_chains=(False,),
 ):
     """Every reachable specialisation of the PGS template among the choices given (by
-    default every one, exact builds), by the rules between its parameters."""
+    default every one without the support chains, exact builds), by the rules between
+    its parameters."""
     specs = []
-    for form, persistent, warm, normal, joints, fold, geometry in itertools.product(
+    for form, persistent, warm, normal, joints, fold, geometry, chains in itertools.product(
         forms,
         persistent_choices,
         pgs.WARM_START_MODES,
@@ -498,6 +500,7 @@ def pgs_specs(
         (False, True),
         (False, True),
         (False, True),
+        support_chains,
     ):
         try:
             specs.append(
@@ -512,6 +515,7 @@ def pgs_specs(
                     joints=joints,
                     fold_substeps=fold,
                     contact_geometry=geometry,
+                    support_chains=chains,
                 )
             )
         except TemplateParameterError:
@@ -545,6 +549,10 @@ def test_kernel_signatures_are_the_declarations():
     # x 2 (fold_substeps: it changes the persistent launches alone), and the block solves of
     # the serial form and the persistent launches once more with contact_geometry
     assert len(specs) == 32 + 3 * 4
+    # the support chains' phases: a persistent launch's specialisation each
+    chained = pgs_specs(support_chains=(True,))
+    assert len(chained) == sum(spec.values["persistent"] for spec in specs)
+    specs += chained
     cases = [(spec, pgs.TEMPLATE) for spec in specs]
     cases += [
         (
