@@ -241,6 +241,7 @@ def test_exported_jacobi_solver_builds_standalone(runtime, tmp_path, persistent)
         ("ragdolls", {}),
         ("ragdolls", {"batching": "global"}),
         ("boxbox", {"sleeping": True}),
+        ("boxbox", {"support_chains": True}),
     ],
 )
 @pytest.mark.gpu_shape
@@ -249,7 +250,9 @@ def test_world_export_is_exactly_what_the_world_compiled(runtime, tmp_path, scen
     (recorded as it compiled, through its spec log) is exported byte for byte, with the
     same build options, nothing more, and the exported plan is the World's. A jointed
     scene (ragdolls) exports its joint stage and a solver that visits joints, with the
-    joint records among its arguments."""
+    joint records among its arguments. A World with support chains exports them: the
+    chains' phases in its persistent solve and their records among its arguments, or
+    the chains' own kernels beside any other solve."""
     from rbgen.codegen import SpecLog
     from rbgen.export import export_world
     from rbgen.harness import build_scene
@@ -287,6 +290,17 @@ def test_world_export_is_exactly_what_the_world_compiled(runtime, tmp_path, scen
         templates = {e["template"]: e for e in manifest["files"]}
         assert "pipeline/sleep.cl.mako" in templates
         assert templates["pipeline/prepare.cl.mako"]["params"]["sleeping"] is True
+    assert plan["choices"]["support_chains"] is bool(options.get("support_chains"))
+    if options.get("support_chains"):
+        templates = {e["template"]: e for e in manifest["files"]}
+        solver = templates["pipeline/solvers/pgs.cl.mako"]
+        if world.plan.persistent:
+            assert solver["params"]["support_chains"] is True
+            solve = next(k for k in solver["kernels"] if k["name"] == "solve_groups")
+            assert {"supports", "links", "support_rounds"} <= {a["name"] for a in solve["args"]}
+        else:
+            assert solver["params"]["support_chains"] is False
+            assert "pipeline/solvers/support.cl.mako" in templates
     if scene == "ragdolls":
         templates = {e["template"]: e for e in manifest["files"]}
         assert "pipeline/joints.cl.mako" in templates
