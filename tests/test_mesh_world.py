@@ -231,6 +231,43 @@ def chair(scale: float = 1.0) -> rbgen.Compound:
     )
 
 
+def test_a_hull_rocking_on_a_terrain_ridge_comes_to_rest(runtime, request):
+    """A known defect, reproduced: the terrain and hull of seed 775971128 of the test
+    below (where 1 run in about 60 fails), the hull set down at rest on a convex ridge
+    (an active edge) where that run left it rocking, at that test's solve (one substep of
+    10 + 4 sweeps). It should come to rest within 4 s."""
+    # (reproduced on CPU plans; a GPU plan takes another path from this state, which
+    # may or may not rest: not strict there)
+    request.applymarker(
+        pytest.mark.xfail(
+            strict=not runtime.traits.is_gpu,
+            reason=(
+                "contact solver owner: the hull, held by a 1 cm edge-edge penetration "
+                "on the ridge and a speculative point, rocks in a period-2 cycle at "
+                "0.066 m/s for ever; from this state it rests with contact_margin=0, "
+                "position_iterations=0 or penetration_recovery=0.1, not with 40 sweeps, "
+                "4 substeps, friction 1, the sequential normal solve, no shock sweep, "
+                "no warm start or a push target of 0 at separated points: the speculative "
+                "points and the push together, mechanism not isolated (CPU plans)"
+            ),
+        )
+    )
+    rng = np.random.default_rng(775971128)
+    vertices, triangles = reference.terrain(24, 1.0, rng, roughness=0.05)
+    hull = rbgen.ConvexHull(rng.normal(size=(12, 3)) * 0.3)
+    world = rbgen.World(runtime, substeps=1, iterations=10, position_iterations=4)
+    world.add_static(rbgen.TriangleMesh(vertices, triangles))
+    body = world.add_body(
+        hull,
+        mass=1.0,
+        position=(18.058926, 0.20587023, 12.547264),
+        orientation=(-0.7280135, -0.073194586, -0.072775975, 0.6777481),
+    )
+    for _ in range(240):
+        world.step(1 / 60)
+    assert np.linalg.norm(world.linear_velocities[body]) < 0.01
+
+
 @pytest.mark.gpu_shape
 def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
     """Boxes, hulls and compounds dropped on a rough height field (2 x 24 x 24 triangles,
