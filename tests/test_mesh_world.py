@@ -7,7 +7,7 @@ Physics, each against its closed form or the same scene on a plane:
 * a sphere rolls across the seams at the constant height of its radius, its speed
   5/7 of the start (rolling without slipping), as on a plane;
 * boxes, hulls and compounds dropped on a rough terrain come to rest (every speed below
-  5 cm/s after 5 s, none below the terrain; spheres and capsules roll on, but stay on it).
+  5 cm/s after 8 s, none below the terrain; spheres and capsules roll on, but stay on it).
 """
 
 from __future__ import annotations
@@ -271,16 +271,18 @@ def test_a_hull_rocking_on_a_terrain_ridge_comes_to_rest(runtime, request):
 @pytest.mark.gpu_shape
 def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
     """Boxes, hulls and compounds dropped on a rough height field (2 x 24 x 24 triangles,
-    heights +-15 cm) rest after 5 s: no NaN, speeds < 5 cm/s, no centre below the terrain
+    heights +-15 cm) rest after 8 s: no NaN, speeds < 5 cm/s, no centre below the terrain
     under it. Spheres and capsules roll without resistance: one that lands on a slope
     rolls on (at most the speed of a fall down the roughness, sqrt(10/7 g 0.3) = 2 m/s),
     so they are held to that and to staying on the terrain while over it (one may roll off
     its edge and fall; at least half stay), in a World of their own (on the same terrain:
     a ball rolling into a resting box would set it moving). The subject is the terrain's
-    contacts, so the solve is one substep of 10 + 4 sweeps, where everything rests by 5 s:
-    at the default efforts (4 of 3 + 1 on CPUs, 8 of 2 + 1 on GPUs) a rocking chair or hull
-    takes up to 8 s on some terrains (seed 1380154127: the chair at 0.09 m/s at 5 s, at
-    rest by 8 s), issue 24's slow settling at few sweeps a substep."""
+    contacts, so the solve is one substep of 10 + 4 sweeps, where nearly everything rests
+    by 5 s and a rocking hull by 8 s (seed 711678375: 0.16 m/s at 5 s, at rest by 5.5 s; at
+    the default efforts, 4 of 3 + 1 on CPUs and 8 of 2 + 1 on GPUs, seed 1380154127's chair
+    was at 0.09 m/s at 5 s, at rest by 8 s: issue 24's slow settling at few sweeps a
+    substep). A hull can also rock for ever on a ridge, a solver defect that
+    `test_a_hull_rocking_on_a_terrain_ridge_comes_to_rest` names (about 1 run in 60 here)."""
     vertices, triangles = reference.terrain(24, 1.0, rng, roughness=0.05)
     shapes = [
         rbgen.Box((0.3, 0.2, 0.25)),
@@ -302,7 +304,7 @@ def test_bodies_dropped_on_a_terrain_come_to_rest(runtime, rng):
             ).reshape(-1, 3)
             ids += list(world.add_bodies(shape, mass=1.0, positions=grid))
             kinds += [type(shape).__name__] * len(grid)
-        for _ in range(300):
+        for _ in range(480):
             world.step(1 / 60)
         p = world.positions[ids]
         speeds = np.linalg.norm(world.linear_velocities[ids], axis=1)
