@@ -571,10 +571,13 @@ class SolveStage(Stage):
             )
         self.integrator = Integrator(runtime, gravity=False, damping=True)
         self._refresh: ContactRefresh | None = None  # (made at the first substepped step)
-        # the support chains' records (a persistent solve) or launches (any other), made
-        # at the first step that runs them
+        # the support chains (the plan's choice; without gravity they hold nothing up and
+        # change nothing): a persistent solve's records, which its launch runs, or the
+        # chains' own kernels, which the substep loop launches (built here, at set-up)
         self._support: SupportBuffers | None = None
-        self.support_chains = plan.solver == "pgs" and plan.support_chains
+        if plan.support_chains:
+            integrates = getattr(self.solver, "integrates", False)
+            self._support = SupportBuffers(runtime) if integrates else SupportChains(runtime)
         self.report_words = 1 if self.solver.barrier_state() is not None else 0
 
     def resize(self, body_count: int) -> None:
@@ -599,16 +602,10 @@ class SolveStage(Stage):
             if self._refresh is None:
                 self._refresh = ContactRefresh(self.runtime)
             deltas = self._refresh.body_deltas(b.count)
-        # (the plan's choice; without gravity they hold nothing up and change nothing)
-        chains = self.support_chains
+        if self._support is not None:
+            self._support.grow(b.count)
         if getattr(self.solver, "integrates", False):  # one launch runs every substep
             assert isinstance(self.solver, PgsSolver)
-            support = None
-            if chains:
-                if self._support is None:
-                    self._support = SupportBuffers(self.runtime)
-                self._support.grow(b.count)
-                support = self._support
             motion = SubstepMotion(
                 substeps,
                 h,
@@ -620,7 +617,7 @@ class SolveStage(Stage):
                 s.penetration_recovery,
                 deltas,
                 step.kicks,
-                support,
+                self._support,
                 SUPPORT_ROUNDS,
             )
             self.solver.solve(
@@ -635,11 +632,7 @@ class SolveStage(Stage):
                 **joints,
             )
             return
-        chain_launches = None
-        if chains:
-            if not isinstance(self._support, SupportChains):
-                self._support = SupportChains(self.runtime)
-            chain_launches = self._support
+        chain_launches = self._support if isinstance(self._support, SupportChains) else None
         for k in range(substeps):
             if k > 0:
                 assert self._refresh is not None

@@ -166,7 +166,7 @@ SOLVE_GROUPS = Signature(
         Arg("const float", "penetration_slop", when=_persistent),
         Arg("const float", "penetration_recovery", when=_persistent),
         # the support chains after each substep's sweeps (`rbgen.pipeline.solvers.support`;
-        # support_rounds 0: none)
+        # support_rounds: its pointer-jumping rounds, `support.ROUNDS`)
         Arg("volatile __global uint*", "supports", when=_chained),
         Arg("volatile __global float4*", "links", when=_chained),
         Arg("const uint", "support_rounds", when=_chained),
